@@ -1,0 +1,32 @@
+# Two user-facing targets: `make demo` (the main job) and `make test`.
+# Both set up what they need themselves, idempotently: the system library
+# Open3D loads at import (libusb-1.0), a virtual environment and the package.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.vibrissa-installed
+OUT ?= out
+
+.PHONY: setup demo study test lint bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	bash scripts/ensure_system_deps.sh
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+demo: setup
+	$(VENV)/bin/vibrissa study paper -o $(OUT)/study
+
+test: setup
+	$(PY) -m ruff check vibrissa msgs wire nodes cli tests benchmarks
+	$(PY) -m mypy vibrissa msgs wire nodes cli
+	$(PY) -m pytest
+
+bench: setup
+	$(PY) benchmarks/bench_mechanics.py
+
+clean:
+	rm -rf $(VENV) $(OUT) build *.egg-info

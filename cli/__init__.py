@@ -1,1 +1,1 @@
-"""placeholder"""
+"""The ``vibrissa`` command line: mechanics commands, the launcher, bag and topic tools."""

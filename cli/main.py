@@ -1,0 +1,37 @@
+"""Entry point of the ``vibrissa`` command: one subcommand per job."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# Each module registers its subcommands with `register(subparsers)`; every subparser
+# sets `func(args) -> int`.
+_COMMAND_MODULES = ("mechanics", "launcher", "bag", "topic")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="vibrissa",
+        description="Vibrissa-like tactile sensing: simulate, reconstruct, run the node graph.",
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"vibrissa.cli.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"vibrissa.cli.{name}":
+                continue  # command not built yet
+            raise
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

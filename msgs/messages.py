@@ -1,0 +1,380 @@
+"""Message types on the wire: one frozen dataclass per type, SI units, frames in the field docs.
+
+Every field carries its wire spec in ``dataclasses.field(metadata=...)`` (kind, unit, shape,
+doc); the codec and ``json_schema`` read it from there, so a field is described once.
+Arrays held by a message are always read-only numpy arrays of the field's dtype: writeable
+inputs are copied on construction, so a message cannot change after it is made.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import functools
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int32]
+
+FLOAT64 = np.dtype("<f8")
+INT32 = np.dtype("<i4")
+
+# Field kinds of the wire spec.
+FLOAT = "float"
+INT = "int"
+STR = "str"
+ENUM = "enum"
+ARRAY = "array"
+STR_LIST = "str_list"
+STR_INT_MAP = "str_int_map"
+STR_STR_MAP = "str_str_map"
+
+NODE_STATES = ("starting", "ready", "running", "finished", "error")
+
+
+class ContactPhase(enum.IntEnum):
+    """Where the rod touches the surface: nowhere, at its tip, or tangentially along it."""
+
+    NONE = 0
+    TIP = 1
+    TANGENTIAL = 2
+
+
+class ContactStatus(enum.IntFlag):
+    """Bit flags of a reconstruction; the same values as ``vibrissa.reconstruct`` reports."""
+
+    OK = 0
+    NO_FORCE = 1
+    CURVATURE_NEVER_VANISHES = 2
+    CONTACT_BEYOND_ROD = 4
+    NON_FINITE_INPUT = 8
+    AXIAL_LOAD = 16
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """Wire description of one message field.
+
+    ``shape`` entries are ints or a symbol such as ``"N"`` that must take the same value in
+    every field of one message that uses it; ``length`` does the same for a string list.
+    """
+
+    kind: str
+    doc: str
+    unit: str = ""
+    dtype: np.dtype[Any] | None = None
+    shape: tuple[int | str, ...] = ()
+    enum: type[enum.IntEnum] | type[enum.IntFlag] | None = None
+    choices: tuple[str, ...] = ()
+    length: str = ""
+    optional: bool = False
+
+    @functools.cached_property
+    def dtype_str(self) -> str:
+        """``dtype.str`` of an array field, e.g. ``"<f8"`` (cached: numpy rebuilds it per call)."""
+        return self.dtype.str if self.dtype is not None else ""
+
+
+def _spec(**kwargs: Any) -> Any:
+    return field(metadata={"spec": FieldSpec(**kwargs)})
+
+
+def _optional(**kwargs: Any) -> Any:
+    return field(default=None, metadata={"spec": FieldSpec(optional=True, **kwargs)})
+
+
+def _number(unit: str, doc: str) -> Any:
+    return _spec(kind=FLOAT, unit=unit, doc=doc)
+
+
+def _count(doc: str) -> Any:
+    return _spec(kind=INT, doc=doc)
+
+
+def _text(doc: str, choices: tuple[str, ...] = ()) -> Any:
+    return _spec(kind=STR, doc=doc, choices=choices)
+
+
+def _array(
+    shape: tuple[int | str, ...], unit: str, doc: str, dtype: np.dtype[Any] = FLOAT64
+) -> Any:
+    return _spec(kind=ARRAY, shape=shape, unit=unit, doc=doc, dtype=dtype)
+
+
+def _stamp() -> Any:
+    return _number("s", "time of the data, seconds (Unix epoch, or the simulation/bag clock)")
+
+
+def _frame_id(doc: str = "frame the geometry is expressed in, normally 'world'") -> Any:
+    return _text(doc)
+
+
+def field_specs(cls: type) -> tuple[tuple[str, FieldSpec], ...]:
+    """(name, spec) of every field of message class ``cls``, in declaration order."""
+    specs = cls.__dict__.get("_FIELD_SPECS")
+    if specs is None:
+        specs = tuple((f.name, f.metadata["spec"]) for f in dataclasses.fields(cls))
+        cls._FIELD_SPECS = specs  # type: ignore[attr-defined]
+    return specs  # type: ignore[no-any-return]
+
+
+class Message:
+    """Base of every wire message: construction-time checks and array-aware equality."""
+
+    TYPE_NAME: ClassVar[str]
+    VERSION: ClassVar[int]
+
+    def __post_init__(self) -> None:
+        sizes: dict[str, int] = {}
+        for name, spec in field_specs(type(self)):
+            value = getattr(self, name)
+            if value is None and spec.optional:
+                continue
+            object.__setattr__(self, name, _coerce(type(self), name, spec, value, sizes))
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        for name, _ in field_specs(type(self)):
+            a, b = getattr(self, name), getattr(other, name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray)):
+                    return False
+                if a.shape != b.shape or not np.array_equal(a, b):
+                    return False
+            elif a != b:
+                return False
+        return True
+
+    __hash__ = None  # type: ignore[assignment]  # holds arrays
+
+
+def _coerce(cls: type, name: str, spec: FieldSpec, value: Any, sizes: dict[str, int]) -> Any:
+    where = f"{cls.__name__}.{name}"
+    if spec.kind == ARRAY:
+        assert spec.dtype is not None
+        read_only = isinstance(value, np.ndarray) and not value.flags.writeable
+        if read_only and value.dtype == spec.dtype:
+            array = value
+        else:
+            array = np.array(value, dtype=spec.dtype, copy=True)
+            array.flags.writeable = False
+        check_shape(where, spec.shape, array.shape, sizes)
+        return array
+    if spec.kind == FLOAT:
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+            raise TypeError(f"{where} expects a float, got {type(value).__name__}")
+        return float(value)
+    if spec.kind in (INT, ENUM):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise TypeError(f"{where} expects an int, got {type(value).__name__}")
+        return spec.enum(int(value)) if spec.enum is not None else int(value)
+    if spec.kind == STR:
+        if not isinstance(value, str):
+            raise TypeError(f"{where} expects a str, got {type(value).__name__}")
+        if spec.choices and value not in spec.choices:
+            raise ValueError(f"{where} must be one of {spec.choices}, got {value!r}")
+        return value
+    if spec.kind == STR_LIST:
+        items = list(value)
+        if not all(isinstance(item, str) for item in items):
+            raise TypeError(f"{where} expects a list of str")
+        if spec.length:
+            check_shape(where, (spec.length,), (len(items),), sizes)
+        return items
+    if spec.kind in (STR_INT_MAP, STR_STR_MAP):
+        if not isinstance(value, Mapping):
+            raise TypeError(f"{where} expects a dict, got {type(value).__name__}")
+        item_type = int if spec.kind == STR_INT_MAP else str
+        out = dict(value)
+        for key, item in out.items():
+            if not (isinstance(key, str) and isinstance(item, item_type)) or isinstance(item, bool):
+                raise TypeError(f"{where} expects dict[str, {item_type.__name__}]")
+        return out
+    raise AssertionError(f"unknown field kind {spec.kind!r}")
+
+
+def check_shape(
+    where: str, expected: tuple[int | str, ...], actual: tuple[int, ...], sizes: dict[str, int]
+) -> None:
+    """Raise ``ValueError`` naming ``where`` unless ``actual`` matches ``expected``.
+
+    Symbolic sizes (``"N"``) are bound in ``sizes`` at first use and must agree afterwards.
+    """
+    ok = len(expected) == len(actual)
+    if ok:
+        for want, got in zip(expected, actual, strict=True):
+            if isinstance(want, str):
+                if sizes.setdefault(want, got) != got:
+                    ok = False
+            elif want != got:
+                ok = False
+    if not ok:
+        want_text = "(" + ", ".join(f"{w}={sizes[w]}" if w in sizes else str(w) for w in expected)
+        raise ValueError(f"{where} expects shape {want_text.rstrip(', ')}), got {actual}")
+
+
+@dataclass(frozen=True, eq=False)
+class WhiskerWrench(Message):
+    """One sample of a whisker's base force/torque sensor, with the clamp pose X_WC."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrench"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    seq: int = _count("the source's sample counter")
+    whisker_id: str = _text("which whisker the sample is from")
+    frame_id: str = _frame_id("frame the clamp pose is given in, normally 'world'")
+    clamp_position: FloatArray = _array((3,), "m", "p_WC: clamp frame C's origin, in frame_id")
+    clamp_orientation: FloatArray = _array(
+        (4,), "", "R_WC: unit quaternion (x, y, z, w) of clamp frame C in frame_id, z = rod axis"
+    )
+    f0: FloatArray = _array((3,), "N", "force of the clamp on the rod, expressed in C")
+    m0: FloatArray = _array(
+        (3,), "N m", "moment of the clamp on the rod about C's origin, expressed in C"
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class ContactPoint(Message):
+    """Contact reconstructed from one WhiskerWrench."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/ContactPoint"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    seq: int = _count("seq of the WhiskerWrench this contact was reconstructed from")
+    whisker_id: str = _text("which whisker touched")
+    frame_id: str = _frame_id()
+    point: FloatArray = _array((3,), "m", "contact point on the rod, in frame_id")
+    s1: float = _number("m", "arc length of the contact along the rod from the clamp")
+    phase: ContactPhase = _spec(kind=ENUM, enum=ContactPhase, doc="0 none, 1 tip, 2 tangential")
+    force: FloatArray = _array((3,), "N", "contact force on the rod, in frame_id")
+    status: ContactStatus = _spec(
+        kind=ENUM, enum=ContactStatus, doc="ContactStatus bit flags; 0 = OK"
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class ContactCloud(Message):
+    """Accumulated contact points; N = 0 is allowed."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/ContactCloud"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    frame_id: str = _frame_id()
+    points: FloatArray = _array(("N", 3), "m", "contact points, in frame_id")
+    normals: FloatArray = _array(
+        ("N", 3), "", "surface normals at the points, in frame_id: unit, or zero when unknown"
+    )
+    whisker_ids: list[str] | None = _optional(
+        kind=STR_LIST, length="N", doc="whisker of each point, or omitted"
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceMesh(Message):
+    """Triangle mesh of a surface fitted to a contact cloud."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/SurfaceMesh"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    frame_id: str = _frame_id()
+    vertices: FloatArray = _array(("N", 3), "m", "mesh vertices, in frame_id")
+    triangles: IntArray = _array(("M", 3), "", "vertex indices of each triangle", dtype=INT32)
+    method: str = _text("surface fitting method")
+    n_points: int = _count("number of cloud points the surface was fitted to")
+    cloud_to_surface_max: float | None = _optional(
+        kind=FLOAT, unit="m", doc="max distance cloud -> true surface, None when unknown"
+    )
+    cloud_to_surface_mean: float | None = _optional(
+        kind=FLOAT, unit="m", doc="mean distance cloud -> true surface, None when unknown"
+    )
+    mesh_to_surface_max: float | None = _optional(
+        kind=FLOAT, unit="m", doc="max distance mesh -> true surface, None when unknown"
+    )
+    mesh_to_surface_mean: float | None = _optional(
+        kind=FLOAT, unit="m", doc="mean distance mesh -> true surface, None when unknown"
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class RobotPose(Message):
+    """Pose X_PC of frame child_frame_id (C) in frame_id (P)."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/RobotPose"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    frame_id: str = _frame_id("parent frame P")
+    child_frame_id: str = _text("child frame C")
+    position: FloatArray = _array((3,), "m", "p_PC: C's origin in P")
+    orientation: FloatArray = _array((4,), "", "R_PC as unit quaternion (x, y, z, w)")
+
+
+@dataclass(frozen=True, eq=False)
+class NodeStatus(Message):
+    """Heartbeat of a node on /vibrissa/status (every 0.5 s)."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/NodeStatus"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    node: str = _text("fully qualified node name, e.g. /whisker0/reconstruct")
+    state: str = _text("starting | ready | running | finished | error", choices=NODE_STATES)
+    counters: dict[str, int] = _spec(
+        kind=STR_INT_MAP, doc="message counters: at least received, published, rejected, lost"
+    )
+    publishes: dict[str, str] = _spec(kind=STR_STR_MAP, doc="topic -> type name published")
+    subscribes: dict[str, str] = _spec(
+        kind=STR_STR_MAP, doc="topic -> type name subscribed ('*' for any type)"
+    )
+    seen_topics: list[str] = _spec(
+        kind=STR_LIST, doc="topics on which the node has received anything, pings included"
+    )
+    message: str = field(default="", metadata={"spec": FieldSpec(kind=STR, doc="free text")})
+
+
+@dataclass(frozen=True, eq=False)
+class EndOfStream(Message):
+    """Last message of a source on a topic."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/EndOfStream"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    source: str = _text("fully qualified name of the node that published the stream")
+    count: int = _count("number of data messages the source published on this topic before")
+
+
+@dataclass(frozen=True, eq=False)
+class Ping(Message):
+    """Readiness probe; subscribers note the topic as seen and never hand it to the node."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/Ping"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    sender: str = _text("fully qualified name of the pinging node")
+
+
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    cls.TYPE_NAME: cls
+    for cls in (
+        WhiskerWrench,
+        ContactPoint,
+        ContactCloud,
+        SurfaceMesh,
+        RobotPose,
+        NodeStatus,
+        EndOfStream,
+        Ping,
+    )
+}

@@ -1,0 +1,298 @@
+"""Codec round trips and every refusal of decode."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import msgpack
+import numpy as np
+import pytest
+from vibrissa.msgs import (
+    MESSAGE_TYPES,
+    ArrayDtypeError,
+    ArrayShapeError,
+    ContactCloud,
+    ContactPhase,
+    ContactPoint,
+    ContactStatus,
+    DecodeError,
+    EndOfStream,
+    FieldTypeError,
+    MalformedPayloadError,
+    Message,
+    MissingFieldError,
+    NodeStatus,
+    NonFiniteError,
+    Ping,
+    RobotPose,
+    SurfaceMesh,
+    UnexpectedTypeError,
+    UnknownFieldError,
+    UnknownTypeError,
+    VersionMismatchError,
+    WhiskerWrench,
+    decode,
+    encode,
+    json_schema,
+    peek_type,
+    to_jsonable,
+)
+
+
+def wrench() -> WhiskerWrench:
+    return WhiskerWrench(
+        stamp=12.5,
+        seq=7,
+        whisker_id="w0",
+        frame_id="world",
+        clamp_position=[0.1, 0.2, 0.3],
+        clamp_orientation=[0.0, 0.0, 0.0, 1.0],
+        f0=[0.01, -0.02, 0.5],
+        m0=[0.001, 0.002, -0.003],
+    )
+
+
+def samples() -> list[Message]:
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(5, 3))
+    return [
+        wrench(),
+        ContactPoint(
+            stamp=1.0, seq=7, whisker_id="w0", frame_id="world", point=[0.0, 0.1, 0.2],
+            s1=0.08, phase=ContactPhase.TANGENTIAL, force=[0.0, 0.1, 0.0],
+            status=ContactStatus.AXIAL_LOAD | ContactStatus.NO_FORCE,
+        ),
+        ContactCloud(stamp=2.0, frame_id="world", points=points, normals=np.zeros((5, 3)),
+                     whisker_ids=["a", "b", "a", "b", "a"]),
+        ContactCloud(stamp=2.0, frame_id="world", points=np.zeros((0, 3)),
+                     normals=np.zeros((0, 3))),
+        SurfaceMesh(stamp=3.0, frame_id="world", vertices=points,
+                    triangles=np.array([[0, 1, 2], [2, 3, 4]]), method="poisson", n_points=5,
+                    cloud_to_surface_max=1e-3, mesh_to_surface_mean=2e-4),
+        RobotPose(stamp=4.0, frame_id="world", child_frame_id="base", position=[1.0, 2.0, 3.0],
+                  orientation=[0.0, 0.0, 0.0, 1.0]),
+        NodeStatus(stamp=5.0, node="/w0/reconstruct", state="running",
+                   counters={"received": 3, "published": 2, "rejected": 0, "lost": 1},
+                   publishes={"/w0/contact": ContactPoint.TYPE_NAME},
+                   subscribes={"/w0/wrench": WhiskerWrench.TYPE_NAME},
+                   seen_topics=["/w0/wrench"], message="ok"),
+        EndOfStream(stamp=6.0, source="/w0/sensor", count=100),
+        Ping(stamp=7.0, sender="/w0/sensor"),
+    ]
+
+
+def raw(msg: Message) -> dict[str, Any]:
+    return msgpack.unpackb(encode(msg), raw=False)  # type: ignore[no-any-return]
+
+
+def pack(obj: dict[str, Any]) -> bytes:
+    return msgpack.packb(obj)  # type: ignore[no-any-return]
+
+
+@pytest.mark.parametrize("msg", samples(), ids=lambda m: type(m).__name__)
+def test_round_trip(msg: Message) -> None:
+    payload = encode(msg)
+    back = decode(payload, type(msg))
+    assert type(back) is type(msg)
+    assert back == msg
+    assert peek_type(payload) == (msg.TYPE_NAME, msg.VERSION)
+    for name in msg.__dataclass_fields__:  # type: ignore[attr-defined]
+        value = getattr(back, name)
+        if isinstance(value, np.ndarray):
+            assert not value.flags.writeable, name
+            assert value.dtype == getattr(msg, name).dtype
+
+
+def test_every_type_is_sampled_and_registered() -> None:
+    assert {type(m) for m in samples()} == set(MESSAGE_TYPES.values())
+    for name, cls in MESSAGE_TYPES.items():
+        assert cls.TYPE_NAME == name and cls.VERSION >= 1
+
+
+def test_arrays_are_header_plus_raw_bytes() -> None:
+    entry = raw(wrench())["f0"]
+    assert entry["dtype"] == "<f8" and entry["shape"] == [3]
+    assert isinstance(entry["data"], bytes) and len(entry["data"]) == 24
+
+
+def test_enums_come_back_as_enums() -> None:
+    back = decode(encode(samples()[1]))
+    assert isinstance(back, ContactPoint)
+    assert back.phase is ContactPhase.TANGENTIAL
+    assert back.status == ContactStatus.AXIAL_LOAD | ContactStatus.NO_FORCE
+    assert [int(f) for f in ContactStatus] == [1, 2, 4, 8, 16]  # OK=0 is not iterated
+
+
+def test_constructed_arrays_are_read_only_copies() -> None:
+    f0 = np.array([1.0, 2.0, 3.0])
+    msg = WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="world",
+                        clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 1], f0=f0, m0=f0)
+    f0[0] = 99.0
+    assert msg.f0[0] == 1.0
+    with pytest.raises(ValueError):
+        msg.f0[0] = 5.0
+
+
+def test_constructor_checks_shapes_and_shared_sizes() -> None:
+    with pytest.raises(ValueError, match="WhiskerWrench.f0"):
+        WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="world", clamp_position=[0, 0, 0],
+                      clamp_orientation=[0, 0, 0, 1], f0=[1.0, 2.0], m0=[0, 0, 0])
+    with pytest.raises(ValueError, match="ContactCloud.normals"):
+        ContactCloud(stamp=0, frame_id="world", points=np.zeros((4, 3)), normals=np.zeros((3, 3)))
+
+
+def test_encode_refuses_non_finite() -> None:
+    msg = WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="world",
+                        clamp_position=[0, 0, np.nan], clamp_orientation=[0, 0, 0, 1],
+                        f0=[0, 0, 0], m0=[0, 0, 0])
+    with pytest.raises(ValueError, match="clamp_position"):
+        encode(msg)
+
+
+# -- refusals --------------------------------------------------------------------------------
+
+
+def refuse(payload: bytes, error: type[DecodeError], *words: str, **kw: Any) -> DecodeError:
+    with pytest.raises(error) as info:
+        decode(payload, **kw)
+    for word in words:
+        assert word in str(info.value), (word, str(info.value))
+    assert isinstance(info.value, ValueError)
+    return info.value
+
+
+def test_truncated_bytes() -> None:
+    payload = encode(wrench())
+    for cut in (1, len(payload) // 2, len(payload) - 1):
+        refuse(payload[:cut], MalformedPayloadError, "malformed")
+
+
+def test_garbage_and_non_map() -> None:
+    refuse(b"\xc1\xc1", MalformedPayloadError)
+    refuse(pack([1, 2, 3]), MalformedPayloadError, "list")  # type: ignore[arg-type]
+    refuse(pack({"x": 1}), MalformedPayloadError, "_type")
+
+
+def test_unknown_type() -> None:
+    obj = raw(wrench())
+    obj["_type"] = "vibrissa/Nope"
+    refuse(pack(obj), UnknownTypeError, "vibrissa/Nope")
+
+
+def test_wrong_version() -> None:
+    obj = raw(wrench())
+    obj["_v"] = 2
+    error = refuse(pack(obj), VersionMismatchError, "WhiskerWrench", "version 2")
+    assert error.type_name == WhiskerWrench.TYPE_NAME
+
+
+def test_unexpected_type() -> None:
+    refuse(encode(wrench()), UnexpectedTypeError, "WhiskerWrench", "ContactPoint",
+           expected=ContactPoint)
+    refuse(encode(wrench()), UnexpectedTypeError, expected=(Ping, EndOfStream))
+    assert isinstance(decode(encode(wrench()), (Ping, WhiskerWrench)), WhiskerWrench)
+
+
+def test_missing_and_unknown_field() -> None:
+    obj = raw(wrench())
+    del obj["m0"]
+    error = refuse(pack(obj), MissingFieldError, "WhiskerWrench", "m0")
+    assert error.field == "m0"
+    obj = raw(wrench())
+    obj["colour"] = "red"
+    refuse(pack(obj), UnknownFieldError, "WhiskerWrench", "colour")
+
+
+def test_optional_fields_may_be_absent() -> None:
+    obj = raw(samples()[2])
+    del obj["whisker_ids"]
+    back = decode(pack(obj))
+    assert isinstance(back, ContactCloud) and back.whisker_ids is None
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("seq", 1.5), ("seq", True), ("stamp", "now"), ("whisker_id", 3), ("f0", [1.0, 2.0, 3.0])],
+)
+def test_wrong_field_type(field: str, value: Any) -> None:
+    obj = raw(wrench())
+    obj[field] = value
+    error = refuse(pack(obj), FieldTypeError, "WhiskerWrench", field)
+    assert error.field == field
+
+
+def test_bad_enum_and_choice() -> None:
+    obj = raw(samples()[1])
+    obj["phase"] = 9
+    refuse(pack(obj), FieldTypeError, "ContactPoint", "phase")
+    obj = raw(samples()[6])
+    obj["state"] = "sleeping"
+    refuse(pack(obj), FieldTypeError, "NodeStatus", "state")
+
+
+def test_nan_in_float_and_in_array() -> None:
+    obj = raw(wrench())
+    obj["stamp"] = float("nan")
+    refuse(pack(obj), NonFiniteError, "WhiskerWrench", "stamp")
+    obj = raw(wrench())
+    obj["m0"]["data"] = np.array([0.0, np.inf, 0.0]).tobytes()
+    refuse(pack(obj), NonFiniteError, "WhiskerWrench", "m0")
+    obj = raw(samples()[2])  # a large array takes the exact np.isfinite path
+    points = np.zeros((5, 3))
+    points[4, 2] = np.nan
+    obj["points"]["data"] = points.tobytes()
+    refuse(pack(obj), NonFiniteError, "ContactCloud", "points")
+
+
+def test_wrong_shape() -> None:
+    obj = raw(wrench())
+    obj["f0"] = {"dtype": "<f8", "shape": [4], "data": np.zeros(4).tobytes()}
+    refuse(pack(obj), ArrayShapeError, "WhiskerWrench.f0", "shape")
+    obj = raw(wrench())
+    obj["f0"]["data"] = obj["f0"]["data"][:16]  # header says (3,), 2 values of bytes
+    refuse(pack(obj), ArrayShapeError, "WhiskerWrench.f0", "bytes")
+    obj = raw(samples()[2])  # normals N differs from points N
+    obj["normals"] = {"dtype": "<f8", "shape": [4, 3], "data": np.zeros((4, 3)).tobytes()}
+    refuse(pack(obj), ArrayShapeError, "ContactCloud.normals", "N=5")
+    obj = raw(samples()[2])
+    obj["whisker_ids"] = ["a"]
+    refuse(pack(obj), ArrayShapeError, "whisker_ids")
+
+
+def test_wrong_dtype() -> None:
+    obj = raw(wrench())
+    obj["f0"] = {"dtype": "<f4", "shape": [3], "data": np.zeros(3, np.float32).tobytes()}
+    refuse(pack(obj), ArrayDtypeError, "WhiskerWrench.f0", "<f4")
+    obj = raw(samples()[4])
+    obj["triangles"]["dtype"] = "<i8"
+    refuse(pack(obj), ArrayDtypeError, "SurfaceMesh.triangles")
+
+
+def test_peek_type_refuses_garbage() -> None:
+    with pytest.raises(MalformedPayloadError):
+        peek_type(b"\x93\x01\x02")
+
+
+# -- JSON ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("msg", samples(), ids=lambda m: type(m).__name__)
+def test_jsonable_matches_schema_shape(msg: Message) -> None:
+    data = to_jsonable(msg)
+    schema = json_schema(type(msg))
+    json.dumps(data)
+    json.dumps(schema)
+    assert schema["title"] == msg.TYPE_NAME
+    assert set(data) == set(schema["properties"])
+    assert set(schema["required"]) <= set(data)
+    for name, prop in schema["properties"].items():
+        assert prop["description"], name
+
+
+def test_schema_states_units_and_shapes() -> None:
+    schema = json_schema(WhiskerWrench)
+    f0 = schema["properties"]["f0"]
+    assert "[N]" in f0["description"] and f0["minItems"] == f0["maxItems"] == 3
+    points = json_schema(ContactCloud)["properties"]["points"]
+    assert points["items"]["minItems"] == 3 and "minItems" not in points

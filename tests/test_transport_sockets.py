@@ -1,0 +1,184 @@
+"""Publisher -> Proxy -> Subscriber on loopback with free ports; every receive has a timeout."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from typing import Any
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+from vibrissa.msgs import ContactPoint, EndOfStream, Ping, WhiskerWrench, encode
+from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
+
+TIMEOUT_S = 2.0
+
+
+@pytest.fixture
+def context() -> Iterator[zmq.Context[Any]]:
+    ctx: zmq.Context[Any] = zmq.Context()
+    yield ctx
+    ctx.destroy(linger=0)
+
+
+@pytest.fixture
+def proxy(context: zmq.Context[Any]) -> Iterator[Proxy]:
+    with Proxy(Endpoints.free(), context=context) as running:
+        yield running
+
+
+def wrench(seq: int) -> WhiskerWrench:
+    return WhiskerWrench(
+        stamp=0.001 * seq, seq=seq, whisker_id="w0", frame_id="world",
+        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
+        f0=[0.0, 0.01 * seq, 0.0], m0=[0.0, 0.0, 0.0],
+    )
+
+
+def connect(pub: Publisher, sub: Subscriber) -> None:
+    """Ping until the subscriber has seen the topic: the pub -> proxy -> sub path is up."""
+    for _ in range(200):
+        pub.ping("/test")
+        assert sub.receive(0.01) is None  # pings are never handed out
+        if pub.topic in sub.seen_topics:
+            return
+    raise AssertionError(f"subscriber never saw {pub.topic}")
+
+
+def test_proxy_reports_bound_free_ports(proxy: Proxy) -> None:
+    assert proxy.endpoints is not None
+    for endpoint in (proxy.endpoints.pub, proxy.endpoints.sub):
+        assert endpoint.startswith("tcp://127.0.0.1:") and not endpoint.endswith(":*")
+    assert proxy.endpoints.pub != proxy.endpoints.sub
+
+
+def test_delivers_in_order_without_loss(proxy: Proxy, context: zmq.Context[Any]) -> None:
+    n = 2000
+    with Publisher("/w0/wrench", WhiskerWrench, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context) as sub:
+        connect(pub, sub)
+        for i in range(n):
+            pub.publish(wrench(i))
+        pub.publish_end_of_stream("/test")
+        seqs = []
+        while (rx := sub.receive(TIMEOUT_S)) is not None:
+            if isinstance(rx.msg, EndOfStream):
+                assert rx.msg.count == n and rx.header.seq == n
+                break
+            assert isinstance(rx.msg, WhiskerWrench) and rx.topic == "/w0/wrench"
+            assert rx.header.pub == pub.pub_id and rx.header.seq == rx.msg.seq
+            assert rx.payload == encode(wrench(rx.msg.seq))
+            seqs.append(rx.msg.seq)
+        assert seqs == list(range(n))
+        counters = sub.counters["/w0/wrench"]
+        assert (counters.received, counters.lost, counters.rejected) == (n + 1, 0, 0)
+        assert pub.published == n and pub.sent == n + 1
+
+
+@pytest.mark.parametrize("hwm", [1, 10])
+def test_exact_loss_count_when_the_subscriber_falls_behind(
+    hwm: int, context: zmq.Context[Any], caplog: pytest.LogCaptureFixture
+) -> None:
+    n = 20000
+    with Proxy(Endpoints.free(), context=context, hwm=hwm) as proxy, \
+            Publisher("/fast", WhiskerWrench, proxy.endpoints, context, hwm=hwm) as pub, \
+            Subscriber({"/fast": WhiskerWrench}, proxy.endpoints, context, hwm=hwm) as sub:
+        connect(pub, sub)
+        for i in range(n):  # nobody is receiving: queues overflow, ZeroMQ drops
+            pub.publish(wrench(i))
+        data = 0
+        with caplog.at_level(logging.WARNING, logger="vibrissa.wire.transport"):
+            while (rx := sub.receive(0.5)) is not None:  # drain what survived
+                data += 1
+            pub.publish_end_of_stream("/test")  # queues are empty now: this one arrives
+            rx = sub.receive(TIMEOUT_S)
+        assert rx is not None and isinstance(rx.msg, EndOfStream)
+        counters = sub.counters["/fast"]
+        assert counters.received == data + 1
+        assert counters.lost == n - data > 0
+        assert counters.received + counters.lost == pub.sent == n + 1
+        print(f"hwm={hwm}: published {n}, received {data}, lost {counters.lost}")
+        gaps = [r for r in caplog.records if "lost" in r.getMessage()]
+        assert sum(int(str(r.args[1])) for r in gaps if isinstance(r.args, tuple)) == counters.lost
+
+
+def test_rejected_payloads_are_counted_and_delivery_goes_on(
+    proxy: Proxy, context: zmq.Context[Any], caplog: pytest.LogCaptureFixture
+) -> None:
+    nan_payload = msgpack.unpackb(encode(wrench(1)))
+    nan_payload["f0"]["data"] = np.array([0.0, np.nan, 0.0]).tobytes()
+    with Publisher("/w0/wrench", WhiskerWrench, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context) as sub:
+        connect(pub, sub)
+        with caplog.at_level(logging.WARNING, logger="vibrissa.wire.transport"):
+            pub.publish_raw(encode(wrench(0))[:-5])  # truncated: peek passes, decode fails
+            pub.publish_raw(msgpack.packb(nan_payload))
+            pub.publish(wrench(2))
+            rx = sub.receive(TIMEOUT_S)
+        assert rx is not None and isinstance(rx.msg, WhiskerWrench) and rx.msg.seq == 2
+        counters = sub.counters["/w0/wrench"]
+        assert (counters.received, counters.rejected, counters.lost) == (1, 2, 0)
+        messages = [r.getMessage() for r in caplog.records]
+        assert any("rejected" in m and "malformed" in m for m in messages)
+        assert any("rejected" in m and "WhiskerWrench.f0" in m for m in messages)
+
+
+def test_wrong_type_on_a_topic_is_rejected(proxy: Proxy, context: zmq.Context[Any]) -> None:
+    with Publisher("/t", ContactPoint, proxy.endpoints, context) as pub, \
+            Subscriber({"/t": WhiskerWrench}, proxy.endpoints, context) as sub:
+        connect(pub, sub)
+        pub.publish(ContactPoint(stamp=0, seq=0, whisker_id="w", frame_id="world",
+                                 point=[0, 0, 0], s1=0.0, phase=0, force=[0, 0, 0], status=0))
+        assert sub.receive(0.3) is None
+        assert sub.counters["/t"].rejected == 1
+
+
+def test_exact_topic_match_and_subscribe_all(proxy: Proxy, context: zmq.Context[Any]) -> None:
+    with Publisher("/a", Ping, proxy.endpoints, context) as pub_a, \
+            Publisher("/ab", EndOfStream, proxy.endpoints, context) as pub_ab, \
+            Subscriber({"/a": None}, proxy.endpoints, context) as only_a, \
+            Subscriber(None, proxy.endpoints, context) as everything:
+        connect(pub_a, only_a)
+        connect(pub_a, everything)
+        connect(pub_ab, everything)
+        pub_ab.publish(EndOfStream(stamp=1.0, source="/x", count=0))
+        pub_a.publish(Ping(stamp=2.0, sender="/x"))  # a Ping is never delivered ...
+        pub_a.publish_end_of_stream("/y")  # ... an EndOfStream is
+        rx = only_a.receive(TIMEOUT_S)
+        assert rx is not None and rx.topic == "/a" and isinstance(rx.msg, EndOfStream)
+        assert only_a.receive(0.2) is None  # nothing from /ab
+        topics = set()
+        while (rx := everything.receive(0.3)) is not None:
+            topics.add(rx.topic)
+        assert topics == {"/a", "/ab"}
+        assert everything.seen_topics == {"/a", "/ab"}
+        assert everything.totals()["received"] == 2
+
+
+def test_publisher_refuses_other_types(context: zmq.Context[Any]) -> None:
+    endpoints = Endpoints("tcp://127.0.0.1:1", "tcp://127.0.0.1:2")  # connect is lazy
+    with Publisher("/w", WhiskerWrench, endpoints, context) as pub:
+        with pytest.raises(TypeError, match="WhiskerWrench"):
+            pub.publish(Ping(stamp=0.0, sender="x"))
+        with pytest.raises(TypeError, match="Ping"):
+            pub.publish_raw(encode(Ping(stamp=0.0, sender="x")))
+    with pytest.raises(ValueError, match="absolute"):
+        Publisher("relative", WhiskerWrench, endpoints, context)
+
+
+def test_held_messages_are_sent_in_order_on_release(
+    proxy: Proxy, context: zmq.Context[Any]
+) -> None:
+    with Publisher("/h", WhiskerWrench, proxy.endpoints, context) as pub, \
+            Subscriber({"/h": WhiskerWrench}, proxy.endpoints, context) as sub:
+        pub.hold()
+        for i in range(5):
+            pub.publish(wrench(i))
+        assert pub.pending == 5 and pub.sent == 0
+        connect(pub, sub)  # pings pass while held
+        assert pub.release() == 5 and not pub.held
+        got = [rx.msg.seq for _ in range(5) if (rx := sub.receive(TIMEOUT_S)) is not None]
+        assert got == [0, 1, 2, 3, 4]  # type: ignore[attr-defined]
+        assert sub.counters["/h"].lost == 0

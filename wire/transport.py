@@ -1,0 +1,532 @@
+"""ZeroMQ transport: the XSUB/XPUB proxy, publishers and subscribers (see ARCHITECTURE.md).
+
+A message is three frames ``[topic + b"\\0", header, payload]``; the header is msgpack
+``{"pub": <uint64 publisher id>, "seq": <uint64>}`` and the payload ``vibrissa.msgs.encode(msg)``.
+
+Sequence numbers and loss
+-------------------------
+``seq`` counts, per publisher and topic, every message it sends except pings, from 0
+(data messages and ``EndOfStream``). A ``Ping`` carries the ``seq`` the *next* message will
+have and does not advance it. A subscriber keeps, per (topic, publisher id), the next ``seq``
+it expects and adds every gap to ``lost`` (one warning per gap). Counting starts at the first
+message or ping it gets from a publisher, so a ping before the data (the readiness gate, see
+``vibrissa.nodes.runtime``) makes even a loss of the very first messages visible, and a ping
+or ``EndOfStream`` after the data reveals a loss at the tail. Hence, once a subscriber has
+seen a stream's ``EndOfStream``: ``received + lost + rejected == publisher.sent``.
+
+Pings are never handed to the caller of ``Subscriber.receive``; they only mark the topic as
+seen (``Subscriber.seen_topics``), which nodes report in their status.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import logging
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import msgpack
+import zmq
+from vibrissa.msgs import DecodeError, EndOfStream, Message, Ping, decode, encode, peek_type
+from vibrissa.wire.topics import validate_name
+
+__all__ = [
+    "DEFAULT_HWM",
+    "Endpoints",
+    "Header",
+    "Proxy",
+    "Publisher",
+    "Received",
+    "Subscriber",
+    "TopicCounters",
+]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_HWM = 10_000
+"""Default send/receive high-water mark, messages per socket (per peer for PUB/XPUB)."""
+
+_ENV_PUB = "VIBRISSA_PUB_ENDPOINT"
+_ENV_SUB = "VIBRISSA_SUB_ENDPOINT"
+_ENV_DOMAIN = "VIBRISSA_DOMAIN_ID"
+_CONTROL_IDS = itertools.count()
+
+
+@dataclass(frozen=True)
+class Endpoints:
+    """Where publishers connect (``pub``, the proxy's XSUB) and subscribers (``sub``, XPUB)."""
+
+    pub: str
+    sub: str
+
+    @classmethod
+    def for_domain(cls, domain_id: int = 0) -> Endpoints:
+        """``tcp://127.0.0.1:{7400 + 2 id}`` (pub) and ``{7401 + 2 id}`` (sub)."""
+        if isinstance(domain_id, bool) or not isinstance(domain_id, int):
+            raise ValueError(f"domain_id must be an int, got {type(domain_id).__name__}")
+        if not 0 <= domain_id <= (65535 - 7401) // 2:
+            raise ValueError(f"domain_id {domain_id} gives no valid port")
+        port = 7400 + 2 * domain_id
+        return cls(f"tcp://127.0.0.1:{port}", f"tcp://127.0.0.1:{port + 1}")
+
+    @classmethod
+    def from_env(cls, environ: Mapping[str, str] | None = None) -> Endpoints:
+        """From ``VIBRISSA_PUB_ENDPOINT``/``VIBRISSA_SUB_ENDPOINT``, else ``VIBRISSA_DOMAIN_ID``."""
+        env = os.environ if environ is None else environ
+        pub, sub = env.get(_ENV_PUB), env.get(_ENV_SUB)
+        if pub and sub:
+            return cls(pub, sub)
+        if pub or sub:
+            raise ValueError(f"set both {_ENV_PUB} and {_ENV_SUB}, or neither")
+        text = env.get(_ENV_DOMAIN, "0")
+        try:
+            domain_id = int(text)
+        except ValueError:
+            raise ValueError(f"{_ENV_DOMAIN}={text!r} is not an integer") from None
+        return cls.for_domain(domain_id)
+
+    @classmethod
+    def free(cls, host: str = "127.0.0.1") -> Endpoints:
+        """Endpoints for a ``Proxy`` to bind on free ports (``Proxy.start`` reports them)."""
+        return cls(f"tcp://{host}:*", f"tcp://{host}:*")
+
+    def to_env(self) -> dict[str, str]:
+        """The environment variables that hand these endpoints to a node process."""
+        return {_ENV_PUB: self.pub, _ENV_SUB: self.sub}
+
+
+def _socket(context: zmq.Context[Any], kind: int, hwm: int) -> zmq.Socket[Any]:
+    sock = context.socket(kind)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.SNDHWM, hwm)
+    sock.setsockopt(zmq.RCVHWM, hwm)
+    return sock
+
+
+class Proxy:
+    """XSUB (bound at ``endpoints.pub``) to XPUB (bound at ``endpoints.sub``) in a thread.
+
+    Bind to ``Endpoints.free()`` for free ports; ``start()`` returns the bound endpoints.
+    Stopping sends ``TERMINATE`` on an inproc control socket (``zmq.proxy_steerable``).
+    """
+
+    def __init__(
+        self,
+        endpoints: Endpoints | None = None,
+        context: zmq.Context[Any] | None = None,
+        hwm: int = DEFAULT_HWM,
+    ) -> None:
+        self._requested = endpoints if endpoints is not None else Endpoints.from_env()
+        self._context = context if context is not None else zmq.Context.instance()
+        self._hwm = hwm
+        self._thread: threading.Thread | None = None
+        self._control: zmq.Socket[Any] | None = None
+        self.endpoints: Endpoints | None = None
+
+    def start(self) -> Endpoints:
+        """Bind both sockets and start forwarding; returns the actual endpoints."""
+        if self._thread is not None:
+            raise RuntimeError("proxy already started")
+        control_address = f"inproc://vibrissa-proxy-control-{os.getpid()}-{next(_CONTROL_IDS)}"
+        xsub = _socket(self._context, zmq.XSUB, self._hwm)
+        xpub = _socket(self._context, zmq.XPUB, self._hwm)
+        control_in = self._context.socket(zmq.PAIR)
+        control_in.setsockopt(zmq.LINGER, 0)
+        try:
+            xsub.bind(self._requested.pub)
+            xpub.bind(self._requested.sub)
+            control_in.bind(control_address)
+            self._control = self._context.socket(zmq.PAIR)
+            self._control.setsockopt(zmq.LINGER, 0)
+            self._control.connect(control_address)
+        except zmq.ZMQError:
+            for sock in (xsub, xpub, control_in):
+                sock.close()
+            if self._control is not None:
+                self._control.close()
+                self._control = None
+            raise
+        self.endpoints = Endpoints(
+            xsub.getsockopt_string(zmq.LAST_ENDPOINT), xpub.getsockopt_string(zmq.LAST_ENDPOINT)
+        )
+        # The sockets move to the proxy thread here; thread start is the memory barrier
+        # ZeroMQ asks for when a socket changes threads.
+        self._thread = threading.Thread(
+            target=self._run, args=(xsub, xpub, control_in), name="vibrissa-proxy", daemon=True
+        )
+        self._thread.start()
+        log.info("proxy: publishers -> %s, subscribers -> %s", *dataclasses.astuple(self.endpoints))
+        return self.endpoints
+
+    @staticmethod
+    def _run(xsub: zmq.Socket[Any], xpub: zmq.Socket[Any], control: zmq.Socket[Any]) -> None:
+        try:
+            zmq.proxy_steerable(xsub, xpub, None, control)
+        except zmq.ContextTerminated:
+            pass
+        except zmq.ZMQError as exc:
+            log.error("proxy stopped: %s", exc)
+        finally:
+            for sock in (xsub, xpub, control):
+                sock.close()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop forwarding and close the sockets (idempotent)."""
+        if self._thread is None:
+            return
+        assert self._control is not None
+        try:
+            self._control.send(b"TERMINATE")
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                log.error("proxy thread did not stop within %.1f s", timeout_s)
+        finally:
+            self._control.close()
+            self._control = None
+            self._thread = None
+
+    def __enter__(self) -> Proxy:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+def _check_topic(topic: str) -> bytes:
+    validate_name(topic)
+    if not topic.startswith("/"):
+        raise ValueError(f"topic {topic!r} must be resolved (absolute) before use on the wire")
+    return topic.encode() + b"\0"
+
+
+class Publisher:
+    """Publishes messages of one type on one (absolute) topic.
+
+    Thread-safe: a lock serialises sends, so the node runtime's heartbeat thread can ``ping``
+    and ``release`` the same socket the node publishes on. While held (``hold()``), published
+    messages are encoded and buffered, in order, until ``release()`` sends them.
+
+    Parameters
+    ----------
+    topic
+        Fully qualified topic name, e.g. ``/whisker0/wrench``.
+    msg_type
+        The message class published (``EndOfStream`` is allowed in addition).
+    hwm
+        Send high-water mark, messages; beyond it ZeroMQ drops (subscribers count the loss).
+    """
+
+    def __init__(
+        self,
+        topic: str,
+        msg_type: type[Message],
+        endpoints: Endpoints | None = None,
+        context: zmq.Context[Any] | None = None,
+        hwm: int = DEFAULT_HWM,
+    ) -> None:
+        self._prefix = _check_topic(topic)
+        self.topic = topic
+        self.msg_type = msg_type
+        self.pub_id = int.from_bytes(os.urandom(8), "little")
+        self.published = 0  # data messages accepted by publish/publish_raw (not EndOfStream)
+        self.sent = 0  # messages sent with a seq: data and EndOfStream (= the next seq)
+        self._lock = threading.Lock()
+        self._held: deque[bytes] | None = None
+        context = context if context is not None else zmq.Context.instance()
+        self._socket = _socket(context, zmq.PUB, hwm)
+        try:
+            self._socket.connect((endpoints or Endpoints.from_env()).pub)
+        except zmq.ZMQError:
+            self._socket.close()
+            raise
+
+    def publish(self, msg: Message) -> None:
+        """Encode and send ``msg`` (buffered while held)."""
+        if not isinstance(msg, (self.msg_type, EndOfStream)):
+            raise TypeError(
+                f"publisher on {self.topic} sends {self.msg_type.TYPE_NAME}, "
+                f"got {type(msg).__name__}"
+            )
+        payload = encode(msg)
+        with self._lock:
+            if not isinstance(msg, EndOfStream):
+                self.published += 1
+            self._send_or_hold(payload)
+
+    def publish_raw(self, payload: bytes) -> None:
+        """Send an already encoded payload (bag replay); its type must match the publisher's."""
+        name, _ = peek_type(payload)
+        if name not in (self.msg_type.TYPE_NAME, EndOfStream.TYPE_NAME):
+            raise TypeError(
+                f"publisher on {self.topic} sends {self.msg_type.TYPE_NAME}, payload is {name}"
+            )
+        with self._lock:
+            if name != EndOfStream.TYPE_NAME:
+                self.published += 1
+            self._send_or_hold(bytes(payload))
+
+    def publish_end_of_stream(self, source: str, stamp: float | None = None) -> None:
+        """Send ``EndOfStream(count=published)``: lets subscribers see a loss at the tail."""
+        with self._lock:
+            count = self.published
+        stamp = time.time() if stamp is None else stamp
+        self.publish(EndOfStream(stamp=stamp, source=source, count=count))
+
+    def ping(self, sender: str) -> None:
+        """Send a ``Ping`` carrying the next seq; never buffered, never advances seq."""
+        payload = encode(Ping(stamp=time.time(), sender=sender))
+        with self._lock:
+            self._send(payload, self.sent)
+
+    def hold(self) -> None:
+        """Buffer published messages from now on instead of sending them."""
+        with self._lock:
+            if self._held is None:
+                self._held = deque()
+
+    def release(self) -> int:
+        """Send the buffered messages in order and stop buffering; returns how many."""
+        with self._lock:
+            held, self._held = self._held, None
+            for payload in held or ():
+                self._send_now(payload)
+            return len(held or ())
+
+    @property
+    def held(self) -> bool:
+        """Whether published messages are being buffered."""
+        return self._held is not None
+
+    @property
+    def pending(self) -> int:
+        """Number of buffered messages."""
+        return len(self._held or ())
+
+    def _send_or_hold(self, payload: bytes) -> None:
+        if self._held is not None:
+            self._held.append(payload)
+        else:
+            self._send_now(payload)
+
+    def _send_now(self, payload: bytes) -> None:
+        self._send(payload, self.sent)
+        self.sent += 1
+
+    def _send(self, payload: bytes, seq: int) -> None:
+        header = msgpack.packb({"pub": self.pub_id, "seq": seq})
+        self._socket.send_multipart((self._prefix, header, payload), copy=len(payload) < 65536)
+
+    def close(self) -> None:
+        """Close the socket (linger 0: unsent messages are discarded)."""
+        with self._lock:
+            if self._held:
+                log.warning("%s: %d held messages discarded at close", self.topic, len(self._held))
+            self._socket.close()
+
+    def __enter__(self) -> Publisher:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class Header:
+    """Transport header of a message: publisher id and its per-topic sequence number."""
+
+    pub: int
+    seq: int
+
+
+@dataclass(frozen=True)
+class Received:
+    """One delivered message; ``receive_time`` is wall-clock seconds (``time.time()``)."""
+
+    topic: str
+    msg: Message
+    payload: bytes
+    header: Header
+    receive_time: float
+
+
+@dataclass
+class TopicCounters:
+    """Per-topic counts of a subscriber (messages)."""
+
+    received: int = 0  # delivered to the caller (data and EndOfStream)
+    lost: int = 0  # missing seq numbers
+    rejected: int = 0  # frames that did not decode (counted, logged, never raised)
+    pings: int = 0
+
+
+class Subscriber:
+    """Receives messages on exact topics (``topics=None``: every topic, any type).
+
+    ``topics`` maps each fully qualified topic to the expected message class, or ``None`` for
+    any registered type; ``Ping`` and ``EndOfStream`` are accepted on every topic.
+    """
+
+    def __init__(
+        self,
+        topics: Mapping[str, type[Message] | None] | None,
+        endpoints: Endpoints | None = None,
+        context: zmq.Context[Any] | None = None,
+        hwm: int = DEFAULT_HWM,
+    ) -> None:
+        self.topics: dict[str, type[Message] | None] | None = (
+            None if topics is None else dict(topics)
+        )
+        self._expected: dict[str, tuple[type[Message], ...] | None] = {}
+        prefixes = [b""]
+        if topics is not None:
+            prefixes = [_check_topic(topic) for topic in topics]
+            for topic, msg_type in topics.items():
+                expected = None if msg_type is None else (msg_type, Ping, EndOfStream)
+                self._expected[topic] = expected
+        self.counters: dict[str, TopicCounters] = {t: TopicCounters() for t in topics or ()}
+        self._seen: set[str] = set()
+        self._next_seq: dict[tuple[str, int], int] = {}  # per (topic, publisher id)
+        context = context if context is not None else zmq.Context.instance()
+        self._socket = _socket(context, zmq.SUB, hwm)
+        try:
+            for prefix in prefixes:
+                self._socket.setsockopt(zmq.SUBSCRIBE, prefix)
+            self._socket.connect((endpoints or Endpoints.from_env()).sub)
+        except zmq.ZMQError:
+            self._socket.close()
+            raise
+
+    @property
+    def seen_topics(self) -> set[str]:
+        """Topics on which anything (pings included) has arrived."""
+        return set(self._seen)
+
+    def totals(self) -> dict[str, int]:
+        """Counters summed over topics: received, lost, rejected, pings."""
+        counters = list(self.counters.values())  # one atomic copy: read by the status thread
+        return {
+            name: sum(getattr(c, name) for c in counters)
+            for name in ("received", "lost", "rejected", "pings")
+        }
+
+    def receive(self, timeout_s: float) -> Received | None:
+        """Next message, or ``None`` when none arrives within ``timeout_s`` seconds.
+
+        Pings and malformed messages are consumed here (counted, rejected ones logged) and
+        never returned or raised.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            remaining_ms = max(0, round((deadline - time.monotonic()) * 1000))
+            if not self._socket.poll(remaining_ms, zmq.POLLIN):
+                return None
+            frames = self._socket.recv_multipart()
+            received = self._handle(frames)
+            if received is not None:
+                return received
+
+    def _handle(self, frames: list[bytes]) -> Received | None:
+        now = time.time()
+        if len(frames) != 3 or not frames[0].endswith(b"\0"):
+            self._reject("?", f"{len(frames)} frames, expected [topic\\0, header, payload]")
+            return None
+        raw_topic, raw_header, payload = frames
+        try:
+            topic = raw_topic[:-1].decode()
+        except UnicodeDecodeError:
+            self._reject("?", f"topic {raw_topic!r} is not UTF-8")
+            return None
+        counters = self.counters.get(topic)
+        if counters is None:  # topics=None: counters appear with the topics
+            counters = self.counters[topic] = TopicCounters()
+        self._seen.add(topic)
+        try:
+            header = _parse_header(raw_header)
+        except ValueError as exc:
+            self._reject(topic, str(exc))
+            return None
+        try:
+            msg = decode(payload, self._expected.get(topic))
+        except DecodeError as exc:
+            self._track(topic, counters, header, is_ping=False)  # it did use its seq
+            self._reject(topic, str(exc))
+            return None
+        is_ping = isinstance(msg, Ping)
+        self._track(topic, counters, header, is_ping)
+        if is_ping:
+            counters.pings += 1
+            return None
+        counters.received += 1
+        return Received(topic, msg, payload, header, now)
+
+    def _track(self, topic: str, counters: TopicCounters, header: Header, is_ping: bool) -> None:
+        key = (topic, header.pub)
+        expected = self._next_seq.get(key)
+        if expected is not None:
+            gap = header.seq - expected
+            if gap > 0:
+                counters.lost += gap
+                log.warning(
+                    "%s: lost %d message(s) from publisher %016x (seq %d..%d)",
+                    topic, gap, header.pub, expected, header.seq - 1,
+                )
+            elif gap < 0 and not is_ping:
+                log.warning(
+                    "%s: publisher %016x seq went back from %d to %d (restarted?)",
+                    topic, header.pub, expected, header.seq,
+                )
+            if is_ping and gap <= 0:
+                return
+        # A ping announces the seq of the next message; a message is followed by seq + 1.
+        self._next_seq[key] = header.seq if is_ping else header.seq + 1
+
+    def _reject(self, topic: str, reason: str) -> None:
+        counters = self.counters.setdefault(topic, TopicCounters())
+        counters.rejected += 1
+        log.warning("%s: rejected message: %s", topic, reason)
+
+    def close(self) -> None:
+        """Close the socket (linger 0)."""
+        self._socket.close()
+
+    def __enter__(self) -> Subscriber:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _parse_header(raw: bytes) -> Header:
+    try:
+        header = msgpack.unpackb(raw, raw=False)
+    except (ValueError, TypeError, msgpack.UnpackException) as exc:
+        raise ValueError(f"header does not unpack: {exc}") from exc
+    if not isinstance(header, dict):
+        raise ValueError("header is not a map")
+    pub, seq = header.get("pub"), header.get("seq")
+    if type(pub) is not int or type(seq) is not int or pub < 0 or seq < 0:
+        raise ValueError(f"header needs non-negative int 'pub' and 'seq', got {header!r}")
+    return Header(pub, seq)

@@ -1,0 +1,652 @@
+"""The YAML launch format: strict parsing into frozen dataclasses, substitutions, arguments.
+
+The format follows ROS 2's YAML launch files where it fits::
+
+    launch:
+      - arg: {name: mu, default: "0.2", description: "friction coefficient"}
+      - transport: {domain: 3}            # optional; default: free loopback ports
+      - node:
+          pkg: vibrissa                   # runs `python -m vibrissa.nodes.<exec>`
+          exec: reconstructor             # ... or `cmd: [prog, arg, ...]` instead of pkg/exec
+          name: reconstructor
+          namespace: /whisker0
+          param: [{name: mu, value: "$(var mu)"}]
+          remap: [{from: wrench, to: /whisker0/wrench}]
+          env: [{name: FOO, value: bar}]
+          respawn: true
+          respawn_delay: 0.2
+          respawn_max: 5
+          required: true
+          on_exit: shutdown
+
+Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)`` and
+``$(dirname)`` (the launch file's directory). Every error is a `LaunchFileError` whose message
+names the file and the key path, e.g. ``demo.yaml: launch[2].node.respawn: expected bool``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import yaml
+
+__all__ = [
+    "ON_EXIT_ACTIONS",
+    "LaunchArg",
+    "LaunchDescription",
+    "LaunchFileError",
+    "NodeSpec",
+    "Param",
+    "Remap",
+    "TransportSpec",
+    "load_launch_file",
+    "parse_arg_overrides",
+    "parse_launch",
+]
+
+ON_EXIT_ACTIONS = ("shutdown",)
+
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_PKG = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*\Z")
+_NAMESPACE = re.compile(r"/\Z|(/[A-Za-z_][A-Za-z0-9_]*)+\Z")
+_TOPIC = re.compile(r"~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*\Z|/\Z")
+_SUBST = re.compile(r"\$\(([^()]*)\)")
+# Highest domain id whose ports 7400 + 2*id, 7401 + 2*id are still valid TCP ports.
+_MAX_DOMAIN = (65535 - 7401) // 2
+
+
+class LaunchFileError(ValueError):
+    """A launch file or a command-line argument override is invalid.
+
+    Parameters
+    ----------
+    source : str
+        The launch file as given (path or packaged name).
+    key_path : str
+        Where in the file, e.g. ``launch[2].node.respawn``; empty for whole-file errors.
+    message : str
+        What is wrong.
+    """
+
+    def __init__(self, source: str, key_path: str, message: str) -> None:
+        self.source = source
+        self.key_path = key_path
+        self.message = message
+        where = f"{source}: {key_path}" if key_path else source
+        super().__init__(f"{where}: {message}")
+
+
+@dataclass(frozen=True)
+class LaunchArg:
+    """A declared launch argument (``- arg: {name, default, description}``)."""
+
+    name: str
+    default: str | None = None
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One node parameter; ``value`` is any YAML value (scalar, list, mapping)."""
+
+    name: str
+    value: Any
+
+
+@dataclass(frozen=True)
+class Remap:
+    """A topic remap ``source:=target`` (``{from: source, to: target}`` in YAML)."""
+
+    source: str
+    target: str
+
+
+@dataclass(frozen=True)
+class TransportSpec:
+    """Where the launcher's proxy binds.
+
+    Either a ``domain`` id (ports ``7400 + 2*id`` and ``7401 + 2*id`` on loopback), or explicit
+    ``pub_endpoint`` (XSUB, publishers connect) and ``sub_endpoint`` (XPUB, subscribers connect),
+    or neither: free loopback ports.
+    """
+
+    domain: int | None = None
+    pub_endpoint: str | None = None
+    sub_endpoint: str | None = None
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One ``- node:`` entry, substitutions resolved.
+
+    Exactly one of ``executable`` (run as ``python -m <pkg>.nodes.<executable>``) and ``cmd``
+    (an arbitrary argv) is set. The node command line (``--name``, ``--namespace``,
+    ``--params-file``, ``--remap``) and then ``args`` are appended to either.
+    """
+
+    name: str
+    namespace: str = "/"
+    pkg: str = "vibrissa"
+    executable: str | None = None
+    cmd: tuple[str, ...] | None = None
+    args: tuple[str, ...] = ()
+    params: tuple[Param, ...] = ()
+    remaps: tuple[Remap, ...] = ()
+    env: tuple[tuple[str, str], ...] = ()
+    respawn: bool = False
+    respawn_delay: float = 0.0
+    respawn_max: int | None = None
+    required: bool = False
+    on_exit: str | None = None
+
+    @property
+    def fqn(self) -> str:
+        """Fully qualified node name, e.g. ``/whisker0/reconstructor``."""
+        return f"{self.namespace.rstrip('/')}/{self.name}"
+
+    def params_dict(self) -> dict[str, Any]:
+        """The parameters as a mapping, in declaration order."""
+        return {p.name: p.value for p in self.params}
+
+
+@dataclass(frozen=True)
+class LaunchDescription:
+    """A parsed launch file: declared arguments, their resolved values, transport, nodes."""
+
+    source: str
+    args: tuple[LaunchArg, ...] = ()
+    arg_values: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
+    transport: TransportSpec | None = None
+    nodes: tuple[NodeSpec, ...] = ()
+
+
+# ---------------------------------------------------------------------------------------------
+# YAML loading
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 booleans and duplicate keys rejected.
+
+    Only ``true``/``false`` are booleans, so ``respawn: yes`` is reported as a wrong type
+    instead of silently meaning true; a repeated key is an error instead of last-one-wins.
+    """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            try:
+                duplicate = key in seen
+            except TypeError:  # unhashable key: let the base class report it
+                break
+            if duplicate:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key!r}", key_node.start_mark
+                )
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+_BOOL_TAG = "tag:yaml.org,2002:bool"
+_StrictLoader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag != _BOOL_TAG]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_StrictLoader.add_implicit_resolver(
+    _BOOL_TAG, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")
+)
+_StrictLoader.add_constructor(
+    yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _StrictLoader.construct_mapping
+)
+
+
+def _load_yaml(text: str, source: str) -> Any:
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        what = exc.problem or exc.context or "invalid YAML"
+        raise LaunchFileError(source, where, what) from None
+    except yaml.YAMLError as exc:
+        raise LaunchFileError(source, "", f"invalid YAML: {exc}") from None
+
+
+# ---------------------------------------------------------------------------------------------
+# Parsing helpers
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class _Parser:
+    """Walks the document, tracking the key path for error messages."""
+
+    def __init__(self, source: str, dirname: str, env: Mapping[str, str]) -> None:
+        self.source = source
+        self.dirname = dirname
+        self.env = env
+        self.args: dict[str, str] = {}
+
+    def error(self, path: str, message: str) -> LaunchFileError:
+        return LaunchFileError(self.source, path, message)
+
+    # -- substitutions -------------------------------------------------------------------------
+
+    def substitute(self, text: str, path: str) -> str:
+        """Resolve ``$(var ...)``, ``$(env ...)`` and ``$(dirname)`` in ``text``."""
+
+        def one(match: re.Match[str]) -> str:
+            words = match.group(1).split()
+            kind, rest = (words[0], words[1:]) if words else ("", [])
+            if kind == "var" and len(rest) == 1:
+                if rest[0] not in self.args:
+                    known = ", ".join(sorted(self.args)) or "none"
+                    raise self.error(
+                        path, f"unknown launch argument in $(var {rest[0]}) (known: {known})"
+                    )
+                return self.args[rest[0]]
+            if kind == "env" and len(rest) >= 1:
+                value = self.env.get(rest[0])
+                if value is not None:
+                    return value
+                if len(rest) > 1:
+                    return " ".join(rest[1:])
+                raise self.error(
+                    path, f"environment variable {rest[0]!r} is not set and has no default"
+                )
+            if kind == "dirname" and not rest:
+                return self.dirname
+            raise self.error(
+                path,
+                f"bad substitution {match.group(0)!r}; expected $(var NAME), $(env NAME), "
+                "$(env NAME default) or $(dirname)",
+            )
+
+        result = _SUBST.sub(one, text)
+        if "$(" in _SUBST.sub("", text):
+            raise self.error(path, f"unterminated substitution in {_show(text)}")
+        return result
+
+    def retyped(self, value: Any, path: str) -> Any:
+        """Substitute inside a string and re-read the result as a YAML scalar.
+
+        This is how ``respawn: $(var respawn)`` or ``value: $(var mu)`` get their types, as in
+        ROS 2; a string without substitutions keeps the type YAML gave it.
+        """
+        if not isinstance(value, str) or "$(" not in value:
+            return value
+        text = self.substitute(value, path)
+        try:
+            typed = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+        except yaml.YAMLError:
+            return text
+        return typed if isinstance(typed, (bool, int, float, str)) else text
+
+    # -- typed leaves ----------------------------------------------------------------------------
+
+    def mapping(self, value: Any, path: str, required: Sequence[str], optional: Sequence[str]
+                ) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.error(path, f"expected a mapping, got {_show(value)}")
+        for key in value:
+            if key not in required and key not in optional:
+                allowed = ", ".join([*required, *optional])
+                raise self.error(f"{path}.{key}", f"unknown key (allowed: {allowed})")
+        for key in required:
+            if key not in value:
+                raise self.error(f"{path}.{key}", "missing required key")
+        return value
+
+    def list_of(self, value: Any, path: str) -> list[Any]:
+        if not isinstance(value, list):
+            raise self.error(path, f"expected a list, got {_show(value)}")
+        return value
+
+    def string(self, value: Any, path: str, pattern: re.Pattern[str] | None = None,
+               what: str = "") -> str:
+        value = self.retyped(value, path)
+        if not isinstance(value, str):
+            raise self.error(path, f"expected str, got {_show(value)}")
+        if pattern is not None and not pattern.match(value):
+            raise self.error(path, f"invalid {what} {value!r}")
+        return value
+
+    def text(self, value: Any, path: str) -> str:
+        """A string-valued field that also accepts a number (``value: 3`` for an env var)."""
+        value = self.retyped(value, path)
+        if isinstance(value, bool):
+            return "true" if value else "false"
+        if isinstance(value, (int, float, str)):
+            return str(value)
+        raise self.error(path, f"expected str, got {_show(value)}")
+
+    def boolean(self, value: Any, path: str) -> bool:
+        value = self.retyped(value, path)
+        if not isinstance(value, bool):
+            raise self.error(path, f"expected bool, got {_show(value)}")
+        return value
+
+    def number(self, value: Any, path: str, minimum: float = 0.0) -> float:
+        value = self.retyped(value, path)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(path, f"expected a number, got {_show(value)}")
+        if not value >= minimum or value == float("inf"):
+            raise self.error(path, f"expected a finite number >= {minimum:g}, got {value!r}")
+        return float(value)
+
+    def integer(self, value: Any, path: str, minimum: int, maximum: int | None = None) -> int:
+        value = self.retyped(value, path)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(path, f"expected int, got {_show(value)}")
+        if value < minimum or (maximum is not None and value > maximum):
+            bound = f"in [{minimum}, {maximum}]" if maximum is not None else f">= {minimum}"
+            raise self.error(path, f"expected an int {bound}, got {value}")
+        return value
+
+    def deep(self, value: Any, path: str) -> Any:
+        """Substitute recursively inside a parameter value (lists, mappings, strings)."""
+        if isinstance(value, list):
+            return [self.deep(v, f"{path}[{i}]") for i, v in enumerate(value)]
+        if isinstance(value, dict):
+            for key in value:
+                if not isinstance(key, str):
+                    raise self.error(path, f"expected str keys, got {_show(key)}")
+            return {k: self.deep(v, f"{path}.{k}") for k, v in value.items()}
+        return self.retyped(value, path)
+
+    # -- entries -------------------------------------------------------------------------------
+
+    def arg(self, value: Any, path: str) -> LaunchArg:
+        body = self.mapping(value, path, ("name",), ("default", "description"))
+        name = self.string(body["name"], f"{path}.name", _IDENT, "argument name")
+        default = None
+        if "default" in body:
+            default = self.text(body["default"], f"{path}.default")
+        description = self.text(body.get("description", ""), f"{path}.description")
+        return LaunchArg(name=name, default=default, description=description)
+
+    def transport(self, value: Any, path: str) -> TransportSpec:
+        body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint"))
+        if "domain" in body:
+            if "pub_endpoint" in body or "sub_endpoint" in body:
+                raise self.error(path, "give either domain or pub_endpoint/sub_endpoint, not both")
+            return TransportSpec(
+                domain=self.integer(body["domain"], f"{path}.domain", 0, _MAX_DOMAIN)
+            )
+        if ("pub_endpoint" in body) != ("sub_endpoint" in body):
+            missing = "sub_endpoint" if "pub_endpoint" in body else "pub_endpoint"
+            raise self.error(f"{path}.{missing}", "missing (give both endpoints or neither)")
+        if "pub_endpoint" in body:
+            pub = self.string(body["pub_endpoint"], f"{path}.pub_endpoint")
+            sub = self.string(body["sub_endpoint"], f"{path}.sub_endpoint")
+            for key, endpoint in (("pub_endpoint", pub), ("sub_endpoint", sub)):
+                if "://" not in endpoint:
+                    raise self.error(
+                        f"{path}.{key}", f"expected a ZeroMQ endpoint like tcp://HOST:PORT, "
+                        f"got {endpoint!r}"
+                    )
+            return TransportSpec(pub_endpoint=pub, sub_endpoint=sub)
+        return TransportSpec()
+
+    def node(self, value: Any, path: str) -> NodeSpec:
+        keys = ("pkg", "exec", "cmd", "args", "name", "namespace", "param", "remap", "env",
+                "respawn", "respawn_delay", "respawn_max", "required", "on_exit")
+        body = self.mapping(value, path, (), keys)
+        has_exec, has_cmd = "exec" in body, "cmd" in body
+        if has_exec == has_cmd:
+            raise self.error(path, "expected exactly one of 'exec' (with optional 'pkg') or "
+                             "'cmd'")
+        executable: str | None = None
+        cmd: tuple[str, ...] | None = None
+        pkg = "vibrissa"
+        if has_cmd:
+            if "pkg" in body:
+                raise self.error(f"{path}.pkg", "not allowed together with 'cmd'")
+            items = self.list_of(body["cmd"], f"{path}.cmd")
+            if not items:
+                raise self.error(f"{path}.cmd", "expected a non-empty list")
+            cmd = tuple(self.text(v, f"{path}.cmd[{i}]") for i, v in enumerate(items))
+        else:
+            executable = self.string(body["exec"], f"{path}.exec", _IDENT, "executable")
+            if "pkg" in body:
+                pkg = self.string(body["pkg"], f"{path}.pkg", _PKG, "package")
+        if "name" in body:
+            name = self.string(body["name"], f"{path}.name", _IDENT, "node name")
+        elif executable is not None:
+            name = executable
+        else:
+            raise self.error(f"{path}.name", "missing required key (needed with 'cmd')")
+        namespace = "/"
+        if "namespace" in body:
+            namespace = self.string(body["namespace"], f"{path}.namespace")
+            if not namespace.startswith("/"):
+                namespace = "/" + namespace
+            if namespace != "/":
+                namespace = namespace.rstrip("/")
+            if not _NAMESPACE.match(namespace):
+                raise self.error(f"{path}.namespace", f"invalid namespace {namespace!r}")
+
+        args: tuple[str, ...] = ()
+        if "args" in body:
+            raw = self.retyped(body["args"], f"{path}.args")
+            if isinstance(raw, str):
+                args = tuple(shlex.split(raw))
+            else:
+                items = self.list_of(raw, f"{path}.args")
+                args = tuple(self.text(v, f"{path}.args[{i}]") for i, v in enumerate(items))
+
+        params: list[Param] = []
+        for i, entry in enumerate(self.list_of(body.get("param", []), f"{path}.param")):
+            where = f"{path}.param[{i}]"
+            item = self.mapping(entry, where, ("name", "value"), ())
+            pname = self.string(item["name"], f"{where}.name")
+            if not pname or any(c.isspace() for c in pname):
+                raise self.error(f"{where}.name", f"invalid parameter name {pname!r}")
+            if any(p.name == pname for p in params):
+                raise self.error(f"{where}.name", f"duplicate parameter {pname!r}")
+            params.append(Param(pname, self.deep(item["value"], f"{where}.value")))
+
+        remaps: list[Remap] = []
+        for i, entry in enumerate(self.list_of(body.get("remap", []), f"{path}.remap")):
+            where = f"{path}.remap[{i}]"
+            item = self.mapping(entry, where, ("from", "to"), ())
+            remaps.append(Remap(self.string(item["from"], f"{where}.from", _TOPIC, "topic name"),
+                                self.string(item["to"], f"{where}.to", _TOPIC, "topic name")))
+
+        env: list[tuple[str, str]] = []
+        for i, entry in enumerate(self.list_of(body.get("env", []), f"{path}.env")):
+            where = f"{path}.env[{i}]"
+            item = self.mapping(entry, where, ("name", "value"), ())
+            ename = self.string(item["name"], f"{where}.name", _IDENT, "environment variable")
+            env.append((ename, self.text(item["value"], f"{where}.value")))
+
+        respawn = self.boolean(body.get("respawn", False), f"{path}.respawn")
+        respawn_delay = self.number(body.get("respawn_delay", 0.0), f"{path}.respawn_delay")
+        respawn_max = None
+        if "respawn_max" in body:
+            respawn_max = self.integer(body["respawn_max"], f"{path}.respawn_max", 0)
+        for key in ("respawn_delay", "respawn_max"):
+            if key in body and not respawn:
+                raise self.error(f"{path}.{key}", "has no effect without 'respawn: true'")
+        required = self.boolean(body.get("required", False), f"{path}.required")
+        on_exit = None
+        if "on_exit" in body:
+            on_exit = self.string(body["on_exit"], f"{path}.on_exit")
+            if on_exit not in ON_EXIT_ACTIONS:
+                raise self.error(f"{path}.on_exit",
+                                 f"expected one of {', '.join(ON_EXIT_ACTIONS)}, got {on_exit!r}")
+        return NodeSpec(
+            name=name, namespace=namespace, pkg=pkg, executable=executable, cmd=cmd, args=args,
+            params=tuple(params), remaps=tuple(remaps), env=tuple(env), respawn=respawn,
+            respawn_delay=respawn_delay, respawn_max=respawn_max, required=required,
+            on_exit=on_exit,
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# Public entry points
+
+
+def parse_arg_overrides(items: Sequence[str], source: str = "command line") -> dict[str, str]:
+    """Parse ``NAME:=VALUE`` words from the command line.
+
+    Parameters
+    ----------
+    items : sequence of str
+        The words, e.g. ``["mu:=0.3", "out:=out/run1"]``.
+    source : str
+        Named in error messages.
+
+    Returns
+    -------
+    dict of str to str
+        Argument name to value; a later word overrides an earlier one.
+    """
+    overrides: dict[str, str] = {}
+    for item in items:
+        name, sep, value = item.partition(":=")
+        if not sep or not _IDENT.match(name):
+            raise LaunchFileError(source, "", f"bad argument {item!r}: expected NAME:=VALUE")
+        overrides[name] = value
+    return overrides
+
+
+def parse_launch(
+    document: Any,
+    source: str,
+    overrides: Mapping[str, str] | None = None,
+    *,
+    dirname: str | None = None,
+    environ: Mapping[str, str] | None = None,
+) -> LaunchDescription:
+    """Validate a loaded launch document and resolve its substitutions.
+
+    Parameters
+    ----------
+    document : Any
+        The YAML document, ``{"launch": [...]}``.
+    source : str
+        The file name used in error messages.
+    overrides : mapping of str to str, optional
+        Launch argument values from the command line; an unknown name is an error.
+    dirname : str, optional
+        Value of ``$(dirname)``; defaults to the directory of ``source``.
+    environ : mapping of str to str, optional
+        Environment for ``$(env ...)``; defaults to `os.environ`.
+
+    Returns
+    -------
+    LaunchDescription
+
+    Raises
+    ------
+    LaunchFileError
+        Naming the file and the key path of the first problem.
+    """
+    overrides = dict(overrides or {})
+    if dirname is None:
+        dirname = str(Path(source).resolve().parent)
+    p = _Parser(source, dirname, os.environ if environ is None else environ)
+    if document is None:
+        raise p.error("", "empty file; expected a mapping with a 'launch' list")
+    body = p.mapping(document, "", ("launch",), ())
+    entries = p.list_of(body["launch"], "launch")
+
+    kinds: dict[str, Callable[[Any, str], Any]] = {
+        "arg": p.arg, "node": p.node, "transport": p.transport,
+    }
+    shapes: list[tuple[str, str, Any]] = []
+    for i, entry in enumerate(entries):
+        path = f"launch[{i}]"
+        if not isinstance(entry, dict) or len(entry) != 1:
+            raise p.error(path, f"expected a mapping with one key ({', '.join(kinds)}), "
+                          f"got {_show(entry)}")
+        ((kind, value),) = entry.items()
+        if kind not in kinds:
+            raise p.error(f"{path}.{kind}", f"unknown entry (allowed: {', '.join(kinds)})")
+        shapes.append((f"{path}.{kind}", kind, value))
+
+    # Arguments first, in order: a default may use $(var ...) of an earlier argument.
+    declared: list[LaunchArg] = []
+    for path, kind, value in shapes:
+        if kind != "arg":
+            continue
+        arg = p.arg(value, path)
+        if any(a.name == arg.name for a in declared):
+            raise p.error(f"{path}.name", f"duplicate argument {arg.name!r}")
+        declared.append(arg)
+        if arg.name in overrides:
+            p.args[arg.name] = overrides[arg.name]
+        elif arg.default is not None:
+            p.args[arg.name] = arg.default
+        else:
+            raise p.error(path, f"argument {arg.name!r} has no default; give it on the command "
+                          f"line as {arg.name}:=VALUE")
+    unknown = sorted(set(overrides) - {a.name for a in declared})
+    if unknown:
+        known = ", ".join(a.name for a in declared) or "none"
+        raise p.error("", f"unknown launch argument {', '.join(map(repr, unknown))} "
+                      f"(known: {known})")
+
+    transport: TransportSpec | None = None
+    nodes: list[NodeSpec] = []
+    for path, kind, value in shapes:
+        if kind == "transport":
+            if transport is not None:
+                raise p.error(path, "only one transport entry is allowed")
+            transport = p.transport(value, path)
+        elif kind == "node":
+            node = p.node(value, path)
+            if any(n.name == node.name for n in nodes):
+                raise p.error(f"{path}.name", f"duplicate node name {node.name!r} (node names "
+                              "label the output and must be unique in a launch)")
+            nodes.append(node)
+    if not nodes:
+        raise p.error("launch", "no node entries")
+    return LaunchDescription(source=source, args=tuple(declared),
+                             arg_values=MappingProxyType(dict(p.args)), transport=transport,
+                             nodes=tuple(nodes))
+
+
+def load_launch_file(
+    path: str | os.PathLike[str],
+    overrides: Mapping[str, str] | None = None,
+    *,
+    environ: Mapping[str, str] | None = None,
+) -> LaunchDescription:
+    """Read and validate a launch file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The YAML launch file.
+    overrides : mapping of str to str, optional
+        Launch argument values (``name:=value`` from the command line).
+    environ : mapping of str to str, optional
+        Environment for ``$(env ...)``; defaults to `os.environ`.
+
+    Returns
+    -------
+    LaunchDescription
+
+    Raises
+    ------
+    LaunchFileError
+        The file cannot be read, is not valid YAML, or does not validate.
+    """
+    source = os.fspath(path)
+    try:
+        text = Path(source).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise LaunchFileError(source, "", f"cannot read: {exc.strerror or exc}") from None
+    return parse_launch(_load_yaml(text, source), source, overrides, environ=environ)

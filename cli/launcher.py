@@ -1,0 +1,623 @@
+"""``vibrissa launch FILE.yaml [name:=value ...]``: run a node graph from a YAML launch file.
+
+The launcher starts the XSUB/XPUB proxy in its own process, then every node in file order as
+a child in its own process group, with ``VIBRISSA_PUB_ENDPOINT``/``VIBRISSA_SUB_ENDPOINT`` in
+its environment and its parameters in a temporary YAML file. Each line a child writes is
+echoed with a ``[name] `` prefix. Nodes that fail are respawned per their policy; a failed
+``required`` node, a node with ``on_exit: shutdown`` finishing, Ctrl-C or SIGTERM shut the graph
+down in reverse start order (SIGINT, grace period, SIGTERM, grace period, SIGKILL).
+
+Exit status: 0 when every node ended with 0 (or was stopped by the launcher after an
+``on_exit: shutdown``); 1 when a node failed for good (the last line names it); 2 for an
+invalid launch file or argument (nothing is started); 128 + signal number after Ctrl-C/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from types import FrameType
+from typing import IO, Any, Protocol
+
+import yaml
+from vibrissa.cli.launch_file import (
+    LaunchDescription,
+    LaunchFileError,
+    NodeSpec,
+    TransportSpec,
+    load_launch_file,
+    parse_arg_overrides,
+)
+
+__all__ = [
+    "DEFAULT_GRACE_S",
+    "Launcher",
+    "NodeOutcome",
+    "ProxyHandle",
+    "node_command",
+    "register",
+    "resolve_launch_file",
+    "run_launch",
+]
+
+DEFAULT_GRACE_S = 5.0
+_POLL_S = 0.02
+_READER_JOIN_S = 2.0
+_LOG_PREFIX = "[launch] "
+
+
+class ProxyHandle(Protocol):
+    """What the launcher needs from a running proxy: its two endpoints and a way to stop it."""
+
+    @property
+    def pub_endpoint(self) -> str:
+        """XSUB endpoint that publishers connect to."""
+        ...
+
+    @property
+    def sub_endpoint(self) -> str:
+        """XPUB endpoint that subscribers connect to."""
+        ...
+
+    def stop(self) -> None:
+        """Stop the proxy and close its sockets."""
+        ...
+
+
+ProxyFactory = Callable[[TransportSpec | None], ProxyHandle]
+
+
+@dataclass
+class _WireProxy:
+    """`vibrissa.wire.transport.Proxy` behind the `ProxyHandle` interface."""
+
+    proxy: Any
+    pub_endpoint: str
+    sub_endpoint: str
+
+    def stop(self) -> None:
+        self.proxy.stop()
+
+
+def start_wire_proxy(spec: TransportSpec | None) -> ProxyHandle:
+    """Start the XSUB/XPUB proxy of `vibrissa.wire.transport` as ``spec`` asks.
+
+    Parameters
+    ----------
+    spec : TransportSpec or None
+        Domain id, explicit endpoints, or None/empty for free loopback ports.
+
+    Returns
+    -------
+    ProxyHandle
+        The running proxy with its bound endpoints.
+    """
+    from vibrissa.wire import transport  # the wire layer; imported only when launching
+
+    if spec is not None and spec.domain is not None:
+        endpoints = transport.Endpoints.for_domain(spec.domain)
+    elif spec is not None and spec.pub_endpoint is not None and spec.sub_endpoint is not None:
+        endpoints = transport.Endpoints(pub=spec.pub_endpoint, sub=spec.sub_endpoint)
+    else:
+        endpoints = transport.Endpoints.free()
+    proxy = transport.Proxy(endpoints)
+    bound = proxy.start()
+    return _WireProxy(proxy, bound.pub, bound.sub)
+
+
+@dataclass
+class NodeOutcome:
+    """How one node's run went, for the summary and the exit status."""
+
+    name: str
+    starts: int = 0
+    respawns: int = 0
+    returncode: int | None = None
+    failed: bool = False
+    stopped_by_launcher: bool = False
+    note: str = ""
+
+    def describe(self) -> str:
+        """Human-readable result, e.g. ``exit 0``, ``killed by SIGKILL``."""
+        if self.note:
+            return self.note
+        text = _describe_returncode(self.returncode)
+        return f"stopped by launcher ({text})" if self.stopped_by_launcher else text
+
+
+def _what_happened(rc: int | None) -> str:
+    """``exited with code 3`` / ``was killed by SIGKILL``, for log lines."""
+    text = _describe_returncode(rc)
+    return text.replace("exit ", "exited with code ", 1) if rc is not None and rc >= 0 else (
+        f"was {text}")
+
+
+def _describe_returncode(rc: int | None) -> str:
+    if rc is None:
+        return "not started"
+    if rc >= 0:
+        return f"exit {rc}"
+    try:
+        return f"killed by {signal.Signals(-rc).name}"
+    except ValueError:
+        return f"killed by signal {-rc}"
+
+
+@dataclass
+class _Running:
+    """Runtime state of one node."""
+
+    spec: NodeSpec
+    outcome: NodeOutcome
+    proc: subprocess.Popen[bytes] | None = None
+    readers: list[threading.Thread] = field(default_factory=list)
+    state: str = "pending"  # pending | running | waiting (respawn) | done
+    respawn_at: float = 0.0
+
+
+def node_command(spec: NodeSpec, params_file: str | None, python: str = sys.executable
+                 ) -> list[str]:
+    """The argv that starts ``spec``, following the node command line of ARCHITECTURE.md.
+
+    Parameters
+    ----------
+    spec : NodeSpec
+        The node.
+    params_file : str or None
+        Its parameters file, if it has parameters.
+    python : str
+        Interpreter for ``pkg``/``exec`` nodes.
+
+    Returns
+    -------
+    list of str
+        ``python -m <pkg>.nodes.<exec>`` (or ``cmd``) ``--name N --namespace NS
+        [--params-file F] [--remap FROM:=TO]... [args...]``.
+    """
+    if spec.cmd is not None:
+        argv = list(spec.cmd)
+    else:
+        argv = [python, "-m", f"{spec.pkg}.nodes.{spec.executable}"]
+    argv += ["--name", spec.name, "--namespace", spec.namespace]
+    if params_file is not None:
+        argv += ["--params-file", params_file]
+    for remap in spec.remaps:
+        argv += ["--remap", f"{remap.source}:={remap.target}"]
+    argv += list(spec.args)
+    return argv
+
+
+class _Output:
+    """Line-prefixed, lock-protected writing to the launcher's stdout and stderr."""
+
+    def __init__(self, stdout: IO[str], stderr: IO[str]) -> None:
+        self.stdout = stdout
+        self.stderr = stderr
+        self.lock = threading.Lock()
+
+    def write(self, stream: IO[str], text: str) -> None:
+        with self.lock:
+            try:
+                stream.write(text)
+                stream.flush()
+            except (OSError, ValueError):
+                pass  # a closed or broken output must not kill the launcher
+
+    def log(self, message: str) -> None:
+        self.write(self.stderr, f"{_LOG_PREFIX}{message}\n")
+
+    def pump(self, pipe: IO[bytes], stream: IO[str], prefix: str) -> None:
+        """Copy ``pipe`` to ``stream`` line by line with ``prefix`` (reader-thread body)."""
+        with pipe:
+            for raw in iter(lambda: pipe.readline(65536), b""):
+                line = raw.decode("utf-8", errors="replace")
+                if not line.endswith("\n"):
+                    line += "\n"
+                self.write(stream, prefix + line)
+
+
+class Launcher:
+    """Runs a `LaunchDescription`: proxy, nodes, respawns, ordered shutdown.
+
+    Parameters
+    ----------
+    description : LaunchDescription
+        The validated launch file.
+    grace_s : float
+        Seconds to wait after SIGINT, and again after SIGTERM, before escalating.
+    stdout, stderr : text streams, optional
+        Where prefixed child output and the launcher's own log go (default: sys streams).
+    proxy_factory : callable, optional
+        Starts the proxy; default `start_wire_proxy`.
+    python : str
+        Interpreter for ``pkg``/``exec`` nodes.
+    """
+
+    def __init__(
+        self,
+        description: LaunchDescription,
+        *,
+        grace_s: float = DEFAULT_GRACE_S,
+        stdout: IO[str] | None = None,
+        stderr: IO[str] | None = None,
+        proxy_factory: ProxyFactory | None = None,
+        python: str = sys.executable,
+    ) -> None:
+        self.description = description
+        self.grace_s = grace_s
+        self.out = _Output(stdout or sys.stdout, stderr or sys.stderr)
+        self.proxy_factory = proxy_factory or start_wire_proxy
+        self.python = python
+        self.nodes = [_Running(spec, NodeOutcome(spec.name)) for spec in description.nodes]
+        self._signals: list[int] = []
+        self._shutting_down = False
+        self._failure: str | None = None
+        self._signals_at_shutdown = 0
+        self._env: dict[str, str] = {}
+        self._params_dir: str | None = None
+
+    # -- signals -------------------------------------------------------------------------------
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        # Only record: the main loop acts. Taking a lock here could deadlock.
+        self._signals.append(signum)
+
+    @contextlib.contextmanager
+    def _signal_handlers(self) -> Any:
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        previous = {sig: signal.signal(sig, self._on_signal)
+                    for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    # -- the run -------------------------------------------------------------------------------
+
+    def run(self) -> int:
+        """Start everything, supervise until the graph ends, shut down, summarise.
+
+        Returns
+        -------
+        int
+            The exit status (see the module docstring).
+        """
+        with self._signal_handlers():
+            try:
+                proxy = self.proxy_factory(self.description.transport)
+            except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
+                self.out.log(f"cannot start the proxy: {exc}")
+                return 1
+            self.out.log(f"proxy: publishers -> {proxy.pub_endpoint}, "
+                         f"subscribers -> {proxy.sub_endpoint}")
+            self._env = {
+                "PYTHONUNBUFFERED": "1",
+                "VIBRISSA_PUB_ENDPOINT": proxy.pub_endpoint,
+                "VIBRISSA_SUB_ENDPOINT": proxy.sub_endpoint,
+            }
+            self._params_dir = tempfile.mkdtemp(prefix="vibrissa-launch-")
+            try:
+                self._supervise()
+            finally:
+                self._shutdown()
+                with contextlib.suppress(Exception):
+                    proxy.stop()
+                shutil.rmtree(self._params_dir, ignore_errors=True)
+        return self._finish()
+
+    def _supervise(self) -> None:
+        for node in self.nodes:
+            if self._check_signals() or self._shutting_down:
+                return
+            self._start(node)
+            self._poll_exits()
+        while not self._shutting_down:
+            if self._check_signals():
+                return
+            self._poll_exits()
+            now = time.monotonic()
+            for node in self.nodes:
+                if node.state == "waiting" and now >= node.respawn_at and not self._shutting_down:
+                    node.outcome.respawns += 1
+                    self._start(node)
+            if all(node.state == "done" for node in self.nodes):
+                return
+            time.sleep(_POLL_S)
+
+    def _check_signals(self) -> bool:
+        if not self._signals:
+            return False
+        self.out.log(f"received {signal.Signals(self._signals[0]).name}; shutting down")
+        self._shutting_down = True
+        return True
+
+    def _start(self, node: _Running) -> None:
+        spec = node.spec
+        params_file = None
+        if spec.params:
+            assert self._params_dir is not None
+            params_file = os.path.join(self._params_dir, f"{spec.name}.params.yaml")
+            with open(params_file, "w", encoding="utf-8") as fh:
+                yaml.safe_dump(spec.params_dict(), fh, sort_keys=False)
+        argv = node_command(spec, params_file, self.python)
+        env = {**os.environ, **self._env, **dict(spec.env)}
+        node.outcome.starts += 1
+        try:
+            proc = subprocess.Popen(
+                argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                env=env, start_new_session=True,  # own process group: signalled as a whole
+            )
+        except OSError as exc:
+            node.proc = None
+            self._on_exit(node, None, f"could not start: {exc}")
+            return
+        node.proc = proc
+        node.state = "running"
+        prefix = f"[{spec.name}] "
+        node.readers = []
+        for pipe, stream in ((proc.stdout, self.out.stdout), (proc.stderr, self.out.stderr)):
+            assert pipe is not None
+            reader = threading.Thread(target=self.out.pump, args=(pipe, stream, prefix),
+                                      name=f"launch-{spec.name}", daemon=True)
+            reader.start()
+            node.readers.append(reader)
+        what = "respawned" if node.outcome.starts > 1 else "started"
+        self.out.log(f"{what} '{spec.name}' (pid {proc.pid})")
+
+    def _poll_exits(self) -> None:
+        for node in self.nodes:
+            if node.state == "running" and _has_exited(node.proc):
+                rc = self._reap(node)
+                self._on_exit(node, rc, "")
+
+    def _reap(self, node: _Running) -> int:
+        """Collect an exited node: kill what is left of its process group, drain its output."""
+        proc = node.proc
+        assert proc is not None
+        # The leader is a zombie until waited for, so its pid (= the group id) cannot have
+        # been reused yet: killing the group is safe and takes any orphaned children with it.
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        rc = proc.wait()
+        for reader in node.readers:
+            reader.join(_READER_JOIN_S)
+        node.state = "done"
+        node.outcome.returncode = rc
+        return rc
+
+    def _on_exit(self, node: _Running, rc: int | None, note: str) -> None:
+        spec, outcome = node.spec, node.outcome
+        outcome.returncode = rc
+        node.state = "done"
+        if self._shutting_down:
+            return
+        if rc == 0:
+            self.out.log(f"'{spec.name}' finished (exit 0)")
+            if spec.on_exit == "shutdown":
+                self.out.log(f"'{spec.name}' has on_exit: shutdown; shutting down")
+                self._shutting_down = True
+            return
+        what = note or _what_happened(rc)
+        if spec.respawn and (spec.respawn_max is None or outcome.respawns < spec.respawn_max):
+            node.state = "waiting"
+            node.respawn_at = time.monotonic() + spec.respawn_delay
+            cap = f"/{spec.respawn_max}" if spec.respawn_max is not None else ""
+            self.out.log(f"'{spec.name}' {what}; respawn {outcome.respawns + 1}{cap} "
+                         f"in {spec.respawn_delay:g} s")
+            return
+        outcome.failed = True
+        outcome.note = note
+        exhausted = " (respawn limit reached)" if spec.respawn else ""
+        if spec.required or spec.on_exit == "shutdown":
+            why = "required node" if spec.required else "node with on_exit: shutdown"
+            self._failure = f"{why} '{spec.name}' {what}{exhausted}"
+            self.out.log(f"{self._failure}; shutting down")
+            self._shutting_down = True
+        else:
+            self.out.log(f"'{spec.name}' {what}{exhausted}; not required, continuing")
+
+    # -- shutdown ------------------------------------------------------------------------------
+
+    def _shutdown(self) -> None:
+        """Stop every node still running, in reverse start order."""
+        self._shutting_down = True
+        self._signals_at_shutdown = len(self._signals)
+        for node in reversed(self.nodes):
+            if node.state == "pending":
+                node.outcome.note = "not started"
+            elif node.state == "waiting":
+                last = _describe_returncode(node.outcome.returncode)
+                node.outcome.note = f"respawn cancelled after {last}"
+            elif node.state == "running":
+                self._stop(node)
+            node.state = "done"
+
+    def _stop(self, node: _Running) -> None:
+        proc = node.proc
+        assert proc is not None
+        if not _has_exited(proc):
+            node.outcome.stopped_by_launcher = True
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+                if len(self._signals) > self._signals_at_shutdown:
+                    sig = signal.SIGKILL  # a second Ctrl-C: no more waiting
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(proc.pid, sig)
+                if sig == signal.SIGKILL or self._wait(proc, self.grace_s):
+                    break
+                self.out.log(f"'{node.spec.name}' still running {self.grace_s:g} s after "
+                             f"{sig.name}; escalating")
+        self._reap(node)
+
+    def _wait(self, proc: subprocess.Popen[bytes], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if _has_exited(proc):
+                return True
+            if len(self._signals) > self._signals_at_shutdown:
+                return False
+            time.sleep(_POLL_S)
+        return _has_exited(proc)
+
+    def _finish(self) -> int:
+        outcomes = [node.outcome for node in self.nodes]
+        width = max(len(o.name) for o in outcomes)
+        result_width = max(len(o.describe()) for o in outcomes)
+        self.out.log("summary:")
+        for o in outcomes:
+            self.out.log(f"  {o.name:<{width}}  {o.describe():<{result_width}}  "
+                         f"starts {o.starts}  respawns {o.respawns}")
+        if self._failure is not None:
+            self.out.log(f"launch failed: {self._failure}")
+            return 1
+        failed = [o for o in outcomes if o.failed]
+        if failed:
+            names = ", ".join(f"'{o.name}' ({o.describe()})" for o in failed)
+            self.out.log(f"launch failed: node {names}")
+            return 1
+        if self._signals:
+            return 128 + self._signals[0]
+        self.out.log("launch finished")
+        return 0
+
+
+def _has_exited(proc: subprocess.Popen[bytes] | None) -> bool:
+    """Whether ``proc`` has exited, without reaping it (its pid stays reserved)."""
+    if proc is None or proc.returncode is not None:
+        return True
+    try:
+        info = os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+    except ChildProcessError:
+        return True
+    return info is not None
+
+
+# ---------------------------------------------------------------------------------------------
+# Command line
+
+
+def resolve_launch_file(name: str) -> str:
+    """Find a launch file: a path, else a file shipped in the `vibrissa.launch` package.
+
+    Parameters
+    ----------
+    name : str
+        ``path/to/file.yaml``, or ``demo``/``demo.yaml`` for a packaged file.
+
+    Returns
+    -------
+    str
+        A readable path (``name`` itself when nothing better is found, so that the error
+        names what the user typed).
+    """
+    if os.path.exists(name) or os.sep in name:
+        return name
+    package = resources.files("vibrissa.launch")
+    for candidate in (name, f"{name}.yaml"):
+        entry = package / candidate
+        if entry.is_file():
+            return str(entry)
+    return name
+
+
+def run_launch(args: argparse.Namespace) -> int:
+    """The ``launch`` subcommand (``func`` of its parser).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``file``, ``overrides``, ``grace``, ``show_args``, ``dry_run``.
+
+    Returns
+    -------
+    int
+        Exit status; 2 for an invalid launch file or argument.
+    """
+    path = resolve_launch_file(args.file)
+    try:
+        overrides = parse_arg_overrides(args.overrides)
+        description = load_launch_file(path, overrides)
+    except LaunchFileError as exc:
+        print(f"vibrissa launch: error: {exc}", file=sys.stderr)
+        return 2
+    if args.show_args:
+        _print_args(description)
+        return 0
+    if args.dry_run:
+        for spec in description.nodes:
+            params = "<params-file>" if spec.params else None
+            print(f"[{spec.name}] " + " ".join(node_command(spec, params)))
+            for key, value in spec.params_dict().items():
+                print(f"[{spec.name}]   param {key}: {value!r}")
+        return 0
+    return Launcher(description, grace_s=args.grace).run()
+
+
+def _print_args(description: LaunchDescription) -> None:
+    if not description.args:
+        print(f"{description.source}: no arguments")
+        return
+    print(f"Arguments of {description.source} (pass as NAME:=VALUE):")
+    for arg in description.args:
+        default = "(required)" if arg.default is None else f"default: {arg.default!r}"
+        print(f"  {arg.name}: {arg.description or '-'}  [{default}]")
+
+
+def seconds(text: str) -> float:
+    """Argparse type: a duration in seconds, >= 0."""
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``launch`` subcommand to the ``vibrissa`` dispatcher.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        From ``ArgumentParser.add_subparsers``.
+    """
+    parser = subparsers.add_parser(
+        "launch",
+        help="run a node graph from a YAML launch file",
+        description="Run a node graph from a YAML launch file (ROS 2 style). Arguments "
+                    "declared in the file are set with NAME:=VALUE.",
+    )
+    parser.add_argument("file", help="launch file path, or the name of a packaged launch file")
+    parser.add_argument("overrides", nargs="*", metavar="NAME:=VALUE",
+                        help="launch argument values")
+    parser.add_argument("--grace", type=seconds, default=DEFAULT_GRACE_S, metavar="SECONDS",
+                        help="wait after SIGINT, then after SIGTERM, before escalating "
+                             f"(default {DEFAULT_GRACE_S:g})")
+    parser.add_argument("--show-args", action="store_true",
+                        help="list the launch file's arguments and exit")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="validate and print the node commands without starting anything")
+    parser.set_defaults(func=run_launch)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``vibrissa launch`` alone (same as ``vibrissa launch ...``)."""
+    parser = argparse.ArgumentParser(prog="vibrissa")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["launch", *(sys.argv[1:] if argv is None else argv)])
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

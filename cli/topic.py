@@ -1,0 +1,274 @@
+"""``vibrissa topic``: list the graph's topics, echo a topic, measure its rate."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+import numpy as np
+from vibrissa.cli.bag import add_endpoint_flags, endpoints_from, stop_on_signals
+from vibrissa.msgs import EndOfStream, Message, NodeStatus, to_jsonable
+from vibrissa.wire.topics import STATUS_TOPIC, validate_name
+from vibrissa.wire.transport import Endpoints, Subscriber
+
+_ARRAY_ITEMS_SHOWN = 12  # longer arrays are summarised in the YAML-ish echo
+
+
+def register(subparsers: Any) -> None:
+    """Add ``topic`` with its subcommands ``list``, ``echo``, ``hz``."""
+    topic = subparsers.add_parser("topic", help="inspect the topics of the running graph")
+    sub = topic.add_subparsers(dest="topic_command", required=True, metavar="SUBCOMMAND")
+
+    p = sub.add_parser("list", help="topics with their type, publishers and subscribers")
+    p.add_argument("--listen", type=float, default=1.5, metavar="S",
+                   help="seconds to listen for status heartbeats and traffic (default 1.5)")
+    add_endpoint_flags(p)
+    p.set_defaults(func=_list)
+
+    p = sub.add_parser("echo", help="print the messages on a topic")
+    p.add_argument("topic", metavar="TOPIC")
+    p.add_argument("--count", "-n", type=int, default=0, metavar="N",
+                   help="exit after N messages (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.add_argument("--timeout", type=float, default=0.0, metavar="S",
+                   help="exit with status 1 after S seconds without a message")
+    add_endpoint_flags(p)
+    p.set_defaults(func=_echo)
+
+    p = sub.add_parser("hz", help="rate of a topic: period statistics and lost messages")
+    p.add_argument("topic", metavar="TOPIC")
+    p.add_argument("--window", "-w", type=int, default=100, metavar="N",
+                   help="periods in the statistics window (default 100)")
+    p.add_argument("--duration", type=float, default=0.0, metavar="S",
+                   help="exit after S seconds (default: until Ctrl-C)")
+    p.add_argument("--interval", type=float, default=1.0, metavar="S",
+                   help="seconds between reports (default 1)")
+    add_endpoint_flags(p)
+    p.set_defaults(func=_hz)
+
+
+# -- list ------------------------------------------------------------------------------------
+
+
+@dataclass
+class TopicEntry:
+    """What ``topic list`` knows about one topic."""
+
+    types: set[str] = field(default_factory=set)
+    publishers: set[str] = field(default_factory=set)
+    subscribers: set[str] = field(default_factory=set)
+    messages: int = 0
+
+
+def survey(endpoints: Endpoints, listen_s: float, context: Any = None) -> dict[str, TopicEntry]:
+    """Listen for ``listen_s`` seconds: topics from NodeStatus heartbeats plus traffic seen.
+
+    A publisher seen only on the wire (no status, e.g. a bag player) is listed by its
+    publisher id as ``pub:<hex>``.
+    """
+    topics: dict[str, TopicEntry] = {}
+    named_ids: set[int] = set()
+    wire_ids: dict[str, set[int]] = {}
+    with Subscriber(None, endpoints=endpoints, context=context) as sub:
+        deadline = time.monotonic() + listen_s
+        while (remaining := deadline - time.monotonic()) > 0:
+            rx = sub.receive(remaining)
+            if rx is None:
+                break
+            entry = topics.setdefault(rx.topic, TopicEntry())
+            entry.messages += 1
+            if not isinstance(rx.msg, EndOfStream):
+                entry.types.add(rx.msg.TYPE_NAME)
+            wire_ids.setdefault(rx.topic, set()).add(rx.header.pub)
+            if isinstance(rx.msg, NodeStatus) and rx.topic == STATUS_TOPIC:
+                named_ids.add(rx.header.pub)
+                entry.publishers.add(rx.msg.node)
+                for t, type_name in rx.msg.publishes.items():
+                    e = topics.setdefault(t, TopicEntry())
+                    e.publishers.add(rx.msg.node)
+                    e.types.add(type_name)
+                for t, type_name in rx.msg.subscribes.items():
+                    e = topics.setdefault(t, TopicEntry())
+                    e.subscribers.add(rx.msg.node)
+                    if type_name != "*":
+                        e.types.add(type_name)
+        for t in sub.seen_topics:  # pinged but silent topics
+            topics.setdefault(t, TopicEntry())
+    for t, ids in wire_ids.items():
+        entry = topics[t]
+        if not entry.publishers or t == STATUS_TOPIC:
+            # nodes that report status name themselves; anything else by its wire id
+            entry.publishers.update(f"pub:{i:016x}" for i in ids - named_ids)
+    return topics
+
+
+def _list(args: argparse.Namespace) -> int:
+    topics = survey(endpoints_from(args), args.listen)
+    if not topics:
+        print("no topics seen (is the graph running? check VIBRISSA_DOMAIN_ID or --pub/--sub)",
+              file=sys.stderr)
+        return 1
+    rows = [("TOPIC", "TYPE", "PUBLISHERS", "SUBSCRIBERS")]
+    for name in sorted(topics):
+        e = topics[name]
+        rows.append((name, ",".join(sorted(e.types)) or "?", ",".join(sorted(e.publishers)) or "-",
+                     ",".join(sorted(e.subscribers)) or "-"))
+    widths = [max(len(r[i]) for r in rows) for i in range(3)]
+    for r in rows:
+        print(f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:<{widths[2]}}  {r[3]}")
+    return 0
+
+
+# -- echo ------------------------------------------------------------------------------------
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        if value.size <= _ARRAY_ITEMS_SHOWN:
+            return json.dumps(value.tolist())
+        head = ", ".join(f"{x:g}" for x in value.ravel()[:6].tolist())
+        return f"<array {value.dtype.str} shape {list(value.shape)}: [{head}, ...]>"
+    if isinstance(value, int) and not isinstance(value, bool) and type(value) is not int:
+        return f"{int(value)}  # {value!r}"  # enum members: value and name
+    if isinstance(value, (dict, list, str, float, int, bool)) or value is None:
+        return json.dumps(value)
+    return repr(value)
+
+
+def format_message(topic: str, msg: Message, as_json: bool) -> str:
+    """One message as a JSON line, or as a YAML-ish block ending with ``---``."""
+    if as_json:
+        return json.dumps({"topic": topic, "type": msg.TYPE_NAME, "msg": to_jsonable(msg)},
+                          allow_nan=False)
+    lines = [f"# {topic} [{msg.TYPE_NAME}]"]
+    for name in to_jsonable(msg):
+        lines.append(f"{name}: {_yaml_value(getattr(msg, name))}")
+    lines.append("---")
+    return "\n".join(lines)
+
+
+def echo(
+    endpoints: Endpoints, topic: str, *, count: int = 0, as_json: bool = False,
+    timeout_s: float = 0.0, stop: threading.Event | None = None, out: TextIO | None = None,
+    context: Any = None,
+) -> int:
+    """Print messages on ``topic``; returns how many were printed.
+
+    Stops after ``count`` messages (0: no limit), after ``timeout_s`` s without a message
+    (0: never) or when ``stop`` is set.
+    """
+    validate_name(topic)
+    out = out if out is not None else sys.stdout
+    stop = stop if stop is not None else threading.Event()
+    printed = 0
+    with Subscriber({topic: None}, endpoints=endpoints, context=context) as sub:
+        last = time.monotonic()
+        while not stop.is_set() and (count <= 0 or printed < count):
+            rx = sub.receive(0.1)
+            if rx is None:
+                if timeout_s > 0 and time.monotonic() - last > timeout_s:
+                    break
+                continue
+            last = time.monotonic()
+            print(format_message(rx.topic, rx.msg, as_json), file=out, flush=True)
+            printed += 1
+    return printed
+
+
+def _echo(args: argparse.Namespace) -> int:
+    with stop_on_signals() as stop:
+        n = echo(endpoints_from(args), args.topic, count=args.count, as_json=args.json,
+                 timeout_s=args.timeout, stop=stop)
+    return 1 if args.count > 0 and n < args.count else 0
+
+
+# -- hz --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RateStats:
+    """Rate of a topic over the last ``window`` periods (s) plus counts since start."""
+
+    rate_hz: float
+    min_s: float
+    max_s: float
+    std_s: float
+    window: int
+    received: int
+    lost: int
+
+    def format(self) -> str:
+        """``ros2 topic hz``-style report."""
+        return (f"average rate: {self.rate_hz:.3f} Hz\n"
+                f"  min: {self.min_s:.6f} s  max: {self.max_s:.6f} s  "
+                f"std dev: {self.std_s:.6f} s  window: {self.window}\n"
+                f"  received: {self.received}  lost: {self.lost}")
+
+
+class RateMeter:
+    """Period statistics over a sliding window of receive times."""
+
+    def __init__(self, window: int = 100) -> None:
+        if window < 1:
+            raise ValueError(f"window must be >= 1 period, got {window}")
+        self._times: deque[float] = deque(maxlen=window + 1)
+        self.received = 0
+
+    def add(self, t_s: float) -> None:
+        """Note one message received at ``t_s`` (s, any clock)."""
+        self._times.append(t_s)
+        self.received += 1
+
+    def stats(self, lost: int = 0) -> RateStats | None:
+        """Statistics of the window, or None before two messages arrived."""
+        if len(self._times) < 2:
+            return None
+        periods = np.diff(np.asarray(self._times))
+        mean = float(periods.mean())
+        return RateStats(
+            rate_hz=1.0 / mean if mean > 0 else math.inf,
+            min_s=float(periods.min()), max_s=float(periods.max()), std_s=float(periods.std()),
+            window=len(periods), received=self.received, lost=lost,
+        )
+
+
+def hz(
+    endpoints: Endpoints, topic: str, *, window: int = 100, duration_s: float = 0.0,
+    interval_s: float = 1.0, stop: threading.Event | None = None, out: TextIO | None = None,
+    context: Any = None,
+) -> RateStats | None:
+    """Report the rate of ``topic`` every ``interval_s`` s; returns the last statistics.
+
+    ``EndOfStream`` is not counted as a sample; lost messages come from ``seq`` gaps.
+    """
+    validate_name(topic)
+    out = out if out is not None else sys.stdout
+    stop = stop if stop is not None else threading.Event()
+    meter = RateMeter(window)
+    last: RateStats | None = None
+    t_end = time.monotonic() + duration_s if duration_s > 0 else math.inf
+    with Subscriber({topic: None}, endpoints=endpoints, context=context) as sub:
+        next_report = time.monotonic() + interval_s
+        while not stop.is_set() and (now := time.monotonic()) < t_end:
+            rx = sub.receive(max(0.0, min(next_report, t_end) - now))
+            if rx is not None and not isinstance(rx.msg, EndOfStream):
+                meter.add(rx.receive_time)
+            if time.monotonic() >= next_report:
+                next_report += interval_s
+                last = meter.stats(sub.counters[topic].lost) or last
+                print(last.format() if last else "no new messages", file=out, flush=True)
+        return meter.stats(sub.counters[topic].lost) or last
+
+
+def _hz(args: argparse.Namespace) -> int:
+    with stop_on_signals() as stop:
+        stats = hz(endpoints_from(args), args.topic, window=args.window,
+                   duration_s=args.duration, interval_s=args.interval, stop=stop)
+    return 0 if stats is not None else 1

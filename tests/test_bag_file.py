@@ -1,0 +1,172 @@
+"""Bags without sockets: write/read round trip, cut-off files, info, JSON export."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader, breakup_chunk
+from vibrissa.msgs import EndOfStream, WhiskerWrench, decode, encode, json_schema, to_jsonable
+from vibrissa.wire.bag import VERSION_KEY, BagReader, BagWriter, export_json
+
+T0_NS = 1_700_000_000_000_000_000
+
+
+def wrench(i: int) -> WhiskerWrench:
+    rng = np.random.default_rng(i)
+    return WhiskerWrench(
+        stamp=1.0 + 0.01 * i, seq=i, whisker_id=f"w{i % 2}", frame_id="world",
+        clamp_position=rng.normal(size=3), clamp_orientation=np.array([0.0, 0.0, 0.0, 1.0]),
+        f0=rng.normal(size=3), m0=rng.normal(size=3),
+    )
+
+
+def write_bag(path: Path, n: int = 300, **kwargs: object) -> list[tuple[str, int, bytes]]:
+    """Write n wrenches on two topics, then an EndOfStream on each; returns what was written."""
+    written = []
+    with BagWriter(path, **kwargs) as bag:  # type: ignore[arg-type]
+        for i in range(n):
+            topic = f"/whisker{i % 2}/wrench"
+            payload = encode(wrench(i))
+            t = T0_NS + i * 1_000_000
+            bag.write(topic, payload, t, sequence=i // 2)
+            written.append((topic, t, payload))
+        for k, topic in enumerate(("/whisker0/wrench", "/whisker1/wrench")):
+            payload = encode(EndOfStream(stamp=9.0, source="/src", count=n // 2))
+            t = T0_NS + (n + k) * 1_000_000
+            bag.write(topic, payload, t)
+            written.append((topic, t, payload))
+    return written
+
+
+def test_round_trip_is_bit_identical(tmp_path: Path) -> None:
+    path = tmp_path / "a.mcap"
+    written = write_bag(path)
+    reader = BagReader(path)
+    got = [(r.topic, r.log_time_ns, r.payload) for r in reader]
+    assert got == written
+    assert not reader.truncated and reader.unreadable_bytes == 0
+    first = next(iter(BagReader(path)))
+    assert first.type_name == "vibrissa/WhiskerWrench"
+    assert first.publish_time_ns == first.log_time_ns
+
+
+def test_topic_filter(tmp_path: Path) -> None:
+    path = tmp_path / "a.mcap"
+    written = write_bag(path, n=40)
+    reader = BagReader(path, topics=["/whisker1/wrench"])
+    got = [(r.topic, r.log_time_ns, r.payload) for r in reader]
+    assert got == [w for w in written if w[0] == "/whisker1/wrench"]
+
+
+def test_schemas_registered_once_per_type(tmp_path: Path) -> None:
+    path = tmp_path / "a.mcap"
+    write_bag(path, n=50)
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    names = sorted(s.name for s in summary.schemas.values())
+    assert names == ["vibrissa/EndOfStream", "vibrissa/WhiskerWrench"]
+    for schema in summary.schemas.values():
+        assert schema.encoding == "jsonschema"
+        data = json.loads(schema.data)
+        assert data[VERSION_KEY] == 1
+        assert data["properties"].keys() == json_schema(WhiskerWrench if "Wrench" in schema.name
+                                                        else EndOfStream)["properties"].keys()
+    channels = summary.channels.values()
+    assert sorted(c.topic for c in channels) == ["/whisker0/wrench", "/whisker0/wrench",
+                                                 "/whisker1/wrench", "/whisker1/wrench"]
+    assert {c.message_encoding for c in channels} == {"msgpack"}
+
+
+def test_info_counts(tmp_path: Path) -> None:
+    path = tmp_path / "a.mcap"
+    write_bag(path, n=300)
+    info = BagReader(path).info()
+    assert info.message_count == 302
+    assert info.topic_counts == {"/whisker0/wrench": 151, "/whisker1/wrench": 151}
+    assert info.types == {"vibrissa/WhiskerWrench": 300, "vibrissa/EndOfStream": 2}
+    assert info.start_ns == T0_NS and info.end_ns == T0_NS + 301 * 1_000_000
+    assert info.duration_s == pytest.approx(0.301)
+    assert not info.truncated
+    assert "/whisker0/wrench" in info.format()
+
+
+def chunk_ends(path: Path) -> list[tuple[int, int]]:
+    """(file offset just past each chunk, messages in all chunks up to it)."""
+    out, n = [], 0
+    with open(path, "rb") as f:
+        for record in StreamReader(f, emit_chunks=True).records:
+            if isinstance(record, Chunk):
+                n += sum(isinstance(r, Message) for r in breakup_chunk(record))
+                out.append((f.tell(), n))
+    return out
+
+
+def test_truncated_bag_yields_a_prefix(tmp_path: Path) -> None:
+    path = tmp_path / "full.mcap"
+    written = write_bag(path, n=400, chunk_size=4096, max_chunk_messages=32)
+    data = path.read_bytes()
+    ends = chunk_ends(path)
+    assert len(ends) > 5  # small chunks, as asked
+    cut_path = tmp_path / "cut.mcap"
+    cuts = sorted({0, 5, 8, 30, *range(40, len(data), 997), *(e - 1 for e, _ in ends),
+                   *(e for e, _ in ends), len(data) - 1})
+    for cut in cuts:
+        cut_path.write_bytes(data[:cut])
+        reader = BagReader(cut_path)
+        got = [(r.topic, r.log_time_ns, r.payload) for r in reader]
+        assert got == written[: len(got)], cut
+        complete = max([n for end, n in ends if end <= cut], default=0)
+        assert len(got) >= complete, cut
+        assert reader.truncated, cut
+        assert 0 <= reader.unreadable_bytes <= cut
+        info = BagReader(cut_path).info()
+        assert info.truncated and info.message_count == len(got)
+
+
+def test_truncated_mid_chunk_reports_the_tail(tmp_path: Path) -> None:
+    path = tmp_path / "full.mcap"
+    written = write_bag(path, n=200, chunk_size=4096, max_chunk_messages=20)
+    ends = chunk_ends(path)
+    (end0, n0), (end1, _) = ends[2], ends[3]
+    cut = (end0 + end1) // 2
+    path.write_bytes(path.read_bytes()[:cut])
+    reader = BagReader(path)
+    got = list(reader)
+    assert [r.payload for r in got] == [w[2] for w in written[:n0]]
+    assert reader.unreadable_bytes > 0  # the partial chunk (and any index records before it)
+    assert reader.unreadable_bytes <= cut - end0
+
+
+def test_export_json_opens_with_mcap_reader(tmp_path: Path) -> None:
+    src, dst = tmp_path / "a.mcap", tmp_path / "a.json.mcap"
+    written = write_bag(src, n=30)
+    info = export_json(src, dst)
+    assert info.message_count == len(written)
+    with open(dst, "rb") as f:
+        reader = make_reader(f)
+        rows = list(reader.iter_messages())
+    assert len(rows) == len(written)
+    for (schema, channel, message), (topic, t, payload) in zip(rows, written, strict=True):
+        assert channel.topic == topic and channel.message_encoding == "json"
+        assert message.log_time == t
+        assert schema is not None and schema.encoding == "jsonschema"
+        assert json.loads(schema.data)["title"] == schema.name
+        assert json.loads(message.data) == to_jsonable(decode(payload))
+    clamp = json.loads(rows[0][2].data)["clamp_position"]
+    assert isinstance(clamp, list) and len(clamp) == 3
+
+
+def test_writer_rejects_bad_sizes(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="chunk_size"):
+        BagWriter(tmp_path / "x.mcap", chunk_size=0)
+
+
+def test_missing_bag(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError):
+        BagReader(tmp_path / "nope.mcap")

@@ -1,0 +1,98 @@
+"""The recorder node: end-of-stream logic without sockets, then as a real process."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+import zmq
+from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench, encode
+from vibrissa.nodes.recorder import EndOfStreamTracker
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Header, Proxy, Publisher, Received, Subscriber
+from vibrissa.wire.bag import BagReader
+
+TIMEOUT_S = 20.0
+
+
+def wrench(i: int) -> WhiskerWrench:
+    return WhiskerWrench(
+        stamp=0.01 * i, seq=i, whisker_id="w0", frame_id="world",
+        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
+        f0=[0.0, 0.01 * i, 0.0], m0=[0.0, 0.0, 0.0],
+    )
+
+
+def rx(topic: str, pub: int, msg: Any) -> Received:
+    return Received(topic, msg, encode(msg), Header(pub, 0), 0.0)
+
+
+def test_end_of_stream_waits_for_every_publisher_and_grace() -> None:
+    eos = EndOfStream(stamp=0.0, source="/a", count=1)
+    tracker = EndOfStreamTracker(eos_grace_s=0.5)
+    tracker.update(rx("/w", 1, wrench(0)))
+    tracker.update(rx("/w", 2, wrench(0)))
+    tracker.update(rx("/pose", 3, wrench(0)))  # never ends: does not hold the stop up
+    assert not tracker.done(0.0)
+    tracker.update(rx("/w", 1, eos))
+    assert not tracker.all_ended()  # publisher 2 still going
+    tracker.update(rx("/w", 2, eos))
+    assert tracker.all_ended() and not tracker.done(10.0)
+    assert tracker.done(10.5)
+    tracker.update(rx("/c", 4, wrench(1)))  # new data re-arms the grace; /c has no end yet
+    assert tracker.all_ended() and not tracker.done(10.6)
+    tracker.update(rx("/c", 4, eos))
+    assert tracker.ended_topics == ["/c", "/w"]
+
+
+@pytest.fixture
+def endpoints() -> Iterator[Endpoints]:
+    ctx: zmq.Context[Any] = zmq.Context()
+    with Proxy(Endpoints.free(), context=ctx) as running:
+        assert running.endpoints is not None
+        yield running.endpoints
+    ctx.destroy(linger=0)
+
+
+def test_recorder_node_process_stops_on_end_of_stream(tmp_path: Path,
+                                                      endpoints: Endpoints) -> None:
+    out = tmp_path / "bags" / "run.mcap"
+    params = tmp_path / "rec.yaml"
+    params.write_text(yaml.safe_dump({"output": str(out), "topics": ["wrench"],
+                                      "stop_on_eos": True, "eos_grace_s": 0.2}))
+    env = {**os.environ, **endpoints.to_env()}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vibrissa.nodes.recorder", "--name", "rec", "--namespace", "/w0",
+         "--params-file", str(params)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True)
+    try:
+        with Publisher("/w0/wrench", WhiskerWrench, endpoints) as pub, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
+            deadline = time.monotonic() + TIMEOUT_S
+            ready = False
+            while not ready:  # the readiness handshake: ping until the node reports the topic
+                assert time.monotonic() < deadline, "recorder never reported /w0/wrench"
+                pub.ping("/test")
+                got = status.receive(0.1)
+                ready = got is not None and isinstance(got.msg, NodeStatus) and \
+                    got.msg.node == "/w0/rec" and "/w0/wrench" in got.msg.seen_topics
+            sent = []
+            for i in range(50):
+                pub.publish(wrench(i))
+                sent.append(encode(wrench(i)))
+            pub.publish_end_of_stream("/test")
+            _, err = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    records = list(BagReader(out))
+    assert [r.payload for r in records[:-1]] == sent
+    assert records[-1].type_name == EndOfStream.TYPE_NAME

@@ -1,0 +1,147 @@
+"""``vibrissa topic`` against live publishers on a Proxy with free loopback ports."""
+
+from __future__ import annotations
+
+import io
+import json
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+import zmq
+from vibrissa.cli.main import main as vibrissa_main
+from vibrissa.cli.topic import RateMeter, echo, format_message, hz, survey
+from vibrissa.msgs import ContactPhase, ContactPoint, NodeStatus, WhiskerWrench
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Publisher
+
+RATE_HZ = 50.0
+
+
+@pytest.fixture
+def context() -> Iterator[zmq.Context[Any]]:
+    ctx: zmq.Context[Any] = zmq.Context()
+    yield ctx
+    ctx.destroy(linger=0)
+
+
+@pytest.fixture
+def endpoints(context: zmq.Context[Any]) -> Iterator[Endpoints]:
+    with Proxy(Endpoints.free(), context=context) as running:
+        assert running.endpoints is not None
+        yield running.endpoints
+
+
+def wrench(i: int) -> WhiskerWrench:
+    return WhiskerWrench(
+        stamp=0.02 * i, seq=i, whisker_id="w0", frame_id="world",
+        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
+        f0=[0.0, 0.01 * i, 0.0], m0=[0.0, 0.0, 0.0],
+    )
+
+
+@pytest.fixture
+def talker(endpoints: Endpoints, context: zmq.Context[Any]) -> Iterator[Publisher]:
+    """Publishes a wrench on /w0/wrench at RATE_HZ and a NodeStatus every 0.25 s."""
+    stop = threading.Event()
+    pub = Publisher("/w0/wrench", WhiskerWrench, endpoints, context)
+    status = Publisher(STATUS_TOPIC, NodeStatus, endpoints, context)
+
+    def run() -> None:
+        i = 0
+        t0 = time.monotonic()
+        while not stop.wait(max(0.0, t0 + i / RATE_HZ - time.monotonic())):
+            if i == 100:  # skip a seq on purpose: hz must report it as lost
+                pub.sent += 1
+            pub.publish(wrench(i))
+            if i % 12 == 0:
+                status.publish(NodeStatus(
+                    stamp=time.time(), node="/talker", state="running",
+                    counters={"received": 0, "published": i, "rejected": 0, "lost": 0},
+                    publishes={"/w0/wrench": WhiskerWrench.TYPE_NAME},
+                    subscribes={"/w0/contact": ContactPoint.TYPE_NAME}, seen_topics=[]))
+            i += 1
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        yield pub
+    finally:
+        stop.set()
+        thread.join(2.0)
+        pub.close()
+        status.close()
+
+
+def test_echo_json_lines(endpoints: Endpoints, talker: Publisher,
+                         context: zmq.Context[Any]) -> None:
+    out = io.StringIO()
+    n = echo(endpoints, "/w0/wrench", count=3, as_json=True, timeout_s=5.0, out=out,
+             context=context)
+    assert n == 3
+    rows = [json.loads(line) for line in out.getvalue().splitlines()]
+    assert len(rows) == 3
+    assert all(r["topic"] == "/w0/wrench" and r["type"] == WhiskerWrench.TYPE_NAME for r in rows)
+    seqs = [r["msg"]["seq"] for r in rows]
+    assert seqs == list(range(seqs[0], seqs[0] + 3))
+    assert rows[0]["msg"]["clamp_orientation"] == [0.0, 0.0, 0.0, 1.0]
+
+
+def test_echo_cli_yaml(endpoints: Endpoints, talker: Publisher,
+                       capsys: pytest.CaptureFixture[str]) -> None:
+    code = vibrissa_main(["topic", "echo", "/w0/wrench", "-n", "2", "--timeout", "5",
+                          "--pub", endpoints.pub, "--sub", endpoints.sub])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert text.count("---") == 2 and "# /w0/wrench [vibrissa/WhiskerWrench]" in text
+    assert "clamp_orientation: [0.0, 0.0, 0.0, 1.0]" in text
+
+
+def test_echo_times_out_on_a_silent_topic(endpoints: Endpoints) -> None:
+    code = vibrissa_main(["topic", "echo", "/nobody", "-n", "1", "--timeout", "0.3",
+                          "--pub", endpoints.pub, "--sub", endpoints.sub])
+    assert code == 1
+
+
+def test_hz_measures_rate_and_loss(endpoints: Endpoints, talker: Publisher,
+                                   context: zmq.Context[Any]) -> None:
+    out = io.StringIO()
+    stats = hz(endpoints, "/w0/wrench", window=40, duration_s=2.6, interval_s=0.5, out=out,
+               context=context)
+    assert stats is not None
+    assert stats.rate_hz == pytest.approx(RATE_HZ, rel=0.15)
+    assert stats.min_s <= 1 / RATE_HZ <= stats.max_s
+    assert stats.window == 40 and stats.received > 80
+    assert stats.lost == 1  # the seq skipped at message 100 (~2 s in)
+    assert "average rate:" in out.getvalue()
+
+
+def test_list_from_status_and_traffic(endpoints: Endpoints, talker: Publisher,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    topics = survey(endpoints, 1.0)
+    assert topics["/w0/wrench"].publishers == {"/talker"}
+    assert topics["/w0/wrench"].types == {WhiskerWrench.TYPE_NAME}
+    assert topics["/w0/wrench"].messages > 10
+    assert topics["/w0/contact"].subscribers == {"/talker"}
+    assert STATUS_TOPIC in topics
+    assert vibrissa_main(["topic", "list", "--listen", "0.8",
+                          "--pub", endpoints.pub, "--sub", endpoints.sub]) == 0
+    text = capsys.readouterr().out
+    assert "/w0/wrench" in text and "vibrissa/WhiskerWrench" in text and "/talker" in text
+
+
+def test_rate_meter_and_format() -> None:
+    meter = RateMeter(window=3)
+    assert meter.stats() is None
+    for t in (0.0, 0.1, 0.2, 0.4, 0.5):
+        meter.add(t)
+    stats = meter.stats(lost=2)
+    assert stats is not None and stats.window == 3
+    assert stats.rate_hz == pytest.approx(3 / 0.4)
+    assert stats.min_s == pytest.approx(0.1) and stats.max_s == pytest.approx(0.2)
+    contact = ContactPoint(stamp=1.0, seq=1, whisker_id="w0", frame_id="world",
+                           point=[0.0, 0.0, 0.1], s1=0.05, phase=ContactPhase.TIP,
+                           force=[0.0, 1.0, 0.0], status=0)
+    text = format_message("/w0/contact", contact, as_json=False)
+    assert "phase: 1  # <ContactPhase.TIP: 1>" in text

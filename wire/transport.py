@@ -329,12 +329,16 @@ class Publisher:
         header = msgpack.packb({"pub": self.pub_id, "seq": seq})
         self._socket.send_multipart((self._prefix, header, payload), copy=len(payload) < 65536)
 
-    def close(self) -> None:
-        """Close the socket (linger 0: unsent messages are discarded)."""
+    def close(self, linger_s: float = 0.0) -> None:
+        """Close the socket; queued messages get ``linger_s`` to leave when the context ends.
+
+        The default, 0, discards them at once: a ``finally`` never hangs. ``Node.close`` uses
+        a bounded linger for an orderly shutdown.
+        """
         with self._lock:
             if self._held:
                 log.warning("%s: %d held messages discarded at close", self.topic, len(self._held))
-            self._socket.close()
+            self._socket.close(linger=max(0, round(linger_s * 1000)))
 
     def __enter__(self) -> Publisher:
         return self

@@ -1,0 +1,541 @@
+"""What every node process shares: command line, parameters, topics, heartbeat, readiness.
+
+A node's ``main`` reads ``NodeArgs``, loads its parameter dataclass with ``load_params`` and
+runs inside a ``Node``::
+
+    args = NodeArgs.parse(argv)
+    params = load_params(Params, args.params_file, args.params)
+    with Node.from_args(args) as node:
+        wrenches = node.create_subscriber({"wrench": WhiskerWrench})
+        contacts = node.create_publisher("contact", ContactPoint, wait_for=["mapper"])
+        node.set_state("running")
+        while not node.stop_requested:
+            rx = wrenches.receive(0.1)
+            ...
+
+Heartbeat and readiness
+-----------------------
+A background thread publishes ``NodeStatus`` on ``/vibrissa/status`` every ``heartbeat_s``
+(and at once on a state change) and listens to every node's status. A publisher created
+with ``wait_for=[names]`` (or later held by ``wait_for_subscribers``) starts *gated*: what the
+node publishes is encoded and buffered in order, while the thread pings the topic every
+0.1 s through the same socket. A subscriber that receives a ping adds the topic to its
+``seen_topics`` (it never hands pings to the application), and its node reports that in its
+next status. Once every named node reports the topic, the subscription path is proven up
+and the thread releases the buffer, in order, and later messages go straight out. Pings do
+not advance ``seq``, so they never look like loss (see ``vibrissa.wire.transport``).
+
+Stopping: SIGINT/SIGTERM set ``stop_requested`` (a second SIGINT raises
+``KeyboardInterrupt``); ``close()`` (or leaving the ``with`` block) reports the final state,
+gives queued messages up to ``drain_s`` to leave and closes every socket.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import enum
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+import types
+import typing
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+import zmq
+from vibrissa.msgs import Message, NodeStatus
+from vibrissa.msgs.messages import NODE_STATES
+from vibrissa.wire import (
+    DEFAULT_HWM,
+    STATUS_TOPIC,
+    Endpoints,
+    Publisher,
+    Subscriber,
+    node_fqn,
+    resolve_topic,
+)
+
+__all__ = ["Node", "NodeArgs", "configure_logging", "load_params"]
+
+log = logging.getLogger(__name__)
+
+P = TypeVar("P")
+
+PING_PERIOD_S = 0.1
+
+
+# -- command line ------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeArgs:
+    """The node command line of ARCHITECTURE.md.
+
+    ``params`` keeps the raw ``--param KEY:=VALUE`` texts; ``load_params`` parses them.
+    """
+
+    name: str
+    namespace: str = "/"
+    params_file: Path | None = None
+    params: dict[str, str] = dataclasses.field(default_factory=dict)
+    remaps: dict[str, str] = dataclasses.field(default_factory=dict)
+
+    @property
+    def fqn(self) -> str:
+        """Fully qualified node name, ``/namespace/name``."""
+        return node_fqn(self.name, self.namespace)
+
+    @classmethod
+    def parse(cls, argv: Sequence[str] | None = None, prog: str | None = None) -> NodeArgs:
+        """Parse ``--name NAME [--namespace NS] [--params-file FILE] [--param K:=V]...
+        [--remap FROM:=TO]...``; bad input exits with status 2 and a usage message."""
+        parser = argparse.ArgumentParser(prog=prog, description="vibrissa node")
+        parser.add_argument("--name", required=True, help="node name (one token)")
+        parser.add_argument("--namespace", default="/", help="namespace, e.g. /whisker0")
+        parser.add_argument("--params-file", type=Path, help="YAML mapping of parameters")
+        parser.add_argument("--param", action="append", default=[], type=_key_value,
+                            metavar="KEY:=VALUE", help="parameter override (YAML scalar)")
+        parser.add_argument("--remap", action="append", default=[], type=_key_value,
+                            metavar="FROM:=TO", help="topic remap")
+        ns = parser.parse_args(argv)
+        try:
+            node_fqn(ns.name, ns.namespace)
+            for source, target in ns.remap:
+                resolve_topic(source, ns.namespace)
+                resolve_topic(target, ns.namespace)
+        except ValueError as exc:
+            parser.error(str(exc))
+        return cls(ns.name, ns.namespace, ns.params_file, dict(ns.param), dict(ns.remap))
+
+
+def _key_value(text: str) -> tuple[str, str]:
+    key, sep, value = text.partition(":=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY:=VALUE, got {text!r}")
+    return key, value
+
+
+# -- parameters ------------------------------------------------------------------------------
+
+
+def load_params(
+    cls: type[P],
+    params_file: str | Path | None = None,
+    overrides: Mapping[str, object] | None = None,
+) -> P:
+    """Load frozen dataclass ``cls`` strictly: defaults, then ``params_file``, then ``overrides``.
+
+    The file is a flat YAML mapping ``name: value``. An override given as text (from
+    ``--param k:=v``) is parsed as YAML, except for a ``str`` parameter, which takes the text
+    as is. Ints are accepted for floats; nested dataclasses load from mappings.
+
+    Raises
+    ------
+    ValueError
+        Unknown key (naming the file and key), wrong type (naming key, expected and actual
+        type), a missing required parameter, or a file that is not a mapping.
+    """
+    if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+        raise TypeError(f"load_params needs a dataclass type, got {cls!r}")
+    values: dict[str, Any] = {}
+    source = "defaults"
+    if params_file is not None:
+        source = str(params_file)
+        try:
+            data = yaml.safe_load(Path(params_file).read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{source}: not valid YAML: {exc}") from exc
+        if not isinstance(data, dict):
+            kind = type(data).__name__
+            raise ValueError(f"{source}: expected a mapping of parameters, got a {kind}")
+        values.update(_typed_values(cls, data, source, from_text=False))
+    if overrides:
+        values.update(_typed_values(cls, overrides, "--param", from_text=True))
+    missing = [
+        f.name for f in dataclasses.fields(cls)
+        if f.init and f.name not in values
+        and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    if missing:
+        raise ValueError(f"{source}: missing required parameter(s) {missing} of {cls.__name__}")
+    return cls(**values)
+
+
+def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text: bool,
+                  prefix: str = "") -> dict[str, Any]:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if key not in known:
+            raise ValueError(
+                f"{source}: unknown parameter {name!r} for {cls.__name__} "
+                f"(known: {', '.join(sorted(known))})"
+            )
+        hint = hints[key]
+        if from_text and isinstance(value, str) and hint is not str:
+            try:
+                value = yaml.safe_load(value)
+            except yaml.YAMLError as exc:
+                raise ValueError(f"{source}: parameter {name!r}: {value!r} is not YAML") from exc
+        out[key] = _check(value, hint, name, source)
+    return out
+
+
+def _check(value: object, hint: Any, name: str, source: str) -> Any:
+    """``value`` converted to type ``hint``, or ``ValueError`` naming the parameter."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        for option in args:
+            if option is type(None):
+                continue
+            try:
+                return _check(value, option, name, source)
+            except ValueError:
+                pass
+    elif origin is typing.Literal:
+        if value in args:
+            return value
+    elif origin in (list, tuple) and isinstance(value, (list, tuple)):
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            if len(args) == len(value):
+                return tuple(_check(v, a, f"{name}[{i}]", source)
+                             for i, (v, a) in enumerate(zip(value, args, strict=True)))
+        else:
+            item = args[0] if args else Any
+            items = [_check(v, item, f"{name}[{i}]", source) for i, v in enumerate(value)]
+            return tuple(items) if origin is tuple else items
+    elif origin is dict and isinstance(value, dict):
+        key_type, item_type = args if args else (Any, Any)
+        return {_check(k, key_type, name, source): _check(v, item_type, f"{name}.{k}", source)
+                for k, v in value.items()}
+    elif isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(value, dict):
+        return hint(**_typed_values(hint, value, source, from_text=False, prefix=f"{name}."))
+    elif hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    elif hint is Path and isinstance(value, str):
+        return Path(value)
+    elif isinstance(hint, type) and issubclass(hint, enum.Enum):
+        try:
+            return hint(value) if not isinstance(value, str) else hint[value]
+        except (KeyError, ValueError):
+            pass
+    elif hint is int and isinstance(value, bool):
+        pass
+    elif isinstance(hint, type) and origin is None and isinstance(value, hint):
+        return value
+    expected = getattr(hint, "__name__", None) if origin is None else None
+    raise ValueError(
+        f"{source}: parameter {name!r} expects {expected or hint}, "
+        f"got {type(value).__name__} ({value!r})"
+    )
+
+
+# -- logging ---------------------------------------------------------------------------------
+
+
+def configure_logging(level: int | str | None = None) -> None:
+    """Log to stderr, no prefix of our own (the launcher prefixes each line with the node).
+
+    ``level`` defaults to ``$VIBRISSA_LOG_LEVEL`` or ``INFO``.
+    """
+    level = level if level is not None else os.environ.get("VIBRISSA_LOG_LEVEL", "INFO")
+    logging.basicConfig(stream=sys.stderr, level=level,
+                        format="%(levelname)s %(name)s: %(message)s", force=True)
+
+
+# -- the node --------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _Gate:
+    publisher: Publisher
+    nodes: frozenset[str]
+    opened: threading.Event = dataclasses.field(default_factory=threading.Event)
+    next_ping: float = 0.0
+
+
+class Node:
+    """One node process: zmq context, topics, heartbeat, readiness gates and stop flag.
+
+    Parameters
+    ----------
+    name, namespace
+        The node's name and namespace; ``fqn`` is ``/namespace/name``.
+    remaps
+        Topic remaps ``from -> to``, applied to resolved names.
+    endpoints
+        Proxy endpoints; default ``Endpoints.from_env()``.
+    context
+        ZeroMQ context; by default the node makes its own and destroys it in ``close()``
+        (closing any socket still open on it).
+    heartbeat_s
+        Period of ``NodeStatus`` on ``/vibrissa/status``, seconds.
+    handle_signals
+        Install SIGINT/SIGTERM handlers (only possible in the main thread).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        namespace: str = "/",
+        remaps: Mapping[str, str] | None = None,
+        endpoints: Endpoints | None = None,
+        context: zmq.Context[Any] | None = None,
+        heartbeat_s: float = 0.5,
+        handle_signals: bool = True,
+    ) -> None:
+        self.fqn = node_fqn(name, namespace)
+        self.namespace = namespace
+        self.remaps = dict(remaps or {})
+        self.endpoints = endpoints if endpoints is not None else Endpoints.from_env()
+        self._own_context = context is None
+        self.context: zmq.Context[Any] = zmq.Context() if context is None else context
+        self.heartbeat_s = heartbeat_s
+        self._state = "starting"
+        self._message = ""
+        self._stop = threading.Event()
+        self._closing = threading.Event()
+        self._beat_now = threading.Event()
+        self._lock = threading.Lock()  # guards the lists below against the heartbeat thread
+        self._publishers: list[Publisher] = []
+        self._subscribers: list[Subscriber] = []
+        self._gates: list[_Gate] = []
+        self._peers: dict[str, set[str]] = {}  # node -> seen_topics from its last status
+        try:
+            self._status_pub = Publisher(STATUS_TOPIC, NodeStatus, self.endpoints, self.context)
+            self._status_sub = Subscriber({STATUS_TOPIC: NodeStatus}, self.endpoints, self.context)
+        except BaseException:
+            if self._own_context:
+                self.context.destroy(linger=0)
+            raise
+        self._previous_handlers: dict[int, Any] = {}
+        if handle_signals and threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                self._previous_handlers[signum] = signal.signal(signum, self._on_signal)
+        self._thread = threading.Thread(target=self._heartbeat_loop, daemon=True,
+                                        name=f"vibrissa-heartbeat{self.fqn}")
+        self._thread.start()
+
+    @classmethod
+    def from_args(cls, args: NodeArgs, **kwargs: Any) -> Node:
+        """A node named, namespaced and remapped as on its command line."""
+        return cls(args.name, args.namespace, args.remaps, **kwargs)
+
+    # -- topics --------------------------------------------------------------------------
+
+    def resolve(self, topic: str) -> str:
+        """Fully qualified topic: namespace, then remaps."""
+        return resolve_topic(topic, self.namespace, self.remaps)
+
+    def create_publisher(
+        self,
+        topic: str,
+        msg_type: type[Message],
+        wait_for: Iterable[str] = (),
+        hwm: int = DEFAULT_HWM,
+    ) -> Publisher:
+        """Publisher on ``resolve(topic)``; with ``wait_for`` node names it starts gated.
+
+        Relative node names resolve in this node's namespace, like topics.
+        """
+        publisher = Publisher(self.resolve(topic), msg_type, self.endpoints, self.context, hwm)
+        with self._lock:
+            self._publishers.append(publisher)
+        nodes = list(wait_for)
+        if nodes:
+            self._gate(publisher, nodes)
+        return publisher
+
+    def create_subscriber(
+        self, topics: Mapping[str, type[Message] | None], hwm: int = DEFAULT_HWM
+    ) -> Subscriber:
+        """Subscriber on the resolved ``topics`` (topic -> type, ``None`` for any type)."""
+        resolved = {self.resolve(topic): msg_type for topic, msg_type in topics.items()}
+        subscriber = Subscriber(resolved, self.endpoints, self.context, hwm)
+        with self._lock:
+            self._subscribers.append(subscriber)
+        return subscriber
+
+    def wait_for_subscribers(
+        self, topic: str, node_names: Iterable[str], timeout_s: float
+    ) -> bool:
+        """Block until the named nodes report ``topic`` in their ``seen_topics``.
+
+        ``topic`` must be published by this node. Until then its publisher is held (messages
+        buffer, in order); on timeout it stays held and is released whenever the nodes get
+        ready. Returns whether they are ready (``False`` also when a stop was requested).
+        """
+        resolved = self.resolve(topic)
+        with self._lock:
+            publisher = next((p for p in self._publishers if p.topic == resolved), None)
+            gate = next((g for g in self._gates if g.publisher is publisher), None)
+        if publisher is None:
+            raise ValueError(f"{self.fqn} has no publisher on {resolved!r}")
+        if gate is None:
+            gate = self._gate(publisher, list(node_names))
+        deadline = time.monotonic() + timeout_s
+        while not gate.opened.wait(min(0.05, max(0.0, deadline - time.monotonic()))):
+            if self._stop.is_set() or time.monotonic() >= deadline:
+                log.warning("%s: %s not ready on %s after %.1f s (still buffering)",
+                            self.fqn, sorted(gate.nodes), resolved, timeout_s)
+                return False
+        return True
+
+    def _gate(self, publisher: Publisher, node_names: list[str]) -> _Gate:
+        nodes = frozenset(resolve_topic(n, self.namespace) for n in node_names)
+        publisher.hold()
+        gate = _Gate(publisher, nodes)
+        with self._lock:
+            self._gates.append(gate)
+        return gate
+
+    # -- state and stop ------------------------------------------------------------------
+
+    @property
+    def state(self) -> str:
+        """starting | ready | running | finished | error."""
+        return self._state
+
+    def set_state(self, state: str, message: str = "") -> None:
+        """Set the reported state (and message); the status goes out at once."""
+        if state not in NODE_STATES:
+            raise ValueError(f"state must be one of {NODE_STATES}, got {state!r}")
+        self._state, self._message = state, message
+        self._beat_now.set()
+
+    @property
+    def stop_requested(self) -> bool:
+        """Whether a signal or ``request_stop`` asked the node to stop."""
+        return self._stop.is_set()
+
+    def request_stop(self) -> None:
+        """Ask every loop of the node to end."""
+        self._stop.set()
+
+    def sleep(self, seconds: float) -> bool:
+        """Sleep unless a stop comes first; returns ``True`` if the full time passed."""
+        return not self._stop.wait(seconds)
+
+    def _on_signal(self, signum: int, frame: types.FrameType | None) -> None:
+        if self._stop.is_set() and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        log.info("%s: %s, stopping", self.fqn, signal.Signals(signum).name)
+        self._stop.set()
+
+    # -- heartbeat thread ----------------------------------------------------------------
+
+    def status(self) -> NodeStatus:
+        """The node's current ``NodeStatus``."""
+        with self._lock:
+            publishers, subscribers = list(self._publishers), list(self._subscribers)
+        totals = {"received": 0, "published": 0, "rejected": 0, "lost": 0, "pings": 0}
+        seen: set[str] = set()
+        subscribes: dict[str, str] = {}
+        for sub in subscribers:
+            for key, value in sub.totals().items():
+                totals[key] += value
+            seen |= sub.seen_topics
+            for topic, msg_type in (sub.topics or {"*": None}).items():
+                subscribes[topic] = msg_type.TYPE_NAME if msg_type is not None else "*"
+        totals["published"] = sum(p.published for p in publishers)
+        return NodeStatus(
+            stamp=time.time(), node=self.fqn, state=self._state, counters=totals,
+            publishes={p.topic: p.msg_type.TYPE_NAME for p in publishers},
+            subscribes=subscribes, seen_topics=sorted(seen), message=self._message,
+        )
+
+    def _heartbeat_loop(self) -> None:
+        next_beat = 0.0
+        seen = 0
+        try:
+            while not self._closing.is_set():
+                now = time.monotonic()
+                with self._lock:
+                    subscribers = list(self._subscribers)
+                # A newly seen topic may open a peer's gate: report it now, not in 0.5 s.
+                seen, was_seen = sum(len(sub.seen_topics) for sub in subscribers), seen
+                if now >= next_beat or self._beat_now.is_set() or seen != was_seen:
+                    self._beat_now.clear()
+                    self._status_pub.publish(self.status())
+                    next_beat = now + self.heartbeat_s
+                self._service_gates(now)
+                received = self._status_sub.receive(0.02)
+                if received is not None and isinstance(received.msg, NodeStatus):
+                    self._peers[received.msg.node] = set(received.msg.seen_topics)
+            self._status_pub.publish(self.status())  # the final state
+        except Exception:  # the thread must not die silently: stop the node instead
+            log.exception("%s: heartbeat thread failed", self.fqn)
+            self._stop.set()
+
+    def _service_gates(self, now: float) -> None:
+        with self._lock:
+            gates = [g for g in self._gates if not g.opened.is_set()]
+        for gate in gates:
+            topic = gate.publisher.topic
+            if all(topic in self._peers.get(n, ()) for n in gate.nodes):
+                sent = gate.publisher.release()
+                gate.opened.set()
+                log.info("%s: %s ready on %s, sent %d buffered message(s)",
+                         self.fqn, sorted(gate.nodes), topic, sent)
+            elif now >= gate.next_ping:
+                gate.publisher.ping(self.fqn)
+                gate.next_ping = now + PING_PERIOD_S
+
+    # -- shutdown ------------------------------------------------------------------------
+
+    def close(self, drain_s: float = 1.0) -> None:
+        """Report the final state and close everything (idempotent).
+
+        Held messages wait up to ``drain_s`` for their gate; queued ones get up to
+        ``drain_s`` to leave the sockets (linger), then are discarded.
+        """
+        if self._closing.is_set():
+            return
+        deadline = time.monotonic() + drain_s
+        with self._lock:
+            waiting = [g for g in self._gates if g.publisher.pending]
+        for gate in waiting:
+            gate.opened.wait(max(0.0, deadline - time.monotonic()))
+        if self._state != "error":
+            self._state = "finished"
+        self._closing.set()
+        self._thread.join(2.0)
+        with self._lock:
+            subscribers, publishers = list(self._subscribers), list(self._publishers)
+        for sub in [*subscribers, self._status_sub]:
+            sub.close()
+        linger_s = max(0.0, deadline - time.monotonic())
+        for pub in [*publishers, self._status_pub]:
+            pub.close(linger_s)
+        if self._own_context:
+            # Closes sockets the application made on node.context and forgot (term() would
+            # hang on them), then returns once queued messages left or their linger ran out.
+            self.context.destroy(linger=round(linger_s * 1000))
+        for signum, handler in self._previous_handlers.items():
+            signal.signal(signum, handler)
+        self._previous_handlers.clear()
+
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: types.TracebackType | None,
+    ) -> None:
+        if exc is not None and not isinstance(exc, KeyboardInterrupt):
+            self.set_state("error", f"{type(exc).__name__}: {exc}")
+        self.close()

@@ -1,0 +1,148 @@
+"""The node runtime on loopback: heartbeat, readiness gate with buffering, stop path."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+import zmq
+from vibrissa.msgs import EndOfStream, NodeStatus, RobotPose
+from vibrissa.nodes import Node
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Subscriber
+
+TIMEOUT_S = 3.0
+
+
+@pytest.fixture
+def endpoints() -> Iterator[Endpoints]:
+    ctx: zmq.Context[Any] = zmq.Context()
+    with Proxy(Endpoints.free(), context=ctx) as proxy:
+        assert proxy.endpoints is not None
+        yield proxy.endpoints
+    ctx.destroy(linger=0)
+
+
+def node(name: str, endpoints: Endpoints, namespace: str = "/w0", **kw: Any) -> Node:
+    return Node(name, namespace, endpoints=endpoints, handle_signals=False, **kw)
+
+
+def pose(i: int) -> RobotPose:
+    return RobotPose(stamp=float(i), frame_id="world", child_frame_id="base",
+                     position=[0.0, 0.0, 0.001 * i], orientation=[0.0, 0.0, 0.0, 1.0])
+
+
+def test_heartbeat_reports_state_counters_and_topics(endpoints: Endpoints) -> None:
+    ctx: zmq.Context[Any] = zmq.Context()
+    with Subscriber({STATUS_TOPIC: NodeStatus}, endpoints, ctx) as watcher, \
+            node("sensor", endpoints, heartbeat_s=0.1, remaps={"raw": "/sim/raw"}) as sensor:
+        sensor.create_publisher("raw", EndOfStream)
+        sensor.create_subscriber({"cmd": None})
+        sensor.set_state("running", "sampling")
+        deadline = time.monotonic() + TIMEOUT_S
+        status = None
+        while time.monotonic() < deadline:
+            rx = watcher.receive(0.2)
+            if rx is not None and isinstance(rx.msg, NodeStatus) and rx.msg.state == "running":
+                status = rx.msg
+                break
+        assert status is not None
+        assert status.node == "/w0/sensor" and status.message == "sampling"
+        assert status.publishes == {"/sim/raw": EndOfStream.TYPE_NAME}
+        assert status.subscribes == {"/w0/cmd": "*"}
+        assert {"received", "published", "rejected", "lost"} <= set(status.counters)
+        sensor.close()
+        finished = [rx.msg for _ in range(20) if (rx := watcher.receive(0.2)) is not None
+                    and isinstance(rx.msg, NodeStatus) and rx.msg.state == "finished"]
+        assert finished, "the final status says finished"
+    ctx.destroy(linger=0)
+
+
+def test_gate_buffers_until_the_downstream_node_is_ready(endpoints: Endpoints) -> None:
+    n = 500
+    with node("source", endpoints) as source:
+        pub = source.create_publisher("data", RobotPose, wait_for=["sink"])
+        for i in range(n):  # nobody listens yet: these must be buffered, not dropped
+            pub.publish(pose(i))
+        assert pub.held and pub.pending == n
+        time.sleep(0.3)  # pings go out meanwhile and are lost: they must not count as loss
+        with node("sink", endpoints, heartbeat_s=0.1) as sink:
+            sub = sink.create_subscriber({"/w0/data": RobotPose})
+            got: list[int] = []
+            deadline = time.monotonic() + TIMEOUT_S
+            while len(got) < n and time.monotonic() < deadline:
+                rx = sub.receive(0.1)
+                if rx is not None:
+                    assert isinstance(rx.msg, RobotPose)
+                    got.append(int(rx.msg.stamp))
+            assert got == list(range(n))
+            assert source.wait_for_subscribers("data", ["sink"], 0.1)
+            assert sub.counters["/w0/data"].lost == 0 and sub.counters["/w0/data"].pings >= 1
+            assert "/w0/data" in sink.status().seen_topics
+            assert source.status().counters["published"] == n
+
+
+def test_wait_for_subscribers_times_out_and_keeps_buffering(endpoints: Endpoints) -> None:
+    with node("lonely", endpoints) as lonely:
+        pub = lonely.create_publisher("out", EndOfStream)
+        with pytest.raises(ValueError, match="no publisher"):
+            lonely.wait_for_subscribers("other", ["x"], 0.1)
+        t0 = time.monotonic()
+        assert not lonely.wait_for_subscribers("out", ["/nobody"], 0.3)
+        assert 0.25 < time.monotonic() - t0 < 2.0
+        pub.publish(EndOfStream(stamp=0.0, source="x", count=0))
+        assert pub.pending == 1
+        lonely.close(drain_s=0.1)
+
+
+def test_close_does_not_hang_on_a_socket_the_application_forgot(endpoints: Endpoints) -> None:
+    n = node("careless", endpoints)
+    Subscriber(None, n.endpoints, n.context)  # never closed by the application
+    t0 = time.monotonic()
+    n.close()
+    assert time.monotonic() - t0 < 2.5
+
+
+def test_messages_published_just_before_close_arrive(endpoints: Endpoints) -> None:
+    n = 2000
+    with node("sink", endpoints, heartbeat_s=0.1) as sink:
+        sub = sink.create_subscriber({"/w0/burst": RobotPose})
+        source = node("source", endpoints)
+        pub = source.create_publisher("burst", RobotPose)
+        received = 0
+        ready = False
+        pub.hold()
+        while not ready:  # the explicit, blocking form of the gate
+            ready = source.wait_for_subscribers("burst", ["sink"], 0.05)
+            received += sub.receive(0.05) is not None
+        for i in range(n):
+            pub.publish(pose(i))
+        source.close()  # returns only once the queue left (or drain_s ran out)
+        while sub.receive(0.5) is not None:
+            received += 1
+        assert received == n and sub.counters["/w0/burst"].lost == 0
+
+
+def test_signals_set_the_stop_flag_and_are_restored(endpoints: Endpoints) -> None:
+    before = signal.getsignal(signal.SIGTERM)
+    with Node("n", endpoints=endpoints) as n:
+        assert not n.stop_requested and n.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGTERM)
+        deadline = time.monotonic() + TIMEOUT_S
+        while not n.stop_requested and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert n.stop_requested
+        assert not n.sleep(5.0)  # returns at once once stopped
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_exception_in_the_node_reports_error(endpoints: Endpoints) -> None:
+    with pytest.raises(RuntimeError):
+        with node("crash", endpoints) as crash:
+            raise RuntimeError("boom")
+    assert crash.state == "error"
+    with pytest.raises(ValueError, match="state"):
+        crash.set_state("sleeping")

@@ -1,0 +1,188 @@
+"""Closed form of the planar elastica of a clamped rod loaded by one point force (eq. 11).
+
+Frame and units: the bending plane E_psi with coordinates (u, v); the rod is clamped at the
+origin with tangent e_v (phi(0) = pi/2). Lengths in L, forces in EI/L^2, curvature in 1/L
+(eq. 1). ``F = (fu, fv)`` is the contact force acting *on the rod* at arc length s1, and
+``kappa0`` the curvature at the clamp. Moment balance of the part [s, s1] gives
+
+    kappa(s) = ((r1 - r(s)) x F) . e_w,     so    kappa0 = (r1 x F) . e_w,
+
+and the first integral of eq. 11, kappa^2 / 2 = f (cos(beta) - cos(beta1)) with
+beta = phi - alpha - pi/2, is the pendulum. With sin(beta / 2) = k sn(sqrt(f) s + c | k^2), the
+contact s1 is the first zero of kappa after the clamp, where sn = 1 (amplitude pi/2); all
+integrals are incomplete elliptic integrals (scipy.special.ellipkinc / ellipeinc).
+
+Only curvatures kappa0 >= 0 are solved directly; kappa0 < 0 is the mirror image u -> -u.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import special
+
+from vibrissa.status import ContactStatus
+
+# s1 may exceed the rod length by this much (round-off) and still count as the tip.
+S1_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class PlanarContact:
+    """Where the curvature of a loaded planar elastica first vanishes.
+
+    Attributes
+    ----------
+    u1, v1 : ndarray, shape (N,)
+        Point of the rod at s1 in the bending plane, units of L.
+    s1 : ndarray, shape (N,)
+        Arc length of the first zero of the curvature, units of L (not clipped to 1).
+    phi1 : ndarray, shape (N,)
+        Tangent angle at s1 against e_u, rad.
+    status : ndarray of int, shape (N,)
+        ``ContactStatus`` flags; 0 where the numbers are meaningful.
+    """
+
+    u1: NDArray[np.float64]
+    v1: NDArray[np.float64]
+    s1: NDArray[np.float64]
+    phi1: NDArray[np.float64]
+    status: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class _Pendulum:
+    """Pendulum constants of one load case, in the kappa0 >= 0 half (mirror already applied)."""
+
+    f: NDArray[np.float64]
+    sqrt_f: NDArray[np.float64]
+    fu: NDArray[np.float64]  # force component along e_u after mirroring
+    fv: NDArray[np.float64]
+    alpha: NDArray[np.float64]  # eq. 12: signed angle between F and -e_v
+    k: NDArray[np.float64]  # elliptic modulus
+    sin_theta0: NDArray[np.float64]  # amplitude theta0 of the clamp: sn(c) and cn(c)
+    cos_theta0: NDArray[np.float64]
+    kappa0: NDArray[np.float64]
+    mirrored: NDArray[np.bool_]
+    status: NDArray[np.int64]
+
+
+def _pendulum(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> _Pendulum:
+    fu, fv, kappa0 = np.broadcast_arrays(
+        np.asarray(fu, dtype=float), np.asarray(fv, dtype=float), np.asarray(kappa0, dtype=float)
+    )
+    status = np.zeros(fu.shape, dtype=np.int64)
+    finite = np.isfinite(fu) & np.isfinite(fv) & np.isfinite(kappa0)
+    status[~finite] |= ContactStatus.NON_FINITE_INPUT
+    mirrored = kappa0 < 0
+    fu = np.where(mirrored, -fu, fu)
+    kappa0 = np.abs(kappa0)
+    f = np.hypot(fu, fv)
+    status[finite & (f == 0)] |= ContactStatus.NO_FORCE
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sqrt_f = np.sqrt(f)
+        alpha = np.arctan2(fu, -fv)
+        b0 = -np.sin(0.5 * alpha)  # sin(beta0 / 2), beta0 = -alpha at the clamp
+        c0 = kappa0 / (2.0 * sqrt_f)  # k cos(theta0)
+        k = np.hypot(b0, c0)
+        sin_theta0 = b0 / k
+        cos_theta0 = c0 / k
+    status[(status == 0) & (k >= 1.0)] |= ContactStatus.CURVATURE_NEVER_VANISHES
+    status[(status == 0) & (k == 0.0)] |= ContactStatus.AXIAL_LOAD
+    return _Pendulum(f, sqrt_f, fu, fv, alpha, k, sin_theta0, cos_theta0, kappa0, mirrored, status)
+
+
+def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarContact:
+    """First zero of the curvature of the elastica with clamp curvature ``kappa0`` under ``F``.
+
+    Parameters
+    ----------
+    fu, fv : array_like
+        Contact force on the rod in the bending plane (u, v), units of EI/L^2.
+    kappa0 : array_like
+        Curvature at the clamp, 1/L (equals -m0w, eq. 22).
+
+    Returns
+    -------
+    PlanarContact
+        Contact point, s1 and tangent angle per sample. An axial load (straight rod pushed
+        along its axis) is taken as tip contact of the straight rod, flagged AXIAL_LOAD.
+    """
+    p = _pendulum(fu, fv, kappa0)
+    good = (p.status == 0) | (p.status == ContactStatus.AXIAL_LOAD)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m = p.k * p.k
+        k_complement = np.sqrt(1.0 - m)
+        # chi = am(K - c): the amplitude still to go from the clamp to the zero of kappa.
+        chi = np.arctan2(p.cos_theta0, k_complement * p.sin_theta0)
+        f_chi = special.ellipkinc(chi, m)
+        e_chi = special.ellipeinc(chi, m)
+        s1 = f_chi / p.sqrt_f
+        # E(am K) - E(am c) by the addition theorem, free of cancellation for small loads.
+        e_diff = e_chi - m * p.sin_theta0 * np.sin(chi)
+        along = (2.0 * e_diff - f_chi) / p.sqrt_f  # along -F/f
+        across = p.kappa0 / p.f  # along (fv, -fu)/f
+        u1 = (-along * p.fu + across * p.fv) / p.f
+        v1 = (-along * p.fv - across * p.fu) / p.f
+        phi1 = 2.0 * np.arcsin(np.minimum(p.k, 1.0)) + p.alpha + 0.5 * np.pi
+    axial = p.status == ContactStatus.AXIAL_LOAD
+    u1 = np.where(axial, 0.0, u1)
+    v1 = np.where(axial, 1.0, v1)
+    s1 = np.where(axial, 1.0, s1)
+    phi1 = np.where(axial, 0.5 * np.pi, phi1)
+    u1 = np.where(p.mirrored, -u1, u1)
+    phi1 = np.where(p.mirrored, np.pi - phi1, phi1)
+    nan = np.full(u1.shape, np.nan)
+    return PlanarContact(
+        u1=np.where(good, u1, nan),
+        v1=np.where(good, v1, nan),
+        s1=np.where(good, s1, nan),
+        phi1=np.where(good, phi1, nan),
+        status=p.status,
+    )
+
+
+def planar_line(
+    fu: float, fv: float, kappa0: float, s: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Points of the elastic line at arc lengths ``s`` for one load case.
+
+    The rod follows the elastica up to s1 and is straight (no load beyond the contact) after it.
+
+    Parameters
+    ----------
+    fu, fv, kappa0 : float
+        As in :func:`planar_contact`.
+    s : array_like, shape (M,)
+        Arc lengths in [0, 1], units of L.
+
+    Returns
+    -------
+    u, v : ndarray, shape (M,)
+        Coordinates in the bending plane, units of L.
+    """
+    s = np.asarray(s, dtype=float)
+    contact = planar_contact(fu, fv, kappa0)
+    if int(contact.status) != ContactStatus.OK:
+        return np.zeros_like(s), s.copy()  # no bending load: the straight rod
+    p = _pendulum(fu, fv, kappa0)
+    m = float(p.k) ** 2
+    s1 = float(contact.s1)
+    s_bent = np.minimum(s, s1)
+    theta0 = np.arctan2(p.sin_theta0, p.cos_theta0)
+    c = special.ellipkinc(theta0, m)
+    e0 = special.ellipeinc(theta0, m)
+    arg = p.sqrt_f * s_bent + c
+    _sn, cn, _dn, amplitude = special.ellipj(arg, m)
+    along = (2.0 * (special.ellipeinc(amplitude, m) - e0) - p.sqrt_f * s_bent) / p.sqrt_f
+    across = 2.0 * p.k * (p.cos_theta0 - cn) / p.sqrt_f
+    u = (-along * p.fu + across * p.fv) / p.f
+    v = (-along * p.fv - across * p.fu) / p.f
+    if p.mirrored:
+        u = -u
+    beyond = s > s1
+    u = np.where(beyond, float(contact.u1) + (s - s1) * np.cos(float(contact.phi1)), u)
+    v = np.where(beyond, float(contact.v1) + (s - s1) * np.sin(float(contact.phi1)), v)
+    return u, v

@@ -1,0 +1,139 @@
+"""Step 2: the contact point from the clamp position and the support reactions alone (eqs. 20-23).
+
+Conventions (derived from the statics of the rod, see README "Conventions"):
+
+* ``f0``, ``m0`` are the reactions of the clamp *on the rod*, the moment taken about the clamp
+  point P0. For a single contact force F on the rod at P1: ``f0 + F = 0`` and
+  ``m0 + (P1 - P0) x F = 0``. A force/torque sensor under the clamp reads the opposite wrench.
+* Both are expressed in the clamp frame C, whose z axis is the rod's axis at the clamp; ``R_WC``
+  rotates C into the world frame W of ``p0`` (identity when omitted, as in the paper).
+* Units are the paper's (eq. 1): lengths in L, forces in EI/L^2, moments in EI/L; see
+  :class:`vibrissa.units.RodScale` for SI.
+
+The bending plane E_psi is spanned by the clamp axis e_v = e_z and e_u; its normal is
+e_w = e_u x e_v. We pick e_w = -m0 / |m0| so that m0w = m0 . e_w <= 0 and the clamp curvature
+kappa0 = -m0w (eq. 22) is >= 0, which is eq. 20: psi = -atan2(m0x, m0y).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vibrissa.elastica import S1_TOLERANCE, planar_contact
+from vibrissa.status import NO_CONTACT, ContactStatus
+
+PHASE_NONE, PHASE_TIP, PHASE_TANGENTIAL = 0, 1, 2
+PHASE_NAMES = {PHASE_NONE: "none", PHASE_TIP: "tip", PHASE_TANGENTIAL: "tangential"}
+
+# Contacts this close to the tip (units of L) are reported as tip contact.
+TIP_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """Contact points reconstructed from wrenches; one entry per sample.
+
+    Attributes
+    ----------
+    point : ndarray, shape (N, 3)
+        Contact point P1 in W, units of L; NaN where ``status`` has no contact.
+    s1 : ndarray, shape (N,)
+        Arc length of the contact along the rod, units of L.
+    phase : ndarray of int, shape (N,)
+        PHASE_TIP (1), PHASE_TANGENTIAL (2), or PHASE_NONE (0) without contact.
+    psi : ndarray, shape (N,)
+        Orientation of the bending plane in C (eq. 20), rad.
+    force : ndarray, shape (N, 3)
+        Contact force on the rod, -f0, expressed in W, units of EI/L^2.
+    status : ndarray of int, shape (N,)
+        :class:`ContactStatus` flags.
+    """
+
+    point: NDArray[np.float64]
+    s1: NDArray[np.float64]
+    phase: NDArray[np.int64]
+    psi: NDArray[np.float64]
+    force: NDArray[np.float64]
+    status: NDArray[np.int64]
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """Samples with a consistent contact point."""
+        return (self.status & int(NO_CONTACT)) == 0
+
+
+def _as_vectors(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    array = np.asarray(value, dtype=float)
+    if array.ndim not in (1, 2) or array.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (3,) or (N, 3), got {array.shape}")
+    return np.atleast_2d(array)
+
+
+def reconstruct(
+    p0: ArrayLike, f0: ArrayLike, m0: ArrayLike, R_WC: ArrayLike | None = None
+) -> Reconstruction:
+    """Reconstruct contact points from clamp positions and support reactions (Step 2).
+
+    Parameters
+    ----------
+    p0 : array_like, shape (N, 3) or (3,)
+        Clamp position P0 in W, units of L.
+    f0, m0 : array_like, shape (N, 3) or (3,)
+        Clamp reactions on the rod, in C, units EI/L^2 and EI/L (moment about P0).
+    R_WC : array_like, shape (3, 3) or (N, 3, 3), optional
+        Clamp orientation; identity (C parallel to W) when omitted.
+
+    Returns
+    -------
+    Reconstruction
+        Arrays of length N (also for single vectors). Samples without a consistent contact
+        (no force, curvature that never vanishes within the rod, non-finite input) carry NaN
+        and a status flag instead of raising.
+    """
+    p0_W, f0_C, m0_C = (_as_vectors(n, v) for n, v in (("p0", p0), ("f0", f0), ("m0", m0)))
+    try:
+        p0_W, f0_C, m0_C = np.broadcast_arrays(p0_W, f0_C, m0_C)
+    except ValueError:
+        raise ValueError(
+            f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, {f0_C.shape}, {m0_C.shape}"
+        ) from None
+    n = len(f0_C)
+    force_C = -f0_C
+    m_horizontal = np.hypot(m0_C[:, 0], m0_C[:, 1])
+    bent = m_horizontal > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0); an unbent rod has its plane along F.
+        e_u_bent = np.stack([m0_C[:, 1], -m0_C[:, 0]], axis=1) / m_horizontal[:, None]
+        f_horizontal = np.hypot(force_C[:, 0], force_C[:, 1])
+        e_u_straight = force_C[:, :2] / f_horizontal[:, None]
+    e_u_straight = np.where(f_horizontal[:, None] > 0, e_u_straight, [1.0, 0.0])
+    e_u2 = np.where(bent[:, None], e_u_bent, e_u_straight)
+    psi = np.arctan2(e_u2[:, 1], e_u2[:, 0])
+    fu = np.einsum("ni,ni->n", force_C[:, :2], e_u2)
+    fv = force_C[:, 2]
+    contact = planar_contact(fu, fv, m_horizontal)
+    status = contact.status.copy()
+    finite = np.all(np.isfinite(p0_W), axis=1) & np.all(np.isfinite(m0_C), axis=1)
+    status[~finite] |= ContactStatus.NON_FINITE_INPUT
+    beyond = (status & int(NO_CONTACT) == 0) & (contact.s1 > 1.0 + S1_TOLERANCE)
+    status[beyond] |= ContactStatus.CONTACT_BEYOND_ROD
+    valid = (status & int(NO_CONTACT)) == 0
+    e_u = np.column_stack([e_u2, np.zeros(n)])
+    p1_C = contact.u1[:, None] * e_u
+    p1_C[:, 2] += contact.v1
+    rotation = np.broadcast_to(np.eye(3) if R_WC is None else np.asarray(R_WC, dtype=float), (n, 3, 3))
+    point = p0_W + np.einsum("nij,nj->ni", rotation, p1_C)
+    force = np.einsum("nij,nj->ni", rotation, force_C)
+    s1 = np.minimum(contact.s1, 1.0)
+    phase = np.where(s1 >= 1.0 - TIP_TOLERANCE, PHASE_TIP, PHASE_TANGENTIAL)
+    return Reconstruction(
+        point=np.where(valid[:, None], point, np.nan),
+        s1=np.where(valid, s1, np.nan),
+        phase=np.where(valid, phase, PHASE_NONE).astype(np.int64),
+        psi=np.where(valid, psi, np.nan),
+        force=force,
+        status=status,
+    )

@@ -1,0 +1,300 @@
+"""Rigid, smooth, strictly convex objects: the paper's elliptic paraboloid (eq. 2), spheres, ellipsoids.
+
+Every object is a convex quadric in its body frame B,
+
+    g_B(p) = p^T Q p + l . p + c   (< 0 inside, 0 on the surface, > 0 outside),
+
+placed in the world frame W (the clamp's frame of the sweep) by a pose X_WB: p_W = R_WB p_B + p_WB.
+Lengths are in units of the rod length L.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Pose X_WB of a body frame B in the world frame W.
+
+    Attributes
+    ----------
+    position : ndarray, shape (3,)
+        p_WB, origin of B in W, units of L.
+    rotation : ndarray, shape (3, 3)
+        R_WB, columns are B's axes expressed in W.
+    """
+
+    position: FloatArray = field(default_factory=lambda: np.zeros(3))
+    rotation: FloatArray = field(default_factory=lambda: np.eye(3))
+
+    @classmethod
+    def from_xyz_rpy(
+        cls, xyz: ArrayLike = (0.0, 0.0, 0.0), rpy: ArrayLike = (0.0, 0.0, 0.0)
+    ) -> Pose:
+        """Pose from a position and roll, pitch, yaw in rad (R = Rz(yaw) Ry(pitch) Rx(roll))."""
+        roll, pitch, yaw = (float(angle) for angle in np.asarray(rpy, dtype=float))
+        cr, sr, cp, sp, cy, sy = (
+            np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+        )
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+        ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+        rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        return cls(np.asarray(xyz, dtype=float).reshape(3), rz @ ry @ rx)
+
+    def to_body(self, p_W: FloatArray) -> FloatArray:
+        """Points (N, 3) from W to B."""
+        return (p_W - self.position) @ self.rotation
+
+    def to_world(self, p_B: FloatArray) -> FloatArray:
+        """Points (N, 3) from B to W."""
+        return p_B @ self.rotation.T + self.position
+
+
+class Surface(ABC):
+    """A strictly convex quadric object placed in the world frame.
+
+    Subclasses give the body-frame quadric (Q, l, c) and the closest point in the body frame.
+    All methods take and return world-frame arrays of shape (N, 3) (or (3,) for one point).
+    """
+
+    def __init__(self, pose: Pose | None = None) -> None:
+        self.pose = pose if pose is not None else Pose()
+
+    @property
+    @abstractmethod
+    def spec(self) -> str:
+        """The spec string that rebuilds this surface with :func:`parse_surface`."""
+
+    @abstractmethod
+    def _quadric(self) -> tuple[FloatArray, FloatArray, float]:
+        """Body-frame (Q (3, 3) symmetric positive semi-definite, l (3,), c)."""
+
+    @abstractmethod
+    def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
+        """Closest surface point (N, 3) to body-frame points q_B (N, 3)."""
+
+    def value(self, p_W: ArrayLike) -> FloatArray:
+        """First-order signed distance g / |grad g| (negative inside), units of L, shape (N,)."""
+        p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
+        Q, l, c = self._quadric()
+        g = np.einsum("ni,ij,nj->n", p_B, Q, p_B) + p_B @ l + c
+        grad = 2.0 * p_B @ Q + l
+        return g / np.linalg.norm(grad, axis=1)
+
+    def normal(self, p_W: ArrayLike) -> FloatArray:
+        """Outward unit normal (N, 3) in W of the level set through p_W."""
+        p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
+        Q, l, _ = self._quadric()
+        grad = 2.0 * p_B @ Q + l
+        n_B = grad / np.linalg.norm(grad, axis=1, keepdims=True)
+        return n_B @ self.pose.rotation.T
+
+    def closest_point(self, p_W: ArrayLike) -> FloatArray:
+        """Closest point (N, 3) on the surface, in W."""
+        p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
+        return self.pose.to_world(self._closest_point_body(p_B))
+
+    def signed_distance(self, p_W: ArrayLike) -> FloatArray:
+        """Exact signed distance (N,) to the surface, negative inside, units of L."""
+        p_W = np.atleast_2d(np.asarray(p_W, dtype=float))
+        distance = np.linalg.norm(p_W - self.closest_point(p_W), axis=1)
+        return np.where(self.value(p_W) < 0.0, -distance, distance)
+
+    def line_interval(self, a_W: ArrayLike, d_W: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Parameter interval [t_in, t_out] where the line a + t d lies inside (NaN if never).
+
+        Parameters
+        ----------
+        a_W, d_W : array_like, shape (N, 3) or (3,)
+            Points on the lines and their directions, in W.
+        """
+        a_B = self.pose.to_body(np.atleast_2d(np.asarray(a_W, dtype=float)))
+        d_B = np.atleast_2d(np.asarray(d_W, dtype=float)) @ self.pose.rotation
+        Q, l, c = self._quadric()
+        qa = np.einsum("ni,ij,nj->n", d_B, Q, d_B)
+        qb = 2.0 * np.einsum("ni,ij,nj->n", a_B, Q, d_B) + d_B @ l
+        qc = np.einsum("ni,ij,nj->n", a_B, Q, a_B) + a_B @ l + c
+        with np.errstate(divide="ignore", invalid="ignore"):
+            root = np.sqrt(qb * qb - 4.0 * qa * qc)
+            # Stable roots of qa t^2 + qb t + qc; a line along a paraboloid's axis has qa = 0.
+            big = -0.5 * (qb + np.copysign(root, qb))
+            t1, t2 = big / qa, qc / big
+            linear = qa <= 1e-14 * (np.abs(qb) + np.abs(qc) + 1.0)
+            t_lin = -qc / qb
+            lo = np.where(linear, np.where(qb > 0, -np.inf, t_lin), np.minimum(t1, t2))
+            hi = np.where(linear, np.where(qb > 0, t_lin, np.inf), np.maximum(t1, t2))
+        never = ~np.isfinite(root) & ~linear
+        return np.where(never, np.nan, lo), np.where(never, np.nan, hi)
+
+    def is_mirror_symmetric(self, point_W: ArrayLike, normal_W: ArrayLike) -> bool:
+        """Whether the object is its own mirror image across the plane (point, normal)."""
+        point = np.asarray(point_W, dtype=float)
+        n = np.asarray(normal_W, dtype=float)
+        n = n / np.linalg.norm(n)
+        samples = np.random.default_rng(7).uniform(-2.0, 2.0, size=(64, 3)) + point
+        mirrored = samples - 2.0 * np.outer((samples - point) @ n, n)
+        g, g_mirror = self.value(samples), self.value(mirrored)
+        return bool(np.allclose(g, g_mirror, rtol=1e-12, atol=1e-12))
+
+
+class Paraboloid(Surface):
+    """Elliptic paraboloid z = a x^2 + b y^2 + h in B (eq. 2); the object is the cup above it."""
+
+    def __init__(self, a: float, b: float, h: float, pose: Pose | None = None) -> None:
+        if not (a > 0 and b > 0):
+            raise ValueError(f"paraboloid needs a > 0 and b > 0, got a={a}, b={b}")
+        super().__init__(pose)
+        self.a, self.b, self.h = float(a), float(b), float(h)
+
+    @property
+    def spec(self) -> str:
+        return f"paraboloid:a={self.a!r},b={self.b!r},h={self.h!r}{_pose_spec(self.pose)}"
+
+    def _quadric(self) -> tuple[FloatArray, FloatArray, float]:
+        return np.diag([self.a, self.b, 0.0]), np.array([0.0, 0.0, -1.0]), self.h
+
+    def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
+        # p - q = lam grad g(p) gives x = qx/(1 - 2 a lam), y = qy/(1 - 2 b lam), z = qz - lam;
+        # the constraint is increasing in lam below 1/(2 max(a, b)): bracket and bisect.
+        qx, qy, qz = q_B.T
+        a, b, h = self.a, self.b, self.h
+
+        def constraint(lam: FloatArray) -> FloatArray:
+            return a * (qx / (1 - 2 * a * lam)) ** 2 + b * (qy / (1 - 2 * b * lam)) ** 2 + h - qz + lam
+
+        hi = np.full(len(q_B), (1.0 - 1e-15) / (2.0 * max(a, b)))
+        lo = np.minimum(qz - h, 0.0) - 1.0
+        lam = _bisect_increasing(constraint, lo, hi)
+        return np.stack([qx / (1 - 2 * a * lam), qy / (1 - 2 * b * lam), qz - lam], axis=1)
+
+
+class Ellipsoid(Surface):
+    """Ellipsoid (x/rx)^2 + (y/ry)^2 + (z/rz)^2 = 1 in B."""
+
+    def __init__(self, rx: float, ry: float, rz: float, pose: Pose | None = None) -> None:
+        if min(rx, ry, rz) <= 0:
+            raise ValueError(f"ellipsoid radii must be > 0, got {rx}, {ry}, {rz}")
+        super().__init__(pose)
+        self.radii = np.array([rx, ry, rz], dtype=float)
+
+    @property
+    def spec(self) -> str:
+        rx, ry, rz = self.radii
+        return f"ellipsoid:rx={rx!r},ry={ry!r},rz={rz!r}{_pose_spec(self.pose)}"
+
+    def _quadric(self) -> tuple[FloatArray, FloatArray, float]:
+        return np.diag(1.0 / self.radii**2), np.zeros(3), -1.0
+
+    def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
+        # p_i = r_i^2 q_i / (r_i^2 + lam); sum (r_i q_i / (r_i^2 + lam))^2 = 1 is decreasing in lam.
+        r2 = self.radii**2
+
+        def minus_constraint(lam: FloatArray) -> FloatArray:
+            return 1.0 - np.sum((self.radii * q_B / (r2 + lam[:, None])) ** 2, axis=1)
+
+        lo = np.full(len(q_B), -r2.min() * (1.0 - 1e-15))
+        hi = self.radii.max() * np.linalg.norm(q_B, axis=1) + 1.0
+        lam = _bisect_increasing(minus_constraint, lo, hi)
+        return r2 * q_B / (r2 + lam[:, None])
+
+
+class Sphere(Ellipsoid):
+    """Sphere of radius r centred on B's origin."""
+
+    def __init__(self, r: float, pose: Pose | None = None) -> None:
+        super().__init__(r, r, r, pose)
+
+    @property
+    def spec(self) -> str:
+        return f"sphere:r={self.radii[0]!r}{_pose_spec(self.pose)}"
+
+    def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
+        return self.radii[0] * q_B / np.linalg.norm(q_B, axis=1, keepdims=True)
+
+
+def _bisect_increasing(function, lo: FloatArray, hi: FloatArray) -> FloatArray:  # type: ignore[no-untyped-def]
+    """Root of an increasing function per element, bracketed by lo < root < hi."""
+    lo, hi = lo.astype(float).copy(), hi.astype(float).copy()
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        above = function(mid) > 0
+        hi = np.where(above, mid, hi)
+        lo = np.where(above, lo, mid)
+        if np.all(hi - lo <= 4e-16 * np.maximum(np.abs(mid), 1.0)):
+            break
+    return 0.5 * (lo + hi)
+
+
+_POSE_KEYS = ("cx", "cy", "cz", "roll", "pitch", "yaw")
+_SHAPE_KEYS = {
+    "paraboloid": ("a", "b", "h"),
+    "sphere": ("r",),
+    "ellipsoid": ("rx", "ry", "rz"),
+}
+
+
+def _pose_spec(pose: Pose) -> str:
+    if np.allclose(pose.rotation, np.eye(3), rtol=0, atol=0) and not np.any(pose.position):
+        return ""
+    cx, cy, cz = pose.position
+    parts = [f"cx={cx!r}", f"cy={cy!r}", f"cz={cz!r}"]
+    r = pose.rotation
+    pitch = float(np.arcsin(np.clip(-r[2, 0], -1.0, 1.0)))
+    roll = float(np.arctan2(r[2, 1], r[2, 2]))
+    yaw = float(np.arctan2(r[1, 0], r[0, 0]))
+    parts += [f"roll={roll!r}", f"pitch={pitch!r}", f"yaw={yaw!r}"]
+    return "," + ",".join(parts)
+
+
+def parse_surface(spec: str) -> Surface:
+    """Build a surface from a spec string.
+
+    ``paraboloid:a=0.5,b=1,h=0.4``, ``sphere:r=0.3,cx=0,cy=0,cz=0.8`` or
+    ``ellipsoid:rx=0.4,ry=0.3,rz=0.2,cx=0,cy=0,cz=0.9``; every kind also takes the pose keys
+    cx, cy, cz (position of its body frame, units of L) and roll, pitch, yaw (rad,
+    R = Rz(yaw) Ry(pitch) Rx(roll)), all defaulting to 0.
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown kind, a missing or unknown key, or a value that is not a number.
+    """
+    kind, _, body = spec.partition(":")
+    kind = kind.strip().lower()
+    if kind not in _SHAPE_KEYS:
+        raise ValueError(f"surface spec {spec!r}: unknown kind {kind!r}, expected one of {sorted(_SHAPE_KEYS)}")
+    values: dict[str, float] = {}
+    for item in filter(None, (part.strip() for part in body.split(","))):
+        key, eq, text = item.partition("=")
+        key = key.strip()
+        if not eq:
+            raise ValueError(f"surface spec {spec!r}: expected key=value, got {item!r}")
+        if key not in _SHAPE_KEYS[kind] + _POSE_KEYS:
+            allowed = ", ".join(_SHAPE_KEYS[kind] + _POSE_KEYS)
+            raise ValueError(f"surface spec {spec!r}: unknown key {key!r} for {kind} (allowed: {allowed})")
+        try:
+            values[key] = float(text)
+        except ValueError:
+            raise ValueError(f"surface spec {spec!r}: {key}={text!r} is not a number") from None
+        if not np.isfinite(values[key]):
+            raise ValueError(f"surface spec {spec!r}: {key}={text!r} is not finite")
+    missing = [key for key in _SHAPE_KEYS[kind] if key not in values]
+    if missing:
+        raise ValueError(f"surface spec {spec!r}: missing {', '.join(missing)} for {kind}")
+    pose = Pose.from_xyz_rpy(
+        [values.get(key, 0.0) for key in ("cx", "cy", "cz")],
+        [values.get(key, 0.0) for key in ("roll", "pitch", "yaw")],
+    )
+    shape = [values[key] for key in _SHAPE_KEYS[kind]]
+    if kind == "paraboloid":
+        return Paraboloid(*shape, pose=pose)
+    if kind == "sphere":
+        return Sphere(*shape, pose=pose)
+    return Ellipsoid(*shape, pose=pose)

@@ -1,0 +1,682 @@
+"""Step 1: quasi-static frictional sweeps of the clamped rod past a convex object (Sec. II-E).
+
+The clamp P0 = (x0, y0, 0) moves in steps of ``step`` along -x; its axis is e_z. Every step is an
+equilibrium of the planar elastica (eq. 11) in the plane E_psi through P0 spanned by e_z and
+e_u = (cos psi, sin psi, 0). The unknowns of a step are q = (psi, Fu, Fv, kappa0): the plane, the
+contact force on the rod in that plane and the clamp curvature; the closed-form elastica
+(:mod:`vibrissa.elastica`) turns q into the contact P1, s1 and the rod's tangent there.
+Conditions (four equations, solved by Newton's method with a finite-difference Jacobian,
+batched over all sweeps of a study):
+
+* tip contact (eq. 14): s1 = 1; tangential contact (eq. 15): rod tangent _|_ surface normal;
+* P1 on the surface;
+* Coulomb sliding (eqs. 4-7): F is parallel to n + mu t, with n the outward normal at P1 and t the
+  unit vector from P1 towards the previous contact point (eq. 7), projected into the tangent
+  plane so that the friction force is exactly tangential; two equations: the direction lies in
+  E_psi, and F points along it within E_psi.
+
+Phases change by themselves: a tip solution whose rod would enter the object just before the
+tip (rod tangent pointing out of the object at P1) becomes tangential, and a tangential solution
+with s1 > 1 becomes tip contact.
+
+Sticking (not in the paper): with larger mu there are clamp positions where no sliding
+equilibrium exists near the previous one, because the friction direction of eq. 7 depends on
+where the contact goes. Coulomb's law then allows the contact to stick: the rod's tip stays at
+the previous contact point (three equations) with s1 = 1, and the state is accepted when the
+resulting contact force lies inside the friction cone, |F_t| <= mu F_n. Sliding is tried first
+at every step, as in the paper.
+
+Symmetric trails: when the object is its own mirror image across the vertical plane of the trail
+(the paper's y0 = 0), the symmetric branch is kept exactly by fixing psi = 0 and dropping the
+out-of-plane equation; otherwise round-off grows out of the plane from step to step.
+
+The sweep starts at the first contact of the straight rod with the object and ends at
+detachment (the straight rod clears the object: the reactions have gone to zero smoothly) or at
+snap-off (no equilibrium near the previous one even with the step refined, the straight rod still
+inside the object).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vibrissa.elastica import planar_contact, planar_line
+from vibrissa.reconstruct import PHASE_NAMES, PHASE_TANGENTIAL, PHASE_TIP
+from vibrissa.surfaces import Surface
+
+FloatArray = NDArray[np.float64]
+
+SLIDE, STICK = 0, 1
+STATE_NAMES = {SLIDE: "slide", STICK: "stick"}
+
+_E_Z = np.array([0.0, 0.0, 1.0])
+_NEWTON_TOL = 1e-12
+_DIRECTION_TOL = 1e-8
+_NEWTON_MAX_ITER = 40
+_DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
+_REFINEMENTS = 6  # a failed step is retried with up to 2**6 sub-steps before it counts as snap-off
+
+
+@dataclass(frozen=True)
+class Trail:
+    """A straight clamp trail parallel to x at lateral offset ``y0`` with friction ``mu``."""
+
+    y0: float
+    mu: float
+
+
+@dataclass
+class Sweep:
+    """Equilibria of one sweep, one entry per step, in the paper's units (eq. 1).
+
+    Frames: all vectors in the world frame W = the clamp frame of the trail (clamp axis e_z).
+    ``f0``, ``m0`` are the clamp's reactions on the rod (moment about P0); ``force`` is the
+    contact force on the rod, ``normal`` the surface's outward unit normal at the contact,
+    ``fn`` = F . n >= 0 and ``ft`` = |F - fn n| the normal and friction magnitudes.
+    """
+
+    trail: Trail
+    step: float
+    x0: FloatArray
+    phase: NDArray[np.int64]
+    state: NDArray[np.int64]
+    s1: FloatArray
+    psi: FloatArray
+    f0: FloatArray
+    m0: FloatArray
+    contact: FloatArray
+    normal: FloatArray
+    force: FloatArray
+    fn: FloatArray
+    ft: FloatArray
+    end: str
+    x0_end: float
+    phase_changes: list[tuple[float, str, str]]
+    _q: FloatArray = field(repr=False)
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.x0)
+
+    @property
+    def p0(self) -> FloatArray:
+        """Clamp positions (N, 3)."""
+        return np.column_stack([self.x0, np.full_like(self.x0, self.trail.y0), np.zeros_like(self.x0)])
+
+    def elastic_line(self, index: int, n_points: int = 101) -> FloatArray:
+        """Points (n_points, 3) of the rod's axis at step ``index``, from the clamp to the tip."""
+        psi, fu, fv, kappa0 = self._q[index]
+        u, v = planar_line(fu, fv, kappa0, np.linspace(0.0, 1.0, n_points))
+        e_u = np.array([np.cos(psi), np.sin(psi), 0.0])
+        return self.p0[index] + np.outer(u, e_u) + np.outer(v, _E_Z)
+
+    def summary(self) -> dict[str, object]:
+        """How the sweep went, JSON-ready."""
+        return {
+            "y0": self.trail.y0,
+            "mu": self.trail.mu,
+            "step": self.step,
+            "n_steps": self.n_steps,
+            "x0_start": float(self.x0[0]) if self.n_steps else None,
+            "x0_end": self.x0_end,
+            "end": self.end,
+            "phase_changes": [
+                {"x0": x0, "from": old, "to": new} for x0, old, new in self.phase_changes
+            ],
+            "stick_steps": int(np.sum(self.state == STICK)),
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# One batched evaluation of the equilibrium conditions
+
+
+_MODE_TIP, _MODE_TANGENTIAL, _MODE_STICK = 0, 1, 2
+
+
+@dataclass
+class _Batch:
+    """Fixed data of the rows solved together (one row per sweep attempt)."""
+
+    x0: FloatArray
+    y0: FloatArray
+    mu: FloatArray
+    anchor: FloatArray  # previous contact point (sliding) or the held point (sticking), (n, 3)
+    mode: NDArray[np.int64]
+    locked: NDArray[np.bool_]
+
+    def take(self, rows: NDArray[np.int64]) -> _Batch:
+        return _Batch(*(getattr(self, name)[rows] for name in _BATCH_FIELDS))
+
+
+_BATCH_FIELDS = ("x0", "y0", "mu", "anchor", "mode", "locked")
+
+
+@dataclass
+class _State:
+    """Geometry and forces of an evaluated q."""
+
+    residual: FloatArray
+    p1: FloatArray
+    s1: FloatArray
+    tangent: FloatArray
+    normal: FloatArray
+    force: FloatArray
+    kappa0: FloatArray
+    e_w: FloatArray
+    status: NDArray[np.int64]
+
+
+def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
+    psi, fu, fv, kappa0 = q[:, :4].T
+    contact = planar_contact(fu, fv, kappa0)
+    cos_psi, sin_psi = np.cos(psi), np.sin(psi)
+    zeros = np.zeros_like(psi)
+    e_u = np.column_stack([cos_psi, sin_psi, zeros])
+    e_w = np.column_stack([sin_psi, -cos_psi, zeros])
+    p1 = np.column_stack([batch.x0, batch.y0, zeros]) + contact.u1[:, None] * e_u
+    p1[:, 2] += contact.v1
+    tangent = np.cos(contact.phi1)[:, None] * e_u
+    tangent[:, 2] += np.sin(contact.phi1)
+    force = fu[:, None] * e_u
+    force[:, 2] += fv
+    gap = surface.value(p1)
+    normal = surface.normal(p1)
+
+    chord = batch.anchor - p1
+    chord -= np.einsum("ni,ni->n", chord, normal)[:, None] * normal
+    chord_length = np.linalg.norm(chord, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slide_dir = np.where(chord_length[:, None] > 0, chord / chord_length[:, None], 0.0)
+        direction = normal + batch.mu[:, None] * slide_dir
+        direction /= np.linalg.norm(direction, axis=1)[:, None]
+        f = np.hypot(fu, fv)
+        in_plane = np.einsum("ni,ni->n", direction, e_w)
+        d_u = np.einsum("ni,ni->n", direction, e_u)
+        along = (fu * direction[:, 2] - fv * d_u) / f
+    in_plane = np.where(batch.locked, psi, in_plane)
+
+    tip = contact.s1 - 1.0
+    tangential = np.einsum("ni,ni->n", tangent, normal)
+    residual = np.column_stack([np.where(batch.mode == _MODE_TANGENTIAL, tangential, tip), gap, in_plane, along])
+    stick = batch.mode == _MODE_STICK
+    residual[stick, 1:] = (p1 - batch.anchor)[stick]
+    return _State(residual, p1, contact.s1, tangent, normal, force, kappa0, e_w, contact.status)
+
+
+def _newton(surface: Surface, q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
+    """Solve the four conditions for every row, starting from q0; returns q, state, converged."""
+    q = q0.copy()
+    state = _evaluate(surface, q, batch)
+    norm = np.max(np.abs(state.residual), axis=1)
+    for _ in range(_NEWTON_MAX_ITER):
+        pending = ~(norm < _NEWTON_TOL) & np.isfinite(norm)
+        if not pending.any():
+            break
+        rows = np.flatnonzero(pending)
+        sub = batch.take(rows)
+        q_rows = q[rows]
+        # Forward differences; loads are perturbed relative to the row's load magnitude.
+        load = np.max(np.abs(q_rows[:, 1:]), axis=1, keepdims=True)
+        scale = np.column_stack([np.ones(len(rows)), np.repeat(1e-3 * load, 3, axis=1)])
+        h = np.maximum(1e-8 * np.maximum(np.abs(q_rows), scale), 1e-300)
+        probes = np.repeat(q_rows[None], 4, axis=0)
+        for j in range(4):
+            probes[j, :, j] += h[:, j]
+        probe_batch = _Batch(*(np.concatenate([getattr(sub, name)] * 4) for name in _BATCH_FIELDS))
+        probe_state = _evaluate(surface, probes.reshape(-1, 4), probe_batch)
+        jac = (probe_state.residual.reshape(4, len(rows), 4) - state.residual[rows][None]) / h.T[:, :, None]
+        jac = np.transpose(jac, (1, 2, 0))  # (rows, equation, unknown)
+        try:
+            delta = np.linalg.solve(jac, -state.residual[rows][:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            delta = np.stack([np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in zip(jac, state.residual[rows])])
+        # Keep the plane from spinning in one step.
+        delta *= np.minimum(1.0, 0.3 / np.maximum(np.abs(delta[:, 0]), 1e-300))[:, None]
+        accepted = np.zeros(len(rows), dtype=bool)
+        for _halving in range(10):
+            trial = q_rows + delta
+            trial_state = _evaluate(surface, trial, sub)
+            trial_norm = np.max(np.abs(trial_state.residual), axis=1)
+            take = ((trial_norm < norm[rows]) | (trial_norm < _NEWTON_TOL)) & ~accepted
+            if take.any():
+                idx = rows[take]
+                q[idx] = trial[take]
+                norm[idx] = trial_norm[take]
+                _copy_rows(state, trial_state, idx, take)
+                accepted |= take
+            if accepted.all():
+                break
+            delta[~accepted] *= 0.5
+        if not accepted.any():
+            break
+        norm[rows[~accepted]] = np.nan  # stalled: no further progress on those rows
+    return q, state, _converged(state, batch)
+
+
+def _converged(state: _State, batch: _Batch) -> NDArray[np.bool_]:
+    """Strict geometry; friction direction only as well as the chord of eq. 7 resolves it.
+
+    The chord can be as short as 1e-6 (first step, nearly stuck contacts); round-off in P1
+    then limits the direction equations to about 1e-16 / |chord|.
+    """
+    residual = np.abs(state.residual)
+    sliding = batch.mode != _MODE_STICK
+    geometry = np.where(sliding[:, None], residual * [1.0, 1.0, 0.0, 0.0], residual)
+    direction_ok = np.where(sliding, np.max(residual[:, 2:], axis=1) < _DIRECTION_TOL, True)
+    return (np.max(geometry, axis=1) < _NEWTON_TOL) & direction_ok
+
+
+def _tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors (N, 3) spanning the tangent planes of the unit normals (N, 3)."""
+    e1 = np.cross(normal, _E_Z)
+    flat = np.linalg.norm(e1, axis=1) < 1e-12
+    e1[flat] = np.cross(normal[flat], [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    return e1, np.cross(normal, e1)
+
+
+def _held_at_slip(
+    surface: Surface, z: FloatArray, q: FloatArray, batch: _Batch
+) -> tuple[FloatArray, FloatArray, _State, NDArray[np.bool_]]:
+    """Hold the tip at the slip z = (log r, theta) from the anchor; return the Coulomb mismatch.
+
+    The mismatch F_t / F_n - mu t (t per eq. 7) in two tangent components is zero for a sliding
+    equilibrium. Also returns the held q, its state and whether holding converged.
+    """
+    e1, e2 = _tangent_basis(surface.normal(batch.anchor))
+    r, theta = np.exp(z[:, 0:1]), z[:, 1:2]
+    held = surface.closest_point(batch.anchor + r * (np.cos(theta) * e1 + np.sin(theta) * e2))
+    hold = _Batch(batch.x0, batch.y0, batch.mu, held, np.full(len(z), _MODE_STICK), batch.locked)
+    q_held, state, converged = _newton(surface, q, hold)
+    fn = np.einsum("ni,ni->n", state.force, state.normal)
+    chord = batch.anchor - state.p1
+    chord -= np.einsum("ni,ni->n", chord, state.normal)[:, None] * state.normal
+    t = chord / np.linalg.norm(chord, axis=1)[:, None]
+    mismatch = (state.force - fn[:, None] * state.normal) / fn[:, None] - batch.mu[:, None] * t
+    f1, f2 = _tangent_basis(state.normal)
+    residual = np.column_stack([np.einsum("ni,ni->n", mismatch, f1), np.einsum("ni,ni->n", mismatch, f2)])
+    return residual, q_held, state, converged
+
+
+def _small_slip(
+    surface: Surface, q_stuck: FloatArray, stuck: _State, batch: _Batch
+) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
+    """Tip slide by a short slip from the anchor, found from a stuck state outside the cone.
+
+    A nearly stuck tip may slip by 1e-8 or less (the rod is inextensible along its axis), too
+    short to resolve through the chord of eq. 7 with the plain unknowns. Here the slip itself is
+    the unknown, in polar coordinates around the anchor, and every trial holds the tip there.
+    """
+    e1, e2 = _tangent_basis(surface.normal(batch.anchor))
+    fn = np.einsum("ni,ni->n", stuck.force, stuck.normal)
+    slip = -(stuck.force - fn[:, None] * stuck.normal)  # the friction on the rod opposes the slip
+    theta = np.arctan2(np.einsum("ni,ni->n", slip, e2), np.einsum("ni,ni->n", slip, e1))
+    z = np.column_stack([np.full(len(q_stuck), np.log(1e-7)), theta])
+    q = q_stuck.copy()
+    # Coarse probes: the held states are only solved to 1e-12, and the slip may be ~1e-8.
+    steps = np.array([0.05, 0.01])
+    for _ in range(40):
+        mismatch, q, state, converged = _held_at_slip(surface, z, q, batch)
+        if np.all(np.max(np.abs(mismatch), axis=1) < 1e-11) or not converged.all():
+            break
+        jac = np.empty((len(z), 2, 2))
+        for j in range(2):
+            probe = z.copy()
+            probe[:, j] += steps[j]
+            jac[:, :, j] = (_held_at_slip(surface, probe, q, batch)[0] - mismatch) / steps[j]
+        delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch)])
+        z += np.clip(delta, -1.0, 1.0)
+    as_slide = _Batch(batch.x0, batch.y0, batch.mu, batch.anchor, np.full(len(z), _MODE_TIP), batch.locked)
+    final = _evaluate(surface, q, as_slide)
+    return q, final, _converged(final, as_slide)
+
+
+_STATE_FIELDS = ("residual", "p1", "s1", "tangent", "normal", "force", "kappa0", "e_w", "status")
+
+
+def _copy_rows(target: _State, source: _State, rows: NDArray[np.int64], mask: NDArray[np.bool_]) -> None:
+    for name in _STATE_FIELDS:
+        getattr(target, name)[rows] = getattr(source, name)[mask]
+
+
+def _admissible(state: _State, batch: _Batch, previous_p1: FloatArray, jump: float) -> NDArray[np.bool_]:
+    """Physically acceptable solutions: contact pushes, rod outside the object, near the last one."""
+    fn = np.einsum("ni,ni->n", state.force, state.normal)
+    ok = (state.status == 0) & (fn > 0)
+    ok &= np.linalg.norm(state.p1 - previous_p1, axis=1) <= jump
+    tip_like = batch.mode != _MODE_TANGENTIAL
+    # At the tip the rod must arrive from outside: its tangent may not point out of the object.
+    outward = np.einsum("ni,ni->n", state.tangent, state.normal)
+    ok &= np.where(tip_like, outward <= 1e-9, (state.s1 <= 1.0) & (state.s1 > 0.0))
+    stick = batch.mode == _MODE_STICK
+    if stick.any():
+        friction = state.force - fn[:, None] * state.normal
+        inside_cone = np.linalg.norm(friction, axis=1) <= batch.mu * fn * (1.0 + 1e-9)
+        ok &= ~stick | inside_cone
+    return ok
+
+
+# ---------------------------------------------------------------------------------------------
+# Sweep driver
+
+
+def first_contact(surface: Surface, y0: float) -> tuple[float, FloatArray] | None:
+    """Largest x0 at which the straight rod on the trail touches the object, and the touch point.
+
+    Returns None when the trail never touches the object.
+    """
+    z = np.linspace(0.0, 1.0, 2001)
+    x_max = _slice_x_max(surface, y0, z)
+    if not np.isfinite(x_max).any():
+        return None
+    i = int(np.nanargmax(x_max))
+    lo, hi = z[max(i - 1, 0)], z[min(i + 1, len(z) - 1)]
+    # The reach along x of a convex object's slices is concave in z: golden-section search.
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(80):
+        a, b = hi - golden * (hi - lo), lo + golden * (hi - lo)
+        fa, fb = _slice_x_max(surface, y0, np.array([a, b]))
+        fa, fb = (np.nan_to_num(v, nan=-np.inf) for v in (fa, fb))
+        if fa >= fb:
+            hi = b
+        else:
+            lo = a
+    candidates = np.array([lo, hi, z[i], 0.0, 1.0])
+    values = np.nan_to_num(_slice_x_max(surface, y0, candidates), nan=-np.inf)
+    best = int(np.argmax(values))
+    z_touch = float(candidates[best])
+    return float(values[best]), np.array([values[best], y0, z_touch])
+
+
+def _slice_x_max(surface: Surface, y0: float, z: FloatArray) -> FloatArray:
+    starts = np.column_stack([np.zeros_like(z), np.full_like(z, y0), z])
+    _lo, hi = surface.line_interval(starts, np.tile([1.0, 0.0, 0.0], (len(z), 1)))
+    return hi
+
+
+@dataclass
+class _Track:
+    """Mutable progress of one sweep."""
+
+    trail: Trail
+    locked: bool
+    x0: float
+    q: FloatArray
+    q_before: FloatArray | None
+    mode: int
+    p1: FloatArray
+    anchor: FloatArray
+    rows: list[tuple[float, int, int, FloatArray, FloatArray, FloatArray, FloatArray]] = field(default_factory=list)
+    phase_changes: list[tuple[float, str, str]] = field(default_factory=list)
+    end: str | None = None
+    x0_end: float = float("nan")
+
+
+ProgressCallback = Callable[[int, int], None]
+
+
+def simulate_sweeps(
+    surface: Surface,
+    trails: Sequence[Trail],
+    step: float = 0.001,
+    max_steps: int = 100_000,
+    progress: ProgressCallback | None = None,
+) -> list[Sweep]:
+    """Simulate several sweeps past one object, solved together step by step.
+
+    Parameters
+    ----------
+    surface : Surface
+        The object, in the trail's frame.
+    trails : sequence of Trail
+        Lateral offsets y0 (units of L) and friction coefficients.
+    step : float
+        Clamp displacement per step along -x, units of L.
+    max_steps : int
+        Safety cap on the steps of one sweep (ends with ``end == "max-steps"``).
+    progress : callable, optional
+        Called as ``progress(finished_sweeps, total_sweeps)`` whenever a sweep ends.
+    """
+    if not step > 0:
+        raise ValueError(f"step must be > 0, got {step}")
+    for trail in trails:
+        if not trail.mu >= 0:
+            raise ValueError(f"mu must be >= 0, got {trail.mu}")
+    tracks = [_start(surface, trail, step) for trail in trails]
+    done = sum(track.end is not None for track in tracks)
+    if progress:
+        progress(done, len(tracks))
+    while True:
+        active = [t for t in tracks if t.end is None]
+        if not active:
+            break
+        _advance(surface, active, step, max_steps)
+        finished = sum(track.end is not None for track in tracks)
+        if progress and finished != done:
+            progress(finished, len(tracks))
+        done = finished
+    return [_finish(track, step) for track in tracks]
+
+
+def simulate_sweep(surface: Surface, y0: float, mu: float, step: float = 0.001) -> Sweep:
+    """One sweep at lateral offset ``y0`` with friction ``mu``; see :func:`simulate_sweeps`."""
+    return simulate_sweeps(surface, [Trail(y0, mu)], step)[0]
+
+
+def _start(surface: Surface, trail: Trail, step: float) -> _Track:
+    locked = surface.is_mirror_symmetric([0.0, trail.y0, 0.0], [0.0, 1.0, 0.0])
+    touch = first_contact(surface, trail.y0)
+    if touch is None:
+        track = _Track(trail, locked, np.nan, np.zeros(4), None, _MODE_TIP, np.zeros(3), np.zeros(3))
+        track.end = "no-contact"
+        return track
+    x_start, p_touch = touch
+    normal = surface.normal(p_touch)[0]
+    psi = 0.0 if locked or np.hypot(normal[0], normal[1]) == 0 else float(np.arctan2(normal[1], normal[0]))
+    n_u = normal[0] * np.cos(psi) + normal[1] * np.sin(psi)
+    s_touch = float(p_touch[2])
+    # Small-deflection guess for the first step: the touching point must move out by the
+    # penetration step * |n_x| along n; a load P at s deflects it by P s^3 / 3.
+    depth = step * abs(normal[0])
+    magnitude = 3.0 * depth / (max(n_u * n_u, 0.05) * max(s_touch, 0.05) ** 3)
+    fu, fv = magnitude * n_u, magnitude * normal[2]
+    q = np.array([psi, fu, fv, -s_touch * fu])
+    mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
+    return _Track(trail, locked, x_start, q, None, mode, p_touch, p_touch.copy())
+
+
+def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int) -> None:
+    """Move every track one step; failures are retried with refined sub-steps."""
+    targets = np.array([t.x0 - step for t in tracks])
+    reached = _attempt(surface, tracks, targets, step)
+    for track, target, ok in zip(tracks, targets, reached):
+        if ok:
+            _record(track)
+        else:
+            _refine(surface, track, target, step)
+        if track.end is None and len(track.rows) >= max_steps:
+            track.end, track.x0_end = "max-steps", track.x0
+
+
+def _refine(surface: Surface, track: _Track, target: float, step: float) -> None:
+    """Reach ``target`` in ever smaller sub-steps; if impossible the sweep has ended."""
+    for level in range(1, _REFINEMENTS + 1):
+        sub = step / 2**level
+        while track.x0 - sub >= target - 1e-12 * step:
+            if not _attempt(surface, [track], np.array([track.x0 - sub]), sub)[0]:
+                break
+        if abs(track.x0 - target) <= 1e-12 * step:
+            track.x0 = target
+            _record(track)
+            return
+    track.end = _ending(track)
+    track.x0_end = track.rows[-1][0] if track.rows else track.x0
+
+
+def _ending(track: _Track) -> str:
+    """Detachment when the reactions had gone to zero continuously, snap-off at finite force.
+
+    Near a smooth detachment the contact force falls linearly to zero, so the last equilibrium
+    carries a force of the order (slope * step), a tiny fraction of the sweep's peak; at a
+    snap-off (a fold of the equilibrium branch) the force is finite and often rising.
+    """
+    forces = np.array([np.linalg.norm(row[6]) for row in track.rows])
+    if len(forces) == 0 or forces[-1] <= _DETACHMENT_FRACTION * forces.max():
+        return "detachment"
+    return "snap-off"
+
+
+def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: float) -> NDArray[np.bool_]:
+    """Try to move each track to its target x0: slide in its phase, the other phase, then stick."""
+    n = len(tracks)
+    success = np.zeros(n, dtype=bool)
+    todo = np.arange(n)
+    jump = max(20.0 * step, 0.01)
+    predictors = np.array([_predict(t) for t in tracks])
+    sliding_mode = np.array([t.mode if t.mode != _MODE_STICK else _MODE_TIP for t in tracks])
+    other_mode = np.where(sliding_mode == _MODE_TIP, _MODE_TANGENTIAL, _MODE_TIP)
+    stick_mode = np.full(n, _MODE_STICK)
+    frictional = np.array([t.trail.mu > 0 for t in tracks])
+    stuck: dict[int, tuple[FloatArray, _State, int]] = {}
+
+    def solve_stage(modes: NDArray[np.int64], kind: str) -> None:
+        rows = todo[~success[todo]]
+        if kind != "slide":
+            rows = rows[frictional[rows]]
+        if kind == "anchored":
+            rows = np.array([i for i in rows if i in stuck], dtype=np.int64)
+        if len(rows) == 0:
+            return
+        batch = _Batch(
+            x0=targets[rows],
+            y0=np.array([tracks[i].trail.y0 for i in rows]),
+            mu=np.array([tracks[i].trail.mu for i in rows]),
+            anchor=np.array([tracks[i].anchor if modes[i] == _MODE_STICK else tracks[i].p1 for i in rows]),
+            mode=modes[rows],
+            locked=np.array([tracks[i].locked for i in rows]),
+        )
+        if kind == "anchored":
+            q_stuck = np.array([stuck[i][0] for i in rows])
+            stuck_state = _State(*(np.concatenate([getattr(stuck[i][1], name) for i in rows]) for name in _STATE_FIELDS))
+            q, state, converged = _small_slip(surface, q_stuck, stuck_state, batch)
+        elif kind == "continuation":
+            q, state, converged = _newton_friction_continuation(surface, predictors[rows], batch)
+        else:
+            q, state, converged = _newton(surface, predictors[rows], batch)
+        previous = np.array([tracks[i].p1 for i in rows])
+        ok = converged & _admissible(state, batch, previous, jump)
+        for k in np.flatnonzero(ok):
+            i = rows[k]
+            _accept(tracks[i], float(targets[i]), q[k], state, k, int(modes[i]))
+            success[i] = True
+        if kind == "stick":
+            for k in np.flatnonzero(converged & ~ok):
+                stuck[int(rows[k])] = (q[k], _take_state(state, k), k)
+
+    solve_stage(sliding_mode, "slide")
+    solve_stage(other_mode, "slide")
+    # Where no sliding state is near, the contact may stick (inside the friction cone) ...
+    solve_stage(stick_mode, "stick")
+    # ... or slip only slightly from where it was: a tip slide in polar coordinates around the
+    # held point, started from the stuck state (well conditioned for a slip of any length).
+    solve_stage(np.full(n, _MODE_TIP), "anchored")
+    # Friction continuation (mu from 0 up) is the last resort for steps whose sliding state is
+    # far from the predictor.
+    solve_stage(sliding_mode, "continuation")
+    solve_stage(other_mode, "continuation")
+    return success
+
+
+def _take_state(state: _State, k: int) -> _State:
+    return _State(*(getattr(state, name)[[k]] for name in _STATE_FIELDS))
+
+
+def _newton_friction_continuation(
+    surface: Surface, q0: FloatArray, batch: _Batch, stages: int = 16
+) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
+    """Newton's method along mu = 0 -> mu in ``stages`` steps, each from the previous solution."""
+    full_mu = batch.mu
+    q = q0.copy()
+    alive = np.ones(len(q), dtype=bool)
+    for fraction in np.linspace(0.0, 1.0, stages + 1):
+        batch.mu = fraction * full_mu
+        q_next, state, converged = _newton(surface, q, batch)
+        alive &= converged
+        q = np.where(alive[:, None], q_next, q)
+    batch.mu = full_mu
+    return q, state, alive
+
+
+def _predict(track: _Track) -> FloatArray:
+    if track.q_before is None:
+        return track.q.copy()
+    return 2.0 * track.q - track.q_before
+
+
+def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode: int) -> None:
+    track.q_before, track.q = track.q, q.copy()
+    track.x0 = x0
+    phase_before = PHASE_NAMES[_phase_of(track.mode)]
+    track.mode = mode
+    if track.rows and PHASE_NAMES[_phase_of(mode)] != phase_before:
+        track.phase_changes.append((x0, phase_before, PHASE_NAMES[_phase_of(mode)]))
+    track.p1 = state.p1[k].copy()
+    if mode != _MODE_STICK:
+        track.anchor = track.p1
+    track._pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy(), state.s1[k])  # type: ignore[attr-defined]
+
+
+def _phase_of(mode: int) -> int:
+    return PHASE_TANGENTIAL if mode == _MODE_TANGENTIAL else PHASE_TIP
+
+
+def _record(track: _Track) -> None:
+    p1, normal, force, _s1 = track._pending  # type: ignore[attr-defined]
+    track.rows.append((track.x0, track.mode, 0, track.q.copy(), p1, normal, force))
+
+
+def _finish(track: _Track, step: float) -> Sweep:
+    rows = track.rows
+    n = len(rows)
+    q = np.array([r[3] for r in rows]).reshape(n, 4)
+    x0 = np.array([r[0] for r in rows], dtype=float)
+    modes = np.array([r[1] for r in rows], dtype=np.int64)
+    contact = np.array([r[4] for r in rows]).reshape(n, 3)
+    normal = np.array([r[5] for r in rows]).reshape(n, 3)
+    force = np.array([r[6] for r in rows]).reshape(n, 3)
+    psi_frame, fu, fv, kappa0 = q.T
+    e_w = np.column_stack([np.sin(psi_frame), -np.cos(psi_frame), np.zeros(n)])
+    # Clamp reactions from the rod's own internal loads at s = 0 (not from r x F, so that the
+    # statics m0 + r x F = 0 stays a check of the elastica): f0 = -F, m0 = -kappa0 e_w.
+    f0 = -force
+    m0 = -kappa0[:, None] * e_w
+    psi = -np.arctan2(m0[:, 0], m0[:, 1])
+    fn = np.einsum("ni,ni->n", force, normal)
+    ft = np.linalg.norm(force - fn[:, None] * normal, axis=1)
+    s1 = np.minimum(planar_contact(fu, fv, kappa0).s1, 1.0)
+    end = track.end or "max-steps"
+    return Sweep(
+        trail=track.trail,
+        step=step,
+        x0=x0,
+        phase=np.array([_phase_of(m) for m in modes], dtype=np.int64),
+        state=np.where(modes == _MODE_STICK, STICK, SLIDE).astype(np.int64),
+        s1=s1,
+        psi=psi,
+        f0=f0,
+        m0=m0,
+        contact=contact,
+        normal=normal,
+        force=force,
+        fn=fn,
+        ft=ft,
+        end=end,
+        x0_end=float(track.x0_end),
+        phase_changes=track.phase_changes,
+        _q=q,
+    )

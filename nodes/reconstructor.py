@@ -1,0 +1,256 @@
+"""Reconstructor node: contact points from whisker base wrenches (Step 2), batched when behind.
+
+Subscribes
+----------
+``input_topic`` (default ``wrench``) : WhiskerWrench
+    SI: clamp position m, f0 N, m0 N m (in the clamp frame C), pose X_WC in ``frame_id``.
+
+Publishes
+---------
+``output_topic`` (default ``contact``) : ContactPoint
+    One per wrench with a consistent contact (status OK or AXIAL_LOAD), in the wrench's
+    ``frame_id``, same ``stamp``, ``seq`` and ``whisker_id``; then an ``EndOfStream`` of its
+    own for every ``EndOfStream`` that arrives on the input (after the points before it).
+
+Samples without a consistent contact are **counted, not sent**: the codec refuses the NaN a
+point-less reconstruction carries, and a point with finite placeholder zeros would be a point
+on the map. Counters in this node's ``NodeStatus`` (besides the runtime's received, published,
+rejected, lost): ``contacts`` (points published), ``no_contact`` (valid wrench, no consistent
+contact), ``bad_pose`` (clamp quaternion of zero or non-finite length), ``batches`` and
+``max_batch`` (reconstruct calls and the largest batch). Undecodable input (wrong type,
+version, field type, truncated bytes, NaN) is rejected and counted by the transport
+(``rejected``) and the node carries on.
+
+Units: the core works in the paper's units; the wrench is divided by L, EI/L^2 and EI/L on
+the way in and the contact point, arc length and force multiplied back on the way out
+(L = ``rod_length_m``, EI = ``rod_ei_nm2``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+from vibrissa.msgs import (
+    ContactPhase,
+    ContactPoint,
+    ContactStatus,
+    EndOfStream,
+    Message,
+    NodeStatus,
+    WhiskerWrench,
+)
+from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.wire.transport import Received
+
+from vibrissa.reconstruct import reconstruct
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ReconstructorParams:
+    """Parameters of the reconstructor node.
+
+    Attributes
+    ----------
+    input_topic, output_topic
+        Topic names, relative to the namespace unless absolute.
+    wait_for
+        Node names that must be subscribed to ``output_topic`` before points go out
+        (buffered until then, never dropped).
+    max_batch
+        Most wrenches reconstructed in one vectorised call when the node falls behind.
+    receive_hwm
+        Receive high-water mark, messages: the backlog the node can hold without loss.
+    exit_on_eos
+        Exit (status 0) after forwarding the first ``EndOfStream``; by default the node runs
+        until stopped, like a sensor driver.
+    rod_length_m
+        L, m.
+    rod_ei_nm2
+        EI, N m^2.
+    """
+
+    input_topic: str = "wrench"
+    output_topic: str = "contact"
+    wait_for: tuple[str, ...] = ()
+    max_batch: int = 4096
+    receive_hwm: int = 200_000
+    exit_on_eos: bool = False
+    rod_length_m: float = 1.0
+    rod_ei_nm2: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.rod_length_m > 0 and self.rod_ei_nm2 > 0):
+            raise ValueError("rod_length_m and rod_ei_nm2 must be > 0, got "
+                             f"{self.rod_length_m}, {self.rod_ei_nm2}")
+        if self.max_batch < 1:
+            raise ValueError(f"max_batch must be >= 1, got {self.max_batch}")
+
+
+@dataclass
+class BatchResult:
+    """Outcome of :func:`reconstruct_wrenches`.
+
+    Attributes
+    ----------
+    contacts
+        Points of the wrenches with a consistent contact, in input order.
+    no_contact
+        Wrenches whose reconstruction has no consistent contact (not in ``contacts``).
+    bad_pose
+        Wrenches skipped because their clamp quaternion has zero or non-finite length.
+    """
+
+    contacts: list[ContactPoint] = field(default_factory=list)
+    no_contact: int = 0
+    bad_pose: int = 0
+
+
+def quaternion_to_matrix(q_xyzw: FloatArray) -> FloatArray:
+    """Rotation matrices (N, 3, 3) of quaternions (N, 4) given as (x, y, z, w).
+
+    The quaternions are normalised first; a zero-length one gives NaN.
+    """
+    q = np.asarray(q_xyzw, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=1)
+
+
+def reconstruct_wrenches(
+    wrenches: Sequence[WhiskerWrench], rod_length_m: float = 1.0, rod_ei_nm2: float = 1.0
+) -> BatchResult:
+    """Reconstruct a batch of wrenches with one vectorised ``vibrissa.reconstruct`` call.
+
+    Parameters
+    ----------
+    wrenches
+        SI samples; each may have its own clamp pose X_WC.
+    rod_length_m, rod_ei_nm2
+        L (m) and EI (N m^2) of the rod.
+
+    Returns
+    -------
+    BatchResult
+        A ContactPoint (SI, in the wrench's ``frame_id``) for every wrench whose status is OK
+        or AXIAL_LOAD; the others are only counted.
+    """
+    result = BatchResult()
+    if not wrenches:
+        return result
+    p_WC = np.stack([w.clamp_position for w in wrenches]) / rod_length_m
+    f0 = np.stack([w.f0 for w in wrenches]) * (rod_length_m**2 / rod_ei_nm2)
+    m0 = np.stack([w.m0 for w in wrenches]) * (rod_length_m / rod_ei_nm2)
+    quats = np.stack([w.clamp_orientation for w in wrenches])
+    norms = np.linalg.norm(quats, axis=1)
+    good_pose = np.isfinite(norms) & (norms > 0)
+    identity = np.all(quats == (0.0, 0.0, 0.0, 1.0), axis=1)
+    R_WC = None if identity.all() else quaternion_to_matrix(np.where(
+        good_pose[:, None], quats, (0.0, 0.0, 0.0, 1.0)))
+    rec = reconstruct(p_WC, f0, m0, R_WC)
+    keep = rec.valid & good_pose
+    result.bad_pose = int(np.count_nonzero(~good_pose))
+    result.no_contact = int(np.count_nonzero(~rec.valid & good_pose))
+    point = rec.point * rod_length_m
+    s1 = rec.s1 * rod_length_m
+    force = rec.force * (rod_ei_nm2 / rod_length_m**2)
+    for i in np.flatnonzero(keep).tolist():
+        w = wrenches[i]
+        result.contacts.append(ContactPoint(
+            stamp=w.stamp, seq=w.seq, whisker_id=w.whisker_id, frame_id=w.frame_id,
+            point=point[i], s1=float(s1[i]), phase=ContactPhase(int(rec.phase[i])),
+            force=force[i], status=ContactStatus(int(rec.status[i])),
+        ))
+    return result
+
+
+def collect_batch(
+    receive: Callable[[float], Received | None], timeout_s: float, max_batch: int
+) -> tuple[list[WhiskerWrench], EndOfStream | None]:
+    """Wait up to ``timeout_s`` for one message, then drain what is already queued.
+
+    Draining stops at ``max_batch`` wrenches or at an ``EndOfStream``, which is returned
+    separately so that it goes downstream after the points of the wrenches before it.
+    """
+    batch: list[WhiskerWrench] = []
+    rx = receive(timeout_s)
+    while rx is not None:
+        msg: Message = rx.msg
+        if isinstance(msg, EndOfStream):
+            return batch, msg
+        if isinstance(msg, WhiskerWrench):
+            batch.append(msg)
+        if len(batch) >= max_batch:
+            break
+        rx = receive(0.0)
+    return batch, None
+
+
+class CountingNode(Node):
+    """A ``Node`` whose ``NodeStatus`` also carries the application counters ``counters``."""
+
+    counters: dict[str, int]
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.counters = {}
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
+    def status(self) -> NodeStatus:
+        status = super().status()
+        return dataclasses.replace(status, counters={**status.counters, **dict(self.counters)})
+
+
+def run(node: CountingNode, params: ReconstructorParams) -> None:
+    """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
+    counters = node.counters
+    counters.update(contacts=0, no_contact=0, bad_pose=0, batches=0, max_batch=0)
+    subscriber = node.create_subscriber({params.input_topic: WhiskerWrench},
+                                        hwm=params.receive_hwm)
+    publisher = node.create_publisher(params.output_topic, ContactPoint,
+                                      wait_for=params.wait_for)
+    node.set_state("running")
+    while not node.stop_requested:
+        batch, eos = collect_batch(subscriber.receive, 0.1, params.max_batch)
+        if batch:
+            result = reconstruct_wrenches(batch, params.rod_length_m, params.rod_ei_nm2)
+            for point in result.contacts:
+                publisher.publish(point)
+            counters["contacts"] += len(result.contacts)
+            counters["no_contact"] += result.no_contact
+            counters["bad_pose"] += result.bad_pose
+            counters["batches"] += 1
+            counters["max_batch"] = max(counters["max_batch"], len(batch))
+        if eos is not None:
+            publisher.publish_end_of_stream(node.fqn)
+            log.info("%s: EndOfStream from %s (%d samples); %s", node.fqn, eos.source,
+                     eos.count, ", ".join(f"{k} {v}" for k, v in counters.items()))
+            if params.exit_on_eos:
+                break
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the reconstructor node (see ARCHITECTURE.md for the command line)."""
+    args = NodeArgs.parse(argv, prog="python -m vibrissa.nodes.reconstructor")
+    configure_logging()
+    params = load_params(ReconstructorParams, args.params_file, args.params)
+    with CountingNode(args.name, args.namespace, args.remaps) as node:
+        run(node, params)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,260 @@
+"""Wrench source node: simulated sweeps (Step 1) or a recorded bag, as WhiskerWrench samples.
+
+Subscribes
+----------
+nothing (besides the runtime's ``/vibrissa/status``).
+
+Publishes
+---------
+``topic`` (default ``wrench``, relative: ``/<namespace>/wrench``) : WhiskerWrench
+    mode ``sim``: one sample per equilibrium of every sweep, in sweep order, then
+    ``EndOfStream``. Mode ``replay``: every WhiskerWrench topic of ``bag`` (remaps apply to
+    the recorded absolute names), with the recorded bytes, followed by the recorded
+    ``EndOfStream`` (or one of its own when the bag has none, e.g. a cut-off bag).
+
+Units and frames (mode ``sim``): the sweep's world frame W is the message's ``frame_id``; the
+clamp frame C is parallel to W (identity quaternion) with z = rod axis. On the wire
+``clamp_position = P0 L`` (m), ``f0 = f0' EI/L^2`` (N), ``m0 = m0' EI/L`` (N m), where primes
+are the paper's dimensionless values, L = ``rod_length_m`` and EI = ``rod_ei_nm2``.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from vibrissa.msgs import EndOfStream, Message, WhiskerWrench
+from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.wire.bag import BagReader, play_bag
+from vibrissa.wire.transport import DEFAULT_HWM, Publisher
+
+from vibrissa.surfaces import parse_surface
+from vibrissa.sweep import Sweep, Trail, simulate_sweeps
+
+log = logging.getLogger(__name__)
+
+IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
+
+
+@dataclass(frozen=True)
+class WrenchSourceParams:
+    """Parameters of the wrench source node.
+
+    Attributes
+    ----------
+    mode
+        ``sim`` (simulate sweeps) or ``replay`` (play ``bag``).
+    surface
+        Object spec for ``vibrissa.surfaces.parse_surface``, units of L (mode ``sim``).
+    y0
+        Lateral offsets of the trails, one sweep each, units of L (mode ``sim``).
+    mu
+        Friction coefficient of every trail (mode ``sim``).
+    step
+        Clamp displacement per step, units of L (mode ``sim``).
+    whisker_id, frame_id
+        Written into every sample (mode ``sim``).
+    rate_hz
+        Samples per second (mode ``sim``); 0 publishes as fast as possible.
+    bag
+        The ``.mcap`` file to play (mode ``replay``).
+    replay_rate
+        Time scale of the replay: 1.0 recorded speed, 2.0 twice as fast; 0 as fast as
+        possible.
+    topic
+        Output topic (mode ``sim``), relative to the namespace.
+    wait_for
+        Node names (relative names resolve in the namespace) whose subscription to the output
+        must be up before anything goes out; until then samples are buffered, never dropped.
+    wait_timeout_s
+        Give up waiting for ``wait_for`` after this long, s (exit status 1).
+    rod_length_m
+        L, the rod length, m.
+    rod_ei_nm2
+        EI, the rod's bending stiffness, N m^2.
+    """
+
+    mode: Literal["sim", "replay"] = "sim"
+    surface: str = "paraboloid:a=0.5,b=1,h=0.4"
+    y0: tuple[float, ...] = (0.0,)
+    mu: float = 0.0
+    step: float = 0.001
+    whisker_id: str = "whisker0"
+    frame_id: str = "world"
+    rate_hz: float = 0.0
+    bag: str = ""
+    replay_rate: float = 1.0
+    topic: str = "wrench"
+    wait_for: tuple[str, ...] = ()
+    wait_timeout_s: float = 60.0
+    rod_length_m: float = 1.0
+    rod_ei_nm2: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.rod_length_m > 0 and self.rod_ei_nm2 > 0):
+            raise ValueError("rod_length_m and rod_ei_nm2 must be > 0, got "
+                             f"{self.rod_length_m}, {self.rod_ei_nm2}")
+        if self.rate_hz < 0 or self.replay_rate < 0:
+            raise ValueError(f"rate_hz and replay_rate must be >= 0, got {self.rate_hz}, "
+                             f"{self.replay_rate}")
+        if self.mode == "replay" and not self.bag:
+            raise ValueError("mode 'replay' needs the parameter 'bag'")
+
+
+def sweep_wrenches(
+    sweeps: Sequence[Sweep],
+    whisker_id: str = "whisker0",
+    frame_id: str = "world",
+    rod_length_m: float = 1.0,
+    rod_ei_nm2: float = 1.0,
+    clock: Callable[[], float] = lambda: 0.0,
+) -> Iterator[WhiskerWrench]:
+    """Every equilibrium of ``sweeps`` as a WhiskerWrench in SI units, in order.
+
+    Parameters
+    ----------
+    sweeps
+        Step 1 results (paper units, clamp frame parallel to the world frame).
+    whisker_id, frame_id
+        Copied into each message.
+    rod_length_m, rod_ei_nm2
+        L (m) and EI (N m^2): lengths x L, forces x EI/L^2, moments x EI/L.
+    clock
+        Gives each message's ``stamp`` when it is made, s (e.g. ``time.time``).
+
+    Yields
+    ------
+    WhiskerWrench
+        ``seq`` is the running sample index over all sweeps, from 0.
+    """
+    force_scale = rod_ei_nm2 / rod_length_m**2
+    moment_scale = rod_ei_nm2 / rod_length_m
+    seq = 0
+    for sweep in sweeps:
+        p0 = sweep.p0 * rod_length_m
+        f0 = sweep.f0 * force_scale
+        m0 = sweep.m0 * moment_scale
+        for i in range(sweep.n_steps):
+            yield WhiskerWrench(
+                stamp=clock(), seq=seq, whisker_id=whisker_id, frame_id=frame_id,
+                clamp_position=p0[i], clamp_orientation=IDENTITY_QUATERNION,
+                f0=f0[i], m0=m0[i],
+            )
+            seq += 1
+
+
+def run_sim(node: Node, params: WrenchSourceParams) -> int:
+    """Simulate the sweeps and publish them; returns the number of samples sent."""
+    publisher = node.create_publisher(params.topic, WhiskerWrench, wait_for=params.wait_for,
+                                      hwm=DEFAULT_HWM * 10)
+    surface = parse_surface(params.surface)
+    trails = [Trail(float(y0), params.mu) for y0 in params.y0]
+    node.set_state("running", f"simulating {len(trails)} sweep(s) past {surface.spec}")
+    t0 = time.monotonic()
+    sweeps = simulate_sweeps(surface, trails, params.step)
+    total = sum(s.n_steps for s in sweeps)
+    log.info("%s: %d sweep(s), %d samples in %.1f s (ends: %s)", node.fqn, len(sweeps), total,
+             time.monotonic() - t0, ", ".join(s.end for s in sweeps))
+    if params.wait_for and not node.wait_for_subscribers(
+        params.topic, params.wait_for, params.wait_timeout_s
+    ):
+        return -1
+    period = 1.0 / params.rate_hz if params.rate_hz > 0 else 0.0
+    t_start = time.monotonic()
+    count = 0
+    # ``stamp`` is the publish time, as for a live sensor.
+    for msg in sweep_wrenches(sweeps, params.whisker_id, params.frame_id, params.rod_length_m,
+                              params.rod_ei_nm2, clock=time.time):
+        if period:
+            delay = t_start + count * period - time.monotonic()
+            if delay > 0 and not node.sleep(delay):
+                break
+        if node.stop_requested:
+            break
+        publisher.publish(msg)
+        count += 1
+    publisher.publish_end_of_stream(node.fqn)
+    log.info("%s: published %d samples and EndOfStream on %s", node.fqn, count, publisher.topic)
+    return count
+
+
+class _NodeStop(threading.Event):
+    """A ``threading.Event`` view of ``node.stop_requested`` for ``play_bag``'s ``stop``."""
+
+    def __init__(self, node: Node) -> None:
+        super().__init__()
+        self._node = node
+
+    def is_set(self) -> bool:
+        return self._node.stop_requested or super().is_set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        if timeout is None:
+            while not self.is_set():
+                self._node.sleep(0.1)
+            return True
+        return not self._node.sleep(timeout) or super().is_set()
+
+
+def replay_topics(bag: str) -> dict[str, bool]:
+    """WhiskerWrench topics of ``bag`` -> whether the bag holds an EndOfStream on them."""
+    info = BagReader(bag).info()
+    types: dict[str, set[str]] = {}
+    for t in info.topics:
+        types.setdefault(t.topic, set()).add(t.type_name)
+    return {topic: EndOfStream.TYPE_NAME in names for topic, names in types.items()
+            if WhiskerWrench.TYPE_NAME in names}
+
+
+def run_replay(node: Node, params: WrenchSourceParams) -> int:
+    """Play the bag's WhiskerWrench topics (``vibrissa.wire.bag.play_bag``); samples sent."""
+    topics = replay_topics(params.bag)
+    if not topics:
+        log.error("%s: %s has no %s topic", node.fqn, params.bag, WhiskerWrench.TYPE_NAME)
+        return -1
+    publishers: dict[str, Publisher] = {}
+
+    def make(topic: str, msg_type: type[Message], hwm: int) -> Publisher:
+        publishers[topic] = node.create_publisher(topic, msg_type, wait_for=params.wait_for,
+                                                  hwm=hwm)
+        return publishers[topic]
+
+    def ready(pubs: dict[str, Publisher]) -> bool:
+        return all(node.wait_for_subscribers(p.topic, params.wait_for, params.wait_timeout_s)
+                   for p in pubs.values()) if params.wait_for else True
+
+    node.set_state("running", f"replaying {params.bag}")
+    result = play_bag(params.bag, rate=params.replay_rate or None, topics=list(topics),
+                      wait_s=0.0 if params.wait_for else 0.5, stop=_NodeStop(node),
+                      make_publisher=make, ready=ready)
+    if result.interrupted and not node.stop_requested:
+        return -1
+    for topic, has_eos in topics.items():
+        if not has_eos:  # e.g. a bag cut off before its end: end the stream ourselves
+            publishers[topic].publish_end_of_stream(node.fqn)
+    log.info("%s: replayed %d message(s) from %s in %.3f s", node.fqn, result.total,
+             params.bag, result.wall_s)
+    return result.total
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the wrench source node (see ARCHITECTURE.md for the command line)."""
+    args = NodeArgs.parse(argv, prog="python -m vibrissa.nodes.wrench_source")
+    configure_logging()
+    params = load_params(WrenchSourceParams, args.params_file, args.params)
+    with Node.from_args(args) as node:
+        sent = run_sim(node, params) if params.mode == "sim" else run_replay(node, params)
+        if sent < 0:
+            node.set_state("error", "downstream not ready or replay failed")
+            return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

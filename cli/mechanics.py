@@ -1,0 +1,191 @@
+"""``vibrissa sweep``, ``vibrissa reconstruct`` and ``vibrissa study``: Step 1, Step 2, the paper.
+
+All numbers are in the paper's units (eq. 1): lengths in L, forces in EI/L^2, moments in EI/L.
+Bad arguments end with exit status 2 and a message naming the argument, like argparse's own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from vibrissa.cli import tables
+
+from vibrissa.reconstruct import reconstruct
+from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
+from vibrissa.surfaces import Surface, parse_surface
+from vibrissa.sweep import simulate_sweep
+
+EXIT_USAGE = 2
+
+
+def _surface(text: str) -> Surface:
+    try:
+        return parse_surface(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not finite")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _finite(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _finite(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _fail(command: str, message: str) -> int:
+    print(f"vibrissa {command}: error: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def register(subparsers: Any) -> None:
+    """Add ``sweep``, ``reconstruct`` and ``study`` to the ``vibrissa`` command."""
+    p = subparsers.add_parser(
+        "sweep", help="Step 1: simulate one frictional sweep, write its support reactions",
+        description="Simulate one quasi-static sweep of the clamp along -x at y0 (paper units, "
+        "eq. 1) and write one CSV row per equilibrium plus a JSON summary beside it.",
+    )
+    p.add_argument("--surface", type=_surface, default=parse_surface(PAPER_SURFACE),
+                   metavar="SPEC", help=f"object, e.g. {PAPER_SURFACE} (the default)")
+    p.add_argument("--y0", type=_finite, required=True, metavar="Y",
+                   help="trail offset, units of L")
+    p.add_argument("--mu", type=_non_negative, required=True, help="friction coefficient, >= 0")
+    p.add_argument("--step", type=_positive, default=PAPER_STEP, metavar="DX",
+                   help=f"clamp step along -x, units of L (default {PAPER_STEP})")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="SWEEP.csv")
+    p.set_defaults(func=_sweep)
+
+    p = subparsers.add_parser(
+        "reconstruct", help="Step 2: contact points from clamp positions and support reactions",
+        description="Read x0, y0 (z0 = 0 unless given) and f0x..m0z from a CSV and write the "
+        "reconstructed contact points rx, ry, rz, s1, phase, status (and err with --surface).",
+    )
+    p.add_argument("input", type=Path, metavar="SWEEP.csv")
+    p.add_argument("--surface", type=_surface, metavar="SPEC",
+                   help="object to measure the error against (adds column err)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="RCP.csv")
+    p.set_defaults(func=_reconstruct)
+
+    p = subparsers.add_parser(
+        "study", help="run a study of the paper (Step 1, Step 2, figures)",
+        description="paper: the 25 sweeps of Sec. III (y0 = -0.4:0.2:0.4, mu = 0:0.1:0.4 past "
+        f"{PAPER_SURFACE}), their reconstruction and Figs. 6-10.",
+    )
+    p.add_argument("study", choices=["paper"], help="which study")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR")
+    p.add_argument("--step", type=_positive, default=PAPER_STEP, metavar="DX",
+                   help=f"clamp step along -x, units of L (default {PAPER_STEP})")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.set_defaults(func=_study)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    sweep = simulate_sweep(args.surface, args.y0, args.mu, step=args.step)
+    output: Path = args.output
+    tables.write_sweep_csv(output, sweep)
+    tables.write_json(output.with_suffix(".json"), tables.sweep_summary(sweep, args.surface.spec))
+    print(f"sweep: {sweep.n_steps} equilibria, ended by {sweep.end} at x0={sweep.x0_end:.6g}, "
+          f"{len(sweep.phase_changes)} phase changes, {time.perf_counter() - start:.1f} s "
+          f"-> {output}", file=sys.stderr)
+    return 0
+
+
+def _reconstruct(args: argparse.Namespace) -> int:
+    try:
+        table = tables.read_wrench_csv(args.input)
+    except tables.TableError as exc:
+        return _fail("reconstruct", f"argument SWEEP.csv: {exc}")
+    rec = reconstruct(table.p0, table.f0, table.m0)
+    error = reconstruction_error(args.surface, rec.point) if args.surface is not None else None
+    tables.write_reconstruction_csv(args.output, rec, error)
+    invalid = Counter(tables.status_name(int(s)) for s in rec.status[~rec.valid])
+    line = f"reconstruct: {len(rec.status)} rows, {int(rec.valid.sum())} with a contact"
+    if invalid:
+        line += f", {sum(invalid.values())} without (" + ", ".join(
+            f"{name}: {count}" for name, count in sorted(invalid.items())) + ")"
+    if error is not None and rec.valid.any():
+        line += f"; max err {float(error[rec.valid].max()):.3g} L"
+    print(f"{line} -> {args.output}", file=sys.stderr)
+    return 0
+
+
+class _Progress:
+    """``sweeps finished k/n, t s`` on stderr; one updating line on a terminal."""
+
+    def __init__(self) -> None:
+        self.start = time.perf_counter()
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, done: int, total: int) -> None:
+        text = f"study: sweeps finished {done}/{total}, {time.perf_counter() - self.start:.1f} s"
+        if self.tty:
+            print(f"\r{text}", end="\n" if done == total else "", file=sys.stderr, flush=True)
+        else:
+            print(text, file=sys.stderr, flush=True)
+
+
+def sweep_stem(y0: float, mu: float) -> str:
+    """File stem of a study sweep, e.g. ``y0_+0.2_mu_0.3``."""
+    return f"y0_{y0:+.1f}_mu_{mu:.1f}"
+
+
+def _study(args: argparse.Namespace) -> int:
+    out: Path = args.output
+    result = run_study(step=args.step, progress=_Progress())
+    write_study(out, result)
+    worst = "n/a" if result.max_error is None else f"{result.max_error:.3g} L"
+    print(f"study: Step 1 + Step 2 in {result.elapsed_s:.1f} s, max reconstruction error "
+          f"{worst} -> {out / 'summary.json'}", file=sys.stderr)
+    if not args.no_figures:
+        from vibrissa.cli import figures  # matplotlib only when drawing
+
+        start = time.perf_counter()
+        paths = figures.paper_figures(result, out)
+        print(f"study: {len(paths)} figures in {time.perf_counter() - start:.1f} s -> {out}",
+              file=sys.stderr)
+    return 0
+
+
+def write_study(out: Path, result: StudyResult) -> None:
+    """``summary.json`` and ``sweeps/<stem>.csv`` (+ ``.json``) for every sweep of ``result``."""
+    spec = result.surface.spec
+    entries = []
+    for case in result.cases:
+        csv_path = out / "sweeps" / f"{sweep_stem(case.y0, case.mu)}.csv"
+        tables.write_sweep_csv(csv_path, case.sweep)
+        tables.write_json(csv_path.with_suffix(".json"), tables.sweep_summary(case.sweep, spec))
+        entries.append({**case.summary(), "csv": str(csv_path.relative_to(out))})
+    tables.write_json(out / "summary.json", {
+        "study": "paper",
+        "surface": spec,
+        "step": result.step,
+        "y0": result.y0_values,
+        "mu": result.mu_values,
+        "elapsed_s": result.elapsed_s,
+        "max_reconstruction_error": result.max_error,
+        "units": tables.UNITS,
+        "sweeps": entries,
+    })

@@ -1,0 +1,194 @@
+"""CSV and JSON tables of sweeps and reconstructions, shared by the mechanics commands.
+
+Floats are written with ``repr`` (full precision, round-trips exactly); a missing value is an
+empty cell. Units are the paper's (eq. 1): lengths in L, forces in EI/L^2, moments in EI/L.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vibrissa.reconstruct import PHASE_NAMES, Reconstruction
+from vibrissa.status import ContactStatus
+from vibrissa.sweep import STATE_NAMES, Sweep
+
+SWEEP_COLUMNS = (
+    "x0", "y0", "phase", "s1", "psi",
+    "f0x", "f0y", "f0z", "m0x", "m0y", "m0z",
+    "px", "py", "pz", "fn", "ft",
+    "state", "nx", "ny", "nz",
+)
+WRENCH_COLUMNS = ("x0", "y0", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z")
+RECONSTRUCTION_COLUMNS = ("rx", "ry", "rz", "s1", "phase", "status")
+UNITS = {
+    "length": "L (rod length)",
+    "force": "EI/L^2",
+    "moment": "EI/L",
+    "note": "dimensionless per eq. 1; f0, m0: clamp reaction on the rod, moment about P0, "
+    "in the clamp frame (z = rod axis at the clamp)",
+}
+
+
+class TableError(ValueError):
+    """A table that cannot be read: names the file and what is wrong."""
+
+
+@dataclass(frozen=True)
+class WrenchTable:
+    """Clamp positions and support reactions read from a CSV.
+
+    Attributes
+    ----------
+    p0 : ndarray, shape (N, 3)
+        Clamp positions (x0, y0, z0), units of L.
+    f0, m0 : ndarray, shape (N, 3)
+        Clamp reactions on the rod, EI/L^2 and EI/L.
+    """
+
+    p0: NDArray[np.float64]
+    f0: NDArray[np.float64]
+    m0: NDArray[np.float64]
+
+
+def _cell(value: float) -> str:
+    value = float(value)
+    return "" if math.isnan(value) else repr(value)
+
+
+def _write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(columns)
+        writer.writerows(rows)
+
+
+def write_sweep_csv(path: Path, sweep: Sweep) -> None:
+    """One row per equilibrium of ``sweep`` with :data:`SWEEP_COLUMNS`."""
+    y0 = float(sweep.trail.y0)
+    rows = (
+        [
+            _cell(sweep.x0[i]), _cell(y0), PHASE_NAMES[int(sweep.phase[i])],
+            _cell(sweep.s1[i]), _cell(sweep.psi[i]),
+            *map(_cell, sweep.f0[i]), *map(_cell, sweep.m0[i]), *map(_cell, sweep.contact[i]),
+            _cell(sweep.fn[i]), _cell(sweep.ft[i]),
+            STATE_NAMES[int(sweep.state[i])], *map(_cell, sweep.normal[i]),
+        ]
+        for i in range(sweep.n_steps)
+    )
+    _write_csv(path, SWEEP_COLUMNS, rows)
+
+
+def sweep_summary(sweep: Sweep, surface_spec: str) -> dict[str, Any]:
+    """The JSON sidecar of a sweep CSV: how it ended, phase changes, inputs and units."""
+    summary = sweep.summary()
+    summary["y0"], summary["mu"] = float(sweep.trail.y0), float(sweep.trail.mu)
+    return {"surface": surface_spec, **summary, "units": UNITS}
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Pretty JSON; numpy scalars become Python numbers, NaN becomes null."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(_plain(data), indent=2, allow_nan=False) + "\n")
+
+
+def _plain(data: Any) -> Any:
+    if isinstance(data, dict):
+        return {str(key): _plain(value) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_plain(value) for value in data]
+    if isinstance(data, np.ndarray):
+        return _plain(data.tolist())
+    if isinstance(data, (np.integer, bool)):
+        return data if isinstance(data, bool) else int(data)
+    if isinstance(data, (float, np.floating)):
+        value = float(data)
+        return None if not math.isfinite(value) else value
+    return data
+
+
+def read_wrench_csv(path: Path) -> WrenchTable:
+    """Read x0, y0, [z0,] f0x..m0z from a CSV (e.g. written by ``vibrissa sweep``).
+
+    Raises
+    ------
+    TableError
+        Naming the file and the missing column or the bad cell (row, column, text).
+    """
+    try:
+        with path.open(newline="") as handle:
+            reader = csv.reader(handle)
+            header = next(reader, None)
+            rows = list(reader)
+    except OSError as exc:
+        raise TableError(f"{path}: cannot read ({exc.strerror})") from None
+    if header is None:
+        expected = ", ".join(WRENCH_COLUMNS)
+        raise TableError(f"{path}: empty file, expected a header with columns {expected}")
+    header = [name.strip() for name in header]
+    missing = [name for name in WRENCH_COLUMNS if name not in header]
+    if missing:
+        raise TableError(f"{path}: missing column {', '.join(repr(m) for m in missing)}")
+    wanted = [*WRENCH_COLUMNS, "z0"] if "z0" in header else list(WRENCH_COLUMNS)
+    index = {name: header.index(name) for name in wanted}
+    values = {name: np.empty(len(rows)) for name in wanted}
+    for r, row in enumerate(rows):
+        for name, c in index.items():
+            text = row[c].strip() if c < len(row) else ""
+            try:
+                # An empty cell is a missing value: Step 2 flags it (non_finite_input).
+                values[name][r] = float(text) if text else np.nan
+            except ValueError:
+                raise TableError(
+                    f"{path}: row {r + 2}, column {name!r}: {text!r} is not a number"
+                ) from None
+    z0 = values["z0"] if "z0" in values else np.zeros(len(rows))
+    return WrenchTable(
+        p0=np.column_stack([values["x0"], values["y0"], z0]),
+        f0=np.column_stack([values["f0x"], values["f0y"], values["f0z"]]),
+        m0=np.column_stack([values["m0x"], values["m0y"], values["m0z"]]),
+    )
+
+
+def status_name(status: int) -> str:
+    """``ok``, or the lower-case flag names of a :class:`ContactStatus` joined by ``|``."""
+    if status == 0:
+        return "ok"
+    names = [flag.name.lower() for flag in ContactStatus if flag and flag & status and flag.name]
+    return "|".join(names)
+
+
+def write_reconstruction_csv(
+    path: Path, rec: Reconstruction, error: NDArray[np.float64] | None = None
+) -> None:
+    """Columns rx, ry, rz, s1, phase, status (and err if given); no contact: empty rx..s1."""
+    columns = [*RECONSTRUCTION_COLUMNS, *(["err"] if error is not None else [])]
+    rows = (
+        [
+            *map(_cell, rec.point[i]), _cell(rec.s1[i]), PHASE_NAMES[int(rec.phase[i])],
+            status_name(int(rec.status[i])),
+            *([_cell(error[i])] if error is not None else []),
+        ]
+        for i in range(len(rec.status))
+    )
+    _write_csv(path, columns, rows)
+
+
+def read_csv_columns(path: Path) -> dict[str, list[str]]:
+    """All columns of a CSV as lists of cell texts, keyed by header name."""
+    with path.open(newline="") as handle:
+        reader = csv.DictReader(handle)
+        columns: dict[str, list[str]] = {name: [] for name in reader.fieldnames or []}
+        for row in reader:
+            for name in columns:
+                columns[name].append(row[name])
+    return columns

@@ -56,7 +56,7 @@ STATE_NAMES = {SLIDE: "slide", STICK: "stick"}
 _E_Z = np.array([0.0, 0.0, 1.0])
 _NEWTON_TOL = 1e-12
 _DIRECTION_TOL = 1e-8
-_NEWTON_MAX_ITER = 40
+_NEWTON_MAX_ITER = 15
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _REFINEMENTS = 6  # a failed step is retried with up to 2**6 sub-steps before it counts as snap-off
 
@@ -320,7 +320,7 @@ def _small_slip(
     q = q_stuck.copy()
     # Coarse probes: the held states are only solved to 1e-12, and the slip may be ~1e-8.
     steps = np.array([0.05, 0.01])
-    for _ in range(40):
+    for _ in range(15):
         mismatch, q, state, converged = _held_at_slip(surface, z, q, batch)
         if np.all(np.max(np.abs(mismatch), axis=1) < 1e-11) or not converged.all():
             break
@@ -415,6 +415,7 @@ class _Track:
     phase_changes: list[tuple[float, str, str]] = field(default_factory=list)
     end: str | None = None
     x0_end: float = float("nan")
+    smooth: bool = True  # the last step was a plain slide (its predictor may extrapolate)
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -573,6 +574,7 @@ def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: 
         for k in np.flatnonzero(ok):
             i = rows[k]
             _accept(tracks[i], float(targets[i]), q[k], state, k, int(modes[i]))
+            tracks[i].smooth = kind == "slide"
             success[i] = True
         if kind == "stick":
             for k in np.flatnonzero(converged & ~ok):
@@ -613,7 +615,8 @@ def _newton_friction_continuation(
 
 
 def _predict(track: _Track) -> FloatArray:
-    if track.q_before is None:
+    """Linear extrapolation along a smooth stretch; the last state after a hard step."""
+    if track.q_before is None or not track.smooth:
         return track.q.copy()
     return 2.0 * track.q - track.q_before
 

@@ -1,0 +1,205 @@
+"""Mechanics benchmark: Step 1 and Step 2 of the library against straightforward scipy ports.
+
+Prints one table. Baselines, in the same run and on the same inputs:
+
+* Step 2: the paper's IVP (eq. 11 with the initial values of eq. 23) integrated by
+  ``scipy.integrate.solve_ivp`` with a terminal event at kappa = 0, one sample at a time.
+* Step 1: shooting for one tip-contact equilibrium at mu = 0 (BCs eq. 14): ``solve_ivp`` of
+  eq. 11 inside ``scipy.optimize.root`` over (psi, fn, kappa0, contact x, contact y), warm-started
+  from the library's previous step, as a sweep would.
+
+Both baselines are checked against the library's results (max difference printed), so the
+timings compare equal answers. Everything runs on one core (BLAS threads pinned to 1).
+
+Usage: ``python benchmarks/bench_mechanics.py [--study-step 0.001] [--samples 1000000]``
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+
+import numpy as np  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+from scipy.integrate import solve_ivp  # noqa: E402
+from scipy.optimize import root  # noqa: E402
+
+from vibrissa.reconstruct import reconstruct  # noqa: E402
+from vibrissa.study import PAPER_SURFACE, run_study  # noqa: E402
+from vibrissa.surfaces import Surface, parse_surface  # noqa: E402
+from vibrissa.sweep import Sweep  # noqa: E402
+
+FloatArray = NDArray[np.float64]
+IVP_TOL = {"rtol": 1e-11, "atol": 1e-13}
+
+
+def _best_of(fn: Callable[[], object], repeat: int) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+# --- Step 2 baseline ------------------------------------------------------------------------
+
+
+def _rhs(fu: float, fv: float) -> Callable[[float, FloatArray], list[float]]:
+    """Eq. 11 in the plane E_psi; kappa' = f cos(phi - alpha) = fu sin(phi) - fv cos(phi)."""
+
+    def rhs(_s: float, y: FloatArray) -> list[float]:
+        phi, kappa = y[2], y[3]
+        return [np.cos(phi), np.sin(phi), kappa, fu * np.sin(phi) - fv * np.cos(phi)]
+
+    return rhs
+
+
+def _kappa_zero(_s: float, y: FloatArray) -> float:
+    return float(y[3])
+
+
+_kappa_zero.terminal = True  # type: ignore[attr-defined]
+_kappa_zero.direction = -1  # type: ignore[attr-defined]
+
+
+def ivp_reconstruct(p0: FloatArray, f0: FloatArray, m0: FloatArray) -> FloatArray:
+    """Baseline Step 2 for one sample: eqs. 20-23 and solve_ivp to the event kappa = 0."""
+    force = -f0
+    m_h = float(np.hypot(m0[0], m0[1]))
+    e_u = np.array([m0[1], -m0[0], 0.0]) / m_h  # e_w = -m0/|m0| so that kappa0 = |m0| >= 0
+    fu, fv = float(force @ e_u), float(force[2])
+    sol = solve_ivp(_rhs(fu, fv), (0.0, 2.0), [0.0, 0.0, np.pi / 2, m_h], events=_kappa_zero,
+                    **IVP_TOL)
+    if not sol.t_events[0].size:
+        return np.full(3, np.nan)
+    u1, v1 = sol.y_events[0][0][:2]
+    return np.asarray(p0 + u1 * e_u + np.array([0.0, 0.0, v1]), dtype=float)
+
+
+# --- Step 1 baseline ------------------------------------------------------------------------
+
+
+def shooting_residual(z: FloatArray, surface: Surface, p0: FloatArray) -> FloatArray:
+    """Tip contact at mu = 0 (eq. 14): z = (psi, fn, kappa0, x1, y1); five residuals.
+
+    The contact P1 = (x1, y1, z(x1, y1)) lies on the surface; the force on the rod is fn n(P1);
+    the rod's tip must reach P1 with zero curvature, and the force must lie in E_psi.
+    """
+    psi, fn, kappa0, x1, y1 = z
+    lo, _hi = surface.line_interval(np.array([[x1, y1, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
+    p1 = np.array([x1, y1, lo[0]])
+    force = fn * surface.normal(p1)[0]
+    e_u = np.array([np.cos(psi), np.sin(psi), 0.0])
+    e_w = np.array([np.sin(psi), -np.cos(psi), 0.0])
+    fu, fv = float(force @ e_u), float(force[2])
+    sol = solve_ivp(_rhs(fu, fv), (0.0, 1.0), [0.0, 0.0, np.pi / 2, kappa0], **IVP_TOL)
+    u, v, _phi, kappa = sol.y[:, -1]
+    tip = p0 + u * e_u + np.array([0.0, 0.0, v])
+    return np.array([kappa, *(tip - p1), force @ e_w])
+
+
+def shooting_step(surface: Surface, p0: FloatArray, guess: FloatArray) -> tuple[FloatArray, bool]:
+    solution = root(shooting_residual, guess, args=(surface, p0), method="hybr", tol=1e-12)
+    return solution.x, bool(solution.success)
+
+
+def _unknowns(sweep: Sweep, i: int) -> FloatArray:
+    """(psi, fn, kappa0, x1, y1) of the library's equilibrium i, in the baseline's convention."""
+    m0 = sweep.m0[i]
+    e_u = np.array([m0[1], -m0[0]]) / np.hypot(m0[0], m0[1])
+    return np.array([np.arctan2(e_u[1], e_u[0]), sweep.fn[i], np.hypot(m0[0], m0[1]),
+                     *sweep.contact[i, :2]])
+
+
+# --- driver ---------------------------------------------------------------------------------
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--study-step", type=float, default=0.001)
+    parser.add_argument("--samples", type=int, default=1_000_000)
+    parser.add_argument("--ivp-samples", type=int, default=300)
+    parser.add_argument("--shooting-steps", type=int, default=5)
+    args = parser.parse_args()
+    surface = parse_surface(PAPER_SURFACE)
+    rows: list[tuple[str, str, str]] = []
+
+    # Step 1, library: the whole study, one batched call (+ Step 2 and the error, negligible).
+    print(f"running the 25-sweep study at step {args.study_step} ...", flush=True)
+    study = run_study(surface, step=args.study_step)
+    n_equilibria = sum(case.sweep.n_steps for case in study.cases)
+    lib_step = study.elapsed_s / n_equilibria
+    rows.append(("Step 1 library: 25-sweep study (figures excluded)",
+                 f"{study.elapsed_s:.1f} s", f"{n_equilibria} equilibria"))
+    rows.append(("Step 1 library: per equilibrium (study wall / equilibria)",
+                 f"{lib_step * 1e3:.2f} ms", ""))
+
+    # Step 1, baseline: shooting for a few consecutive tip-contact steps of y0 = 0.2, mu = 0.
+    sweep = study.case(0.2, 0.0).sweep
+    start_index = min(100, sweep.n_steps // 4)
+    steps = range(start_index, start_index + args.shooting_steps)
+    assert all(sweep.phase[i] == 1 for i in steps), "baseline steps must be tip contacts"
+    guess = _unknowns(sweep, start_index - 1)
+    worst_point, worst_m0, failures = 0.0, 0.0, 0
+    start = time.perf_counter()
+    for i in steps:
+        z, ok = shooting_step(surface, sweep.p0[i], guess)
+        failures += not ok
+        guess = z
+        lo, _hi = surface.line_interval(np.array([[z[3], z[4], 0.0]]), np.array([[0.0, 0.0, 1.0]]))
+        worst_point = max(worst_point, float(np.abs(np.array([z[3], z[4], lo[0]])
+                                                    - sweep.contact[i]).max()))
+        e_w = np.array([np.sin(z[0]), -np.cos(z[0]), 0.0])
+        worst_m0 = max(worst_m0, float(np.abs(-z[2] * e_w - sweep.m0[i]).max()))
+    shoot_step = (time.perf_counter() - start) / args.shooting_steps
+    rows.append((f"Step 1 baseline: solve_ivp in root, tip step mu=0 ({args.shooting_steps} steps)",
+                 f"{shoot_step * 1e3:.1f} ms/step", f"{failures} failed"))
+    rows.append(("Step 1 ratio baseline / library per step", f"{shoot_step / lib_step:.0f}x", ""))
+    rows.append(("Step 1 agreement: max |P1|, |m0| difference",
+                 f"{worst_point:.1e}, {worst_m0:.1e}", "L, EI/L"))
+
+    # Step 2, library: a real study sweep (both phases, friction) tiled to `samples`.
+    sweep = study.case(0.2, 0.3).sweep
+    reps = -(-args.samples // sweep.n_steps)
+    p0, f0, m0 = (np.tile(a, (reps, 1))[: args.samples] for a in (sweep.p0, sweep.f0, sweep.m0))
+    batch = _best_of(lambda: reconstruct(p0, f0, m0), 3)
+    rows.append((f"Step 2 library: reconstruct() on {args.samples:.0e} samples, one core",
+                 f"{args.samples / batch:.3g} samples/s", f"{batch:.2f} s"))
+    n_single = min(2000, sweep.n_steps)
+    single = _best_of(lambda: [reconstruct(sweep.p0[i], sweep.f0[i], sweep.m0[i])
+                               for i in range(n_single)], 3)
+    single /= n_single
+    rows.append(("Step 2 library: single-sample latency", f"{single * 1e6:.0f} us", ""))
+
+    # Step 2, baseline: solve_ivp with an event, one sample at a time.
+    picks = np.linspace(1, sweep.n_steps - 2, args.ivp_samples).astype(int)
+    start = time.perf_counter()
+    points = np.array([ivp_reconstruct(sweep.p0[i], sweep.f0[i], sweep.m0[i]) for i in picks])
+    ivp = (time.perf_counter() - start) / len(picks)
+    library_points = reconstruct(sweep.p0[picks], sweep.f0[picks], sweep.m0[picks]).point
+    rows.append((f"Step 2 baseline: solve_ivp + event ({len(picks)} samples)",
+                 f"{1 / ivp:.3g} samples/s", f"{ivp * 1e6:.0f} us/sample"))
+    rows.append(("Step 2 ratio baseline / library batched per sample",
+                 f"{ivp / (batch / args.samples):.0f}x", ""))
+    rows.append(("Step 2 ratio baseline / library single sample", f"{ivp / single:.0f}x", ""))
+    rows.append(("Step 2 agreement: max |P1 baseline - library|",
+                 f"{np.nanmax(np.abs(points - library_points)):.1e}", "L"))
+    rows.append(("Step 2 agreement: max |P1 library - Step 1 contact|",
+                 f"{np.nanmax(np.abs(library_points - sweep.contact[picks])):.1e}", "L"))
+
+    width = max(len(r[0]) for r in rows)
+    print(f"\n{'quantity':<{width}}  {'value':>22}  note")
+    print("-" * (width + 40))
+    for name, value, note in rows:
+        print(f"{name:<{width}}  {value:>22}  {note}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,223 @@
+"""Node logic without sockets: SI scaling, batching, clamp poses, normals, fit, accumulation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from vibrissa.msgs import ContactPoint, EndOfStream, WhiskerWrench
+from vibrissa.nodes.mapper import Accumulator, MapperParams
+from vibrissa.nodes.reconstructor import (
+    ReconstructorParams,
+    collect_batch,
+    quaternion_to_matrix,
+    reconstruct_wrenches,
+)
+from vibrissa.nodes.runtime import load_params
+from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, split_lines
+from vibrissa.nodes.wrench_source import WrenchSourceParams, sweep_wrenches
+from vibrissa.wire.transport import Header, Received
+
+from vibrissa.reconstruct import reconstruct
+from vibrissa.surfaces import parse_surface
+
+LAUNCH = Path(__file__).parents[1] / "launch"
+
+
+def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:
+    """Wrenches of a rod touched at random points of a bent plane (some without contact)."""
+    rng = np.random.default_rng(seed)
+    p0 = rng.uniform(-1, 1, (n, 3))
+    f0 = rng.normal(0, 1, (n, 3))
+    m0 = rng.normal(0, 1, (n, 3))
+    f0[0] = 0.0  # no force: no contact
+    m0[0] = 0.0
+    return [WhiskerWrench(stamp=float(i), seq=i, whisker_id="w", frame_id="world",
+                          clamp_position=p0[i], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
+                          f0=f0[i], m0=m0[i], **kwargs) for i in range(n)]
+
+
+class _SweepStub:
+    """The fields of ``vibrissa.sweep.Sweep`` that ``sweep_wrenches`` reads."""
+
+    def __init__(self, p0: np.ndarray, f0: np.ndarray, m0: np.ndarray) -> None:
+        self.p0, self.f0, self.m0, self.n_steps = p0, f0, m0, len(p0)
+
+
+def test_sweep_wrenches_are_si_with_running_seq() -> None:
+    rng = np.random.default_rng(0)
+    sweeps = [_SweepStub(*rng.normal(size=(3, k, 3))) for k in (4, 3)]
+    length, ei = 0.05, 2e-4
+    msgs = list(sweep_wrenches(sweeps, "w7", "world", length, ei))  # type: ignore[arg-type]
+    assert [m.seq for m in msgs] == list(range(7))
+    assert all(m.whisker_id == "w7" for m in msgs)
+    np.testing.assert_array_equal(msgs[5].clamp_orientation, [0, 0, 0, 1])
+    np.testing.assert_allclose(msgs[5].clamp_position, sweeps[1].p0[1] * length, rtol=1e-15)
+    np.testing.assert_allclose(msgs[5].f0, sweeps[1].f0[1] * ei / length**2, rtol=1e-15)
+    np.testing.assert_allclose(msgs[5].m0, sweeps[1].m0[1] * ei / length, rtol=1e-15)
+
+
+def test_batch_equals_library_and_counts_no_contact() -> None:
+    wrenches = _wrenches()
+    result = reconstruct_wrenches(wrenches)
+    rec = reconstruct(np.stack([w.clamp_position for w in wrenches]),
+                      np.stack([w.f0 for w in wrenches]), np.stack([w.m0 for w in wrenches]))
+    assert result.no_contact == int(np.count_nonzero(~rec.valid)) >= 1
+    assert [c.seq for c in result.contacts] == np.flatnonzero(rec.valid).tolist()
+    for contact in result.contacts:
+        np.testing.assert_allclose(contact.point, rec.point[contact.seq], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(contact.force, rec.force[contact.seq], rtol=0, atol=1e-12)
+        assert contact.s1 == pytest.approx(rec.s1[contact.seq], abs=1e-12)
+        assert int(contact.status) == int(rec.status[contact.seq])
+        assert int(contact.phase) == int(rec.phase[contact.seq])
+
+
+def test_si_scaling_round_trip() -> None:
+    """Scaling the wrench to a rod of length L and stiffness EI scales the point by L."""
+    length, ei = 0.04, 3e-3
+    unit = _wrenches()
+    si = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
+                        clamp_position=w.clamp_position * length,
+                        clamp_orientation=w.clamp_orientation, f0=w.f0 * ei / length**2,
+                        m0=w.m0 * ei / length) for w in unit]
+    a, b = reconstruct_wrenches(unit), reconstruct_wrenches(si, length, ei)
+    assert len(a.contacts) == len(b.contacts)
+    for ca, cb in zip(a.contacts, b.contacts, strict=True):
+        np.testing.assert_allclose(cb.point, ca.point * length, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(cb.force, ca.force * ei / length**2, rtol=1e-12, atol=1e-15)
+        assert cb.s1 == pytest.approx(ca.s1 * length, rel=1e-12)
+
+
+def test_clamp_orientation_rotates_the_contact() -> None:
+    angle = 0.7
+    axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
+    q = np.r_[axis * np.sin(angle / 2), np.cos(angle / 2)]
+    R = quaternion_to_matrix(q[None])[0]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-15)
+    # Rodrigues' formula as the reference
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    np.testing.assert_allclose(R, np.eye(3) + np.sin(angle) * K
+                               + (1 - np.cos(angle)) * K @ K, atol=1e-15)
+    straight = _wrenches()
+    turned = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
+                            clamp_position=w.clamp_position, clamp_orientation=q * 2.0,
+                            f0=w.f0, m0=w.m0) for w in straight]  # not unit: normalised
+    a, b = reconstruct_wrenches(straight), reconstruct_wrenches(turned)
+    assert [c.seq for c in a.contacts] == [c.seq for c in b.contacts]
+    for ca, cb in zip(a.contacts, b.contacts, strict=True):
+        p0 = straight[ca.seq].clamp_position
+        np.testing.assert_allclose(cb.point - p0, R @ (ca.point - p0), atol=1e-12)
+        np.testing.assert_allclose(cb.force, R @ ca.force, atol=1e-12)
+
+
+def test_zero_quaternion_is_counted_as_bad_pose() -> None:
+    w = _wrenches(3)
+    bad = WhiskerWrench(stamp=0.0, seq=9, whisker_id="w", frame_id="world",
+                        clamp_position=w[1].clamp_position, clamp_orientation=[0, 0, 0, 0],
+                        f0=w[1].f0, m0=w[1].m0)
+    result = reconstruct_wrenches([w[1], bad])
+    assert result.bad_pose == 1
+    assert 9 not in [c.seq for c in result.contacts]
+
+
+def _rx(msg: Any) -> Received:
+    return Received("/w", msg, b"", Header(1, 0), 0.0)
+
+
+def test_collect_batch_drains_up_to_max_and_stops_at_end_of_stream() -> None:
+    queue: list[Any] = [*_wrenches(5), EndOfStream(stamp=0.0, source="/s", count=5),
+                        *_wrenches(2)]
+    timeouts: list[float] = []
+
+    def receive(timeout_s: float) -> Received | None:
+        timeouts.append(timeout_s)
+        return _rx(queue.pop(0)) if queue else None
+
+    batch, eos = collect_batch(receive, 0.1, max_batch=3)
+    assert [w.seq for w in batch] == [0, 1, 2] and eos is None
+    assert timeouts == [0.1, 0.0, 0.0]  # waits only for the first, then drains
+    batch, eos = collect_batch(receive, 0.1, max_batch=3)
+    assert [w.seq for w in batch] == [3, 4] and eos is not None and eos.count == 5
+    batch, eos = collect_batch(receive, 0.1, max_batch=100)
+    assert len(batch) == 2 and eos is None
+    assert collect_batch(receive, 0.1, max_batch=3) == ([], None)
+
+
+def _paraboloid_lines(mu: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Five contact lines on the demo paraboloid, sliding forces F = fn (n + mu t)."""
+    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
+    lines = []
+    for y in (-0.4, -0.2, 0.0, 0.2, 0.4):
+        x = np.linspace(0.8, -0.8, 400)  # the trail runs along -x
+        lines.append(np.column_stack([x, np.full_like(x, y), 0.5 * x**2 + y**2 + 0.4]))
+    points = np.vstack(lines)
+    normal = surface.normal(points)
+    # eq. 7: friction along the line towards the previous contact point (+x here)
+    tangent = np.column_stack([np.ones(len(points)), np.zeros(len(points)), points[:, 0]])
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    forces = 2.0 * (normal + mu * tangent)
+    return points, forces, normal
+
+
+def test_contact_normals_recover_the_surface_normal_with_friction() -> None:
+    points, forces, normal = _paraboloid_lines(mu=0.3)
+    lines = split_lines(points)
+    assert np.unique(lines).tolist() == [0, 1, 2, 3, 4]
+    estimate = contact_normals(points, forces, lines)
+    cos = np.einsum("ni,ni->n", estimate, normal)
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.5  # F itself is 16.7 deg off
+
+
+def test_fit_surface_stays_close_to_the_true_surface() -> None:
+    points, forces, _ = _paraboloid_lines(mu=0.2)
+    lines = split_lines(points)
+    fit = fit_surface(points, contact_normals(points, forces, lines), lines, FitParams(depth=7))
+    assert len(fit.triangles) > 1000
+    assert fit.line_spacing == pytest.approx(0.2, rel=0.05)
+    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
+    distance = np.abs(surface.signed_distance(fit.vertices))
+    assert distance.mean() < 0.005 and distance.max() < 0.05
+    assert fit.method.startswith("poisson(depth=7")
+    empty = fit_surface(points[:3], forces[:3])
+    assert len(empty.triangles) == 0
+
+
+def test_accumulator_ends_on_count_or_names() -> None:
+    point = ContactPoint(stamp=0.0, seq=0, whisker_id="w", frame_id="world", point=[0, 0, 1],
+                         s1=0.5, phase=1, force=[0, 0, 1], status=0)
+    acc = Accumulator(2)
+    acc.add(point)
+    acc.add(EndOfStream(stamp=0.0, source="/a", count=1))
+    acc.add(EndOfStream(stamp=0.0, source="/a", count=1))  # the same source twice
+    assert not acc.done and acc.n_points == 1
+    acc.add(EndOfStream(stamp=0.0, source="/b", count=0))
+    assert acc.done
+    named = Accumulator(["/b"])
+    named.add(EndOfStream(stamp=0.0, source="/a", count=1))
+    assert not named.done
+    named.add(EndOfStream(stamp=0.0, source="/b", count=1))
+    assert named.done
+
+
+@pytest.mark.parametrize("name", ["demo.yaml", "record_demo.yaml", "replay_demo.yaml"])
+def test_launch_params_load_strictly(name: str) -> None:
+    """Every parameter the launch files give is known to the node's dataclass."""
+    classes = {"wrench_source": WrenchSourceParams, "reconstructor": ReconstructorParams,
+               "mapper": MapperParams}
+    doc = yaml.safe_load((LAUNCH / name).read_text())
+    for entry in doc["launch"]:
+        node = entry.get("node")
+        if not node or node["exec"] not in classes:
+            continue
+        values = {p["name"]: p["value"] for p in node.get("param", [])}
+        for key, value in list(values.items()):
+            if isinstance(value, str) and "$(var" in value:
+                values[key] = {"mu": "0.2", "step": "0.01", "rate": "0"}.get(
+                    value[6:-1], "x.mcap" if key == "bag" else values[key])
+        params = load_params(classes[node["exec"]], None,
+                             {k: v if isinstance(v, str) else yaml.safe_dump(v)
+                              for k, v in values.items()})
+        assert params is not None

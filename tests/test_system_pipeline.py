@@ -1,0 +1,401 @@
+"""The node graph with real processes: the launcher, its proxy on free loopback ports, ZeroMQ.
+
+The launch files under test are the shipped ones (``launch/*.yaml``), made smaller (one or two
+coarse sweeps) and extended with the test's own probe node, through which the test process
+subscribes to the graph: the readiness gates wait for it, so nothing is lost at start-up.
+Every wait has a deadline so that a hang fails fast.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+import pytest
+import yaml
+import zmq
+from vibrissa.msgs import ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench, encode
+from vibrissa.nodes.runtime import Node
+from vibrissa.wire import STATUS_TOPIC
+from vibrissa.wire.bag import BagReader
+from vibrissa.wire.transport import Endpoints
+
+from vibrissa.reconstruct import reconstruct
+from vibrissa.surfaces import parse_surface
+from vibrissa.sweep import Trail, simulate_sweeps
+
+LAUNCH = Path(__file__).parents[1] / "launch"
+SURFACE = "paraboloid:a=0.5,b=1,h=0.4"
+Y0 = [-0.3, 0.3]
+STEP = 0.01
+MU = 0.2
+TIMEOUT_S = 120.0
+CONTACT = "/whisker0/contact"
+WRENCH = "/whisker0/wrench"
+
+
+# -- launch files and the launcher ---------------------------------------------------------------
+
+
+def entries(name: str) -> list[dict[str, Any]]:
+    """The ``launch:`` list of a shipped launch file."""
+    return copy.deepcopy(yaml.safe_load((LAUNCH / name).read_text())["launch"])
+
+
+def node(launch: list[dict[str, Any]], name: str) -> dict[str, Any]:
+    """The ``node:`` body named ``name``."""
+    return next(e["node"] for e in launch if "node" in e and e["node"]["name"] == name)
+
+
+def set_param(body: dict[str, Any], key: str, value: Any) -> None:
+    """Set (or add) parameter ``key`` of a ``node:`` body."""
+    params = body.setdefault("param", [])
+    for p in params:
+        if p["name"] == key:
+            p["value"] = value
+            return
+    params.append({"name": key, "value": value})
+
+
+class Launch:
+    """``python -m vibrissa.cli.launcher FILE ARGS``, with its output collected by threads."""
+
+    def __init__(self, tmp_path: Path, launch: list[dict[str, Any]], *words: str) -> None:
+        path = tmp_path / f"test-{time.monotonic_ns()}.launch.yaml"
+        path.write_text(yaml.safe_dump({"launch": launch}, sort_keys=False))
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "vibrissa.cli.launcher", "--grace", "3", str(path), *words],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.out: list[str] = []
+        self.err: list[str] = []
+        self._readers = [threading.Thread(target=self._pump, args=(pipe, lines), daemon=True)
+                         for pipe, lines in ((self.proc.stdout, self.out),
+                                             (self.proc.stderr, self.err))]
+        for reader in self._readers:
+            reader.start()
+
+    @staticmethod
+    def _pump(pipe: Any, lines: list[str]) -> None:
+        for line in pipe:
+            lines.append(line)
+
+    def wait_line(self, pattern: str, timeout: float = 60.0) -> re.Match[str]:
+        """First launcher stderr line matching ``pattern`` (fails after ``timeout``)."""
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in list(self.err):
+                match = rx.search(line)
+                if match:
+                    return match
+            if self.proc.poll() is not None and not any(rx.search(x) for x in self.err):
+                break
+            time.sleep(0.02)
+        pytest.fail(f"no line matching {pattern!r}\n{self.text()}")
+
+    def endpoints(self) -> Endpoints:
+        match = self.wait_line(r"proxy: publishers -> (\S+), subscribers -> (\S+)", 30)
+        return Endpoints(match.group(1), match.group(2))
+
+    def wait(self, timeout: float = TIMEOUT_S) -> int:
+        try:
+            rc = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            pytest.fail(f"launch did not end within {timeout} s\n{self.text()}")
+        for reader in self._readers:
+            reader.join(5)
+        return rc
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def text(self) -> str:
+        return "".join(self.out) + "".join(self.err)
+
+
+class Probe:
+    """The test's node on the graph: collects what arrives on ``topics`` and node statuses."""
+
+    def __init__(self, endpoints: Endpoints, topics: list[str]) -> None:
+        self.node = Node("probe", endpoints=endpoints, handle_signals=False)
+        self.sub = self.node.create_subscriber({t: None for t in topics})
+        self.status_sub = self.node.create_subscriber({STATUS_TOPIC: NodeStatus})
+        self.statuses: dict[str, NodeStatus] = {}
+
+    def collect(self, timeout: float = TIMEOUT_S) -> tuple[list[ContactPoint], EndOfStream]:
+        """Contact points until the first EndOfStream."""
+        points: list[ContactPoint] = []
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            rx = self.sub.receive(0.2)
+            if rx is None:
+                continue
+            if isinstance(rx.msg, EndOfStream):
+                return points, rx.msg
+            if isinstance(rx.msg, ContactPoint):
+                points.append(rx.msg)
+        pytest.fail(f"no EndOfStream within {timeout} s ({len(points)} points)")
+
+    def status_of(self, fqn: str, predicate: Callable[[NodeStatus], bool],
+                  timeout: float = 30.0) -> NodeStatus:
+        """The first status of ``fqn`` that satisfies ``predicate``."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            rx = self.status_sub.receive(0.1)
+            if rx is not None and isinstance(rx.msg, NodeStatus):
+                self.statuses[rx.msg.node] = rx.msg
+                if rx.msg.node == fqn and predicate(rx.msg):
+                    return rx.msg
+        pytest.fail(f"no matching status of {fqn} within {timeout} s: {self.statuses.get(fqn)}")
+
+    def close(self) -> None:
+        self.node.close(drain_s=0.0)
+
+
+def small_demo(out: Path, recorder_bag: Path | None = None) -> list[dict[str, Any]]:
+    """launch/demo.yaml with two sweeps, the probe as a consumer, optionally a wrench bag."""
+    launch = entries("demo.yaml")
+    source = node(launch, "wrench_source")
+    set_param(source, "y0", Y0)
+    set_param(node(launch, "reconstructor"), "wait_for", ["/mapper", "/probe"])
+    if recorder_bag is not None:
+        set_param(source, "wait_for", ["reconstructor", "/recorder"])
+        launch.insert(len(launch) - 1, {"node": {
+            "pkg": "vibrissa", "exec": "recorder", "name": "recorder", "param": [
+                {"name": "output", "value": str(recorder_bag)},
+                {"name": "topics", "value": [WRENCH]},
+                {"name": "chunk_size", "value": 4096},  # many chunks: a cut keeps most
+            ]}})
+    return launch
+
+
+def library_contacts() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points, s1 and forces of the same sweeps computed in-process (``reconstruct``)."""
+    sweeps = simulate_sweeps(parse_surface(SURFACE), [Trail(y, MU) for y in Y0], STEP)
+    rec = reconstruct(np.vstack([s.p0 for s in sweeps]), np.vstack([s.f0 for s in sweeps]),
+                      np.vstack([s.m0 for s in sweeps]))
+    assert rec.valid.all()
+    return rec.point, rec.s1, rec.force
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """One run of the (small) demo with a recorder of the wrench topic."""
+    tmp = tmp_path_factory.mktemp("demo")
+    out, bag = tmp / "out", tmp / "wrench.mcap"
+    launch = Launch(tmp, small_demo(out, bag), f"out:={out}", f"step:={STEP}", f"mu:={MU}")
+    probe = Probe(launch.endpoints(), [CONTACT])
+    try:
+        points, eos = probe.collect()
+        rc = launch.wait()
+    finally:
+        probe.close()
+        launch.kill()
+    yield {"rc": rc, "points": points, "eos": eos, "out": out, "bag": bag, "tmp": tmp,
+           "text": launch.text(), "stdout": "".join(launch.out)}
+
+
+# -- the tests -----------------------------------------------------------------------------------
+
+
+def test_demo_matches_the_library(demo_run: dict[str, Any]) -> None:
+    assert demo_run["rc"] == 0, demo_run["text"]
+    points: list[ContactPoint] = demo_run["points"]
+    ref_point, ref_s1, ref_force = library_contacts()
+    assert [p.seq for p in points] == list(range(len(ref_point)))
+    assert demo_run["eos"].count == len(points)
+    got = np.stack([p.point for p in points])
+    np.testing.assert_allclose(got, ref_point, rtol=0, atol=1e-12)
+    np.testing.assert_allclose([p.s1 for p in points], ref_s1, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.stack([p.force for p in points]), ref_force, rtol=0, atol=1e-12)
+    assert all(p.frame_id == "world" and p.whisker_id == "whisker0" for p in points)
+    # the mapper's files, announced on stdout
+    out: Path = demo_run["out"]
+    for name in ("cloud.ply", "mesh.ply", "map.png", "report.json", "report.txt"):
+        assert (out / name).is_file(), name
+        assert str(out / name) in demo_run["stdout"]
+    report = json.loads((out / "report.json").read_text())
+    assert report["n_points"] == len(points)
+    frame = report["frames"][0]
+    assert frame["n_triangles"] > 100 and frame["method"].startswith("poisson")
+    assert report["max_reconstruction_error_m"] < 1e-9
+    assert frame["mesh_to_surface_mean"] < 0.05  # two lines 0.6 L apart: a coarse map
+
+
+def _replay(tmp: Path, bag: Path) -> tuple[int, list[ContactPoint], EndOfStream, str]:
+    launch_entries = entries("replay_demo.yaml")
+    set_param(node(launch_entries, "reconstructor"), "wait_for", ["/mapper", "/probe"])
+    out = tmp / f"replay-{bag.stem}"
+    launch = Launch(tmp, launch_entries, f"bag:={bag}", f"out:={out}")
+    probe = Probe(launch.endpoints(), [CONTACT])
+    try:
+        points, eos = probe.collect()
+        rc = launch.wait()
+    finally:
+        probe.close()
+        launch.kill()
+    return rc, points, eos, launch.text()
+
+
+def test_replay_of_the_recorded_wrenches_gives_identical_points(
+        demo_run: dict[str, Any]) -> None:
+    bag: Path = demo_run["bag"]
+    n_wrenches = sum(1 for r in BagReader(bag) if r.type_name == WhiskerWrench.TYPE_NAME)
+    assert n_wrenches == len(demo_run["points"])
+    rc, points, _, text = _replay(demo_run["tmp"], bag)
+    assert rc == 0, text
+    assert points == demo_run["points"]  # every field, stamps included (carried from the bag)
+
+
+def test_a_cut_off_bag_replays_every_complete_message(demo_run: dict[str, Any]) -> None:
+    bag: Path = demo_run["bag"]
+    cut = demo_run["tmp"] / "cut.mcap"
+    data = bag.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    reader = BagReader(cut)
+    complete = [r for r in reader if r.type_name == WhiskerWrench.TYPE_NAME]
+    assert reader.truncated and 0 < len(complete) < len(demo_run["points"])
+    rc, points, eos, text = _replay(demo_run["tmp"], cut)
+    assert rc == 0, text
+    assert points == demo_run["points"][: len(complete)]
+    assert eos.count == len(complete)
+
+
+def _killed_reconstructor(tmp: Path, respawn: bool) -> tuple[Launch, list[ContactPoint]]:
+    """Run a slow (50 Hz) demo, kill -9 the reconstructor after 20 points; wait for the end."""
+    launch_entries = small_demo(tmp / f"out-respawn-{respawn}")
+    set_param(node(launch_entries, "wrench_source"), "y0", [0.3])
+    set_param(node(launch_entries, "wrench_source"), "rate_hz", 50.0)
+    launch = Launch(tmp, launch_entries, f"out:={tmp}/out-{respawn}", f"step:={STEP}",
+                    f"respawn:={'true' if respawn else 'false'}")
+    probe = Probe(launch.endpoints(), [CONTACT])
+    points: list[ContactPoint] = []
+    try:
+        pid = int(launch.wait_line(r"started 'reconstructor' \(pid (\d+)\)").group(1))
+        deadline = time.monotonic() + 60
+        while len(points) < 20 and time.monotonic() < deadline:
+            rx = probe.sub.receive(0.2)
+            if rx is not None and isinstance(rx.msg, ContactPoint):
+                points.append(rx.msg)
+        assert len(points) >= 20, launch.text()
+        os.kill(pid, signal.SIGKILL)
+        if respawn:
+            more, _ = probe.collect()
+            points += more
+        launch.wait()
+    finally:
+        probe.close()
+        launch.kill()
+    return launch, points
+
+
+def test_killed_node_with_respawn_comes_back_and_the_run_completes(tmp_path: Path) -> None:
+    launch, points = _killed_reconstructor(tmp_path, respawn=True)
+    assert launch.proc.returncode == 0, launch.text()
+    assert "respawned 'reconstructor'" in launch.text()
+    assert "'mapper' finished (exit 0)" in launch.text()
+    seqs = [p.seq for p in points]
+    assert seqs == sorted(seqs) and seqs[-1] > 20  # points after the respawn arrived too
+
+
+def test_killed_node_without_respawn_fails_the_launch_naming_it(tmp_path: Path) -> None:
+    launch, _ = _killed_reconstructor(tmp_path, respawn=False)
+    assert launch.proc.returncode != 0
+    assert re.search(r"launch failed: required node 'reconstructor' (was )?killed by SIGKILL",
+                     launch.text()), launch.text()
+
+
+def _good_wrench() -> WhiskerWrench:
+    rng = np.random.default_rng(11)
+    while True:
+        p0, f0, m0 = rng.uniform(-1, 1, 3), rng.normal(size=3), rng.normal(size=3)
+        if reconstruct(p0, f0, m0).valid[0]:
+            return WhiskerWrench(stamp=1.0, seq=42, whisker_id="w", frame_id="world",
+                                 clamp_position=p0, clamp_orientation=[0, 0, 0, 1], f0=f0, m0=m0)
+
+
+def _bad_payloads(good: bytes) -> dict[str, bytes]:
+    def edited(**changes: Any) -> bytes:
+        body = msgpack.unpackb(good, raw=False)
+        body.update(changes)
+        return bytes(msgpack.packb(body))
+
+    f0 = msgpack.unpackb(good, raw=False)["f0"]
+    nan_f0 = {**f0, "data": np.array([np.nan, 0.0, 0.0], "<f8").tobytes()}
+    return {"field type": edited(seq="forty-two"), "version": edited(_v=99),
+            "truncated": good[: len(good) // 2], "nan": edited(f0=nan_f0)}
+
+
+def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path: Path) -> None:
+    launch_entries = [e for e in entries("demo.yaml") if "arg" in e]
+    reconstructor = node(entries("demo.yaml"), "reconstructor")
+    reconstructor.pop("respawn", None)
+    set_param(reconstructor, "wait_for", ["/probe"])
+    launch_entries.append({"node": reconstructor})
+    launch = Launch(tmp_path, launch_entries)
+    endpoints = launch.endpoints()
+    probe = Probe(endpoints, [CONTACT])
+    context: zmq.Context[Any] = zmq.Context()
+    sock = context.socket(zmq.PUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(endpoints.pub)
+    pub_id = 12345
+
+    def send(payload: bytes, seq: int) -> None:
+        sock.send_multipart([WRENCH.encode() + b"\0",
+                             msgpack.packb({"pub": pub_id, "seq": seq}), payload])
+
+    try:
+        fqn = "/whisker0/reconstructor"
+        # Ping (it announces seq 0) until the reconstructor reports the topic as seen.
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            send(encode(Ping(stamp=0.0, sender="/raw")), 0)
+            status = probe.statuses.get(fqn)
+            if status is not None and WRENCH in status.seen_topics:
+                break
+            probe.status_of(fqn, lambda s: True, timeout=1.0)
+        good_wrench = _good_wrench()
+        good = encode(good_wrench)
+        bad = _bad_payloads(good)
+        for seq, payload in enumerate(bad.values()):
+            send(payload, seq)
+        send(good, len(bad))
+        rx = None
+        deadline = time.monotonic() + 30
+        while rx is None and time.monotonic() < deadline:
+            rx = probe.sub.receive(0.2)
+        assert rx is not None and isinstance(rx.msg, ContactPoint), launch.text()
+        assert rx.msg.seq == 42
+        ref = reconstruct(good_wrench.clamp_position, good_wrench.f0, good_wrench.m0)
+        np.testing.assert_allclose(rx.msg.point, ref.point[0], rtol=0, atol=1e-12)
+        status = probe.status_of(fqn, lambda s: s.counters.get("contacts", 0) >= 1)
+        assert status.state == "running"
+        assert status.counters["rejected"] == len(bad), status.counters
+        assert status.counters["received"] == 1 and status.counters["lost"] == 0
+        assert launch.proc.poll() is None  # still running
+        assert launch.text().count("rejected message") >= len(bad)  # logged, not raised
+    finally:
+        sock.close()
+        context.term()
+        probe.close()
+        launch.kill()

@@ -168,6 +168,7 @@ def reconstruct_wrenches(
     point = rec.point * rod_length_m
     s1 = rec.s1 * rod_length_m
     force = rec.force * (rod_ei_nm2 / rod_length_m**2)
+    point.flags.writeable = force.flags.writeable = False  # rows go into messages uncopied
     for i in np.flatnonzero(keep).tolist():
         w = wrenches[i]
         result.contacts.append(ContactPoint(

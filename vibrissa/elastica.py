@@ -70,9 +70,13 @@ class _Pendulum:
 
 
 def _pendulum(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> _Pendulum:
-    fu, fv, kappa0 = np.broadcast_arrays(
+    fu_a, fv_a, kappa0_a = np.broadcast_arrays(
         np.asarray(fu, dtype=float), np.asarray(fv, dtype=float), np.asarray(kappa0, dtype=float)
     )
+    return _pendulum_arrays(fu_a, fv_a, kappa0_a)
+
+
+def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]) -> _Pendulum:
     status = np.zeros(fu.shape, dtype=np.int64)
     finite = np.isfinite(fu) & np.isfinite(fv) & np.isfinite(kappa0)
     status[~finite] |= ContactStatus.NON_FINITE_INPUT

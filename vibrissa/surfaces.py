@@ -83,16 +83,16 @@ class Surface(ABC):
     def value(self, p_W: ArrayLike) -> FloatArray:
         """First-order signed distance g / |grad g| (negative inside), units of L, shape (N,)."""
         p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
-        Q, l, c = self._quadric()
-        g = np.einsum("ni,ij,nj->n", p_B, Q, p_B) + p_B @ l + c
-        grad = 2.0 * p_B @ Q + l
+        Q, linear, c = self._quadric()
+        g = np.einsum("ni,ij,nj->n", p_B, Q, p_B) + p_B @ linear + c
+        grad = 2.0 * p_B @ Q + linear
         return g / np.linalg.norm(grad, axis=1)
 
     def normal(self, p_W: ArrayLike) -> FloatArray:
         """Outward unit normal (N, 3) in W of the level set through p_W."""
         p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
-        Q, l, _ = self._quadric()
-        grad = 2.0 * p_B @ Q + l
+        Q, linear, _ = self._quadric()
+        grad = 2.0 * p_B @ Q + linear
         n_B = grad / np.linalg.norm(grad, axis=1, keepdims=True)
         return n_B @ self.pose.rotation.T
 
@@ -117,10 +117,10 @@ class Surface(ABC):
         """
         a_B = self.pose.to_body(np.atleast_2d(np.asarray(a_W, dtype=float)))
         d_B = np.atleast_2d(np.asarray(d_W, dtype=float)) @ self.pose.rotation
-        Q, l, c = self._quadric()
+        Q, linear, c = self._quadric()
         qa = np.einsum("ni,ij,nj->n", d_B, Q, d_B)
-        qb = 2.0 * np.einsum("ni,ij,nj->n", a_B, Q, d_B) + d_B @ l
-        qc = np.einsum("ni,ij,nj->n", a_B, Q, a_B) + a_B @ l + c
+        qb = 2.0 * np.einsum("ni,ij,nj->n", a_B, Q, d_B) + d_B @ linear
+        qc = np.einsum("ni,ij,nj->n", a_B, Q, a_B) + a_B @ linear + c
         with np.errstate(divide="ignore", invalid="ignore"):
             root = np.sqrt(qb * qb - 4.0 * qa * qc)
             # Stable roots of qa t^2 + qb t + qc; a line along a paraboloid's axis has qa = 0.
@@ -186,7 +186,7 @@ class Ellipsoid(Surface):
 
     @property
     def spec(self) -> str:
-        rx, ry, rz = self.radii
+        rx, ry, rz = (float(r) for r in self.radii)
         return f"ellipsoid:rx={rx!r},ry={ry!r},rz={rz!r}{_pose_spec(self.pose)}"
 
     def _quadric(self) -> tuple[FloatArray, FloatArray, float]:
@@ -213,7 +213,7 @@ class Sphere(Ellipsoid):
 
     @property
     def spec(self) -> str:
-        return f"sphere:r={self.radii[0]!r}{_pose_spec(self.pose)}"
+        return f"sphere:r={float(self.radii[0])!r}{_pose_spec(self.pose)}"
 
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
         return self.radii[0] * q_B / np.linalg.norm(q_B, axis=1, keepdims=True)
@@ -243,7 +243,7 @@ _SHAPE_KEYS = {
 def _pose_spec(pose: Pose) -> str:
     if np.allclose(pose.rotation, np.eye(3), rtol=0, atol=0) and not np.any(pose.position):
         return ""
-    cx, cy, cz = pose.position
+    cx, cy, cz = (float(c) for c in pose.position)
     parts = [f"cx={cx!r}", f"cy={cy!r}", f"cz={cz!r}"]
     r = pose.rotation
     pitch = float(np.arcsin(np.clip(-r[2, 0], -1.0, 1.0)))
@@ -292,9 +292,8 @@ def parse_surface(spec: str) -> Surface:
         [values.get(key, 0.0) for key in ("cx", "cy", "cz")],
         [values.get(key, 0.0) for key in ("roll", "pitch", "yaw")],
     )
-    shape = [values[key] for key in _SHAPE_KEYS[kind]]
     if kind == "paraboloid":
-        return Paraboloid(*shape, pose=pose)
+        return Paraboloid(values["a"], values["b"], values["h"], pose=pose)
     if kind == "sphere":
-        return Sphere(*shape, pose=pose)
-    return Ellipsoid(*shape, pose=pose)
+        return Sphere(values["r"], pose=pose)
+    return Ellipsoid(values["rx"], values["ry"], values["rz"], pose=pose)

@@ -93,6 +93,7 @@ class Sweep:
     force: FloatArray
     fn: FloatArray
     ft: FloatArray
+    refined: NDArray[np.bool_]  # reached through sub-steps (the eq. 7 chord is then a sub-step's)
     end: str
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
@@ -234,7 +235,8 @@ def _newton(surface: Surface, q0: FloatArray, batch: _Batch) -> tuple[FloatArray
         try:
             delta = np.linalg.solve(jac, -state.residual[rows][:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:
-            delta = np.stack([np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in zip(jac, state.residual[rows])])
+            pairs = zip(jac, state.residual[rows], strict=True)
+            delta = np.stack([np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in pairs])
         # Keep the plane from spinning in one step.
         delta *= np.minimum(1.0, 0.3 / np.maximum(np.abs(delta[:, 0]), 1e-300))[:, None]
         accepted = np.zeros(len(rows), dtype=bool)
@@ -329,7 +331,7 @@ def _small_slip(
             probe = z.copy()
             probe[:, j] += steps[j]
             jac[:, :, j] = (_held_at_slip(surface, probe, q, batch)[0] - mismatch) / steps[j]
-        delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch)])
+        delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch, strict=False)])
         z += np.clip(delta, -1.0, 1.0)
     as_slide = _Batch(batch.x0, batch.y0, batch.mu, batch.anchor, np.full(len(z), _MODE_TIP), batch.locked)
     final = _evaluate(surface, q, as_slide)
@@ -416,6 +418,7 @@ class _Track:
     end: str | None = None
     x0_end: float = float("nan")
     smooth: bool = True  # the last step was a plain slide (its predictor may extrapolate)
+    pending: tuple[FloatArray, FloatArray, FloatArray] = ()  # type: ignore[assignment]  # p1, normal, force of the last accepted state
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -495,9 +498,9 @@ def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int
     """Move every track one step; failures are retried with refined sub-steps."""
     targets = np.array([t.x0 - step for t in tracks])
     reached = _attempt(surface, tracks, targets, step)
-    for track, target, ok in zip(tracks, targets, reached):
+    for track, target, ok in zip(tracks, targets, reached, strict=False):
         if ok:
-            _record(track)
+            _record(track, refined=False)
         else:
             _refine(surface, track, target, step)
         if track.end is None and len(track.rows) >= max_steps:
@@ -513,7 +516,7 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
                 break
         if abs(track.x0 - target) <= 1e-12 * step:
             track.x0 = target
-            _record(track)
+            _record(track, refined=True)
             return
     track.end = _ending(track)
     track.x0_end = track.rows[-1][0] if track.rows else track.x0
@@ -563,7 +566,9 @@ def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: 
         )
         if kind == "anchored":
             q_stuck = np.array([stuck[i][0] for i in rows])
-            stuck_state = _State(*(np.concatenate([getattr(stuck[i][1], name) for i in rows]) for name in _STATE_FIELDS))
+            stuck_state = _State(
+                *(np.concatenate([getattr(stuck[i][1], name) for i in rows]) for name in _STATE_FIELDS)
+            )
             q, state, converged = _small_slip(surface, q_stuck, stuck_state, batch)
         elif kind == "continuation":
             q, state, converged = _newton_friction_continuation(surface, predictors[rows], batch)
@@ -572,13 +577,13 @@ def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: 
         previous = np.array([tracks[i].p1 for i in rows])
         ok = converged & _admissible(state, batch, previous, jump)
         for k in np.flatnonzero(ok):
-            i = rows[k]
-            _accept(tracks[i], float(targets[i]), q[k], state, k, int(modes[i]))
+            i = int(rows[k])
+            _accept(tracks[i], float(targets[i]), q[k], state, int(k), int(modes[i]))
             tracks[i].smooth = kind == "slide"
             success[i] = True
         if kind == "stick":
             for k in np.flatnonzero(converged & ~ok):
-                stuck[int(rows[k])] = (q[k], _take_state(state, k), k)
+                stuck[int(rows[k])] = (q[k], _take_state(state, int(k)), int(k))
 
     solve_stage(sliding_mode, "slide")
     solve_stage(other_mode, "slide")
@@ -631,16 +636,16 @@ def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode
     track.p1 = state.p1[k].copy()
     if mode != _MODE_STICK:
         track.anchor = track.p1
-    track._pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy(), state.s1[k])  # type: ignore[attr-defined]
+    track.pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy())
 
 
 def _phase_of(mode: int) -> int:
     return PHASE_TANGENTIAL if mode == _MODE_TANGENTIAL else PHASE_TIP
 
 
-def _record(track: _Track) -> None:
-    p1, normal, force, _s1 = track._pending  # type: ignore[attr-defined]
-    track.rows.append((track.x0, track.mode, 0, track.q.copy(), p1, normal, force))
+def _record(track: _Track, refined: bool) -> None:
+    p1, normal, force = track.pending
+    track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force))
 
 
 def _finish(track: _Track, step: float) -> Sweep:
@@ -649,6 +654,7 @@ def _finish(track: _Track, step: float) -> Sweep:
     q = np.array([r[3] for r in rows]).reshape(n, 4)
     x0 = np.array([r[0] for r in rows], dtype=float)
     modes = np.array([r[1] for r in rows], dtype=np.int64)
+    refined = np.array([r[2] for r in rows], dtype=bool)
     contact = np.array([r[4] for r in rows]).reshape(n, 3)
     normal = np.array([r[5] for r in rows]).reshape(n, 3)
     force = np.array([r[6] for r in rows]).reshape(n, 3)
@@ -678,6 +684,7 @@ def _finish(track: _Track, step: float) -> Sweep:
         force=force,
         fn=fn,
         ft=ft,
+        refined=refined,
         end=end,
         x0_end=float(track.x0_end),
         phase_changes=track.phase_changes,

@@ -1,0 +1,71 @@
+"""Surfaces: spec parsing, closest points, normals, symmetry."""
+
+import numpy as np
+import pytest
+
+from vibrissa.surfaces import Paraboloid, parse_surface
+
+SPECS = [
+    "paraboloid:a=0.5,b=1,h=0.4",
+    "sphere:r=0.3,cx=0,cy=0,cz=0.8",
+    "ellipsoid:rx=0.4,ry=0.3,rz=0.2,cx=0,cy=0,cz=0.9",
+    "ellipsoid:rx=0.4,ry=0.3,rz=0.2,cx=0.1,cy=-0.2,cz=0.9,roll=0.3,pitch=-0.2,yaw=1.0",
+    "paraboloid:a=0.8,b=0.3,h=0.5,yaw=0.7,pitch=0.1",
+]
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_closest_point_is_on_the_surface_along_the_normal(spec):
+    surface = parse_surface(spec)
+    points = np.random.default_rng(3).uniform(-0.6, 0.6, size=(200, 3)) + [0.0, 0.0, 0.8]
+    closest = surface.closest_point(points)
+    assert np.max(np.abs(surface.value(closest))) < 1e-10
+    offset = points - closest
+    normal = surface.normal(closest)
+    # the offset is collinear with the normal at the closest point
+    residual = offset - np.einsum("ni,ni->n", offset, normal)[:, None] * normal
+    assert np.max(np.linalg.norm(residual, axis=1)) < 1e-8
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_spec_round_trip(spec):
+    surface = parse_surface(spec)
+    again = parse_surface(surface.spec)
+    points = np.random.default_rng(4).normal(size=(50, 3))
+    np.testing.assert_allclose(again.value(points), surface.value(points), atol=1e-12)
+
+
+def test_sphere_signed_distance_is_exact():
+    sphere = parse_surface("sphere:r=0.3,cx=0.1,cy=0,cz=0.8")
+    points = np.array([[0.1, 0.0, 0.8 + 0.5], [0.1, 0.0, 0.8 + 0.1], [0.1 + 0.3, 0.0, 0.8]])
+    np.testing.assert_allclose(sphere.signed_distance(points), [0.2, -0.2, 0.0], atol=1e-15)
+
+
+def test_paraboloid_normal_is_eq_3_pointing_out_of_the_cup():
+    surface = Paraboloid(0.5, 1.0, 0.4)
+    x, y = 0.3, -0.2
+    n = surface.normal([x, y, 0.5 * x**2 + y**2 + 0.4])[0]
+    eq3 = np.array([-2 * 0.5 * x, -2 * 1.0 * y, 1.0]) / np.sqrt(4 * 0.25 * x**2 + 4 * y**2 + 1)
+    np.testing.assert_allclose(n, -eq3, atol=1e-15)  # the object is the cup z >= C(x, y)
+
+
+def test_mirror_symmetry_detection():
+    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
+    assert surface.is_mirror_symmetric([0, 0, 0], [0, 1, 0])
+    assert not surface.is_mirror_symmetric([0, 0.2, 0], [0, 1, 0])
+
+
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("cube:r=1", "unknown kind"),
+        ("sphere:r=1,q=2", "unknown key 'q'"),
+        ("sphere:cx=1", "missing r"),
+        ("sphere:r=abc", "not a number"),
+        ("paraboloid:a=-1,b=1,h=0.4", "a > 0"),
+        ("sphere:r", "key=value"),
+    ],
+)
+def test_bad_specs_name_the_problem(spec, words):
+    with pytest.raises(ValueError, match=words):
+        parse_surface(spec)

@@ -18,15 +18,19 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: setup
+	$(VENV)/bin/vibrissa launch launch/demo.yaml out:=$(OUT)/demo
+
+study: setup
 	$(VENV)/bin/vibrissa study paper -o $(OUT)/study
 
 test: setup
 	$(PY) -m ruff check vibrissa msgs wire nodes cli tests benchmarks
 	$(PY) -m mypy vibrissa msgs wire nodes cli
-	$(PY) -m pytest
+	$(PY) -m pytest -p no:dash
 
 bench: setup
 	$(PY) benchmarks/bench_mechanics.py
+	$(PY) benchmarks/bench_pipeline.py
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info

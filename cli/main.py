@@ -18,13 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in _COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"vibrissa.cli.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"vibrissa.cli.{name}":
-                continue  # command not built yet
-            raise
-        module.register(subparsers)
+        importlib.import_module(f"vibrissa.cli.{name}").register(subparsers)
     return parser
 
 

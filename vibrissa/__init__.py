@@ -1,1 +1,32 @@
-"""vibrissa"""
+"""vibrissa: a whisker-like tactile sensor as a robot sense (Merker, frictional 3D scanning).
+
+Core mechanics in the paper's dimensionless units (eq. 1); pure numpy/scipy.
+
+* :func:`simulate_sweep`, :func:`simulate_sweeps` -- Step 1, quasi-static frictional sweeps.
+* :func:`reconstruct` -- Step 2, contact points from clamp position and support reactions.
+* :func:`parse_surface` -- paraboloid (eq. 2), sphere and ellipsoid objects with a pose.
+* :class:`RodScale` -- the conversion to SI.
+"""
+
+from vibrissa.reconstruct import Reconstruction, reconstruct
+from vibrissa.status import ContactStatus
+from vibrissa.surfaces import Ellipsoid, Paraboloid, Pose, Sphere, Surface, parse_surface
+from vibrissa.sweep import Sweep, Trail, simulate_sweep, simulate_sweeps
+from vibrissa.units import RodScale
+
+__all__ = [
+    "ContactStatus",
+    "Ellipsoid",
+    "Paraboloid",
+    "Pose",
+    "Reconstruction",
+    "RodScale",
+    "Sphere",
+    "Surface",
+    "Sweep",
+    "Trail",
+    "parse_surface",
+    "reconstruct",
+    "simulate_sweep",
+    "simulate_sweeps",
+]

@@ -1,0 +1,42 @@
+"""The one conversion between the paper's units (eq. 1) and SI.
+
+Lengths are measured in the rod length L, forces in EI/L^2 and moments in EI/L, so a rod of
+any length and stiffness has the same dimensionless mechanics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+@dataclass(frozen=True)
+class RodScale:
+    """A rod of length ``length_m`` (m) and bending stiffness ``ei_nm2`` (N m^2)."""
+
+    length_m: float = 1.0
+    ei_nm2: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.length_m > 0 and self.ei_nm2 > 0):
+            raise ValueError(f"length_m and ei_nm2 must be > 0, got {self.length_m}, {self.ei_nm2}")
+
+    @property
+    def force_n(self) -> float:
+        """The unit of force, EI / L^2, in N."""
+        return self.ei_nm2 / self.length_m**2
+
+    @property
+    def moment_nm(self) -> float:
+        """The unit of moment, EI / L, in N m."""
+        return self.ei_nm2 / self.length_m
+
+    def wrench_to_si(self, f0: ArrayLike, m0: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Dimensionless (f0, m0) to N and N m."""
+        return np.asarray(f0, dtype=float) * self.force_n, np.asarray(m0, dtype=float) * self.moment_nm
+
+    def wrench_from_si(self, f0_n: ArrayLike, m0_nm: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(f0, m0) in N and N m to the paper's units."""
+        return np.asarray(f0_n, dtype=float) / self.force_n, np.asarray(m0_nm, dtype=float) / self.moment_nm

@@ -20,7 +20,14 @@ def test_statics_of_the_rod_at_every_step(paper_sweeps, key):
     r = sweep.contact - sweep.p0
     # m0 comes from the elastica's clamp curvature, F from the contact: m0 + r x F = 0 checks both.
     np.testing.assert_allclose(sweep.m0 + np.cross(r, sweep.force), 0.0, atol=1e-10)
-    np.testing.assert_allclose(sweep.f0 + sweep.force, 0.0, atol=0)
+    # f0 + F = 0 with F rebuilt from Coulomb's law alone: fn (n + mu t), t along the chord of eq. 7
+    rows = np.flatnonzero((sweep.state[1:] == SLIDE) & ~sweep.refined[1:]) + 1
+    n = sweep.normal[rows]
+    chord = sweep.contact[rows - 1] - sweep.contact[rows]
+    chord -= np.einsum("ni,ni->n", chord, n)[:, None] * n
+    t = chord / np.linalg.norm(chord, axis=1)[:, None]
+    coulomb = sweep.fn[rows, None] * (n + sweep.trail.mu * t)
+    assert np.max(np.linalg.norm(sweep.f0[rows] + coulomb, axis=1) / sweep.fn[rows]) < 1e-6
     assert np.max(np.abs(sweep.m0[:, 2])) < 1e-15  # no moment about the clamp axis (no twist)
 
 

@@ -39,13 +39,14 @@ FloatArray = NDArray[np.float64]
 IVP_TOL = {"rtol": 1e-11, "atol": 1e-13}
 
 
-def _best_of(fn: Callable[[], object], repeat: int) -> float:
-    best = float("inf")
+def _median_of(fn: Callable[[], object], repeat: int) -> float:
+    """Median wall time of ``repeat`` calls, s (robust to other load on the machine)."""
+    times = []
     for _ in range(repeat):
         start = time.perf_counter()
         fn()
-        best = min(best, time.perf_counter() - start)
-    return best
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
 
 
 # --- Step 2 baseline ------------------------------------------------------------------------
@@ -169,14 +170,19 @@ def main() -> None:
     sweep = study.case(0.2, 0.3).sweep
     reps = -(-args.samples // sweep.n_steps)
     p0, f0, m0 = (np.tile(a, (reps, 1))[: args.samples] for a in (sweep.p0, sweep.f0, sweep.m0))
-    batch = _best_of(lambda: reconstruct(p0, f0, m0), 3)
+    batch = _median_of(lambda: reconstruct(p0, f0, m0), 3)
     rows.append((f"Step 2 library: reconstruct() on {args.samples:.0e} samples, one core",
                  f"{args.samples / batch:.3g} samples/s", f"{batch:.2f} s"))
     n_single = min(2000, sweep.n_steps)
-    single = _best_of(lambda: [reconstruct(sweep.p0[i], sweep.f0[i], sweep.m0[i])
-                               for i in range(n_single)], 3)
-    single /= n_single
-    rows.append(("Step 2 library: single-sample latency", f"{single * 1e6:.0f} us", ""))
+    single = _median_of(lambda: [reconstruct(sweep.p0[i], sweep.f0[i], sweep.m0[i])
+                                 for i in range(n_single)], 5) / n_single
+    rows.append(("Step 2 library: single-sample latency (scalar path, (3,) vectors)",
+                 f"{single * 1e6:.1f} us", ""))
+    single_array = _median_of(lambda: [reconstruct(sweep.p0[i:i + 1], sweep.f0[i:i + 1],
+                                                   sweep.m0[i:i + 1]) for i in range(n_single)],
+                              5) / n_single
+    rows.append(("Step 2 library: one sample through the array path, (1, 3) arrays",
+                 f"{single_array * 1e6:.1f} us", f"{single_array / single:.0f}x scalar"))
 
     # Step 2, baseline: solve_ivp with an event, one sample at a time.
     picks = np.linspace(1, sweep.n_steps - 2, args.ivp_samples).astype(int)

@@ -17,6 +17,7 @@ Only curvatures kappa0 >= 0 are solved directly; kappa0 < 0 is the mirror image 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -190,3 +191,59 @@ def planar_line(
     u = np.where(beyond, float(contact.u1) + (s - s1) * np.cos(float(contact.phi1)), u)
     v = np.where(beyond, float(contact.v1) + (s - s1) * np.sin(float(contact.phi1)), v)
     return u, v
+
+
+def planar_contact_scalar(fu: float, fv: float, kappa0: float) -> tuple[float, float, float, float, int]:
+    """:func:`planar_contact` of one load case in plain floats (no per-call numpy overhead).
+
+    Same formulas, order of operations and flags as the array version, for the per-sample hot
+    path (one wrench at a time); the two agree to round-off.
+
+    Parameters
+    ----------
+    fu, fv : float
+        Contact force on the rod in the bending plane (u, v), units of EI/L^2.
+    kappa0 : float
+        Curvature at the clamp, 1/L.
+
+    Returns
+    -------
+    u1, v1, s1, phi1, status
+        As the fields of :class:`PlanarContact` (L, L, L, rad, ``ContactStatus`` flags); NaN
+        where the status leaves no contact.
+    """
+    nan = math.nan
+    if not (math.isfinite(fu) and math.isfinite(fv) and math.isfinite(kappa0)):
+        return nan, nan, nan, nan, int(ContactStatus.NON_FINITE_INPUT)
+    mirrored = kappa0 < 0
+    if mirrored:
+        fu = -fu
+    kappa0 = abs(kappa0)
+    f = math.hypot(fu, fv)
+    if f == 0:
+        return nan, nan, nan, nan, int(ContactStatus.NO_FORCE)
+    sqrt_f = math.sqrt(f)
+    alpha = math.atan2(fu, -fv)
+    b0 = -math.sin(0.5 * alpha)
+    c0 = kappa0 / (2.0 * sqrt_f)
+    k = math.hypot(b0, c0)
+    if k >= 1.0:
+        return nan, nan, nan, nan, int(ContactStatus.CURVATURE_NEVER_VANISHES)
+    if k == 0.0:
+        u1, v1, s1, phi1, status = 0.0, 1.0, 1.0, 0.5 * math.pi, int(ContactStatus.AXIAL_LOAD)
+    else:
+        sin_theta0, cos_theta0 = b0 / k, c0 / k
+        m = k * k
+        chi = math.atan2(cos_theta0, math.sqrt(1.0 - m) * sin_theta0)
+        f_chi = float(special.ellipkinc(chi, m))
+        e_chi = float(special.ellipeinc(chi, m))
+        s1 = f_chi / sqrt_f
+        along = (2.0 * (e_chi - m * sin_theta0 * math.sin(chi)) - f_chi) / sqrt_f
+        across = kappa0 / f
+        u1 = (-along * fu + across * fv) / f
+        v1 = (-along * fv - across * fu) / f
+        phi1 = 2.0 * math.asin(k) + alpha + 0.5 * math.pi
+        status = int(ContactStatus.OK)
+    if mirrored:
+        u1, phi1 = -u1, math.pi - phi1
+    return u1, v1, s1, phi1, status

@@ -17,12 +17,13 @@ kappa0 = -m0w (eq. 22) is >= 0, which is eq. 20: psi = -atan2(m0x, m0y).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vibrissa.elastica import S1_TOLERANCE, planar_contact
+from vibrissa.elastica import S1_TOLERANCE, planar_contact, planar_contact_scalar
 from vibrissa.status import NO_CONTACT, ContactStatus
 
 PHASE_NONE, PHASE_TIP, PHASE_TANGENTIAL = 0, 1, 2
@@ -91,8 +92,75 @@ def reconstruct(
     Reconstruction
         Arrays of length N (also for single vectors). Samples without a consistent contact
         (no force, curvature that never vanishes within the rod, non-finite input) carry NaN
-        and a status flag instead of raising.
+        and a status flag instead of raising. A single sample (three vectors of shape (3,))
+        takes a scalar path with the same results, free of the array path's fixed cost.
     """
+    p0_a, f0_a, m0_a = np.asarray(p0, dtype=float), np.asarray(f0, dtype=float), np.asarray(
+        m0, dtype=float)
+    if p0_a.shape == f0_a.shape == m0_a.shape == (3,):
+        if R_WC is None:
+            return _reconstruct_one(p0_a.tolist(), f0_a.tolist(), m0_a.tolist(), _IDENTITY)
+        rotation = np.asarray(R_WC, dtype=float)
+        if rotation.shape in ((3, 3), (1, 3, 3)):
+            return _reconstruct_one(p0_a.tolist(), f0_a.tolist(), m0_a.tolist(),
+                                    rotation.reshape(3, 3).tolist())
+    return _reconstruct_arrays(p0_a, f0_a, m0_a, R_WC)
+
+
+_IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+
+
+def _reconstruct_one(
+    p0: list[float], f0: list[float], m0: list[float], R_WC: list[list[float]]
+) -> Reconstruction:
+    """:func:`reconstruct` of one sample in plain floats; the array path step by step."""
+    force_C = [-f0[0], -f0[1], -f0[2]]
+    m_horizontal = math.hypot(m0[0], m0[1])
+    if m_horizontal > 0:
+        e_u = (m0[1] / m_horizontal, -m0[0] / m_horizontal)
+    else:
+        f_horizontal = math.hypot(force_C[0], force_C[1])
+        e_u = ((force_C[0] / f_horizontal, force_C[1] / f_horizontal) if f_horizontal > 0
+               else (1.0, 0.0))
+    psi = math.atan2(e_u[1], e_u[0])
+    fu = force_C[0] * e_u[0] + force_C[1] * e_u[1]
+    u1, v1, s1, _phi1, status = planar_contact_scalar(fu, force_C[2], m_horizontal)
+    if not all(map(math.isfinite, (*p0, *m0))):
+        status |= _NON_FINITE
+    if status & _NO_CONTACT == 0 and s1 > 1.0 + S1_TOLERANCE:
+        status |= _BEYOND
+    # The rotation is applied in full even for the identity, as the array path does, so that
+    # a non-finite force component spreads to the others in the same way.
+    force = [r[0] * force_C[0] + r[1] * force_C[1] + r[2] * force_C[2] for r in R_WC]
+    if status & _NO_CONTACT:
+        nan = math.nan
+        return Reconstruction(
+            point=np.full((1, 3), nan), s1=np.array([nan]),
+            phase=np.array([PHASE_NONE], dtype=np.int64), psi=np.array([nan]),
+            force=np.array([force]), status=np.array([status], dtype=np.int64),
+        )
+    p1_C = (u1 * e_u[0], u1 * e_u[1], v1)
+    point = [p + r[0] * p1_C[0] + r[1] * p1_C[1] + r[2] * p1_C[2]
+             for p, r in zip(p0, R_WC, strict=True)]
+    s1 = min(s1, 1.0)
+    return Reconstruction(
+        point=np.array([point]), s1=np.array([s1]),
+        phase=np.array([PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL],
+                       dtype=np.int64),
+        psi=np.array([psi]), force=np.array([force]), status=np.array([status], dtype=np.int64),
+    )
+
+
+_NO_CONTACT = int(NO_CONTACT)
+_NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
+_BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
+
+
+def _reconstruct_arrays(
+    p0: NDArray[np.float64], f0: NDArray[np.float64], m0: NDArray[np.float64],
+    R_WC: ArrayLike | None,
+) -> Reconstruction:
+    """:func:`reconstruct` vectorised over N samples."""
     p0_W, f0_C, m0_C = (_as_vectors(n, v) for n, v in (("p0", p0), ("f0", f0), ("m0", m0)))
     try:
         p0_W, f0_C, m0_C = np.broadcast_arrays(p0_W, f0_C, m0_C)

@@ -1,0 +1,105 @@
+"""Step 2: the scalar single-sample path gives exactly what the vectorised path gives."""
+
+import numpy as np
+import pytest
+
+from vibrissa.elastica import planar_contact, planar_contact_scalar
+from vibrissa.reconstruct import Reconstruction, reconstruct
+from vibrissa.status import ContactStatus
+
+ATOL = 1e-12
+FIELDS = ("point", "s1", "phase", "psi", "force", "status")
+
+
+def _random_wrenches(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Wrenches over four decades of load, with every degenerate case planted in between."""
+    rng = np.random.default_rng(seed)
+    p0 = rng.uniform(-1, 1, (n, 3))
+    f0 = rng.normal(size=(n, 3)) * rng.choice([1e-3, 1.0, 10.0, 100.0], (n, 1))
+    m0 = rng.normal(size=(n, 3)) * rng.choice([1e-3, 1.0, 10.0], (n, 1))
+    f0[0::40] = 0.0  # no force
+    m0[1::40] = 0.0  # straight rod: the plane follows the force
+    m0[2::40, :2] = 0.0  # twist only
+    f0[3::40, :2] = 0.0  # axial load ...
+    f0[3::40, 2] = np.abs(f0[3::40, 2])  # ... pushing the rod (f0z > 0: force on rod along -z)
+    m0[3::40] = 0.0
+    f0[4::40] = m0[4::40] = 0.0  # nothing at all
+    f0[5::40, 1] = np.nan
+    m0[6::40, 0] = np.inf
+    p0[7::40, 2] = -np.inf
+    f0[8::40, 2] = np.inf
+    m0[9::40, 2] = np.nan  # twist component: not used, still non-finite input
+    f0[10::40, 0] = -0.0
+    return p0, f0, m0
+
+
+def _assert_same(one: Reconstruction, many: Reconstruction, i: int) -> None:
+    for name in FIELDS:
+        a, b = getattr(one, name), getattr(many, name)[i : i + 1]
+        assert a.shape == b.shape and a.dtype == b.dtype, name
+        if a.dtype.kind == "f":
+            np.testing.assert_allclose(a, b, rtol=0, atol=ATOL, equal_nan=True, err_msg=name)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_single_sample_equals_array_path(seed):
+    p0, f0, m0 = _random_wrenches(4000, seed)
+    many = reconstruct(p0, f0, m0)
+    flags = set(many.status.tolist())
+    # every outcome is exercised
+    assert {0, 1, 2, 4, 16} <= flags and any(s & ContactStatus.NON_FINITE_INPUT for s in flags)
+    for i in range(len(p0)):
+        _assert_same(reconstruct(p0[i], f0[i], m0[i]), many, i)
+
+
+def test_single_sample_with_clamp_orientation():
+    p0, f0, m0 = _random_wrenches(400, 2)
+    angle, axis = 0.9, np.array([0.3, -1.0, 0.4]) / np.linalg.norm([0.3, -1.0, 0.4])
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    many = reconstruct(p0, f0, m0, R)
+    for i in range(len(p0)):
+        _assert_same(reconstruct(p0[i], f0[i], m0[i], R), many, i)
+        _assert_same(reconstruct(p0[i], f0[i], m0[i], R[None]), many, i)
+
+
+def test_single_sample_edge_cases_and_plain_lists():
+    cases = {
+        "no force": ([0, 0, 0], [0, 0, 0], [0.3, 0.1, 0], ContactStatus.NO_FORCE),
+        "no moment": ([0, 0, 0], [0.2, 0.1, 0.5], [0, 0, 0], ContactStatus.CONTACT_BEYOND_ROD),
+        "never zero": ([0, 0, 0], [0, 0, -1e-3], [3, 0, 0], ContactStatus.CURVATURE_NEVER_VANISHES),
+        "beyond rod": ([0, 0, 0], [-0.1, 0, 0], [0, -0.3, 0], ContactStatus.CONTACT_BEYOND_ROD),
+        "tangential": ([0, 0, 0], [0.1, 0, 0], [0, 0.05, 0], ContactStatus.OK),
+        "axial": ([1, 2, 3], [0, 0, 2.0], [0, 0, 0], ContactStatus.AXIAL_LOAD),
+        "nan p0": ([np.nan, 0, 0], [0.1, 0, 0], [0, 0.05, 0], ContactStatus.NON_FINITE_INPUT),
+        "inf f0": ([0, 0, 0], [np.inf, 0, 0], [0, 0.05, 0], ContactStatus.NON_FINITE_INPUT),
+    }
+    for name, (p0, f0, m0, status) in cases.items():
+        one = reconstruct(p0, f0, m0)
+        assert int(one.status[0]) == status, name
+        _assert_same(one, reconstruct([p0], [f0], [m0]), 0)
+    axial = reconstruct([1, 2, 3], [0, 0, 2.0], [0, 0, 0])
+    np.testing.assert_array_equal(axial.point, [[1, 2, 4]])  # tip of the straight rod
+    assert axial.s1[0] == 1.0 and axial.phase[0] == 1
+
+
+def test_single_sample_keeps_the_argument_checks():
+    with pytest.raises(ValueError, match="p0 must have shape"):
+        reconstruct([0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="same number of samples"):
+        reconstruct(np.zeros(3), np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+def test_scalar_planar_contact_equals_array_version():
+    rng = np.random.default_rng(7)
+    fu, fv = rng.normal(size=(2, 3000)) * rng.choice([1e-3, 1.0, 30.0], (2, 3000))
+    kappa0 = rng.normal(size=3000) * 2  # both signs: the mirror image too
+    fu[:5], fv[:5], kappa0[:5] = [0, np.nan, 0, 0, 0.3], [0, 1, -1, 1e-3, np.inf], [0, 0, 0, 3, 1]
+    many = planar_contact(fu, fv, kappa0)
+    for i in range(len(fu)):
+        one = planar_contact_scalar(float(fu[i]), float(fv[i]), float(kappa0[i]))
+        want = (many.u1[i], many.v1[i], many.s1[i], many.phi1[i])
+        np.testing.assert_allclose(one[:4], want, rtol=0, atol=ATOL, equal_nan=True)
+        assert one[4] == many.status[i]

@@ -14,7 +14,11 @@ can change them later.
 from __future__ import annotations
 
 import dataclasses
+import enum
+import functools
 import math
+import operator
+import struct
 from collections.abc import Callable
 from typing import Any
 
@@ -125,12 +129,14 @@ def encode(msg: Message) -> bytes:
     if MESSAGE_TYPES.get(getattr(cls, "TYPE_NAME", "")) is not cls:
         raise TypeError(f"encode: {cls.__name__} is not a registered message type")
     out: dict[str, Any] = {"_type": cls.TYPE_NAME, "_v": cls.VERSION}
+    values = msg.__dict__
     for name, spec in field_specs(cls):
-        value = getattr(msg, name)
+        value = values[name]
         if spec.kind == ARRAY:
             if not _all_finite(value):
                 raise ValueError(f"encode: {cls.TYPE_NAME}.{name} holds a non-finite value")
-            out[name] = {"dtype": value.dtype.str, "shape": value.shape, "data": value.tobytes()}
+            # dtype and shape were checked when the message was made
+            out[name] = {"dtype": spec.dtype_str, "shape": value.shape, "data": value.tobytes()}
         elif spec.kind == FLOAT and value is not None and not math.isfinite(value):
             raise ValueError(f"encode: {cls.TYPE_NAME}.{name} is {value}")
         else:
@@ -214,6 +220,12 @@ def decode(
         raise VersionMismatchError(
             f"{name} version {version} on the wire, this build reads version {cls.VERSION}", name
         )
+    layout = _fixed_layout(cls)
+    if layout is not None and obj.keys() == layout.names:
+        fast = _decode_fixed(cls, layout, obj)
+        if fast is not None:
+            return fast
+    # The general path: also the one that finds and names what is wrong.
     values: dict[str, Any] = {}
     sizes: dict[str, int] = {}
     for field_name, spec in field_specs(cls):
@@ -245,6 +257,106 @@ def _defaults(cls: type[Message]) -> dict[str, Any]:
 
 
 _DEFAULTS: dict[type, dict[str, Any]] = {}
+
+
+# -- decode, fast path of the fixed-layout types -------------------------------------------
+#
+# WhiskerWrench, ContactPoint, ... have only scalars, strings, enums and fixed-shape arrays.
+# Their payloads are checked field by field with exact-type tests and a precomputed array
+# header; anything unusual (a missing, extra or optional field, an int for a float, a wrong
+# shape, a NaN, ...) returns None and the general path decodes it again and raises the
+# specific error. The fast path accepts a subset of what the general path accepts and
+# returns the same message, so the two cannot disagree.
+
+_FLOAT, _INT, _ENUM, _STR, _ARRAY = range(5)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Layout:
+    names: frozenset[str]
+    # (name, code, check): enum -> value->member map, str -> choices, array -> (dtype str,
+    # shape list, (int,) per axis, byte count, dtype, shape or None for 1-d, '<f8' unpacker)
+    fields: tuple[tuple[str, int, Any], ...]
+
+
+def _fixed_layout(cls: type[Message]) -> _Layout | None:
+    if cls not in _LAYOUTS:
+        _LAYOUTS[cls] = _make_layout(cls)
+    return _LAYOUTS[cls]
+
+
+def _make_layout(cls: type[Message]) -> _Layout | None:
+    fields: list[tuple[str, int, Any]] = []
+    for name, spec in field_specs(cls):
+        if spec.optional:
+            return None
+        if spec.kind == FLOAT:
+            fields.append((name, _FLOAT, None))
+        elif spec.kind == INT:
+            fields.append((name, _INT, None))
+        elif spec.kind == ENUM:
+            assert spec.enum is not None
+            members: list[Any] = list(spec.enum)
+            if issubclass(spec.enum, enum.IntFlag):  # every combination of the flags
+                mask = functools.reduce(operator.or_, (int(m) for m in members), 0)
+                members = [spec.enum(v) for v in range(mask + 1) if v & ~mask == 0]
+            fields.append((name, _ENUM, {int(m): m for m in members}))
+        elif spec.kind == STR:
+            fields.append((name, _STR, frozenset(spec.choices)))
+        elif spec.kind == ARRAY and spec.fixed_shape is not None:
+            assert spec.dtype is not None
+            shape = spec.fixed_shape
+            floats = struct.Struct(f"<{math.prod(shape)}d") if spec.dtype_str == "<f8" else None
+            fields.append((name, _ARRAY, (spec.dtype_str, list(shape), (int,) * len(shape),
+                                          math.prod(shape) * spec.dtype.itemsize, spec.dtype,
+                                          shape if len(shape) != 1 else None, floats)))
+        else:
+            return None
+    return _Layout(frozenset(name for name, _, _ in fields), tuple(fields))
+
+
+_LAYOUTS: dict[type, _Layout | None] = {}
+
+
+def _decode_fixed(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> Message | None:
+    values: dict[str, Any] = {}
+    total = 0.0  # of every float: finite proves them all finite (overflow: the general path)
+    for name, code, check in layout.fields:
+        value = obj[name]
+        if code == _ARRAY:
+            dtype_str, shape, int_types, nbytes, dtype, reshape, floats = check
+            if type(value) is not dict or len(value) != 3:
+                return None
+            data, got_shape = value.get("data"), value.get("shape")
+            if (type(data) is not bytes or len(data) != nbytes or value.get("dtype") != dtype_str
+                    or got_shape != shape or tuple(map(type, got_shape)) != int_types):
+                return None
+            if floats is not None:
+                total += sum(floats.unpack(data))
+            elif dtype.kind == "f":
+                return None
+            value = np.frombuffer(data, dtype=dtype)  # read-only: bytes are immutable
+            if reshape is not None:
+                value = value.reshape(reshape)
+        elif code == _FLOAT:
+            if type(value) is not float:
+                return None
+            total += value
+        elif code == _INT:
+            if type(value) is not int:
+                return None
+        elif code == _ENUM:
+            value = check.get(value) if type(value) is int else None
+            if value is None:
+                return None
+        elif type(value) is not str or (check and value not in check):
+            return None
+        values[name] = value
+    if not math.isfinite(total):
+        return None
+    msg = object.__new__(cls)
+    msg.__dict__.update(values)
+    return msg
 
 
 def _type_error(type_name: str, field: str, want: str, value: Any) -> FieldTypeError:

@@ -79,6 +79,43 @@ class FieldSpec:
         """``dtype.str`` of an array field, e.g. ``"<f8"`` (cached: numpy rebuilds it per call)."""
         return self.dtype.str if self.dtype is not None else ""
 
+    @functools.cached_property
+    def fixed_shape(self) -> tuple[int, ...] | None:
+        """``shape`` of an array field when it has no symbolic size, else ``None``."""
+        if self.kind != ARRAY or not all(isinstance(n, int) for n in self.shape):
+            return None
+        return tuple(int(n) for n in self.shape)
+
+    @functools.cached_property
+    def exact_type(self) -> type | None:
+        """The type a value must have to be stored as it is (no coercion, no copy).
+
+        ``None`` for kinds that are always copied (lists, maps) or may be absent (optional).
+        """
+        if self.optional:
+            return None
+        if self.kind == ARRAY:
+            return np.ndarray if self.fixed_shape is not None else None
+        if self.kind == ENUM:
+            return self.enum
+        if self.kind == STR:
+            return str if not self.choices else None
+        return {FLOAT: float, INT: int}.get(self.kind)
+
+    def accepts_as_is(self, value: Any) -> bool:
+        """Whether ``value`` already is what construction would make of it.
+
+        Exact Python types, and read-only arrays of the field's dtype and fixed shape: the
+        checks of ``_coerce`` hold for them, so the fast path of construction skips it.
+        """
+        exact = self.exact_type
+        if exact is None or type(value) is not exact:
+            return False
+        if isinstance(value, np.ndarray):
+            return (not value.flags.writeable and value.shape == self.fixed_shape
+                    and value.dtype == self.dtype)
+        return True
+
 
 def _spec(**kwargs: Any) -> Any:
     return field(metadata={"spec": FieldSpec(**kwargs)})
@@ -131,9 +168,10 @@ class Message:
 
     def __post_init__(self) -> None:
         sizes: dict[str, int] = {}
+        values = self.__dict__
         for name, spec in field_specs(type(self)):
-            value = getattr(self, name)
-            if value is None and spec.optional:
+            value = values[name]
+            if (value is None and spec.optional) or spec.accepts_as_is(value):
                 continue
             object.__setattr__(self, name, _coerce(type(self), name, spec, value, sizes))
 

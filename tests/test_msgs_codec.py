@@ -296,3 +296,40 @@ def test_schema_states_units_and_shapes() -> None:
     assert "[N]" in f0["description"] and f0["minItems"] == f0["maxItems"] == 3
     points = json_schema(ContactCloud)["properties"]["points"]
     assert points["items"]["minItems"] == 3 and "minItems" not in points
+
+
+def test_fast_path_leaves_the_unusual_to_the_general_path() -> None:
+    """Fixed-layout types decode on a fast path; what it does not take, the full checks get."""
+    obj = raw(wrench())
+    obj["stamp"] = 12  # an int for a float: accepted as float, as before
+    back = decode(pack(obj))
+    assert isinstance(back, WhiskerWrench) and type(back.stamp) is float and back.stamp == 12.0
+    for bad_shape in ([3.0], [True, 1], [True]):  # equal to [3] or [1] for ==, not ints
+        obj = raw(wrench())
+        obj["f0"]["shape"] = bad_shape
+        with pytest.raises((FieldTypeError, ArrayShapeError)):
+            decode(pack(obj))
+    obj = raw(wrench())
+    obj["f0"]["extra"] = 1
+    refuse(pack(obj), FieldTypeError, "WhiskerWrench", "f0")
+    obj = raw(wrench())
+    obj["m0"]["data"] = np.array([1e308, 1e308, 0.0]).tobytes()  # finite, the sum is not
+    assert np.array_equal(decode(pack(obj)).m0, [1e308, 1e308, 0.0])  # type: ignore[attr-defined]
+    status = ContactStatus.NO_FORCE | ContactStatus.CONTACT_BEYOND_ROD
+    point = decode(encode(ContactPoint(
+        stamp=1.0, seq=7, whisker_id="w0", frame_id="world", point=[0.0, 0.1, 0.2], s1=0.08,
+        phase=ContactPhase.TIP, force=[0.0, 0.1, 0.0], status=status)))
+    assert isinstance(point, ContactPoint) and point.status is status  # composite flags too
+    assert type(point.phase) is ContactPhase and not point.point.flags.writeable
+
+
+def test_construction_takes_exact_values_as_they_are() -> None:
+    position = np.array([1.0, 2.0, 3.0])
+    position.flags.writeable = False
+    pose = RobotPose(stamp=1.0, frame_id="w", child_frame_id="c", position=position,
+                     orientation=[0.0, 0.0, 0.0, 1.0])
+    assert pose.position is position  # read-only, right dtype and shape: not copied
+    assert not pose.orientation.flags.writeable
+    with pytest.raises(ValueError, match="shape"):
+        RobotPose(stamp=1.0, frame_id="w", child_frame_id="c", position=position[:2],
+                  orientation=[0.0, 0.0, 0.0, 1.0])

@@ -18,7 +18,9 @@ kappa0 = -m0w (eq. 22) is >= 0, which is eq. 20: psi = -atan2(m0x, m0y).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -99,7 +101,7 @@ def reconstruct(
         m0, dtype=float)
     if p0_a.shape == f0_a.shape == m0_a.shape == (3,):
         if R_WC is None:
-            return _reconstruct_one(p0_a.tolist(), f0_a.tolist(), m0_a.tolist(), _IDENTITY)
+            return _reconstruct_one(p0_a.tolist(), f0_a.tolist(), m0_a.tolist(), None)
         rotation = np.asarray(R_WC, dtype=float)
         if rotation.shape in ((3, 3), (1, 3, 3)):
             return _reconstruct_one(p0_a.tolist(), f0_a.tolist(), m0_a.tolist(),
@@ -107,14 +109,32 @@ def reconstruct(
     return _reconstruct_arrays(p0_a, f0_a, m0_a, R_WC)
 
 
-_IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+_IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
-def _reconstruct_one(
-    p0: list[float], f0: list[float], m0: list[float], R_WC: list[list[float]]
-) -> Reconstruction:
-    """:func:`reconstruct` of one sample in plain floats; the array path step by step."""
-    force_C = [-f0[0], -f0[1], -f0[2]]
+class Sample(NamedTuple):
+    """One sample of a :class:`Reconstruction` in plain floats (its fields' row, same units)."""
+
+    point: tuple[float, float, float]
+    s1: float
+    phase: int
+    psi: float
+    force: tuple[float, float, float]
+    status: int
+
+
+def reconstruct_sample(
+    p0: Sequence[float], f0: Sequence[float], m0: Sequence[float],
+    R_WC: Sequence[Sequence[float]] | None = None,
+) -> Sample:
+    """:func:`reconstruct` of one sample in plain floats: the array path step by step.
+
+    Parameters and results as in :func:`reconstruct`, for one sample: three floats each for
+    ``p0``, ``f0``, ``m0``, rows of R_WC (identity when omitted). No checks of the input
+    shapes: this is the per-sample hot path (``reconstruct`` dispatches single samples here).
+    """
+    rows = _IDENTITY if R_WC is None else R_WC
+    force_C = (-f0[0], -f0[1], -f0[2])
     m_horizontal = math.hypot(m0[0], m0[1])
     if m_horizontal > 0:
         e_u = (m0[1] / m_horizontal, -m0[0] / m_horizontal)
@@ -122,7 +142,6 @@ def _reconstruct_one(
         f_horizontal = math.hypot(force_C[0], force_C[1])
         e_u = ((force_C[0] / f_horizontal, force_C[1] / f_horizontal) if f_horizontal > 0
                else (1.0, 0.0))
-    psi = math.atan2(e_u[1], e_u[0])
     fu = force_C[0] * e_u[0] + force_C[1] * e_u[1]
     u1, v1, s1, _phi1, status = planar_contact_scalar(fu, force_C[2], m_horizontal)
     if not all(map(math.isfinite, (*p0, *m0))):
@@ -131,23 +150,26 @@ def _reconstruct_one(
         status |= _BEYOND
     # The rotation is applied in full even for the identity, as the array path does, so that
     # a non-finite force component spreads to the others in the same way.
-    force = [r[0] * force_C[0] + r[1] * force_C[1] + r[2] * force_C[2] for r in R_WC]
+    fx, fy, fz = (r[0] * force_C[0] + r[1] * force_C[1] + r[2] * force_C[2] for r in rows)
     if status & _NO_CONTACT:
         nan = math.nan
-        return Reconstruction(
-            point=np.full((1, 3), nan), s1=np.array([nan]),
-            phase=np.array([PHASE_NONE], dtype=np.int64), psi=np.array([nan]),
-            force=np.array([force]), status=np.array([status], dtype=np.int64),
-        )
+        return Sample((nan, nan, nan), nan, PHASE_NONE, nan, (fx, fy, fz), status)
     p1_C = (u1 * e_u[0], u1 * e_u[1], v1)
-    point = [p + r[0] * p1_C[0] + r[1] * p1_C[1] + r[2] * p1_C[2]
-             for p, r in zip(p0, R_WC, strict=True)]
+    px, py, pz = (p + r[0] * p1_C[0] + r[1] * p1_C[1] + r[2] * p1_C[2]
+                  for p, r in zip(p0, rows, strict=True))
     s1 = min(s1, 1.0)
+    phase = PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
+    return Sample((px, py, pz), s1, phase, math.atan2(e_u[1], e_u[0]), (fx, fy, fz), status)
+
+
+def _reconstruct_one(
+    p0: list[float], f0: list[float], m0: list[float], R_WC: list[list[float]] | None
+) -> Reconstruction:
+    one = reconstruct_sample(p0, f0, m0, R_WC)
     return Reconstruction(
-        point=np.array([point]), s1=np.array([s1]),
-        phase=np.array([PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL],
-                       dtype=np.int64),
-        psi=np.array([psi]), force=np.array([force]), status=np.array([status], dtype=np.int64),
+        point=np.array([one.point]), s1=np.array([one.s1]),
+        phase=np.array([one.phase], dtype=np.int64), psi=np.array([one.psi]),
+        force=np.array([one.force]), status=np.array([one.status], dtype=np.int64),
     )
 
 

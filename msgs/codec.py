@@ -261,7 +261,7 @@ _DEFAULTS: dict[type, dict[str, Any]] = {}
 
 # -- decode, fast path of the fixed-layout types -------------------------------------------
 #
-# WhiskerWrench, ContactPoint, ... have only scalars, strings, enums and fixed-shape arrays.
+# WhiskerWrench, ContactPoint, ... have only scalars, strings, enums and fixed 1-d arrays.
 # Their payloads are checked field by field with exact-type tests and a precomputed array
 # header; anything unusual (a missing, extra or optional field, an int for a float, a wrong
 # shape, a NaN, ...) returns None and the general path decodes it again and raises the
@@ -275,7 +275,7 @@ _FLOAT, _INT, _ENUM, _STR, _ARRAY = range(5)
 class _Layout:
     names: frozenset[str]
     # (name, code, check): enum -> value->member map, str -> choices, array -> (dtype str,
-    # shape list, (int,) per axis, byte count, dtype, shape or None for 1-d, '<f8' unpacker)
+    # shape list, byte count, dtype, struct unpacker of '<f8' data or None)
     fields: tuple[tuple[str, int, Any], ...]
 
 
@@ -303,13 +303,12 @@ def _make_layout(cls: type[Message]) -> _Layout | None:
             fields.append((name, _ENUM, {int(m): m for m in members}))
         elif spec.kind == STR:
             fields.append((name, _STR, frozenset(spec.choices)))
-        elif spec.kind == ARRAY and spec.fixed_shape is not None:
+        elif spec.kind == ARRAY and spec.fixed_shape is not None and len(spec.shape) == 1:
             assert spec.dtype is not None
-            shape = spec.fixed_shape
-            floats = struct.Struct(f"<{math.prod(shape)}d") if spec.dtype_str == "<f8" else None
-            fields.append((name, _ARRAY, (spec.dtype_str, list(shape), (int,) * len(shape),
-                                          math.prod(shape) * spec.dtype.itemsize, spec.dtype,
-                                          shape if len(shape) != 1 else None, floats)))
+            size = spec.fixed_shape[0]
+            floats = struct.Struct(f"<{size}d") if spec.dtype_str == "<f8" else None
+            fields.append((name, _ARRAY, (spec.dtype_str, [size], size * spec.dtype.itemsize,
+                                          spec.dtype, floats)))
         else:
             return None
     return _Layout(frozenset(name for name, _, _ in fields), tuple(fields))
@@ -324,20 +323,18 @@ def _decode_fixed(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> M
     for name, code, check in layout.fields:
         value = obj[name]
         if code == _ARRAY:
-            dtype_str, shape, int_types, nbytes, dtype, reshape, floats = check
+            dtype_str, shape, nbytes, dtype, floats = check
             if type(value) is not dict or len(value) != 3:
                 return None
             data, got_shape = value.get("data"), value.get("shape")
             if (type(data) is not bytes or len(data) != nbytes or value.get("dtype") != dtype_str
-                    or got_shape != shape or tuple(map(type, got_shape)) != int_types):
+                    or got_shape != shape or type(got_shape[0]) is not int):
                 return None
             if floats is not None:
                 total += sum(floats.unpack(data))
             elif dtype.kind == "f":
                 return None
-            value = np.frombuffer(data, dtype=dtype)  # read-only: bytes are immutable
-            if reshape is not None:
-                value = value.reshape(reshape)
+            value = np.frombuffer(data, dtype)  # read-only: bytes are immutable
         elif code == _FLOAT:
             if type(value) is not float:
                 return None

@@ -284,6 +284,12 @@ class Node:
         Period of ``NodeStatus`` on ``/vibrissa/status``, seconds.
     handle_signals
         Install SIGINT/SIGTERM handlers (only possible in the main thread).
+
+    Attributes
+    ----------
+    counters
+        The application's own counters (name -> count); ``NodeStatus.counters`` reports them
+        next to the runtime's received, published, rejected, lost (and pings).
     """
 
     def __init__(
@@ -313,6 +319,7 @@ class Node:
         self._subscribers: list[Subscriber] = []
         self._gates: list[_Gate] = []
         self._peers: dict[str, set[str]] = {}  # node -> seen_topics from its last status
+        self.counters: dict[str, int] = {}
         try:
             self._status_pub = Publisher(STATUS_TOPIC, NodeStatus, self.endpoints, self.context)
             self._status_sub = Subscriber({STATUS_TOPIC: NodeStatus}, self.endpoints, self.context)
@@ -450,6 +457,7 @@ class Node:
             for topic, msg_type in (sub.topics or {"*": None}).items():
                 subscribes[topic] = msg_type.TYPE_NAME if msg_type is not None else "*"
         totals["published"] = sum(p.published for p in publishers)
+        totals.update(self.counters)  # one C-level copy: safe against the node's updates
         return NodeStatus(
             stamp=time.time(), node=self.fqn, state=self._state, counters=totals,
             publishes={p.topic: p.msg_type.TYPE_NAME for p in publishers},

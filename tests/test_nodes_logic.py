@@ -11,6 +11,7 @@ import yaml
 from vibrissa.msgs import ContactPoint, EndOfStream, WhiskerWrench
 from vibrissa.nodes.mapper import Accumulator, MapperParams
 from vibrissa.nodes.reconstructor import (
+    SCALAR_BATCH,
     ReconstructorParams,
     collect_batch,
     quaternion_to_matrix,
@@ -73,6 +74,30 @@ def test_batch_equals_library_and_counts_no_contact() -> None:
         assert contact.s1 == pytest.approx(rec.s1[contact.seq], abs=1e-12)
         assert int(contact.status) == int(rec.status[contact.seq])
         assert int(contact.phase) == int(rec.phase[contact.seq])
+
+
+@pytest.mark.parametrize("quaternion", [[0.0, 0.0, 0.0, 1.0], [0.3, -0.2, 0.5, 2.0]])
+def test_small_batches_take_the_scalar_path_with_the_same_results(quaternion) -> None:
+    length, ei = 0.04, 3e-3
+    wrenches = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
+                              clamp_position=w.clamp_position * length,
+                              clamp_orientation=quaternion, f0=w.f0 * ei / length**2,
+                              m0=w.m0 * ei / length) for w in _wrenches(3 * SCALAR_BATCH)]
+    wrenches[5] = WhiskerWrench(stamp=0.0, seq=5, whisker_id="w", frame_id="world",
+                                clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 0],
+                                f0=[1.0, 0, 0], m0=[0, 1.0, 0])
+    whole = reconstruct_wrenches(wrenches, length, ei)
+    parts = [reconstruct_wrenches(wrenches[i:i + 3], length, ei)
+             for i in range(0, len(wrenches), 3)]
+    assert whole.bad_pose == sum(p.bad_pose for p in parts) == 1
+    assert whole.no_contact == sum(p.no_contact for p in parts) >= 1
+    contacts = [c for p in parts for c in p.contacts]
+    assert [c.seq for c in contacts] == [c.seq for c in whole.contacts]
+    for a, b in zip(contacts, whole.contacts, strict=True):
+        np.testing.assert_allclose(a.point, b.point, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(a.force, b.force, rtol=1e-12, atol=1e-12)
+        assert a.s1 == pytest.approx(b.s1, rel=1e-12)
+        assert (a.phase, a.status, a.stamp, a.whisker_id) == (b.phase, b.status, b.stamp, "w")
 
 
 def test_si_scaling_round_trip() -> None:

@@ -41,6 +41,7 @@ def test_heartbeat_reports_state_counters_and_topics(endpoints: Endpoints) -> No
             node("sensor", endpoints, heartbeat_s=0.1, remaps={"raw": "/sim/raw"}) as sensor:
         sensor.create_publisher("raw", EndOfStream)
         sensor.create_subscriber({"cmd": None})
+        sensor.counters.update(batches=3)
         sensor.set_state("running", "sampling")
         deadline = time.monotonic() + TIMEOUT_S
         status = None
@@ -54,6 +55,7 @@ def test_heartbeat_reports_state_counters_and_topics(endpoints: Endpoints) -> No
         assert status.publishes == {"/sim/raw": EndOfStream.TYPE_NAME}
         assert status.subscribes == {"/w0/cmd": "*"}
         assert {"received", "published", "rejected", "lost"} <= set(status.counters)
+        assert status.counters["batches"] == 3  # the application's counters ride along
         sensor.close()
         finished = [rx.msg for _ in range(20) if (rx := watcher.receive(0.2)) is not None
                     and isinstance(rx.msg, NodeStatus) and rx.msg.state == "finished"]

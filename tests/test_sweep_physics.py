@@ -102,13 +102,7 @@ def test_symmetric_trail_snaps_off_later_with_more_friction(paper_sweeps):
     assert all(np.linalg.norm(s.f0[-1]) > 1.0 for s in ends)
 
 
-# (y0, mu) = (-0.2, 0.4) is the one sweep that does not reach its detachment: near x0 = -0.79
-# the chord of eq. 7 starts to alternate between two lengths from step to step, and the sweep
-# ends at x0 = -0.96 with a finite force. Reported in the issue note; the assertion stays.
-KNOWN_UNFINISHED = {(-0.2, 0.4)}
-
-
-@pytest.mark.parametrize("key", [k for k in KEYS if k[0] != 0.0 and k not in KNOWN_UNFINISHED])
+@pytest.mark.parametrize("key", [k for k in KEYS if k[0] != 0.0])
 def test_off_centre_trails_detach_smoothly(paper_sweeps, key):
     sweep = paper_sweeps[key]
     assert sweep.end == "detachment"

@@ -417,7 +417,8 @@ class _Track:
     phase_changes: list[tuple[float, str, str]] = field(default_factory=list)
     end: str | None = None
     x0_end: float = float("nan")
-    smooth: bool = True  # the last step was a plain slide (its predictor may extrapolate)
+    smooth: bool = True  # the last two steps were alike plain slides (the predictor may extrapolate)
+    chord: float = 0.0  # length of the last step's contact displacement, units of L
     pending: tuple[FloatArray, FloatArray, FloatArray] = ()  # type: ignore[assignment]  # p1, normal, force of the last accepted state
 
 
@@ -508,7 +509,14 @@ def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int
 
 
 def _refine(surface: Surface, track: _Track, target: float, step: float) -> None:
-    """Reach ``target`` in ever smaller sub-steps; if impossible the sweep has ended."""
+    """Reach ``target`` in ever smaller sub-steps; if impossible the sweep has ended.
+
+    A smooth detachment needs no refinement: once the reactions have faded and the straight
+    rod at ``target`` clears the object, the unloaded rod is the equilibrium there.
+    """
+    if _ending(track) == "detachment" and _straight_rod_clears(surface, track.trail.y0, target):
+        track.end, track.x0_end = "detachment", track.x0
+        return
     for level in range(1, _REFINEMENTS + 1):
         sub = step / 2**level
         while track.x0 - sub >= target - 1e-12 * step:
@@ -520,6 +528,12 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
             return
     track.end = _ending(track)
     track.x0_end = track.rows[-1][0] if track.rows else track.x0
+
+
+def _straight_rod_clears(surface: Surface, y0: float, x0: float) -> bool:
+    """Whether the undeformed rod, clamped at (x0, y0, 0) along e_z, lies outside the object."""
+    t_in, t_out = surface.line_interval([x0, y0, 0.0], _E_Z)
+    return bool(~(t_in[0] < 1.0) or ~(t_out[0] > 0.0))
 
 
 def _ending(track: _Track) -> str:
@@ -578,8 +592,11 @@ def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: 
         ok = converged & _admissible(state, batch, previous, jump)
         for k in np.flatnonzero(ok):
             i = int(rows[k])
+            chord = float(np.linalg.norm(state.p1[k] - tracks[i].p1))
             _accept(tracks[i], float(targets[i]), q[k], state, int(k), int(modes[i]))
-            tracks[i].smooth = kind == "slide"
+            # Extrapolate only along an even stretch: in stick-slip the slides alternate in length.
+            tracks[i].smooth = kind == "slide" and 0.5 * tracks[i].chord <= chord <= 2.0 * tracks[i].chord
+            tracks[i].chord = chord
             success[i] = True
         if kind == "stick":
             for k in np.flatnonzero(converged & ~ok):

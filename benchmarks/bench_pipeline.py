@@ -249,6 +249,10 @@ def measure(mode: str, rate: float, duration_s: float, tmp: Path) -> Run:
         for proc in reversed(helpers):
             if proc.stdin is not None:
                 proc.stdin.close()
+                try:  # the proxy ends by itself when its stdin closes: no SIGINT mid-stop
+                    proc.wait(2)
+                except subprocess.TimeoutExpired:
+                    pass
             if proc.poll() is None:
                 proc.send_signal(2)
             try:

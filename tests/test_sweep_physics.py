@@ -73,14 +73,19 @@ def test_symmetric_trail_stays_in_its_plane(paper_sweeps, mu):
     assert np.all(sweep.m0[:, 2] == 0.0)
 
 
+# The object is its own mirror image across y = 0, and so is Coulomb's law: the sweeps at +y0 and
+# -y0 mirror each other for every mu. In the stick-slip stretch of (|y0|, mu) = (0.2, 0.4) each
+# jump amplifies round-off, so the mirror holds there to a looser (measured 1.6e-6) tolerance.
+@pytest.mark.parametrize("mu", PAPER_MU)
 @pytest.mark.parametrize("y0", [0.2, 0.4])
-def test_frictionless_sweeps_at_plus_and_minus_y0_are_mirror_images(paper_sweeps, y0):
-    plus, minus = paper_sweeps[(y0, 0.0)], paper_sweeps[(-y0, 0.0)]
+def test_sweeps_at_plus_and_minus_y0_are_mirror_images(paper_sweeps, y0, mu):
+    plus, minus = paper_sweeps[(y0, mu)], paper_sweeps[(-y0, mu)]
     assert plus.n_steps == minus.n_steps
+    atol = 1e-4 if (y0, mu) == (0.2, 0.4) else 1e-9
     mirror = np.array([1.0, -1.0, 1.0])
-    np.testing.assert_allclose(minus.f0, plus.f0 * mirror, atol=1e-9)
-    np.testing.assert_allclose(minus.m0, -plus.m0 * mirror, atol=1e-9)  # a moment is a pseudovector
-    np.testing.assert_allclose(minus.contact, plus.contact * mirror, atol=1e-9)
+    np.testing.assert_allclose(minus.f0, plus.f0 * mirror, atol=atol)
+    np.testing.assert_allclose(minus.m0, -plus.m0 * mirror, atol=atol)  # a moment is a pseudovector
+    np.testing.assert_allclose(minus.contact, plus.contact * mirror, atol=atol)
 
 
 @pytest.mark.parametrize("key", KEYS)

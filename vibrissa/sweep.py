@@ -26,6 +26,15 @@ the previous contact point (three equations) with s1 = 1, and the state is accep
 resulting contact force lies inside the friction cone, |F_t| <= mu F_n. Sliding is tried first
 at every step, as in the paper.
 
+Stick-slip (not in the paper): on the paper's object with mu = 0.4 and |y0| = 0.2 the tip's
+sliding branch folds again and again from x0 ~ -0.79 on: the slide speeds up (the friction
+direction turns towards the edge of the stick region) until no nearby sliding state is left,
+and the tip jumps ~2.2e-3 L along the surface, friction opposing the jump along its chord
+(eq. 7), to where it holds again. The cycle repeats every ~1.8e-3 L of clamp travel at steps of
+1e-3, 5e-4 and 2.5e-4 alike (a property of the rod, not of the step); at a step of 1e-3 it shows
+as slides that alternate between short creeps and long jumps. The predictor follows such a
+stretch by extrapolating every other state.
+
 Symmetric trails: when the object is its own mirror image across the vertical plane of the trail
 (the paper's y0 = 0), the symmetric branch is kept exactly by fixing psi = 0 and dropping the
 out-of-plane equation; otherwise round-off grows out of the plane from step to step.
@@ -409,7 +418,6 @@ class _Track:
     locked: bool
     x0: float
     q: FloatArray
-    q_before: FloatArray | None
     mode: int
     p1: FloatArray
     anchor: FloatArray
@@ -420,6 +428,7 @@ class _Track:
     smooth: bool = True  # the last two steps were alike plain slides (the predictor may extrapolate)
     chord: float = 0.0  # length of the last step's contact displacement, units of L
     pending: tuple[FloatArray, FloatArray, FloatArray] = ()  # type: ignore[assignment]  # p1, normal, force of the last accepted state
+    history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -477,7 +486,7 @@ def _start(surface: Surface, trail: Trail, step: float) -> _Track:
     locked = surface.is_mirror_symmetric([0.0, trail.y0, 0.0], [0.0, 1.0, 0.0])
     touch = first_contact(surface, trail.y0)
     if touch is None:
-        track = _Track(trail, locked, np.nan, np.zeros(4), None, _MODE_TIP, np.zeros(3), np.zeros(3))
+        track = _Track(trail, locked, np.nan, np.zeros(4), _MODE_TIP, np.zeros(3), np.zeros(3))
         track.end = "no-contact"
         return track
     x_start, p_touch = touch
@@ -492,7 +501,7 @@ def _start(surface: Surface, trail: Trail, step: float) -> _Track:
     fu, fv = magnitude * n_u, magnitude * normal[2]
     q = np.array([psi, fu, fv, -s_touch * fu])
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
-    return _Track(trail, locked, x_start, q, None, mode, p_touch, p_touch.copy())
+    return _Track(trail, locked, x_start, q, mode, p_touch, p_touch.copy())
 
 
 def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int) -> None:
@@ -520,7 +529,9 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
     for level in range(1, _REFINEMENTS + 1):
         sub = step / 2**level
         while track.x0 - sub >= target - 1e-12 * step:
-            if not _attempt(surface, [track], np.array([track.x0 - sub]), sub)[0]:
+            # Deeper sub-steps start close to any branch that goes on: plain Newton suffices, and
+            # a failure there is the fold itself.
+            if not _attempt(surface, [track], np.array([track.x0 - sub]), sub, fallbacks=level == 1)[0]:
                 break
         if abs(track.x0 - target) <= 1e-12 * step:
             track.x0 = target
@@ -549,13 +560,19 @@ def _ending(track: _Track) -> str:
     return "snap-off"
 
 
-def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: float) -> NDArray[np.bool_]:
-    """Try to move each track to its target x0: slide in its phase, the other phase, then stick."""
+def _attempt(
+    surface: Surface, tracks: list[_Track], targets: FloatArray, step: float, fallbacks: bool = True
+) -> NDArray[np.bool_]:
+    """Try to move each track to its target x0: slide in its phase, the other phase, then stick.
+
+    ``fallbacks`` adds the slower searches for far or barely slipping states.
+    """
     n = len(tracks)
     success = np.zeros(n, dtype=bool)
     todo = np.arange(n)
     jump = max(20.0 * step, 0.01)
     predictors = np.array([_predict(t) for t in tracks])
+    alternates = np.array([_predict_alternating(t) for t in tracks])
     sliding_mode = np.array([t.mode if t.mode != _MODE_STICK else _MODE_TIP for t in tracks])
     other_mode = np.where(sliding_mode == _MODE_TIP, _MODE_TANGENTIAL, _MODE_TIP)
     stick_mode = np.full(n, _MODE_STICK)
@@ -566,6 +583,8 @@ def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: 
         rows = todo[~success[todo]]
         if kind != "slide":
             rows = rows[frictional[rows]]
+        if kind == "alternating":
+            rows = rows[np.isfinite(alternates[rows, 0])]
         if kind == "anchored":
             rows = np.array([i for i in rows if i in stuck], dtype=np.int64)
         if len(rows) == 0:
@@ -586,6 +605,8 @@ def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: 
             q, state, converged = _small_slip(surface, q_stuck, stuck_state, batch)
         elif kind == "continuation":
             q, state, converged = _newton_friction_continuation(surface, predictors[rows], batch)
+        elif kind == "alternating":
+            q, state, converged = _newton(surface, alternates[rows], batch)
         else:
             q, state, converged = _newton(surface, predictors[rows], batch)
         previous = np.array([tracks[i].p1 for i in rows])
@@ -603,9 +624,13 @@ def _attempt(surface: Surface, tracks: list[_Track], targets: FloatArray, step: 
                 stuck[int(rows[k])] = (q[k], _take_state(state, int(k)), int(k))
 
     solve_stage(sliding_mode, "slide")
+    # In stick-slip the slides alternate between creeps and jumps: predict from two steps back.
+    solve_stage(sliding_mode, "alternating")
     solve_stage(other_mode, "slide")
     # Where no sliding state is near, the contact may stick (inside the friction cone) ...
     solve_stage(stick_mode, "stick")
+    if not fallbacks:
+        return success
     # ... or slip only slightly from where it was: a tip slide in polar coordinates around the
     # held point, started from the stuck state (well conditioned for a slip of any length).
     solve_stage(np.full(n, _MODE_TIP), "anchored")
@@ -638,13 +663,21 @@ def _newton_friction_continuation(
 
 def _predict(track: _Track) -> FloatArray:
     """Linear extrapolation along a smooth stretch; the last state after a hard step."""
-    if track.q_before is None or not track.smooth:
+    if len(track.history) < 2 or not track.smooth:
         return track.q.copy()
-    return 2.0 * track.q - track.q_before
+    return 2.0 * track.history[-1] - track.history[-2]
+
+
+def _predict_alternating(track: _Track) -> FloatArray:
+    """Extrapolation of every other state (period-2 stick-slip), NaN without enough history."""
+    if len(track.history) < 4 or track.smooth:
+        return np.full(4, np.nan)
+    return 2.0 * track.history[-2] - track.history[-4]
 
 
 def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode: int) -> None:
-    track.q_before, track.q = track.q, q.copy()
+    track.q = q.copy()
+    track.history = [*track.history[-3:], track.q]
     track.x0 = x0
     phase_before = PHASE_NAMES[_phase_of(track.mode)]
     track.mode = mode

@@ -27,9 +27,9 @@ resulting contact force lies inside the friction cone, |F_t| <= mu F_n. Sliding 
 at every step, as in the paper.
 
 Stick-slip (not in the paper): on the paper's object with mu = 0.4 and |y0| = 0.2 the tip's
-sliding branch folds again and again from x0 ~ -0.79 on: the slide speeds up (the friction
-direction turns towards the edge of the stick region) until no nearby sliding state is left,
-and the tip jumps ~2.2e-3 L along the surface, friction opposing the jump along its chord
+sliding branch folds again and again from x0 ~ -0.79 on: the tip creeps ever faster (measured
+0.36 -> 0.5 L per L of clamp travel at a step of 2.5e-4) until no nearby sliding state is left,
+and it jumps ~2.2e-3 L along the surface, friction opposing the jump along its chord
 (eq. 7), to where it holds again. The cycle repeats every ~1.8e-3 L of clamp travel at steps of
 1e-3, 5e-4 and 2.5e-4 alike (a property of the rod, not of the step); at a step of 1e-3 it shows
 as slides that alternate between short creeps and long jumps. The predictor follows such a

@@ -139,3 +139,39 @@ def test_other_objects_obey_statics_contact_and_round_trip(spec):
         assert min(surface.signed_distance(line).min() for line in lines) > -1e-9
         result = reconstruct(sweep.p0, sweep.f0, sweep.m0)
         assert np.max(np.linalg.norm(result.point - sweep.contact, axis=1)) < 1e-7
+
+
+def _fold_fit(sweep, last: int = 6) -> tuple[float, float]:
+    """Fit the square-root law of a saddle-node fold to the last steps of a sweep.
+
+    Near a fold at x0*, the wrench changes like |d(f0, m0)/dx0| ~ |x0 - x0*|^(-1/2), so
+    1 / rate^2 is linear in x0 and vanishes at x0*. Returns (x0*, R^2 of the linear fit).
+    """
+    wrench = np.column_stack([sweep.f0, sweep.m0]) / np.max(np.abs(sweep.f0[-1]))
+    rate = np.linalg.norm(np.diff(wrench, axis=0), axis=1) / np.abs(np.diff(sweep.x0))
+    x0, y = sweep.x0[1:][-last:], 1.0 / rate[-last:] ** 2
+    slope, intercept = np.polyfit(x0, y, 1)
+    r2 = 1.0 - np.sum((slope * x0 + intercept - y) ** 2) / np.sum((y - y.mean()) ** 2)
+    return -intercept / slope, r2
+
+
+def _assert_snap_off_is_a_fold(sweep) -> None:
+    x0_fold, r2 = _fold_fit(sweep)
+    assert r2 > 0.98
+    # the fold lies just beyond the last equilibrium, within the few steps refinement resolves
+    assert sweep.x0_end - 3 * sweep.step <= x0_fold <= sweep.x0_end
+
+
+@pytest.mark.parametrize("mu", PAPER_MU)
+def test_paper_snap_off_is_a_fold_of_the_equilibrium_branch(paper_sweeps, mu):
+    _assert_snap_off_is_a_fold(paper_sweeps[(0.0, mu)])
+
+
+def test_mid_sweep_snap_off_on_a_posed_ellipsoid_is_a_fold():
+    # A tilted ellipsoid where friction ends the sweep early: mu = 0 and 0.2 detach smoothly at
+    # x0 = -0.18, mu = 0.4 snaps off at x0 = 0.19 from the largest force of the sweep.
+    surface = parse_surface("ellipsoid:rx=0.4,ry=0.3,rz=0.2,cx=0.1,cy=0.05,cz=0.9,yaw=0.5,roll=0.2")
+    frictionless, sticky = simulate_sweeps(surface, [Trail(0.2, 0.0), Trail(0.2, 0.4)], step=0.001)
+    assert frictionless.end == "detachment"
+    assert sticky.end == "snap-off" and sticky.x0_end > frictionless.x0_end + 0.3
+    _assert_snap_off_is_a_fold(sticky)

@@ -67,6 +67,7 @@ _NEWTON_TOL = 1e-12
 _DIRECTION_TOL = 1e-8
 _NEWTON_MAX_ITER = 15
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
+_DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 _REFINEMENTS = 6  # a failed step is retried with up to 2**6 sub-steps before it counts as snap-off
 
 
@@ -550,12 +551,15 @@ def _straight_rod_clears(surface: Surface, y0: float, x0: float) -> bool:
 def _ending(track: _Track) -> str:
     """Detachment when the reactions had gone to zero continuously, snap-off at finite force.
 
-    Near a smooth detachment the contact force falls linearly to zero, so the last equilibrium
-    carries a force of the order (slope * step), a tiny fraction of the sweep's peak; at a
-    snap-off (a fold of the equilibrium branch) the force is finite and often rising.
+    Near a smooth detachment the contact force falls linearly to zero: the last equilibrium
+    carries a force of the order (slope * step), a small fraction of the sweep's peak, and the
+    last decrease extrapolates to zero within about a step. At a snap-off (a fold of the
+    equilibrium branch) the force is finite and often rising.
     """
     forces = np.array([np.linalg.norm(row[6]) for row in track.rows])
     if len(forces) == 0 or forces[-1] <= _DETACHMENT_FRACTION * forces.max():
+        return "detachment"
+    if len(forces) >= 2 and forces[-1] <= _DETACHMENT_STEPS * (forces[-2] - forces[-1]):
         return "detachment"
     return "snap-off"
 

@@ -13,7 +13,8 @@ total, pre-encoded, and records the send time of each; the sink records the rece
 each by sequence number (the transport header's ``seq``, so the sink decodes nothing). Loss
 is sent - received (every benchmark wrench has a contact). A rate is *sustained* when nothing
 is lost and the sink is done within ``max(50 ms, 5 %)`` of the send duration after the last
-send (no backlog grows).
+send (no backlog grows). ``first p50`` is the median latency of the first sample of each tick
+(whisker 0), which waits for no other sample of its tick.
 
 Run: ``python benchmarks/bench_pipeline.py [--duration 2] [--rates 1000,...]``. Not a test.
 """
@@ -157,6 +158,7 @@ class Run:
     sent: int
     received: int
     latency_s: np.ndarray
+    first_latency_s: np.ndarray
     send_s: float
     backlog_s: float
 
@@ -168,8 +170,10 @@ class Run:
     def sustained(self) -> bool:
         return self.lost == 0 and self.backlog_s <= max(0.05, 0.05 * self.send_s)
 
-    def pct(self, q: float) -> float:
-        return float(np.percentile(self.latency_s, q)) * 1e6 if len(self.latency_s) else np.nan
+    def pct(self, q: float, first: bool = False) -> float:
+        """Percentile ``q`` of the latency, us (``first``: of the first sample of each tick)."""
+        latency = self.first_latency_s if first else self.latency_s
+        return float(np.percentile(latency, q)) * 1e6 if len(latency) else np.nan
 
 
 def _python(*args: str, **kwargs: Any) -> subprocess.Popen[str]:
@@ -260,9 +264,12 @@ def measure(mode: str, rate: float, duration_s: float, tmp: Path) -> Run:
             except subprocess.TimeoutExpired:
                 proc.kill()
     ok = np.isfinite(t_recv)
+    latency = t_recv - t_send
+    first = latency[::WHISKERS]
     send_s = float(t_send[-1] - t_send[0]) if n > 1 else 0.0
     backlog = float(np.nanmax(t_recv) - t_send[-1]) if ok.any() else np.inf
-    return Run(mode, rate, n, int(ok.sum()), t_recv[ok] - t_send[ok], send_s, backlog)
+    return Run(mode, rate, n, int(ok.sum()), latency[ok], first[np.isfinite(first)], send_s,
+               backlog)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -291,10 +298,12 @@ def main(argv: list[str] | None = None) -> int:
                 run = measure(mode, rate, args.duration, Path(tmp))
                 runs.append(run)
                 print(f"  {mode:8s} {rate:8.0f}/s  p50 {run.pct(50):9.0f} us  p99 "
-                      f"{run.pct(99):9.0f} us  lost {run.lost}", flush=True)
+                      f"{run.pct(99):9.0f} us  first p50 {run.pct(50, first=True):9.0f} us  "
+                      f"lost {run.lost}", flush=True)
     print()
     header = (f"{'rate/s':>8} {'mode':>9} {'sent':>7} {'lost':>6} {'p50 us':>9} {'p99 us':>9} "
-              f"{'max us':>9} {'backlog ms':>10} {'sustained':>9} {'p50 x':>7} {'p99 x':>7}")
+              f"{'max us':>9} {'first p50':>9} {'backlog ms':>10} {'sustained':>9} {'p50 x':>7} "
+              f"{'p99 x':>7}")
     print(header)
     print("-" * len(header))
     for rate in rates:
@@ -303,7 +312,8 @@ def main(argv: list[str] | None = None) -> int:
             ratio50 = run.pct(50) / bare.pct(50)
             ratio99 = run.pct(99) / bare.pct(99)
             print(f"{rate:8.0f} {run.mode:>9} {run.sent:7d} {run.lost:6d} {run.pct(50):9.0f} "
-                  f"{run.pct(99):9.0f} {run.pct(100):9.0f} {run.backlog_s * 1e3:10.1f} "
+                  f"{run.pct(99):9.0f} {run.pct(100):9.0f} {run.pct(50, first=True):9.0f} "
+                  f"{run.backlog_s * 1e3:10.1f} "
                   f"{'yes' if run.sustained else 'no':>9} {ratio50:7.1f} {ratio99:7.1f}")
     for mode in ("vibrissa", "bare"):
         ok = [r.rate for r in runs if r.mode == mode and r.sustained]

@@ -73,6 +73,9 @@ class ReconstructorParams:
     wait_for
         Node names that must be subscribed to ``output_topic`` before points go out
         (buffered until then, never dropped).
+    drain_limit
+        Most wrenches taken from the queue before their points are published; a batch that
+        reaches it means a backlog, and the next one drains up to ``max_batch``.
     max_batch
         Most wrenches reconstructed in one vectorised call when the node falls behind.
     receive_hwm
@@ -89,6 +92,7 @@ class ReconstructorParams:
     input_topic: str = "wrench"
     output_topic: str = "contact"
     wait_for: tuple[str, ...] = ()
+    drain_limit: int = 15
     max_batch: int = 4096
     receive_hwm: int = 200_000
     exit_on_eos: bool = False
@@ -99,8 +103,9 @@ class ReconstructorParams:
         if not (self.rod_length_m > 0 and self.rod_ei_nm2 > 0):
             raise ValueError("rod_length_m and rod_ei_nm2 must be > 0, got "
                              f"{self.rod_length_m}, {self.rod_ei_nm2}")
-        if self.max_batch < 1:
-            raise ValueError(f"max_batch must be >= 1, got {self.max_batch}")
+        if self.drain_limit < 1 or self.max_batch < 1:
+            raise ValueError("drain_limit and max_batch must be >= 1, got "
+                             f"{self.drain_limit}, {self.max_batch}")
 
 
 @dataclass
@@ -252,6 +257,29 @@ def collect_batch(
     return batch, None
 
 
+class BatchCollector:
+    """Batches from a queue: per burst while the node keeps up, large under a backlog.
+
+    A batch holds at most ``drain_limit`` wrenches, so the first wrench of a burst (a tick of
+    many whiskers) goes out after at most that many decodes, not after the whole burst. A
+    batch that reaches its limit means a backlog: the next one drains up to ``max_batch``
+    (one vectorised call), and the limit drops back once a batch ends below it.
+    """
+
+    def __init__(self, receive: Callable[[float], Received | None], drain_limit: int,
+                 max_batch: int) -> None:
+        self._receive = receive
+        self.drain_limit = drain_limit
+        self.max_batch = max_batch
+        self.limit = drain_limit
+
+    def collect(self, timeout_s: float) -> tuple[list[WhiskerWrench], EndOfStream | None]:
+        """The next batch (see :func:`collect_batch`) and the limit for the one after."""
+        batch, eos = collect_batch(self._receive, timeout_s, self.limit)
+        self.limit = self.max_batch if len(batch) >= self.limit else self.drain_limit
+        return batch, eos
+
+
 def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     counters = node.counters
@@ -260,9 +288,10 @@ def run(node: Node, params: ReconstructorParams) -> None:
                                         hwm=params.receive_hwm)
     publisher = node.create_publisher(params.output_topic, ContactPoint,
                                       wait_for=params.wait_for)
+    batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch)
     node.set_state("running")
     while not node.stop_requested:
-        batch, eos = collect_batch(subscriber.receive, 0.1, params.max_batch)
+        batch, eos = batches.collect(0.1)
         if batch:
             result = reconstruct_wrenches(batch, params.rod_length_m, params.rod_ei_nm2)
             for point in result.contacts:

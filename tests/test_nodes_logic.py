@@ -12,6 +12,7 @@ from vibrissa.msgs import ContactPoint, EndOfStream, WhiskerWrench
 from vibrissa.nodes.mapper import Accumulator, MapperParams
 from vibrissa.nodes.reconstructor import (
     SCALAR_BATCH,
+    BatchCollector,
     ReconstructorParams,
     collect_batch,
     quaternion_to_matrix,
@@ -169,6 +170,27 @@ def test_collect_batch_drains_up_to_max_and_stops_at_end_of_stream() -> None:
     batch, eos = collect_batch(receive, 0.1, max_batch=100)
     assert len(batch) == 2 and eos is None
     assert collect_batch(receive, 0.1, max_batch=3) == ([], None)
+
+
+def test_batches_stay_small_until_a_backlog_then_drain_it_in_one() -> None:
+    queue: list[Any] = []
+
+    def receive(timeout_s: float) -> Received | None:
+        return _rx(queue.pop(0)) if queue else None
+
+    batches = BatchCollector(receive, drain_limit=4, max_batch=100)
+    queue += _wrenches(3)
+    assert len(batches.collect(0.1)[0]) == 3  # below the limit: the queue was empty
+    queue += _wrenches(30)
+    sizes = [len(batches.collect(0.1)[0]) for _ in range(3)]
+    assert sizes == [4, 26, 0]  # limit hit: a backlog, drained in one batch
+    queue += _wrenches(30)
+    assert len(batches.collect(0.1)[0]) == 4  # back to the limit after the backlog
+    batches.collect(0.1)
+    queue += [*_wrenches(2), EndOfStream(stamp=0.0, source="/s", count=2), *_wrenches(9)]
+    batch, eos = batches.collect(0.1)
+    assert len(batch) == 2 and eos is not None
+    assert len(batches.collect(0.1)[0]) == 4
 
 
 def _paraboloid_lines(mu: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

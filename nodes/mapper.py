@@ -52,6 +52,7 @@ from vibrissa.nodes.surface_fit import (
 from vibrissa.wire.topics import resolve_topic
 
 from vibrissa.surfaces import Surface, parse_surface
+from vibrissa.units import RodScale
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +75,7 @@ class MapperParams:
     true_surface
         Surface spec of the object, units of L, in the points' frame; empty: no error report.
     rod_length_m
-        L, m (scales ``true_surface``).
+        L, m (scales ``true_surface``); the mapper converts lengths only, so it needs no EI.
     depth, trim_distance_m, trim_factor
         Poisson octree depth; mesh trimming distance, m (0 = ``trim_factor`` x the spacing
         between contact lines); see ``vibrissa.nodes.surface_fit.FitParams``.
@@ -101,6 +102,15 @@ class MapperParams:
     cloud_topic: str = "contact_cloud"
     mesh_topic: str = "surface_mesh"
     wait_for: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.rod_length_m > 0:
+            raise ValueError(f"rod_length_m must be > 0, got {self.rod_length_m}")
+
+    @property
+    def rod(self) -> RodScale:
+        """The rod's SI scale; only its length L is used."""
+        return RodScale(self.rod_length_m)
 
 
 @dataclass
@@ -172,12 +182,12 @@ class FrameResult:
     files: dict[str, str] = field(default_factory=dict)
 
 
-def surface_errors(surface: Surface, rod_length_m: float, points: FloatArray
+def surface_errors(surface: Surface, rod: RodScale, points: FloatArray
                    ) -> tuple[float | None, float | None]:
     """Max and mean |signed distance| (m) of ``points`` (m) to ``surface`` (units of L)."""
     if len(points) == 0:
         return None, None
-    distance = np.abs(surface.signed_distance(points / rod_length_m)) * rod_length_m
+    distance = np.abs(surface.signed_distance(points / rod.length_m)) * rod.length_m
     return float(distance.max()), float(distance.mean())
 
 
@@ -195,14 +205,14 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams,
         fit.line_spacing if np.isfinite(fit.line_spacing) else None)
     if surface is not None:
         result.cloud_to_surface_max, result.cloud_to_surface_mean = surface_errors(
-            surface, params.rod_length_m, points)
+            surface, params.rod, points)
         result.mesh_to_surface_max, result.mesh_to_surface_mean = surface_errors(
-            surface, params.rod_length_m, fit.vertices)
+            surface, params.rod, fit.vertices)
     return result, fit, points, normals
 
 
 def plot_map(path: Path, points: FloatArray, fit: SurfaceFit, surface: Surface | None,
-             rod_length_m: float, title: str) -> None:
+             rod: RodScale, title: str) -> None:
     """PNG of the cloud (dots) and the mesh (surface) over the true surface (wireframe)."""
     import matplotlib
 
@@ -221,7 +231,7 @@ def plot_map(path: Path, points: FloatArray, fit: SurfaceFit, surface: Surface |
         gu, gv = np.meshgrid(np.linspace(lo[0] - pad[0], hi[0] + pad[0], 25),
                              np.linspace(lo[1] - pad[1], hi[1] + pad[1], 25))
         grid = center + gu.reshape(-1, 1) * axes[0] + gv.reshape(-1, 1) * axes[1]
-        on = surface.closest_point(grid / rod_length_m) * rod_length_m
+        on = surface.closest_point(grid / rod.length_m) * rod.length_m
         xs, ys, zs = (on[:, k].reshape(gu.shape) for k in range(3))
         ax.plot_wireframe(xs, ys, zs, color="0.6", linewidth=0.5, label="true surface")
     if len(fit.triangles):
@@ -263,7 +273,7 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
         write_ply(str(files["mesh"]), fit.vertices, fit.triangles)
         if params.plot:
             files["png"] = out_dir / f"map{sfx}.png"
-            plot_map(files["png"], points, fit, surface, params.rod_length_m,
+            plot_map(files["png"], points, fit, surface, params.rod,
                      f"{frame_id}: {len(points)} contacts, {fit.method}")
         result.files = {k: str(v) for k, v in files.items()}
         results.append(result)

@@ -21,9 +21,9 @@ contact), ``bad_pose`` (clamp quaternion of zero or non-finite length), ``batche
 version, field type, truncated bytes, NaN) is rejected and counted by the transport
 (``rejected``) and the node carries on.
 
-Units: the core works in the paper's units; the wrench is divided by L, EI/L^2 and EI/L on
-the way in and the contact point, arc length and force multiplied back on the way out
-(L = ``rod_length_m``, EI = ``rod_ei_nm2``).
+Units: the core works in the paper's units; ``vibrissa.units.RodScale`` (L = ``rod_length_m``,
+EI = ``rod_ei_nm2``) converts the wrench on the way in and the contact point, arc length and
+force on the way out.
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ from vibrissa.wire.transport import Received
 
 from vibrissa.reconstruct import reconstruct, reconstruct_sample
 from vibrissa.status import NO_CONTACT
+from vibrissa.units import RodScale
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +60,7 @@ FloatArray = npt.NDArray[np.float64]
 SCALAR_BATCH = 16
 
 _IDENTITY_QUATERNION = [0.0, 0.0, 0.0, 1.0]
+_UNIT_ROD = RodScale()
 _PHASES = {int(p): p for p in ContactPhase}
 
 
@@ -107,6 +109,11 @@ class ReconstructorParams:
             raise ValueError("drain_limit and max_batch must be >= 1, got "
                              f"{self.drain_limit}, {self.max_batch}")
 
+    @property
+    def rod(self) -> RodScale:
+        """The rod's SI scale (L, EI)."""
+        return RodScale(self.rod_length_m, self.rod_ei_nm2)
+
 
 @dataclass
 class BatchResult:
@@ -143,9 +150,8 @@ def quaternion_to_matrix(q_xyzw: FloatArray) -> FloatArray:
     ], axis=1)
 
 
-def reconstruct_wrenches(
-    wrenches: Sequence[WhiskerWrench], rod_length_m: float = 1.0, rod_ei_nm2: float = 1.0
-) -> BatchResult:
+def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNIT_ROD
+                         ) -> BatchResult:
     """Reconstruct a batch of wrenches: one vectorised ``vibrissa.reconstruct`` call, or below
     ``SCALAR_BATCH`` wrenches the scalar single-sample path for each (same results).
 
@@ -153,8 +159,8 @@ def reconstruct_wrenches(
     ----------
     wrenches
         SI samples; each may have its own clamp pose X_WC.
-    rod_length_m, rod_ei_nm2
-        L (m) and EI (N m^2) of the rod.
+    rod
+        L and EI of the rod.
 
     Returns
     -------
@@ -163,11 +169,11 @@ def reconstruct_wrenches(
         or AXIAL_LOAD; the others are only counted.
     """
     if len(wrenches) < SCALAR_BATCH:
-        return _reconstruct_each(wrenches, rod_length_m, rod_ei_nm2)
+        return _reconstruct_each(wrenches, rod)
     result = BatchResult()
-    p_WC = np.stack([w.clamp_position for w in wrenches]) / rod_length_m
-    f0 = np.stack([w.f0 for w in wrenches]) * (rod_length_m**2 / rod_ei_nm2)
-    m0 = np.stack([w.m0 for w in wrenches]) * (rod_length_m / rod_ei_nm2)
+    p_WC = np.stack([w.clamp_position for w in wrenches]) / rod.length_m
+    f0, m0 = rod.wrench_from_si(np.stack([w.f0 for w in wrenches]),
+                                np.stack([w.m0 for w in wrenches]))
     quats = np.stack([w.clamp_orientation for w in wrenches])
     norms = np.linalg.norm(quats, axis=1)
     good_pose = np.isfinite(norms) & (norms > 0)
@@ -178,9 +184,9 @@ def reconstruct_wrenches(
     keep = rec.valid & good_pose
     result.bad_pose = int(np.count_nonzero(~good_pose))
     result.no_contact = int(np.count_nonzero(~rec.valid & good_pose))
-    point = rec.point * rod_length_m
-    s1 = rec.s1 * rod_length_m
-    force = rec.force * (rod_ei_nm2 / rod_length_m**2)
+    point = rec.point * rod.length_m
+    s1 = rec.s1 * rod.length_m
+    force = rec.force * rod.force_n
     point.flags.writeable = force.flags.writeable = False  # rows go into messages uncopied
     for i in np.flatnonzero(keep).tolist():
         w = wrenches[i]
@@ -192,13 +198,10 @@ def reconstruct_wrenches(
     return result
 
 
-def _reconstruct_each(
-    wrenches: Sequence[WhiskerWrench], rod_length_m: float, rod_ei_nm2: float
-) -> BatchResult:
+def _reconstruct_each(wrenches: Sequence[WhiskerWrench], rod: RodScale) -> BatchResult:
     """:func:`reconstruct_wrenches` one wrench at a time in plain floats (same results)."""
     result = BatchResult()
-    to_force, to_moment = rod_length_m**2 / rod_ei_nm2, rod_length_m / rod_ei_nm2
-    from_force = rod_ei_nm2 / rod_length_m**2
+    length, force_n, moment_nm = rod.length_m, rod.force_n, rod.moment_nm
     for w in wrenches:
         q = w.clamp_orientation.tolist()
         norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
@@ -206,16 +209,16 @@ def _reconstruct_each(
             result.bad_pose += 1
             continue
         rows = None if q == _IDENTITY_QUATERNION else quaternion_rows(q)
-        one = reconstruct_sample([p / rod_length_m for p in w.clamp_position.tolist()],
-                                 [f * to_force for f in w.f0.tolist()],
-                                 [m * to_moment for m in w.m0.tolist()], rows)
+        one = reconstruct_sample([p / length for p in w.clamp_position.tolist()],
+                                 [f / force_n for f in w.f0.tolist()],
+                                 [m / moment_nm for m in w.m0.tolist()], rows)
         if one.status & _NO_CONTACT:
             result.no_contact += 1
             continue
         result.contacts.append(ContactPoint(
             stamp=w.stamp, seq=w.seq, whisker_id=w.whisker_id, frame_id=w.frame_id,
-            point=[p * rod_length_m for p in one.point], s1=one.s1 * rod_length_m,
-            phase=_PHASES[one.phase], force=[f * from_force for f in one.force],
+            point=[p * length for p in one.point], s1=one.s1 * length,
+            phase=_PHASES[one.phase], force=[f * force_n for f in one.force],
             status=ContactStatus(one.status),
         ))
     return result
@@ -289,11 +292,12 @@ def run(node: Node, params: ReconstructorParams) -> None:
     publisher = node.create_publisher(params.output_topic, ContactPoint,
                                       wait_for=params.wait_for)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch)
+    rod = params.rod
     node.set_state("running")
     while not node.stop_requested:
         batch, eos = batches.collect(0.1)
         if batch:
-            result = reconstruct_wrenches(batch, params.rod_length_m, params.rod_ei_nm2)
+            result = reconstruct_wrenches(batch, rod)
             for point in result.contacts:
                 publisher.publish(point)
             counters["contacts"] += len(result.contacts)

@@ -15,7 +15,8 @@ Publishes
 Units and frames (mode ``sim``): the sweep's world frame W is the message's ``frame_id``; the
 clamp frame C is parallel to W (identity quaternion) with z = rod axis. On the wire
 ``clamp_position = P0 L`` (m), ``f0 = f0' EI/L^2`` (N), ``m0 = m0' EI/L`` (N m), where primes
-are the paper's dimensionless values, L = ``rod_length_m`` and EI = ``rod_ei_nm2``.
+are the paper's dimensionless values, L = ``rod_length_m`` and EI = ``rod_ei_nm2``
+(``vibrissa.units.RodScale``).
 """
 
 from __future__ import annotations
@@ -36,10 +37,12 @@ from vibrissa.wire.transport import DEFAULT_HWM, Publisher
 
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Sweep, Trail, simulate_sweeps
+from vibrissa.units import RodScale
 
 log = logging.getLogger(__name__)
 
 IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
+_UNIT_ROD = RodScale()
 
 
 @dataclass(frozen=True)
@@ -106,13 +109,17 @@ class WrenchSourceParams:
         if self.mode == "replay" and not self.bag:
             raise ValueError("mode 'replay' needs the parameter 'bag'")
 
+    @property
+    def rod(self) -> RodScale:
+        """The rod's SI scale (L, EI)."""
+        return RodScale(self.rod_length_m, self.rod_ei_nm2)
+
 
 def sweep_wrenches(
     sweeps: Sequence[Sweep],
     whisker_id: str = "whisker0",
     frame_id: str = "world",
-    rod_length_m: float = 1.0,
-    rod_ei_nm2: float = 1.0,
+    rod: RodScale = _UNIT_ROD,
     clock: Callable[[], float] = lambda: 0.0,
 ) -> Iterator[WhiskerWrench]:
     """Every equilibrium of ``sweeps`` as a WhiskerWrench in SI units, in order.
@@ -123,8 +130,8 @@ def sweep_wrenches(
         Step 1 results (paper units, clamp frame parallel to the world frame).
     whisker_id, frame_id
         Copied into each message.
-    rod_length_m, rod_ei_nm2
-        L (m) and EI (N m^2): lengths x L, forces x EI/L^2, moments x EI/L.
+    rod
+        L and EI: lengths x L, forces x EI/L^2, moments x EI/L.
     clock
         Gives each message's ``stamp`` when it is made, s (e.g. ``time.time``).
 
@@ -133,13 +140,10 @@ def sweep_wrenches(
     WhiskerWrench
         ``seq`` is the running sample index over all sweeps, from 0.
     """
-    force_scale = rod_ei_nm2 / rod_length_m**2
-    moment_scale = rod_ei_nm2 / rod_length_m
     seq = 0
     for sweep in sweeps:
-        p0 = sweep.p0 * rod_length_m
-        f0 = sweep.f0 * force_scale
-        m0 = sweep.m0 * moment_scale
+        p0 = sweep.p0 * rod.length_m
+        f0, m0 = rod.wrench_to_si(sweep.f0, sweep.m0)
         for i in range(sweep.n_steps):
             yield WhiskerWrench(
                 stamp=clock(), seq=seq, whisker_id=whisker_id, frame_id=frame_id,
@@ -169,8 +173,8 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
     t_start = time.monotonic()
     count = 0
     # ``stamp`` is the publish time, as for a live sensor.
-    for msg in sweep_wrenches(sweeps, params.whisker_id, params.frame_id, params.rod_length_m,
-                              params.rod_ei_nm2, clock=time.time):
+    for msg in sweep_wrenches(sweeps, params.whisker_id, params.frame_id, params.rod,
+                              clock=time.time):
         if period:
             delay = t_start + count * period - time.monotonic()
             if delay > 0 and not node.sleep(delay):

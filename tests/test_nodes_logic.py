@@ -25,6 +25,7 @@ from vibrissa.wire.transport import Header, Received
 
 from vibrissa.reconstruct import reconstruct
 from vibrissa.surfaces import parse_surface
+from vibrissa.units import RodScale
 
 LAUNCH = Path(__file__).parents[1] / "launch"
 
@@ -42,6 +43,15 @@ def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:
                           f0=f0[i], m0=m0[i], **kwargs) for i in range(n)]
 
 
+def _to_si(wrenches: list[WhiskerWrench], length: float, ei: float,
+           quaternion: Any = None) -> list[WhiskerWrench]:
+    """The wrenches of a rod of length ``length`` and stiffness ``ei`` (written out, not RodScale)."""
+    return [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
+                          clamp_position=w.clamp_position * length,
+                          clamp_orientation=w.clamp_orientation if quaternion is None else quaternion,
+                          f0=w.f0 * ei / length**2, m0=w.m0 * ei / length) for w in wrenches]
+
+
 class _SweepStub:
     """The fields of ``vibrissa.sweep.Sweep`` that ``sweep_wrenches`` reads."""
 
@@ -53,7 +63,7 @@ def test_sweep_wrenches_are_si_with_running_seq() -> None:
     rng = np.random.default_rng(0)
     sweeps = [_SweepStub(*rng.normal(size=(3, k, 3))) for k in (4, 3)]
     length, ei = 0.05, 2e-4
-    msgs = list(sweep_wrenches(sweeps, "w7", "world", length, ei))  # type: ignore[arg-type]
+    msgs = list(sweep_wrenches(sweeps, "w7", "world", RodScale(length, ei)))  # type: ignore[arg-type]
     assert [m.seq for m in msgs] == list(range(7))
     assert all(m.whisker_id == "w7" for m in msgs)
     np.testing.assert_array_equal(msgs[5].clamp_orientation, [0, 0, 0, 1])
@@ -80,15 +90,12 @@ def test_batch_equals_library_and_counts_no_contact() -> None:
 @pytest.mark.parametrize("quaternion", [[0.0, 0.0, 0.0, 1.0], [0.3, -0.2, 0.5, 2.0]])
 def test_small_batches_take_the_scalar_path_with_the_same_results(quaternion) -> None:
     length, ei = 0.04, 3e-3
-    wrenches = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
-                              clamp_position=w.clamp_position * length,
-                              clamp_orientation=quaternion, f0=w.f0 * ei / length**2,
-                              m0=w.m0 * ei / length) for w in _wrenches(3 * SCALAR_BATCH)]
+    wrenches = _to_si(_wrenches(3 * SCALAR_BATCH), length, ei, quaternion)
     wrenches[5] = WhiskerWrench(stamp=0.0, seq=5, whisker_id="w", frame_id="world",
                                 clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 0],
                                 f0=[1.0, 0, 0], m0=[0, 1.0, 0])
-    whole = reconstruct_wrenches(wrenches, length, ei)
-    parts = [reconstruct_wrenches(wrenches[i:i + 3], length, ei)
+    whole = reconstruct_wrenches(wrenches, RodScale(length, ei))
+    parts = [reconstruct_wrenches(wrenches[i:i + 3], RodScale(length, ei))
              for i in range(0, len(wrenches), 3)]
     assert whole.bad_pose == sum(p.bad_pose for p in parts) == 1
     assert whole.no_contact == sum(p.no_contact for p in parts) >= 1
@@ -105,16 +112,20 @@ def test_si_scaling_round_trip() -> None:
     """Scaling the wrench to a rod of length L and stiffness EI scales the point by L."""
     length, ei = 0.04, 3e-3
     unit = _wrenches()
-    si = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
-                        clamp_position=w.clamp_position * length,
-                        clamp_orientation=w.clamp_orientation, f0=w.f0 * ei / length**2,
-                        m0=w.m0 * ei / length) for w in unit]
-    a, b = reconstruct_wrenches(unit), reconstruct_wrenches(si, length, ei)
+    a, b = reconstruct_wrenches(unit), reconstruct_wrenches(_to_si(unit, length, ei),
+                                                            RodScale(length, ei))
     assert len(a.contacts) == len(b.contacts)
     for ca, cb in zip(a.contacts, b.contacts, strict=True):
         np.testing.assert_allclose(cb.point, ca.point * length, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(cb.force, ca.force * ei / length**2, rtol=1e-12, atol=1e-15)
         assert cb.s1 == pytest.approx(ca.s1 * length, rel=1e-12)
+
+
+@pytest.mark.parametrize("cls", [WrenchSourceParams, ReconstructorParams, MapperParams])
+def test_params_give_the_rod_scale_and_refuse_a_rod_without_length(cls: Any) -> None:
+    assert cls(rod_length_m=0.05).rod == RodScale(0.05, getattr(cls(), "rod_ei_nm2", 1.0))
+    with pytest.raises(ValueError, match="rod_length_m"):
+        cls(rod_length_m=0.0)
 
 
 def test_clamp_orientation_rotates_the_contact() -> None:

@@ -1,6 +1,14 @@
-"""Shared fixtures: the paper's 25 sweeps are computed once per test session."""
+"""Shared fixtures: the paper's 25 sweeps are computed once per test session.
+
+Per test: a ZeroMQ ``context``, a running ``proxy`` on free loopback ports and its ``endpoints``.
+"""
+
+from collections.abc import Iterator
+from typing import Any
 
 import pytest
+import zmq
+from vibrissa.wire import Endpoints, Proxy
 
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Sweep, Trail, simulate_sweeps
@@ -16,3 +24,25 @@ def paper_sweeps() -> dict[tuple[float, float], Sweep]:
     trails = [Trail(y0, mu) for y0 in PAPER_Y0 for mu in PAPER_MU]
     sweeps = simulate_sweeps(parse_surface(PAPER_SURFACE), trails, step=0.001)
     return {(t.y0, t.mu): s for t, s in zip(trails, sweeps, strict=False)}
+
+
+@pytest.fixture
+def context() -> Iterator[zmq.Context[Any]]:
+    """A ZeroMQ context, destroyed with linger 0 after the test."""
+    ctx: zmq.Context[Any] = zmq.Context()
+    yield ctx
+    ctx.destroy(linger=0)
+
+
+@pytest.fixture
+def proxy(context: zmq.Context[Any]) -> Iterator[Proxy]:
+    """A running XSUB/XPUB proxy on free loopback ports."""
+    with Proxy(Endpoints.free(), context=context) as running:
+        yield running
+
+
+@pytest.fixture
+def endpoints(proxy: Proxy) -> Endpoints:
+    """The endpoints of :func:`proxy`, for publishers and subscribers."""
+    assert proxy.endpoints is not None
+    return proxy.endpoints

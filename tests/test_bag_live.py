@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -13,24 +12,10 @@ import zmq
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench, encode
 from vibrissa.nodes.recorder import RecorderParams, RecordResult, record, subscription
-from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
+from vibrissa.wire import Endpoints, Publisher, Subscriber
 from vibrissa.wire.bag import BagReader, BagWriter, play_bag
 
 TIMEOUT_S = 5.0
-
-
-@pytest.fixture
-def context() -> Iterator[zmq.Context[Any]]:
-    ctx: zmq.Context[Any] = zmq.Context()
-    yield ctx
-    ctx.destroy(linger=0)
-
-
-@pytest.fixture
-def endpoints(context: zmq.Context[Any]) -> Iterator[Endpoints]:
-    with Proxy(Endpoints.free(), context=context) as running:
-        assert running.endpoints is not None
-        yield running.endpoints
 
 
 def wrench(i: int) -> WhiskerWrench:

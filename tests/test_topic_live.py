@@ -14,23 +14,9 @@ import zmq
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.cli.topic import RateMeter, echo, format_message, hz, survey
 from vibrissa.msgs import ContactPhase, ContactPoint, NodeStatus, WhiskerWrench
-from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Publisher
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher
 
 RATE_HZ = 50.0
-
-
-@pytest.fixture
-def context() -> Iterator[zmq.Context[Any]]:
-    ctx: zmq.Context[Any] = zmq.Context()
-    yield ctx
-    ctx.destroy(linger=0)
-
-
-@pytest.fixture
-def endpoints(context: zmq.Context[Any]) -> Iterator[Endpoints]:
-    with Proxy(Endpoints.free(), context=context) as running:
-        assert running.endpoints is not None
-        yield running.endpoints
 
 
 def wrench(i: int) -> WhiskerWrench:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
 from typing import Any
 
 import msgpack
@@ -14,19 +13,6 @@ from vibrissa.msgs import ContactPoint, EndOfStream, Ping, WhiskerWrench, encode
 from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
 
 TIMEOUT_S = 2.0
-
-
-@pytest.fixture
-def context() -> Iterator[zmq.Context[Any]]:
-    ctx: zmq.Context[Any] = zmq.Context()
-    yield ctx
-    ctx.destroy(linger=0)
-
-
-@pytest.fixture
-def proxy(context: zmq.Context[Any]) -> Iterator[Proxy]:
-    with Proxy(Endpoints.free(), context=context) as running:
-        yield running
 
 
 def wrench(seq: int) -> WhiskerWrench:

@@ -87,6 +87,8 @@ class MapperParams:
         Output topics.
     wait_for
         Nodes that must subscribe to the outputs before they go out (default: nobody).
+    rod
+        L as ``vibrissa.units.RodScale`` (derived, not a parameter).
     """
 
     topics: tuple[str, ...] = ("contact",)
@@ -102,15 +104,10 @@ class MapperParams:
     cloud_topic: str = "contact_cloud"
     mesh_topic: str = "surface_mesh"
     wait_for: tuple[str, ...] = ()
+    rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if not self.rod_length_m > 0:
-            raise ValueError(f"rod_length_m must be > 0, got {self.rod_length_m}")
-
-    @property
-    def rod(self) -> RodScale:
-        """The rod's SI scale; only its length L is used."""
-        return RodScale(self.rod_length_m)
+        object.__setattr__(self, "rod", RodScale(self.rod_length_m))  # checks L > 0
 
 
 @dataclass

@@ -89,6 +89,8 @@ class ReconstructorParams:
         L, m.
     rod_ei_nm2
         EI, N m^2.
+    rod
+        L and EI as ``vibrissa.units.RodScale`` (derived, not a parameter).
     """
 
     input_topic: str = "wrench"
@@ -100,19 +102,13 @@ class ReconstructorParams:
     exit_on_eos: bool = False
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
+    rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if not (self.rod_length_m > 0 and self.rod_ei_nm2 > 0):
-            raise ValueError("rod_length_m and rod_ei_nm2 must be > 0, got "
-                             f"{self.rod_length_m}, {self.rod_ei_nm2}")
+        object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))  # checks > 0
         if self.drain_limit < 1 or self.max_batch < 1:
             raise ValueError("drain_limit and max_batch must be >= 1, got "
                              f"{self.drain_limit}, {self.max_batch}")
-
-    @property
-    def rod(self) -> RodScale:
-        """The rod's SI scale (L, EI)."""
-        return RodScale(self.rod_length_m, self.rod_ei_nm2)
 
 
 @dataclass

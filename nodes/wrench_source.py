@@ -26,7 +26,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -81,6 +81,8 @@ class WrenchSourceParams:
         L, the rod length, m.
     rod_ei_nm2
         EI, the rod's bending stiffness, N m^2.
+    rod
+        L and EI as ``vibrissa.units.RodScale`` (derived, not a parameter).
     """
 
     mode: Literal["sim", "replay"] = "sim"
@@ -98,21 +100,15 @@ class WrenchSourceParams:
     wait_timeout_s: float = 60.0
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
+    rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if not (self.rod_length_m > 0 and self.rod_ei_nm2 > 0):
-            raise ValueError("rod_length_m and rod_ei_nm2 must be > 0, got "
-                             f"{self.rod_length_m}, {self.rod_ei_nm2}")
+        object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))  # checks > 0
         if self.rate_hz < 0 or self.replay_rate < 0:
             raise ValueError(f"rate_hz and replay_rate must be >= 0, got {self.rate_hz}, "
                              f"{self.replay_rate}")
         if self.mode == "replay" and not self.bag:
             raise ValueError("mode 'replay' needs the parameter 'bag'")
-
-    @property
-    def rod(self) -> RodScale:
-        """The rod's SI scale (L, EI)."""
-        return RodScale(self.rod_length_m, self.rod_ei_nm2)
 
 
 def sweep_wrenches(

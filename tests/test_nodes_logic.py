@@ -124,7 +124,7 @@ def test_si_scaling_round_trip() -> None:
 @pytest.mark.parametrize("cls", [WrenchSourceParams, ReconstructorParams, MapperParams])
 def test_params_give_the_rod_scale_and_refuse_a_rod_without_length(cls: Any) -> None:
     assert cls(rod_length_m=0.05).rod == RodScale(0.05, getattr(cls(), "rod_ei_nm2", 1.0))
-    with pytest.raises(ValueError, match="rod_length_m"):
+    with pytest.raises(ValueError, match="length_m"):
         cls(rod_length_m=0.0)
 
 

@@ -197,12 +197,11 @@ def library_contacts() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return rec.point, rec.s1, rec.force
 
 
-@pytest.fixture(scope="module")
-def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    """One run of the (small) demo with a recorder of the wrench topic."""
-    tmp = tmp_path_factory.mktemp("demo")
-    out, bag = tmp / "out", tmp / "wrench.mcap"
-    launch = Launch(tmp, small_demo(out, bag), f"out:={out}", f"step:={STEP}", f"mu:={MU}")
+def run_to_end(tmp: Path, launch_entries: list[dict[str, Any]], *words: str
+               ) -> tuple[int, list[ContactPoint], EndOfStream, Launch]:
+    """Launch, collect the contact points until their end of stream, wait for the launch to end;
+    returns (exit status, points, end of stream, the ended launch)."""
+    launch = Launch(tmp, launch_entries, *words)
     probe = Probe(launch.endpoints(), [CONTACT])
     try:
         points, eos = probe.collect()
@@ -210,6 +209,16 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     finally:
         probe.close()
         launch.kill()
+    return rc, points, eos, launch
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """One run of the (small) demo with a recorder of the wrench topic."""
+    tmp = tmp_path_factory.mktemp("demo")
+    out, bag = tmp / "out", tmp / "wrench.mcap"
+    rc, points, eos, launch = run_to_end(tmp, small_demo(out, bag), f"out:={out}",
+                                         f"step:={STEP}", f"mu:={MU}")
     yield {"rc": rc, "points": points, "eos": eos, "out": out, "bag": bag, "tmp": tmp,
            "text": launch.text(), "stdout": "".join(launch.out)}
 
@@ -245,14 +254,7 @@ def _replay(tmp: Path, bag: Path) -> tuple[int, list[ContactPoint], EndOfStream,
     launch_entries = entries("replay_demo.yaml")
     set_param(node(launch_entries, "reconstructor"), "wait_for", ["/mapper", "/probe"])
     out = tmp / f"replay-{bag.stem}"
-    launch = Launch(tmp, launch_entries, f"bag:={bag}", f"out:={out}")
-    probe = Probe(launch.endpoints(), [CONTACT])
-    try:
-        points, eos = probe.collect()
-        rc = launch.wait()
-    finally:
-        probe.close()
-        launch.kill()
+    rc, points, eos, launch = run_to_end(tmp, launch_entries, f"bag:={bag}", f"out:={out}")
     return rc, points, eos, launch.text()
 
 

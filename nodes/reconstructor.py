@@ -47,17 +47,13 @@ from vibrissa.msgs import (
 from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.wire.transport import Received
 
-from vibrissa.reconstruct import reconstruct, reconstruct_sample
+from vibrissa.reconstruct import reconstruct_sample
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
 
 log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
-
-# Batches below this size go through Step 2 sample by sample (about 7 us each), larger ones
-# through one vectorised call (about 150 us fixed, then under 1 us per sample).
-SCALAR_BATCH = 16
 
 _IDENTITY_QUATERNION = [0.0, 0.0, 0.0, 1.0]
 _UNIT_ROD = RodScale()
@@ -79,7 +75,7 @@ class ReconstructorParams:
         Most wrenches taken from the queue before their points are published; a batch that
         reaches it means a backlog, and the next one drains up to ``max_batch``.
     max_batch
-        Most wrenches reconstructed in one vectorised call when the node falls behind.
+        Most wrenches taken in one batch (reconstructed, then published) when the node falls behind.
     receive_hwm
         Receive high-water mark, messages: the backlog the node can hold without loss.
     exit_on_eos
@@ -130,26 +126,13 @@ class BatchResult:
     bad_pose: int = 0
 
 
-def quaternion_to_matrix(q_xyzw: FloatArray) -> FloatArray:
-    """Rotation matrices (N, 3, 3) of quaternions (N, 4) given as (x, y, z, w).
-
-    The quaternions are normalised first; a zero-length one gives NaN.
-    """
-    q = np.asarray(q_xyzw, dtype=float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=1)
-
-
 def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNIT_ROD
                          ) -> BatchResult:
-    """Reconstruct a batch of wrenches: one vectorised ``vibrissa.reconstruct`` call, or below
-    ``SCALAR_BATCH`` wrenches the scalar single-sample path for each (same results).
+    """Reconstruct a batch of wrenches, each through the scalar Step 2 path.
+
+    One path for every wrench, whatever the batch: a wrench's point never depends on which
+    batch it arrived in (batches follow arrival timing), so a replayed bag gives the live run's
+    points bit for bit. At about 7 us per wrench it is not the node's bottleneck.
 
     Parameters
     ----------
@@ -164,38 +147,6 @@ def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNI
         A ContactPoint (SI, in the wrench's ``frame_id``) for every wrench whose status is OK
         or AXIAL_LOAD; the others are only counted.
     """
-    if len(wrenches) < SCALAR_BATCH:
-        return _reconstruct_each(wrenches, rod)
-    result = BatchResult()
-    p_WC = np.stack([w.clamp_position for w in wrenches]) / rod.length_m
-    f0, m0 = rod.wrench_from_si(np.stack([w.f0 for w in wrenches]),
-                                np.stack([w.m0 for w in wrenches]))
-    quats = np.stack([w.clamp_orientation for w in wrenches])
-    norms = np.linalg.norm(quats, axis=1)
-    good_pose = np.isfinite(norms) & (norms > 0)
-    identity = np.all(quats == (0.0, 0.0, 0.0, 1.0), axis=1)
-    R_WC = None if identity.all() else quaternion_to_matrix(np.where(
-        good_pose[:, None], quats, (0.0, 0.0, 0.0, 1.0)))
-    rec = reconstruct(p_WC, f0, m0, R_WC)
-    keep = rec.valid & good_pose
-    result.bad_pose = int(np.count_nonzero(~good_pose))
-    result.no_contact = int(np.count_nonzero(~rec.valid & good_pose))
-    point = rec.point * rod.length_m
-    s1 = rec.s1 * rod.length_m
-    force = rec.force * rod.force_n
-    point.flags.writeable = force.flags.writeable = False  # rows go into messages uncopied
-    for i in np.flatnonzero(keep).tolist():
-        w = wrenches[i]
-        result.contacts.append(ContactPoint(
-            stamp=w.stamp, seq=w.seq, whisker_id=w.whisker_id, frame_id=w.frame_id,
-            point=point[i], s1=float(s1[i]), phase=ContactPhase(int(rec.phase[i])),
-            force=force[i], status=ContactStatus(int(rec.status[i])),
-        ))
-    return result
-
-
-def _reconstruct_each(wrenches: Sequence[WhiskerWrench], rod: RodScale) -> BatchResult:
-    """:func:`reconstruct_wrenches` one wrench at a time in plain floats (same results)."""
     result = BatchResult()
     length, force_n, moment_nm = rod.length_m, rod.force_n, rod.moment_nm
     for w in wrenches:
@@ -224,7 +175,7 @@ _NO_CONTACT = int(NO_CONTACT)
 
 
 def quaternion_rows(q_xyzw: Sequence[float]) -> list[list[float]]:
-    """:func:`quaternion_to_matrix` of one quaternion (x, y, z, w), as rows of floats."""
+    """Rotation matrix of a quaternion (x, y, z, w), normalised first, as rows of floats."""
     norm = math.sqrt(sum(c * c for c in q_xyzw))
     x, y, z, w = (c / norm for c in q_xyzw)
     return [
@@ -262,7 +213,7 @@ class BatchCollector:
     A batch holds at most ``drain_limit`` wrenches, so the first wrench of a burst (a tick of
     many whiskers) goes out after at most that many decodes, not after the whole burst. A
     batch that reaches its limit means a backlog: the next one drains up to ``max_batch``
-    (one vectorised call), and the limit drops back once a batch ends below it.
+    and the limit drops back once a batch ends below it.
     """
 
     def __init__(self, receive: Callable[[float], Received | None], drain_limit: int,

@@ -11,11 +11,10 @@ import yaml
 from vibrissa.msgs import ContactPoint, EndOfStream, WhiskerWrench
 from vibrissa.nodes.mapper import Accumulator, MapperParams
 from vibrissa.nodes.reconstructor import (
-    SCALAR_BATCH,
     BatchCollector,
     ReconstructorParams,
     collect_batch,
-    quaternion_to_matrix,
+    quaternion_rows,
     reconstruct_wrenches,
 )
 from vibrissa.nodes.runtime import load_params
@@ -88,9 +87,10 @@ def test_batch_equals_library_and_counts_no_contact() -> None:
 
 
 @pytest.mark.parametrize("quaternion", [[0.0, 0.0, 0.0, 1.0], [0.3, -0.2, 0.5, 2.0]])
-def test_small_batches_take_the_scalar_path_with_the_same_results(quaternion) -> None:
+def test_a_wrench_gives_the_same_point_bit_for_bit_in_any_batch(quaternion) -> None:
+    # Batches follow arrival timing; a bag replay must still give the live run's points.
     length, ei = 0.04, 3e-3
-    wrenches = _to_si(_wrenches(3 * SCALAR_BATCH), length, ei, quaternion)
+    wrenches = _to_si(_wrenches(48), length, ei, quaternion)
     wrenches[5] = WhiskerWrench(stamp=0.0, seq=5, whisker_id="w", frame_id="world",
                                 clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 0],
                                 f0=[1.0, 0, 0], m0=[0, 1.0, 0])
@@ -99,13 +99,7 @@ def test_small_batches_take_the_scalar_path_with_the_same_results(quaternion) ->
              for i in range(0, len(wrenches), 3)]
     assert whole.bad_pose == sum(p.bad_pose for p in parts) == 1
     assert whole.no_contact == sum(p.no_contact for p in parts) >= 1
-    contacts = [c for p in parts for c in p.contacts]
-    assert [c.seq for c in contacts] == [c.seq for c in whole.contacts]
-    for a, b in zip(contacts, whole.contacts, strict=True):
-        np.testing.assert_allclose(a.point, b.point, rtol=1e-12, atol=1e-15)
-        np.testing.assert_allclose(a.force, b.force, rtol=1e-12, atol=1e-12)
-        assert a.s1 == pytest.approx(b.s1, rel=1e-12)
-        assert (a.phase, a.status, a.stamp, a.whisker_id) == (b.phase, b.status, b.stamp, "w")
+    assert [c for p in parts for c in p.contacts] == whole.contacts
 
 
 def test_si_scaling_round_trip() -> None:
@@ -132,7 +126,7 @@ def test_clamp_orientation_rotates_the_contact() -> None:
     angle = 0.7
     axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
     q = np.r_[axis * np.sin(angle / 2), np.cos(angle / 2)]
-    R = quaternion_to_matrix(q[None])[0]
+    R = np.array(quaternion_rows(q.tolist()))
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-15)
     # Rodrigues' formula as the reference
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])

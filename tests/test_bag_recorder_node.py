@@ -6,16 +6,13 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import pytest
 import yaml
-import zmq
 from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench, encode
 from vibrissa.nodes.recorder import EndOfStreamTracker
-from vibrissa.wire import STATUS_TOPIC, Endpoints, Header, Proxy, Publisher, Received, Subscriber
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Header, Publisher, Received, Subscriber
 from vibrissa.wire.bag import BagReader
 
 TIMEOUT_S = 20.0
@@ -49,15 +46,6 @@ def test_end_of_stream_waits_for_every_publisher_and_grace() -> None:
     assert tracker.all_ended() and not tracker.done(10.6)
     tracker.update(rx("/c", 4, eos))
     assert tracker.ended_topics == ["/c", "/w"]
-
-
-@pytest.fixture
-def endpoints() -> Iterator[Endpoints]:
-    ctx: zmq.Context[Any] = zmq.Context()
-    with Proxy(Endpoints.free(), context=ctx) as running:
-        assert running.endpoints is not None
-        yield running.endpoints
-    ctx.destroy(linger=0)
 
 
 def test_recorder_node_process_stops_on_end_of_stream(tmp_path: Path,

@@ -5,25 +5,15 @@ from __future__ import annotations
 import os
 import signal
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
 import zmq
 from vibrissa.msgs import EndOfStream, NodeStatus, RobotPose
 from vibrissa.nodes import Node
-from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Subscriber
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Subscriber
 
 TIMEOUT_S = 3.0
-
-
-@pytest.fixture
-def endpoints() -> Iterator[Endpoints]:
-    ctx: zmq.Context[Any] = zmq.Context()
-    with Proxy(Endpoints.free(), context=ctx) as proxy:
-        assert proxy.endpoints is not None
-        yield proxy.endpoints
-    ctx.destroy(linger=0)
 
 
 def node(name: str, endpoints: Endpoints, namespace: str = "/w0", **kw: Any) -> Node:

@@ -110,6 +110,10 @@ def _sweep(args: argparse.Namespace) -> int:
     print(f"sweep: {sweep.n_steps} equilibria, ended by {sweep.end} at x0={sweep.x0_end:.6g}, "
           f"{len(sweep.phase_changes)} phase changes, {time.perf_counter() - start:.1f} s "
           f"-> {output}", file=sys.stderr)
+    if sweep.end == "no-equilibrium":
+        print("sweep: error: no equilibrium found for the first step after the first contact "
+              "(a solver failure); a different --step may get past it", file=sys.stderr)
+        return 1
     return 0
 
 

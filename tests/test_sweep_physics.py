@@ -73,19 +73,37 @@ def test_symmetric_trail_stays_in_its_plane(paper_sweeps, mu):
     assert np.all(sweep.m0[:, 2] == 0.0)
 
 
+def _stick_slip_onset(sweep, run: int = 8) -> int:
+    """First step of ``run`` in a row whose contact displacement differs from the one before by
+    more than 2x (creeps and jumps alternate), n_steps if there is none."""
+    chords = np.linalg.norm(np.diff(sweep.contact, axis=0), axis=1)
+    ratio = chords[1:] / chords[:-1]
+    uneven = ((ratio > 2.0) | (ratio < 0.5)).astype(int)
+    runs = np.convolve(uneven, np.ones(run, dtype=int), mode="valid")
+    starts = np.flatnonzero(runs == run)
+    return int(starts[0]) + 2 if len(starts) else sweep.n_steps
+
+
 # The object is its own mirror image across y = 0, and so is Coulomb's law: the sweeps at +y0 and
-# -y0 mirror each other for every mu. In the stick-slip stretch of (|y0|, mu) = (0.2, 0.4) each
-# jump amplifies round-off, so the mirror holds there to a looser (measured 1.6e-6) tolerance.
+# -y0 mirror each other for every mu. In a stick-slip stretch (the paper's |y0| = 0.2, mu = 0.4)
+# each jump amplifies round-off, so the two sample the same creep-jump cycle at a different
+# phase: there they agree to within the cycle's own step-to-step change, not to round-off.
 @pytest.mark.parametrize("mu", PAPER_MU)
 @pytest.mark.parametrize("y0", [0.2, 0.4])
 def test_sweeps_at_plus_and_minus_y0_are_mirror_images(paper_sweeps, y0, mu):
     plus, minus = paper_sweeps[(y0, mu)], paper_sweeps[(-y0, mu)]
     assert plus.n_steps == minus.n_steps
-    atol = 1e-4 if (y0, mu) == (0.2, 0.4) else 1e-9
+    onset = min(_stick_slip_onset(plus), _stick_slip_onset(minus))
+    assert (onset < plus.n_steps) == ((y0, mu) == (0.2, 0.4))  # stick-slip only there
+    onset = max(onset - 25, 0) if onset < plus.n_steps else onset  # where the alternation grows
     mirror = np.array([1.0, -1.0, 1.0])
-    np.testing.assert_allclose(minus.f0, plus.f0 * mirror, atol=atol)
-    np.testing.assert_allclose(minus.m0, -plus.m0 * mirror, atol=atol)  # a moment is a pseudovector
-    np.testing.assert_allclose(minus.contact, plus.contact * mirror, atol=atol)
+    pairs = {"f0": (minus.f0, plus.f0 * mirror), "m0": (minus.m0, -plus.m0 * mirror),  # m0: pseudovector
+             "contact": (minus.contact, plus.contact * mirror)}
+    for name, (a, b) in pairs.items():
+        np.testing.assert_allclose(a[:onset], b[:onset], atol=1e-9, err_msg=name)
+        if onset < plus.n_steps:
+            cycle = np.abs(np.diff(b[onset - 1:], axis=0)).max()
+            assert np.abs(a[onset:] - b[onset:]).max() <= cycle, name
 
 
 @pytest.mark.parametrize("key", KEYS)

@@ -65,7 +65,7 @@ STATE_NAMES = {SLIDE: "slide", STICK: "stick"}
 _E_Z = np.array([0.0, 0.0, 1.0])
 _NEWTON_TOL = 1e-12
 _DIRECTION_TOL = 1e-8
-_NEWTON_MAX_ITER = 15
+_NEWTON_MAX_ITER = 40
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 _REFINEMENTS = 6  # a failed step is retried with up to 2**6 sub-steps before it counts as snap-off
@@ -82,6 +82,11 @@ class Trail:
 @dataclass
 class Sweep:
     """Equilibria of one sweep, one entry per step, in the paper's units (eq. 1).
+
+    ``end`` says how it ended: "detachment" or "snap-off" (see the module docstring),
+    "no-contact" (the trail misses the object), "no-equilibrium" (the solver found none for the
+    first step after the first contact: a solver failure, reported rather than hidden) or
+    "max-steps".
 
     Frames: all vectors in the world frame W = the clamp frame of the trail (clamp axis e_z).
     ``f0``, ``m0`` are the clamp's reactions on the rod (moment about P0); ``force`` is the
@@ -557,7 +562,9 @@ def _ending(track: _Track) -> str:
     equilibrium branch) the force is finite and often rising.
     """
     forces = np.array([np.linalg.norm(row[6]) for row in track.rows])
-    if len(forces) == 0 or forces[-1] <= _DETACHMENT_FRACTION * forces.max():
+    if len(forces) == 0:
+        return "no-equilibrium"  # not even the first step after the first contact was solved
+    if forces[-1] <= _DETACHMENT_FRACTION * forces.max():
         return "detachment"
     if len(forces) >= 2 and forces[-1] <= _DETACHMENT_STEPS * (forces[-2] - forces[-1]):
         return "detachment"

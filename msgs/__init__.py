@@ -23,6 +23,7 @@ from vibrissa.msgs.messages import (
     ContactCloud,
     ContactPhase,
     ContactPoint,
+    ContactPointArray,
     ContactStatus,
     EndOfStream,
     Message,
@@ -31,6 +32,7 @@ from vibrissa.msgs.messages import (
     RobotPose,
     SurfaceMesh,
     WhiskerWrench,
+    WhiskerWrenchArray,
 )
 
 __all__ = [
@@ -40,6 +42,7 @@ __all__ = [
     "ContactCloud",
     "ContactPhase",
     "ContactPoint",
+    "ContactPointArray",
     "ContactStatus",
     "DecodeError",
     "EndOfStream",
@@ -57,6 +60,7 @@ __all__ = [
     "UnknownTypeError",
     "VersionMismatchError",
     "WhiskerWrench",
+    "WhiskerWrenchArray",
     "decode",
     "encode",
     "json_schema",

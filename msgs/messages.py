@@ -299,6 +299,50 @@ class ContactPoint(Message):
 
 
 @dataclass(frozen=True, eq=False)
+class WhiskerWrenchArray(Message):
+    """One tick of a multi-whisker array: the base wrench and clamp pose X_WC of each whisker.
+
+    Row i of every field belongs to whisker ``whisker_ids[i]``; all rows share ``stamp``.
+    """
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrenchArray"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    seq: int = _count("the source's tick counter")
+    frame_id: str = _frame_id("frame the clamp poses are given in, normally 'world'")
+    whisker_ids: list[str] = _spec(kind=STR_LIST, length="N", doc="whisker of each row")
+    clamp_position: FloatArray = _array(
+        ("N", 3), "m", "p_WC: each clamp frame C's origin, in frame_id")
+    clamp_orientation: FloatArray = _array(
+        ("N", 4), "", "R_WC: unit quaternion (x, y, z, w) of each clamp frame C in frame_id, "
+        "z = rod axis")
+    f0: FloatArray = _array(("N", 3), "N", "force of the clamp on the rod, expressed in its C")
+    m0: FloatArray = _array(
+        ("N", 3), "N m", "moment of the clamp on the rod about C's origin, expressed in its C"
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class ContactPointArray(Message):
+    """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/ContactPointArray"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    seq: int = _count("seq of the WhiskerWrenchArray these contacts were reconstructed from")
+    frame_id: str = _frame_id()
+    whisker_ids: list[str] = _spec(kind=STR_LIST, length="N", doc="which whisker touched, per row")
+    point: FloatArray = _array(("N", 3), "m", "contact point on the rod, in frame_id")
+    s1: FloatArray = _array(("N",), "m", "arc length of the contact along the rod from the clamp")
+    phase: IntArray = _array(
+        ("N",), "", "ContactPhase: 0 none, 1 tip, 2 tangential", dtype=INT32)
+    force: FloatArray = _array(("N", 3), "N", "contact force on the rod, in frame_id")
+    status: IntArray = _array(("N",), "", "ContactStatus bit flags; 0 = OK", dtype=INT32)
+
+
+@dataclass(frozen=True, eq=False)
 class ContactCloud(Message):
     """Accumulated contact points; N = 0 is allowed."""
 
@@ -407,7 +451,9 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.TYPE_NAME: cls
     for cls in (
         WhiskerWrench,
+        WhiskerWrenchArray,
         ContactPoint,
+        ContactPointArray,
         ContactCloud,
         SurfaceMesh,
         RobotPose,

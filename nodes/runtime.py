@@ -60,6 +60,7 @@ from vibrissa.wire import (
     node_fqn,
     resolve_topic,
 )
+from vibrissa.wire.transport import MessageTypes
 
 __all__ = ["Node", "NodeArgs", "configure_logging", "load_params"]
 
@@ -366,9 +367,10 @@ class Node:
         return publisher
 
     def create_subscriber(
-        self, topics: Mapping[str, type[Message] | None], hwm: int = DEFAULT_HWM
+        self, topics: Mapping[str, MessageTypes | None], hwm: int = DEFAULT_HWM
     ) -> Subscriber:
-        """Subscriber on the resolved ``topics`` (topic -> type, ``None`` for any type)."""
+        """Subscriber on the resolved ``topics`` (topic -> type or tuple of types, ``None`` for
+        any type)."""
         resolved = {self.resolve(topic): msg_type for topic, msg_type in topics.items()}
         subscriber = Subscriber(resolved, self.endpoints, self.context, hwm)
         with self._lock:
@@ -454,8 +456,8 @@ class Node:
             for key, value in sub.totals().items():
                 totals[key] += value
             seen |= sub.seen_topics
-            for topic, msg_type in (sub.topics or {"*": None}).items():
-                subscribes[topic] = msg_type.TYPE_NAME if msg_type is not None else "*"
+            for topic, msg_types in (sub.topics or {"*": None}).items():
+                subscribes[topic] = "|".join(t.TYPE_NAME for t in msg_types) if msg_types else "*"
         totals["published"] = sum(p.published for p in publishers)
         totals.update(self.counters)  # one C-level copy: safe against the node's updates
         return NodeStatus(

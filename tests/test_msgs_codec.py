@@ -15,6 +15,7 @@ from vibrissa.msgs import (
     ContactCloud,
     ContactPhase,
     ContactPoint,
+    ContactPointArray,
     ContactStatus,
     DecodeError,
     EndOfStream,
@@ -32,6 +33,7 @@ from vibrissa.msgs import (
     UnknownTypeError,
     VersionMismatchError,
     WhiskerWrench,
+    WhiskerWrenchArray,
     decode,
     encode,
     json_schema,
@@ -50,6 +52,24 @@ def wrench() -> WhiskerWrench:
         clamp_orientation=[0.0, 0.0, 0.0, 1.0],
         f0=[0.01, -0.02, 0.5],
         m0=[0.001, 0.002, -0.003],
+    )
+
+
+def wrench_array() -> WhiskerWrenchArray:
+    rng = np.random.default_rng(3)
+    return WhiskerWrenchArray(
+        stamp=12.5, seq=7, frame_id="world", whisker_ids=["w0", "w1", "w2"],
+        clamp_position=rng.normal(size=(3, 3)), clamp_orientation=np.tile([0.0, 0, 0, 1], (3, 1)),
+        f0=rng.normal(size=(3, 3)), m0=rng.normal(size=(3, 3)),
+    )
+
+
+def contact_array() -> ContactPointArray:
+    return ContactPointArray(
+        stamp=12.5, seq=7, frame_id="world", whisker_ids=["w0", "w2"],
+        point=[[0.0, 0.1, 0.2], [0.3, 0.4, 0.5]], s1=[0.08, 1.0],
+        phase=[ContactPhase.TANGENTIAL, ContactPhase.TIP], force=[[0.0, 0.1, 0.0], [1.0, 0, 0]],
+        status=[ContactStatus.OK, ContactStatus.AXIAL_LOAD],
     )
 
 
@@ -78,6 +98,11 @@ def samples() -> list[Message]:
                    subscribes={"/w0/wrench": WhiskerWrench.TYPE_NAME},
                    seen_topics=["/w0/wrench"], message="ok"),
         EndOfStream(stamp=6.0, source="/w0/sensor", count=100),
+        wrench_array(),
+        contact_array(),
+        ContactPointArray(stamp=1.0, seq=8, frame_id="world", whisker_ids=[],
+                          point=np.zeros((0, 3)), s1=[], phase=np.zeros(0, np.int32),
+                          force=np.zeros((0, 3)), status=np.zeros(0, np.int32)),
         Ping(stamp=7.0, sender="/w0/sensor"),
     ]
 
@@ -333,3 +358,43 @@ def test_construction_takes_exact_values_as_they_are() -> None:
     with pytest.raises(ValueError, match="shape"):
         RobotPose(stamp=1.0, frame_id="w", child_frame_id="c", position=position[:2],
                   orientation=[0.0, 0.0, 0.0, 1.0])
+
+
+# -- the per-tick array types ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("make", "field", "shape"), [
+    (wrench_array, "f0", (2, 3)), (wrench_array, "clamp_orientation", (4, 4)),
+    (contact_array, "s1", (3,)), (contact_array, "status", (1,)),
+])
+def test_arrays_must_agree_on_n(make: Any, field: str, shape: tuple[int, ...]) -> None:
+    msg = make()
+    obj = raw(msg)
+    dtype = getattr(msg, field).dtype
+    obj[field] = {"dtype": dtype.str, "shape": list(shape), "data": np.zeros(shape, dtype).tobytes()}
+    refuse(pack(obj), ArrayShapeError, f"{msg.TYPE_NAME.split('/')[1]}.{field}", "N=")
+    obj = raw(msg)
+    obj["whisker_ids"] = obj["whisker_ids"][:-1]  # N is bound by whisker_ids, the first sized field
+    refuse(pack(obj), ArrayShapeError, f"{msg.TYPE_NAME.split('/')[1]}.")
+    with pytest.raises(ValueError, match=field):
+        type(msg)(**{**msg.__dict__, field: np.zeros(shape, dtype)})
+
+
+def test_array_types_refuse_nan_wrong_dtype_and_wrong_version() -> None:
+    obj = raw(wrench_array())
+    m0 = np.zeros((3, 3))
+    m0[2, 1] = np.nan
+    obj["m0"]["data"] = m0.tobytes()
+    refuse(pack(obj), NonFiniteError, "WhiskerWrenchArray", "m0")
+    obj = raw(contact_array())
+    obj["s1"]["data"] = np.array([0.1, np.inf]).tobytes()
+    refuse(pack(obj), NonFiniteError, "ContactPointArray", "s1")
+    obj = raw(contact_array())
+    obj["phase"] = {"dtype": "<i8", "shape": [2], "data": np.ones(2, np.int64).tobytes()}
+    refuse(pack(obj), ArrayDtypeError, "ContactPointArray.phase")
+    for msg in (wrench_array(), contact_array()):
+        obj = raw(msg)
+        obj["_v"] = 2
+        refuse(pack(obj), VersionMismatchError, msg.TYPE_NAME, "version 2")
+    with pytest.raises(ValueError, match="point"):
+        encode(ContactPointArray(**{**contact_array().__dict__, "point": [[np.nan, 0, 0], [0, 0, 0]]}))

@@ -30,7 +30,7 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
+from typing import Any, TypeAlias
 
 import msgpack
 import zmq
@@ -41,6 +41,7 @@ __all__ = [
     "DEFAULT_HWM",
     "Endpoints",
     "Header",
+    "MessageTypes",
     "Proxy",
     "Publisher",
     "Received",
@@ -52,6 +53,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HWM = 10_000
 """Default send/receive high-water mark, messages per socket (per peer for PUB/XPUB)."""
+
+MessageTypes: TypeAlias = type[Message] | tuple[type[Message], ...]
+"""What a subscriber expects on a topic: one message class or a tuple of them."""
 
 _ENV_PUB = "VIBRISSA_PUB_ENDPOINT"
 _ENV_SUB = "VIBRISSA_SUB_ENDPOINT"
@@ -384,27 +388,27 @@ class TopicCounters:
 class Subscriber:
     """Receives messages on exact topics (``topics=None``: every topic, any type).
 
-    ``topics`` maps each fully qualified topic to the expected message class, or ``None`` for
-    any registered type; ``Ping`` and ``EndOfStream`` are accepted on every topic.
+    ``topics`` maps each fully qualified topic to the expected message class (or a tuple of
+    them), or ``None`` for any registered type; ``Ping`` and ``EndOfStream`` are accepted on
+    every topic.
     """
 
     def __init__(
         self,
-        topics: Mapping[str, type[Message] | None] | None,
+        topics: Mapping[str, MessageTypes | None] | None,
         endpoints: Endpoints | None = None,
         context: zmq.Context[Any] | None = None,
         hwm: int = DEFAULT_HWM,
     ) -> None:
-        self.topics: dict[str, type[Message] | None] | None = (
-            None if topics is None else dict(topics)
-        )
+        self.topics: dict[str, tuple[type[Message], ...] | None] | None = None
         self._expected: dict[str, tuple[type[Message], ...] | None] = {}
         prefixes = [b""]
         if topics is not None:
             prefixes = [_check_topic(topic) for topic in topics]
-            for topic, msg_type in topics.items():
-                expected = None if msg_type is None else (msg_type, Ping, EndOfStream)
-                self._expected[topic] = expected
+            self.topics = {topic: None if t is None else t if isinstance(t, tuple) else (t,)
+                           for topic, t in topics.items()}
+            for topic, types in self.topics.items():
+                self._expected[topic] = None if types is None else (*types, Ping, EndOfStream)
         self.counters: dict[str, TopicCounters] = {t: TopicCounters() for t in topics or ()}
         self._seen: set[str] = set()
         self._next_seq: dict[tuple[str, int], int] = {}  # per (topic, publisher id)

@@ -2,9 +2,9 @@
 
 Subscribes
 ----------
-``topics`` (default ``[contact]``) : ContactPoint
-    Points in SI (m, N), each in its ``frame_id``; ``EndOfStream`` from every expected
-    source ends the accumulation.
+``topics`` (default ``[contact]``) : ContactPoint or ContactPointArray
+    Points in SI (m, N), each in its ``frame_id``; each row of an array is a point of its
+    whisker; ``EndOfStream`` from every expected source ends the accumulation.
 
 Publishes
 ---------
@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from vibrissa.msgs import ContactCloud, ContactPoint, EndOfStream, SurfaceMesh
+from vibrissa.msgs import ContactCloud, ContactPoint, ContactPointArray, EndOfStream, SurfaceMesh
 from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.nodes.surface_fit import (
     FitParams,
@@ -66,7 +66,7 @@ class MapperParams:
     Attributes
     ----------
     topics
-        ContactPoint topics, relative to the namespace unless absolute.
+        ContactPoint / ContactPointArray topics, relative to the namespace unless absolute.
     expected_sources
         How many distinct ``EndOfStream`` sources end the accumulation, or their node names
         (relative names resolve in the namespace).
@@ -126,6 +126,13 @@ class FrameCloud:
         self.points.append(msg.point)
         self.forces.append(msg.force)
 
+    def add_rows(self, msg: ContactPointArray) -> None:
+        """Append every row of an array, each with its whisker and the array's ``seq``."""
+        self.whisker_ids += msg.whisker_ids
+        self.seqs += [msg.seq] * len(msg.whisker_ids)
+        self.points += list(msg.point)
+        self.forces += list(msg.force)
+
     def ordered(self) -> tuple[FloatArray, FloatArray, list[str]]:
         """Points (N, 3), forces (N, 3), whisker ids, sorted by (whisker, seq): line order."""
         order = sorted(range(len(self.seqs)), key=lambda i: (self.whisker_ids[i], self.seqs[i]))
@@ -143,9 +150,11 @@ class Accumulator:
         self.ended: set[str] = set()
 
     def add(self, msg: object) -> None:
-        """Take a ContactPoint or an EndOfStream."""
+        """Take a ContactPoint, a ContactPointArray or an EndOfStream."""
         if isinstance(msg, ContactPoint):
             self.frames.setdefault(msg.frame_id, FrameCloud()).add(msg)
+        elif isinstance(msg, ContactPointArray) and msg.whisker_ids:  # a tick without contact
+            self.frames.setdefault(msg.frame_id, FrameCloud()).add_rows(msg)
         elif isinstance(msg, EndOfStream):
             self.ended.add(msg.source)
 
@@ -337,8 +346,8 @@ def run(node: Node, params: MapperParams) -> dict[str, Any]:
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
     acc = Accumulator(expected)
-    subscriber = node.create_subscriber({t: ContactPoint for t in params.topics},
-                                        hwm=200_000)
+    subscriber = node.create_subscriber(
+        {t: (ContactPoint, ContactPointArray) for t in params.topics}, hwm=200_000)
     cloud_pub = node.create_publisher(params.cloud_topic, ContactCloud, wait_for=params.wait_for)
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
     node.set_state("running", f"waiting for {expected} source(s) to end")

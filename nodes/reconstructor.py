@@ -2,14 +2,17 @@
 
 Subscribes
 ----------
-``input_topic`` (default ``wrench``) : WhiskerWrench
-    SI: clamp position m, f0 N, m0 N m (in the clamp frame C), pose X_WC in ``frame_id``.
+``input_topic`` (default ``wrench``) : WhiskerWrench or WhiskerWrenchArray
+    SI: clamp position m, f0 N, m0 N m (in the clamp frame C), pose X_WC in ``frame_id``;
+    an array holds one row per whisker of one tick.
 
 Publishes
 ---------
-``output_topic`` (default ``contact``) : ContactPoint
-    One per wrench with a consistent contact (status OK or AXIAL_LOAD), in the wrench's
-    ``frame_id``, same ``stamp``, ``seq`` and ``whisker_id``; then an ``EndOfStream`` of its
+``output_topic`` (default ``contact``) : ContactPoint or ContactPointArray
+    One ContactPoint per WhiskerWrench with a consistent contact (status OK or AXIAL_LOAD),
+    in the wrench's ``frame_id``, same ``stamp``, ``seq`` and ``whisker_id``; one
+    ContactPointArray per WhiskerWrenchArray (same ``stamp``, ``seq``, ``frame_id``) with
+    the rows that have a consistent contact (possibly none); then an ``EndOfStream`` of its
     own for every ``EndOfStream`` that arrives on the input (after the points before it).
 
 Samples without a consistent contact are **counted, not sent**: the codec refuses the NaN a
@@ -17,7 +20,7 @@ point-less reconstruction carries, and a point with finite placeholder zeros wou
 on the map. Counters in this node's ``NodeStatus`` (besides the runtime's received, published,
 rejected, lost): ``contacts`` (points published), ``no_contact`` (valid wrench, no consistent
 contact), ``bad_pose`` (clamp quaternion of zero or non-finite length), ``batches`` and
-``max_batch`` (reconstruct calls and the largest batch). Undecodable input (wrong type,
+``max_batch`` (batches and the largest, in messages); the first three count array rows. Undecodable input (wrong type,
 version, field type, truncated bytes, NaN) is rejected and counted by the transport
 (``rejected``) and the node carries on.
 
@@ -33,21 +36,24 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeAlias
 
 import numpy as np
 import numpy.typing as npt
 from vibrissa.msgs import (
     ContactPhase,
     ContactPoint,
+    ContactPointArray,
     ContactStatus,
     EndOfStream,
     Message,
     WhiskerWrench,
+    WhiskerWrenchArray,
 )
 from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.wire.transport import Received
 
-from vibrissa.reconstruct import reconstruct_sample
+from vibrissa.reconstruct import reconstruct, reconstruct_sample
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
 
@@ -72,10 +78,12 @@ class ReconstructorParams:
         Node names that must be subscribed to ``output_topic`` before points go out
         (buffered until then, never dropped).
     drain_limit
-        Most wrenches taken from the queue before their points are published; a batch that
-        reaches it means a backlog, and the next one drains up to ``max_batch``.
+        Most messages taken from the queue before their points are published; a batch that
+        reaches it means a backlog, and the next one drains up to ``max_batch``. A
+        WhiskerWrenchArray is one message and always ends its batch.
     max_batch
-        Most wrenches taken in one batch (reconstructed, then published) when the node falls behind.
+        Most messages taken in one batch (reconstructed, then published) when the node falls
+        behind.
     receive_hwm
         Receive high-water mark, messages: the backlog the node can hold without loss.
     exit_on_eos
@@ -174,6 +182,77 @@ def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNI
 _NO_CONTACT = int(NO_CONTACT)
 
 
+@dataclass
+class ArrayResult:
+    """Outcome of :func:`reconstruct_array`.
+
+    Attributes
+    ----------
+    contacts
+        The rows with a consistent contact, in input order (possibly none).
+    no_contact
+        Rows whose reconstruction has no consistent contact (not in ``contacts``).
+    bad_pose
+        Rows skipped because their clamp quaternion has zero or non-finite length.
+    """
+
+    contacts: ContactPointArray
+    no_contact: int
+    bad_pose: int
+
+
+def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> ArrayResult:
+    """Reconstruct one tick of a whisker array in one vectorised Step 2 call.
+
+    Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct`` on (N, 3)
+    arrays, so a message's points depend on the message alone, never on arrival timing: a
+    replayed bag gives the live run's points bit for bit. They agree with the scalar path of
+    :func:`reconstruct_wrenches` to round-off.
+
+    Parameters
+    ----------
+    msg
+        SI rows, each with its own clamp pose X_WC in ``msg.frame_id``.
+    rod
+        L and EI of the rod.
+
+    Returns
+    -------
+    ArrayResult
+        A ContactPointArray (SI, in ``msg.frame_id``, same ``stamp`` and ``seq``) of the rows
+        whose status is OK or AXIAL_LOAD; the others are only counted.
+    """
+    q = msg.clamp_orientation
+    norm = np.sqrt(np.einsum("ni,ni->n", q, q))
+    good = np.isfinite(norm) & (norm > 0)
+    bad_pose = len(q) - int(good.sum())
+    if bad_pose:
+        q = q[good]
+    rec = reconstruct(msg.clamp_position[good] / rod.length_m, msg.f0[good] / rod.force_n,
+                      msg.m0[good] / rod.moment_nm, quaternion_matrices(q))
+    valid = rec.valid
+    rows = np.flatnonzero(good)[valid]
+    contacts = ContactPointArray(
+        stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id,
+        whisker_ids=[msg.whisker_ids[i] for i in rows.tolist()],
+        point=rec.point[valid] * rod.length_m, s1=rec.s1[valid] * rod.length_m,
+        phase=rec.phase[valid].astype(np.int32), force=rec.force[valid] * rod.force_n,
+        status=rec.status[valid].astype(np.int32),
+    )
+    return ArrayResult(contacts, len(valid) - len(rows), bad_pose)
+
+
+def quaternion_matrices(q_xyzw: FloatArray) -> FloatArray:
+    """Rotation matrices (N, 3, 3) of quaternions (N, 4) (x, y, z, w), normalised first."""
+    q = q_xyzw / np.linalg.norm(q_xyzw, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    return np.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+        2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+        2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+    ], axis=1).reshape(-1, 3, 3)
+
+
 def quaternion_rows(q_xyzw: Sequence[float]) -> list[list[float]]:
     """Rotation matrix of a quaternion (x, y, z, w), normalised first, as rows of floats."""
     norm = math.sqrt(sum(c * c for c in q_xyzw))
@@ -185,23 +264,27 @@ def quaternion_rows(q_xyzw: Sequence[float]) -> list[list[float]]:
     ]
 
 
+Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
+
+
 def collect_batch(
     receive: Callable[[float], Received | None], timeout_s: float, max_batch: int
-) -> tuple[list[WhiskerWrench], EndOfStream | None]:
+) -> tuple[list[Wrenches], EndOfStream | None]:
     """Wait up to ``timeout_s`` for one message, then drain what is already queued.
 
-    Draining stops at ``max_batch`` wrenches or at an ``EndOfStream``, which is returned
-    separately so that it goes downstream after the points of the wrenches before it.
+    Draining stops at ``max_batch`` messages, after a WhiskerWrenchArray (a tick of its own:
+    its points go out before anything else is decoded) or at an ``EndOfStream``, which is
+    returned separately so that it goes downstream after the points of the wrenches before it.
     """
-    batch: list[WhiskerWrench] = []
+    batch: list[Wrenches] = []
     rx = receive(timeout_s)
     while rx is not None:
         msg: Message = rx.msg
         if isinstance(msg, EndOfStream):
             return batch, msg
-        if isinstance(msg, WhiskerWrench):
+        if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
             batch.append(msg)
-        if len(batch) >= max_batch:
+        if len(batch) >= max_batch or isinstance(msg, WhiskerWrenchArray):
             break
         rx = receive(0.0)
     return batch, None
@@ -210,7 +293,7 @@ def collect_batch(
 class BatchCollector:
     """Batches from a queue: per burst while the node keeps up, large under a backlog.
 
-    A batch holds at most ``drain_limit`` wrenches, so the first wrench of a burst (a tick of
+    A batch holds at most ``drain_limit`` messages, so the first wrench of a burst (a tick of
     many whiskers) goes out after at most that many decodes, not after the whole burst. A
     batch that reaches its limit means a backlog: the next one drains up to ``max_batch``
     and the limit drops back once a batch ends below it.
@@ -223,7 +306,7 @@ class BatchCollector:
         self.max_batch = max_batch
         self.limit = drain_limit
 
-    def collect(self, timeout_s: float) -> tuple[list[WhiskerWrench], EndOfStream | None]:
+    def collect(self, timeout_s: float) -> tuple[list[Wrenches], EndOfStream | None]:
         """The next batch (see :func:`collect_batch`) and the limit for the one after."""
         batch, eos = collect_batch(self._receive, timeout_s, self.limit)
         self.limit = self.max_batch if len(batch) >= self.limit else self.drain_limit
@@ -234,9 +317,9 @@ def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     counters = node.counters
     counters.update(contacts=0, no_contact=0, bad_pose=0, batches=0, max_batch=0)
-    subscriber = node.create_subscriber({params.input_topic: WhiskerWrench},
-                                        hwm=params.receive_hwm)
-    publisher = node.create_publisher(params.output_topic, ContactPoint,
+    subscriber = node.create_subscriber(
+        {params.input_topic: (WhiskerWrench, WhiskerWrenchArray)}, hwm=params.receive_hwm)
+    publisher = node.create_publisher(params.output_topic, (ContactPoint, ContactPointArray),
                                       wait_for=params.wait_for)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch)
     rod = params.rod
@@ -244,14 +327,23 @@ def run(node: Node, params: ReconstructorParams) -> None:
     while not node.stop_requested:
         batch, eos = batches.collect(0.1)
         if batch:
-            result = reconstruct_wrenches(batch, rod)
+            # An array can only end a batch (collect_batch): the wrenches come before it.
+            tick = batch.pop() if isinstance(batch[-1], WhiskerWrenchArray) else None
+            wrenches = [w for w in batch if isinstance(w, WhiskerWrench)]
+            result = reconstruct_wrenches(wrenches, rod)
             for point in result.contacts:
                 publisher.publish(point)
             counters["contacts"] += len(result.contacts)
             counters["no_contact"] += result.no_contact
             counters["bad_pose"] += result.bad_pose
+            if tick is not None:
+                array = reconstruct_array(tick, rod)
+                publisher.publish(array.contacts)
+                counters["contacts"] += len(array.contacts.whisker_ids)
+                counters["no_contact"] += array.no_contact
+                counters["bad_pose"] += array.bad_pose
             counters["batches"] += 1
-            counters["max_batch"] = max(counters["max_batch"], len(batch))
+            counters["max_batch"] = max(counters["max_batch"], len(wrenches) + (tick is not None))
         if eos is not None:
             publisher.publish_end_of_stream(node.fqn)
             log.info("%s: EndOfStream from %s (%d samples); %s", node.fqn, eos.source,

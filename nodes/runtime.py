@@ -49,7 +49,7 @@ from typing import Any, TypeVar
 
 import yaml
 import zmq
-from vibrissa.msgs import Message, NodeStatus
+from vibrissa.msgs import NodeStatus
 from vibrissa.msgs.messages import NODE_STATES
 from vibrissa.wire import (
     DEFAULT_HWM,
@@ -350,7 +350,7 @@ class Node:
     def create_publisher(
         self,
         topic: str,
-        msg_type: type[Message],
+        msg_type: MessageTypes,
         wait_for: Iterable[str] = (),
         hwm: int = DEFAULT_HWM,
     ) -> Publisher:
@@ -462,7 +462,7 @@ class Node:
         totals.update(self.counters)  # one C-level copy: safe against the node's updates
         return NodeStatus(
             stamp=time.time(), node=self.fqn, state=self._state, counters=totals,
-            publishes={p.topic: p.msg_type.TYPE_NAME for p in publishers},
+            publishes={p.topic: p.type_name for p in publishers},
             subscribes=subscribes, seen_topics=sorted(seen), message=self._message,
         )
 

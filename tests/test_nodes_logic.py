@@ -8,13 +8,23 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from vibrissa.msgs import ContactPoint, EndOfStream, WhiskerWrench
+from vibrissa.msgs import (
+    ContactPoint,
+    ContactPointArray,
+    EndOfStream,
+    WhiskerWrench,
+    WhiskerWrenchArray,
+    decode,
+    encode,
+)
 from vibrissa.nodes.mapper import Accumulator, MapperParams
 from vibrissa.nodes.reconstructor import (
     BatchCollector,
     ReconstructorParams,
     collect_batch,
+    quaternion_matrices,
     quaternion_rows,
+    reconstruct_array,
     reconstruct_wrenches,
 )
 from vibrissa.nodes.runtime import load_params
@@ -154,6 +164,69 @@ def test_zero_quaternion_is_counted_as_bad_pose() -> None:
     assert 9 not in [c.seq for c in result.contacts]
 
 
+def _tick(wrenches: list[WhiskerWrench], seq: int = 4) -> WhiskerWrenchArray:
+    """The wrenches as the rows of one array message."""
+    return WhiskerWrenchArray(
+        stamp=2.5, seq=seq, frame_id="world", whisker_ids=[f"w{w.seq}" for w in wrenches],
+        clamp_position=np.stack([w.clamp_position for w in wrenches]),
+        clamp_orientation=np.stack([w.clamp_orientation for w in wrenches]),
+        f0=np.stack([w.f0 for w in wrenches]), m0=np.stack([w.m0 for w in wrenches]))
+
+
+def test_array_equals_library_and_scalar_path_and_counts_rows() -> None:
+    length, ei = 0.04, 3e-3
+    rod = RodScale(length, ei)
+    unit = _wrenches(32)
+    q = np.random.default_rng(5).normal(size=(32, 4))
+    q[7] = 0.0  # bad pose
+    wrenches = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id=f"w{w.seq}", frame_id="world",
+                              clamp_position=w.clamp_position * length, clamp_orientation=q[i],
+                              f0=w.f0 * ei / length**2, m0=w.m0 * ei / length)
+                for i, w in enumerate(unit)]
+    result = reconstruct_array(_tick(wrenches), rod)
+    scalar = reconstruct_wrenches(wrenches, rod)
+    got = result.contacts
+    assert (got.stamp, got.seq, got.frame_id) == (2.5, 4, "world")
+    assert got.whisker_ids == [c.whisker_id for c in scalar.contacts]
+    assert (result.no_contact, result.bad_pose) == (scalar.no_contact, scalar.bad_pose)
+    assert result.bad_pose == 1 and result.no_contact >= 1 and "w7" not in got.whisker_ids
+    # the library on the dimensionless rows, one array call
+    rows = [int(w[1:]) for w in got.whisker_ids]
+    good = [i for i in range(32) if i != 7]
+    R = np.stack([quaternion_rows(q[i].tolist()) for i in good])
+    np.testing.assert_allclose(quaternion_matrices(q[good]), R, rtol=0, atol=1e-15)
+    rec = reconstruct(np.stack([unit[i].clamp_position for i in good]),
+                      np.stack([unit[i].f0 for i in good]), np.stack([unit[i].m0 for i in good]), R)
+    keep = [good.index(i) for i in rows]
+    assert rec.valid.sum() == len(rows)
+    np.testing.assert_allclose(got.point, rec.point[keep] * length, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(got.s1, rec.s1[keep] * length, rtol=1e-12)
+    np.testing.assert_allclose(got.force, rec.force[keep] * ei / length**2, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(got.phase, rec.phase[keep])
+    np.testing.assert_array_equal(got.status, rec.status[keep])
+    # the scalar path agrees to round-off
+    np.testing.assert_allclose(got.point, [c.point for c in scalar.contacts], rtol=1e-12,
+                               atol=1e-15)
+    assert got.phase.tolist() == [int(c.phase) for c in scalar.contacts]
+
+
+def test_an_array_gives_the_same_points_bit_for_bit_after_the_wire() -> None:
+    # A bag replay decodes the recorded bytes: the points must be the live run's exactly.
+    tick = _tick(_to_si(_wrenches(32), 0.04, 3e-3, [0.3, -0.2, 0.5, 2.0]))
+    rod = RodScale(0.04, 3e-3)
+    live = reconstruct_array(tick, rod).contacts
+    replayed = decode(encode(tick))
+    assert isinstance(replayed, WhiskerWrenchArray)
+    assert reconstruct_array(replayed, rod).contacts == live and len(live.whisker_ids) > 0
+
+
+def test_an_array_without_contact_gives_an_empty_array() -> None:
+    result = reconstruct_array(_tick(_wrenches(1)))
+    assert result.no_contact == 1 and result.contacts.whisker_ids == []
+    assert result.contacts.point.shape == (0, 3)
+    assert decode(encode(result.contacts)) == result.contacts
+
+
 def _rx(msg: Any) -> Received:
     return Received("/w", msg, b"", Header(1, 0), 0.0)
 
@@ -175,6 +248,18 @@ def test_collect_batch_drains_up_to_max_and_stops_at_end_of_stream() -> None:
     batch, eos = collect_batch(receive, 0.1, max_batch=100)
     assert len(batch) == 2 and eos is None
     assert collect_batch(receive, 0.1, max_batch=3) == ([], None)
+
+
+def test_an_array_ends_its_batch() -> None:
+    wrenches = _wrenches(3)
+    queue: list[Any] = [wrenches[0], _tick(wrenches[1:]), wrenches[2]]
+
+    def receive(timeout_s: float) -> Received | None:
+        return _rx(queue.pop(0)) if queue else None
+
+    batch, eos = collect_batch(receive, 0.1, max_batch=100)
+    assert [type(m) for m in batch] == [WhiskerWrench, WhiskerWrenchArray] and eos is None
+    assert collect_batch(receive, 0.1, max_batch=100)[0] == [wrenches[2]]
 
 
 def test_batches_stay_small_until_a_backlog_then_drain_it_in_one() -> None:
@@ -247,6 +332,17 @@ def test_accumulator_ends_on_count_or_names() -> None:
     assert not acc.done and acc.n_points == 1
     acc.add(EndOfStream(stamp=0.0, source="/b", count=0))
     assert acc.done
+    acc.add(ContactPointArray(stamp=0.0, seq=3, frame_id="arm", whisker_ids=[],
+                              point=np.zeros((0, 3)), s1=[], phase=[], force=np.zeros((0, 3)),
+                              status=[]))
+    assert "arm" not in acc.frames  # a tick without contact adds no frame
+    acc.add(ContactPointArray(stamp=0.0, seq=3, frame_id="world", whisker_ids=["u", "v"],
+                              point=[[0, 0, 2], [0, 0, 3]], s1=[0.5, 0.6], phase=[1, 2],
+                              force=[[0, 0, 1], [0, 1, 0]], status=[0, 0]))
+    assert acc.n_points == 3
+    points, forces, ids = acc.frames["world"].ordered()
+    assert ids == ["u", "v", "w"] and points[:, 2].tolist() == [2, 3, 1]
+    np.testing.assert_array_equal(forces[1], [0, 1, 0])
     named = Accumulator(["/b"])
     named.add(EndOfStream(stamp=0.0, source="/a", count=1))
     assert not named.done

@@ -26,7 +26,17 @@ import numpy as np
 import pytest
 import yaml
 import zmq
-from vibrissa.msgs import ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench, encode
+from vibrissa.msgs import (
+    ContactPoint,
+    ContactPointArray,
+    EndOfStream,
+    NodeStatus,
+    Ping,
+    WhiskerWrench,
+    WhiskerWrenchArray,
+    encode,
+)
+from vibrissa.nodes.reconstructor import quaternion_matrices
 from vibrissa.nodes.runtime import Node
 from vibrissa.wire import STATUS_TOPIC
 from vibrissa.wire.bag import BagReader
@@ -399,5 +409,81 @@ def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path:
     finally:
         sock.close()
         context.term()
+        probe.close()
+        launch.kill()
+
+
+def _sweep_ticks(length: float, ei: float, whiskers: int) -> tuple[list[WhiskerWrenchArray],
+                                                                    np.ndarray]:
+    """The sweeps' samples as ticks of ``whiskers`` rows (SI, a turned clamp) plus one row per
+    tick without force; returns the ticks and every row's quaternion rotation R_WC."""
+    sweeps = simulate_sweeps(parse_surface(SURFACE), [Trail(y, MU) for y in Y0], STEP)
+    p0, f0, m0 = (np.vstack([getattr(s, k) for s in sweeps]) for k in ("p0", "f0", "m0"))
+    q = np.array([0.1, -0.3, 0.2, 0.9])
+    ticks = []
+    for seq, start in enumerate(range(0, len(p0), whiskers)):
+        rows = slice(start, start + whiskers)
+        n = len(p0[rows])
+        ticks.append(WhiskerWrenchArray(
+            stamp=float(seq), seq=seq, frame_id="world",
+            whisker_ids=[f"w{i}" for i in range(n)] + ["idle"],
+            clamp_position=np.vstack([p0[rows] * length, [0.0, 0.0, 0.0]]),
+            clamp_orientation=np.tile(q, (n + 1, 1)),
+            f0=np.vstack([f0[rows] * ei / length**2, np.zeros(3)]),
+            m0=np.vstack([m0[rows] * ei / length, np.zeros(3)])))
+    return ticks, quaternion_matrices(q[None])[0]
+
+
+def test_array_ticks_over_the_wire_match_the_library(tmp_path: Path) -> None:
+    length, ei = 0.05, 2e-3
+    launch_entries = [e for e in entries("demo.yaml") if "arg" in e]
+    reconstructor = node(entries("demo.yaml"), "reconstructor")
+    reconstructor.pop("respawn", None)
+    set_param(reconstructor, "wait_for", ["/probe"])
+    set_param(reconstructor, "rod_length_m", length)
+    set_param(reconstructor, "rod_ei_nm2", ei)
+    launch_entries.append({"node": reconstructor})
+    launch = Launch(tmp_path, launch_entries)
+    probe = Probe(launch.endpoints(), [CONTACT])
+    fqn = "/whisker0/reconstructor"
+    try:
+        ticks, R = _sweep_ticks(length, ei, whiskers=8)
+        pub = probe.node.create_publisher(WRENCH, WhiskerWrenchArray, wait_for=[fqn])
+        assert probe.node.wait_for_subscribers(WRENCH, [fqn], 30.0), launch.text()
+        for tick in ticks:
+            pub.publish(tick)
+        pub.publish_end_of_stream(probe.node.fqn)
+        got: list[ContactPointArray] = []
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            rx = probe.sub.receive(0.2)
+            if rx is not None and isinstance(rx.msg, EndOfStream):
+                break
+            if rx is not None:
+                assert isinstance(rx.msg, ContactPointArray), rx.msg
+                got.append(rx.msg)
+        assert [a.seq for a in got] == [t.seq for t in ticks], launch.text()
+        for tick, contacts in zip(ticks, got, strict=True):
+            real = slice(0, len(tick.whisker_ids) - 1)  # the idle row has no contact
+            assert contacts.whisker_ids == tick.whisker_ids[real]
+            assert contacts.stamp == tick.stamp and contacts.frame_id == "world"
+            ref = reconstruct(tick.clamp_position[real] / length,
+                              tick.f0[real] * length**2 / ei, tick.m0[real] * length / ei,
+                              np.broadcast_to(R, (len(contacts.whisker_ids), 3, 3)))
+            assert ref.valid.all()
+            np.testing.assert_allclose(contacts.point, ref.point * length, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(contacts.s1, ref.s1 * length, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(contacts.force, ref.force * ei / length**2, rtol=0,
+                                       atol=1e-12)
+            np.testing.assert_array_equal(contacts.phase, ref.phase)
+        status = probe.status_of(fqn, lambda s: s.counters.get("no_contact", 0) >= len(ticks))
+        n_rows = sum(len(t.whisker_ids) for t in ticks)
+        assert status.counters["contacts"] == n_rows - len(ticks), status.counters
+        assert status.counters["no_contact"] == len(ticks)
+        assert status.counters["received"] == len(ticks) + 1  # and the EndOfStream
+        assert status.counters["lost"] == 0
+        assert status.subscribes[WRENCH] == (
+            f"{WhiskerWrench.TYPE_NAME}|{WhiskerWrenchArray.TYPE_NAME}")
+    finally:
         probe.close()
         launch.kill()

@@ -217,7 +217,7 @@ def _check_topic(topic: str) -> bytes:
 
 
 class Publisher:
-    """Publishes messages of one type on one (absolute) topic.
+    """Publishes messages of one type (or a few) on one (absolute) topic.
 
     Thread-safe: a lock serialises sends, so the node runtime's heartbeat thread can ``ping``
     and ``release`` the same socket the node publishes on. While held (``hold()``), published
@@ -228,7 +228,8 @@ class Publisher:
     topic
         Fully qualified topic name, e.g. ``/whisker0/wrench``.
     msg_type
-        The message class published (``EndOfStream`` is allowed in addition).
+        The message class published, or a tuple of them (``EndOfStream`` is allowed in
+        addition).
     hwm
         Send high-water mark, messages; beyond it ZeroMQ drops (subscribers count the loss).
     """
@@ -236,14 +237,15 @@ class Publisher:
     def __init__(
         self,
         topic: str,
-        msg_type: type[Message],
+        msg_type: MessageTypes,
         endpoints: Endpoints | None = None,
         context: zmq.Context[Any] | None = None,
         hwm: int = DEFAULT_HWM,
     ) -> None:
         self._prefix = _check_topic(topic)
         self.topic = topic
-        self.msg_type = msg_type
+        self.msg_types = msg_type if isinstance(msg_type, tuple) else (msg_type,)
+        self.type_name = "|".join(t.TYPE_NAME for t in self.msg_types)  # for NodeStatus
         self.pub_id = int.from_bytes(os.urandom(8), "little")
         self.published = 0  # data messages accepted by publish/publish_raw (not EndOfStream)
         self.sent = 0  # messages sent with a seq: data and EndOfStream (= the next seq)
@@ -259,9 +261,9 @@ class Publisher:
 
     def publish(self, msg: Message) -> None:
         """Encode and send ``msg`` (buffered while held)."""
-        if not isinstance(msg, (self.msg_type, EndOfStream)):
+        if not isinstance(msg, (*self.msg_types, EndOfStream)):
             raise TypeError(
-                f"publisher on {self.topic} sends {self.msg_type.TYPE_NAME}, "
+                f"publisher on {self.topic} sends {self.type_name}, "
                 f"got {type(msg).__name__}"
             )
         payload = encode(msg)
@@ -273,9 +275,9 @@ class Publisher:
     def publish_raw(self, payload: bytes) -> None:
         """Send an already encoded payload (bag replay); its type must match the publisher's."""
         name, _ = peek_type(payload)
-        if name not in (self.msg_type.TYPE_NAME, EndOfStream.TYPE_NAME):
+        if name != EndOfStream.TYPE_NAME and all(t.TYPE_NAME != name for t in self.msg_types):
             raise TypeError(
-                f"publisher on {self.topic} sends {self.msg_type.TYPE_NAME}, payload is {name}"
+                f"publisher on {self.topic} sends {self.type_name}, payload is {name}"
             )
         with self._lock:
             if name != EndOfStream.TYPE_NAME:

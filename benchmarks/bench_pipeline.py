@@ -1,22 +1,26 @@
-"""Latency and throughput of the node graph: wrench published -> contact point received.
+"""Latency and throughput of the node graph: wrenches published -> contact points received.
 
 Pipeline (every box its own process, real ZeroMQ on loopback)::
 
     load --/bench/wrench--> proxy --> reconstructor --/bench/contact--> proxy --> sink (here)
 
-Floor, in the same run, with the same wrench payload and the same pacing::
+Floor, in the same run, with the same payload and the same pacing::
 
     load (bare PUB) --> echo (SUB -> PUB, forwards the bytes) --> sink (bare SUB)
 
-The load process sends ``whiskers`` samples per tick (one per whisker) at ``rate`` samples/s in
-total, pre-encoded, and records the send time of each; the sink records the receive time of
-each by sequence number (the transport header's ``seq``, so the sink decodes nothing). Loss
-is sent - received (every benchmark wrench has a contact). A rate is *sustained* when nothing
-is lost and the sink is done within ``max(50 ms, 5 %)`` of the send duration after the last
-send (no backlog grows). ``first p50`` is the median latency of the first sample of each tick
-(whisker 0), which waits for no other sample of its tick.
+Two ways to send a tick of 32 whiskers at ``rate`` wrenches/s in total: *per wrench*, one
+WhiskerWrench per whisker (32 messages per tick; latency per wrench, its ContactPoint), and
+*per tick*, one WhiskerWrenchArray of 32 rows (latency per tick, its ContactPointArray). The
+load sends pre-encoded payloads and records the send time of each message; the sink records the
+receive time of each by sequence number (the transport header's ``seq``, so the sink decodes
+nothing). Loss is sent - received (every benchmark wrench has a contact). A rate is
+*sustained* when nothing is lost and the sink is done within ``max(50 ms, 5 %)`` of the send
+duration after the last send (no backlog grows). ``first p50`` is the median latency of the
+first message of each tick (whisker 0 per wrench; every message per tick). With ``--repeat``
+every figure is the median over the repeats (runs interleaved), sustained counts the repeats.
 
-Run: ``python benchmarks/bench_pipeline.py [--duration 2] [--rates 1000,...]``. Not a test.
+Run: ``python benchmarks/bench_pipeline.py [--duration 2] [--rates 1000,...] [--repeat 1]``.
+Not a test.
 """
 
 from __future__ import annotations
@@ -38,14 +42,16 @@ import zmq
 WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
+UNITS = ("wrench", "tick")  # one WhiskerWrench per whisker, or one WhiskerWrenchArray per tick
 
 
 # -- helper processes (python bench_pipeline.py _proxy | _load | _echo ...) ----------------------
 
 
-def _payloads(n: int) -> list[bytes]:
-    """``n`` encoded WhiskerWrench, seq 0..n-1, cycling over valid wrenches and whiskers."""
-    from vibrissa.msgs import WhiskerWrench, encode
+def _payloads(n: int, unit: str) -> list[bytes]:
+    """``n`` encoded messages, seq 0..n-1, cycling over valid wrenches and whiskers: a
+    WhiskerWrench each (``unit`` wrench) or a WhiskerWrenchArray of WHISKERS rows (tick)."""
+    from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray, encode
 
     from vibrissa.reconstruct import reconstruct
 
@@ -54,6 +60,14 @@ def _payloads(n: int) -> list[bytes]:
     valid = np.flatnonzero(reconstruct(p0, f0, m0).valid)
     out = []
     for i in range(n):
+        if unit == "tick":
+            k = valid[np.arange(i * WHISKERS, (i + 1) * WHISKERS) % len(valid)]
+            out.append(encode(WhiskerWrenchArray(
+                stamp=0.0, seq=i, frame_id="world",
+                whisker_ids=[f"whisker{j}" for j in range(WHISKERS)], clamp_position=p0[k],
+                clamp_orientation=np.tile([0.0, 0.0, 0.0, 1.0], (WHISKERS, 1)), f0=f0[k],
+                m0=m0[k])))
+            continue
         k = valid[i % len(valid)]
         out.append(encode(WhiskerWrench(
             stamp=0.0, seq=i, whisker_id=f"whisker{i % WHISKERS}", frame_id="world",
@@ -61,23 +75,30 @@ def _payloads(n: int) -> list[bytes]:
     return out
 
 
-def _pace(send: Any, n: int, rate: float, t_send: np.ndarray) -> None:
-    """Call ``send(i)`` for i < n in ticks of WHISKERS samples at ``rate`` samples/s."""
+def _per_tick(unit: str) -> int:
+    """Messages per tick."""
+    return WHISKERS if unit == "wrench" else 1
+
+
+def _pace(send: Any, n: int, rate: float, per_tick: int, t_send: np.ndarray) -> None:
+    """Call ``send(i)`` for i < n, ``per_tick`` messages per tick, ticks of WHISKERS wrenches
+    at ``rate`` wrenches/s."""
     tick = WHISKERS / rate
     t0 = time.perf_counter() + 0.05
     clock_offset = time.time() - time.perf_counter()
-    for start in range(0, n, WHISKERS):
-        due = t0 + (start // WHISKERS) * tick
+    for start in range(0, n, per_tick):
+        due = t0 + (start // per_tick) * tick
         delay = due - time.perf_counter()
         if delay > 0:
             time.sleep(delay)
-        for i in range(start, min(n, start + WHISKERS)):
+        for i in range(start, min(n, start + per_tick)):
             t_send[i] = time.perf_counter() + clock_offset
             send(i)
 
 
-def _load(mode: str, endpoint: str, n: int, rate: float, out: str) -> None:
-    payloads = _payloads(n)
+def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) -> None:
+    payloads = _payloads(n, unit)
+    per_tick = _per_tick(unit)
     t_send = np.zeros(n)
     if mode == "bare":
         context: zmq.Context[Any] = zmq.Context()
@@ -92,21 +113,22 @@ def _load(mode: str, endpoint: str, n: int, rate: float, out: str) -> None:
         def send_bare(i: int) -> None:
             sock.send_multipart((prefix, i.to_bytes(8, "little"), payloads[i]))
 
-        _pace(send_bare, n, rate, t_send)
+        _pace(send_bare, n, rate, per_tick, t_send)
         sock.close()
         context.term()
     else:
-        from vibrissa.msgs import WhiskerWrench
+        from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray
         from vibrissa.nodes.runtime import Node
 
+        msg_type = WhiskerWrench if unit == "wrench" else WhiskerWrenchArray
         with Node("load", "/bench", handle_signals=False) as node:
-            pub = node.create_publisher("wrench", WhiskerWrench, wait_for=["reconstructor"],
+            pub = node.create_publisher("wrench", msg_type, wait_for=["reconstructor"],
                                         hwm=n + 10)
             if not node.wait_for_subscribers("wrench", ["reconstructor"], 60.0):
                 raise SystemExit("reconstructor not ready")
             print("ready", flush=True)
             sys.stdin.readline()
-            _pace(lambda i: pub.publish_raw(payloads[i]), n, rate, t_send)
+            _pace(lambda i: pub.publish_raw(payloads[i]), n, rate, per_tick, t_send)
             pub.publish_end_of_stream(node.fqn)
     np.save(out, t_send)
 
@@ -151,9 +173,10 @@ def _proxy() -> None:
 
 @dataclass
 class Run:
-    """One measured run."""
+    """One measured run (``sent``, ``received``: messages; ``rate``: wrenches/s)."""
 
     mode: str
+    unit: str
     rate: float
     sent: int
     received: int
@@ -171,7 +194,7 @@ class Run:
         return self.lost == 0 and self.backlog_s <= max(0.05, 0.05 * self.send_s)
 
     def pct(self, q: float, first: bool = False) -> float:
-        """Percentile ``q`` of the latency, us (``first``: of the first sample of each tick)."""
+        """Percentile ``q`` of the latency, us (``first``: of the first message of each tick)."""
         latency = self.first_latency_s if first else self.latency_s
         return float(np.percentile(latency, q)) * 1e6 if len(latency) else np.nan
 
@@ -200,10 +223,12 @@ def _sink(sock: zmq.Socket[Any], n: int, header_seq: bool, timeout_s: float) -> 
     return t_recv
 
 
-def measure(mode: str, rate: float, duration_s: float, tmp: Path) -> Run:
-    """One run of the pipeline (``mode`` = ``vibrissa``) or the floor (``bare``)."""
-    n = int(rate * duration_s)
-    out = tmp / f"send-{mode}-{int(rate)}.npy"
+def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> Run:
+    """One run of the pipeline (``mode`` = ``vibrissa``) or the floor (``bare``), sending a
+    message per wrench or per tick (``unit``) at ``rate`` wrenches/s."""
+    per_tick = _per_tick(unit)
+    n = int(rate * duration_s) // WHISKERS * per_tick
+    out = tmp / f"send-{mode}-{unit}-{int(rate)}.npy"
     context: zmq.Context[Any] = zmq.Context()
     sink = context.socket(zmq.SUB)
     sink.setsockopt(zmq.LINGER, 0)
@@ -216,7 +241,7 @@ def measure(mode: str, rate: float, duration_s: float, tmp: Path) -> Run:
             load_ep = f"tcp://127.0.0.1:{probe.bind_to_random_port('tcp://127.0.0.1')}"
             echo_ep = f"tcp://127.0.0.1:{probe.bind_to_random_port('tcp://127.0.0.1')}"
             probe.close()
-            load = _python(me, "_load", "bare", load_ep, str(n), str(rate), str(out),
+            load = _python(me, "_load", "bare", unit, load_ep, str(n), str(rate), str(out),
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             helpers.append(load)
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
@@ -236,7 +261,7 @@ def measure(mode: str, rate: float, duration_s: float, tmp: Path) -> Run:
             sink.connect(sub_ep)
             helpers.append(_python("-m", "vibrissa.nodes.reconstructor", "--name",
                                    "reconstructor", "--namespace", "/bench", env=env))
-            load = _python(me, "_load", "vibrissa", "", str(n), str(rate), str(out),
+            load = _python(me, "_load", "vibrissa", unit, "", str(n), str(rate), str(out),
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
             helpers.append(load)
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
@@ -265,11 +290,42 @@ def measure(mode: str, rate: float, duration_s: float, tmp: Path) -> Run:
                 proc.kill()
     ok = np.isfinite(t_recv)
     latency = t_recv - t_send
-    first = latency[::WHISKERS]
+    first = latency[::per_tick]
     send_s = float(t_send[-1] - t_send[0]) if n > 1 else 0.0
     backlog = float(np.nanmax(t_recv) - t_send[-1]) if ok.any() else np.inf
-    return Run(mode, rate, n, int(ok.sum()), latency[ok], first[np.isfinite(first)], send_s,
-               backlog)
+    return Run(mode, unit, rate, n, int(ok.sum()), latency[ok], first[np.isfinite(first)],
+               send_s, backlog)
+
+
+def _table(runs: list[Run], unit: str, rates: list[float], repeats: int) -> None:
+    """Medians over the repeats per rate and mode; ratios are medians of per-repeat ratios."""
+    what = "wrench published -> its ContactPoint" if unit == "wrench" else (
+        "WhiskerWrenchArray of a tick published -> its ContactPointArray")
+    print(f"\nper {unit} ({what}); {repeats} run(s) each, medians")
+    header = (f"{'rate/s':>8} {'mode':>9} {'sent':>7} {'lost':>6} {'p50 us':>9} {'p99 us':>9} "
+              f"{'max us':>9} {'first p50':>9} {'backlog ms':>10} {'sustained':>9} {'p50 x':>7} "
+              f"{'p99 x':>7}")
+    print(header)
+    print("-" * len(header))
+    for rate in rates:
+        by_mode = {mode: [r for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode)]
+                   for mode in ("bare", "vibrissa")}
+        for mode, mine in by_mode.items():
+            pairs = list(zip(mine, by_mode["bare"], strict=True))
+            print(f"{rate:8.0f} {mode:>9} {mine[0].sent:7d} {max(r.lost for r in mine):6d} "
+                  f"{np.median([r.pct(50) for r in mine]):9.0f} "
+                  f"{np.median([r.pct(99) for r in mine]):9.0f} "
+                  f"{np.median([r.pct(100) for r in mine]):9.0f} "
+                  f"{np.median([r.pct(50, first=True) for r in mine]):9.0f} "
+                  f"{np.median([r.backlog_s for r in mine]) * 1e3:10.1f} "
+                  f"{sum(r.sustained for r in mine):>7d}/{len(mine)} "
+                  f"{np.median([a.pct(50) / b.pct(50) for a, b in pairs]):7.1f} "
+                  f"{np.median([a.pct(99) / b.pct(99) for a, b in pairs]):7.1f}")
+    for mode in ("vibrissa", "bare"):
+        ok = [rate for rate in rates if all(
+            r.sustained for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode))]
+        best = f"{max(ok):.0f} wrenches/s" if ok else "none of the rates tried"
+        print(f"highest rate sustained with zero loss in every run, per {unit} ({mode}): {best}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -278,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         _proxy()
         return 0
     if argv and argv[0] == "_load":
-        _load(argv[1], argv[2], int(argv[3]), float(argv[4]), argv[5])
+        _load(argv[1], argv[2], argv[3], int(argv[4]), float(argv[5]), argv[6])
         return 0
     if argv and argv[0] == "_echo":
         _echo(argv[1], argv[2])
@@ -286,44 +342,33 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=2.0, help="seconds per run")
     parser.add_argument("--rates", default="1000,4000,8000,16000,32000,64000",
-                        help="aggregate samples/s to try (32 whiskers each)")
+                        help="aggregate wrenches/s to try (32 whiskers per tick)")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per rate, mode and unit")
     args = parser.parse_args(argv)
     rates = [float(r) for r in args.rates.split(",")]
-    print(f"{os.cpu_count()} CPUs; {WHISKERS} whiskers; {args.duration:g} s per run; "
-          f"latency = wrench published -> contact received", flush=True)
+    print(f"{os.cpu_count()} CPUs; {WHISKERS} whiskers per tick; {args.duration:g} s per run",
+          flush=True)
     runs: list[Run] = []
     with tempfile.TemporaryDirectory() as tmp:
-        for rate in rates:
-            for mode in ("bare", "vibrissa"):
-                run = measure(mode, rate, args.duration, Path(tmp))
-                runs.append(run)
-                print(f"  {mode:8s} {rate:8.0f}/s  p50 {run.pct(50):9.0f} us  p99 "
-                      f"{run.pct(99):9.0f} us  first p50 {run.pct(50, first=True):9.0f} us  "
-                      f"lost {run.lost}", flush=True)
-    print()
-    header = (f"{'rate/s':>8} {'mode':>9} {'sent':>7} {'lost':>6} {'p50 us':>9} {'p99 us':>9} "
-              f"{'max us':>9} {'first p50':>9} {'backlog ms':>10} {'sustained':>9} {'p50 x':>7} "
-              f"{'p99 x':>7}")
-    print(header)
-    print("-" * len(header))
-    for rate in rates:
-        bare = next(r for r in runs if r.rate == rate and r.mode == "bare")
-        for run in (bare, next(r for r in runs if r.rate == rate and r.mode == "vibrissa")):
-            ratio50 = run.pct(50) / bare.pct(50)
-            ratio99 = run.pct(99) / bare.pct(99)
-            print(f"{rate:8.0f} {run.mode:>9} {run.sent:7d} {run.lost:6d} {run.pct(50):9.0f} "
-                  f"{run.pct(99):9.0f} {run.pct(100):9.0f} {run.pct(50, first=True):9.0f} "
-                  f"{run.backlog_s * 1e3:10.1f} "
-                  f"{'yes' if run.sustained else 'no':>9} {ratio50:7.1f} {ratio99:7.1f}")
-    for mode in ("vibrissa", "bare"):
-        ok = [r.rate for r in runs if r.mode == mode and r.sustained]
-        best = f"{max(ok):.0f} samples/s" if ok else "none of the rates tried"
-        print(f"highest sustained rate with zero loss ({mode}): {best}")
-    target = [r for r in runs if r.rate == 32000 and r.mode == "vibrissa"]
-    if target:
-        verdict = "zero loss" if target[0].lost == 0 else f"LOST {target[0].lost}"
-        print(f"32 whiskers x 1 kHz: {verdict}, "
-              f"{'sustained' if target[0].sustained else 'NOT sustained (backlog grows)'}")
+        for repeat in range(args.repeat):
+            for rate in rates:
+                for unit in UNITS:
+                    for mode in ("bare", "vibrissa"):
+                        run = measure(mode, unit, rate, args.duration, Path(tmp))
+                        runs.append(run)
+                        print(f"  {repeat} {unit:6s} {mode:8s} {rate:8.0f}/s  p50 "
+                              f"{run.pct(50):9.0f} us  p99 {run.pct(99):9.0f} us  first p50 "
+                              f"{run.pct(50, first=True):9.0f} us  lost {run.lost}  backlog "
+                              f"{run.backlog_s * 1e3:.1f} ms", flush=True)
+    for unit in UNITS:
+        _table(runs, unit, rates, args.repeat)
+    for unit in UNITS:
+        target = [r for r in runs if (r.unit, r.rate, r.mode) == (unit, 32000, "vibrissa")]
+        if target:
+            lost = max(r.lost for r in target)
+            sustained = sum(r.sustained for r in target)
+            print(f"32 whiskers x 1 kHz, per {unit}: {'zero loss' if lost == 0 else f'LOST {lost}'}"
+                  f", sustained in {sustained}/{len(target)} runs")
     return 0
 
 

@@ -77,15 +77,22 @@ def _pendulum(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> _Pendulum:
     return _pendulum_arrays(fu_a, fv_a, kappa0_a)
 
 
+_NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
+_NO_FORCE = int(ContactStatus.NO_FORCE)
+_NEVER_VANISHES = int(ContactStatus.CURVATURE_NEVER_VANISHES)
+_AXIAL = int(ContactStatus.AXIAL_LOAD)
+
+
 def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]) -> _Pendulum:
     status = np.zeros(fu.shape, dtype=np.int64)
     finite = np.isfinite(fu) & np.isfinite(fv) & np.isfinite(kappa0)
-    status[~finite] |= ContactStatus.NON_FINITE_INPUT
+    status[~finite] |= _NON_FINITE
     mirrored = kappa0 < 0
-    fu = np.where(mirrored, -fu, fu)
-    kappa0 = np.abs(kappa0)
+    if mirrored.any():
+        fu = np.where(mirrored, -fu, fu)
+        kappa0 = np.abs(kappa0)
     f = np.hypot(fu, fv)
-    status[finite & (f == 0)] |= ContactStatus.NO_FORCE
+    status[finite & (f == 0)] |= _NO_FORCE
     with np.errstate(divide="ignore", invalid="ignore"):
         sqrt_f = np.sqrt(f)
         alpha = np.arctan2(fu, -fv)
@@ -94,8 +101,8 @@ def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: N
         k = np.hypot(b0, c0)
         sin_theta0 = b0 / k
         cos_theta0 = c0 / k
-    status[(status == 0) & (k >= 1.0)] |= ContactStatus.CURVATURE_NEVER_VANISHES
-    status[(status == 0) & (k == 0.0)] |= ContactStatus.AXIAL_LOAD
+    status[(status == 0) & (k >= 1.0)] |= _NEVER_VANISHES
+    status[(status == 0) & (k == 0.0)] |= _AXIAL
     return _Pendulum(f, sqrt_f, fu, fv, alpha, k, sin_theta0, cos_theta0, kappa0, mirrored, status)
 
 
@@ -116,7 +123,7 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         along its axis) is taken as tip contact of the straight rod, flagged AXIAL_LOAD.
     """
     p = _pendulum(fu, fv, kappa0)
-    good = (p.status == 0) | (p.status == ContactStatus.AXIAL_LOAD)
+    good = (p.status == 0) | (p.status == _AXIAL)
     with np.errstate(divide="ignore", invalid="ignore"):
         m = p.k * p.k
         k_complement = np.sqrt(1.0 - m)
@@ -132,21 +139,18 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         u1 = (-along * p.fu + across * p.fv) / p.f
         v1 = (-along * p.fv - across * p.fu) / p.f
         phi1 = 2.0 * np.arcsin(np.minimum(p.k, 1.0)) + p.alpha + 0.5 * np.pi
-    axial = p.status == ContactStatus.AXIAL_LOAD
-    u1 = np.where(axial, 0.0, u1)
-    v1 = np.where(axial, 1.0, v1)
-    s1 = np.where(axial, 1.0, s1)
-    phi1 = np.where(axial, 0.5 * np.pi, phi1)
-    u1 = np.where(p.mirrored, -u1, u1)
-    phi1 = np.where(p.mirrored, np.pi - phi1, phi1)
-    nan = np.full(u1.shape, np.nan)
-    return PlanarContact(
-        u1=np.where(good, u1, nan),
-        v1=np.where(good, v1, nan),
-        s1=np.where(good, s1, nan),
-        phi1=np.where(good, phi1, nan),
-        status=p.status,
-    )
+    axial = p.status == _AXIAL
+    if axial.any():
+        u1 = np.where(axial, 0.0, u1)
+        v1 = np.where(axial, 1.0, v1)
+        s1 = np.where(axial, 1.0, s1)
+        phi1 = np.where(axial, 0.5 * np.pi, phi1)
+    if p.mirrored.any():
+        u1 = np.where(p.mirrored, -u1, u1)
+        phi1 = np.where(p.mirrored, np.pi - phi1, phi1)
+    if not good.all():
+        u1, v1, s1, phi1 = (np.where(good, value, np.nan) for value in (u1, v1, s1, phi1))
+    return PlanarContact(u1=u1, v1=v1, s1=s1, phi1=phi1, status=p.status)
 
 
 def planar_line(

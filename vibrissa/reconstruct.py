@@ -206,11 +206,11 @@ def _reconstruct_arrays(
     fv = force_C[:, 2]
     contact = planar_contact(fu, fv, m_horizontal)
     status = contact.status.copy()
-    finite = np.all(np.isfinite(p0_W), axis=1) & np.all(np.isfinite(m0_C), axis=1)
-    status[~finite] |= ContactStatus.NON_FINITE_INPUT
-    beyond = (status & int(NO_CONTACT) == 0) & (contact.s1 > 1.0 + S1_TOLERANCE)
-    status[beyond] |= ContactStatus.CONTACT_BEYOND_ROD
-    valid = (status & int(NO_CONTACT)) == 0
+    finite = np.isfinite(p0_W).all(axis=1) & np.isfinite(m0_C).all(axis=1)
+    status[~finite] |= _NON_FINITE
+    beyond = (status & _NO_CONTACT == 0) & (contact.s1 > 1.0 + S1_TOLERANCE)
+    status[beyond] |= _BEYOND
+    valid = (status & _NO_CONTACT) == 0
     e_u = np.column_stack([e_u2, np.zeros(n)])
     p1_C = contact.u1[:, None] * e_u
     p1_C[:, 2] += contact.v1
@@ -219,11 +219,8 @@ def _reconstruct_arrays(
     force = np.einsum("nij,nj->ni", rotation, force_C)
     s1 = np.minimum(contact.s1, 1.0)
     phase = np.where(s1 >= 1.0 - TIP_TOLERANCE, PHASE_TIP, PHASE_TANGENTIAL)
-    return Reconstruction(
-        point=np.where(valid[:, None], point, np.nan),
-        s1=np.where(valid, s1, np.nan),
-        phase=np.where(valid, phase, PHASE_NONE).astype(np.int64),
-        psi=np.where(valid, psi, np.nan),
-        force=force,
-        status=status,
-    )
+    if not valid.all():
+        point = np.where(valid[:, None], point, np.nan)
+        s1, psi = np.where(valid, s1, np.nan), np.where(valid, psi, np.nan)
+        phase = np.where(valid, phase, PHASE_NONE)
+    return Reconstruction(point=point, s1=s1, phase=phase.astype(np.int64), psi=psi, force=force, status=status)

@@ -550,7 +550,8 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
 def _straight_rod_clears(surface: Surface, y0: float, x0: float) -> bool:
     """Whether the undeformed rod, clamped at (x0, y0, 0) along e_z, lies outside the object."""
     t_in, t_out = surface.line_interval([x0, y0, 0.0], _E_Z)
-    return bool(~(t_in[0] < 1.0) or ~(t_out[0] > 0.0))
+    inside_somewhere = t_in[0] < 1.0 and t_out[0] > 0.0  # NaN: the line misses the object
+    return not inside_somewhere
 
 
 def _ending(track: _Track) -> str:

@@ -13,11 +13,10 @@ from types import FrameType
 from typing import Any
 
 import zmq
-from vibrissa.msgs import Message
 from vibrissa.nodes import recorder
 from vibrissa.nodes.runtime import Node
 from vibrissa.wire.bag import BagReader, export_json, play_bag
-from vibrissa.wire.transport import Endpoints, Publisher
+from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher
 
 
 def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
@@ -72,7 +71,8 @@ def register(subparsers: Any) -> None:
     add_endpoint_flags(p)
     p.set_defaults(func=_record)
 
-    p = sub.add_parser("play", help="publish a bag's messages with their original timing")
+    p = sub.add_parser("play", help="publish a bag's messages with their original timing "
+                       "(each with its own type, in recorded order per topic)")
     p.add_argument("bag", metavar="FILE.mcap")
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--rate", type=float, default=1.0, metavar="R",
@@ -143,7 +143,7 @@ def _play_gated(args: argparse.Namespace, rate: float | None, endpoints: Endpoin
     """Play as node ``bag_player``: each publisher is held until ``--wait-for`` nodes are up."""
     with Node("bag_player", endpoints=endpoints, handle_signals=False) as node:
 
-        def make(topic: str, msg_type: type[Message], hwm: int) -> Publisher:
+        def make(topic: str, msg_type: MessageTypes, hwm: int) -> Publisher:
             return node.create_publisher(topic, msg_type, wait_for=args.wait_for, hwm=hwm)
 
         def ready(publishers: dict[str, Publisher]) -> bool:

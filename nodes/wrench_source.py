@@ -1,4 +1,4 @@
-"""Wrench source node: simulated sweeps (Step 1) or a recorded bag, as WhiskerWrench samples.
+"""Wrench source node: simulated sweeps (Step 1) as WhiskerWrench samples, or a recorded bag.
 
 Subscribes
 ----------
@@ -8,9 +8,11 @@ Publishes
 ---------
 ``topic`` (default ``wrench``, relative: ``/<namespace>/wrench``) : WhiskerWrench
     mode ``sim``: one sample per equilibrium of every sweep, in sweep order, then
-    ``EndOfStream``. Mode ``replay``: every WhiskerWrench topic of ``bag`` (remaps apply to
-    the recorded absolute names), with the recorded bytes, followed by the recorded
-    ``EndOfStream`` (or one of its own when the bag has none, e.g. a cut-off bag).
+    ``EndOfStream``.
+every WhiskerWrench or WhiskerWrenchArray topic of ``bag`` : the recorded types
+    mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
+    recorded order, each message with its own type (a topic may mix both), followed by the
+    recorded ``EndOfStream`` (or one of its own when the bag has none, e.g. a cut-off bag).
 
 Units and frames (mode ``sim``): the sweep's world frame W is the message's ``frame_id``; the
 clamp frame C is parallel to W (identity quaternion) with z = rod axis. On the wire
@@ -30,16 +32,18 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from vibrissa.msgs import EndOfStream, Message, WhiskerWrench
+from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
 from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.wire.bag import BagReader, play_bag
-from vibrissa.wire.transport import DEFAULT_HWM, Publisher
+from vibrissa.wire.transport import DEFAULT_HWM, MessageTypes, Publisher
 
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Sweep, Trail, simulate_sweeps
 from vibrissa.units import RodScale
 
 log = logging.getLogger(__name__)
+
+REPLAY_TYPES = (WhiskerWrench.TYPE_NAME, WhiskerWrenchArray.TYPE_NAME)
 
 IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
 _UNIT_ROD = RodScale()
@@ -203,24 +207,24 @@ class _NodeStop(threading.Event):
 
 
 def replay_topics(bag: str) -> dict[str, bool]:
-    """WhiskerWrench topics of ``bag`` -> whether the bag holds an EndOfStream on them."""
+    """Wrench topics of ``bag`` (``REPLAY_TYPES``) -> whether it holds an EndOfStream on them."""
     info = BagReader(bag).info()
     types: dict[str, set[str]] = {}
     for t in info.topics:
         types.setdefault(t.topic, set()).add(t.type_name)
     return {topic: EndOfStream.TYPE_NAME in names for topic, names in types.items()
-            if WhiskerWrench.TYPE_NAME in names}
+            if names.intersection(REPLAY_TYPES)}
 
 
 def run_replay(node: Node, params: WrenchSourceParams) -> int:
-    """Play the bag's WhiskerWrench topics (``vibrissa.wire.bag.play_bag``); samples sent."""
+    """Play the bag's wrench topics (``vibrissa.wire.bag.play_bag``); messages sent."""
     topics = replay_topics(params.bag)
     if not topics:
-        log.error("%s: %s has no %s topic", node.fqn, params.bag, WhiskerWrench.TYPE_NAME)
+        log.error("%s: %s has no %s topic", node.fqn, params.bag, " or ".join(REPLAY_TYPES))
         return -1
     publishers: dict[str, Publisher] = {}
 
-    def make(topic: str, msg_type: type[Message], hwm: int) -> Publisher:
+    def make(topic: str, msg_type: MessageTypes, hwm: int) -> Publisher:
         publishers[topic] = node.create_publisher(topic, msg_type, wait_for=params.wait_for,
                                                   hwm=hwm)
         return publishers[topic]

@@ -36,7 +36,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 from vibrissa.msgs import EndOfStream, codec
 from vibrissa.msgs import Message as WireMessage
-from vibrissa.wire.transport import Endpoints, Publisher
+from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher
 
 __all__ = [
     "BagInfo",
@@ -565,14 +565,16 @@ def play_bag(
     endpoints: Endpoints | None = None,
     context: zmq.Context[Any] | None = None,
     stop: threading.Event | None = None,
-    make_publisher: Callable[[str, type[WireMessage], int], Publisher] | None = None,
+    make_publisher: Callable[[str, MessageTypes, int], Publisher] | None = None,
     ready: Callable[[dict[str, Publisher]], bool] | None = None,
     drain_s: float = 2.0,
 ) -> PlayResult:
     """Publish a bag's messages with their original bytes (``publish_raw``) and timing.
 
-    Order is kept per topic (one publisher socket each); across topics it follows from the
-    timing, so ``rate=None`` may interleave topics differently from the bag.
+    Order is kept per topic (one publisher socket each, whatever the types on it: a topic
+    with several message types gets one publisher of all of them, and each payload goes out
+    with its own type); across topics it follows from the timing, so ``rate=None`` may
+    interleave topics differently from the bag.
 
     Parameters
     ----------
@@ -591,7 +593,8 @@ def play_bag(
         Set it to stop early (e.g. from a signal handler).
     make_publisher
         ``f(topic, msg_type, hwm) -> Publisher``, e.g. ``Node.create_publisher`` with a
-        readiness gate; the caller then owns (closes) the publishers.
+        readiness gate; ``msg_type`` is the topic's data type, or a tuple of them when the
+        bag holds several on it. The caller then owns (closes) the publishers.
     ready
         Called with the ``{topic: Publisher}`` map after ``wait_s``, before the first
         message; may block (e.g. until readiness gates open) and returns False to abort.
@@ -606,24 +609,26 @@ def play_bag(
     info = reader.info()
     counts = info.topic_counts
     result = PlayResult(published={t: 0 for t in counts})
-    topic_types: dict[str, str] = {}
-    for t in info.topics:  # a data type wins over EndOfStream, which any publisher may send
-        if t.topic not in topic_types or t.type_name != EndOfStream.TYPE_NAME:
-            topic_types[t.topic] = t.type_name
+    topic_types: dict[str, list[type[WireMessage]]] = {}
+    for t in info.topics:
+        msg_type = codec.MESSAGE_TYPES.get(t.type_name)
+        if msg_type is None:
+            raise ValueError(f"{path}: topic {t.topic} has unknown message type {t.type_name!r}")
+        topic_types.setdefault(t.topic, []).append(msg_type)
     own = make_publisher is None
 
-    def default_publisher(topic: str, msg_type: type[WireMessage], hwm: int) -> Publisher:
+    def default_publisher(topic: str, msg_type: MessageTypes, hwm: int) -> Publisher:
         return Publisher(topic, msg_type, endpoints=endpoints, context=context, hwm=hwm)
 
     make = make_publisher or default_publisher
     publishers: dict[str, Publisher] = {}
     try:
-        for topic, type_name in topic_types.items():
-            msg_type = codec.MESSAGE_TYPES.get(type_name)
-            if msg_type is None:
-                raise ValueError(f"{path}: topic {topic} has unknown message type {type_name!r}")
+        for topic, types in topic_types.items():
+            # EndOfStream, which any publisher may send, only counts on a topic without data
+            data = tuple(t for t in types if t is not EndOfStream) or (EndOfStream,)
             # the high-water mark holds the whole topic so that rate=None drops nothing here
-            publishers[topic] = make(topic, msg_type, max(1000, counts[topic] + 1))
+            publishers[topic] = make(topic, data[0] if len(data) == 1 else data,
+                                     max(1000, counts[topic] + 1))
         if stop.wait(max(0.0, wait_s)) or (ready is not None and not ready(publishers)):
             result.interrupted = True
             return result

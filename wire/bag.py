@@ -504,10 +504,6 @@ class BagReader:
                 pass
         return n
 
-    def topic_types(self) -> dict[str, str]:
-        """Topic -> message type name for every topic with at least one message."""
-        return {t.topic: t.type_name for t in self.info().topics}
-
 
 def _record(schema: Schema | None, channel: Channel, message: McapMessage) -> BagRecord:
     return BagRecord(

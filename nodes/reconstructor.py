@@ -223,34 +223,57 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
         whose status is OK or AXIAL_LOAD; the others are only counted.
     """
     q = msg.clamp_orientation
-    norm = np.sqrt(np.einsum("ni,ni->n", q, q))
-    good = np.isfinite(norm) & (norm > 0)
-    bad_pose = len(q) - int(good.sum())
-    if bad_pose:
-        q = q[good]
-    rec = reconstruct(msg.clamp_position[good] / rod.length_m, msg.f0[good] / rod.force_n,
-                      msg.m0[good] / rod.moment_nm, quaternion_matrices(q))
+    norm2 = np.einsum("ni,ni->n", q, q)
+    good = np.isfinite(norm2) & (norm2 > 0)
+    all_good = bool(good.all())
+    p0, f0, m0 = msg.clamp_position, msg.f0, msg.m0
+    if not all_good:
+        q, p0, f0, m0 = q[good], p0[good], f0[good], m0[good]
+    rec = reconstruct(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
+                      m0 * (1.0 / rod.moment_nm), quaternion_matrices(q))
     valid = rec.valid
-    rows = np.flatnonzero(good)[valid]
+    point, s1, phase, force, status = rec.point, rec.s1, rec.phase, rec.force, rec.status
+    whisker_ids = msg.whisker_ids
+    if not (all_good and valid.all()):
+        point, s1, phase, force, status = (a[valid] for a in (point, s1, phase, force, status))
+        whisker_ids = [whisker_ids[i] for i in np.flatnonzero(good)[valid].tolist()]
     contacts = ContactPointArray(
-        stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id,
-        whisker_ids=[msg.whisker_ids[i] for i in rows.tolist()],
-        point=rec.point[valid] * rod.length_m, s1=rec.s1[valid] * rod.length_m,
-        phase=rec.phase[valid].astype(np.int32), force=rec.force[valid] * rod.force_n,
-        status=rec.status[valid].astype(np.int32),
+        stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id, whisker_ids=whisker_ids,
+        point=point * rod.length_m, s1=s1 * rod.length_m, phase=phase.astype(np.int32),
+        force=force * rod.force_n, status=status.astype(np.int32),
     )
-    return ArrayResult(contacts, len(valid) - len(rows), bad_pose)
+    return ArrayResult(contacts, no_contact=len(valid) - len(whisker_ids),
+                       bad_pose=len(msg.clamp_orientation) - len(q))
+
+
+def _products_to_matrix() -> FloatArray:
+    """R(q) of a unit quaternion q = (x, y, z, w) is a homogeneous quadratic in q: each entry a
+    combination of the products q_i q_j. This (16, 9) matrix maps q_i q_j (row 4 i + j) to the
+    entries of R (column 3 r + c); for any q != 0, (q q^T) @ it / |q|^2 is R(q / |q|)."""
+    matrix = np.zeros((16, 9))
+    x, y, z, w = range(4)
+    terms = {
+        (0, 0): ((x, x, 1), (y, y, -1), (z, z, -1), (w, w, 1)),
+        (1, 1): ((x, x, -1), (y, y, 1), (z, z, -1), (w, w, 1)),
+        (2, 2): ((x, x, -1), (y, y, -1), (z, z, 1), (w, w, 1)),
+        (0, 1): ((x, y, 2), (z, w, -2)), (1, 0): ((x, y, 2), (z, w, 2)),
+        (0, 2): ((x, z, 2), (y, w, 2)), (2, 0): ((x, z, 2), (y, w, -2)),
+        (1, 2): ((y, z, 2), (x, w, -2)), (2, 1): ((y, z, 2), (x, w, 2)),
+    }
+    for (r, c), products in terms.items():
+        for i, j, weight in products:
+            matrix[4 * i + j, 3 * r + c] = weight
+    return matrix
+
+
+_PRODUCTS_TO_MATRIX = _products_to_matrix()
 
 
 def quaternion_matrices(q_xyzw: FloatArray) -> FloatArray:
     """Rotation matrices (N, 3, 3) of quaternions (N, 4) (x, y, z, w), normalised first."""
-    q = q_xyzw / np.linalg.norm(q_xyzw, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    return np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-        2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-        2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
-    ], axis=1).reshape(-1, 3, 3)
+    products = (q_xyzw[:, :, None] * q_xyzw[:, None, :]).reshape(-1, 16)
+    norm2 = products[:, ::5].sum(axis=1)  # the diagonal: x^2 + y^2 + z^2 + w^2
+    return ((products @ _PRODUCTS_TO_MATRIX) / norm2[:, None]).reshape(-1, 3, 3)
 
 
 def quaternion_rows(q_xyzw: Sequence[float]) -> list[list[float]]:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -53,8 +54,7 @@ class PlanarContact:
     status: NDArray[np.int64]
 
 
-@dataclass(frozen=True)
-class _Pendulum:
+class _Pendulum(NamedTuple):
     """Pendulum constants of one load case, in the kappa0 >= 0 half (mirror already applied)."""
 
     f: NDArray[np.float64]
@@ -84,15 +84,19 @@ _AXIAL = int(ContactStatus.AXIAL_LOAD)
 
 
 def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]) -> _Pendulum:
+    # The special cases are rare: each is looked for with one reduction and flagged only when
+    # present, so that a batch of ordinary samples costs as few numpy calls as possible.
     status = np.zeros(fu.shape, dtype=np.int64)
     finite = np.isfinite(fu) & np.isfinite(fv) & np.isfinite(kappa0)
-    status[~finite] |= _NON_FINITE
+    if not finite.all():
+        status[~finite] |= _NON_FINITE
     mirrored = kappa0 < 0
     if mirrored.any():
         fu = np.where(mirrored, -fu, fu)
         kappa0 = np.abs(kappa0)
     f = np.hypot(fu, fv)
-    status[finite & (f == 0)] |= _NO_FORCE
+    if not f.all():
+        status[finite & (f == 0)] |= _NO_FORCE
     with np.errstate(divide="ignore", invalid="ignore"):
         sqrt_f = np.sqrt(f)
         alpha = np.arctan2(fu, -fv)
@@ -101,8 +105,11 @@ def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: N
         k = np.hypot(b0, c0)
         sin_theta0 = b0 / k
         cos_theta0 = c0 / k
-    status[(status == 0) & (k >= 1.0)] |= _NEVER_VANISHES
-    status[(status == 0) & (k == 0.0)] |= _AXIAL
+    never_vanishes = k >= 1.0
+    if never_vanishes.any():
+        status[(status == 0) & never_vanishes] |= _NEVER_VANISHES
+    if not k.all():
+        status[(status == 0) & (k == 0.0)] |= _AXIAL
     return _Pendulum(f, sqrt_f, fu, fv, alpha, k, sin_theta0, cos_theta0, kappa0, mirrored, status)
 
 
@@ -123,7 +130,6 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         along its axis) is taken as tip contact of the straight rod, flagged AXIAL_LOAD.
     """
     p = _pendulum(fu, fv, kappa0)
-    good = (p.status == 0) | (p.status == _AXIAL)
     with np.errstate(divide="ignore", invalid="ignore"):
         m = p.k * p.k
         k_complement = np.sqrt(1.0 - m)
@@ -139,17 +145,19 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         u1 = (-along * p.fu + across * p.fv) / p.f
         v1 = (-along * p.fv - across * p.fu) / p.f
         phi1 = 2.0 * np.arcsin(np.minimum(p.k, 1.0)) + p.alpha + 0.5 * np.pi
-    axial = p.status == _AXIAL
-    if axial.any():
-        u1 = np.where(axial, 0.0, u1)
-        v1 = np.where(axial, 1.0, v1)
-        s1 = np.where(axial, 1.0, s1)
-        phi1 = np.where(axial, 0.5 * np.pi, phi1)
+    if p.status.any():
+        axial = p.status == _AXIAL
+        if axial.any():
+            u1 = np.where(axial, 0.0, u1)
+            v1 = np.where(axial, 1.0, v1)
+            s1 = np.where(axial, 1.0, s1)
+            phi1 = np.where(axial, 0.5 * np.pi, phi1)
+        good = (p.status == 0) | axial
+        if not good.all():
+            u1, v1, s1, phi1 = (np.where(good, value, np.nan) for value in (u1, v1, s1, phi1))
     if p.mirrored.any():
         u1 = np.where(p.mirrored, -u1, u1)
         phi1 = np.where(p.mirrored, np.pi - phi1, phi1)
-    if not good.all():
-        u1, v1, s1, phi1 = (np.where(good, value, np.nan) for value in (u1, v1, s1, phi1))
     return PlanarContact(u1=u1, v1=v1, s1=s1, phi1=phi1, status=p.status)
 
 

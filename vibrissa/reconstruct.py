@@ -174,6 +174,7 @@ def _reconstruct_one(
 
 
 _NO_CONTACT = int(NO_CONTACT)
+_FLIP_SECOND = np.array([1.0, -1.0])
 _NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
 _BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
 
@@ -190,37 +191,42 @@ def _reconstruct_arrays(
         raise ValueError(
             f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, {f0_C.shape}, {m0_C.shape}"
         ) from None
-    n = len(f0_C)
     force_C = -f0_C
     m_horizontal = np.hypot(m0_C[:, 0], m0_C[:, 1])
-    bent = m_horizontal > 0
     with np.errstate(invalid="ignore", divide="ignore"):
-        # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0); an unbent rod has its plane along F.
-        e_u_bent = np.stack([m0_C[:, 1], -m0_C[:, 0]], axis=1) / m_horizontal[:, None]
-        f_horizontal = np.hypot(force_C[:, 0], force_C[:, 1])
-        e_u_straight = force_C[:, :2] / f_horizontal[:, None]
-    e_u_straight = np.where(f_horizontal[:, None] > 0, e_u_straight, [1.0, 0.0])
-    e_u2 = np.where(bent[:, None], e_u_bent, e_u_straight)
+        # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|.
+        e_u2 = m0_C[:, 1::-1] * (_FLIP_SECOND / m_horizontal[:, None])
+    bent = m_horizontal > 0
+    if not bent.all():  # an unbent rod has its plane along F (along e_x without a force)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f_horizontal = np.hypot(force_C[:, 0], force_C[:, 1])
+            e_u_straight = force_C[:, :2] / f_horizontal[:, None]
+        e_u_straight = np.where(f_horizontal[:, None] > 0, e_u_straight, [1.0, 0.0])
+        e_u2 = np.where(bent[:, None], e_u2, e_u_straight)
     psi = np.arctan2(e_u2[:, 1], e_u2[:, 0])
     fu = np.einsum("ni,ni->n", force_C[:, :2], e_u2)
-    fv = force_C[:, 2]
-    contact = planar_contact(fu, fv, m_horizontal)
-    status = contact.status.copy()
-    finite = np.isfinite(p0_W).all(axis=1) & np.isfinite(m0_C).all(axis=1)
-    status[~finite] |= _NON_FINITE
-    beyond = (status & _NO_CONTACT == 0) & (contact.s1 > 1.0 + S1_TOLERANCE)
-    status[beyond] |= _BEYOND
-    valid = (status & _NO_CONTACT) == 0
-    e_u = np.column_stack([e_u2, np.zeros(n)])
-    p1_C = contact.u1[:, None] * e_u
-    p1_C[:, 2] += contact.v1
-    rotation = np.broadcast_to(np.eye(3) if R_WC is None else np.asarray(R_WC, dtype=float), (n, 3, 3))
-    point = p0_W + np.einsum("nij,nj->ni", rotation, p1_C)
-    force = np.einsum("nij,nj->ni", rotation, force_C)
+    contact = planar_contact(fu, force_C[:, 2], m_horizontal)
+    status = contact.status
+    if not (np.isfinite(p0_W).all() and np.isfinite(m0_C).all()):
+        status[~(np.isfinite(p0_W).all(axis=1) & np.isfinite(m0_C).all(axis=1))] |= _NON_FINITE
+    beyond_rod = contact.s1 > 1.0 + S1_TOLERANCE  # NaN where there is no contact: False
+    if beyond_rod.any():
+        status[beyond_rod & (status & _NO_CONTACT == 0)] |= _BEYOND
+    p1_C = np.empty_like(force_C)
+    p1_C[:, :2] = contact.u1[:, None] * e_u2
+    p1_C[:, 2] = contact.v1
+    rotation = np.eye(3) if R_WC is None else np.asarray(R_WC, dtype=float)
+    if rotation.shape == (1, 3, 3):
+        rotation = rotation[0]
+    rotate = "ij,nj->ni" if rotation.shape == (3, 3) else "nij,nj->ni"
+    point = p0_W + np.einsum(rotate, rotation, p1_C)
+    force = np.einsum(rotate, rotation, force_C)
     s1 = np.minimum(contact.s1, 1.0)
     phase = np.where(s1 >= 1.0 - TIP_TOLERANCE, PHASE_TIP, PHASE_TANGENTIAL)
-    if not valid.all():
-        point = np.where(valid[:, None], point, np.nan)
-        s1, psi = np.where(valid, s1, np.nan), np.where(valid, psi, np.nan)
-        phase = np.where(valid, phase, PHASE_NONE)
+    if status.any():
+        valid = (status & _NO_CONTACT) == 0
+        if not valid.all():
+            point = np.where(valid[:, None], point, np.nan)
+            s1, psi = np.where(valid, s1, np.nan), np.where(valid, psi, np.nan)
+            phase = np.where(valid, phase, PHASE_NONE)
     return Reconstruction(point=point, s1=s1, phase=phase.astype(np.int64), psi=psi, force=force, status=status)

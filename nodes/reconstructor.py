@@ -232,15 +232,16 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
     rec = reconstruct(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
                       m0 * (1.0 / rod.moment_nm), quaternion_matrices(q))
     valid = rec.valid
-    point, s1, phase, force, status = rec.point, rec.s1, rec.phase, rec.force, rec.status
+    keep: slice | npt.NDArray[np.bool_] = slice(None)
     whisker_ids = msg.whisker_ids
     if not (all_good and valid.all()):
-        point, s1, phase, force, status = (a[valid] for a in (point, s1, phase, force, status))
+        keep = valid
         whisker_ids = [whisker_ids[i] for i in np.flatnonzero(good)[valid].tolist()]
     contacts = ContactPointArray(
         stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id, whisker_ids=whisker_ids,
-        point=point * rod.length_m, s1=s1 * rod.length_m, phase=phase.astype(np.int32),
-        force=force * rod.force_n, status=status.astype(np.int32),
+        point=rec.point[keep] * rod.length_m, s1=rec.s1[keep] * rod.length_m,
+        phase=rec.phase[keep].astype(np.int32), force=rec.force[keep] * rod.force_n,
+        status=rec.status[keep].astype(np.int32),
     )
     return ArrayResult(contacts, no_contact=len(valid) - len(whisker_ids),
                        bad_pose=len(msg.clamp_orientation) - len(q))

@@ -71,9 +71,9 @@ class _Pendulum(NamedTuple):
 
 
 def _pendulum(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> _Pendulum:
-    fu_a, fv_a, kappa0_a = np.broadcast_arrays(
-        np.asarray(fu, dtype=float), np.asarray(fv, dtype=float), np.asarray(kappa0, dtype=float)
-    )
+    fu_a, fv_a, kappa0_a = (np.asarray(x, dtype=float) for x in (fu, fv, kappa0))
+    if not fu_a.shape == fv_a.shape == kappa0_a.shape:
+        fu_a, fv_a, kappa0_a = np.broadcast_arrays(fu_a, fv_a, kappa0_a)
     return _pendulum_arrays(fu_a, fv_a, kappa0_a)
 
 

@@ -186,7 +186,8 @@ def _reconstruct_arrays(
     """:func:`reconstruct` vectorised over N samples."""
     p0_W, f0_C, m0_C = (_as_vectors(n, v) for n, v in (("p0", p0), ("f0", f0), ("m0", m0)))
     try:
-        p0_W, f0_C, m0_C = np.broadcast_arrays(p0_W, f0_C, m0_C)
+        if not p0_W.shape == f0_C.shape == m0_C.shape:
+            p0_W, f0_C, m0_C = np.broadcast_arrays(p0_W, f0_C, m0_C)
     except ValueError:
         raise ValueError(
             f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, {f0_C.shape}, {m0_C.shape}"

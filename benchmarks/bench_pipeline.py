@@ -8,6 +8,11 @@ Floor, in the same run, with the same payload and the same pacing::
 
     load (bare PUB) --> echo (SUB -> PUB, forwards the bytes) --> sink (bare SUB)
 
+and the floor through the broker (``proxied``): the same bare processes, connected as the
+nodes are, through the proxy (what the broker costs without any work)::
+
+    load --/bench/wrench--> proxy --> echo --/bench/contact--> proxy --> sink
+
 Two ways to send a tick of 32 whiskers at ``rate`` wrenches/s in total: *per wrench*, one
 WhiskerWrench per whisker (32 messages per tick; latency per wrench, its ContactPoint), and
 *per tick*, one WhiskerWrenchArray of 32 rows (latency per tick, its ContactPointArray). The
@@ -43,6 +48,7 @@ WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
 UNITS = ("wrench", "tick")  # one WhiskerWrench per whisker, or one WhiskerWrenchArray per tick
+MODES = ("bare", "proxied", "vibrissa")  # the floor, the floor through the proxy, the pipeline
 
 
 # -- helper processes (python bench_pipeline.py _proxy | _load | _echo ...) ----------------------
@@ -100,12 +106,15 @@ def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) ->
     payloads = _payloads(n, unit)
     per_tick = _per_tick(unit)
     t_send = np.zeros(n)
-    if mode == "bare":
+    if mode in ("bare", "proxied"):
         context: zmq.Context[Any] = zmq.Context()
         sock = context.socket(zmq.PUB)
         sock.setsockopt(zmq.SNDHWM, n + 10)
         sock.setsockopt(zmq.LINGER, 2000)
-        sock.bind(endpoint)
+        if mode == "bare":
+            sock.bind(endpoint)
+        else:
+            sock.connect(endpoint)
         prefix = TOPIC.encode() + b"\0"
         print("ready", flush=True)
         sys.stdin.readline()  # the bench says go once the chain is connected
@@ -133,19 +142,28 @@ def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) ->
     np.save(out, t_send)
 
 
-def _echo(source: str, endpoint: str) -> None:
+def _echo(source: str, endpoint: str, via_proxy: bool) -> None:
+    """Forward every message; ``via_proxy``: connect to the proxy's ``endpoint`` and forward
+    /bench/wrench as /bench/contact, else bind ``endpoint`` and forward as it came."""
     context: zmq.Context[Any] = zmq.Context()
     sub, pub = context.socket(zmq.SUB), context.socket(zmq.PUB)
     for sock in (sub, pub):
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 1_000_000)
         sock.setsockopt(zmq.SNDHWM, 1_000_000)
-    sub.setsockopt(zmq.SUBSCRIBE, b"")
-    pub.bind(endpoint)
+    sub.setsockopt(zmq.SUBSCRIBE, TOPIC.encode() + b"\0" if via_proxy else b"")
+    if via_proxy:
+        pub.connect(endpoint)
+    else:
+        pub.bind(endpoint)
     sub.connect(source)
+    out_topic = CONTACT.encode() + b"\0"
     try:
         while True:
-            pub.send_multipart(sub.recv_multipart())
+            frames = sub.recv_multipart()
+            if via_proxy:
+                frames[0] = out_topic
+            pub.send_multipart(frames)
     except KeyboardInterrupt:
         pass
     finally:
@@ -224,8 +242,9 @@ def _sink(sock: zmq.Socket[Any], n: int, header_seq: bool, timeout_s: float) -> 
 
 
 def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> Run:
-    """One run of the pipeline (``mode`` = ``vibrissa``) or the floor (``bare``), sending a
-    message per wrench or per tick (``unit``) at ``rate`` wrenches/s."""
+    """One run of the pipeline (``mode`` = ``vibrissa``), the floor (``bare``) or the floor
+    through the proxy (``proxied``), sending a message per wrench or per tick (``unit``) at
+    ``rate`` wrenches/s."""
     per_tick = _per_tick(unit)
     n = int(rate * duration_s) // WHISKERS * per_tick
     out = tmp / f"send-{mode}-{unit}-{int(rate)}.npy"
@@ -245,10 +264,24 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             helpers.append(load)
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
-            helpers.append(_python(me, "_echo", load_ep, echo_ep))
+            helpers.append(_python(me, "_echo", load_ep, echo_ep, "direct"))
             sink.setsockopt(zmq.SUBSCRIBE, b"")
             sink.connect(echo_ep)
             time.sleep(1.5)  # slow joiners: both subscriptions reach their publishers
+            header_seq = False
+        elif mode == "proxied":
+            proxy = _python(me, "_proxy", stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            helpers.append(proxy)
+            assert proxy.stdout is not None
+            pub_ep, sub_ep = proxy.stdout.readline().split()
+            sink.setsockopt(zmq.SUBSCRIBE, CONTACT.encode() + b"\0")
+            sink.connect(sub_ep)
+            helpers.append(_python(me, "_echo", sub_ep, pub_ep, "proxy"))
+            load = _python(me, "_load", "proxied", unit, pub_ep, str(n), str(rate), str(out),
+                           stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            helpers.append(load)
+            assert load.stdout is not None and load.stdout.readline().strip() == "ready"
+            time.sleep(1.5)
             header_seq = False
         else:
             proxy = _python(me, "_proxy", stdin=subprocess.PIPE, stdout=subprocess.PIPE)
@@ -309,7 +342,7 @@ def _table(runs: list[Run], unit: str, rates: list[float], repeats: int) -> None
     print("-" * len(header))
     for rate in rates:
         by_mode = {mode: [r for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode)]
-                   for mode in ("bare", "vibrissa")}
+                   for mode in MODES}
         for mode, mine in by_mode.items():
             pairs = list(zip(mine, by_mode["bare"], strict=True))
             print(f"{rate:8.0f} {mode:>9} {mine[0].sent:7d} {max(r.lost for r in mine):6d} "
@@ -321,7 +354,7 @@ def _table(runs: list[Run], unit: str, rates: list[float], repeats: int) -> None
                   f"{sum(r.sustained for r in mine):>7d}/{len(mine)} "
                   f"{np.median([a.pct(50) / b.pct(50) for a, b in pairs]):7.1f} "
                   f"{np.median([a.pct(99) / b.pct(99) for a, b in pairs]):7.1f}")
-    for mode in ("vibrissa", "bare"):
+    for mode in MODES:
         ok = [rate for rate in rates if all(
             r.sustained for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode))]
         best = f"{max(ok):.0f} wrenches/s" if ok else "none of the rates tried"
@@ -337,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
         _load(argv[1], argv[2], argv[3], int(argv[4]), float(argv[5]), argv[6])
         return 0
     if argv and argv[0] == "_echo":
-        _echo(argv[1], argv[2])
+        _echo(argv[1], argv[2], argv[3] == "proxy")
         return 0
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=2.0, help="seconds per run")
@@ -353,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
         for repeat in range(args.repeat):
             for rate in rates:
                 for unit in UNITS:
-                    for mode in ("bare", "vibrissa"):
+                    for mode in MODES:
                         run = measure(mode, unit, rate, args.duration, Path(tmp))
                         runs.append(run)
                         print(f"  {repeat} {unit:6s} {mode:8s} {rate:8.0f}/s  p50 "

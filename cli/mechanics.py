@@ -112,7 +112,7 @@ def _sweep(args: argparse.Namespace) -> int:
           f"-> {output}", file=sys.stderr)
     if sweep.end == "no-equilibrium":
         print("sweep: error: no equilibrium found for the first step after the first contact "
-              "(a solver failure, seen with mu >= 0.4 at steps below 1e-3); try --step 0.001", file=sys.stderr)
+              "(a solver failure); a larger --step, e.g. 0.001, may get past it", file=sys.stderr)
         return 1
     return 0
 

@@ -201,3 +201,27 @@ def test_coarse_steps_tell_detachment_from_snap_off():
     trails = [Trail(y0, mu) for y0 in (0.0, 0.2, 0.4) for mu in (0.0, 0.4)]
     for sweep in simulate_sweeps(SURFACE, trails, step=0.05):
         assert sweep.end == ("snap-off" if sweep.trail.y0 == 0.0 else "detachment"), sweep.trail
+
+
+def test_a_steep_tip_touch_with_strong_friction_runs_at_fine_steps():
+    # Over the first steps after a tip touch the tip slips only by the rod's axial shortening,
+    # ~1e-7 at a step of 5e-4: too short to resolve the friction direction of eq. 7. Such a
+    # step is taken as a longer one on the same grid. This trail used to find no equilibrium.
+    surface = parse_surface("paraboloid:a=0.926,b=0.807,h=0.536,yaw=0.464,pitch=-0.140")
+    trail = Trail(0.196, 0.6)
+    fine = simulate_sweeps(surface, [trail], step=5e-4, max_steps=200)[0]
+    coarse = simulate_sweeps(surface, [trail], step=1e-3, max_steps=100)[0]
+    assert fine.end == "max-steps" and fine.n_steps == 200
+    assert fine.refined[0] and not fine.refined[1:].any()  # only the first step was longer
+    np.testing.assert_allclose(np.diff(fine.x0), -5e-4, rtol=1e-9)
+    r = fine.contact - fine.p0
+    np.testing.assert_allclose(fine.m0 + np.cross(r, fine.force), 0.0, atol=1e-12)
+    assert np.max(np.abs(surface.signed_distance(fine.contact))) < 1e-9
+    assert min(surface.signed_distance(fine.elastic_line(i, 101)).min() for i in range(0, 200, 10)) > -1e-9
+    assert np.max(np.linalg.norm(reconstruct(fine.p0, fine.f0, fine.m0).point - fine.contact, axis=1)) < 1e-9
+    # Same trail at twice the step: the friction of eq. 7 is discretised to first order in the
+    # step, so the reactions agree to well within the step (1e-3) at the common positions.
+    common, i, j = np.intersect1d(np.round(fine.x0, 9), np.round(coarse.x0, 9), return_indices=True)
+    assert len(common) >= 90
+    difference = np.linalg.norm(fine.f0[i] - coarse.f0[j], axis=1) / np.linalg.norm(coarse.f0[j], axis=1)
+    assert difference.max() < 1e-3

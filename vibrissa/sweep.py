@@ -35,6 +35,11 @@ and it jumps ~2.2e-3 L along the surface, friction opposing the jump along its c
 as slides that alternate between short creeps and long jumps. The predictor follows such a
 stretch by extrapolating every other state.
 
+Early steps (not in the paper): right after a tip touch the tip slips only by the rod's axial
+shortening (the rod is inextensible and cannot reach where it touched), ~1e-7 per step at
+steps below 1e-3, too short to resolve the direction of eq. 7. Within 0.01 L of the touch a
+step that fails is retried as 2, 4, 8 or 16 steps on the same grid before it is refined.
+
 Symmetric trails: when the object is its own mirror image across the vertical plane of the trail
 (the paper's y0 = 0), the symmetric branch is kept exactly by fixing psi = 0 and dropping the
 out-of-plane equation; otherwise round-off grows out of the plane from step to step.
@@ -68,6 +73,7 @@ _DIRECTION_TOL = 1e-8
 _NEWTON_MAX_ITER = 40
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
+_EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step tries longer ones
 _REFINEMENTS = 6  # a failed step is retried with up to 2**6 sub-steps before it counts as snap-off
 
 
@@ -92,6 +98,11 @@ class Sweep:
     ``f0``, ``m0`` are the clamp's reactions on the rod (moment about P0); ``force`` is the
     contact force on the rod, ``normal`` the surface's outward unit normal at the contact,
     ``fn`` = F . n >= 0 and ``ft`` = |F - fn n| the normal and friction magnitudes.
+
+    Rows are one per step of ``step`` along the grid x_touch - k step, except that a step just
+    after the first contact that finds no equilibrium is taken as 2-16 steps (the positions in
+    between are missing, the row is ``refined``): see ``_longer_step``. ``refined`` also marks
+    steps reached through sub-steps (the chord of eq. 7 is then a sub-step's).
     """
 
     trail: Trail
@@ -108,7 +119,7 @@ class Sweep:
     force: FloatArray
     fn: FloatArray
     ft: FloatArray
-    refined: NDArray[np.bool_]  # reached through sub-steps (the eq. 7 chord is then a sub-step's)
+    refined: NDArray[np.bool_]  # not one plain step: sub-steps, or a longer step after the touch
     end: str
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
@@ -435,6 +446,7 @@ class _Track:
     chord: float = 0.0  # length of the last step's contact displacement, units of L
     pending: tuple[FloatArray, FloatArray, FloatArray] = ()  # type: ignore[assignment]  # p1, normal, force of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
+    x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -507,7 +519,7 @@ def _start(surface: Surface, trail: Trail, step: float) -> _Track:
     fu, fv = magnitude * n_u, magnitude * normal[2]
     q = np.array([psi, fu, fv, -s_touch * fu])
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
-    return _Track(trail, locked, x_start, q, mode, p_touch, p_touch.copy())
+    return _Track(trail, locked, x_start, q, mode, p_touch, p_touch.copy(), x_touch=x_start)
 
 
 def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int) -> None:
@@ -517,10 +529,35 @@ def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int
     for track, target, ok in zip(tracks, targets, reached, strict=False):
         if ok:
             _record(track, refined=False)
-        else:
+        elif not (track.x_touch - track.x0 < _EARLY_TRAVEL and _longer_step(surface, track, step)):
             _refine(surface, track, target, step)
         if track.end is None and len(track.rows) >= max_steps:
             track.end, track.x0_end = "max-steps", track.x0
+
+
+def _longer_step(surface: Surface, track: _Track, step: float) -> bool:
+    """Take a failed early step as 2, 4, 8 or 16 steps; whether one succeeded.
+
+    Just after a tip touch the tip slips only by the rod's axial shortening (the tip cannot stay
+    put: the clamp moved and the rod is inextensible), about 1.2 d dx for a deflection d and a
+    step dx: ~1e-7 over the first steps below 1e-3, too short for the direction of the chord of
+    eq. 7, hence the friction, to be resolved. A longer step has a resolvable chord; the sweep
+    stays on its grid and skips the positions in between (marked ``refined``).
+    """
+    before = track.history[-1] if track.history else None
+    for multiple in (2, 4, 8, 16):
+        target = track.x0 - multiple * step
+        if _attempt(surface, [track], np.array([target]), multiple * step)[0]:
+            _record(track, refined=True)
+            # The loads grow about linearly here: the state one step back on the line from
+            # the state before (zero load at the touch) lets the predictor take the next step.
+            after = track.q
+            if before is None:
+                before = np.array([after[0], 0.0, 0.0, 0.0])
+            track.history = [before + (after - before) * (multiple - 1) / multiple, after]
+            track.smooth = True
+            return True
+    return False
 
 
 def _refine(surface: Surface, track: _Track, target: float, step: float) -> None:

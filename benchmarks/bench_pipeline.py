@@ -377,15 +377,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rates", default="1000,4000,8000,16000,32000,64000",
                         help="aggregate wrenches/s to try (32 whiskers per tick)")
     parser.add_argument("--repeat", type=int, default=1, help="runs per rate, mode and unit")
+    parser.add_argument("--units", default=",".join(UNITS),
+                        help="what one message carries: wrench, tick or both")
     args = parser.parse_args(argv)
     rates = [float(r) for r in args.rates.split(",")]
+    units = [u for u in args.units.split(",") if u]
+    if not units or set(units) - set(UNITS):
+        parser.error(f"--units: choose from {', '.join(UNITS)}")
     print(f"{os.cpu_count()} CPUs; {WHISKERS} whiskers per tick; {args.duration:g} s per run",
           flush=True)
     runs: list[Run] = []
     with tempfile.TemporaryDirectory() as tmp:
         for repeat in range(args.repeat):
             for rate in rates:
-                for unit in UNITS:
+                for unit in units:
                     for mode in MODES:
                         run = measure(mode, unit, rate, args.duration, Path(tmp))
                         runs.append(run)
@@ -393,9 +398,9 @@ def main(argv: list[str] | None = None) -> int:
                               f"{run.pct(50):9.0f} us  p99 {run.pct(99):9.0f} us  first p50 "
                               f"{run.pct(50, first=True):9.0f} us  lost {run.lost}  backlog "
                               f"{run.backlog_s * 1e3:.1f} ms", flush=True)
-    for unit in UNITS:
+    for unit in units:
         _table(runs, unit, rates, args.repeat)
-    for unit in UNITS:
+    for unit in units:
         target = [r for r in runs if (r.unit, r.rate, r.mode) == (unit, 32000, "vibrissa")]
         if target:
             lost = max(r.lost for r in target)

@@ -43,6 +43,7 @@ from typing import Any
 import msgpack
 import numpy as np
 import zmq
+from vibrissa.wire import Endpoints
 
 WHISKERS = 32
 TOPIC = "/bench/wrench"
@@ -173,7 +174,7 @@ def _echo(source: str, endpoint: str, via_proxy: bool) -> None:
 
 
 def _proxy() -> None:
-    from vibrissa.wire.transport import Endpoints, Proxy
+    from vibrissa.wire.transport import Proxy
 
     proxy = Proxy(Endpoints.free(), zmq.Context(), hwm=1_000_000)
     bound = proxy.start()
@@ -241,6 +242,22 @@ def _sink(sock: zmq.Socket[Any], n: int, header_seq: bool, timeout_s: float) -> 
     return t_recv
 
 
+def _announced(endpoints: Endpoints, node: str, topic: str, timeout_s: float = 30.0) -> str:
+    """The direct endpoint ``node`` announces for ``topic`` in its status (a subscriber that
+    reads nothing else connects there, as ``Subscriber`` does)."""
+    from vibrissa.msgs import NodeStatus
+    from vibrissa.wire import STATUS_TOPIC, Subscriber
+
+    with Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            rx = statuses.receive(0.1)
+            if rx is not None and isinstance(rx.msg, NodeStatus) and rx.msg.node == node \
+                    and topic in rx.msg.endpoints:
+                return rx.msg.endpoints[topic]
+    raise SystemExit(f"{node} announced no endpoint for {topic} within {timeout_s} s")
+
+
 def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> Run:
     """One run of the pipeline (``mode`` = ``vibrissa``), the floor (``bare``) or the floor
     through the proxy (``proxied``), sending a message per wrench or per tick (``unit``) at
@@ -294,6 +311,7 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
             sink.connect(sub_ep)
             helpers.append(_python("-m", "vibrissa.nodes.reconstructor", "--name",
                                    "reconstructor", "--namespace", "/bench", env=env))
+            sink.connect(_announced(Endpoints(pub_ep, sub_ep), "/bench/reconstructor", CONTACT))
             load = _python(me, "_load", "vibrissa", unit, "", str(n), str(rate), str(out),
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
             helpers.append(load)

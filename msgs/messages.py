@@ -406,7 +406,7 @@ class NodeStatus(Message):
     """Heartbeat of a node on /vibrissa/status (every 0.5 s)."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/NodeStatus"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
 
     stamp: float = _stamp()
     node: str = _text("fully qualified node name, e.g. /whisker0/reconstruct")
@@ -422,6 +422,10 @@ class NodeStatus(Message):
         kind=STR_LIST, doc="topics on which the node has received anything, pings included"
     )
     message: str = field(default="", metadata={"spec": FieldSpec(kind=STR, doc="free text")})
+    endpoints: dict[str, str] = field(default_factory=dict, metadata={"spec": FieldSpec(
+        kind=STR_STR_MAP,
+        doc="topic -> endpoint its direct publisher binds; subscribers connect there",
+    )})
 
 
 @dataclass(frozen=True, eq=False)

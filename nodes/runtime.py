@@ -354,13 +354,16 @@ class Node:
         wait_for: Iterable[str] = (),
         hwm: int = DEFAULT_HWM,
     ) -> Publisher:
-        """Publisher on ``resolve(topic)``; with ``wait_for`` node names it starts gated.
+        """Direct publisher on ``resolve(topic)``; with ``wait_for`` node names it starts gated.
 
+        Its endpoint goes out in this node's status at once, so subscribers connect to it.
         Relative node names resolve in this node's namespace, like topics.
         """
-        publisher = Publisher(self.resolve(topic), msg_type, self.endpoints, self.context, hwm)
+        publisher = Publisher(self.resolve(topic), msg_type, self.endpoints, self.context, hwm,
+                              direct=True)
         with self._lock:
             self._publishers.append(publisher)
+        self._beat_now.set()
         nodes = list(wait_for)
         if nodes:
             self._gate(publisher, nodes)
@@ -464,6 +467,7 @@ class Node:
             stamp=time.time(), node=self.fqn, state=self._state, counters=totals,
             publishes={p.topic: p.type_name for p in publishers},
             subscribes=subscribes, seen_topics=sorted(seen), message=self._message,
+            endpoints={p.topic: p.endpoint for p in publishers if p.endpoint is not None},
         )
 
     def _heartbeat_loop(self) -> None:

@@ -3,6 +3,16 @@
 A message is three frames ``[topic + b"\\0", header, payload]``; the header is msgpack
 ``{"pub": <uint64 publisher id>, "seq": <uint64>}`` and the payload ``vibrissa.msgs.encode(msg)``.
 
+Two paths, each message on exactly one
+--------------------------------------
+A publisher either connects to the proxy (the default: tools, tests, any program that speaks
+the protocol) or, with ``direct=True``, binds an endpoint of its own (``Publisher.endpoint``)
+that its node announces in ``NodeStatus.endpoints``; a direct publisher never sends through
+the proxy. Every subscriber listens on both: on the proxy, and on every announced endpoint of
+a topic it takes, which it learns from the statuses that pass its proxy socket (it subscribes
+to ``/vibrissa/status`` for that). Node to node, a message thus makes one hop instead of two
+through the proxy, and no message arrives twice.
+
 Sequence numbers and loss
 -------------------------
 ``seq`` counts, per publisher and topic, every message it sends except pings, from 0
@@ -34,8 +44,17 @@ from typing import Any, TypeAlias
 
 import msgpack
 import zmq
-from vibrissa.msgs import DecodeError, EndOfStream, Message, Ping, decode, encode, peek_type
-from vibrissa.wire.topics import validate_name
+from vibrissa.msgs import (
+    DecodeError,
+    EndOfStream,
+    Message,
+    NodeStatus,
+    Ping,
+    decode,
+    encode,
+    peek_type,
+)
+from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 __all__ = [
     "DEFAULT_HWM",
@@ -105,11 +124,27 @@ class Endpoints:
         """The environment variables that hand these endpoints to a node process."""
         return {_ENV_PUB: self.pub, _ENV_SUB: self.sub}
 
+    def direct_bind(self, pub_id: int) -> str | None:
+        """Where a direct publisher ``pub_id`` binds, beside the proxy's XSUB: a free port on
+        the same host (tcp), a socket file next to it (ipc), an inproc name; ``None`` for
+        other transports (the publisher then goes through the proxy)."""
+        scheme, sep, address = self.pub.partition("://")
+        if not sep:
+            return None
+        if scheme == "tcp":
+            host = address.rpartition(":")[0]
+            return f"tcp://{host}:*" if host else None
+        if scheme in ("ipc", "inproc"):
+            return f"{self.pub}-{pub_id:016x}"
+        return None
+
 
 def _socket(context: zmq.Context[Any], kind: int, hwm: int) -> zmq.Socket[Any]:
+    """A socket with linger 0 and high-water marks ``hwm``, except a SUB's send side: it
+    carries only subscriptions, which ZeroMQ drops silently beyond the mark."""
     sock = context.socket(kind)
     sock.setsockopt(zmq.LINGER, 0)
-    sock.setsockopt(zmq.SNDHWM, hwm)
+    sock.setsockopt(zmq.SNDHWM, max(hwm, DEFAULT_HWM) if kind == zmq.SUB else hwm)
     sock.setsockopt(zmq.RCVHWM, hwm)
     return sock
 
@@ -232,6 +267,11 @@ class Publisher:
         addition).
     hwm
         Send high-water mark, messages; beyond it ZeroMQ drops (subscribers count the loss).
+    direct
+        Bind an endpoint of its own (``endpoint``) instead of connecting to the proxy; the
+        owner must announce it (a node does, in its ``NodeStatus``), or nobody hears it. Where
+        no endpoint can be bound beside the proxy's, the publisher goes through the proxy
+        (``endpoint`` is ``None``) and logs why.
     """
 
     def __init__(
@@ -241,6 +281,7 @@ class Publisher:
         endpoints: Endpoints | None = None,
         context: zmq.Context[Any] | None = None,
         hwm: int = DEFAULT_HWM,
+        direct: bool = False,
     ) -> None:
         self._prefix = _check_topic(topic)
         self.topic = topic
@@ -251,13 +292,28 @@ class Publisher:
         self.sent = 0  # messages sent with a seq: data and EndOfStream (= the next seq)
         self._lock = threading.Lock()
         self._held: deque[bytes] | None = None
+        self.endpoint: str | None = None  # the bound endpoint of a direct publisher
         context = context if context is not None else zmq.Context.instance()
+        endpoints = endpoints or Endpoints.from_env()
         self._socket = _socket(context, zmq.PUB, hwm)
         try:
-            self._socket.connect((endpoints or Endpoints.from_env()).pub)
+            bind = endpoints.direct_bind(self.pub_id) if direct else None
+            if bind is not None:
+                self.endpoint = self._bind_or_none(bind)
+            if self.endpoint is None:
+                self._socket.connect(endpoints.pub)
         except zmq.ZMQError:
             self._socket.close()
             raise
+
+    def _bind_or_none(self, address: str) -> str | None:
+        try:
+            self._socket.bind(address)
+        except zmq.ZMQError as exc:
+            log.warning("%s: cannot bind %s (%s); publishing through the proxy",
+                        self.topic, address, exc)
+            return None
+        return self._socket.getsockopt_string(zmq.LAST_ENDPOINT)
 
     def publish(self, msg: Message) -> None:
         """Encode and send ``msg`` (buffered while held)."""
@@ -393,6 +449,10 @@ class Subscriber:
     ``topics`` maps each fully qualified topic to the expected message class (or a tuple of
     them), or ``None`` for any registered type; ``Ping`` and ``EndOfStream`` are accepted on
     every topic.
+
+    It listens on the proxy and, for every topic it takes other than ``/vibrissa/status``, on
+    each direct publisher of that topic that a ``NodeStatus`` announces (``direct_endpoints``);
+    statuses it reads only for that are neither counted nor returned.
     """
 
     def __init__(
@@ -414,11 +474,23 @@ class Subscriber:
         self.counters: dict[str, TopicCounters] = {t: TopicCounters() for t in topics or ()}
         self._seen: set[str] = set()
         self._next_seq: dict[tuple[str, int], int] = {}  # per (topic, publisher id)
-        context = context if context is not None else zmq.Context.instance()
-        self._socket = _socket(context, zmq.SUB, hwm)
+        # Direct publishers: discovered from statuses when any topic but the status is taken.
+        self._discover = topics is None or any(t != STATUS_TOPIC for t in topics)
+        self._status_wanted = topics is None or STATUS_TOPIC in topics
+        self._direct_prefixes = [p for p in prefixes if p != _check_topic(STATUS_TOPIC)]
+        self.direct_endpoints: set[str] = set()
+        self._context = context if context is not None else zmq.Context.instance()
+        self._hwm = hwm
+        self._direct: zmq.Socket[Any] | None = None  # made at the first announced endpoint
+        self._poller: zmq.Poller | None = None
+        self._socket = _socket(self._context, zmq.SUB, hwm)
+        self._sockets = [self._socket]
+        self._turn = 0
         try:
             for prefix in prefixes:
                 self._socket.setsockopt(zmq.SUBSCRIBE, prefix)
+            if self._discover and not self._status_wanted:
+                self._socket.setsockopt(zmq.SUBSCRIBE, _check_topic(STATUS_TOPIC))
             self._socket.connect((endpoints or Endpoints.from_env()).sub)
         except zmq.ZMQError:
             self._socket.close()
@@ -445,18 +517,59 @@ class Subscriber:
         """
         deadline = None
         while True:
-            try:  # what is already queued needs no poll (one system call less per message)
-                frames = self._socket.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
+            frames = self._queued()  # what is already queued needs no poll
+            if frames is None:
                 if deadline is None:
                     deadline = time.monotonic() + timeout_s
                 remaining_ms = max(0, round((deadline - time.monotonic()) * 1000))
-                if not self._socket.poll(remaining_ms, zmq.POLLIN):
+                if self._poller is None:
+                    ready = bool(self._socket.poll(remaining_ms, zmq.POLLIN))
+                else:
+                    ready = bool(self._poller.poll(remaining_ms))
+                if not ready:
                     return None
                 continue
             received = self._handle(frames)
             if received is not None:
                 return received
+
+    def _queued(self) -> list[bytes] | None:
+        """A message already queued on a socket, taking the sockets in turn (so that neither
+        path starves the other under a backlog), or ``None``."""
+        count = len(self._sockets)
+        for k in range(count):
+            index = (self._turn + k) % count
+            try:
+                frames = self._sockets[index].recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                continue
+            self._turn = (index + 1) % count
+            return frames
+        return None
+
+    def _learn(self, status: NodeStatus) -> None:
+        """Connect to the direct publishers that ``status`` announces on topics taken here."""
+        for topic, endpoint in status.endpoints.items():
+            if endpoint in self.direct_endpoints:
+                continue
+            if self.topics is not None and topic not in self.topics:
+                continue
+            if self._direct is None:
+                self._direct = _socket(self._context, zmq.SUB, self._hwm)
+                for prefix in self._direct_prefixes:
+                    self._direct.setsockopt(zmq.SUBSCRIBE, prefix)
+                self._sockets.insert(0, self._direct)
+                self._poller = zmq.Poller()
+                for sock in self._sockets:
+                    self._poller.register(sock, zmq.POLLIN)
+            try:
+                self._direct.connect(endpoint)
+            except zmq.ZMQError as exc:
+                log.warning("%s announces %s on %s, cannot connect: %s",
+                            status.node, endpoint, topic, exc)
+                continue
+            self.direct_endpoints.add(endpoint)
+            log.debug("%s: direct from %s at %s", topic, status.node, endpoint)
 
     def _handle(self, frames: list[bytes]) -> Received | None:
         now = time.time()
@@ -469,6 +582,8 @@ class Subscriber:
         except UnicodeDecodeError:
             self._reject("?", f"topic {raw_topic!r} is not UTF-8")
             return None
+        if topic == STATUS_TOPIC and self._discover and not self._discovered(payload):
+            return None  # a status read only to find direct publishers
         counters = self.counters.get(topic)
         if counters is None:  # topics=None: counters appear with the topics
             counters = self.counters[topic] = TopicCounters()
@@ -491,6 +606,17 @@ class Subscriber:
             return None
         counters.received += 1
         return Received(topic, msg, payload, header, now)
+
+    def _discovered(self, payload: bytes) -> bool:
+        """Learn direct publishers from a status payload; whether the caller takes statuses
+        (if not, an undecodable one is dropped here unlogged: it is not the caller's)."""
+        try:
+            status = decode(payload, (NodeStatus,))
+        except DecodeError:
+            return self._status_wanted  # the caller's counters reject it, if it takes them
+        if isinstance(status, NodeStatus) and status.endpoints:
+            self._learn(status)
+        return self._status_wanted
 
     def _track(self, topic: str, counters: TopicCounters, header: Header, is_ping: bool) -> None:
         key = (topic, header.pub)
@@ -519,8 +645,9 @@ class Subscriber:
         log.warning("%s: rejected message: %s", topic, reason)
 
     def close(self) -> None:
-        """Close the socket (linger 0)."""
-        self._socket.close()
+        """Close the sockets (linger 0)."""
+        for sock in self._sockets:
+            sock.close()
 
     def __enter__(self) -> Subscriber:
         return self

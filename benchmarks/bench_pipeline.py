@@ -1,15 +1,18 @@
 """Latency and throughput of the node graph: wrenches published -> contact points received.
 
-Pipeline (every box its own process, real ZeroMQ on loopback)::
+Pipeline (every box its own process, real ZeroMQ on loopback), as nodes connect: node
+publishers bind and announce their endpoint in their status on the proxy, subscribers connect
+there (docs/ARCHITECTURE.md), so data skips the proxy::
 
-    load --/bench/wrench--> proxy --> reconstructor --/bench/contact--> proxy --> sink (here)
+    load --/bench/wrench--> reconstructor --/bench/contact--> sink (here)
+    (and their statuses, with the endpoints, through the proxy)
 
 Floor, in the same run, with the same payload and the same pacing::
 
     load (bare PUB) --> echo (SUB -> PUB, forwards the bytes) --> sink (bare SUB)
 
-and the floor through the broker (``proxied``): the same bare processes, connected as the
-nodes are, through the proxy (what the broker costs without any work)::
+and the floor through the broker (``proxied``): the same bare processes connected through the
+proxy, as tools and raw publishers are (what the broker costs without any work)::
 
     load --/bench/wrench--> proxy --> echo --/bench/contact--> proxy --> sink
 

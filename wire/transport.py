@@ -80,6 +80,7 @@ _ENV_PUB = "VIBRISSA_PUB_ENDPOINT"
 _ENV_SUB = "VIBRISSA_SUB_ENDPOINT"
 _ENV_DOMAIN = "VIBRISSA_DOMAIN_ID"
 _CONTROL_IDS = itertools.count()
+_FAIR_RUN = 64  # messages in a row from one socket before a subscriber looks at the others
 
 
 @dataclass(frozen=True)
@@ -485,7 +486,8 @@ class Subscriber:
         self._poller: zmq.Poller | None = None
         self._socket = _socket(self._context, zmq.SUB, hwm)
         self._sockets = [self._socket]
-        self._turn = 0
+        self._turn = 0  # index of the socket that gave the last message
+        self._run = 0  # messages in a row from it
         try:
             for prefix in prefixes:
                 self._socket.setsockopt(zmq.SUBSCRIBE, prefix)
@@ -534,16 +536,25 @@ class Subscriber:
                 return received
 
     def _queued(self) -> list[bytes] | None:
-        """A message already queued on a socket, taking the sockets in turn (so that neither
-        path starves the other under a backlog), or ``None``."""
-        count = len(self._sockets)
-        for k in range(count):
-            index = (self._turn + k) % count
+        """A message already queued on a socket, or ``None``.
+
+        The socket that gave the last message is tried first (no failed read per message
+        under a backlog); after ``_FAIR_RUN`` messages in a row from it the others go first
+        once, so that neither path starves the other.
+        """
+        sockets = self._sockets
+        first = self._turn
+        if self._run >= _FAIR_RUN:
+            first = (first + 1) % len(sockets)
+            self._run = 0
+        for k in range(len(sockets)):
+            index = (first + k) % len(sockets)
             try:
-                frames = self._sockets[index].recv_multipart(zmq.NOBLOCK)
+                frames = sockets[index].recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
                 continue
-            self._turn = (index + 1) % count
+            self._run = self._run + 1 if index == self._turn else 1
+            self._turn = index
             return frames
         return None
 
@@ -556,9 +567,12 @@ class Subscriber:
                 continue
             if self._direct is None:
                 self._direct = _socket(self._context, zmq.SUB, self._hwm)
+                # Endpoints of nodes that are gone stay connected (what they sent last must
+                # still be read); ZeroMQ retries them at most every 5 s.
+                self._direct.setsockopt(zmq.RECONNECT_IVL_MAX, 5000)
                 for prefix in self._direct_prefixes:
                     self._direct.setsockopt(zmq.SUBSCRIBE, prefix)
-                self._sockets.insert(0, self._direct)
+                self._sockets.append(self._direct)
                 self._poller = zmq.Poller()
                 for sock in self._sockets:
                     self._poller.register(sock, zmq.POLLIN)

@@ -225,7 +225,7 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
     q = msg.clamp_orientation
     norm2 = np.einsum("ni,ni->n", q, q)
     good = np.isfinite(norm2) & (norm2 > 0)
-    all_good = bool(good.all())
+    all_good = np.count_nonzero(good) == len(good)
     p0, f0, m0 = msg.clamp_position, msg.f0, msg.m0
     if not all_good:
         q, p0, f0, m0 = q[good], p0[good], f0[good], m0[good]
@@ -234,7 +234,7 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
     valid = rec.valid
     keep: slice | npt.NDArray[np.bool_] = slice(None)
     whisker_ids = msg.whisker_ids
-    if not (all_good and valid.all()):
+    if not (all_good and np.count_nonzero(valid) == len(valid)):
         keep = valid
         whisker_ids = [whisker_ids[i] for i in np.flatnonzero(good)[valid].tolist()]
     contacts = ContactPointArray(

@@ -74,7 +74,8 @@ def _pendulum(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> _Pendulum:
     fu_a, fv_a, kappa0_a = (np.asarray(x, dtype=float) for x in (fu, fv, kappa0))
     if not fu_a.shape == fv_a.shape == kappa0_a.shape:
         fu_a, fv_a, kappa0_a = np.broadcast_arrays(fu_a, fv_a, kappa0_a)
-    return _pendulum_arrays(fu_a, fv_a, kappa0_a)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _pendulum_arrays(fu_a, fv_a, kappa0_a)
 
 
 _NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
@@ -84,31 +85,32 @@ _AXIAL = int(ContactStatus.AXIAL_LOAD)
 
 
 def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]) -> _Pendulum:
+    """The pendulum of equal-shape float arrays; the caller ignores divide and invalid."""
     # The special cases are rare: each is looked for with one reduction and flagged only when
-    # present, so that a batch of ordinary samples costs as few numpy calls as possible.
+    # present, so that a batch of ordinary samples costs as few numpy calls as possible. The
+    # reduction is np.count_nonzero: a quarter of the cost of .any()/.all() on small arrays.
     status = np.zeros(fu.shape, dtype=np.int64)
     finite = np.isfinite(fu) & np.isfinite(fv) & np.isfinite(kappa0)
-    if not finite.all():
+    if np.count_nonzero(finite) < finite.size:
         status[~finite] |= _NON_FINITE
     mirrored = kappa0 < 0
-    if mirrored.any():
+    if np.count_nonzero(mirrored):
         fu = np.where(mirrored, -fu, fu)
         kappa0 = np.abs(kappa0)
     f = np.hypot(fu, fv)
-    if not f.all():
+    if np.count_nonzero(f) < f.size:
         status[finite & (f == 0)] |= _NO_FORCE
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sqrt_f = np.sqrt(f)
-        alpha = np.arctan2(fu, -fv)
-        b0 = -np.sin(0.5 * alpha)  # sin(beta0 / 2), beta0 = -alpha at the clamp
-        c0 = kappa0 / (2.0 * sqrt_f)  # k cos(theta0)
-        k = np.hypot(b0, c0)
-        sin_theta0 = b0 / k
-        cos_theta0 = c0 / k
+    sqrt_f = np.sqrt(f)
+    alpha = np.arctan2(fu, -fv)
+    b0 = -np.sin(0.5 * alpha)  # sin(beta0 / 2), beta0 = -alpha at the clamp
+    c0 = kappa0 / (2.0 * sqrt_f)  # k cos(theta0)
+    k = np.hypot(b0, c0)
+    sin_theta0 = b0 / k
+    cos_theta0 = c0 / k
     never_vanishes = k >= 1.0
-    if never_vanishes.any():
+    if np.count_nonzero(never_vanishes):
         status[(status == 0) & never_vanishes] |= _NEVER_VANISHES
-    if not k.all():
+    if np.count_nonzero(k) < k.size:
         status[(status == 0) & (k == 0.0)] |= _AXIAL
     return _Pendulum(f, sqrt_f, fu, fv, alpha, k, sin_theta0, cos_theta0, kappa0, mirrored, status)
 
@@ -129,23 +131,34 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         Contact point, s1 and tangent angle per sample. An axial load (straight rod pushed
         along its axis) is taken as tip contact of the straight rod, flagged AXIAL_LOAD.
     """
-    p = _pendulum(fu, fv, kappa0)
+    fu_a, fv_a, kappa0_a = (np.asarray(x, dtype=float) for x in (fu, fv, kappa0))
+    if not fu_a.shape == fv_a.shape == kappa0_a.shape:
+        fu_a, fv_a, kappa0_a = np.broadcast_arrays(fu_a, fv_a, kappa0_a)
     with np.errstate(divide="ignore", invalid="ignore"):
-        m = p.k * p.k
-        k_complement = np.sqrt(1.0 - m)
-        # chi = am(K - c): the amplitude still to go from the clamp to the zero of kappa.
-        chi = np.arctan2(p.cos_theta0, k_complement * p.sin_theta0)
-        f_chi = special.ellipkinc(chi, m)
-        e_chi = special.ellipeinc(chi, m)
-        s1 = f_chi / p.sqrt_f
-        # E(am K) - E(am c) by the addition theorem, free of cancellation for small loads.
-        e_diff = e_chi - m * p.sin_theta0 * np.sin(chi)
-        along = (2.0 * e_diff - f_chi) / p.sqrt_f  # along -F/f
-        across = p.kappa0 / p.f  # along (fv, -fu)/f
-        u1 = (-along * p.fu + across * p.fv) / p.f
-        v1 = (-along * p.fv - across * p.fu) / p.f
-        phi1 = 2.0 * np.arcsin(np.minimum(p.k, 1.0)) + p.alpha + 0.5 * np.pi
-    if p.status.any():
+        return planar_contact_arrays(fu_a, fv_a, kappa0_a)
+
+
+def planar_contact_arrays(
+    fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]
+) -> PlanarContact:
+    """:func:`planar_contact` of float arrays of one shape, for callers that already ignore
+    numpy's divide and invalid warnings (``np.errstate``): no conversion, no context."""
+    p = _pendulum_arrays(fu, fv, kappa0)
+    m = p.k * p.k
+    k_complement = np.sqrt(1.0 - m)
+    # chi = am(K - c): the amplitude still to go from the clamp to the zero of kappa.
+    chi = np.arctan2(p.cos_theta0, k_complement * p.sin_theta0)
+    f_chi = special.ellipkinc(chi, m)
+    e_chi = special.ellipeinc(chi, m)
+    s1 = f_chi / p.sqrt_f
+    # E(am K) - E(am c) by the addition theorem, free of cancellation for small loads.
+    e_diff = e_chi - m * p.sin_theta0 * np.sin(chi)
+    along = (2.0 * e_diff - f_chi) / p.sqrt_f  # along -F/f
+    across = p.kappa0 / p.f  # along (fv, -fu)/f
+    u1 = (-along * p.fu + across * p.fv) / p.f
+    v1 = (-along * p.fv - across * p.fu) / p.f
+    phi1 = 2.0 * np.arcsin(np.minimum(p.k, 1.0)) + p.alpha + 0.5 * np.pi
+    if np.count_nonzero(p.status):  # rare cases, as in _pendulum_arrays
         axial = p.status == _AXIAL
         if axial.any():
             u1 = np.where(axial, 0.0, u1)
@@ -155,7 +168,7 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         good = (p.status == 0) | axial
         if not good.all():
             u1, v1, s1, phi1 = (np.where(good, value, np.nan) for value in (u1, v1, s1, phi1))
-    if p.mirrored.any():
+    if np.count_nonzero(p.mirrored):
         u1 = np.where(p.mirrored, -u1, u1)
         phi1 = np.where(p.mirrored, np.pi - phi1, phi1)
     return PlanarContact(u1=u1, v1=v1, s1=s1, phi1=phi1, status=p.status)

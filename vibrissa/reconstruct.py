@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vibrissa.elastica import S1_TOLERANCE, planar_contact, planar_contact_scalar
+from vibrissa.elastica import S1_TOLERANCE, planar_contact_arrays, planar_contact_scalar
 from vibrissa.status import NO_CONTACT, ContactStatus
 
 PHASE_NONE, PHASE_TIP, PHASE_TANGENTIAL = 0, 1, 2
@@ -192,26 +192,33 @@ def _reconstruct_arrays(
         raise ValueError(
             f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, {f0_C.shape}, {m0_C.shape}"
         ) from None
+    with np.errstate(invalid="ignore", divide="ignore"):  # the flags below say where
+        return _reconstruct_rows(p0_W, f0_C, m0_C, R_WC)
+
+
+def _reconstruct_rows(
+    p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
+    R_WC: ArrayLike | None,
+) -> Reconstruction:
+    """:func:`reconstruct` of (N, 3) rows, under numpy's divide and invalid warnings ignored."""
     force_C = -f0_C
     m_horizontal = np.hypot(m0_C[:, 0], m0_C[:, 1])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|.
-        e_u2 = m0_C[:, 1::-1] * (_FLIP_SECOND / m_horizontal[:, None])
+    # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|.
+    e_u2 = m0_C[:, 1::-1] * (_FLIP_SECOND / m_horizontal[:, None])
     bent = m_horizontal > 0
-    if not bent.all():  # an unbent rod has its plane along F (along e_x without a force)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            f_horizontal = np.hypot(force_C[:, 0], force_C[:, 1])
-            e_u_straight = force_C[:, :2] / f_horizontal[:, None]
+    if np.count_nonzero(bent) < bent.size:  # an unbent rod has its plane along F (along e_x without a force)
+        f_horizontal = np.hypot(force_C[:, 0], force_C[:, 1])
+        e_u_straight = force_C[:, :2] / f_horizontal[:, None]
         e_u_straight = np.where(f_horizontal[:, None] > 0, e_u_straight, [1.0, 0.0])
         e_u2 = np.where(bent[:, None], e_u2, e_u_straight)
     psi = np.arctan2(e_u2[:, 1], e_u2[:, 0])
     fu = np.einsum("ni,ni->n", force_C[:, :2], e_u2)
-    contact = planar_contact(fu, force_C[:, 2], m_horizontal)
+    contact = planar_contact_arrays(fu, force_C[:, 2], m_horizontal)
     status = contact.status
     if not (np.isfinite(p0_W).all() and np.isfinite(m0_C).all()):
         status[~(np.isfinite(p0_W).all(axis=1) & np.isfinite(m0_C).all(axis=1))] |= _NON_FINITE
     beyond_rod = contact.s1 > 1.0 + S1_TOLERANCE  # NaN where there is no contact: False
-    if beyond_rod.any():
+    if np.count_nonzero(beyond_rod):
         status[beyond_rod & (status & _NO_CONTACT == 0)] |= _BEYOND
     p1_C = np.empty_like(force_C)
     p1_C[:, :2] = contact.u1[:, None] * e_u2
@@ -224,7 +231,7 @@ def _reconstruct_arrays(
     force = np.einsum(rotate, rotation, force_C)
     s1 = np.minimum(contact.s1, 1.0)
     phase = np.where(s1 >= 1.0 - TIP_TOLERANCE, PHASE_TIP, PHASE_TANGENTIAL)
-    if status.any():
+    if np.count_nonzero(status):  # rare cases behind one reduction (see elastica)
         valid = (status & _NO_CONTACT) == 0
         if not valid.all():
             point = np.where(valid[:, None], point, np.nan)

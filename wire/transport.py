@@ -558,7 +558,7 @@ class Subscriber:
             return frames
         return None
 
-    def _learn(self, status: NodeStatus) -> None:
+    def _connect_announced(self, status: NodeStatus) -> None:
         """Connect to the direct publishers that ``status`` announces on topics taken here."""
         for topic, endpoint in status.endpoints.items():
             if endpoint in self.direct_endpoints:
@@ -596,7 +596,7 @@ class Subscriber:
         except UnicodeDecodeError:
             self._reject("?", f"topic {raw_topic!r} is not UTF-8")
             return None
-        if topic == STATUS_TOPIC and self._discover and not self._discovered(payload):
+        if topic == STATUS_TOPIC and self._discover and not self._learn_from_status(payload):
             return None  # a status read only to find direct publishers
         counters = self.counters.get(topic)
         if counters is None:  # topics=None: counters appear with the topics
@@ -621,7 +621,7 @@ class Subscriber:
         counters.received += 1
         return Received(topic, msg, payload, header, now)
 
-    def _discovered(self, payload: bytes) -> bool:
+    def _learn_from_status(self, payload: bytes) -> bool:
         """Learn direct publishers from a status payload; whether the caller takes statuses
         (if not, an undecodable one is dropped here unlogged: it is not the caller's)."""
         try:
@@ -629,7 +629,7 @@ class Subscriber:
         except DecodeError:
             return self._status_wanted  # the caller's counters reject it, if it takes them
         if isinstance(status, NodeStatus) and status.endpoints:
-            self._learn(status)
+            self._connect_announced(status)
         return self._status_wanted
 
     def _track(self, topic: str, counters: TopicCounters, header: Header, is_ping: bool) -> None:

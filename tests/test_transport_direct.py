@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
 from typing import Any
 
 import msgpack
@@ -179,3 +180,21 @@ def test_statuses_read_for_discovery_are_not_the_callers(
         raw.close()
         assert set(sub.counters) == {TOPIC}
         assert sub.counters[TOPIC].received == 0 and sub.counters[TOPIC].rejected == 0
+
+
+def test_ipc_socket_files_are_removed_at_close(tmp_path: Path, context: zmq.Context[Any]) -> None:
+    requested = Endpoints(f"ipc://{tmp_path}/pub", f"ipc://{tmp_path}/sub")
+    with Proxy(requested, context=context) as proxy:
+        assert proxy.endpoints is not None
+        with Subscriber({TOPIC: WhiskerWrench}, proxy.endpoints, context) as sub, \
+                Publisher(STATUS_TOPIC, NodeStatus, proxy.endpoints, context) as status, \
+                Publisher(TOPIC, WhiskerWrench, proxy.endpoints, context, direct=True) as pub:
+            assert pub.endpoint == f"ipc://{tmp_path}/pub-{pub.pub_id:016x}"
+            announce(status, pub, sub)  # the direct path works over ipc
+            pub.publish(wrench(7))
+            rx = sub.receive(TIMEOUT_S)
+            assert rx is not None and rx.header.pub == pub.pub_id and rx.header.seq == 0
+            assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+                ["pub", "sub", f"pub-{pub.pub_id:016x}"])
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["pub", "sub"]
+    assert list(tmp_path.iterdir()) == []

@@ -140,6 +140,16 @@ class Endpoints:
         return None
 
 
+def _remove_socket_file(endpoint: str) -> None:
+    """Remove the file of a bound ``ipc://`` endpoint once its socket is closed (ZeroMQ leaves
+    it behind); connections already made live on, so queued messages still leave."""
+    if endpoint.startswith("ipc://"):
+        try:
+            os.unlink(endpoint[len("ipc://"):])
+        except OSError:
+            pass
+
+
 def _socket(context: zmq.Context[Any], kind: int, hwm: int) -> zmq.Socket[Any]:
     """A socket with linger 0 and high-water marks ``hwm``, except a SUB's send side: it
     carries only subscriptions, which ZeroMQ drops silently beyond the mark."""
@@ -231,6 +241,9 @@ class Proxy:
             self._control.close()
             self._control = None
             self._thread = None
+            if self.endpoints is not None:
+                for endpoint in dataclasses.astuple(self.endpoints):
+                    _remove_socket_file(endpoint)
 
     def __enter__(self) -> Proxy:
         self.start()
@@ -402,6 +415,8 @@ class Publisher:
             if self._held:
                 log.warning("%s: %d held messages discarded at close", self.topic, len(self._held))
             self._socket.close(linger=max(0, round(linger_s * 1000)))
+        if self.endpoint is not None:
+            _remove_socket_file(self.endpoint)
 
     def __enter__(self) -> Publisher:
         return self

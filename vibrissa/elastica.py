@@ -70,12 +70,14 @@ class _Pendulum(NamedTuple):
     status: NDArray[np.int64]
 
 
-def _pendulum(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> _Pendulum:
+def _float_arrays(
+    fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The load case as float arrays of one (broadcast) shape."""
     fu_a, fv_a, kappa0_a = (np.asarray(x, dtype=float) for x in (fu, fv, kappa0))
     if not fu_a.shape == fv_a.shape == kappa0_a.shape:
         fu_a, fv_a, kappa0_a = np.broadcast_arrays(fu_a, fv_a, kappa0_a)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return _pendulum_arrays(fu_a, fv_a, kappa0_a)
+    return fu_a, fv_a, kappa0_a
 
 
 _NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
@@ -131,11 +133,8 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         Contact point, s1 and tangent angle per sample. An axial load (straight rod pushed
         along its axis) is taken as tip contact of the straight rod, flagged AXIAL_LOAD.
     """
-    fu_a, fv_a, kappa0_a = (np.asarray(x, dtype=float) for x in (fu, fv, kappa0))
-    if not fu_a.shape == fv_a.shape == kappa0_a.shape:
-        fu_a, fv_a, kappa0_a = np.broadcast_arrays(fu_a, fv_a, kappa0_a)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return planar_contact_arrays(fu_a, fv_a, kappa0_a)
+        return planar_contact_arrays(*_float_arrays(fu, fv, kappa0))
 
 
 def planar_contact_arrays(
@@ -197,7 +196,8 @@ def planar_line(
     contact = planar_contact(fu, fv, kappa0)
     if int(contact.status) != ContactStatus.OK:
         return np.zeros_like(s), s.copy()  # no bending load: the straight rod
-    p = _pendulum(fu, fv, kappa0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = _pendulum_arrays(*_float_arrays(fu, fv, kappa0))
     m = float(p.k) ** 2
     s1 = float(contact.s1)
     s_bent = np.minimum(s, s1)

@@ -493,7 +493,8 @@ class Subscriber:
         # Direct publishers: discovered from statuses when any topic but the status is taken.
         self._discover = topics is None or any(t != STATUS_TOPIC for t in topics)
         self._status_wanted = topics is None or STATUS_TOPIC in topics
-        self._direct_prefixes = [p for p in prefixes if p != _check_topic(STATUS_TOPIC)]
+        status_prefix = _check_topic(STATUS_TOPIC)
+        self._direct_prefixes = [p for p in prefixes if p != status_prefix]
         self.direct_endpoints: set[str] = set()
         self._context = context if context is not None else zmq.Context.instance()
         self._hwm = hwm
@@ -507,7 +508,7 @@ class Subscriber:
             for prefix in prefixes:
                 self._socket.setsockopt(zmq.SUBSCRIBE, prefix)
             if self._discover and not self._status_wanted:
-                self._socket.setsockopt(zmq.SUBSCRIBE, _check_topic(STATUS_TOPIC))
+                self._socket.setsockopt(zmq.SUBSCRIBE, status_prefix)
             self._socket.connect((endpoints or Endpoints.from_env()).sub)
         except zmq.ZMQError:
             self._socket.close()
@@ -611,8 +612,9 @@ class Subscriber:
         except UnicodeDecodeError:
             self._reject("?", f"topic {raw_topic!r} is not UTF-8")
             return None
-        if topic == STATUS_TOPIC and self._discover and not self._learn_from_status(payload):
-            return None  # a status read only to find direct publishers
+        if topic == STATUS_TOPIC and self._discover and not self._status_wanted:
+            self._learn_from_status(payload)  # read only to find direct publishers
+            return None
         counters = self.counters.get(topic)
         if counters is None:  # topics=None: counters appear with the topics
             counters = self.counters[topic] = TopicCounters()
@@ -628,6 +630,8 @@ class Subscriber:
             self._track(topic, counters, header, is_ping=False)  # it did use its seq
             self._reject(topic, str(exc))
             return None
+        if self._discover and isinstance(msg, NodeStatus):
+            self._connect_announced(msg)  # a status the caller takes too
         is_ping = isinstance(msg, Ping)
         self._track(topic, counters, header, is_ping)
         if is_ping:
@@ -636,16 +640,15 @@ class Subscriber:
         counters.received += 1
         return Received(topic, msg, payload, header, now)
 
-    def _learn_from_status(self, payload: bytes) -> bool:
-        """Learn direct publishers from a status payload; whether the caller takes statuses
-        (if not, an undecodable one is dropped here unlogged: it is not the caller's)."""
+    def _learn_from_status(self, payload: bytes) -> None:
+        """Learn direct publishers from a status the caller does not take (one that does not
+        decode is dropped unlogged: it is not the caller's)."""
         try:
             status = decode(payload, (NodeStatus,))
         except DecodeError:
-            return self._status_wanted  # the caller's counters reject it, if it takes them
-        if isinstance(status, NodeStatus) and status.endpoints:
+            return
+        if isinstance(status, NodeStatus):
             self._connect_announced(status)
-        return self._status_wanted
 
     def _track(self, topic: str, counters: TopicCounters, header: Header, is_ping: bool) -> None:
         key = (topic, header.pub)

@@ -95,25 +95,32 @@ class FieldSpec:
         if self.optional:
             return None
         if self.kind == ARRAY:
-            return np.ndarray if self.fixed_shape is not None else None
+            return np.ndarray
         if self.kind == ENUM:
             return self.enum
         if self.kind == STR:
             return str if not self.choices else None
         return {FLOAT: float, INT: int}.get(self.kind)
 
-    def accepts_as_is(self, value: Any) -> bool:
+    def accepts_as_is(self, value: Any, sizes: dict[str, int]) -> bool:
         """Whether ``value`` already is what construction would make of it.
 
-        Exact Python types, and read-only arrays of the field's dtype and fixed shape: the
-        checks of ``_coerce`` hold for them, so the fast path of construction skips it.
+        Exact Python types, and read-only arrays of the field's dtype and shape (symbolic sizes
+        bound in ``sizes``): the checks of ``_coerce`` hold for them, so the fast path of
+        construction skips it.
         """
         exact = self.exact_type
         if exact is None or type(value) is not exact:
             return False
         if isinstance(value, np.ndarray):
-            return (not value.flags.writeable and value.shape == self.fixed_shape
-                    and value.dtype == self.dtype)
+            if value.flags.writeable or value.dtype != self.dtype:
+                return False
+            if self.fixed_shape is not None:
+                return bool(value.shape == self.fixed_shape)
+            try:
+                check_shape("", self.shape, value.shape, sizes)
+            except ValueError:
+                return False  # _coerce names the mismatch
         return True
 
 
@@ -171,7 +178,7 @@ class Message:
         values = self.__dict__
         for name, spec in field_specs(type(self)):
             value = values[name]
-            if (value is None and spec.optional) or spec.accepts_as_is(value):
+            if (value is None and spec.optional) or spec.accepts_as_is(value, sizes):
                 continue
             object.__setattr__(self, name, _coerce(type(self), name, spec, value, sizes))
 
@@ -244,17 +251,14 @@ def check_shape(
 
     Symbolic sizes (``"N"``) are bound in ``sizes`` at first use and must agree afterwards.
     """
-    ok = len(expected) == len(actual)
-    if ok:
+    if len(expected) == len(actual):
         for want, got in zip(expected, actual, strict=True):
-            if isinstance(want, str):
-                if sizes.setdefault(want, got) != got:
-                    ok = False
-            elif want != got:
-                ok = False
-    if not ok:
-        want_text = "(" + ", ".join(f"{w}={sizes[w]}" if w in sizes else str(w) for w in expected)
-        raise ValueError(f"{where} expects shape {want_text.rstrip(', ')}), got {actual}")
+            if want != got and (type(want) is not str or sizes.setdefault(want, got) != got):
+                break
+        else:
+            return
+    want_text = "(" + ", ".join(f"{w}={sizes[w]}" if w in sizes else str(w) for w in expected)
+    raise ValueError(f"{where} expects shape {want_text.rstrip(', ')}), got {actual}")
 
 
 @dataclass(frozen=True, eq=False)

@@ -36,7 +36,7 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TypeAlias
+from typing import Any, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
@@ -53,7 +53,7 @@ from vibrissa.msgs import (
 from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.wire.transport import Received
 
-from vibrissa.reconstruct import reconstruct, reconstruct_sample
+from vibrissa.reconstruct import reconstruct_rows, reconstruct_sample
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
 
@@ -204,7 +204,7 @@ class ArrayResult:
 def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> ArrayResult:
     """Reconstruct one tick of a whisker array in one vectorised Step 2 call.
 
-    Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct`` on (N, 3)
+    Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct_rows`` on (N, 3)
     arrays, so a message's points depend on the message alone, never on arrival timing: a
     replayed bag gives the live run's points bit for bit. They agree with the scalar path of
     :func:`reconstruct_wrenches` to round-off.
@@ -222,29 +222,32 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
         A ContactPointArray (SI, in ``msg.frame_id``, same ``stamp`` and ``seq``) of the rows
         whose status is OK or AXIAL_LOAD; the others are only counted.
     """
-    q = msg.clamp_orientation
-    norm2 = np.einsum("ni,ni->n", q, q)
-    good = np.isfinite(norm2) & (norm2 > 0)
-    all_good = np.count_nonzero(good) == len(good)
-    p0, f0, m0 = msg.clamp_position, msg.f0, msg.m0
-    if not all_good:
-        q, p0, f0, m0 = q[good], p0[good], f0[good], m0[good]
-    rec = reconstruct(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
-                      m0 * (1.0 / rod.moment_nm), quaternion_matrices(q))
+    with np.errstate(divide="ignore", invalid="ignore"):  # flagged rows say where
+        rotation, norm2 = _rotations(msg.clamp_orientation)
+        good = (norm2 > 0.0) & (norm2 < np.inf)
+        all_good = np.count_nonzero(good) == len(good)
+        p0, f0, m0 = msg.clamp_position, msg.f0, msg.m0
+        if not all_good:
+            rotation, p0, f0, m0 = rotation[good], p0[good], f0[good], m0[good]
+        rec = reconstruct_rows(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
+                               m0 * (1.0 / rod.moment_nm), rotation)
     valid = rec.valid
-    keep: slice | npt.NDArray[np.bool_] = slice(None)
     whisker_ids = msg.whisker_ids
+    outputs: tuple[npt.NDArray[Any], ...] = (
+        rec.point * rod.length_m, rec.s1 * rod.length_m, rec.phase.astype(np.int32),
+        rec.force * rod.force_n, rec.status.astype(np.int32))
     if not (all_good and np.count_nonzero(valid) == len(valid)):
-        keep = valid
         whisker_ids = [whisker_ids[i] for i in np.flatnonzero(good)[valid].tolist()]
+        outputs = tuple(value[valid] for value in outputs)
+    for value in outputs:  # fresh arrays of this call: the message takes them without a copy
+        value.flags.writeable = False
+    point, s1, phase, force, status = outputs
     contacts = ContactPointArray(
         stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id, whisker_ids=whisker_ids,
-        point=rec.point[keep] * rod.length_m, s1=rec.s1[keep] * rod.length_m,
-        phase=rec.phase[keep].astype(np.int32), force=rec.force[keep] * rod.force_n,
-        status=rec.status[keep].astype(np.int32),
+        point=point, s1=s1, phase=phase, force=force, status=status,
     )
     return ArrayResult(contacts, no_contact=len(valid) - len(whisker_ids),
-                       bad_pose=len(msg.clamp_orientation) - len(q))
+                       bad_pose=len(good) - len(valid))
 
 
 def _products_to_matrix() -> FloatArray:
@@ -272,9 +275,14 @@ _PRODUCTS_TO_MATRIX = _products_to_matrix()
 
 def quaternion_matrices(q_xyzw: FloatArray) -> FloatArray:
     """Rotation matrices (N, 3, 3) of quaternions (N, 4) (x, y, z, w), normalised first."""
+    return _rotations(q_xyzw)[0]
+
+
+def _rotations(q_xyzw: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """:func:`quaternion_matrices` and the squared norms (N,) of the quaternions."""
     products = (q_xyzw[:, :, None] * q_xyzw[:, None, :]).reshape(-1, 16)
     norm2 = products[:, ::5].sum(axis=1)  # the diagonal: x^2 + y^2 + z^2 + w^2
-    return ((products @ _PRODUCTS_TO_MATRIX) / norm2[:, None]).reshape(-1, 3, 3)
+    return ((products @ _PRODUCTS_TO_MATRIX) / norm2[:, None]).reshape(-1, 3, 3), norm2
 
 
 def quaternion_rows(q_xyzw: Sequence[float]) -> list[list[float]]:

@@ -381,6 +381,39 @@ def test_arrays_must_agree_on_n(make: Any, field: str, shape: tuple[int, ...]) -
         type(msg)(**{**msg.__dict__, field: np.zeros(shape, dtype)})
 
 
+def test_array_types_fast_path_takes_only_what_the_general_path_takes() -> None:
+    """Sized arrays decode on a fast path too; anything unusual still gets the full checks."""
+    obj = raw(wrench_array())
+    obj["f0"]["shape"] = [3.0, 3]  # equal to [3, 3] for ==, not ints
+    with pytest.raises((FieldTypeError, ArrayShapeError)):
+        decode(pack(obj))
+    obj = raw(wrench_array())
+    obj["whisker_ids"][1] = 7
+    refuse(pack(obj), FieldTypeError, "WhiskerWrenchArray", "whisker_ids")
+    obj = raw(wrench_array())
+    m0 = np.zeros((3, 3))
+    m0[0, :2] = 1e308  # finite, the sum is not
+    obj["m0"]["data"] = m0.tobytes()
+    back = decode(pack(obj))
+    assert isinstance(back, WhiskerWrenchArray) and np.array_equal(back.m0, m0)
+    assert not back.m0.flags.writeable and back.m0.shape == (3, 3)
+    empty = ContactPointArray(stamp=1.0, seq=8, frame_id="world", whisker_ids=[],
+                              point=np.zeros((0, 3)), s1=[], phase=np.zeros(0, np.int32),
+                              force=np.zeros((0, 3)), status=np.zeros(0, np.int32))
+    assert decode(encode(empty)) == empty
+
+
+def test_construction_takes_read_only_sized_arrays_as_they_are() -> None:
+    msg = contact_array()
+    point = np.array(msg.point)  # writeable: copied
+    made = ContactPointArray(**{**msg.__dict__, "point": point})
+    assert made.point is not point and not made.point.flags.writeable
+    point.flags.writeable = False  # read-only: taken as it is
+    assert ContactPointArray(**{**msg.__dict__, "point": point}).point is point
+    with pytest.raises(ValueError, match="point"):  # and still checked against N
+        ContactPointArray(**{**msg.__dict__, "point": point[:1]})
+
+
 def test_array_types_refuse_nan_wrong_dtype_and_wrong_version() -> None:
     obj = raw(wrench_array())
     m0 = np.zeros((3, 3))

@@ -55,19 +55,23 @@ class PlanarContact:
 
 
 class _Pendulum(NamedTuple):
-    """Pendulum constants of one load case, in the kappa0 >= 0 half (mirror already applied)."""
+    """Pendulum constants of load cases, in the kappa0 >= 0 half (mirror already applied).
+
+    With sin(beta / 2) = k sn(sqrt(f) s + c), theta0 = am(c) is the amplitude at the clamp:
+    ``b0`` = k sin(theta0) and ``c0`` = k cos(theta0).
+    """
 
     f: NDArray[np.float64]
     sqrt_f: NDArray[np.float64]
     fu: NDArray[np.float64]  # force component along e_u after mirroring
     fv: NDArray[np.float64]
-    alpha: NDArray[np.float64]  # eq. 12: signed angle between F and -e_v
-    k: NDArray[np.float64]  # elliptic modulus
-    sin_theta0: NDArray[np.float64]  # amplitude theta0 of the clamp: sn(c) and cn(c)
-    cos_theta0: NDArray[np.float64]
     kappa0: NDArray[np.float64]
+    alpha: NDArray[np.float64]  # eq. 12: signed angle between F and -e_v
+    b0: NDArray[np.float64]
+    c0: NDArray[np.float64]
+    k: NDArray[np.float64]  # elliptic modulus
     mirrored: NDArray[np.bool_]
-    status: NDArray[np.int64]
+    any_mirrored: bool
 
 
 def _float_arrays(
@@ -88,33 +92,29 @@ _AXIAL = int(ContactStatus.AXIAL_LOAD)
 
 def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]) -> _Pendulum:
     """The pendulum of equal-shape float arrays; the caller ignores divide and invalid."""
-    # The special cases are rare: each is looked for with one reduction and flagged only when
-    # present, so that a batch of ordinary samples costs as few numpy calls as possible. The
-    # reduction is np.count_nonzero: a quarter of the cost of .any()/.all() on small arrays.
-    status = np.zeros(fu.shape, dtype=np.int64)
-    finite = np.isfinite(fu) & np.isfinite(fv) & np.isfinite(kappa0)
-    if np.count_nonzero(finite) < finite.size:
-        status[~finite] |= _NON_FINITE
     mirrored = kappa0 < 0
-    if np.count_nonzero(mirrored):
+    any_mirrored = bool(np.count_nonzero(mirrored))
+    if any_mirrored:
         fu = np.where(mirrored, -fu, fu)
         kappa0 = np.abs(kappa0)
     f = np.hypot(fu, fv)
-    if np.count_nonzero(f) < f.size:
-        status[finite & (f == 0)] |= _NO_FORCE
     sqrt_f = np.sqrt(f)
     alpha = np.arctan2(fu, -fv)
     b0 = -np.sin(0.5 * alpha)  # sin(beta0 / 2), beta0 = -alpha at the clamp
-    c0 = kappa0 / (2.0 * sqrt_f)  # k cos(theta0)
+    c0 = kappa0 / (2.0 * sqrt_f)
     k = np.hypot(b0, c0)
-    sin_theta0 = b0 / k
-    cos_theta0 = c0 / k
-    never_vanishes = k >= 1.0
-    if np.count_nonzero(never_vanishes):
-        status[(status == 0) & never_vanishes] |= _NEVER_VANISHES
-    if np.count_nonzero(k) < k.size:
-        status[(status == 0) & (k == 0.0)] |= _AXIAL
-    return _Pendulum(f, sqrt_f, fu, fv, alpha, k, sin_theta0, cos_theta0, kappa0, mirrored, status)
+    return _Pendulum(f, sqrt_f, fu, fv, kappa0, alpha, b0, c0, k, mirrored, any_mirrored)
+
+
+def _flags(p: _Pendulum) -> NDArray[np.int64]:
+    """``ContactStatus`` flags of each load case (0 for an ordinary one)."""
+    status = np.zeros(p.f.shape, dtype=np.int64)
+    finite = np.isfinite(p.fu) & np.isfinite(p.fv) & np.isfinite(p.kappa0)
+    status[~finite] |= _NON_FINITE
+    status[finite & (p.f == 0)] |= _NO_FORCE
+    status[(status == 0) & (p.k >= 1.0)] |= _NEVER_VANISHES
+    status[(status == 0) & (p.k == 0.0)] |= _AXIAL
+    return status
 
 
 def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarContact:
@@ -143,34 +143,40 @@ def planar_contact_arrays(
     """:func:`planar_contact` of float arrays of one shape, for callers that already ignore
     numpy's divide and invalid warnings (``np.errstate``): no conversion, no context."""
     p = _pendulum_arrays(fu, fv, kappa0)
-    m = p.k * p.k
-    k_complement = np.sqrt(1.0 - m)
-    # chi = am(K - c): the amplitude still to go from the clamp to the zero of kappa.
-    chi = np.arctan2(p.cos_theta0, k_complement * p.sin_theta0)
+    k, b0, c0, sqrt_f, f = p.k, p.b0, p.c0, p.sqrt_f, p.f
+    m = k * k
+    # chi = am(K - c) = atan2(cos theta0, k' sin theta0): the amplitude still to go from the
+    # clamp to the zero of kappa (k > 0 cancels from both arguments).
+    chi = np.arctan2(c0, np.sqrt(1.0 - m) * b0)
     f_chi = special.ellipkinc(chi, m)
     e_chi = special.ellipeinc(chi, m)
-    s1 = f_chi / p.sqrt_f
-    # E(am K) - E(am c) by the addition theorem, free of cancellation for small loads.
-    e_diff = e_chi - m * p.sin_theta0 * np.sin(chi)
-    along = (2.0 * e_diff - f_chi) / p.sqrt_f  # along -F/f
-    across = p.kappa0 / p.f  # along (fv, -fu)/f
-    u1 = (-along * p.fu + across * p.fv) / p.f
-    v1 = (-along * p.fv - across * p.fu) / p.f
-    phi1 = 2.0 * np.arcsin(np.minimum(p.k, 1.0)) + p.alpha + 0.5 * np.pi
-    if np.count_nonzero(p.status):  # rare cases, as in _pendulum_arrays
-        axial = p.status == _AXIAL
-        if axial.any():
-            u1 = np.where(axial, 0.0, u1)
-            v1 = np.where(axial, 1.0, v1)
-            s1 = np.where(axial, 1.0, s1)
-            phi1 = np.where(axial, 0.5 * np.pi, phi1)
-        good = (p.status == 0) | axial
-        if not good.all():
-            u1, v1, s1, phi1 = (np.where(good, value, np.nan) for value in (u1, v1, s1, phi1))
-    if np.count_nonzero(p.mirrored):
+    s1 = f_chi / sqrt_f
+    # E(am K) - E(am c) = e_chi - m sin(theta0) sin(chi) by the addition theorem, free of
+    # cancellation for small loads; m sin(theta0) = k b0. ``along`` is the reach along -F/f
+    # and ``across`` the reach along (fv, -fu)/f, each divided by f once more.
+    along = (2.0 * (e_chi - k * b0 * np.sin(chi)) - f_chi) / (sqrt_f * f)
+    across = p.kappa0 / (f * f)
+    u1 = across * p.fv - along * p.fu
+    v1 = -(along * p.fv + across * p.fu)
+    phi1 = 2.0 * np.arcsin(k) + p.alpha + 0.5 * np.pi
+    # The rare cases (non-finite input, no force, k >= 1, k = 0) all leave this product
+    # outside (0, inf): one screen, and the exact flags only where it finds something.
+    ordinary = k * (1.0 - k) * f
+    if np.count_nonzero((ordinary > 0.0) & (ordinary < np.inf)) == ordinary.size:
+        status = np.zeros(ordinary.shape, dtype=np.int64)
+    else:
+        status = _flags(p)
+        axial = status == _AXIAL
+        u1 = np.where(axial, 0.0, u1)
+        v1 = np.where(axial, 1.0, v1)
+        s1 = np.where(axial, 1.0, s1)
+        phi1 = np.where(axial, 0.5 * np.pi, phi1)
+        good = (status == 0) | axial
+        u1, v1, s1, phi1 = (np.where(good, value, np.nan) for value in (u1, v1, s1, phi1))
+    if p.any_mirrored:
         u1 = np.where(p.mirrored, -u1, u1)
         phi1 = np.where(p.mirrored, np.pi - phi1, phi1)
-    return PlanarContact(u1=u1, v1=v1, s1=s1, phi1=phi1, status=p.status)
+    return PlanarContact(u1=u1, v1=v1, s1=s1, phi1=phi1, status=status)
 
 
 def planar_line(
@@ -201,13 +207,13 @@ def planar_line(
     m = float(p.k) ** 2
     s1 = float(contact.s1)
     s_bent = np.minimum(s, s1)
-    theta0 = np.arctan2(p.sin_theta0, p.cos_theta0)
+    theta0 = np.arctan2(p.b0, p.c0)
     c = special.ellipkinc(theta0, m)
     e0 = special.ellipeinc(theta0, m)
     arg = p.sqrt_f * s_bent + c
     _sn, cn, _dn, amplitude = special.ellipj(arg, m)
     along = (2.0 * (special.ellipeinc(amplitude, m) - e0) - p.sqrt_f * s_bent) / p.sqrt_f
-    across = 2.0 * p.k * (p.cos_theta0 - cn) / p.sqrt_f
+    across = 2.0 * (p.c0 - p.k * cn) / p.sqrt_f  # k (cos(theta0) - cn)
     u = (-along * p.fu + across * p.fv) / p.f
     v = (-along * p.fv - across * p.fu) / p.f
     if p.mirrored:
@@ -257,16 +263,15 @@ def planar_contact_scalar(fu: float, fv: float, kappa0: float) -> tuple[float, f
     if k == 0.0:
         u1, v1, s1, phi1, status = 0.0, 1.0, 1.0, 0.5 * math.pi, int(ContactStatus.AXIAL_LOAD)
     else:
-        sin_theta0, cos_theta0 = b0 / k, c0 / k
         m = k * k
-        chi = math.atan2(cos_theta0, math.sqrt(1.0 - m) * sin_theta0)
+        chi = math.atan2(c0, math.sqrt(1.0 - m) * b0)
         f_chi = float(special.ellipkinc(chi, m))
         e_chi = float(special.ellipeinc(chi, m))
         s1 = f_chi / sqrt_f
-        along = (2.0 * (e_chi - m * sin_theta0 * math.sin(chi)) - f_chi) / sqrt_f
-        across = kappa0 / f
-        u1 = (-along * fu + across * fv) / f
-        v1 = (-along * fv - across * fu) / f
+        along = (2.0 * (e_chi - k * b0 * math.sin(chi)) - f_chi) / (sqrt_f * f)
+        across = kappa0 / (f * f)
+        u1 = across * fv - along * fu
+        v1 = -(along * fv + across * fu)
         phi1 = 2.0 * math.asin(k) + alpha + 0.5 * math.pi
         status = int(ContactStatus.OK)
     if mirrored:

@@ -109,9 +109,6 @@ def reconstruct(
     return _reconstruct_arrays(p0_a, f0_a, m0_a, R_WC)
 
 
-_IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-
-
 class Sample(NamedTuple):
     """One sample of a :class:`Reconstruction` in plain floats (its fields' row, same units)."""
 
@@ -133,7 +130,6 @@ def reconstruct_sample(
     ``p0``, ``f0``, ``m0``, rows of R_WC (identity when omitted). No checks of the input
     shapes: this is the per-sample hot path (``reconstruct`` dispatches single samples here).
     """
-    rows = _IDENTITY if R_WC is None else R_WC
     force_C = (-f0[0], -f0[1], -f0[2])
     m_horizontal = math.hypot(m0[0], m0[1])
     if m_horizontal > 0:
@@ -148,18 +144,23 @@ def reconstruct_sample(
         status |= _NON_FINITE
     if status & _NO_CONTACT == 0 and s1 > 1.0 + S1_TOLERANCE:
         status |= _BEYOND
-    # The rotation is applied in full even for the identity, as the array path does, so that
-    # a non-finite force component spreads to the others in the same way.
-    fx, fy, fz = (r[0] * force_C[0] + r[1] * force_C[1] + r[2] * force_C[2] for r in rows)
+    force = force_C if R_WC is None else _rotated(R_WC, force_C)
     if status & _NO_CONTACT:
         nan = math.nan
-        return Sample((nan, nan, nan), nan, PHASE_NONE, nan, (fx, fy, fz), status)
+        return Sample((nan, nan, nan), nan, PHASE_NONE, nan, force, status)
     p1_C = (u1 * e_u[0], u1 * e_u[1], v1)
-    px, py, pz = (p + r[0] * p1_C[0] + r[1] * p1_C[1] + r[2] * p1_C[2]
-                  for p, r in zip(p0, rows, strict=True))
+    p1 = p1_C if R_WC is None else _rotated(R_WC, p1_C)
+    point = (p0[0] + p1[0], p0[1] + p1[1], p0[2] + p1[2])
     s1 = min(s1, 1.0)
     phase = PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
-    return Sample((px, py, pz), s1, phase, math.atan2(e_u[1], e_u[0]), (fx, fy, fz), status)
+    return Sample(point, s1, phase, math.atan2(e_u[1], e_u[0]), force, status)
+
+
+def _rotated(rows: Sequence[Sequence[float]], v: tuple[float, float, float]
+             ) -> tuple[float, float, float]:
+    """The matrix with these rows times v."""
+    x, y, z = (r[0] * v[0] + r[1] * v[1] + r[2] * v[2] for r in rows)
+    return x, y, z
 
 
 def _reconstruct_one(
@@ -174,7 +175,6 @@ def _reconstruct_one(
 
 
 _NO_CONTACT = int(NO_CONTACT)
-_FLIP_SECOND = np.array([1.0, -1.0])
 _NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
 _BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
 
@@ -193,48 +193,61 @@ def _reconstruct_arrays(
             f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, {f0_C.shape}, {m0_C.shape}"
         ) from None
     with np.errstate(invalid="ignore", divide="ignore"):  # the flags below say where
-        return _reconstruct_rows(p0_W, f0_C, m0_C, R_WC)
+        return reconstruct_rows(p0_W, f0_C, m0_C, R_WC)
 
 
-def _reconstruct_rows(
+def reconstruct_rows(
     p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
     R_WC: ArrayLike | None,
 ) -> Reconstruction:
-    """:func:`reconstruct` of (N, 3) rows, under numpy's divide and invalid warnings ignored."""
+    """:func:`reconstruct` of float arrays of shape (N, 3) (R_WC: (3, 3) or (N, 3, 3)), for
+    callers that already ignore numpy's divide and invalid warnings (``np.errstate``): no
+    conversion, no shape checks, no context.
+
+    Column by column: on the few dozen rows of a tick, the cost is the number of numpy calls,
+    so the rare cases are each found with one reduction and handled only when present.
+    """
     force_C = -f0_C
-    m_horizontal = np.hypot(m0_C[:, 0], m0_C[:, 1])
+    m_x, m_y = m0_C[:, 0], m0_C[:, 1]
+    m_horizontal = np.hypot(m_x, m_y)
     # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|.
-    e_u2 = m0_C[:, 1::-1] * (_FLIP_SECOND / m_horizontal[:, None])
+    e_ux, e_uy = m_y / m_horizontal, -m_x / m_horizontal
     bent = m_horizontal > 0
     if np.count_nonzero(bent) < bent.size:  # an unbent rod has its plane along F (along e_x without a force)
         f_horizontal = np.hypot(force_C[:, 0], force_C[:, 1])
-        e_u_straight = force_C[:, :2] / f_horizontal[:, None]
-        e_u_straight = np.where(f_horizontal[:, None] > 0, e_u_straight, [1.0, 0.0])
-        e_u2 = np.where(bent[:, None], e_u2, e_u_straight)
-    psi = np.arctan2(e_u2[:, 1], e_u2[:, 0])
-    fu = np.einsum("ni,ni->n", force_C[:, :2], e_u2)
+        along_force = f_horizontal > 0
+        e_ux = np.where(bent, e_ux, np.where(along_force, force_C[:, 0] / f_horizontal, 1.0))
+        e_uy = np.where(bent, e_uy, np.where(along_force, force_C[:, 1] / f_horizontal, 0.0))
+    fu = force_C[:, 0] * e_ux + force_C[:, 1] * e_uy
     contact = planar_contact_arrays(fu, force_C[:, 2], m_horizontal)
     status = contact.status
-    if not (np.isfinite(p0_W).all() and np.isfinite(m0_C).all()):
+    # A non-finite m0x or m0y is flagged by the planar solver (kappa0); p0 and m0z are not.
+    if not math.isfinite(p0_W.sum() + m0_C.sum()):
         status[~(np.isfinite(p0_W).all(axis=1) & np.isfinite(m0_C).all(axis=1))] |= _NON_FINITE
     beyond_rod = contact.s1 > 1.0 + S1_TOLERANCE  # NaN where there is no contact: False
     if np.count_nonzero(beyond_rod):
         status[beyond_rod & (status & _NO_CONTACT == 0)] |= _BEYOND
     p1_C = np.empty_like(force_C)
-    p1_C[:, :2] = contact.u1[:, None] * e_u2
+    p1_C[:, 0] = contact.u1 * e_ux
+    p1_C[:, 1] = contact.u1 * e_uy
     p1_C[:, 2] = contact.v1
-    rotation = np.eye(3) if R_WC is None else np.asarray(R_WC, dtype=float)
-    if rotation.shape == (1, 3, 3):
-        rotation = rotation[0]
-    rotate = "ij,nj->ni" if rotation.shape == (3, 3) else "nij,nj->ni"
-    point = p0_W + np.einsum(rotate, rotation, p1_C)
-    force = np.einsum(rotate, rotation, force_C)
+    if R_WC is None:
+        point, force = p0_W + p1_C, force_C
+    else:
+        rotation = np.asarray(R_WC, dtype=float)
+        if rotation.shape == (1, 3, 3):
+            rotation = rotation[0]
+        rotate = "ij,nj->ni" if rotation.shape == (3, 3) else "nij,nj->ni"
+        point = p0_W + np.einsum(rotate, rotation, p1_C)
+        force = np.einsum(rotate, rotation, force_C)
     s1 = np.minimum(contact.s1, 1.0)
     phase = np.where(s1 >= 1.0 - TIP_TOLERANCE, PHASE_TIP, PHASE_TANGENTIAL)
+    psi = np.arctan2(e_uy, e_ux)
     if np.count_nonzero(status):  # rare cases behind one reduction (see elastica)
         valid = (status & _NO_CONTACT) == 0
         if not valid.all():
             point = np.where(valid[:, None], point, np.nan)
             s1, psi = np.where(valid, s1, np.nan), np.where(valid, psi, np.nan)
             phase = np.where(valid, phase, PHASE_NONE)
-    return Reconstruction(point=point, s1=s1, phase=phase.astype(np.int64), psi=psi, force=force, status=status)
+    return Reconstruction(point=point, s1=s1, phase=phase.astype(np.int64, copy=False), psi=psi,
+                          force=force, status=status)

@@ -222,7 +222,7 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
         A ContactPointArray (SI, in ``msg.frame_id``, same ``stamp`` and ``seq``) of the rows
         whose status is OK or AXIAL_LOAD; the others are only counted.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):  # flagged rows say where
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # flagged rows say where
         rotation, norm2 = _rotations(msg.clamp_orientation)
         good = (norm2 > 0.0) & (norm2 < np.inf)
         all_good = np.count_nonzero(good) == len(good)

@@ -97,9 +97,12 @@ def test_scalar_planar_contact_equals_array_version():
     fu, fv = rng.normal(size=(2, 3000)) * rng.choice([1e-3, 1.0, 30.0], (2, 3000))
     kappa0 = rng.normal(size=3000) * 2  # both signs: the mirror image too
     fu[:5], fv[:5], kappa0[:5] = [0, np.nan, 0, 0, 0.3], [0, 1, -1, 1e-3, np.inf], [0, 0, 0, 3, 1]
+    # ordinary, but k (1 - k) f underflows: the array path's screen sends them to the exact flags
+    fu[5:7], fv[5:7], kappa0[5:7] = [3e-320, 0.0], [-5e-320, -1e-300], [1e-160, 1e-152]
     many = planar_contact(fu, fv, kappa0)
     for i in range(len(fu)):
         one = planar_contact_scalar(float(fu[i]), float(fv[i]), float(kappa0[i]))
         want = (many.u1[i], many.v1[i], many.s1[i], many.phi1[i])
         np.testing.assert_allclose(one[:4], want, rtol=0, atol=ATOL, equal_nan=True)
         assert one[4] == many.status[i]
+    assert (many.status[5:7] == 0).all() and np.isfinite(many.s1[5:7]).all()

@@ -133,7 +133,7 @@ def planar_contact(fu: ArrayLike, fv: ArrayLike, kappa0: ArrayLike) -> PlanarCon
         Contact point, s1 and tangent angle per sample. An axial load (straight rod pushed
         along its axis) is taken as tip contact of the straight rod, flagged AXIAL_LOAD.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         return planar_contact_arrays(*_float_arrays(fu, fv, kappa0))
 
 
@@ -141,7 +141,8 @@ def planar_contact_arrays(
     fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]
 ) -> PlanarContact:
     """:func:`planar_contact` of float arrays of one shape, for callers that already ignore
-    numpy's divide and invalid warnings (``np.errstate``): no conversion, no context."""
+    numpy's divide, invalid and overflow warnings (``np.errstate``): no conversion,
+    no context."""
     p = _pendulum_arrays(fu, fv, kappa0)
     k, b0, c0, sqrt_f, f = p.k, p.b0, p.c0, p.sqrt_f, p.f
     m = k * k
@@ -154,8 +155,9 @@ def planar_contact_arrays(
     # E(am K) - E(am c) = e_chi - m sin(theta0) sin(chi) by the addition theorem, free of
     # cancellation for small loads; m sin(theta0) = k b0. ``along`` is the reach along -F/f
     # and ``across`` the reach along (fv, -fu)/f, each divided by f once more.
-    along = (2.0 * (e_chi - k * b0 * np.sin(chi)) - f_chi) / (sqrt_f * f)
-    across = p.kappa0 / (f * f)
+    # (Divided one factor at a time: sqrt_f * f underflows to 0 for tiny loads.)
+    along = (2.0 * (e_chi - k * b0 * np.sin(chi)) - f_chi) / sqrt_f / f
+    across = p.kappa0 / f / f
     u1 = across * p.fv - along * p.fu
     v1 = -(along * p.fv + across * p.fu)
     phi1 = 2.0 * np.arcsin(k) + p.alpha + 0.5 * np.pi
@@ -268,8 +270,8 @@ def planar_contact_scalar(fu: float, fv: float, kappa0: float) -> tuple[float, f
         f_chi = float(special.ellipkinc(chi, m))
         e_chi = float(special.ellipeinc(chi, m))
         s1 = f_chi / sqrt_f
-        along = (2.0 * (e_chi - k * b0 * math.sin(chi)) - f_chi) / (sqrt_f * f)
-        across = kappa0 / (f * f)
+        along = (2.0 * (e_chi - k * b0 * math.sin(chi)) - f_chi) / sqrt_f / f
+        across = kappa0 / f / f
         u1 = across * fv - along * fu
         v1 = -(along * fv + across * fu)
         phi1 = 2.0 * math.asin(k) + alpha + 0.5 * math.pi

@@ -192,7 +192,7 @@ def _reconstruct_arrays(
         raise ValueError(
             f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, {f0_C.shape}, {m0_C.shape}"
         ) from None
-    with np.errstate(invalid="ignore", divide="ignore"):  # the flags below say where
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # the flags say where
         return reconstruct_rows(p0_W, f0_C, m0_C, R_WC)
 
 
@@ -201,8 +201,8 @@ def reconstruct_rows(
     R_WC: ArrayLike | None,
 ) -> Reconstruction:
     """:func:`reconstruct` of float arrays of shape (N, 3) (R_WC: (3, 3) or (N, 3, 3)), for
-    callers that already ignore numpy's divide and invalid warnings (``np.errstate``): no
-    conversion, no shape checks, no context.
+    callers that already ignore numpy's divide, invalid and overflow warnings
+    (``np.errstate``): no conversion, no shape checks, no context.
 
     Column by column: on the few dozen rows of a tick, the cost is the number of numpy calls,
     so the rare cases are each found with one reduction and handled only when present.

@@ -259,7 +259,7 @@ def _defaults(cls: type[Message]) -> dict[str, Any]:
 _DEFAULTS: dict[type, dict[str, Any]] = {}
 
 
-# -- decode, fast path -------------------------------------------
+# -- decode, fast path --------------------------------------------------------------------
 #
 # Types without optional fields or maps (WhiskerWrench, ContactPoint, their arrays, ...):
 # payloads are checked field by field with exact-type tests, a precomputed header for fixed

@@ -91,7 +91,7 @@ _AXIAL = int(ContactStatus.AXIAL_LOAD)
 
 
 def _pendulum_arrays(fu: NDArray[np.float64], fv: NDArray[np.float64], kappa0: NDArray[np.float64]) -> _Pendulum:
-    """The pendulum of equal-shape float arrays; the caller ignores divide and invalid."""
+    """The pendulum of equal-shape float arrays; the caller ignores divide, invalid, overflow."""
     mirrored = kappa0 < 0
     any_mirrored = bool(np.count_nonzero(mirrored))
     if any_mirrored:

@@ -31,6 +31,7 @@ force on the way out.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import sys
@@ -80,7 +81,8 @@ class ReconstructorParams:
     drain_limit
         Most messages taken from the queue before their points are published; a batch that
         reaches it means a backlog, and the next one drains up to ``max_batch``. A
-        WhiskerWrenchArray is one message and always ends its batch.
+        WhiskerWrenchArray counts as one message; the arrays of a batch share one Step 2
+        call.
     max_batch
         Most messages taken in one batch (reconstructed, then published) when the node falls
         behind.
@@ -205,9 +207,7 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
     """Reconstruct one tick of a whisker array in one vectorised Step 2 call.
 
     Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct_rows`` on (N, 3)
-    arrays, so a message's points depend on the message alone, never on arrival timing: a
-    replayed bag gives the live run's points bit for bit. They agree with the scalar path of
-    :func:`reconstruct_wrenches` to round-off.
+    arrays. They agree with the scalar path of :func:`reconstruct_wrenches` to round-off.
 
     Parameters
     ----------
@@ -222,32 +222,65 @@ def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> Arr
         A ContactPointArray (SI, in ``msg.frame_id``, same ``stamp`` and ``seq``) of the rows
         whose status is OK or AXIAL_LOAD; the others are only counted.
     """
+    return reconstruct_arrays([msg], rod)[0]
+
+
+def reconstruct_arrays(msgs: Sequence[WhiskerWrenchArray], rod: RodScale = _UNIT_ROD
+                       ) -> list[ArrayResult]:
+    """:func:`reconstruct_array` of each message, with one Step 2 call for the rows of all.
+
+    A backlog of ticks costs one call instead of one per tick (on a few dozen rows the cost is
+    the number of numpy calls, not the rows). Step 2 works row by row, elementwise, so a row's
+    result does not depend on the other rows of the call: a message's points are the same bits
+    whatever batch it arrived in, and a replayed bag gives the live run's points exactly.
+    """
+    if len(msgs) == 1:
+        msg = msgs[0]
+        q, p0, f0, m0 = msg.clamp_orientation, msg.clamp_position, msg.f0, msg.m0
+    else:
+        q, p0, f0, m0 = (np.concatenate([getattr(m, name) for m in msgs]) for name in
+                         ("clamp_orientation", "clamp_position", "f0", "m0"))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # flagged rows say where
-        rotation, norm2 = _rotations(msg.clamp_orientation)
+        rotation, norm2 = _rotations(q)
         good = (norm2 > 0.0) & (norm2 < np.inf)
         all_good = np.count_nonzero(good) == len(good)
-        p0, f0, m0 = msg.clamp_position, msg.f0, msg.m0
         if not all_good:
             rotation, p0, f0, m0 = rotation[good], p0[good], f0[good], m0[good]
         rec = reconstruct_rows(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
                                m0 * (1.0 / rod.moment_nm), rotation)
     valid = rec.valid
-    whisker_ids = msg.whisker_ids
-    outputs: tuple[npt.NDArray[Any], ...] = (
+    all_valid = all_good and np.count_nonzero(valid) == len(valid)
+    columns: tuple[npt.NDArray[Any], ...] = (
         rec.point * rod.length_m, rec.s1 * rod.length_m, rec.phase.astype(np.int32),
         rec.force * rod.force_n, rec.status.astype(np.int32))
-    if not (all_good and np.count_nonzero(valid) == len(valid)):
-        whisker_ids = [whisker_ids[i] for i in np.flatnonzero(good)[valid].tolist()]
-        outputs = tuple(value[valid] for value in outputs)
-    for value in outputs:  # fresh arrays of this call: the message takes them without a copy
-        value.flags.writeable = False
-    point, s1, phase, force, status = outputs
-    contacts = ContactPointArray(
-        stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id, whisker_ids=whisker_ids,
-        point=point, s1=s1, phase=phase, force=force, status=status,
-    )
-    return ArrayResult(contacts, no_contact=len(valid) - len(whisker_ids),
-                       bad_pose=len(good) - len(valid))
+    good_rows = None if all_good else np.cumsum(good)  # good rows up to and including each row
+    results = []
+    row = first = 0  # the message's first row in q, and in the good rows
+    for msg in msgs:
+        n = len(msg.whisker_ids)
+        if good_rows is None:
+            last = first + n
+        else:
+            last = int(good_rows[row + n - 1]) if n else first
+        whisker_ids = msg.whisker_ids
+        if all_valid:
+            outputs = tuple(value[first:last] for value in columns)
+        else:
+            msg_good = np.flatnonzero(good[row:row + n])
+            msg_valid = valid[first:last]
+            whisker_ids = [whisker_ids[i] for i in msg_good[msg_valid].tolist()]
+            outputs = tuple(value[first:last][msg_valid] for value in columns)
+        for value in outputs:  # fresh arrays of this call: the message takes them without a copy
+            value.flags.writeable = False
+        point, s1, phase, force, status = outputs
+        contacts = ContactPointArray(
+            stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id, whisker_ids=whisker_ids,
+            point=point, s1=s1, phase=phase, force=force, status=status,
+        )
+        results.append(ArrayResult(contacts, no_contact=last - first - len(whisker_ids),
+                                   bad_pose=n - (last - first)))
+        row, first = row + n, last
+    return results
 
 
 def _products_to_matrix() -> FloatArray:
@@ -304,9 +337,9 @@ def collect_batch(
 ) -> tuple[list[Wrenches], EndOfStream | None]:
     """Wait up to ``timeout_s`` for one message, then drain what is already queued.
 
-    Draining stops at ``max_batch`` messages, after a WhiskerWrenchArray (a tick of its own:
-    its points go out before anything else is decoded) or at an ``EndOfStream``, which is
-    returned separately so that it goes downstream after the points of the wrenches before it.
+    Draining stops at ``max_batch`` messages (a WhiskerWrenchArray counts as one) or at an
+    ``EndOfStream``, which is returned separately so that it goes downstream after the points
+    of the wrenches before it.
     """
     batch: list[Wrenches] = []
     rx = receive(timeout_s)
@@ -316,7 +349,7 @@ def collect_batch(
             return batch, msg
         if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
             batch.append(msg)
-        if len(batch) >= max_batch or isinstance(msg, WhiskerWrenchArray):
+        if len(batch) >= max_batch:
             break
         rx = receive(0.0)
     return batch, None
@@ -345,6 +378,12 @@ class BatchCollector:
         return batch, eos
 
 
+def _count(counters: dict[str, int], contacts: int, no_contact: int, bad_pose: int) -> None:
+    counters["contacts"] += contacts
+    counters["no_contact"] += no_contact
+    counters["bad_pose"] += bad_pose
+
+
 def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     counters = node.counters
@@ -358,24 +397,22 @@ def run(node: Node, params: ReconstructorParams) -> None:
     node.set_state("running")
     while not node.stop_requested:
         batch, eos = batches.collect(0.1)
+        for kind, group in itertools.groupby(batch, type):  # runs of one type, in arrival order
+            if kind is WhiskerWrenchArray:
+                for array in reconstruct_arrays(
+                        [m for m in group if isinstance(m, WhiskerWrenchArray)], rod):
+                    publisher.publish(array.contacts)
+                    _count(counters, len(array.contacts.whisker_ids), array.no_contact,
+                           array.bad_pose)
+            else:
+                result = reconstruct_wrenches([m for m in group if isinstance(m, WhiskerWrench)],
+                                              rod)
+                for point in result.contacts:
+                    publisher.publish(point)
+                _count(counters, len(result.contacts), result.no_contact, result.bad_pose)
         if batch:
-            # An array can only end a batch (collect_batch): the wrenches come before it.
-            tick = batch.pop() if isinstance(batch[-1], WhiskerWrenchArray) else None
-            wrenches = [w for w in batch if isinstance(w, WhiskerWrench)]
-            result = reconstruct_wrenches(wrenches, rod)
-            for point in result.contacts:
-                publisher.publish(point)
-            counters["contacts"] += len(result.contacts)
-            counters["no_contact"] += result.no_contact
-            counters["bad_pose"] += result.bad_pose
-            if tick is not None:
-                array = reconstruct_array(tick, rod)
-                publisher.publish(array.contacts)
-                counters["contacts"] += len(array.contacts.whisker_ids)
-                counters["no_contact"] += array.no_contact
-                counters["bad_pose"] += array.bad_pose
             counters["batches"] += 1
-            counters["max_batch"] = max(counters["max_batch"], len(wrenches) + (tick is not None))
+            counters["max_batch"] = max(counters["max_batch"], len(batch))
         if eos is not None:
             publisher.publish_end_of_stream(node.fqn)
             log.info("%s: EndOfStream from %s (%d samples); %s", node.fqn, eos.source,

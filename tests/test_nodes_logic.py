@@ -25,6 +25,7 @@ from vibrissa.nodes.reconstructor import (
     quaternion_matrices,
     quaternion_rows,
     reconstruct_array,
+    reconstruct_arrays,
     reconstruct_wrenches,
 )
 from vibrissa.nodes.runtime import load_params
@@ -250,16 +251,57 @@ def test_collect_batch_drains_up_to_max_and_stops_at_end_of_stream() -> None:
     assert collect_batch(receive, 0.1, max_batch=3) == ([], None)
 
 
-def test_an_array_ends_its_batch() -> None:
+def test_arrays_are_drained_like_wrenches_in_arrival_order() -> None:
     wrenches = _wrenches(3)
-    queue: list[Any] = [wrenches[0], _tick(wrenches[1:]), wrenches[2]]
+    queue: list[Any] = [wrenches[0], _tick(wrenches[1:], seq=1), _tick(wrenches[1:], seq=2),
+                        wrenches[2]]
 
     def receive(timeout_s: float) -> Received | None:
         return _rx(queue.pop(0)) if queue else None
 
-    batch, eos = collect_batch(receive, 0.1, max_batch=100)
-    assert [type(m) for m in batch] == [WhiskerWrench, WhiskerWrenchArray] and eos is None
+    batch, eos = collect_batch(receive, 0.1, max_batch=3)
+    assert [type(m) for m in batch] == [WhiskerWrench, WhiskerWrenchArray, WhiskerWrenchArray]
+    assert [m.seq for m in batch] == [0, 1, 2] and eos is None
     assert collect_batch(receive, 0.1, max_batch=100)[0] == [wrenches[2]]
+
+
+def test_a_backlog_of_arrays_gives_each_tick_its_own_points_bit_for_bit() -> None:
+    # One Step 2 call for several ticks: each tick's points must be those it gets alone
+    # (batches follow arrival timing; a replay must give the live run's points exactly).
+    rod = RodScale(0.04, 3e-3)
+    rng = np.random.default_rng(11)
+    ticks = []
+    for seq, n in enumerate((32, 5, 0, 17, 32, 1)):
+        rows = _to_si(_wrenches(max(n, 1), seed=seq), 0.04, 3e-3)[:n]
+        q = rng.normal(size=(n, 4))
+        if n > 3:
+            q[2] = 0.0  # bad pose in the middle of the batch
+        # (forces 10x those of _wrenches: most rows then have a contact)
+        ticks.append(WhiskerWrenchArray(
+            stamp=2.5, seq=seq, frame_id="world", whisker_ids=[f"w{i}" for i in range(n)],
+            clamp_position=np.reshape([w.clamp_position for w in rows], (n, 3)),
+            clamp_orientation=q, f0=10.0 * np.reshape([w.f0 for w in rows], (n, 3)),
+            m0=np.reshape([w.m0 for w in rows], (n, 3))))
+    together = reconstruct_arrays(ticks, rod)
+    alone = [reconstruct_array(tick, rod) for tick in ticks]
+    assert [r.contacts for r in together] == [r.contacts for r in alone]
+    assert [(r.no_contact, r.bad_pose) for r in together] == [
+        (r.no_contact, r.bad_pose) for r in alone]
+    assert [r.contacts.seq for r in together] == list(range(6))
+    assert sum(r.bad_pose for r in together) == 4
+    assert sum(len(r.contacts.whisker_ids) for r in together) > 40
+    # and each tick's rows are the scalar path's to round-off
+    for tick, result in zip(ticks, together, strict=True):
+        rows = [WhiskerWrench(stamp=0.0, seq=i, whisker_id=tick.whisker_ids[i], frame_id="world",
+                              clamp_position=tick.clamp_position[i],
+                              clamp_orientation=tick.clamp_orientation[i], f0=tick.f0[i],
+                              m0=tick.m0[i]) for i in range(len(tick.whisker_ids))]
+        scalar = reconstruct_wrenches(rows, rod)
+        assert result.contacts.whisker_ids == [c.whisker_id for c in scalar.contacts]
+        assert (result.no_contact, result.bad_pose) == (scalar.no_contact, scalar.bad_pose)
+        np.testing.assert_allclose(result.contacts.point.reshape(-1, 3),
+                                   np.reshape([c.point for c in scalar.contacts], (-1, 3)),
+                                   rtol=1e-12, atol=1e-15)
 
 
 def test_batches_stay_small_until_a_backlog_then_drain_it_in_one() -> None:

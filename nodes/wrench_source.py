@@ -9,6 +9,9 @@ Publishes
 ``topic`` (default ``wrench``, relative: ``/<namespace>/wrench``) : WhiskerWrench
     mode ``sim``: one sample per equilibrium of every sweep, in sweep order, then
     ``EndOfStream``.
+``topic`` : WhiskerWrenchArray
+    mode ``sim`` with ``array``: the trails are the whiskers of one rigid array moving together;
+    one message per clamp step with a row per whisker, then ``EndOfStream``.
 every WhiskerWrench or WhiskerWrenchArray topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order, each message with its own type (a topic may mix both), followed by the
@@ -38,7 +41,7 @@ from vibrissa.wire.bag import BagReader, play_bag
 from vibrissa.wire.transport import DEFAULT_HWM, MessageTypes, Publisher
 
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Sweep, Trail, simulate_sweeps
+from vibrissa.sweep import Sweep, Trail, first_contact, simulate_sweeps
 from vibrissa.units import RodScale
 
 log = logging.getLogger(__name__)
@@ -67,8 +70,15 @@ class WrenchSourceParams:
         Clamp displacement per step, units of L (mode ``sim``).
     whisker_id, frame_id
         Written into every sample (mode ``sim``).
+    array
+        Mode ``sim``: simulate the trails as the whiskers of one rigid array (a row of clamps
+        at the offsets ``y0``, all at the same x) and publish a WhiskerWrenchArray per step
+        (see :func:`sweep_arrays`), instead of the sweeps one after the other.
+    whisker_ids
+        Names of the array's whiskers, one per ``y0`` (default ``whisker0``, ``whisker1``...).
     rate_hz
-        Samples per second (mode ``sim``); 0 publishes as fast as possible.
+        Samples per second (mode ``sim``; with ``array``, arrays per second); 0 publishes as
+        fast as possible.
     bag
         The ``.mcap`` file to play (mode ``replay``).
     replay_rate
@@ -96,6 +106,8 @@ class WrenchSourceParams:
     step: float = 0.001
     whisker_id: str = "whisker0"
     frame_id: str = "world"
+    array: bool = False
+    whisker_ids: tuple[str, ...] = ()
     rate_hz: float = 0.0
     bag: str = ""
     replay_rate: float = 1.0
@@ -113,6 +125,14 @@ class WrenchSourceParams:
                              f"{self.replay_rate}")
         if self.mode == "replay" and not self.bag:
             raise ValueError("mode 'replay' needs the parameter 'bag'")
+        if self.whisker_ids and len(self.whisker_ids) != len(self.y0):
+            raise ValueError(f"whisker_ids needs one name per y0 ({len(self.y0)}), got "
+                             f"{len(self.whisker_ids)}")
+
+    @property
+    def array_whisker_ids(self) -> list[str]:
+        """Names of the array's rows, one per ``y0``."""
+        return list(self.whisker_ids) or [f"whisker{i}" for i in range(len(self.y0))]
 
 
 def sweep_wrenches(
@@ -153,15 +173,83 @@ def sweep_wrenches(
             seq += 1
 
 
+def sweep_arrays(
+    sweeps: Sequence[Sweep],
+    x_grid: float,
+    step: float,
+    whisker_ids: Sequence[str],
+    frame_id: str = "world",
+    rod: RodScale = _UNIT_ROD,
+    clock: Callable[[], float] = lambda: 0.0,
+) -> Iterator[WhiskerWrenchArray]:
+    """The sweeps of one rigid array (simulated on the grid x0 = ``x_grid`` - k ``step``) as a
+    WhiskerWrenchArray per grid step, SI, from k = 0 to the last step of any sweep.
+
+    Row i is whisker ``whisker_ids[i]``, clamped at (x0, y0_i, 0) L with the identity
+    orientation. A whisker that does not touch the object (before its first contact, after
+    its detachment, or on a trail that misses the object) has the straight rod's zero wrench,
+    as a real sensor would read; the reconstructor counts such rows as ``no_contact``. Rows the
+    simulation has no equilibrium for are left out: positions skipped by a longer step just
+    after the touch, and everything after a snap-off (the rod leaves the branch; where it
+    lands is not simulated). ``seq`` is k.
+    """
+    by_step: list[dict[int, int]] = []
+    last = -1
+    for sweep in sweeps:
+        ks = np.rint((x_grid - sweep.x0) / step).astype(int)
+        by_step.append({int(k): i for i, k in enumerate(ks)})
+        if len(ks):
+            last = max(last, int(ks[-1]))
+    si = [(sweep.p0 * rod.length_m, *rod.wrench_to_si(sweep.f0, sweep.m0)) for sweep in sweeps]
+    zero = np.zeros(3)
+    for k in range(last + 1):
+        x0 = x_grid - k * step
+        ids, p0, f0, m0 = [], [], [], []
+        for whisker, sweep, rows, (p0_si, f0_si, m0_si) in zip(whisker_ids, sweeps, by_step, si,
+                                                                 strict=True):
+            i = rows.get(k)
+            if i is not None:
+                p0.append(p0_si[i])
+                f0.append(f0_si[i])
+                m0.append(m0_si[i])
+            elif _touch_free(sweep, x0):
+                p0.append(np.array([x0, sweep.trail.y0, 0.0]) * rod.length_m)
+                f0.append(zero)
+                m0.append(zero)
+            else:
+                continue
+            ids.append(whisker)
+        n = len(ids)
+        yield WhiskerWrenchArray(
+            stamp=clock(), seq=k, frame_id=frame_id, whisker_ids=ids,
+            clamp_position=np.reshape(p0, (n, 3)),
+            clamp_orientation=np.tile(IDENTITY_QUATERNION, (n, 1)),
+            f0=np.reshape(f0, (n, 3)), m0=np.reshape(m0, (n, 3)))
+
+
+def _touch_free(sweep: Sweep, x0: float) -> bool:
+    """Whether the rod of ``sweep`` is straight and free at clamp position ``x0`` (a grid point
+    without a row): before the first contact, after a detachment, or on a trail that misses
+    the object. (x0 decreases along a sweep.)"""
+    if sweep.end == "no-contact" or x0 >= sweep.x_touch:
+        return True
+    return sweep.end == "detachment" and sweep.n_steps > 0 and x0 < sweep.x0[-1]
+
+
 def run_sim(node: Node, params: WrenchSourceParams) -> int:
-    """Simulate the sweeps and publish them; returns the number of samples sent."""
-    publisher = node.create_publisher(params.topic, WhiskerWrench, wait_for=params.wait_for,
-                                      hwm=DEFAULT_HWM * 10)
+    """Simulate the sweeps and publish them; returns the number of messages sent."""
+    publisher = node.create_publisher(
+        params.topic, WhiskerWrenchArray if params.array else WhiskerWrench,
+        wait_for=params.wait_for, hwm=DEFAULT_HWM * 10)
     surface = parse_surface(params.surface)
     trails = [Trail(float(y0), params.mu) for y0 in params.y0]
     node.set_state("running", f"simulating {len(trails)} sweep(s) past {surface.spec}")
     t0 = time.monotonic()
-    sweeps = simulate_sweeps(surface, trails, params.step)
+    x_grid = None
+    if params.array:  # one grid for all: from the first touch of any whisker
+        touches = [first_contact(surface, trail.y0) for trail in trails]
+        x_grid = max((touch[0] for touch in touches if touch is not None), default=0.0)
+    sweeps = simulate_sweeps(surface, trails, params.step, x_grid=x_grid)
     total = sum(s.n_steps for s in sweeps)
     log.info("%s: %d sweep(s), %d samples in %.1f s (ends: %s)", node.fqn, len(sweeps), total,
              time.monotonic() - t0, ", ".join(s.end for s in sweeps))
@@ -173,8 +261,14 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
     t_start = time.monotonic()
     count = 0
     # ``stamp`` is the publish time, as for a live sensor.
-    for msg in sweep_wrenches(sweeps, params.whisker_id, params.frame_id, params.rod,
-                              clock=time.time):
+    messages: Iterator[WhiskerWrench | WhiskerWrenchArray]
+    if x_grid is None:
+        messages = sweep_wrenches(sweeps, params.whisker_id, params.frame_id, params.rod,
+                                  clock=time.time)
+    else:
+        messages = sweep_arrays(sweeps, x_grid, params.step, params.array_whisker_ids,
+                                params.frame_id, params.rod, clock=time.time)
+    for msg in messages:
         if period:
             delay = t_start + count * period - time.monotonic()
             if delay > 0 and not node.sleep(delay):
@@ -184,7 +278,7 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
         publisher.publish(msg)
         count += 1
     publisher.publish_end_of_stream(node.fqn)
-    log.info("%s: published %d samples and EndOfStream on %s", node.fqn, count, publisher.topic)
+    log.info("%s: published %d messages and EndOfStream on %s", node.fqn, count, publisher.topic)
     return count
 
 

@@ -30,11 +30,12 @@ from vibrissa.nodes.reconstructor import (
 )
 from vibrissa.nodes.runtime import load_params
 from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, split_lines
-from vibrissa.nodes.wrench_source import WrenchSourceParams, sweep_wrenches
+from vibrissa.nodes.wrench_source import WrenchSourceParams, sweep_arrays, sweep_wrenches
 from vibrissa.wire.transport import Header, Received
 
 from vibrissa.reconstruct import reconstruct
 from vibrissa.surfaces import parse_surface
+from vibrissa.sweep import Trail, first_contact, simulate_sweeps
 from vibrissa.units import RodScale
 
 LAUNCH = Path(__file__).parents[1] / "launch"
@@ -133,6 +134,14 @@ def test_params_give_the_rod_scale_and_refuse_a_rod_without_length(cls: Any) -> 
         cls(rod_length_m=0.0)
 
 
+def test_array_names_default_per_whisker_and_must_match_the_trails() -> None:
+    params = WrenchSourceParams(y0=(0.1, 0.2, 0.3), array=True)
+    assert params.array_whisker_ids == ["whisker0", "whisker1", "whisker2"]
+    assert WrenchSourceParams(y0=(0.1,), whisker_ids=("left",)).array_whisker_ids == ["left"]
+    with pytest.raises(ValueError, match="whisker_ids needs one name per y0"):
+        WrenchSourceParams(y0=(0.1, 0.2), whisker_ids=("left",))
+
+
 def test_clamp_orientation_rotates_the_contact() -> None:
     angle = 0.7
     axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
@@ -172,6 +181,39 @@ def _tick(wrenches: list[WhiskerWrench], seq: int = 4) -> WhiskerWrenchArray:
         clamp_position=np.stack([w.clamp_position for w in wrenches]),
         clamp_orientation=np.stack([w.clamp_orientation for w in wrenches]),
         f0=np.stack([w.f0 for w in wrenches]), m0=np.stack([w.m0 for w in wrenches]))
+
+
+def test_an_array_of_whiskers_moves_as_one_and_reconstructs_its_sweeps() -> None:
+    # Three whiskers of one rigid array (one misses the object), L = 0.04 m, EI = 3e-3 N m^2.
+    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
+    length, ei, step = 0.04, 3e-3, 0.01
+    rod = RodScale(length, ei)
+    y0 = (-0.3, 0.1, 0.9)
+    x_grid = max(t[0] for t in (first_contact(surface, y) for y in y0) if t is not None)
+    sweeps = simulate_sweeps(surface, [Trail(y, 0.2) for y in y0], step, x_grid=x_grid)
+    assert sweeps[2].end == "no-contact" and all(s.end == "detachment" for s in sweeps[:2])
+    arrays = list(sweep_arrays(sweeps, x_grid, step, ["a", "b", "c"], "world", rod))
+    assert [m.seq for m in arrays] == list(range(len(arrays)))
+    assert len(arrays) - 1 == max(round((x_grid - s.x0[-1]) / step) for s in sweeps[:2])
+    loaded = 0
+    for k, msg in enumerate(arrays):
+        assert msg.whisker_ids == ["a", "b", "c"]  # no longer steps, no snap-off: all rows
+        np.testing.assert_allclose(msg.clamp_position / length,
+                                   [[x_grid - k * step, y, 0.0] for y in y0], atol=1e-12)
+        free = ~np.any(msg.f0 != 0.0, axis=1) & ~np.any(msg.m0 != 0.0, axis=1)
+        loaded += int(np.count_nonzero(~free))
+        # a zero wrench only where the straight rod is clear of the object
+        t_in, t_out = surface.line_interval(msg.clamp_position[free] / length, [0.0, 0.0, 1.0])
+        assert np.all(~(t_in < 1.0) | ~(t_out > 0.0) | np.isclose(t_in, t_out))
+    assert loaded == sum(s.n_steps for s in sweeps)
+    # Step 2 on the arrays: every simulated contact, at its step, in SI
+    results = reconstruct_arrays(arrays, rod)
+    for whisker, sweep in zip("ab", sweeps, strict=False):
+        for x0, contact in zip(sweep.x0, sweep.contact, strict=True):
+            points = results[round((x_grid - x0) / step)].contacts
+            row = points.whisker_ids.index(whisker)
+            np.testing.assert_allclose(points.point[row], contact * length, rtol=0, atol=1e-13)
+    assert sum(r.no_contact for r in results) == 3 * len(arrays) - loaded
 
 
 def test_array_equals_library_and_scalar_path_and_counts_rows() -> None:
@@ -398,6 +440,7 @@ def test_launch_params_load_strictly(name: str) -> None:
     classes = {"wrench_source": WrenchSourceParams, "reconstructor": ReconstructorParams,
                "mapper": MapperParams}
     doc = yaml.safe_load((LAUNCH / name).read_text())
+    defaults = {e["arg"]["name"]: e["arg"].get("default") for e in doc["launch"] if "arg" in e}
     for entry in doc["launch"]:
         node = entry.get("node")
         if not node or node["exec"] not in classes:
@@ -405,8 +448,7 @@ def test_launch_params_load_strictly(name: str) -> None:
         values = {p["name"]: p["value"] for p in node.get("param", [])}
         for key, value in list(values.items()):
             if isinstance(value, str) and "$(var" in value:
-                values[key] = {"mu": "0.2", "step": "0.01", "rate": "0"}.get(
-                    value[6:-1], "x.mcap" if key == "bag" else values[key])
+                values[key] = "x.mcap" if key == "bag" else defaults.get(value[6:-1], value)
         params = load_params(classes[node["exec"]], None,
                              {k: v if isinstance(v, str) else yaml.safe_dump(v)
                               for k, v in values.items()})

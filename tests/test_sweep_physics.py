@@ -5,7 +5,7 @@ import pytest
 
 from vibrissa.reconstruct import PHASE_TANGENTIAL, PHASE_TIP, reconstruct
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import SLIDE, STICK, Trail, simulate_sweeps
+from vibrissa.sweep import SLIDE, STICK, Trail, first_contact, simulate_sweeps
 
 PAPER_Y0 = (-0.4, -0.2, 0.0, 0.2, 0.4)  # as in the conftest fixture `paper_sweeps`
 PAPER_MU = (0.0, 0.1, 0.2, 0.3, 0.4)
@@ -225,3 +225,33 @@ def test_a_steep_tip_touch_with_strong_friction_runs_at_fine_steps():
     assert len(common) >= 90
     difference = np.linalg.norm(fine.f0[i] - coarse.f0[j], axis=1) / np.linalg.norm(coarse.f0[j], axis=1)
     assert difference.max() < 1e-3
+
+
+def test_trails_on_a_shared_grid_move_as_one_array():
+    # The whiskers of a rigid array share the clamp's x: every sweep steps on x_grid - k step
+    # from a partial first step after its own touch, and obeys the same physics.
+    step = 0.005
+    trails = [Trail(y0, mu) for y0 in (-0.4, 0.0, 0.25) for mu in (0.0, 0.3)]
+    x_grid = max(first_contact(SURFACE, t.y0)[0] for t in trails)
+    shared = simulate_sweeps(SURFACE, trails, step=step, x_grid=x_grid)
+    own = simulate_sweeps(SURFACE, trails, step=step)
+    for sweep, alone in zip(shared, own, strict=True):
+        assert sweep.end == alone.end and sweep.n_steps > 100
+        k = (x_grid - sweep.x0) / step
+        np.testing.assert_allclose(k, np.round(k), rtol=0, atol=1e-9)
+        assert 0 < sweep.x_touch - sweep.x0[0] <= step * (1 + 1e-9) or sweep.refined[0]
+        r = sweep.contact - sweep.p0
+        np.testing.assert_allclose(sweep.m0 + np.cross(r, sweep.force), 0.0, atol=1e-10)
+        assert np.max(np.abs(SURFACE.signed_distance(sweep.contact))) < 1e-9
+        lines = (sweep.elastic_line(i, 101) for i in range(0, sweep.n_steps, 5))
+        assert min(SURFACE.signed_distance(line).min() for line in lines) > -1e-9
+        result = reconstruct(sweep.p0, sweep.f0, sweep.m0)
+        assert np.max(np.linalg.norm(result.point - sweep.contact, axis=1)) < 1e-9
+        if sweep.x_touch == x_grid:  # its own grid: the same sweep
+            np.testing.assert_allclose(sweep.f0, alone.f0, rtol=0, atol=1e-12)
+        if sweep.trail.mu == 0:  # frictionless: the state depends on x0 alone, not on the path
+            inside = (sweep.x0 < alone.x0[0]) & (sweep.x0 > alone.x0[-1])
+            for axis in range(3):
+                expected = np.interp(-sweep.x0[inside], -alone.x0, alone.f0[:, axis])
+                scale = np.linalg.norm(alone.f0, axis=1).max()
+                assert np.max(np.abs(sweep.f0[inside, axis] - expected)) < 1e-3 * scale

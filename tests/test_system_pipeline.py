@@ -44,7 +44,7 @@ from vibrissa.wire.transport import Endpoints
 
 from vibrissa.reconstruct import reconstruct
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Trail, simulate_sweeps
+from vibrissa.sweep import Trail, first_contact, simulate_sweeps
 
 LAUNCH = Path(__file__).parents[1] / "launch"
 SURFACE = "paraboloid:a=0.5,b=1,h=0.4"
@@ -487,3 +487,43 @@ def test_array_ticks_over_the_wire_match_the_library(tmp_path: Path) -> None:
     finally:
         probe.close()
         launch.kill()
+
+
+def test_a_simulated_whisker_array_runs_through_the_nodes(tmp_path: Path) -> None:
+    # wrench_source with array: true publishes one WhiskerWrenchArray per clamp step of the
+    # whole array; the reconstructor answers each with its points, the mapper maps them.
+    launch_entries = small_demo(tmp_path / "out")
+    set_param(node(launch_entries, "wrench_source"), "array", True)
+    surface = parse_surface(SURFACE)
+    x_grid = max(first_contact(surface, y)[0] for y in Y0)
+    sweeps = simulate_sweeps(surface, [Trail(y, MU) for y in Y0], STEP, x_grid=x_grid)
+    launch = Launch(tmp_path, launch_entries, f"out:={tmp_path / 'out'}", f"step:={STEP}",
+                    f"mu:={MU}")
+    probe = Probe(launch.endpoints(), [CONTACT])
+    try:
+        got: list[ContactPointArray] = []
+        deadline = time.monotonic() + TIMEOUT_S
+        while time.monotonic() < deadline:
+            rx = probe.sub.receive(0.2)
+            if rx is not None and isinstance(rx.msg, EndOfStream):
+                break
+            if rx is not None:
+                assert isinstance(rx.msg, ContactPointArray), rx.msg
+                got.append(rx.msg)
+        assert launch.wait() == 0, launch.text()
+    finally:
+        probe.close()
+        launch.kill()
+    n_ticks = 1 + max(round((x_grid - s.x0[-1]) / STEP) for s in sweeps)
+    assert [a.seq for a in got] == list(range(n_ticks))
+    for i, sweep in enumerate(sweeps):
+        whisker = f"whisker{i}"
+        ticks = [round((x_grid - x0) / STEP) for x0 in sweep.x0]
+        rows = [got[k].whisker_ids.index(whisker) for k in ticks]
+        point = np.stack([got[k].point[row] for k, row in zip(ticks, rows, strict=True)])
+        np.testing.assert_allclose(point, sweep.contact, rtol=0, atol=1e-12)
+        # before its touch and after its detachment the whisker is free: no point
+        free = set(range(n_ticks)) - set(ticks)
+        assert free and all(whisker not in got[k].whisker_ids for k in free)
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["n_points"] == sum(s.n_steps for s in sweeps)

@@ -52,6 +52,7 @@ inside the object).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -99,9 +100,10 @@ class Sweep:
     contact force on the rod, ``normal`` the surface's outward unit normal at the contact,
     ``fn`` = F . n >= 0 and ``ft`` = |F - fn n| the normal and friction magnitudes.
 
-    Rows are one per step of ``step`` along the grid x_touch - k step, except that a step just
-    after the first contact that finds no equilibrium is taken as 2-16 steps (the positions in
-    between are missing, the row is ``refined``): see ``_longer_step``. ``refined`` also marks
+    Rows are one per step of ``step`` along the grid x_grid - k step (x_grid: the first contact,
+    or the grid shared by the trails of an array, see :func:`simulate_sweeps`), except that a step
+    just after the first contact that finds no equilibrium is taken as 2-16 steps (the positions
+    in between are missing, the row is ``refined``): see ``_longer_step``. ``refined`` also marks
     steps reached through sub-steps (the chord of eq. 7 is then a sub-step's).
     """
 
@@ -123,6 +125,7 @@ class Sweep:
     end: str
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
+    x_touch: float  # clamp x0 at the first contact (NaN: none), units of L
     _q: FloatArray = field(repr=False)
 
     @property
@@ -447,6 +450,7 @@ class _Track:
     pending: tuple[FloatArray, FloatArray, FloatArray] = ()  # type: ignore[assignment]  # p1, normal, force of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
+    x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -458,6 +462,7 @@ def simulate_sweeps(
     step: float = 0.001,
     max_steps: int = 100_000,
     progress: ProgressCallback | None = None,
+    x_grid: float | None = None,
 ) -> list[Sweep]:
     """Simulate several sweeps past one object, solved together step by step.
 
@@ -473,13 +478,18 @@ def simulate_sweeps(
         Safety cap on the steps of one sweep (ends with ``end == "max-steps"``).
     progress : callable, optional
         Called as ``progress(finished_sweeps, total_sweeps)`` whenever a sweep ends.
+    x_grid : float, optional
+        One grid of clamp positions x0 = x_grid - k step (k integer) for every trail, as for
+        the whiskers of a rigid array moving together: each sweep's first step goes from its
+        touch to the next grid point, a partial step. By default each trail's grid starts at
+        its own first contact.
     """
     if not step > 0:
         raise ValueError(f"step must be > 0, got {step}")
     for trail in trails:
         if not trail.mu >= 0:
             raise ValueError(f"mu must be >= 0, got {trail.mu}")
-    tracks = [_start(surface, trail, step) for trail in trails]
+    tracks = [_start(surface, trail, step, x_grid) for trail in trails]
     done = sum(track.end is not None for track in tracks)
     if progress:
         progress(done, len(tracks))
@@ -500,7 +510,7 @@ def simulate_sweep(surface: Surface, y0: float, mu: float, step: float = 0.001) 
     return simulate_sweeps(surface, [Trail(y0, mu)], step)[0]
 
 
-def _start(surface: Surface, trail: Trail, step: float) -> _Track:
+def _start(surface: Surface, trail: Trail, step: float, x_grid: float | None) -> _Track:
     locked = surface.is_mirror_symmetric([0.0, trail.y0, 0.0], [0.0, 1.0, 0.0])
     touch = first_contact(surface, trail.y0)
     if touch is None:
@@ -512,19 +522,27 @@ def _start(surface: Surface, trail: Trail, step: float) -> _Track:
     psi = 0.0 if locked or np.hypot(normal[0], normal[1]) == 0 else float(np.arctan2(normal[1], normal[0]))
     n_u = normal[0] * np.cos(psi) + normal[1] * np.sin(psi)
     s_touch = float(p_touch[2])
+    x_grid = x_start if x_grid is None else x_grid
     # Small-deflection guess for the first step: the touching point must move out by the
-    # penetration step * |n_x| along n; a load P at s deflects it by P s^3 / 3.
-    depth = step * abs(normal[0])
+    # penetration (clamp travel) * |n_x| along n; a load P at s deflects it by P s^3 / 3.
+    depth = (x_start - _next_grid_point(x_start, x_grid, step)) * abs(normal[0])
     magnitude = 3.0 * depth / (max(n_u * n_u, 0.05) * max(s_touch, 0.05) ** 3)
     fu, fv = magnitude * n_u, magnitude * normal[2]
     q = np.array([psi, fu, fv, -s_touch * fu])
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
-    return _Track(trail, locked, x_start, q, mode, p_touch, p_touch.copy(), x_touch=x_start)
+    return _Track(trail, locked, x_start, q, mode, p_touch, p_touch.copy(), x_touch=x_start,
+                  x_grid=x_grid)
+
+
+def _next_grid_point(x0: float, x_grid: float, step: float) -> float:
+    """The first x_grid - k step (k integer) below x0 by more than 1e-9 step."""
+    k = math.floor((x_grid - x0) / step + 1e-9) + 1
+    return x_grid - k * step
 
 
 def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int) -> None:
     """Move every track one step; failures are retried with refined sub-steps."""
-    targets = np.array([t.x0 - step for t in tracks])
+    targets = np.array([_next_grid_point(t.x0, t.x_grid, step) for t in tracks])
     reached = _attempt(surface, tracks, targets, step)
     for track, target, ok in zip(tracks, targets, reached, strict=False):
         if ok:
@@ -545,8 +563,9 @@ def _longer_step(surface: Surface, track: _Track, step: float) -> bool:
     stays on its grid and skips the positions in between (marked ``refined``).
     """
     before = track.history[-1] if track.history else None
+    next_point = _next_grid_point(track.x0, track.x_grid, step)
     for multiple in (2, 4, 8, 16):
-        target = track.x0 - multiple * step
+        target = next_point - (multiple - 1) * step
         if _attempt(surface, [track], np.array([target]), multiple * step)[0]:
             _record(track, refined=True)
             # The loads grow about linearly here: the state one step back on the line from
@@ -569,8 +588,9 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
     if _ending(track) == "detachment" and _straight_rod_clears(surface, track.trail.y0, target):
         track.end, track.x0_end = "detachment", track.x0
         return
+    span = track.x0 - target  # one step, or less for the partial first step onto a shared grid
     for level in range(1, _REFINEMENTS + 1):
-        sub = step / 2**level
+        sub = span / 2**level
         while track.x0 - sub >= target - 1e-12 * step:
             # Deeper sub-steps start close to any branch that goes on: plain Newton suffices, and
             # a failure there is the fold itself.
@@ -787,5 +807,6 @@ def _finish(track: _Track, step: float) -> Sweep:
         end=end,
         x0_end=float(track.x0_end),
         phase_changes=track.phase_changes,
+        x_touch=float(track.x_touch),
         _q=q,
     )

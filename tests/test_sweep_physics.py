@@ -150,13 +150,18 @@ def test_other_objects_obey_statics_contact_and_round_trip(spec):
     surface = parse_surface(spec)
     for sweep in simulate_sweeps(surface, [Trail(0.1, 0.0), Trail(0.1, 0.3)], step=0.005):
         assert sweep.n_steps > 50
-        r = sweep.contact - sweep.p0
-        np.testing.assert_allclose(sweep.m0 + np.cross(r, sweep.force), 0.0, atol=1e-10)
-        assert np.max(np.abs(surface.signed_distance(sweep.contact))) < 1e-9
-        lines = (sweep.elastic_line(i, 101) for i in range(0, sweep.n_steps, 5))
-        assert min(surface.signed_distance(line).min() for line in lines) > -1e-9
-        result = reconstruct(sweep.p0, sweep.f0, sweep.m0)
-        assert np.max(np.linalg.norm(result.point - sweep.contact, axis=1)) < 1e-7
+        _assert_statics_contact_and_round_trip(surface, sweep, round_trip_tol=1e-7)
+
+
+def _assert_statics_contact_and_round_trip(surface, sweep, round_trip_tol: float) -> None:
+    """m0 + r x F = 0, contacts on the surface, no rod point inside, Step 2 recovers P1."""
+    r = sweep.contact - sweep.p0
+    np.testing.assert_allclose(sweep.m0 + np.cross(r, sweep.force), 0.0, atol=1e-10)
+    assert np.max(np.abs(surface.signed_distance(sweep.contact))) < 1e-9
+    lines = (sweep.elastic_line(i, 101) for i in range(0, sweep.n_steps, 5))
+    assert min(surface.signed_distance(line).min() for line in lines) > -1e-9
+    result = reconstruct(sweep.p0, sweep.f0, sweep.m0)
+    assert np.max(np.linalg.norm(result.point - sweep.contact, axis=1)) < round_trip_tol
 
 
 def _fold_fit(sweep, last: int = 6) -> tuple[float, float]:
@@ -240,13 +245,7 @@ def test_trails_on_a_shared_grid_move_as_one_array():
         k = (x_grid - sweep.x0) / step
         np.testing.assert_allclose(k, np.round(k), rtol=0, atol=1e-9)
         assert 0 < sweep.x_touch - sweep.x0[0] <= step * (1 + 1e-9) or sweep.refined[0]
-        r = sweep.contact - sweep.p0
-        np.testing.assert_allclose(sweep.m0 + np.cross(r, sweep.force), 0.0, atol=1e-10)
-        assert np.max(np.abs(SURFACE.signed_distance(sweep.contact))) < 1e-9
-        lines = (sweep.elastic_line(i, 101) for i in range(0, sweep.n_steps, 5))
-        assert min(SURFACE.signed_distance(line).min() for line in lines) > -1e-9
-        result = reconstruct(sweep.p0, sweep.f0, sweep.m0)
-        assert np.max(np.linalg.norm(result.point - sweep.contact, axis=1)) < 1e-9
+        _assert_statics_contact_and_round_trip(SURFACE, sweep, round_trip_tol=1e-9)
         if sweep.x_touch == x_grid:  # its own grid: the same sweep
             np.testing.assert_allclose(sweep.f0, alone.f0, rtol=0, atol=1e-12)
         if sweep.trail.mu == 0:  # frictionless: the state depends on x0 alone, not on the path

@@ -19,7 +19,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import msgpack
 import numpy as np
@@ -53,6 +53,7 @@ STEP = 0.01
 MU = 0.2
 TIMEOUT_S = 120.0
 CONTACT = "/whisker0/contact"
+T = TypeVar("T")
 WRENCH = "/whisker0/wrench"
 
 
@@ -153,17 +154,25 @@ class Probe:
 
     def collect(self, timeout: float = TIMEOUT_S) -> tuple[list[ContactPoint], EndOfStream]:
         """Contact points until the first EndOfStream."""
-        points: list[ContactPoint] = []
+        return self._until_end(ContactPoint, timeout)
+
+    def collect_arrays(self, timeout: float = TIMEOUT_S) -> list[ContactPointArray]:
+        """Contact point arrays until the first EndOfStream."""
+        return self._until_end(ContactPointArray, timeout)[0]
+
+    def _until_end(self, kind: type[T], timeout: float) -> tuple[list[T], EndOfStream]:
+        """Messages of type ``kind`` until the first EndOfStream (others are ignored)."""
+        got: list[T] = []
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             rx = self.sub.receive(0.2)
             if rx is None:
                 continue
             if isinstance(rx.msg, EndOfStream):
-                return points, rx.msg
-            if isinstance(rx.msg, ContactPoint):
-                points.append(rx.msg)
-        pytest.fail(f"no EndOfStream within {timeout} s ({len(points)} points)")
+                return got, rx.msg
+            if isinstance(rx.msg, kind):
+                got.append(rx.msg)
+        pytest.fail(f"no EndOfStream within {timeout} s ({len(got)} {kind.__name__})")
 
     def status_of(self, fqn: str, predicate: Callable[[NodeStatus], bool],
                   timeout: float = 30.0) -> NodeStatus:
@@ -453,15 +462,7 @@ def test_array_ticks_over_the_wire_match_the_library(tmp_path: Path) -> None:
         for tick in ticks:
             pub.publish(tick)
         pub.publish_end_of_stream(probe.node.fqn)
-        got: list[ContactPointArray] = []
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            rx = probe.sub.receive(0.2)
-            if rx is not None and isinstance(rx.msg, EndOfStream):
-                break
-            if rx is not None:
-                assert isinstance(rx.msg, ContactPointArray), rx.msg
-                got.append(rx.msg)
+        got = probe.collect_arrays(60.0)
         assert [a.seq for a in got] == [t.seq for t in ticks], launch.text()
         for tick, contacts in zip(ticks, got, strict=True):
             real = slice(0, len(tick.whisker_ids) - 1)  # the idle row has no contact
@@ -501,15 +502,7 @@ def test_a_simulated_whisker_array_runs_through_the_nodes(tmp_path: Path) -> Non
                     f"mu:={MU}")
     probe = Probe(launch.endpoints(), [CONTACT])
     try:
-        got: list[ContactPointArray] = []
-        deadline = time.monotonic() + TIMEOUT_S
-        while time.monotonic() < deadline:
-            rx = probe.sub.receive(0.2)
-            if rx is not None and isinstance(rx.msg, EndOfStream):
-                break
-            if rx is not None:
-                assert isinstance(rx.msg, ContactPointArray), rx.msg
-                got.append(rx.msg)
+        got = probe.collect_arrays()
         assert launch.wait() == 0, launch.text()
     finally:
         probe.close()

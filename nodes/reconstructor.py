@@ -50,11 +50,14 @@ from vibrissa.msgs import (
     Message,
     WhiskerWrench,
     WhiskerWrenchArray,
+    decode,
+    encode,
 )
 from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.wire.transport import Received
 
-from vibrissa.reconstruct import reconstruct_rows, reconstruct_sample
+from vibrissa.compiled import compiled
+from vibrissa.reconstruct import Reconstruction, reconstruct_rows
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
 
@@ -62,7 +65,6 @@ log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 
-_IDENTITY_QUATERNION = [0.0, 0.0, 0.0, 1.0]
 _UNIT_ROD = RodScale()
 _PHASES = {int(p): p for p in ContactPhase}
 
@@ -138,11 +140,11 @@ class BatchResult:
 
 def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNIT_ROD
                          ) -> BatchResult:
-    """Reconstruct a batch of wrenches, each through the scalar Step 2 path.
+    """Reconstruct a batch of wrenches in one Step 2 call.
 
-    One path for every wrench, whatever the batch: a wrench's point never depends on which
-    batch it arrived in (batches follow arrival timing), so a replayed bag gives the live run's
-    points bit for bit. At about 7 us per wrench it is not the node's bottleneck.
+    Step 2 works row by row in compiled code, so a wrench's point never depends on which batch
+    it arrived in (batches follow arrival timing): a replayed bag gives the live run's points
+    bit for bit.
 
     Parameters
     ----------
@@ -158,27 +160,37 @@ def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNI
         or AXIAL_LOAD; the others are only counted.
     """
     result = BatchResult()
-    length, force_n, moment_nm = rod.length_m, rod.force_n, rod.moment_nm
-    for w in wrenches:
-        q = w.clamp_orientation.tolist()
-        norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        if not (math.isfinite(norm) and norm > 0):
-            result.bad_pose += 1
-            continue
-        rows = None if q == _IDENTITY_QUATERNION else quaternion_rows(q)
-        one = reconstruct_sample([p / length for p in w.clamp_position.tolist()],
-                                 [f / force_n for f in w.f0.tolist()],
-                                 [m / moment_nm for m in w.m0.tolist()], rows)
-        if one.status & _NO_CONTACT:
+    if not wrenches:
+        return result
+    q, p0, f0, m0 = (np.array([getattr(w, name) for w in wrenches]) for name in
+                     ("clamp_orientation", "clamp_position", "f0", "m0"))
+    good, rec = _reconstruct_si(q, p0, f0, m0, rod)
+    kept = [w for w, ok in zip(wrenches, good.tolist(), strict=True) if ok]
+    result.bad_pose = len(wrenches) - len(kept)
+    for w, valid, point, s1, phase, force, status in zip(
+            kept, rec.valid.tolist(), (rec.point * rod.length_m).tolist(),
+            (rec.s1 * rod.length_m).tolist(), rec.phase.tolist(),
+            (rec.force * rod.force_n).tolist(), rec.status.tolist(), strict=True):
+        if not valid:
             result.no_contact += 1
             continue
         result.contacts.append(ContactPoint(
-            stamp=w.stamp, seq=w.seq, whisker_id=w.whisker_id, frame_id=w.frame_id,
-            point=[p * length for p in one.point], s1=one.s1 * length,
-            phase=_PHASES[one.phase], force=[f * force_n for f in one.force],
-            status=ContactStatus(one.status),
-        ))
+            stamp=w.stamp, seq=w.seq, whisker_id=w.whisker_id, frame_id=w.frame_id, point=point,
+            s1=s1, phase=_PHASES[phase], force=force, status=ContactStatus(status)))
     return result
+
+
+def _reconstruct_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
+                    rod: RodScale) -> tuple[npt.NDArray[np.bool_], Reconstruction]:
+    """Step 2 of SI rows (clamp pose q (N, 4), p0 (N, 3) m; f0 N, m0 N m in C): which rows have
+    a usable quaternion (nonzero, finite), and the reconstruction of those, in the paper's units.
+    """
+    rotation, norm2 = quaternion_matrices(q_xyzw)
+    good = (norm2 > 0.0) & (norm2 < np.inf)
+    if np.count_nonzero(good) < len(good):
+        rotation, p0, f0, m0 = rotation[good], p0[good], f0[good], m0[good]
+    return good, reconstruct_rows(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
+                                  m0 * (1.0 / rod.moment_nm), rotation)
 
 
 _NO_CONTACT = int(NO_CONTACT)
@@ -204,10 +216,10 @@ class ArrayResult:
 
 
 def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> ArrayResult:
-    """Reconstruct one tick of a whisker array in one vectorised Step 2 call.
+    """Reconstruct one tick of a whisker array in one Step 2 call.
 
-    Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct_rows`` on (N, 3)
-    arrays. They agree with the scalar path of :func:`reconstruct_wrenches` to round-off.
+    Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct_rows``, as the
+    wrenches of :func:`reconstruct_wrenches` do: the same row gives the same bits either way.
 
     Parameters
     ----------
@@ -230,9 +242,9 @@ def reconstruct_arrays(msgs: Sequence[WhiskerWrenchArray], rod: RodScale = _UNIT
     """:func:`reconstruct_array` of each message, with one Step 2 call for the rows of all.
 
     A backlog of ticks costs one call instead of one per tick (on a few dozen rows the cost is
-    the number of numpy calls, not the rows). Step 2 works row by row, elementwise, so a row's
-    result does not depend on the other rows of the call: a message's points are the same bits
-    whatever batch it arrived in, and a replayed bag gives the live run's points exactly.
+    the calls, not the rows). Step 2 works row by row, so a row's result does not depend on the
+    other rows of the call: a message's points are the same bits whatever batch it arrived in,
+    and a replayed bag gives the live run's points exactly.
     """
     if len(msgs) == 1:
         msg = msgs[0]
@@ -240,14 +252,8 @@ def reconstruct_arrays(msgs: Sequence[WhiskerWrenchArray], rod: RodScale = _UNIT
     else:
         q, p0, f0, m0 = (np.concatenate([getattr(m, name) for m in msgs]) for name in
                          ("clamp_orientation", "clamp_position", "f0", "m0"))
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # flagged rows say where
-        rotation, norm2 = _rotations(q)
-        good = (norm2 > 0.0) & (norm2 < np.inf)
-        all_good = np.count_nonzero(good) == len(good)
-        if not all_good:
-            rotation, p0, f0, m0 = rotation[good], p0[good], f0[good], m0[good]
-        rec = reconstruct_rows(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
-                               m0 * (1.0 / rod.moment_nm), rotation)
+    good, rec = _reconstruct_si(q, p0, f0, m0, rod)
+    all_good = np.count_nonzero(good) == len(good)
     valid = rec.valid
     all_valid = all_good and np.count_nonzero(valid) == len(valid)
     columns: tuple[npt.NDArray[Any], ...] = (
@@ -283,50 +289,21 @@ def reconstruct_arrays(msgs: Sequence[WhiskerWrenchArray], rod: RodScale = _UNIT
     return results
 
 
-def _products_to_matrix() -> FloatArray:
-    """R(q) of a unit quaternion q = (x, y, z, w) is a homogeneous quadratic in q: each entry a
-    combination of the products q_i q_j. This (16, 9) matrix maps q_i q_j (row 4 i + j) to the
-    entries of R (column 3 r + c); for any q != 0, (q q^T) @ it / |q|^2 is R(q / |q|)."""
-    matrix = np.zeros((16, 9))
-    x, y, z, w = range(4)
-    terms = {
-        (0, 0): ((x, x, 1), (y, y, -1), (z, z, -1), (w, w, 1)),
-        (1, 1): ((x, x, -1), (y, y, 1), (z, z, -1), (w, w, 1)),
-        (2, 2): ((x, x, -1), (y, y, -1), (z, z, 1), (w, w, 1)),
-        (0, 1): ((x, y, 2), (z, w, -2)), (1, 0): ((x, y, 2), (z, w, 2)),
-        (0, 2): ((x, z, 2), (y, w, 2)), (2, 0): ((x, z, 2), (y, w, -2)),
-        (1, 2): ((y, z, 2), (x, w, -2)), (2, 1): ((y, z, 2), (x, w, 2)),
-    }
-    for (r, c), products in terms.items():
-        for i, j, weight in products:
-            matrix[4 * i + j, 3 * r + c] = weight
-    return matrix
-
-
-_PRODUCTS_TO_MATRIX = _products_to_matrix()
-
-
-def quaternion_matrices(q_xyzw: FloatArray) -> FloatArray:
-    """Rotation matrices (N, 3, 3) of quaternions (N, 4) (x, y, z, w), normalised first."""
-    return _rotations(q_xyzw)[0]
-
-
-def _rotations(q_xyzw: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """:func:`quaternion_matrices` and the squared norms (N,) of the quaternions."""
-    products = (q_xyzw[:, :, None] * q_xyzw[:, None, :]).reshape(-1, 16)
-    norm2 = products[:, ::5].sum(axis=1)  # the diagonal: x^2 + y^2 + z^2 + w^2
-    return ((products @ _PRODUCTS_TO_MATRIX) / norm2[:, None]).reshape(-1, 3, 3), norm2
-
-
-def quaternion_rows(q_xyzw: Sequence[float]) -> list[list[float]]:
-    """Rotation matrix of a quaternion (x, y, z, w), normalised first, as rows of floats."""
-    norm = math.sqrt(sum(c * c for c in q_xyzw))
-    x, y, z, w = (c / norm for c in q_xyzw)
-    return [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
+@compiled
+def quaternion_matrices(q_xyzw: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Rotation matrices (N, 3, 3) of quaternions (N, 4) (x, y, z, w), normalised first, and
+    their squared norms (N,); rows of a zero or non-finite quaternion are not rotations."""
+    n = q_xyzw.shape[0]
+    rotation, norm2 = np.empty((n, 3, 3)), np.empty(n)
+    for i in range(n):
+        x, y, z, w = q_xyzw[i, 0], q_xyzw[i, 1], q_xyzw[i, 2], q_xyzw[i, 3]
+        norm2[i] = x * x + y * y + z * z + w * w
+        s = 2.0 / norm2[i] if norm2[i] > 0.0 else math.nan
+        r = rotation[i]
+        r[0, 0], r[0, 1], r[0, 2] = 1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)
+        r[1, 0], r[1, 1], r[1, 2] = s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)
+        r[2, 0], r[2, 1], r[2, 2] = s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)
+    return rotation, norm2
 
 
 Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
@@ -384,6 +361,19 @@ def _count(counters: dict[str, int], contacts: int, no_contact: int, bad_pose: i
     counters["bad_pose"] += bad_pose
 
 
+def _compile_kernels(rod: RodScale) -> None:
+    """Compile Step 2 for the arrays both paths will see (or load it from numba's cache) now,
+    so that the first wrench is not late by the compile time (~2 s on a fresh install)."""
+    tick = WhiskerWrenchArray(
+        stamp=0.0, seq=0, frame_id="world", whisker_ids=["warm-up"], clamp_position=[[0.0, 0.0, 0.0]],
+        clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=[[0.1 * rod.force_n, 0.0, 0.0]],
+        m0=[[0.0, 0.05 * rod.moment_nm, 0.0]])
+    reconstruct_array(decode(encode(tick), WhiskerWrenchArray), rod)  # decoded: read-only arrays
+    reconstruct_wrenches([WhiskerWrench(
+        stamp=0.0, seq=0, whisker_id="warm-up", frame_id="world", clamp_position=[0.0, 0.0, 0.0],
+        clamp_orientation=[0.0, 0.0, 0.0, 1.0], f0=tick.f0[0], m0=tick.m0[0])], rod)
+
+
 def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     counters = node.counters
@@ -394,6 +384,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
                                       wait_for=params.wait_for)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch)
     rod = params.rod
+    _compile_kernels(rod)
     node.set_state("running")
     while not node.stop_requested:
         batch, eos = batches.collect(0.1)

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 from vibrissa.msgs import (
     ContactPoint,
     ContactPointArray,
@@ -23,7 +24,6 @@ from vibrissa.nodes.reconstructor import (
     ReconstructorParams,
     collect_batch,
     quaternion_matrices,
-    quaternion_rows,
     reconstruct_array,
     reconstruct_arrays,
     reconstruct_wrenches,
@@ -146,8 +146,11 @@ def test_clamp_orientation_rotates_the_contact() -> None:
     angle = 0.7
     axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
     q = np.r_[axis * np.sin(angle / 2), np.cos(angle / 2)]
-    R = np.array(quaternion_rows(q.tolist()))
+    rotations, norm2 = quaternion_matrices(np.array([q, 2.0 * q]))
+    R = rotations[0]
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-15)
+    np.testing.assert_array_equal(rotations[1], R)  # normalised first: 2 q is the same rotation
+    np.testing.assert_allclose(norm2, [1.0, 4.0], rtol=1e-15)
     # Rodrigues' formula as the reference
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     np.testing.assert_allclose(R, np.eye(3) + np.sin(angle) * K
@@ -216,7 +219,7 @@ def test_an_array_of_whiskers_moves_as_one_and_reconstructs_its_sweeps() -> None
     assert sum(r.no_contact for r in results) == 3 * len(arrays) - loaded
 
 
-def test_array_equals_library_and_scalar_path_and_counts_rows() -> None:
+def test_array_equals_library_and_per_wrench_path_and_counts_rows() -> None:
     length, ei = 0.04, 3e-3
     rod = RodScale(length, ei)
     unit = _wrenches(32)
@@ -227,17 +230,17 @@ def test_array_equals_library_and_scalar_path_and_counts_rows() -> None:
                               f0=w.f0 * ei / length**2, m0=w.m0 * ei / length)
                 for i, w in enumerate(unit)]
     result = reconstruct_array(_tick(wrenches), rod)
-    scalar = reconstruct_wrenches(wrenches, rod)
+    per_wrench = reconstruct_wrenches(wrenches, rod)
     got = result.contacts
     assert (got.stamp, got.seq, got.frame_id) == (2.5, 4, "world")
-    assert got.whisker_ids == [c.whisker_id for c in scalar.contacts]
-    assert (result.no_contact, result.bad_pose) == (scalar.no_contact, scalar.bad_pose)
+    assert got.whisker_ids == [c.whisker_id for c in per_wrench.contacts]
+    assert (result.no_contact, result.bad_pose) == (per_wrench.no_contact, per_wrench.bad_pose)
     assert result.bad_pose == 1 and result.no_contact >= 1 and "w7" not in got.whisker_ids
     # the library on the dimensionless rows, one array call
     rows = [int(w[1:]) for w in got.whisker_ids]
     good = [i for i in range(32) if i != 7]
-    R = np.stack([quaternion_rows(q[i].tolist()) for i in good])
-    np.testing.assert_allclose(quaternion_matrices(q[good]), R, rtol=0, atol=1e-15)
+    R = Rotation.from_quat(q[good]).as_matrix()  # scipy's (x, y, z, w), normalised first
+    np.testing.assert_allclose(quaternion_matrices(q[good])[0], R, rtol=0, atol=2e-15)
     rec = reconstruct(np.stack([unit[i].clamp_position for i in good]),
                       np.stack([unit[i].f0 for i in good]), np.stack([unit[i].m0 for i in good]), R)
     keep = [good.index(i) for i in rows]
@@ -247,10 +250,11 @@ def test_array_equals_library_and_scalar_path_and_counts_rows() -> None:
     np.testing.assert_allclose(got.force, rec.force[keep] * ei / length**2, rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(got.phase, rec.phase[keep])
     np.testing.assert_array_equal(got.status, rec.status[keep])
-    # the scalar path agrees to round-off
-    np.testing.assert_allclose(got.point, [c.point for c in scalar.contacts], rtol=1e-12,
-                               atol=1e-15)
-    assert got.phase.tolist() == [int(c.phase) for c in scalar.contacts]
+    # one wrench at a time: the same rows, the same bits
+    np.testing.assert_array_equal(got.point, [c.point for c in per_wrench.contacts])
+    np.testing.assert_array_equal(got.force, [c.force for c in per_wrench.contacts])
+    assert got.s1.tolist() == [c.s1 for c in per_wrench.contacts]
+    assert got.phase.tolist() == [int(c.phase) for c in per_wrench.contacts]
 
 
 def test_an_array_gives_the_same_points_bit_for_bit_after_the_wire() -> None:
@@ -332,18 +336,19 @@ def test_a_backlog_of_arrays_gives_each_tick_its_own_points_bit_for_bit() -> Non
     assert [r.contacts.seq for r in together] == list(range(6))
     assert sum(r.bad_pose for r in together) == 4
     assert sum(len(r.contacts.whisker_ids) for r in together) > 40
-    # and each tick's rows are the scalar path's to round-off
+    # and each tick's rows are those of its wrenches one by one, bit for bit
     for tick, result in zip(ticks, together, strict=True):
         rows = [WhiskerWrench(stamp=0.0, seq=i, whisker_id=tick.whisker_ids[i], frame_id="world",
                               clamp_position=tick.clamp_position[i],
                               clamp_orientation=tick.clamp_orientation[i], f0=tick.f0[i],
                               m0=tick.m0[i]) for i in range(len(tick.whisker_ids))]
-        scalar = reconstruct_wrenches(rows, rod)
-        assert result.contacts.whisker_ids == [c.whisker_id for c in scalar.contacts]
-        assert (result.no_contact, result.bad_pose) == (scalar.no_contact, scalar.bad_pose)
-        np.testing.assert_allclose(result.contacts.point.reshape(-1, 3),
-                                   np.reshape([c.point for c in scalar.contacts], (-1, 3)),
-                                   rtol=1e-12, atol=1e-15)
+        one_by_one = [reconstruct_wrenches([row], rod) for row in rows]
+        contacts = [c for r in one_by_one for c in r.contacts]
+        assert result.contacts.whisker_ids == [c.whisker_id for c in contacts]
+        assert (result.no_contact, result.bad_pose) == (
+            sum(r.no_contact for r in one_by_one), sum(r.bad_pose for r in one_by_one))
+        np.testing.assert_array_equal(result.contacts.point.reshape(-1, 3),
+                                      np.reshape([c.point for c in contacts], (-1, 3)))
 
 
 def test_batches_stay_small_until_a_backlog_then_drain_it_in_one() -> None:

@@ -217,8 +217,13 @@ def test_a_steep_tip_touch_with_strong_friction_runs_at_fine_steps():
     fine = simulate_sweeps(surface, [trail], step=5e-4, max_steps=200)[0]
     coarse = simulate_sweeps(surface, [trail], step=1e-3, max_steps=100)[0]
     assert fine.end == "max-steps" and fine.n_steps == 200
-    assert fine.refined[0] and not fine.refined[1:].any()  # only the first step was longer
-    np.testing.assert_allclose(np.diff(fine.x0), -5e-4, rtol=1e-9)
+    # Longer steps only within 0.01 L of the touch (how many of them is up to round-off), all
+    # of them on the grid; plain steps after that.
+    early = fine.x_touch - fine.x0 < 0.01
+    assert fine.refined[0] and not fine.refined[~early].any() and early.sum() < 25
+    steps = np.diff(fine.x0) / -5e-4
+    np.testing.assert_allclose(steps, np.round(steps), rtol=0, atol=1e-6)
+    assert (np.round(steps) >= 1).all() and (np.round(steps)[~early[1:]] == 1).all()
     r = fine.contact - fine.p0
     np.testing.assert_allclose(fine.m0 + np.cross(r, fine.force), 0.0, atol=1e-12)
     assert np.max(np.abs(surface.signed_distance(fine.contact))) < 1e-9

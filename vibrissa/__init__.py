@@ -1,6 +1,7 @@
 """vibrissa: a whisker-like tactile sensor as a robot sense (Merker, frictional 3D scanning).
 
-Core mechanics in the paper's dimensionless units (eq. 1); pure numpy/scipy.
+Core mechanics in the paper's dimensionless units (eq. 1); numpy/scipy, with the per-sample
+kernels compiled by numba (``vibrissa.compiled``).
 
 * :func:`simulate_sweep`, :func:`simulate_sweeps` -- Step 1, quasi-static frictional sweeps.
 * :func:`reconstruct` -- Step 2, contact points from clamp position and support reactions.

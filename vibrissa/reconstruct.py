@@ -18,14 +18,13 @@ kappa0 = -m0w (eq. 22) is >= 0, which is eq. 20: psi = -atan2(m0x, m0y).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vibrissa.elastica import S1_TOLERANCE, planar_contact_arrays, planar_contact_scalar
+from vibrissa.compiled import compiled
+from vibrissa.elastica import S1_TOLERANCE, planar_contact_scalar
 from vibrissa.status import NO_CONTACT, ContactStatus
 
 PHASE_NONE, PHASE_TIP, PHASE_TANGENTIAL = 0, 1, 2
@@ -94,96 +93,8 @@ def reconstruct(
     Reconstruction
         Arrays of length N (also for single vectors). Samples without a consistent contact
         (no force, curvature that never vanishes within the rod, non-finite input) carry NaN
-        and a status flag instead of raising. A single sample (three vectors of shape (3,))
-        takes a scalar path with the same results, free of the array path's fixed cost.
+        and a status flag instead of raising.
     """
-    p0_a, f0_a, m0_a = np.asarray(p0, dtype=float), np.asarray(f0, dtype=float), np.asarray(
-        m0, dtype=float)
-    if p0_a.shape == f0_a.shape == m0_a.shape == (3,):
-        if R_WC is None:
-            return _reconstruct_one(p0_a.tolist(), f0_a.tolist(), m0_a.tolist(), None)
-        rotation = np.asarray(R_WC, dtype=float)
-        if rotation.shape in ((3, 3), (1, 3, 3)):
-            return _reconstruct_one(p0_a.tolist(), f0_a.tolist(), m0_a.tolist(),
-                                    rotation.reshape(3, 3).tolist())
-    return _reconstruct_arrays(p0_a, f0_a, m0_a, R_WC)
-
-
-class Sample(NamedTuple):
-    """One sample of a :class:`Reconstruction` in plain floats (its fields' row, same units)."""
-
-    point: tuple[float, float, float]
-    s1: float
-    phase: int
-    psi: float
-    force: tuple[float, float, float]
-    status: int
-
-
-def reconstruct_sample(
-    p0: Sequence[float], f0: Sequence[float], m0: Sequence[float],
-    R_WC: Sequence[Sequence[float]] | None = None,
-) -> Sample:
-    """:func:`reconstruct` of one sample in plain floats: the array path step by step.
-
-    Parameters and results as in :func:`reconstruct`, for one sample: three floats each for
-    ``p0``, ``f0``, ``m0``, rows of R_WC (identity when omitted). No checks of the input
-    shapes: this is the per-sample hot path (``reconstruct`` dispatches single samples here).
-    """
-    force_C = (-f0[0], -f0[1], -f0[2])
-    m_horizontal = math.hypot(m0[0], m0[1])
-    if m_horizontal > 0:
-        e_u = (m0[1] / m_horizontal, -m0[0] / m_horizontal)
-    else:
-        f_horizontal = math.hypot(force_C[0], force_C[1])
-        e_u = ((force_C[0] / f_horizontal, force_C[1] / f_horizontal) if f_horizontal > 0
-               else (1.0, 0.0))
-    fu = force_C[0] * e_u[0] + force_C[1] * e_u[1]
-    u1, v1, s1, _phi1, status = planar_contact_scalar(fu, force_C[2], m_horizontal)
-    if not all(map(math.isfinite, (*p0, *m0))):
-        status |= _NON_FINITE
-    if status & _NO_CONTACT == 0 and s1 > 1.0 + S1_TOLERANCE:
-        status |= _BEYOND
-    force = force_C if R_WC is None else _rotated(R_WC, force_C)
-    if status & _NO_CONTACT:
-        nan = math.nan
-        return Sample((nan, nan, nan), nan, PHASE_NONE, nan, force, status)
-    p1_C = (u1 * e_u[0], u1 * e_u[1], v1)
-    p1 = p1_C if R_WC is None else _rotated(R_WC, p1_C)
-    point = (p0[0] + p1[0], p0[1] + p1[1], p0[2] + p1[2])
-    s1 = min(s1, 1.0)
-    phase = PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
-    return Sample(point, s1, phase, math.atan2(e_u[1], e_u[0]), force, status)
-
-
-def _rotated(rows: Sequence[Sequence[float]], v: tuple[float, float, float]
-             ) -> tuple[float, float, float]:
-    """The matrix with these rows times v."""
-    x, y, z = (r[0] * v[0] + r[1] * v[1] + r[2] * v[2] for r in rows)
-    return x, y, z
-
-
-def _reconstruct_one(
-    p0: list[float], f0: list[float], m0: list[float], R_WC: list[list[float]] | None
-) -> Reconstruction:
-    one = reconstruct_sample(p0, f0, m0, R_WC)
-    return Reconstruction(
-        point=np.array([one.point]), s1=np.array([one.s1]),
-        phase=np.array([one.phase], dtype=np.int64), psi=np.array([one.psi]),
-        force=np.array([one.force]), status=np.array([one.status], dtype=np.int64),
-    )
-
-
-_NO_CONTACT = int(NO_CONTACT)
-_NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
-_BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
-
-
-def _reconstruct_arrays(
-    p0: NDArray[np.float64], f0: NDArray[np.float64], m0: NDArray[np.float64],
-    R_WC: ArrayLike | None,
-) -> Reconstruction:
-    """:func:`reconstruct` vectorised over N samples."""
     p0_W, f0_C, m0_C = (_as_vectors(n, v) for n, v in (("p0", p0), ("f0", f0), ("m0", m0)))
     try:
         if not p0_W.shape == f0_C.shape == m0_C.shape:
@@ -192,62 +103,90 @@ def _reconstruct_arrays(
         raise ValueError(
             f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, {f0_C.shape}, {m0_C.shape}"
         ) from None
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # the flags say where
-        return reconstruct_rows(p0_W, f0_C, m0_C, R_WC)
+    rotation = None
+    if R_WC is not None:
+        rotation = np.asarray(R_WC, dtype=float)
+        if rotation.shape not in ((3, 3), (1, 3, 3), (len(p0_W), 3, 3)):
+            raise ValueError(f"R_WC must have shape (3, 3) or ({len(p0_W)}, 3, 3), got {rotation.shape}")
+    return reconstruct_rows(np.ascontiguousarray(p0_W), np.ascontiguousarray(f0_C),
+                            np.ascontiguousarray(m0_C), rotation)
 
 
 def reconstruct_rows(
     p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
-    R_WC: ArrayLike | None,
+    R_WC: NDArray[np.float64] | None,
 ) -> Reconstruction:
-    """:func:`reconstruct` of float arrays of shape (N, 3) (R_WC: (3, 3) or (N, 3, 3)), for
-    callers that already ignore numpy's divide, invalid and overflow warnings
-    (``np.errstate``): no conversion, no shape checks, no context.
-
-    Column by column: on the few dozen rows of a tick, the cost is the number of numpy calls,
-    so the rare cases are each found with one reduction and handled only when present.
-    """
-    force_C = -f0_C
-    m_x, m_y = m0_C[:, 0], m0_C[:, 1]
-    m_horizontal = np.hypot(m_x, m_y)
-    # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|.
-    e_ux, e_uy = m_y / m_horizontal, -m_x / m_horizontal
-    bent = m_horizontal > 0
-    if np.count_nonzero(bent) < bent.size:  # an unbent rod has its plane along F (along e_x without a force)
-        f_horizontal = np.hypot(force_C[:, 0], force_C[:, 1])
-        along_force = f_horizontal > 0
-        e_ux = np.where(bent, e_ux, np.where(along_force, force_C[:, 0] / f_horizontal, 1.0))
-        e_uy = np.where(bent, e_uy, np.where(along_force, force_C[:, 1] / f_horizontal, 0.0))
-    fu = force_C[:, 0] * e_ux + force_C[:, 1] * e_uy
-    contact = planar_contact_arrays(fu, force_C[:, 2], m_horizontal)
-    status = contact.status
-    # A non-finite m0x or m0y is flagged by the planar solver (kappa0); p0 and m0z are not.
-    if not math.isfinite(p0_W.sum() + m0_C.sum()):
-        status[~(np.isfinite(p0_W).all(axis=1) & np.isfinite(m0_C).all(axis=1))] |= _NON_FINITE
-    beyond_rod = contact.s1 > 1.0 + S1_TOLERANCE  # NaN where there is no contact: False
-    if np.count_nonzero(beyond_rod):
-        status[beyond_rod & (status & _NO_CONTACT == 0)] |= _BEYOND
-    p1_C = np.empty_like(force_C)
-    p1_C[:, 0] = contact.u1 * e_ux
-    p1_C[:, 1] = contact.u1 * e_uy
-    p1_C[:, 2] = contact.v1
+    """:func:`reconstruct` of C-contiguous float arrays of shape (N, 3) (R_WC: (3, 3),
+    (1, 3, 3) or (N, 3, 3) floats, or None), for callers that have checked them: no
+    conversion, no shape checks (a wrong shape is not detected here)."""
     if R_WC is None:
-        point, force = p0_W + p1_C, force_C
+        rotation = _NO_ROTATION
     else:
-        rotation = np.asarray(R_WC, dtype=float)
-        if rotation.shape == (1, 3, 3):
-            rotation = rotation[0]
-        rotate = "ij,nj->ni" if rotation.shape == (3, 3) else "nij,nj->ni"
-        point = p0_W + np.einsum(rotate, rotation, p1_C)
-        force = np.einsum(rotate, rotation, force_C)
-    s1 = np.minimum(contact.s1, 1.0)
-    phase = np.where(s1 >= 1.0 - TIP_TOLERANCE, PHASE_TIP, PHASE_TANGENTIAL)
-    psi = np.arctan2(e_uy, e_ux)
-    if np.count_nonzero(status):  # rare cases behind one reduction (see elastica)
-        valid = (status & _NO_CONTACT) == 0
-        if not valid.all():
-            point = np.where(valid[:, None], point, np.nan)
-            s1, psi = np.where(valid, s1, np.nan), np.where(valid, psi, np.nan)
-            phase = np.where(valid, phase, PHASE_NONE)
-    return Reconstruction(point=point, s1=s1, phase=phase.astype(np.int64, copy=False), psi=psi,
-                          force=force, status=status)
+        rotation = np.ascontiguousarray(R_WC.reshape(-1, 3, 3))
+    point, s1, phase, psi, force, status = _reconstruct_kernel(p0_W, f0_C, m0_C, rotation)
+    return Reconstruction(point=point, s1=s1, phase=phase, psi=psi, force=force, status=status)
+
+
+_NO_CONTACT = int(NO_CONTACT)
+_NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
+_BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
+_NO_ROTATION = np.empty((0, 3, 3))  # the kernel's "C parallel to W"
+
+
+@compiled
+def _reconstruct_kernel(
+    p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
+    R_WC: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64],
+           NDArray[np.float64], NDArray[np.int64]]:
+    """Step 2 row by row in compiled code: point, s1, phase, psi, force, status.
+
+    R_WC has 0 rows (identity), 1 (for every row) or N. Each row is computed on its own, so its
+    result is the same bits whatever the other rows of the call.
+    """
+    n = p0_W.shape[0]
+    point, force = np.empty((n, 3)), np.empty((n, 3))
+    s1, psi = np.empty(n), np.empty(n)
+    phase, status = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    for i in range(n):
+        fx, fy, fz = -f0_C[i, 0], -f0_C[i, 1], -f0_C[i, 2]  # the contact force on the rod, in C
+        m_horizontal = math.hypot(m0_C[i, 0], m0_C[i, 1])
+        # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|; an unbent
+        # rod has its plane along F (along e_x without a force).
+        if m_horizontal > 0:
+            e_ux, e_uy = m0_C[i, 1] / m_horizontal, -m0_C[i, 0] / m_horizontal
+        else:
+            f_horizontal = math.hypot(fx, fy)
+            if f_horizontal > 0:
+                e_ux, e_uy = fx / f_horizontal, fy / f_horizontal
+            else:
+                e_ux, e_uy = 1.0, 0.0
+        u1, v1, s, _phi1, flags = planar_contact_scalar(fx * e_ux + fy * e_uy, fz, m_horizontal)
+        # A non-finite m0x or m0y is flagged by the planar solver (kappa0); p0 and m0z are not.
+        finite = True
+        for j in range(3):
+            finite = finite and math.isfinite(p0_W[i, j]) and math.isfinite(m0_C[i, j])
+        if not finite:
+            flags |= _NON_FINITE
+        if flags & _NO_CONTACT == 0 and s > 1.0 + S1_TOLERANCE:
+            flags |= _BEYOND
+        status[i] = flags
+        p1x, p1y, p1z = u1 * e_ux, u1 * e_uy, v1  # P1 - P0 in C
+        if R_WC.shape[0] > 0:
+            r = R_WC[i if R_WC.shape[0] > 1 else 0]
+            p1x, p1y, p1z = (r[0, 0] * p1x + r[0, 1] * p1y + r[0, 2] * p1z,
+                             r[1, 0] * p1x + r[1, 1] * p1y + r[1, 2] * p1z,
+                             r[2, 0] * p1x + r[2, 1] * p1y + r[2, 2] * p1z)
+            fx, fy, fz = (r[0, 0] * fx + r[0, 1] * fy + r[0, 2] * fz,
+                          r[1, 0] * fx + r[1, 1] * fy + r[1, 2] * fz,
+                          r[2, 0] * fx + r[2, 1] * fy + r[2, 2] * fz)
+        force[i, 0], force[i, 1], force[i, 2] = fx, fy, fz
+        if flags & _NO_CONTACT:
+            point[i, 0] = point[i, 1] = point[i, 2] = s1[i] = psi[i] = math.nan
+            phase[i] = PHASE_NONE
+            continue
+        point[i, 0], point[i, 1], point[i, 2] = p0_W[i, 0] + p1x, p0_W[i, 1] + p1y, p0_W[i, 2] + p1z
+        s1[i] = min(s, 1.0)
+        phase[i] = PHASE_TIP if s1[i] >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
+        psi[i] = math.atan2(e_uy, e_ux)
+    return point, s1, phase, psi, force, status

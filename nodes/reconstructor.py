@@ -57,7 +57,7 @@ from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_param
 from vibrissa.wire.transport import Received
 
 from vibrissa.compiled import compiled
-from vibrissa.reconstruct import Reconstruction, reconstruct_rows
+from vibrissa.reconstruct import reconstruct_row
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
 
@@ -160,37 +160,20 @@ def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNI
         or AXIAL_LOAD; the others are only counted.
     """
     result = BatchResult()
-    if not wrenches:
-        return result
-    q, p0, f0, m0 = (np.array([getattr(w, name) for w in wrenches]) for name in
-                     ("clamp_orientation", "clamp_position", "f0", "m0"))
-    good, rec = _reconstruct_si(q, p0, f0, m0, rod)
-    kept = [w for w, ok in zip(wrenches, good.tolist(), strict=True) if ok]
-    result.bad_pose = len(wrenches) - len(kept)
-    for w, valid, point, s1, phase, force, status in zip(
-            kept, rec.valid.tolist(), (rec.point * rod.length_m).tolist(),
-            (rec.s1 * rod.length_m).tolist(), rec.phase.tolist(),
-            (rec.force * rod.force_n).tolist(), rec.status.tolist(), strict=True):
-        if not valid:
+    length, force_n, moment_nm = rod.length_m, rod.force_n, rod.moment_nm
+    for w in wrenches:
+        good, px, py, pz, s1, phase, fx, fy, fz, status = _wrench_si(
+            w.clamp_orientation, w.clamp_position, w.f0, w.m0, length, force_n, moment_nm)
+        if not good:
+            result.bad_pose += 1
+        elif status & _NO_CONTACT:
             result.no_contact += 1
-            continue
-        result.contacts.append(ContactPoint(
-            stamp=w.stamp, seq=w.seq, whisker_id=w.whisker_id, frame_id=w.frame_id, point=point,
-            s1=s1, phase=_PHASES[phase], force=force, status=ContactStatus(status)))
+        else:
+            result.contacts.append(ContactPoint(
+                stamp=w.stamp, seq=w.seq, whisker_id=w.whisker_id, frame_id=w.frame_id,
+                point=[px, py, pz], s1=s1, phase=_PHASES[phase], force=[fx, fy, fz],
+                status=ContactStatus(status)))
     return result
-
-
-def _reconstruct_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
-                    rod: RodScale) -> tuple[npt.NDArray[np.bool_], Reconstruction]:
-    """Step 2 of SI rows (clamp pose q (N, 4), p0 (N, 3) m; f0 N, m0 N m in C): which rows have
-    a usable quaternion (nonzero, finite), and the reconstruction of those, in the paper's units.
-    """
-    rotation, norm2 = quaternion_matrices(q_xyzw)
-    good = (norm2 > 0.0) & (norm2 < np.inf)
-    if np.count_nonzero(good) < len(good):
-        rotation, p0, f0, m0 = rotation[good], p0[good], f0[good], m0[good]
-    return good, reconstruct_rows(p0 * (1.0 / rod.length_m), f0 * (1.0 / rod.force_n),
-                                  m0 * (1.0 / rod.moment_nm), rotation)
 
 
 _NO_CONTACT = int(NO_CONTACT)
@@ -252,13 +235,14 @@ def reconstruct_arrays(msgs: Sequence[WhiskerWrenchArray], rod: RodScale = _UNIT
     else:
         q, p0, f0, m0 = (np.concatenate([getattr(m, name) for m in msgs]) for name in
                          ("clamp_orientation", "clamp_position", "f0", "m0"))
-    good, rec = _reconstruct_si(q, p0, f0, m0, rod)
+    good, point, s1, phase, force, status = _rows_si(q, p0, f0, m0, rod.length_m, rod.force_n,
+                                                     rod.moment_nm)
     all_good = np.count_nonzero(good) == len(good)
-    valid = rec.valid
+    valid = (status & _NO_CONTACT) == 0
+    columns: tuple[npt.NDArray[Any], ...] = (point, s1, phase, force, status)
+    if not all_good:  # the rows of a bad pose are not in the call's results
+        columns, valid = tuple(value[good] for value in columns), valid[good]
     all_valid = all_good and np.count_nonzero(valid) == len(valid)
-    columns: tuple[npt.NDArray[Any], ...] = (
-        rec.point * rod.length_m, rec.s1 * rod.length_m, rec.phase.astype(np.int32),
-        rec.force * rod.force_n, rec.status.astype(np.int32))
     good_rows = None if all_good else np.cumsum(good)  # good rows up to and including each row
     results = []
     row = first = 0  # the message's first row in q, and in the good rows
@@ -290,20 +274,77 @@ def reconstruct_arrays(msgs: Sequence[WhiskerWrenchArray], rod: RodScale = _UNIT
 
 
 @compiled
+def _quaternion_matrix(q_xyzw: FloatArray, rotation: FloatArray) -> float:
+    """Write R(q / |q|) of a quaternion (4,) (x, y, z, w) into ``rotation`` (3, 3); returns
+    |q|^2 (the matrix is not a rotation unless that is finite and > 0)."""
+    x, y, z, w = q_xyzw[0], q_xyzw[1], q_xyzw[2], q_xyzw[3]
+    norm2 = x * x + y * y + z * z + w * w
+    s = 2.0 / norm2 if norm2 > 0.0 else math.nan
+    r = rotation
+    r[0, 0], r[0, 1], r[0, 2] = 1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)
+    r[1, 0], r[1, 1], r[1, 2] = s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)
+    r[2, 0], r[2, 1], r[2, 2] = s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)
+    return norm2
+
+
+@compiled
 def quaternion_matrices(q_xyzw: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Rotation matrices (N, 3, 3) of quaternions (N, 4) (x, y, z, w), normalised first, and
     their squared norms (N,); rows of a zero or non-finite quaternion are not rotations."""
     n = q_xyzw.shape[0]
     rotation, norm2 = np.empty((n, 3, 3)), np.empty(n)
     for i in range(n):
-        x, y, z, w = q_xyzw[i, 0], q_xyzw[i, 1], q_xyzw[i, 2], q_xyzw[i, 3]
-        norm2[i] = x * x + y * y + z * z + w * w
-        s = 2.0 / norm2[i] if norm2[i] > 0.0 else math.nan
-        r = rotation[i]
-        r[0, 0], r[0, 1], r[0, 2] = 1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)
-        r[1, 0], r[1, 1], r[1, 2] = s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)
-        r[2, 0], r[2, 1], r[2, 2] = s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)
+        norm2[i] = _quaternion_matrix(q_xyzw[i], rotation[i])
     return rotation, norm2
+
+
+@compiled
+def _row_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray, length_m: float,
+            force_n: float, moment_nm: float, point: FloatArray, force: FloatArray
+            ) -> tuple[bool, float, int, int]:
+    """Step 2 of one SI row (clamp pose q (4,), p0 (3,) m; f0 N, m0 N m in C): whether the
+    quaternion is usable (nonzero, finite), then ``reconstruct_row``'s s1 (m), phase and status,
+    with the point (m) and force (N) written into ``point`` and ``force``."""
+    rotation = np.empty((3, 3))
+    norm2 = _quaternion_matrix(q_xyzw, rotation)
+    if not (norm2 > 0.0 and norm2 < math.inf):
+        return False, math.nan, 0, 0
+    p0_L, f0_L, m0_L = np.empty(3), np.empty(3), np.empty(3)
+    for j in range(3):
+        p0_L[j], f0_L[j], m0_L[j] = p0[j] / length_m, f0[j] / force_n, m0[j] / moment_nm
+    s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force)
+    for j in range(3):
+        point[j] *= length_m
+        force[j] *= force_n
+    return True, s1 * length_m, phase, status
+
+
+@compiled
+def _wrench_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
+               length_m: float, force_n: float, moment_nm: float
+               ) -> tuple[bool, float, float, float, float, int, float, float, float, int]:
+    """:func:`_row_si` of one wrench in plain numbers: good, point, s1, phase, force, status."""
+    point, force = np.empty(3), np.empty(3)
+    good, s1, phase, status = _row_si(q_xyzw, p0, f0, m0, length_m, force_n, moment_nm, point,
+                                      force)
+    return good, point[0], point[1], point[2], s1, phase, force[0], force[1], force[2], status
+
+
+@compiled
+def _rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
+             length_m: float, force_n: float, moment_nm: float
+             ) -> tuple[npt.NDArray[np.bool_], FloatArray, FloatArray, npt.NDArray[np.int32],
+                        FloatArray, npt.NDArray[np.int32]]:
+    """:func:`_row_si` of every row (N, ...): good, point, s1, phase, force, status, with phase
+    and status as the int32 of ``ContactPointArray``."""
+    n = q_xyzw.shape[0]
+    good = np.empty(n, dtype=np.bool_)
+    point, force, s1 = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    phase, status = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
+    for i in range(n):
+        good[i], s1[i], phase[i], status[i] = _row_si(
+            q_xyzw[i], p0[i], f0[i], m0[i], length_m, force_n, moment_nm, point[i], force[i])
+    return good, point, s1, phase, force, status
 
 
 Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
@@ -362,16 +403,18 @@ def _count(counters: dict[str, int], contacts: int, no_contact: int, bad_pose: i
 
 
 def _compile_kernels(rod: RodScale) -> None:
-    """Compile Step 2 for the arrays both paths will see (or load it from numba's cache) now,
-    so that the first wrench is not late by the compile time (~2 s on a fresh install)."""
-    tick = WhiskerWrenchArray(
+    """Compile Step 2 for the arrays the node will see (or load it from numba's cache) now, so
+    that the first wrench is not late by the compile time (~3 s on a fresh install): decoded
+    messages hold read-only arrays, a backlog of ticks is concatenated into writable ones."""
+    tick = decode(encode(WhiskerWrenchArray(
         stamp=0.0, seq=0, frame_id="world", whisker_ids=["warm-up"], clamp_position=[[0.0, 0.0, 0.0]],
         clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=[[0.1 * rod.force_n, 0.0, 0.0]],
-        m0=[[0.0, 0.05 * rod.moment_nm, 0.0]])
-    reconstruct_array(decode(encode(tick), WhiskerWrenchArray), rod)  # decoded: read-only arrays
-    reconstruct_wrenches([WhiskerWrench(
+        m0=[[0.0, 0.05 * rod.moment_nm, 0.0]])), WhiskerWrenchArray)
+    reconstruct_arrays([tick], rod)
+    reconstruct_arrays([tick, tick], rod)
+    reconstruct_wrenches([decode(encode(WhiskerWrench(
         stamp=0.0, seq=0, whisker_id="warm-up", frame_id="world", clamp_position=[0.0, 0.0, 0.0],
-        clamp_orientation=[0.0, 0.0, 0.0, 1.0], f0=tick.f0[0], m0=tick.m0[0])], rod)
+        clamp_orientation=[0.0, 0.0, 0.0, 1.0], f0=tick.f0[0], m0=tick.m0[0])), WhiskerWrench)], rod)
 
 
 def run(node: Node, params: ReconstructorParams) -> None:

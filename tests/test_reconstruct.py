@@ -86,6 +86,8 @@ def test_single_sample_keeps_the_argument_checks():
         reconstruct([0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="same number of samples"):
         reconstruct(np.zeros(3), np.zeros((2, 3)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match=r"R_WC must have shape \(3, 3\) or \(2, 3, 3\), got \(3, 3, 3\)"):
+        reconstruct(np.zeros((2, 3)), np.ones((2, 3)), np.ones((2, 3)), np.tile(np.eye(3), (3, 1, 1)))
 
 
 def test_planar_contact_of_an_array_is_each_load_case_alone():

@@ -139,54 +139,71 @@ def _reconstruct_kernel(
     R_WC: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64],
            NDArray[np.float64], NDArray[np.int64]]:
-    """Step 2 row by row in compiled code: point, s1, phase, psi, force, status.
+    """:func:`reconstruct_row` of every row: point, s1, phase, psi, force, status.
 
-    R_WC has 0 rows (identity), 1 (for every row) or N. Each row is computed on its own, so its
-    result is the same bits whatever the other rows of the call.
+    R_WC has 0 rows (identity), 1 (for every row) or N.
     """
     n = p0_W.shape[0]
     point, force = np.empty((n, 3)), np.empty((n, 3))
     s1, psi = np.empty(n), np.empty(n)
     phase, status = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    identity = np.eye(3)
     for i in range(n):
-        fx, fy, fz = -f0_C[i, 0], -f0_C[i, 1], -f0_C[i, 2]  # the contact force on the rod, in C
-        m_horizontal = math.hypot(m0_C[i, 0], m0_C[i, 1])
-        # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|; an unbent
-        # rod has its plane along F (along e_x without a force).
-        if m_horizontal > 0:
-            e_ux, e_uy = m0_C[i, 1] / m_horizontal, -m0_C[i, 0] / m_horizontal
-        else:
-            f_horizontal = math.hypot(fx, fy)
-            if f_horizontal > 0:
-                e_ux, e_uy = fx / f_horizontal, fy / f_horizontal
-            else:
-                e_ux, e_uy = 1.0, 0.0
-        u1, v1, s, _phi1, flags = planar_contact_scalar(fx * e_ux + fy * e_uy, fz, m_horizontal)
-        # A non-finite m0x or m0y is flagged by the planar solver (kappa0); p0 and m0z are not.
-        finite = True
-        for j in range(3):
-            finite = finite and math.isfinite(p0_W[i, j]) and math.isfinite(m0_C[i, j])
-        if not finite:
-            flags |= _NON_FINITE
-        if flags & _NO_CONTACT == 0 and s > 1.0 + S1_TOLERANCE:
-            flags |= _BEYOND
-        status[i] = flags
-        p1x, p1y, p1z = u1 * e_ux, u1 * e_uy, v1  # P1 - P0 in C
-        if R_WC.shape[0] > 0:
-            r = R_WC[i if R_WC.shape[0] > 1 else 0]
-            p1x, p1y, p1z = (r[0, 0] * p1x + r[0, 1] * p1y + r[0, 2] * p1z,
-                             r[1, 0] * p1x + r[1, 1] * p1y + r[1, 2] * p1z,
-                             r[2, 0] * p1x + r[2, 1] * p1y + r[2, 2] * p1z)
-            fx, fy, fz = (r[0, 0] * fx + r[0, 1] * fy + r[0, 2] * fz,
-                          r[1, 0] * fx + r[1, 1] * fy + r[1, 2] * fz,
-                          r[2, 0] * fx + r[2, 1] * fy + r[2, 2] * fz)
-        force[i, 0], force[i, 1], force[i, 2] = fx, fy, fz
-        if flags & _NO_CONTACT:
-            point[i, 0] = point[i, 1] = point[i, 2] = s1[i] = psi[i] = math.nan
-            phase[i] = PHASE_NONE
-            continue
-        point[i, 0], point[i, 1], point[i, 2] = p0_W[i, 0] + p1x, p0_W[i, 1] + p1y, p0_W[i, 2] + p1z
-        s1[i] = min(s, 1.0)
-        phase[i] = PHASE_TIP if s1[i] >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
-        psi[i] = math.atan2(e_uy, e_ux)
+        rotate = R_WC.shape[0] > 0
+        r = R_WC[i if R_WC.shape[0] > 1 else 0] if rotate else identity
+        s1[i], phase[i], psi[i], status[i] = reconstruct_row(
+            p0_W[i], f0_C[i], m0_C[i], rotate, r, point[i], force[i])
     return point, s1, phase, psi, force, status
+
+
+@compiled
+def reconstruct_row(
+    p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
+    rotate: bool, R_WC: NDArray[np.float64], point: NDArray[np.float64], force: NDArray[np.float64],
+) -> tuple[float, int, float, int]:
+    """Step 2 of one sample, for compiled callers (numba): :func:`reconstruct` of one row.
+
+    ``p0_W``, ``f0_C``, ``m0_C`` (3,) and ``R_WC`` (3, 3), used only if ``rotate``, as in
+    :func:`reconstruct`; writes the contact point and the contact force (W) into ``point`` and
+    ``force`` (3,) and returns s1, phase, psi and status. The one implementation of Step 2:
+    every path computes each sample through it, on its own, so a sample gives the same bits
+    alone or in any batch.
+    """
+    fx, fy, fz = -f0_C[0], -f0_C[1], -f0_C[2]  # the contact force on the rod, in C
+    m_horizontal = math.hypot(m0_C[0], m0_C[1])
+    # e_u = e_v x e_w with e_w = -m0/|m0| (kappa0 >= 0): (m0y, -m0x) / |m0h|; an unbent rod has
+    # its plane along F (along e_x without a force).
+    if m_horizontal > 0:
+        e_ux, e_uy = m0_C[1] / m_horizontal, -m0_C[0] / m_horizontal
+    else:
+        f_horizontal = math.hypot(fx, fy)
+        if f_horizontal > 0:
+            e_ux, e_uy = fx / f_horizontal, fy / f_horizontal
+        else:
+            e_ux, e_uy = 1.0, 0.0
+    u1, v1, s1, _phi1, status = planar_contact_scalar(fx * e_ux + fy * e_uy, fz, m_horizontal)
+    # A non-finite m0x or m0y is flagged by the planar solver (kappa0); p0 and m0z are not.
+    finite = True
+    for j in range(3):
+        finite = finite and math.isfinite(p0_W[j]) and math.isfinite(m0_C[j])
+    if not finite:
+        status |= _NON_FINITE
+    if status & _NO_CONTACT == 0 and s1 > 1.0 + S1_TOLERANCE:
+        status |= _BEYOND
+    p1x, p1y, p1z = u1 * e_ux, u1 * e_uy, v1  # P1 - P0 in C
+    if rotate:
+        r = R_WC
+        p1x, p1y, p1z = (r[0, 0] * p1x + r[0, 1] * p1y + r[0, 2] * p1z,
+                         r[1, 0] * p1x + r[1, 1] * p1y + r[1, 2] * p1z,
+                         r[2, 0] * p1x + r[2, 1] * p1y + r[2, 2] * p1z)
+        fx, fy, fz = (r[0, 0] * fx + r[0, 1] * fy + r[0, 2] * fz,
+                      r[1, 0] * fx + r[1, 1] * fy + r[1, 2] * fz,
+                      r[2, 0] * fx + r[2, 1] * fy + r[2, 2] * fz)
+    force[0], force[1], force[2] = fx, fy, fz
+    if status & _NO_CONTACT:
+        point[0] = point[1] = point[2] = math.nan
+        return math.nan, PHASE_NONE, math.nan, status
+    point[0], point[1], point[2] = p0_W[0] + p1x, p0_W[1] + p1y, p0_W[2] + p1z
+    s1 = min(s1, 1.0)
+    phase = PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
+    return s1, phase, math.atan2(e_uy, e_ux), status

@@ -176,13 +176,8 @@ def main() -> None:
     n_single = min(2000, sweep.n_steps)
     single = _median_of(lambda: [reconstruct(sweep.p0[i], sweep.f0[i], sweep.m0[i])
                                  for i in range(n_single)], 5) / n_single
-    rows.append(("Step 2 library: single-sample latency (scalar path, (3,) vectors)",
+    rows.append(("Step 2 library: single-sample latency, reconstruct() of (3,) vectors",
                  f"{single * 1e6:.1f} us", ""))
-    single_array = _median_of(lambda: [reconstruct(sweep.p0[i:i + 1], sweep.f0[i:i + 1],
-                                                   sweep.m0[i:i + 1]) for i in range(n_single)],
-                              5) / n_single
-    rows.append(("Step 2 library: one sample through the array path, (1, 3) arrays",
-                 f"{single_array * 1e6:.1f} us", f"{single_array / single:.0f}x scalar"))
 
     # Step 2, baseline: solve_ivp with an event, one sample at a time.
     picks = np.linspace(1, sweep.n_steps - 2, args.ivp_samples).astype(int)

@@ -140,11 +140,12 @@ class BatchResult:
 
 def reconstruct_wrenches(wrenches: Sequence[WhiskerWrench], rod: RodScale = _UNIT_ROD
                          ) -> BatchResult:
-    """Reconstruct a batch of wrenches in one Step 2 call.
+    """Reconstruct a batch of wrenches, each in one compiled call (quaternion, units, Step 2).
 
-    Step 2 works row by row in compiled code, so a wrench's point never depends on which batch
-    it arrived in (batches follow arrival timing): a replayed bag gives the live run's points
-    bit for bit.
+    The same compiled row as a ``WhiskerWrenchArray``'s rows (``vibrissa.reconstruct.
+    reconstruct_row``): a wrench's point never depends on the batch it arrived in (batches
+    follow arrival timing), so a replayed bag gives the live run's points bit for bit, and a
+    wrench gives the same bits as the same row of an array.
 
     Parameters
     ----------
@@ -201,7 +202,7 @@ class ArrayResult:
 def reconstruct_array(msg: WhiskerWrenchArray, rod: RodScale = _UNIT_ROD) -> ArrayResult:
     """Reconstruct one tick of a whisker array in one Step 2 call.
 
-    Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct_rows``, as the
+    Every row with a usable pose goes through ``vibrissa.reconstruct.reconstruct_row``, as the
     wrenches of :func:`reconstruct_wrenches` do: the same row gives the same bits either way.
 
     Parameters

@@ -14,7 +14,7 @@ integrals are incomplete elliptic integrals (``vibrissa.elliptic``).
 
 One implementation per load case, :func:`planar_contact_scalar`, compiled with numba; the
 array form :func:`planar_contact` loops over it in compiled code, so a sample's result does not
-depend on the others in its array (and costs no numpy call per step of the formula).
+depend on the others in its array.
 
 Only curvatures kappa0 >= 0 are solved directly; kappa0 < 0 is the mirror image u -> -u.
 """

@@ -148,9 +148,9 @@ def _reconstruct_kernel(
     s1, psi = np.empty(n), np.empty(n)
     phase, status = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
     identity = np.eye(3)
+    rotate, per_row = R_WC.shape[0] > 0, R_WC.shape[0] > 1
     for i in range(n):
-        rotate = R_WC.shape[0] > 0
-        r = R_WC[i if R_WC.shape[0] > 1 else 0] if rotate else identity
+        r = R_WC[i if per_row else 0] if rotate else identity
         s1[i], phase[i], psi[i], status[i] = reconstruct_row(
             p0_W[i], f0_C[i], m0_C[i], rotate, r, point[i], force[i])
     return point, s1, phase, psi, force, status

@@ -24,8 +24,8 @@ study: setup
 	$(VENV)/bin/vibrissa study paper -o $(OUT)/study
 
 test: setup
-	$(PY) -m ruff check vibrissa msgs wire nodes cli tests benchmarks
-	$(PY) -m mypy vibrissa msgs wire nodes cli
+	$(PY) -m ruff check vibrissa msgs wire runtime launch nodes cli tests benchmarks
+	$(PY) -m mypy vibrissa msgs wire runtime launch nodes cli
 	$(PY) -m pytest -p no:dash
 
 bench: setup

@@ -49,6 +49,7 @@ from typing import Any
 import msgpack
 import numpy as np
 import zmq
+
 from vibrissa.wire import Endpoints
 
 WHISKERS = 32
@@ -65,7 +66,6 @@ def _payloads(n: int, unit: str) -> list[bytes]:
     """``n`` encoded messages, seq 0..n-1, cycling over valid wrenches and whiskers: a
     WhiskerWrench each (``unit`` wrench) or a WhiskerWrenchArray of WHISKERS rows (tick)."""
     from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray, encode
-
     from vibrissa.reconstruct import reconstruct
 
     rng = np.random.default_rng(1)
@@ -134,7 +134,7 @@ def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) ->
         context.term()
     else:
         from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray
-        from vibrissa.nodes.runtime import Node
+        from vibrissa.runtime import Node
 
         msg_type = WhiskerWrench if unit == "wrench" else WhiskerWrenchArray
         with Node("load", "/bench", handle_signals=False) as node:

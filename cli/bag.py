@@ -13,8 +13,9 @@ from types import FrameType
 from typing import Any
 
 import zmq
+
 from vibrissa.nodes import recorder
-from vibrissa.nodes.runtime import Node
+from vibrissa.runtime import Node
 from vibrissa.wire.bag import BagReader, export_json, play_bag
 from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher
 

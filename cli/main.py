@@ -8,7 +8,7 @@ import sys
 
 # Each module registers its subcommands with `register(subparsers)`; every subparser
 # sets `func(args) -> int`.
-_COMMAND_MODULES = ("mechanics", "launcher", "bag", "topic")
+_COMMAND_MODULES = ("mechanics", "launch", "bag", "topic")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 from vibrissa.cli import tables
-
 from vibrissa.reconstruct import reconstruct
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
 from vibrissa.surfaces import Surface, parse_surface

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 import numpy as np
+
 from vibrissa.cli.bag import add_endpoint_flags, endpoints_from, stop_on_signals
 from vibrissa.msgs import EndOfStream, Message, NodeStatus, to_jsonable
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name

@@ -1,1 +1,2 @@
-"""placeholder"""
+"""The launch system: a YAML launch file (``description``) becomes a running node graph
+(``launcher``); the packaged launch files (``*.yaml``) live here too."""

@@ -1,5 +1,1 @@
-"""vibrissa nodes: one process per module, plus the shared runtime (``runtime``)."""
-
-from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
-
-__all__ = ["Node", "NodeArgs", "configure_logging", "load_params"]
+"""vibrissa nodes: one process per module (``python -m vibrissa.nodes.<name>``)."""

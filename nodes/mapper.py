@@ -39,8 +39,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
 from vibrissa.msgs import ContactCloud, ContactPoint, ContactPointArray, EndOfStream, SurfaceMesh
-from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.nodes.surface_fit import (
     FitParams,
     SurfaceFit,
@@ -49,10 +49,10 @@ from vibrissa.nodes.surface_fit import (
     split_lines,
     write_ply,
 )
-from vibrissa.wire.topics import resolve_topic
-
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.units import RodScale
+from vibrissa.wire.topics import resolve_topic
 
 log = logging.getLogger(__name__)
 

@@ -41,6 +41,8 @@ from typing import Any, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
+
+from vibrissa.compiled import compiled
 from vibrissa.msgs import (
     ContactPhase,
     ContactPoint,
@@ -53,13 +55,11 @@ from vibrissa.msgs import (
     decode,
     encode,
 )
-from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
-from vibrissa.wire.transport import Received
-
-from vibrissa.compiled import compiled
 from vibrissa.reconstruct import reconstruct_row
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
+from vibrissa.wire.transport import Received
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vibrissa.msgs import EndOfStream
-from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.wire.bag import BagWriter
 from vibrissa.wire.transport import Received, Subscriber
 

@@ -35,14 +35,14 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
-from vibrissa.nodes.runtime import Node, NodeArgs, configure_logging, load_params
-from vibrissa.wire.bag import BagReader, play_bag
-from vibrissa.wire.transport import DEFAULT_HWM, MessageTypes, Publisher
 
+from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Sweep, Trail, first_contact, simulate_sweeps
 from vibrissa.units import RodScale
+from vibrissa.wire.bag import BagReader, play_bag
+from vibrissa.wire.transport import DEFAULT_HWM, MessageTypes, Publisher
 
 log = logging.getLogger(__name__)
 

@@ -8,10 +8,10 @@ from typing import Any
 
 import pytest
 import zmq
-from vibrissa.wire import Endpoints, Proxy
 
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Sweep, Trail, simulate_sweeps
+from vibrissa.wire import Endpoints, Proxy
 
 PAPER_SURFACE = "paraboloid:a=0.5,b=1,h=0.4"
 PAPER_Y0 = (-0.4, -0.2, 0.0, 0.2, 0.4)

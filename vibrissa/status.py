@@ -1,8 +1,17 @@
-"""Per-sample status flags of a contact reconstruction."""
+"""Per-sample contact phase and status flags: the one definition, used by the core, the messages
+and the nodes."""
 
 from __future__ import annotations
 
 import enum
+
+
+class ContactPhase(enum.IntEnum):
+    """Where the rod touches the surface: nowhere, at its tip, or tangentially along it."""
+
+    NONE = 0
+    TIP = 1
+    TANGENTIAL = 2
 
 
 class ContactStatus(enum.IntFlag):

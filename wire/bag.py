@@ -34,6 +34,7 @@ from mcap.records import Channel, Chunk, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
+
 from vibrissa.msgs import EndOfStream, codec
 from vibrissa.msgs import Message as WireMessage
 from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher

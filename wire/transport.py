@@ -20,7 +20,7 @@ Sequence numbers and loss
 have and does not advance it. A subscriber keeps, per (topic, publisher id), the next ``seq``
 it expects and adds every gap to ``lost`` (one warning per gap). Counting starts at the first
 message or ping it gets from a publisher, so a ping before the data (the readiness gate, see
-``vibrissa.nodes.runtime``) makes even a loss of the very first messages visible, and a ping
+``vibrissa.runtime``) makes even a loss of the very first messages visible, and a ping
 or ``EndOfStream`` after the data reveals a loss at the tail. Hence, once a subscriber has
 seen a stream's ``EndOfStream``: ``received + lost + rejected == publisher.sent``.
 
@@ -44,6 +44,7 @@ from typing import Any, TypeAlias
 
 import msgpack
 import zmq
+
 from vibrissa.msgs import (
     DecodeError,
     EndOfStream,

@@ -10,8 +10,9 @@ from typing import Any
 import msgpack
 import pytest
 import zmq
+
 from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench, encode
-from vibrissa.nodes.runtime import Node
+from vibrissa.runtime import Node
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Publisher, Subscriber
 
 TIMEOUT_S = 5.0

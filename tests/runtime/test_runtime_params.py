@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from vibrissa.nodes import NodeArgs, load_params
+
+from vibrissa.runtime import NodeArgs, load_params
 
 
 @dataclass(frozen=True)

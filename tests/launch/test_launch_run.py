@@ -16,11 +16,12 @@ from typing import Any
 
 import pytest
 import yaml
-from vibrissa.cli.launch_file import NodeSpec, Remap
-from vibrissa.cli.launcher import main as launcher_main
-from vibrissa.cli.launcher import node_command
 
-FIXTURES = Path(__file__).parent / "fixtures"
+from vibrissa.cli.launch import main as launcher_main
+from vibrissa.launch.description import NodeSpec, Remap
+from vibrissa.launch.launcher import node_command
+
+FIXTURES = Path(__file__).parents[1] / "fixtures"
 TIMEOUT_S = 30.0
 
 
@@ -41,7 +42,7 @@ def write_launch(tmp_path: Path, *entries: dict[str, Any]) -> Path:
     return path
 
 
-def start(path: Path, *words: str, grace: float = 2.0, module: str = "vibrissa.cli.launcher"
+def start(path: Path, *words: str, grace: float = 2.0, module: str = "vibrissa.cli.launch"
           ) -> subprocess.Popen[str]:
     cmd = [sys.executable, "-m", module]
     if module == "vibrissa.cli.main":

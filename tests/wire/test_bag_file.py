@@ -10,6 +10,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
+
 from vibrissa.msgs import EndOfStream, WhiskerWrench, decode, encode, json_schema, to_jsonable
 from vibrissa.wire.bag import VERSION_KEY, BagReader, BagWriter, export_json
 

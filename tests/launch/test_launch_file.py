@@ -7,7 +7,8 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from vibrissa.cli.launch_file import (
+
+from vibrissa.launch.description import (
     LaunchFileError,
     NodeSpec,
     Param,

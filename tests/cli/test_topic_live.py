@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import zmq
+
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.cli.topic import RateMeter, echo, format_message, hz, survey
 from vibrissa.msgs import ContactPhase, ContactPoint, NodeStatus, WhiskerWrench

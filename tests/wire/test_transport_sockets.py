@@ -9,6 +9,7 @@ import msgpack
 import numpy as np
 import pytest
 import zmq
+
 from vibrissa.msgs import ContactPoint, EndOfStream, Ping, WhiskerWrench, encode
 from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
 

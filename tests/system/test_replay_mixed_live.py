@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from vibrissa.msgs import EndOfStream, Message, WhiskerWrench, WhiskerWrenchArray, encode
-from vibrissa.nodes.runtime import Node
+from vibrissa.runtime import Node
 from vibrissa.wire import Endpoints, Received, Subscriber
 from vibrissa.wire.bag import BagReader, BagWriter
 

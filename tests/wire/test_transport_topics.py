@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from vibrissa.wire import Endpoints, node_fqn, resolve_topic
 
 

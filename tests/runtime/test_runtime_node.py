@@ -9,8 +9,9 @@ from typing import Any
 
 import pytest
 import zmq
+
 from vibrissa.msgs import EndOfStream, NodeStatus, RobotPose
-from vibrissa.nodes import Node
+from vibrissa.runtime import Node
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Subscriber
 
 TIMEOUT_S = 3.0

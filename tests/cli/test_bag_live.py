@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 import zmq
+
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench, encode
 from vibrissa.nodes.recorder import RecorderParams, RecordResult, record, subscription

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import yaml
 from scipy.spatial.transform import Rotation
+
 from vibrissa.msgs import (
     ContactPoint,
     ContactPointArray,
@@ -28,17 +29,16 @@ from vibrissa.nodes.reconstructor import (
     reconstruct_arrays,
     reconstruct_wrenches,
 )
-from vibrissa.nodes.runtime import load_params
 from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, split_lines
 from vibrissa.nodes.wrench_source import WrenchSourceParams, sweep_arrays, sweep_wrenches
-from vibrissa.wire.transport import Header, Received
-
 from vibrissa.reconstruct import reconstruct
+from vibrissa.runtime import load_params
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Trail, first_contact, simulate_sweeps
 from vibrissa.units import RodScale
+from vibrissa.wire.transport import Header, Received
 
-LAUNCH = Path(__file__).parents[1] / "launch"
+LAUNCH = Path(__file__).parents[2] / "launch"
 
 
 def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:

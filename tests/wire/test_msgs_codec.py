@@ -8,6 +8,7 @@ from typing import Any
 import msgpack
 import numpy as np
 import pytest
+
 from vibrissa.msgs import (
     MESSAGE_TYPES,
     ArrayDtypeError,

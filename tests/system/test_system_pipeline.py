@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 import yaml
 import zmq
+
 from vibrissa.msgs import (
     ContactPoint,
     ContactPointArray,
@@ -37,16 +38,15 @@ from vibrissa.msgs import (
     encode,
 )
 from vibrissa.nodes.reconstructor import quaternion_matrices
-from vibrissa.nodes.runtime import Node
+from vibrissa.reconstruct import reconstruct
+from vibrissa.runtime import Node
+from vibrissa.surfaces import parse_surface
+from vibrissa.sweep import Trail, first_contact, simulate_sweeps
 from vibrissa.wire import STATUS_TOPIC
 from vibrissa.wire.bag import BagReader
 from vibrissa.wire.transport import Endpoints
 
-from vibrissa.reconstruct import reconstruct
-from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Trail, first_contact, simulate_sweeps
-
-LAUNCH = Path(__file__).parents[1] / "launch"
+LAUNCH = Path(__file__).parents[2] / "launch"
 SURFACE = "paraboloid:a=0.5,b=1,h=0.4"
 Y0 = [-0.3, 0.3]
 STEP = 0.01
@@ -81,13 +81,13 @@ def set_param(body: dict[str, Any], key: str, value: Any) -> None:
 
 
 class Launch:
-    """``python -m vibrissa.cli.launcher FILE ARGS``, with its output collected by threads."""
+    """``python -m vibrissa.cli.launch FILE ARGS``, with its output collected by threads."""
 
     def __init__(self, tmp_path: Path, launch: list[dict[str, Any]], *words: str) -> None:
         path = tmp_path / f"test-{time.monotonic_ns()}.launch.yaml"
         path.write_text(yaml.safe_dump({"launch": launch}, sort_keys=False))
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "vibrissa.cli.launcher", "--grace", "3", str(path), *words],
+            [sys.executable, "-m", "vibrissa.cli.launch", "--grace", "3", str(path), *words],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.out: list[str] = []
         self.err: list[str] = []

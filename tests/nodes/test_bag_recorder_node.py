@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
 from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench, encode
 from vibrissa.nodes.recorder import EndOfStreamTracker
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Header, Publisher, Received, Subscriber

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from vibrissa.cli import mechanics
 from vibrissa.cli.main import main
 from vibrissa.cli.tables import RECONSTRUCTION_COLUMNS, SWEEP_COLUMNS
-
 from vibrissa.study import run_study
 
 SURFACE = "paraboloid:a=0.5,b=1,h=0.4"

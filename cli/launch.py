@@ -1,0 +1,102 @@
+"""``vibrissa launch FILE.yaml [name:=value ...]``: the command line of the launch system
+(``vibrissa.launch``): it parses the arguments and calls the launcher."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from vibrissa.launch.description import LaunchDescription, LaunchFileError, load_launch_file, parse_arg_overrides
+from vibrissa.launch.launcher import DEFAULT_GRACE_S, Launcher, node_command, resolve_launch_file
+
+
+def run_launch(args: argparse.Namespace) -> int:
+    """The ``launch`` subcommand (``func`` of its parser).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``file``, ``overrides``, ``grace``, ``show_args``, ``dry_run``.
+
+    Returns
+    -------
+    int
+        Exit status; 2 for an invalid launch file or argument.
+    """
+    path = resolve_launch_file(args.file)
+    try:
+        overrides = parse_arg_overrides(args.overrides)
+        description = load_launch_file(path, overrides)
+    except LaunchFileError as exc:
+        print(f"vibrissa launch: error: {exc}", file=sys.stderr)
+        return 2
+    if args.show_args:
+        _print_args(description)
+        return 0
+    if args.dry_run:
+        for spec in description.nodes:
+            params = "<params-file>" if spec.params else None
+            print(f"[{spec.name}] " + " ".join(node_command(spec, params)))
+            for key, value in spec.params_dict().items():
+                print(f"[{spec.name}]   param {key}: {value!r}")
+        return 0
+    return Launcher(description, grace_s=args.grace).run()
+
+
+def _print_args(description: LaunchDescription) -> None:
+    if not description.args:
+        print(f"{description.source}: no arguments")
+        return
+    print(f"Arguments of {description.source} (pass as NAME:=VALUE):")
+    for arg in description.args:
+        default = "(required)" if arg.default is None else f"default: {arg.default!r}"
+        print(f"  {arg.name}: {arg.description or '-'}  [{default}]")
+
+
+def seconds(text: str) -> float:
+    """Argparse type: a duration in seconds, >= 0."""
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``launch`` subcommand to the ``vibrissa`` dispatcher.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        From ``ArgumentParser.add_subparsers``.
+    """
+    parser = subparsers.add_parser(
+        "launch",
+        help="run a node graph from a YAML launch file",
+        description="Run a node graph from a YAML launch file (ROS 2 style). Arguments "
+                    "declared in the file are set with NAME:=VALUE.",
+    )
+    parser.add_argument("file", help="launch file path, or the name of a packaged launch file")
+    parser.add_argument("overrides", nargs="*", metavar="NAME:=VALUE",
+                        help="launch argument values")
+    parser.add_argument("--grace", type=seconds, default=DEFAULT_GRACE_S, metavar="SECONDS",
+                        help="wait after SIGINT, then after SIGTERM, before escalating "
+                             f"(default {DEFAULT_GRACE_S:g})")
+    parser.add_argument("--show-args", action="store_true",
+                        help="list the launch file's arguments and exit")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="validate and print the node commands without starting anything")
+    parser.set_defaults(func=run_launch)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``vibrissa launch`` alone (same as ``vibrissa launch ...``)."""
+    parser = argparse.ArgumentParser(prog="vibrissa")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["launch", *(sys.argv[1:] if argv is None else argv)])
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

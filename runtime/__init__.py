@@ -1,0 +1,12 @@
+"""The node runtime: what every node process shares (command line, parameters, logging,
+topics, heartbeat, readiness, stop).
+
+A node's ``main`` reads ``NodeArgs``, loads its parameter dataclass with ``load_params`` and
+runs inside a ``Node`` (see ``vibrissa.runtime.node``).
+"""
+
+from vibrissa.runtime.args import NodeArgs
+from vibrissa.runtime.node import Node, configure_logging
+from vibrissa.runtime.params import load_params
+
+__all__ = ["Node", "NodeArgs", "configure_logging", "load_params"]

@@ -1,0 +1,136 @@
+"""A node's parameters: one frozen dataclass, loaded strictly from YAML and ``--param`` texts."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+P = TypeVar("P")
+
+
+def load_params(
+    cls: type[P],
+    params_file: str | Path | None = None,
+    overrides: Mapping[str, object] | None = None,
+) -> P:
+    """Load frozen dataclass ``cls`` strictly: defaults, then ``params_file``, then ``overrides``.
+
+    The file is a flat YAML mapping ``name: value``. An override given as text (from
+    ``--param k:=v``) is parsed as YAML, except for a ``str`` parameter, which takes the text
+    as is. Ints are accepted for floats; nested dataclasses load from mappings.
+
+    Raises
+    ------
+    ValueError
+        Unknown key (naming the file and key), wrong type (naming key, expected and actual
+        type), a missing required parameter, or a file that is not a mapping.
+    """
+    if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+        raise TypeError(f"load_params needs a dataclass type, got {cls!r}")
+    values: dict[str, Any] = {}
+    source = "defaults"
+    if params_file is not None:
+        source = str(params_file)
+        try:
+            data = yaml.safe_load(Path(params_file).read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{source}: not valid YAML: {exc}") from exc
+        if not isinstance(data, dict):
+            kind = type(data).__name__
+            raise ValueError(f"{source}: expected a mapping of parameters, got a {kind}")
+        values.update(_typed_values(cls, data, source, from_text=False))
+    if overrides:
+        values.update(_typed_values(cls, overrides, "--param", from_text=True))
+    missing = [
+        f.name for f in dataclasses.fields(cls)
+        if f.init and f.name not in values
+        and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    if missing:
+        raise ValueError(f"{source}: missing required parameter(s) {missing} of {cls.__name__}")
+    return cls(**values)
+
+
+def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text: bool,
+                  prefix: str = "") -> dict[str, Any]:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if key not in known:
+            raise ValueError(
+                f"{source}: unknown parameter {name!r} for {cls.__name__} "
+                f"(known: {', '.join(sorted(known))})"
+            )
+        hint = hints[key]
+        if from_text and isinstance(value, str) and hint is not str:
+            try:
+                value = yaml.safe_load(value)
+            except yaml.YAMLError as exc:
+                raise ValueError(f"{source}: parameter {name!r}: {value!r} is not YAML") from exc
+        out[key] = _check(value, hint, name, source)
+    return out
+
+
+def _check(value: object, hint: Any, name: str, source: str) -> Any:
+    """``value`` converted to type ``hint``, or ``ValueError`` naming the parameter."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        for option in args:
+            if option is type(None):
+                continue
+            try:
+                return _check(value, option, name, source)
+            except ValueError:
+                pass
+    elif origin is typing.Literal:
+        if value in args:
+            return value
+    elif origin in (list, tuple) and isinstance(value, (list, tuple)):
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            if len(args) == len(value):
+                return tuple(_check(v, a, f"{name}[{i}]", source)
+                             for i, (v, a) in enumerate(zip(value, args, strict=True)))
+        else:
+            item = args[0] if args else Any
+            items = [_check(v, item, f"{name}[{i}]", source) for i, v in enumerate(value)]
+            return tuple(items) if origin is tuple else items
+    elif origin is dict and isinstance(value, dict):
+        key_type, item_type = args if args else (Any, Any)
+        return {_check(k, key_type, name, source): _check(v, item_type, f"{name}.{k}", source)
+                for k, v in value.items()}
+    elif isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(value, dict):
+        return hint(**_typed_values(hint, value, source, from_text=False, prefix=f"{name}."))
+    elif hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    elif hint is Path and isinstance(value, str):
+        return Path(value)
+    elif isinstance(hint, type) and issubclass(hint, enum.Enum):
+        try:
+            return hint(value) if not isinstance(value, str) else hint[value]
+        except (KeyError, ValueError):
+            pass
+    elif hint is int and isinstance(value, bool):
+        pass
+    elif isinstance(hint, type) and origin is None and isinstance(value, hint):
+        return value
+    expected = getattr(hint, "__name__", None) if origin is None else None
+    raise ValueError(
+        f"{source}: parameter {name!r} expects {expected or hint}, "
+        f"got {type(value).__name__} ({value!r})"
+    )
+
+
+# -- logging ---------------------------------------------------------------------------------

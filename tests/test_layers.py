@@ -1,0 +1,115 @@
+"""The layering of docs/ARCHITECTURE.md, checked over every module's imports.
+
+Each folder of the repository is one package of one layer (``package-dir`` in pyproject.toml);
+a module may import its own layer and the layers below it, never one above or beside it, and
+the core imports no I/O library. Every ``import`` statement counts, also one inside a function.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).parents[1]
+
+# Layer of each package, lowest first; packages of one rank may not import each other.
+RANK = {
+    "vibrissa": 0,
+    "vibrissa.msgs": 1,
+    "vibrissa.wire": 2,
+    "vibrissa.runtime": 3,
+    "vibrissa.launch": 4,
+    "vibrissa.nodes": 4,
+    "vibrissa.cli": 5,
+}
+
+# Third-party libraries each layer may import besides those of the layers below it (the
+# standard library is always allowed).
+LIBRARIES = {
+    "vibrissa": {"numpy", "scipy", "numba"},
+    "vibrissa.msgs": {"msgpack", "msgspec"},
+    "vibrissa.wire": {"zmq", "mcap", "zstandard"},
+    "vibrissa.runtime": {"yaml", "msgspec"},
+    "vibrissa.launch": {"yaml", "msgspec"},
+    "vibrissa.nodes": {"open3d", "matplotlib", "mpl_toolkits"},
+    "vibrissa.cli": {"matplotlib", "mpl_toolkits"},
+}
+
+
+def package_dirs() -> dict[str, Path]:
+    """Package name -> folder, as pyproject.toml installs them."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    return {name: ROOT / folder for name, folder in config["tool"]["setuptools"]["package-dir"].items()}
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Absolute names of every module ``path`` imports (relative imports are not used)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            assert node.level == 0, f"{path}: relative import"
+            assert node.module is not None
+            names.add(node.module)
+    return names
+
+
+def package_of(module: str) -> str | None:
+    """The vibrissa package ``module`` belongs to, or None outside vibrissa."""
+    if module != "vibrissa" and not module.startswith("vibrissa."):
+        return None
+    parts = module.split(".")
+    return ".".join(parts[:2]) if len(parts) > 1 and ".".join(parts[:2]) in RANK else "vibrissa"
+
+
+def violations(package: str, path: Path) -> list[str]:
+    """The imports of module ``path`` of ``package`` that break the layering."""
+    allowed = set().union(*(LIBRARIES[p] for p, rank in RANK.items() if rank < RANK[package]),
+                          LIBRARIES[package])
+    where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    found = []
+    for module in sorted(imported_modules(path)):
+        target = package_of(module)
+        if target is None:
+            top = module.split(".")[0]
+            if top not in sys.stdlib_module_names and top not in allowed:
+                found.append(f"{where}: {package} may not import {module}")
+        elif target != package and RANK[target] >= RANK[package]:
+            found.append(f"{where}: {package} (layer {RANK[package]}) imports "
+                         f"{module} (layer {RANK[target]})")
+    return found
+
+
+def layer_violations() -> list[str]:
+    found = []
+    for package, folder in package_dirs().items():
+        for path in sorted(folder.glob("*.py")):
+            found += violations(package, path)
+    return found
+
+
+def test_every_package_has_a_layer() -> None:
+    assert set(package_dirs()) == set(RANK)
+
+
+def test_imports_point_down_only() -> None:
+    assert layer_violations() == []
+
+
+@pytest.mark.parametrize(("package", "module"), [
+    ("vibrissa", "vibrissa.msgs"),            # the core reaching up into the wire
+    ("vibrissa.wire", "vibrissa.runtime"),    # the wire reaching into the node runtime
+    ("vibrissa.runtime", "vibrissa.nodes"),   # the runtime importing a node
+    ("vibrissa.nodes", "vibrissa.launch"),    # nodes and launch are siblings
+    ("vibrissa.launch", "vibrissa.cli.bag"),  # the launch system is not a command
+    ("vibrissa", "zmq"),                      # the core does no I/O
+])
+def test_a_planted_upward_import_is_found(tmp_path: Path, package: str, module: str) -> None:
+    planted = tmp_path / "planted.py"
+    planted.write_text(f"def f():\n    import {module}\n")
+    assert violations(package, planted), f"{package} importing {module} was not caught"

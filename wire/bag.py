@@ -13,6 +13,7 @@ to its last complete record and reports how many bytes it could not use.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
@@ -24,7 +25,6 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 from typing import IO, Any, NamedTuple
 
 import zmq
@@ -170,7 +170,7 @@ def _schema_json(type_name: str, version: int) -> dict[str, Any]:
     return schema
 
 
-class BagWriter:
+class BagWriter(contextlib.AbstractContextManager["BagWriter"]):
     """Write codec payloads to an MCAP file in small, individually flushed chunks.
 
     Parameters
@@ -218,15 +218,7 @@ class BagWriter:
         self._closed = False
         self.message_count = 0
 
-    def __enter__(self) -> BagWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     def register_schema(self, type_name: str, version: int, schema: dict[str, Any]) -> int:

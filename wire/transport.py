@@ -30,6 +30,7 @@ seen (``Subscriber.seen_topics``), which nodes report in their status.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import logging
@@ -266,7 +267,7 @@ def _check_topic(topic: str) -> bytes:
     return topic.encode() + b"\0"
 
 
-class Publisher:
+class Publisher(contextlib.AbstractContextManager["Publisher"]):
     """Publishes messages of one type (or a few) on one (absolute) topic.
 
     Thread-safe: a lock serialises sends, so the node runtime's heartbeat thread can ``ping``
@@ -419,15 +420,7 @@ class Publisher:
         if self.endpoint is not None:
             _remove_socket_file(self.endpoint)
 
-    def __enter__(self) -> Publisher:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
 
@@ -460,7 +453,7 @@ class TopicCounters:
     pings: int = 0
 
 
-class Subscriber:
+class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
     """Receives messages on exact topics (``topics=None``: every topic, any type).
 
     ``topics`` maps each fully qualified topic to the expected message class (or a tuple of
@@ -682,15 +675,7 @@ class Subscriber:
         for sock in self._sockets:
             sock.close()
 
-    def __enter__(self) -> Subscriber:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
 

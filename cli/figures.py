@@ -22,7 +22,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from vibrissa.reconstruct import PHASE_TANGENTIAL  # noqa: E402
+from vibrissa.status import ContactPhase  # noqa: E402
 from vibrissa.study import StudyCase, StudyResult  # noqa: E402
 from vibrissa.surfaces import Surface  # noqa: E402
 from vibrissa.sweep import STICK  # noqa: E402
@@ -101,7 +101,7 @@ def _elastic_segments(
     segments: dict[str, list[FloatArray]] = {"tip": [], "tangential": [], "free": []}
     for i in range(0, sweep.n_steps, every):
         line = sweep.elastic_line(i, n_points)
-        if sweep.phase[i] == PHASE_TANGENTIAL:
+        if sweep.phase[i] == ContactPhase.TANGENTIAL:
             k = int(np.searchsorted(s, sweep.s1[i]))
             segments["tangential"].append(line[: k + 1])
             segments["free"].append(line[k:])

@@ -16,6 +16,7 @@ from typing import Any
 
 from vibrissa.cli import tables
 from vibrissa.reconstruct import reconstruct
+from vibrissa.status import SweepEnd
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
 from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.sweep import simulate_sweep
@@ -109,7 +110,7 @@ def _sweep(args: argparse.Namespace) -> int:
     print(f"sweep: {sweep.n_steps} equilibria, ended by {sweep.end} at x0={sweep.x0_end:.6g}, "
           f"{len(sweep.phase_changes)} phase changes, {time.perf_counter() - start:.1f} s "
           f"-> {output}", file=sys.stderr)
-    if sweep.end == "no-equilibrium":
+    if sweep.end is SweepEnd.NO_EQUILIBRIUM:
         print("sweep: error: no equilibrium found for the first step after the first contact "
               "(a solver failure); a larger --step, e.g. 0.001, may get past it", file=sys.stderr)
         return 1

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from vibrissa.reconstruct import PHASE_NAMES, Reconstruction
-from vibrissa.status import ContactStatus
+from vibrissa.reconstruct import Reconstruction
+from vibrissa.status import ContactPhase, ContactStatus
 from vibrissa.sweep import STATE_NAMES, Sweep
 
 SWEEP_COLUMNS = (
@@ -77,7 +77,7 @@ def write_sweep_csv(path: Path, sweep: Sweep) -> None:
     y0 = float(sweep.trail.y0)
     rows = (
         [
-            _cell(sweep.x0[i]), _cell(y0), PHASE_NAMES[int(sweep.phase[i])],
+            _cell(sweep.x0[i]), _cell(y0), ContactPhase(sweep.phase[i]).label,
             _cell(sweep.s1[i]), _cell(sweep.psi[i]),
             *map(_cell, sweep.f0[i]), *map(_cell, sweep.m0[i]), *map(_cell, sweep.contact[i]),
             _cell(sweep.fn[i]), _cell(sweep.ft[i]),
@@ -174,7 +174,7 @@ def write_reconstruction_csv(
     columns = [*RECONSTRUCTION_COLUMNS, *(["err"] if error is not None else [])]
     rows = (
         [
-            *map(_cell, rec.point[i]), _cell(rec.s1[i]), PHASE_NAMES[int(rec.phase[i])],
+            *map(_cell, rec.point[i]), _cell(rec.s1[i]), ContactPhase(rec.phase[i]).label,
             status_name(int(rec.status[i])),
             *([_cell(error[i])] if error is not None else []),
         ]

@@ -18,6 +18,8 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from vibrissa.status import ContactPhase, ContactStatus
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int32]
 
@@ -35,25 +37,6 @@ STR_INT_MAP = "str_int_map"
 STR_STR_MAP = "str_str_map"
 
 NODE_STATES = ("starting", "ready", "running", "finished", "error")
-
-
-class ContactPhase(enum.IntEnum):
-    """Where the rod touches the surface: nowhere, at its tip, or tangentially along it."""
-
-    NONE = 0
-    TIP = 1
-    TANGENTIAL = 2
-
-
-class ContactStatus(enum.IntFlag):
-    """Bit flags of a reconstruction; the same values as ``vibrissa.reconstruct`` reports."""
-
-    OK = 0
-    NO_FORCE = 1
-    CURVATURE_NEVER_VANISHES = 2
-    CONTACT_BEYOND_ROD = 4
-    NON_FINITE_INPUT = 8
-    AXIAL_LOAD = 16
 
 
 @dataclass(frozen=True)

@@ -27,3 +27,13 @@ def quaternion_matrix(q_xyzw: NDArray[np.float64], R: NDArray[np.float64]) -> fl
     R[1, 0], R[1, 1], R[1, 2] = s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)
     R[2, 0], R[2, 1], R[2, 2] = s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)
     return norm2
+
+
+@compiled
+def quaternion_matrices(q_xyzw: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`quaternion_matrix` of every row (N, 4): matrices (N, 3, 3) and |q|^2 (N,)."""
+    n = q_xyzw.shape[0]
+    R, norm2 = np.empty((n, 3, 3)), np.empty(n)
+    for i in range(n):
+        norm2[i] = quaternion_matrix(q_xyzw[i], R[i])
+    return R, norm2

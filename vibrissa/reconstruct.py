@@ -25,10 +25,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from vibrissa.compiled import compiled
 from vibrissa.elastica import S1_TOLERANCE, planar_contact_scalar
-from vibrissa.status import NO_CONTACT, ContactStatus
+from vibrissa.frames import quaternion_matrix
+from vibrissa.status import NO_CONTACT, ContactPhase, ContactStatus
+from vibrissa.units import RodScale
 
-PHASE_NONE, PHASE_TIP, PHASE_TANGENTIAL = 0, 1, 2
-PHASE_NAMES = {PHASE_NONE: "none", PHASE_TIP: "tip", PHASE_TANGENTIAL: "tangential"}
+# ContactPhase as the plain ints compiled code uses.
+PHASE_NONE, PHASE_TIP, PHASE_TANGENTIAL = (int(p) for p in ContactPhase)
 
 # Contacts this close to the tip (units of L) are reported as tip contact.
 TIP_TOLERANCE = 1e-6
@@ -45,7 +47,7 @@ class Reconstruction:
     s1 : ndarray, shape (N,)
         Arc length of the contact along the rod, units of L.
     phase : ndarray of int, shape (N,)
-        PHASE_TIP (1), PHASE_TANGENTIAL (2), or PHASE_NONE (0) without contact.
+        :class:`ContactPhase`: TIP (1), TANGENTIAL (2), or NONE (0) without contact.
     psi : ndarray, shape (N,)
         Orientation of the bending plane in C (eq. 20), rad.
     force : ndarray, shape (N, 3)
@@ -207,3 +209,100 @@ def reconstruct_row(
     s1 = min(s1, 1.0)
     phase = PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
     return s1, phase, math.atan2(e_uy, e_ux), status
+
+
+@dataclass(frozen=True)
+class ReconstructionSI:
+    """Contact points reconstructed from SI wrenches with clamp poses; one entry per sample.
+
+    Attributes
+    ----------
+    pose_ok : ndarray of bool, shape (N,)
+        Whether the clamp quaternion has a finite, nonzero length; the other fields of a sample
+        without it are not set.
+    point_m : ndarray, shape (N, 3)
+        Contact point in W, m; NaN without contact.
+    s1_m : ndarray, shape (N,)
+        Arc length of the contact along the rod, m.
+    phase : ndarray of int32, shape (N,)
+        :class:`ContactPhase`.
+    force_n : ndarray, shape (N, 3)
+        Contact force on the rod, -f0, in W, N.
+    status : ndarray of int32, shape (N,)
+        :class:`ContactStatus` flags.
+    """
+
+    pose_ok: NDArray[np.bool_]
+    point_m: NDArray[np.float64]
+    s1_m: NDArray[np.float64]
+    phase: NDArray[np.int32]
+    force_n: NDArray[np.float64]
+    status: NDArray[np.int32]
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """Samples with a usable pose and a consistent contact point."""
+        return self.pose_ok & ((self.status & _NO_CONTACT) == 0)
+
+
+def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
+                   f0_C_n: NDArray[np.float64], m0_C_nm: NDArray[np.float64],
+                   rod: RodScale) -> ReconstructionSI:
+    """Step 2 in SI: contact points from clamp poses and wrenches as a sensor graph has them.
+
+    Each row is converted to the paper's units with ``rod`` (``vibrissa.units.RodScale``),
+    reconstructed by :func:`reconstruct_row` and converted back, in one compiled call; a row
+    gives the same bits alone or in any batch.
+
+    Parameters
+    ----------
+    q_WC_xyzw : ndarray, shape (N, 4)
+        Clamp orientation in W, quaternion (x, y, z, w), normalised here.
+    p_WC_m : ndarray, shape (N, 3)
+        Clamp position in W, m.
+    f0_C_n, m0_C_nm : ndarray, shape (N, 3)
+        Clamp reaction on the rod in C, N and N m (moment about the clamp point).
+    rod
+        L and EI of the rod.
+    """
+    pose_ok, point, s1, phase, force, status = _rows_si(
+        np.ascontiguousarray(q_WC_xyzw, dtype=float), np.ascontiguousarray(p_WC_m, dtype=float),
+        np.ascontiguousarray(f0_C_n, dtype=float), np.ascontiguousarray(m0_C_nm, dtype=float),
+        rod.length_m, rod.force_n, rod.moment_nm)
+    return ReconstructionSI(pose_ok, point, s1, phase, force, status)
+
+
+@compiled
+def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
+            m0: NDArray[np.float64], length_m: float, force_n: float, moment_nm: float,
+            point: NDArray[np.float64], force: NDArray[np.float64]) -> tuple[bool, float, int, int]:
+    """:func:`reconstruct_si` of one row: whether the pose is usable, then s1 (m), phase and
+    status, with the point (m) and force (N) written into ``point`` and ``force``."""
+    rotation = np.empty((3, 3))
+    norm2 = quaternion_matrix(q_xyzw, rotation)
+    if not (norm2 > 0.0 and norm2 < math.inf):
+        return False, math.nan, 0, 0
+    p0_L, f0_L, m0_L = np.empty(3), np.empty(3), np.empty(3)
+    for j in range(3):
+        p0_L[j], f0_L[j], m0_L[j] = p0[j] / length_m, f0[j] / force_n, m0[j] / moment_nm
+    s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force)
+    for j in range(3):
+        point[j] *= length_m
+        force[j] *= force_n
+    return True, s1 * length_m, phase, status
+
+
+@compiled
+def _rows_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
+             m0: NDArray[np.float64], length_m: float, force_n: float, moment_nm: float
+             ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64],
+                        NDArray[np.int32], NDArray[np.float64], NDArray[np.int32]]:
+    """:func:`_row_si` of every row (N, ...)."""
+    n = q_xyzw.shape[0]
+    pose_ok = np.empty(n, dtype=np.bool_)
+    point, force, s1 = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    phase, status = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
+    for i in range(n):
+        pose_ok[i], s1[i], phase[i], status[i] = _row_si(
+            q_xyzw[i], p0[i], f0[i], m0[i], length_m, force_n, moment_nm, point[i], force[i])
+    return pose_ok, point, s1, phase, force, status

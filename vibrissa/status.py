@@ -1,5 +1,5 @@
-"""Per-sample contact phase and status flags: the one definition, used by the core, the messages
-and the nodes."""
+"""Contact phase, reconstruction status flags and how a sweep ends: the one definition of each,
+used by the core, the messages and the nodes."""
 
 from __future__ import annotations
 
@@ -12,6 +12,11 @@ class ContactPhase(enum.IntEnum):
     NONE = 0
     TIP = 1
     TANGENTIAL = 2
+
+    @property
+    def label(self) -> str:
+        """``none``, ``tip`` or ``tangential``, as in tables and reports."""
+        return self.name.lower()
 
 
 class ContactStatus(enum.IntFlag):
@@ -35,3 +40,16 @@ NO_CONTACT = (
     | ContactStatus.CONTACT_BEYOND_ROD
     | ContactStatus.NON_FINITE_INPUT
 )
+
+
+class SweepEnd(str, enum.Enum):
+    """How a simulated sweep ended (``vibrissa.sweep.Sweep.end``); compares equal to its text."""
+
+    DETACHMENT = "detachment"  # the reactions went to zero continuously
+    SNAP_OFF = "snap-off"  # no equilibrium near at finite force (a fold of the branch)
+    NO_CONTACT = "no-contact"  # the trail misses the object
+    NO_EQUILIBRIUM = "no-equilibrium"  # the solver found none for the first step after the touch
+    MAX_STEPS = "max-steps"  # the safety cap on the steps of one sweep
+
+    def __str__(self) -> str:
+        return self.value

@@ -60,7 +60,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.elastica import planar_contact, planar_line
-from vibrissa.reconstruct import PHASE_NAMES, PHASE_TANGENTIAL, PHASE_TIP
+from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Surface
 
 FloatArray = NDArray[np.float64]
@@ -90,10 +90,10 @@ class Trail:
 class Sweep:
     """Equilibria of one sweep, one entry per step, in the paper's units (eq. 1).
 
-    ``end`` says how it ended: "detachment" or "snap-off" (see the module docstring),
-    "no-contact" (the trail misses the object), "no-equilibrium" (the solver found none for the
-    first step after the first contact: a solver failure, reported rather than hidden) or
-    "max-steps".
+    ``end`` says how it ended (:class:`vibrissa.status.SweepEnd`): a detachment or a snap-off
+    (see the module docstring), no contact (the trail misses the object), no equilibrium (the
+    solver found none for the first step after the first contact: a solver failure, reported
+    rather than hidden) or the step cap.
 
     Frames: all vectors in the world frame W = the clamp frame of the trail (clamp axis e_z).
     ``f0``, ``m0`` are the clamp's reactions on the rod (moment about P0); ``force`` is the
@@ -122,7 +122,7 @@ class Sweep:
     fn: FloatArray
     ft: FloatArray
     refined: NDArray[np.bool_]  # not one plain step: sub-steps, or a longer step after the touch
-    end: str
+    end: SweepEnd
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
     x_touch: float  # clamp x0 at the first contact (NaN: none), units of L
@@ -443,7 +443,7 @@ class _Track:
     anchor: FloatArray
     rows: list[tuple[float, int, int, FloatArray, FloatArray, FloatArray, FloatArray]] = field(default_factory=list)
     phase_changes: list[tuple[float, str, str]] = field(default_factory=list)
-    end: str | None = None
+    end: SweepEnd | None = None
     x0_end: float = float("nan")
     smooth: bool = True  # the last two steps were alike plain slides (the predictor may extrapolate)
     chord: float = 0.0  # length of the last step's contact displacement, units of L
@@ -475,7 +475,7 @@ def simulate_sweeps(
     step : float
         Clamp displacement per step along -x, units of L.
     max_steps : int
-        Safety cap on the steps of one sweep (ends with ``end == "max-steps"``).
+        Safety cap on the steps of one sweep (ends with ``SweepEnd.MAX_STEPS``).
     progress : callable, optional
         Called as ``progress(finished_sweeps, total_sweeps)`` whenever a sweep ends.
     x_grid : float, optional
@@ -515,7 +515,7 @@ def _start(surface: Surface, trail: Trail, step: float, x_grid: float | None) ->
     touch = first_contact(surface, trail.y0)
     if touch is None:
         track = _Track(trail, locked, np.nan, np.zeros(4), _MODE_TIP, np.zeros(3), np.zeros(3))
-        track.end = "no-contact"
+        track.end = SweepEnd.NO_CONTACT
         return track
     x_start, p_touch = touch
     normal = surface.normal(p_touch)[0]
@@ -550,7 +550,7 @@ def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int
         elif not (track.x_touch - track.x0 < _EARLY_TRAVEL and _longer_step(surface, track, step)):
             _refine(surface, track, target, step)
         if track.end is None and len(track.rows) >= max_steps:
-            track.end, track.x0_end = "max-steps", track.x0
+            track.end, track.x0_end = SweepEnd.MAX_STEPS, track.x0
 
 
 def _longer_step(surface: Surface, track: _Track, step: float) -> bool:
@@ -585,8 +585,8 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
     A smooth detachment needs no refinement: once the reactions have faded and the straight
     rod at ``target`` clears the object, the unloaded rod is the equilibrium there.
     """
-    if _ending(track) == "detachment" and _straight_rod_clears(surface, track.trail.y0, target):
-        track.end, track.x0_end = "detachment", track.x0
+    if _ending(track) is SweepEnd.DETACHMENT and _straight_rod_clears(surface, track.trail.y0, target):
+        track.end, track.x0_end = SweepEnd.DETACHMENT, track.x0
         return
     span = track.x0 - target  # one step, or less for the partial first step onto a shared grid
     for level in range(1, _REFINEMENTS + 1):
@@ -611,7 +611,7 @@ def _straight_rod_clears(surface: Surface, y0: float, x0: float) -> bool:
     return not inside_somewhere
 
 
-def _ending(track: _Track) -> str:
+def _ending(track: _Track) -> SweepEnd:
     """Detachment when the reactions had gone to zero continuously, snap-off at finite force.
 
     Near a smooth detachment the contact force falls linearly to zero: the last equilibrium
@@ -621,12 +621,12 @@ def _ending(track: _Track) -> str:
     """
     forces = np.array([np.linalg.norm(row[6]) for row in track.rows])
     if len(forces) == 0:
-        return "no-equilibrium"  # not even the first step after the first contact was solved
+        return SweepEnd.NO_EQUILIBRIUM  # not even the first step after the first contact was solved
     if forces[-1] <= _DETACHMENT_FRACTION * forces.max():
-        return "detachment"
+        return SweepEnd.DETACHMENT
     if len(forces) >= 2 and forces[-1] <= _DETACHMENT_STEPS * (forces[-2] - forces[-1]):
-        return "detachment"
-    return "snap-off"
+        return SweepEnd.DETACHMENT
+    return SweepEnd.SNAP_OFF
 
 
 def _attempt(
@@ -748,18 +748,18 @@ def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode
     track.q = q.copy()
     track.history = [*track.history[-3:], track.q]
     track.x0 = x0
-    phase_before = PHASE_NAMES[_phase_of(track.mode)]
+    phase_before = _phase_of(track.mode)
     track.mode = mode
-    if track.rows and PHASE_NAMES[_phase_of(mode)] != phase_before:
-        track.phase_changes.append((x0, phase_before, PHASE_NAMES[_phase_of(mode)]))
+    if track.rows and _phase_of(mode) != phase_before:
+        track.phase_changes.append((x0, phase_before.label, _phase_of(mode).label))
     track.p1 = state.p1[k].copy()
     if mode != _MODE_STICK:
         track.anchor = track.p1
     track.pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy())
 
 
-def _phase_of(mode: int) -> int:
-    return PHASE_TANGENTIAL if mode == _MODE_TANGENTIAL else PHASE_TIP
+def _phase_of(mode: int) -> ContactPhase:
+    return ContactPhase.TANGENTIAL if mode == _MODE_TANGENTIAL else ContactPhase.TIP
 
 
 def _record(track: _Track, refined: bool) -> None:
@@ -787,7 +787,7 @@ def _finish(track: _Track, step: float) -> Sweep:
     fn = np.einsum("ni,ni->n", force, normal)
     ft = np.linalg.norm(force - fn[:, None] * normal, axis=1)
     s1 = np.minimum(planar_contact(fu, fv, kappa0).s1, 1.0)
-    end = track.end or "max-steps"
+    end = track.end or SweepEnd.MAX_STEPS
     return Sweep(
         trail=track.trail,
         step=step,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +11,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
+from vibrissa.frames import quaternion_matrices
 from vibrissa.msgs import (
     ContactPoint,
     ContactPointArray,
@@ -22,12 +24,10 @@ from vibrissa.msgs import (
 from vibrissa.nodes.mapper import Accumulator, MapperParams
 from vibrissa.nodes.reconstructor import (
     BatchCollector,
+    Reconstructed,
     ReconstructorParams,
     collect_batch,
-    quaternion_matrices,
-    reconstruct_array,
-    reconstruct_arrays,
-    reconstruct_wrenches,
+    reconstruct_messages,
 )
 from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, split_lines
 from vibrissa.nodes.wrench_source import WrenchSourceParams, sweep_arrays, sweep_wrenches
@@ -39,6 +39,35 @@ from vibrissa.units import RodScale
 from vibrissa.wire.transport import Header, Received
 
 LAUNCH = Path(__file__).parents[2] / "launch"
+
+
+UNIT_ROD = RodScale()
+
+
+@dataclass
+class WrenchesResult:
+    """The points of a batch of wrenches, and its counts."""
+
+    contacts: list[ContactPoint]
+    no_contact: int
+    bad_pose: int
+
+
+def reconstruct_wrenches(wrenches: list[WhiskerWrench], rod: RodScale = UNIT_ROD) -> WrenchesResult:
+    """The node's one path on a batch of wrenches, its outcomes summed."""
+    outcomes = reconstruct_messages(wrenches, rod)
+    return WrenchesResult([o.contacts for o in outcomes if isinstance(o.contacts, ContactPoint)],
+                          sum(o.no_contact for o in outcomes), sum(o.bad_pose for o in outcomes))
+
+
+def reconstruct_arrays(ticks: list[WhiskerWrenchArray], rod: RodScale = UNIT_ROD) -> list[Reconstructed]:
+    """The node's one path on a batch of ticks."""
+    return reconstruct_messages(ticks, rod)
+
+
+def reconstruct_array(tick: WhiskerWrenchArray, rod: RodScale = UNIT_ROD) -> Reconstructed:
+    """The node's one path on one tick."""
+    return reconstruct_messages([tick], rod)[0]
 
 
 def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:

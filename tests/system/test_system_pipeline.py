@@ -27,6 +27,7 @@ import pytest
 import yaml
 import zmq
 
+from vibrissa.frames import quaternion_matrices
 from vibrissa.msgs import (
     ContactPoint,
     ContactPointArray,
@@ -37,7 +38,6 @@ from vibrissa.msgs import (
     WhiskerWrenchArray,
     encode,
 )
-from vibrissa.nodes.reconstructor import quaternion_matrices
 from vibrissa.reconstruct import reconstruct
 from vibrissa.runtime import Node
 from vibrissa.surfaces import parse_surface

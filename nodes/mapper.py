@@ -119,19 +119,14 @@ class FrameCloud:
     points: list[FloatArray] = field(default_factory=list)
     forces: list[FloatArray] = field(default_factory=list)
 
-    def add(self, msg: ContactPoint) -> None:
-        """Append one point."""
-        self.whisker_ids.append(msg.whisker_id)
-        self.seqs.append(msg.seq)
-        self.points.append(msg.point)
-        self.forces.append(msg.force)
-
-    def add_rows(self, msg: ContactPointArray) -> None:
-        """Append every row of an array, each with its whisker and the array's ``seq``."""
-        self.whisker_ids += msg.whisker_ids
-        self.seqs += [msg.seq] * len(msg.whisker_ids)
-        self.points += list(msg.point)
-        self.forces += list(msg.force)
+    def add(self, msg: ContactPoint | ContactPointArray) -> None:
+        """Append every row of a message (a ContactPoint is one row), each with its whisker
+        and the message's ``seq``."""
+        whisker_ids = [msg.whisker_id] if isinstance(msg, ContactPoint) else msg.whisker_ids
+        self.whisker_ids += whisker_ids
+        self.seqs += [msg.seq] * len(whisker_ids)
+        self.points += list(np.reshape(msg.point, (-1, 3)))
+        self.forces += list(np.reshape(msg.force, (-1, 3)))
 
     def ordered(self) -> tuple[FloatArray, FloatArray, list[str]]:
         """Points (N, 3), forces (N, 3), whisker ids, sorted by (whisker, seq): line order."""
@@ -151,10 +146,9 @@ class Accumulator:
 
     def add(self, msg: object) -> None:
         """Take a ContactPoint, a ContactPointArray or an EndOfStream."""
-        if isinstance(msg, ContactPoint):
+        if isinstance(msg, ContactPoint) or (isinstance(msg, ContactPointArray)
+                                             and msg.whisker_ids):  # not a tick without contact
             self.frames.setdefault(msg.frame_id, FrameCloud()).add(msg)
-        elif isinstance(msg, ContactPointArray) and msg.whisker_ids:  # a tick without contact
-            self.frames.setdefault(msg.frame_id, FrameCloud()).add_rows(msg)
         elif isinstance(msg, EndOfStream):
             self.ended.add(msg.source)
 

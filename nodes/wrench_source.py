@@ -30,7 +30,7 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -39,7 +39,8 @@ import numpy as np
 from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Sweep, Trail, first_contact, simulate_sweeps
+from vibrissa.sweep import Trail, first_contact, simulate_sweeps
+from vibrissa.ticks import Tick, array_ticks, sequential_ticks
 from vibrissa.units import RodScale
 from vibrissa.wire.bag import BagReader, play_bag
 from vibrissa.wire.transport import DEFAULT_HWM, MessageTypes, Publisher
@@ -49,7 +50,6 @@ log = logging.getLogger(__name__)
 REPLAY_TYPES = (WhiskerWrench.TYPE_NAME, WhiskerWrenchArray.TYPE_NAME)
 
 IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
-_UNIT_ROD = RodScale()
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ class WrenchSourceParams:
     array
         Mode ``sim``: simulate the trails as the whiskers of one rigid array (a row of clamps
         at the offsets ``y0``, all at the same x) and publish a WhiskerWrenchArray per step
-        (see :func:`sweep_arrays`), instead of the sweeps one after the other.
+        (``vibrissa.ticks.array_ticks``), instead of the sweeps one after the other.
     whisker_ids
         Names of the array's whiskers, one per ``y0`` (default ``whisker0``, ``whisker1``...).
     rate_hz
@@ -135,105 +135,36 @@ class WrenchSourceParams:
         return list(self.whisker_ids) or [f"whisker{i}" for i in range(len(self.y0))]
 
 
-def sweep_wrenches(
-    sweeps: Sequence[Sweep],
-    whisker_id: str = "whisker0",
-    frame_id: str = "world",
-    rod: RodScale = _UNIT_ROD,
-    clock: Callable[[], float] = lambda: 0.0,
-) -> Iterator[WhiskerWrench]:
-    """Every equilibrium of ``sweeps`` as a WhiskerWrench in SI units, in order.
-
-    Parameters
-    ----------
-    sweeps
-        Step 1 results (paper units, clamp frame parallel to the world frame).
-    whisker_id, frame_id
-        Copied into each message.
-    rod
-        L and EI: lengths x L, forces x EI/L^2, moments x EI/L.
-    clock
-        Gives each message's ``stamp`` when it is made, s (e.g. ``time.time``).
-
-    Yields
-    ------
-    WhiskerWrench
-        ``seq`` is the running sample index over all sweeps, from 0.
-    """
-    seq = 0
-    for sweep in sweeps:
-        p0 = sweep.p0 * rod.length_m
-        f0, m0 = rod.wrench_to_si(sweep.f0, sweep.m0)
-        for i in range(sweep.n_steps):
-            yield WhiskerWrench(
-                stamp=clock(), seq=seq, whisker_id=whisker_id, frame_id=frame_id,
-                clamp_position=p0[i], clamp_orientation=IDENTITY_QUATERNION,
-                f0=f0[i], m0=m0[i],
-            )
-            seq += 1
-
-
-def sweep_arrays(
-    sweeps: Sequence[Sweep],
-    x_grid: float,
-    step: float,
+def tick_messages(
+    ticks: Iterable[Tick],
     whisker_ids: Sequence[str],
     frame_id: str = "world",
-    rod: RodScale = _UNIT_ROD,
+    array: bool = False,
     clock: Callable[[], float] = lambda: 0.0,
-) -> Iterator[WhiskerWrenchArray]:
-    """The sweeps of one rigid array (simulated on the grid x0 = ``x_grid`` - k ``step``) as a
-    WhiskerWrenchArray per grid step, SI, from k = 0 to the last step of any sweep.
+) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
+    """Each tick as a WhiskerWrenchArray (``array``) or each of its rows as a WhiskerWrench.
 
-    Row i is whisker ``whisker_ids[i]``, clamped at (x0, y0_i, 0) L with the identity
-    orientation. A whisker that does not touch the object (before its first contact, after
-    its detachment, or on a trail that misses the object) has the straight rod's zero wrench,
-    as a real sensor would read; the reconstructor counts such rows as ``no_contact``. Rows the
-    simulation has no equilibrium for are left out: positions skipped by a longer step just
-    after the touch, and everything after a snap-off (the rod leaves the branch; where it
-    lands is not simulated). ``seq`` is k.
+    Row r of a tick is whisker ``whisker_ids[tick.whiskers[r]]``, clamped with the identity
+    orientation (C parallel to W). ``seq`` counts messages from 0; ``stamp`` is ``clock()``
+    when the message is made (e.g. ``time.time``, the publish time, as for a live sensor).
     """
-    by_step: list[dict[int, int]] = []
-    last = -1
-    for sweep in sweeps:
-        ks = np.rint((x_grid - sweep.x0) / step).astype(int)
-        by_step.append({int(k): i for i, k in enumerate(ks)})
-        if len(ks):
-            last = max(last, int(ks[-1]))
-    si = [(sweep.p0 * rod.length_m, *rod.wrench_to_si(sweep.f0, sweep.m0)) for sweep in sweeps]
-    zero = np.zeros(3)
-    for k in range(last + 1):
-        x0 = x_grid - k * step
-        ids, p0, f0, m0 = [], [], [], []
-        for whisker, sweep, rows, (p0_si, f0_si, m0_si) in zip(whisker_ids, sweeps, by_step, si,
-                                                                 strict=True):
-            i = rows.get(k)
-            if i is not None:
-                p0.append(p0_si[i])
-                f0.append(f0_si[i])
-                m0.append(m0_si[i])
-            elif _touch_free(sweep, x0):
-                p0.append(np.array([x0, sweep.trail.y0, 0.0]) * rod.length_m)
-                f0.append(zero)
-                m0.append(zero)
-            else:
-                continue
-            ids.append(whisker)
-        n = len(ids)
-        yield WhiskerWrenchArray(
-            stamp=clock(), seq=k, frame_id=frame_id, whisker_ids=ids,
-            clamp_position=np.reshape(p0, (n, 3)),
-            clamp_orientation=np.tile(IDENTITY_QUATERNION, (n, 1)),
-            f0=np.reshape(f0, (n, 3)), m0=np.reshape(m0, (n, 3)))
-
-
-def _touch_free(sweep: Sweep, x0: float) -> bool:
-    """Whether the rod of ``sweep`` is straight and free at clamp position ``x0`` (a grid point
-    without a row): before the first contact, after a detachment, or on a trail that misses
-    the object. (x0 decreases along a sweep.)"""
-    if sweep.end == "no-contact" or x0 >= sweep.x_touch:
-        return True
-    return sweep.end == "detachment" and sweep.n_steps > 0 and x0 < sweep.x0[-1]
+    seq = 0
+    for tick in ticks:
+        n = len(tick.whiskers)
+        ids = [whisker_ids[w] for w in tick.whiskers]
+        if array:
+            yield WhiskerWrenchArray(
+                stamp=clock(), seq=seq, frame_id=frame_id, whisker_ids=ids,
+                clamp_position=tick.p_WC_m, clamp_orientation=np.tile(IDENTITY_QUATERNION, (n, 1)),
+                f0=tick.f0_C_n, m0=tick.m0_C_nm)
+            seq += 1
+            continue
+        for r in range(n):
+            yield WhiskerWrench(
+                stamp=clock(), seq=seq, whisker_id=ids[r], frame_id=frame_id,
+                clamp_position=tick.p_WC_m[r], clamp_orientation=IDENTITY_QUATERNION,
+                f0=tick.f0_C_n[r], m0=tick.m0_C_nm[r])
+            seq += 1
 
 
 def run_sim(node: Node, params: WrenchSourceParams) -> int:
@@ -260,14 +191,13 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
     period = 1.0 / params.rate_hz if params.rate_hz > 0 else 0.0
     t_start = time.monotonic()
     count = 0
-    # ``stamp`` is the publish time, as for a live sensor.
-    messages: Iterator[WhiskerWrench | WhiskerWrenchArray]
-    if x_grid is None:
-        messages = sweep_wrenches(sweeps, params.whisker_id, params.frame_id, params.rod,
-                                  clock=time.time)
+    if x_grid is None:  # one whisker, its sweeps one after the other
+        ticks = sequential_ticks(sweeps, params.rod)
+        whisker_ids = [params.whisker_id] * len(sweeps)
     else:
-        messages = sweep_arrays(sweeps, x_grid, params.step, params.array_whisker_ids,
-                                params.frame_id, params.rod, clock=time.time)
+        ticks = array_ticks(sweeps, x_grid, params.step, params.rod)
+        whisker_ids = params.array_whisker_ids
+    messages = tick_messages(ticks, whisker_ids, params.frame_id, params.array, clock=time.time)
     for msg in messages:
         if period:
             delay = t_start + count * period - time.monotonic()

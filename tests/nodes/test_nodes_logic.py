@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,11 +31,12 @@ from vibrissa.nodes.reconstructor import (
     reconstruct_messages,
 )
 from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, split_lines
-from vibrissa.nodes.wrench_source import WrenchSourceParams, sweep_arrays, sweep_wrenches
+from vibrissa.nodes.wrench_source import WrenchSourceParams, tick_messages
 from vibrissa.reconstruct import reconstruct
 from vibrissa.runtime import load_params
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Trail, first_contact, simulate_sweeps
+from vibrissa.sweep import Sweep, Trail, first_contact, simulate_sweeps
+from vibrissa.ticks import array_ticks, sequential_ticks
 from vibrissa.units import RodScale
 from vibrissa.wire.transport import Header, Received
 
@@ -68,6 +70,18 @@ def reconstruct_arrays(ticks: list[WhiskerWrenchArray], rod: RodScale = UNIT_ROD
 def reconstruct_array(tick: WhiskerWrenchArray, rod: RodScale = UNIT_ROD) -> Reconstructed:
     """The node's one path on one tick."""
     return reconstruct_messages([tick], rod)[0]
+
+
+def sweep_wrenches(sweeps: list[Sweep], whisker_id: str, frame_id: str, rod: RodScale
+                   ) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
+    """The wrench source's one path, one whisker sweeping one sweep after the other."""
+    return tick_messages(sequential_ticks(sweeps, rod), [whisker_id] * len(sweeps), frame_id)
+
+
+def sweep_arrays(sweeps: list[Sweep], x_grid: float, step: float, whisker_ids: list[str],
+                 frame_id: str, rod: RodScale) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
+    """The wrench source's one path, the sweeps as one rigid array."""
+    return tick_messages(array_ticks(sweeps, x_grid, step, rod), whisker_ids, frame_id, array=True)
 
 
 def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:

@@ -7,11 +7,13 @@ kernels compiled by numba (``vibrissa.compiled``).
 * :func:`reconstruct` -- Step 2, contact points from clamp position and support reactions.
 * :func:`parse_surface` -- paraboloid (eq. 2), sphere and ellipsoid objects with a pose.
 * :class:`RodScale` -- the conversion to SI.
+* :class:`Transform` -- rigid transforms (poses X_AB), on ``scipy.spatial.transform``.
 """
 
+from vibrissa.frames import Transform
 from vibrissa.reconstruct import Reconstruction, reconstruct
 from vibrissa.status import ContactStatus
-from vibrissa.surfaces import Ellipsoid, Paraboloid, Pose, Sphere, Surface, parse_surface
+from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface, parse_surface
 from vibrissa.sweep import Sweep, Trail, simulate_sweep, simulate_sweeps
 from vibrissa.units import RodScale
 
@@ -19,13 +21,13 @@ __all__ = [
     "ContactStatus",
     "Ellipsoid",
     "Paraboloid",
-    "Pose",
     "Reconstruction",
     "RodScale",
     "Sphere",
     "Surface",
     "Sweep",
     "Trail",
+    "Transform",
     "parse_surface",
     "reconstruct",
     "simulate_sweep",

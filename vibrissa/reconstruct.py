@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vibrissa.compiled import compiled
 from vibrissa.elastica import S1_TOLERANCE, planar_contact_scalar
-from vibrissa.frames import quaternion_matrix
+from vibrissa.frames import quaternion_matrix, rotate_vector
 from vibrissa.status import NO_CONTACT, ContactPhase, ContactStatus
 from vibrissa.units import RodScale
 
@@ -194,13 +194,8 @@ def reconstruct_row(
         status |= _BEYOND
     p1x, p1y, p1z = u1 * e_ux, u1 * e_uy, v1  # P1 - P0 in C
     if rotate:
-        r = R_WC
-        p1x, p1y, p1z = (r[0, 0] * p1x + r[0, 1] * p1y + r[0, 2] * p1z,
-                         r[1, 0] * p1x + r[1, 1] * p1y + r[1, 2] * p1z,
-                         r[2, 0] * p1x + r[2, 1] * p1y + r[2, 2] * p1z)
-        fx, fy, fz = (r[0, 0] * fx + r[0, 1] * fy + r[0, 2] * fz,
-                      r[1, 0] * fx + r[1, 1] * fy + r[1, 2] * fz,
-                      r[2, 0] * fx + r[2, 1] * fy + r[2, 2] * fz)
+        p1x, p1y, p1z = rotate_vector(R_WC, p1x, p1y, p1z)
+        fx, fy, fz = rotate_vector(R_WC, fx, fy, fz)
     force[0], force[1], force[2] = fx, fy, fz
     if status & _NO_CONTACT:
         point[0] = point[1] = point[2] = math.nan

@@ -11,50 +11,13 @@ Lengths are in units of the rod length L.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vibrissa.frames import Transform
+
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class Pose:
-    """Pose X_WB of a body frame B in the world frame W.
-
-    Attributes
-    ----------
-    position : ndarray, shape (3,)
-        p_WB, origin of B in W, units of L.
-    rotation : ndarray, shape (3, 3)
-        R_WB, columns are B's axes expressed in W.
-    """
-
-    position: FloatArray = field(default_factory=lambda: np.zeros(3))
-    rotation: FloatArray = field(default_factory=lambda: np.eye(3))
-
-    @classmethod
-    def from_xyz_rpy(
-        cls, xyz: ArrayLike = (0.0, 0.0, 0.0), rpy: ArrayLike = (0.0, 0.0, 0.0)
-    ) -> Pose:
-        """Pose from a position and roll, pitch, yaw in rad (R = Rz(yaw) Ry(pitch) Rx(roll))."""
-        roll, pitch, yaw = (float(angle) for angle in np.asarray(rpy, dtype=float))
-        cr, sr, cp, sp, cy, sy = (
-            np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-        )
-        rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-        ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-        rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-        return cls(np.asarray(xyz, dtype=float).reshape(3), rz @ ry @ rx)
-
-    def to_body(self, p_W: FloatArray) -> FloatArray:
-        """Points (N, 3) from W to B."""
-        return (p_W - self.position) @ self.rotation
-
-    def to_world(self, p_B: FloatArray) -> FloatArray:
-        """Points (N, 3) from B to W."""
-        return p_B @ self.rotation.T + self.position
 
 
 class Surface(ABC):
@@ -64,8 +27,8 @@ class Surface(ABC):
     All methods take and return world-frame arrays of shape (N, 3) (or (3,) for one point).
     """
 
-    def __init__(self, pose: Pose | None = None) -> None:
-        self.pose = pose if pose is not None else Pose()
+    def __init__(self, pose: Transform | None = None) -> None:
+        self.pose = pose if pose is not None else Transform()
 
     @property
     @abstractmethod
@@ -82,7 +45,7 @@ class Surface(ABC):
 
     def value(self, p_W: ArrayLike) -> FloatArray:
         """First-order signed distance g / |grad g| (negative inside), units of L, shape (N,)."""
-        p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
+        p_B = self.pose.apply_inverse(np.atleast_2d(np.asarray(p_W, dtype=float)))
         Q, linear, c = self._quadric()
         g = np.einsum("ni,ij,nj->n", p_B, Q, p_B) + p_B @ linear + c
         grad = 2.0 * p_B @ Q + linear
@@ -90,16 +53,16 @@ class Surface(ABC):
 
     def normal(self, p_W: ArrayLike) -> FloatArray:
         """Outward unit normal (N, 3) in W of the level set through p_W."""
-        p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
+        p_B = self.pose.apply_inverse(np.atleast_2d(np.asarray(p_W, dtype=float)))
         Q, linear, _ = self._quadric()
         grad = 2.0 * p_B @ Q + linear
         n_B = grad / np.linalg.norm(grad, axis=1, keepdims=True)
-        return n_B @ self.pose.rotation.T
+        return n_B @ self.pose.R.T
 
     def closest_point(self, p_W: ArrayLike) -> FloatArray:
         """Closest point (N, 3) on the surface, in W."""
-        p_B = self.pose.to_body(np.atleast_2d(np.asarray(p_W, dtype=float)))
-        return self.pose.to_world(self._closest_point_body(p_B))
+        p_B = self.pose.apply_inverse(np.atleast_2d(np.asarray(p_W, dtype=float)))
+        return self.pose.apply(self._closest_point_body(p_B))
 
     def signed_distance(self, p_W: ArrayLike) -> FloatArray:
         """Exact signed distance (N,) to the surface, negative inside, units of L."""
@@ -115,8 +78,8 @@ class Surface(ABC):
         a_W, d_W : array_like, shape (N, 3) or (3,)
             Points on the lines and their directions, in W.
         """
-        a_B = self.pose.to_body(np.atleast_2d(np.asarray(a_W, dtype=float)))
-        d_B = np.atleast_2d(np.asarray(d_W, dtype=float)) @ self.pose.rotation
+        a_B = self.pose.apply_inverse(np.atleast_2d(np.asarray(a_W, dtype=float)))
+        d_B = np.atleast_2d(np.asarray(d_W, dtype=float)) @ self.pose.R
         Q, linear, c = self._quadric()
         qa = np.einsum("ni,ij,nj->n", d_B, Q, d_B)
         qb = 2.0 * np.einsum("ni,ij,nj->n", a_B, Q, d_B) + d_B @ linear
@@ -147,7 +110,7 @@ class Surface(ABC):
 class Paraboloid(Surface):
     """Elliptic paraboloid z = a x^2 + b y^2 + h in B (eq. 2); the object is the cup above it."""
 
-    def __init__(self, a: float, b: float, h: float, pose: Pose | None = None) -> None:
+    def __init__(self, a: float, b: float, h: float, pose: Transform | None = None) -> None:
         if not (a > 0 and b > 0):
             raise ValueError(f"paraboloid needs a > 0 and b > 0, got a={a}, b={b}")
         super().__init__(pose)
@@ -178,7 +141,7 @@ class Paraboloid(Surface):
 class Ellipsoid(Surface):
     """Ellipsoid (x/rx)^2 + (y/ry)^2 + (z/rz)^2 = 1 in B."""
 
-    def __init__(self, rx: float, ry: float, rz: float, pose: Pose | None = None) -> None:
+    def __init__(self, rx: float, ry: float, rz: float, pose: Transform | None = None) -> None:
         if min(rx, ry, rz) <= 0:
             raise ValueError(f"ellipsoid radii must be > 0, got {rx}, {ry}, {rz}")
         super().__init__(pose)
@@ -208,7 +171,7 @@ class Ellipsoid(Surface):
 class Sphere(Ellipsoid):
     """Sphere of radius r centred on B's origin."""
 
-    def __init__(self, r: float, pose: Pose | None = None) -> None:
+    def __init__(self, r: float, pose: Transform | None = None) -> None:
         super().__init__(r, r, r, pose)
 
     @property
@@ -240,16 +203,13 @@ _SHAPE_KEYS = {
 }
 
 
-def _pose_spec(pose: Pose) -> str:
-    if np.allclose(pose.rotation, np.eye(3), rtol=0, atol=0) and not np.any(pose.position):
+def _pose_spec(pose: Transform) -> str:
+    if pose.is_identity:
         return ""
-    cx, cy, cz = (float(c) for c in pose.position)
-    parts = [f"cx={cx!r}", f"cy={cy!r}", f"cz={cz!r}"]
-    r = pose.rotation
-    pitch = float(np.arcsin(np.clip(-r[2, 0], -1.0, 1.0)))
-    roll = float(np.arctan2(r[2, 1], r[2, 2]))
-    yaw = float(np.arctan2(r[1, 0], r[0, 0]))
-    parts += [f"roll={roll!r}", f"pitch={pitch!r}", f"yaw={yaw!r}"]
+    cx, cy, cz = (float(c) for c in pose.translation)
+    roll, pitch, yaw = (float(angle) for angle in pose.rpy)
+    parts = [f"cx={cx!r}", f"cy={cy!r}", f"cz={cz!r}", f"roll={roll!r}", f"pitch={pitch!r}",
+             f"yaw={yaw!r}"]
     return "," + ",".join(parts)
 
 
@@ -288,7 +248,7 @@ def parse_surface(spec: str) -> Surface:
     missing = [key for key in _SHAPE_KEYS[kind] if key not in values]
     if missing:
         raise ValueError(f"surface spec {spec!r}: missing {', '.join(missing)} for {kind}")
-    pose = Pose.from_xyz_rpy(
+    pose = Transform.from_xyz_rpy(
         [values.get(key, 0.0) for key in ("cx", "cy", "cz")],
         [values.get(key, 0.0) for key in ("roll", "pitch", "yaw")],
     )

@@ -141,7 +141,7 @@ class Sweep:
         """Points (n_points, 3) of the rod's axis at step ``index``, from the clamp to the tip."""
         psi, fu, fv, kappa0 = self._q[index]
         u, v = planar_line(fu, fv, kappa0, np.linspace(0.0, 1.0, n_points))
-        e_u = np.array([np.cos(psi), np.sin(psi), 0.0])
+        e_u = bending_plane(np.array([psi]))[0][0]
         return self.p0[index] + np.outer(u, e_u) + np.outer(v, _E_Z)
 
     def summary(self) -> dict[str, object]:
@@ -201,14 +201,19 @@ class _State:
     status: NDArray[np.int64]
 
 
+def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The bending plane E_psi of eq. 9 for angles psi (N,): its in-plane axis e_u = (cos psi,
+    sin psi, 0) and its normal e_w = e_u x e_v = (sin psi, -cos psi, 0) (e_v = e_z), (N, 3)
+    each, in the clamp frame."""
+    cos_psi, sin_psi, zeros = np.cos(psi), np.sin(psi), np.zeros_like(psi)
+    return np.column_stack([cos_psi, sin_psi, zeros]), np.column_stack([sin_psi, -cos_psi, zeros])
+
+
 def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
     psi, fu, fv, kappa0 = q[:, :4].T
     contact = planar_contact(fu, fv, kappa0)
-    cos_psi, sin_psi = np.cos(psi), np.sin(psi)
-    zeros = np.zeros_like(psi)
-    e_u = np.column_stack([cos_psi, sin_psi, zeros])
-    e_w = np.column_stack([sin_psi, -cos_psi, zeros])
-    p1 = np.column_stack([batch.x0, batch.y0, zeros]) + contact.u1[:, None] * e_u
+    e_u, e_w = bending_plane(psi)
+    p1 = np.column_stack([batch.x0, batch.y0, np.zeros_like(psi)]) + contact.u1[:, None] * e_u
     p1[:, 2] += contact.v1
     tangent = np.cos(contact.phi1)[:, None] * e_u
     tangent[:, 2] += np.sin(contact.phi1)
@@ -778,7 +783,7 @@ def _finish(track: _Track, step: float) -> Sweep:
     normal = np.array([r[5] for r in rows]).reshape(n, 3)
     force = np.array([r[6] for r in rows]).reshape(n, 3)
     psi_frame, fu, fv, kappa0 = q.T
-    e_w = np.column_stack([np.sin(psi_frame), -np.cos(psi_frame), np.zeros(n)])
+    e_w = bending_plane(psi_frame)[1]
     # Clamp reactions from the rod's own internal loads at s = 0 (not from r x F, so that the
     # statics m0 + r x F = 0 stays a check of the elastica): f0 = -F, m0 = -kappa0 e_w.
     f0 = -force

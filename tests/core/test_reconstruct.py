@@ -2,10 +2,14 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from vibrissa.elastica import planar_contact, planar_contact_scalar
-from vibrissa.reconstruct import Reconstruction, reconstruct
+from vibrissa.reconstruct import Reconstruction, reconstruct, reconstruct_si
 from vibrissa.status import ContactStatus
+from vibrissa.surfaces import parse_surface
+from vibrissa.sweep import simulate_sweep
+from vibrissa.units import RodScale
 
 FIELDS = ("point", "s1", "phase", "psi", "force", "status")
 
@@ -108,3 +112,24 @@ def test_planar_contact_of_an_array_is_each_load_case_alone():
         assert one[4] == many.status[row, col]
     assert (many.status.ravel()[5:8] == 0).all() and np.isfinite(many.s1.ravel()[5:8]).all()
     assert many.s1.ravel()[7] == pytest.approx(float(planar_contact(fu[7], fv[7], 0.0).s1), abs=0)
+
+
+def test_si_step2_with_a_turned_clamp_finds_the_turned_contact() -> None:
+    # A Step 1 sweep, the whole scene turned by R and scaled to a rod of L = 0.08 m, EI =
+    # 3e-3 N m^2: the wrench in C is unchanged, the contact must be the turned one, in m.
+    sweep = simulate_sweep(parse_surface("paraboloid:a=0.5,b=1,h=0.4"), y0=0.2, mu=0.3, step=0.01)
+    rod = RodScale(0.08, 3e-3)
+    turn = Rotation.from_euler("xyz", [0.4, -1.2, 2.5])
+    n = sweep.n_steps
+    f0_n, m0_nm = rod.wrench_to_si(sweep.f0, sweep.m0)
+    q = np.tile(turn.as_quat(), (n, 1))
+    q[1::2] *= -2.5  # the same rotation: -q, and not unit
+    got = reconstruct_si(q, turn.apply(sweep.p0) * rod.length_m, f0_n, m0_nm, rod)
+    assert got.valid.all()
+    np.testing.assert_allclose(got.point_m, turn.apply(sweep.contact) * rod.length_m, rtol=0,
+                               atol=1e-12 * rod.length_m)
+    np.testing.assert_allclose(got.force_n, turn.apply(sweep.force) * rod.force_n, rtol=0,
+                               atol=1e-12 * np.abs(sweep.force).max() * rod.force_n)
+    np.testing.assert_allclose(got.s1_m, np.minimum(sweep.s1, 1.0) * rod.length_m, atol=1e-12)
+    bad = reconstruct_si(np.zeros((1, 4)), np.zeros((1, 3)), f0_n[:1], m0_nm[:1], rod)
+    assert not bad.pose_ok[0] and not bad.valid[0]

@@ -4,18 +4,17 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from types import FrameType
 from typing import Any
 
 import zmq
 
 from vibrissa.nodes import recorder
 from vibrissa.runtime import Node
+from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire.bag import BagReader, export_json, play_bag
 from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher
 
@@ -38,19 +37,8 @@ def endpoints_from(args: argparse.Namespace) -> Endpoints:
 def stop_on_signals() -> Iterator[threading.Event]:
     """An event set by SIGINT/SIGTERM while inside; restores the previous handlers."""
     stop = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop  # handlers can only be installed from the main thread
-        return
-
-    def handler(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with SignalHandlers(lambda signum: stop.set()):
         yield stop
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def register(subparsers: Any) -> None:

@@ -6,7 +6,7 @@ The format follows ROS 2's YAML launch files where it fits::
       - arg: {name: mu, default: "0.2", description: "friction coefficient"}
       - transport: {domain: 3}            # optional; default: free loopback ports
       - node:
-          pkg: vibrissa                   # runs `python -m vibrissa.nodes.<exec>`
+          pkg: vibrissa                   # runs `python -m` the module pkg registers for exec
           exec: reconstructor             # ... or `cmd: [prog, arg, ...]` instead of pkg/exec
           name: reconstructor
           namespace: /whisker0
@@ -26,6 +26,7 @@ names the file and the key path, e.g. ``demo.yaml: launch[2].node.respawn: expec
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import re
 import shlex
@@ -36,6 +37,9 @@ from types import MappingProxyType
 from typing import Any
 
 import yaml
+
+from vibrissa.wire.topics import validate_name, validate_namespace, validate_token
+from vibrissa.wire.transport import Endpoints
 
 __all__ = [
     "ON_EXIT_ACTIONS",
@@ -55,11 +59,8 @@ ON_EXIT_ACTIONS = ("shutdown",)
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 _PKG = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*\Z")
-_NAMESPACE = re.compile(r"/\Z|(/[A-Za-z_][A-Za-z0-9_]*)+\Z")
-_TOPIC = re.compile(r"~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*\Z|/\Z")
 _SUBST = re.compile(r"\$\(([^()]*)\)")
 # Highest domain id whose ports 7400 + 2*id, 7401 + 2*id are still valid TCP ports.
-_MAX_DOMAIN = (65535 - 7401) // 2
 
 
 class LaunchFileError(ValueError):
@@ -121,12 +122,39 @@ class TransportSpec:
     pub_endpoint: str | None = None
     sub_endpoint: str | None = None
 
+    def endpoints(self) -> Endpoints:
+        """Where the proxy binds (``Endpoints.free()`` for free loopback ports)."""
+        if self.domain is not None:
+            return Endpoints.for_domain(self.domain)
+        if self.pub_endpoint is not None and self.sub_endpoint is not None:
+            return Endpoints(self.pub_endpoint, self.sub_endpoint)
+        return Endpoints.free()
+
+
+NODE_ENTRY_POINTS = "vibrissa.nodes"
+
+
+def node_module(pkg: str, executable: str) -> str:
+    """The module that runs node ``executable`` of the installed package ``pkg``: the entry
+    point of that name in the group ``vibrissa.nodes`` that ``pkg`` registers (as ROS finds a
+    package's executables in its index). Raises ``ValueError`` naming the known nodes."""
+    known = []
+    for entry in importlib.metadata.entry_points(group=NODE_ENTRY_POINTS):
+        if entry.dist is not None and entry.dist.name == pkg:
+            if entry.name == executable:
+                return entry.value
+            known.append(entry.name)
+    if not known:
+        raise ValueError(f"no installed package {pkg!r} registers nodes ({NODE_ENTRY_POINTS!r} "
+                         "entry points)")
+    raise ValueError(f"package {pkg!r} has no node {executable!r} (known: {', '.join(sorted(known))})")
+
 
 @dataclass(frozen=True)
 class NodeSpec:
     """One ``- node:`` entry, substitutions resolved.
 
-    Exactly one of ``executable`` (run as ``python -m <pkg>.nodes.<executable>``) and ``cmd``
+    Exactly one of ``executable`` (run as ``python -m`` its module, :func:`node_module`) and ``cmd``
     (an arbitrary argv) is set. The node command line (``--name``, ``--namespace``,
     ``--params-file``, ``--remap``) and then ``args`` are appended to either.
     """
@@ -313,12 +341,19 @@ class _Parser:
         return value
 
     def string(self, value: Any, path: str, pattern: re.Pattern[str] | None = None,
-               what: str = "") -> str:
+               what: str = "", check: Callable[[str], None] | None = None) -> str:
+        """A string; matching ``pattern`` (else "invalid ``what``"), or passing ``check`` (a
+        name rule of the wire that raises ValueError)."""
         value = self.retyped(value, path)
         if not isinstance(value, str):
             raise self.error(path, f"expected str, got {_show(value)}")
         if pattern is not None and not pattern.match(value):
             raise self.error(path, f"invalid {what} {value!r}")
+        if check is not None:
+            try:
+                check(value)
+            except ValueError as exc:
+                raise self.error(path, str(exc)) from None
         return value
 
     def text(self, value: Any, path: str) -> str:
@@ -381,7 +416,7 @@ class _Parser:
             if "pub_endpoint" in body or "sub_endpoint" in body:
                 raise self.error(path, "give either domain or pub_endpoint/sub_endpoint, not both")
             return TransportSpec(
-                domain=self.integer(body["domain"], f"{path}.domain", 0, _MAX_DOMAIN)
+                domain=self.integer(body["domain"], f"{path}.domain", 0, Endpoints.MAX_DOMAIN)
             )
         if ("pub_endpoint" in body) != ("sub_endpoint" in body):
             missing = "sub_endpoint" if "pub_endpoint" in body else "pub_endpoint"
@@ -420,8 +455,12 @@ class _Parser:
             executable = self.string(body["exec"], f"{path}.exec", _IDENT, "executable")
             if "pkg" in body:
                 pkg = self.string(body["pkg"], f"{path}.pkg", _PKG, "package")
+            try:
+                node_module(pkg, executable)
+            except ValueError as exc:
+                raise self.error(f"{path}.exec", str(exc)) from None
         if "name" in body:
-            name = self.string(body["name"], f"{path}.name", _IDENT, "node name")
+            name = self.string(body["name"], f"{path}.name", check=validate_token)
         elif executable is not None:
             name = executable
         else:
@@ -433,8 +472,10 @@ class _Parser:
                 namespace = "/" + namespace
             if namespace != "/":
                 namespace = namespace.rstrip("/")
-            if not _NAMESPACE.match(namespace):
-                raise self.error(f"{path}.namespace", f"invalid namespace {namespace!r}")
+            try:
+                validate_namespace(namespace)
+            except ValueError as exc:
+                raise self.error(f"{path}.namespace", str(exc)) from None
 
         args: tuple[str, ...] = ()
         if "args" in body:
@@ -460,8 +501,8 @@ class _Parser:
         for i, entry in enumerate(self.list_of(body.get("remap", []), f"{path}.remap")):
             where = f"{path}.remap[{i}]"
             item = self.mapping(entry, where, ("from", "to"), ())
-            remaps.append(Remap(self.string(item["from"], f"{where}.from", _TOPIC, "topic name"),
-                                self.string(item["to"], f"{where}.to", _TOPIC, "topic name")))
+            remaps.append(Remap(self.string(item["from"], f"{where}.from", check=validate_name),
+                                self.string(item["to"], f"{where}.to", check=validate_name)))
 
         env: list[tuple[str, str]] = []
         for i, entry in enumerate(self.list_of(body.get("env", []), f"{path}.env")):

@@ -23,11 +23,9 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
-from types import FrameType
-from typing import IO, Any, Protocol
+from typing import IO
 
 import yaml
 
@@ -35,13 +33,15 @@ from vibrissa.launch.description import (
     LaunchDescription,
     NodeSpec,
     TransportSpec,
+    node_module,
 )
+from vibrissa.runtime.signals import SignalHandlers
+from vibrissa.wire.transport import Proxy
 
 __all__ = [
     "DEFAULT_GRACE_S",
     "Launcher",
     "NodeOutcome",
-    "ProxyHandle",
     "node_command",
     "resolve_launch_file",
 ]
@@ -50,65 +50,6 @@ DEFAULT_GRACE_S = 5.0
 _POLL_S = 0.02
 _READER_JOIN_S = 2.0
 _LOG_PREFIX = "[launch] "
-
-
-class ProxyHandle(Protocol):
-    """What the launcher needs from a running proxy: its two endpoints and a way to stop it."""
-
-    @property
-    def pub_endpoint(self) -> str:
-        """XSUB endpoint that publishers connect to."""
-        ...
-
-    @property
-    def sub_endpoint(self) -> str:
-        """XPUB endpoint that subscribers connect to."""
-        ...
-
-    def stop(self) -> None:
-        """Stop the proxy and close its sockets."""
-        ...
-
-
-ProxyFactory = Callable[[TransportSpec | None], ProxyHandle]
-
-
-@dataclass
-class _WireProxy:
-    """`vibrissa.wire.transport.Proxy` behind the `ProxyHandle` interface."""
-
-    proxy: Any
-    pub_endpoint: str
-    sub_endpoint: str
-
-    def stop(self) -> None:
-        self.proxy.stop()
-
-
-def start_wire_proxy(spec: TransportSpec | None) -> ProxyHandle:
-    """Start the XSUB/XPUB proxy of `vibrissa.wire.transport` as ``spec`` asks.
-
-    Parameters
-    ----------
-    spec : TransportSpec or None
-        Domain id, explicit endpoints, or None/empty for free loopback ports.
-
-    Returns
-    -------
-    ProxyHandle
-        The running proxy with its bound endpoints.
-    """
-    from vibrissa.wire import transport  # the wire layer; imported only when launching
-
-    if spec is not None and spec.domain is not None:
-        endpoints = transport.Endpoints.for_domain(spec.domain)
-    elif spec is not None and spec.pub_endpoint is not None and spec.sub_endpoint is not None:
-        endpoints = transport.Endpoints(pub=spec.pub_endpoint, sub=spec.sub_endpoint)
-    else:
-        endpoints = transport.Endpoints.free()
-    proxy = transport.Proxy(endpoints)
-    bound = proxy.start()
-    return _WireProxy(proxy, bound.pub, bound.sub)
 
 
 @dataclass
@@ -177,13 +118,14 @@ def node_command(spec: NodeSpec, params_file: str | None, python: str = sys.exec
     Returns
     -------
     list of str
-        ``python -m <pkg>.nodes.<exec>`` (or ``cmd``) ``--name N --namespace NS
+        ``python -m <the node's module>`` (or ``cmd``) ``--name N --namespace NS
         [--params-file F] [--remap FROM:=TO]... [args...]``.
     """
     if spec.cmd is not None:
         argv = list(spec.cmd)
     else:
-        argv = [python, "-m", f"{spec.pkg}.nodes.{spec.executable}"]
+        assert spec.executable is not None  # exactly one of cmd and executable
+        argv = [python, "-m", node_module(spec.pkg, spec.executable)]
     argv += ["--name", spec.name, "--namespace", spec.namespace]
     if params_file is not None:
         argv += ["--params-file", params_file]
@@ -233,8 +175,6 @@ class Launcher:
         Seconds to wait after SIGINT, and again after SIGTERM, before escalating.
     stdout, stderr : text streams, optional
         Where prefixed child output and the launcher's own log go (default: sys streams).
-    proxy_factory : callable, optional
-        Starts the proxy; default `start_wire_proxy`.
     python : str
         Interpreter for ``pkg``/``exec`` nodes.
     """
@@ -246,13 +186,11 @@ class Launcher:
         grace_s: float = DEFAULT_GRACE_S,
         stdout: IO[str] | None = None,
         stderr: IO[str] | None = None,
-        proxy_factory: ProxyFactory | None = None,
         python: str = sys.executable,
     ) -> None:
         self.description = description
         self.grace_s = grace_s
         self.out = _Output(stdout or sys.stdout, stderr or sys.stderr)
-        self.proxy_factory = proxy_factory or start_wire_proxy
         self.python = python
         self.nodes = [_Running(spec, NodeOutcome(spec.name)) for spec in description.nodes]
         self._signals: list[int] = []
@@ -261,25 +199,6 @@ class Launcher:
         self._signals_at_shutdown = 0
         self._env: dict[str, str] = {}
         self._params_dir: str | None = None
-
-    # -- signals -------------------------------------------------------------------------------
-
-    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
-        # Only record: the main loop acts. Taking a lock here could deadlock.
-        self._signals.append(signum)
-
-    @contextlib.contextmanager
-    def _signal_handlers(self) -> Any:
-        if threading.current_thread() is not threading.main_thread():
-            yield
-            return
-        previous = {sig: signal.signal(sig, self._on_signal)
-                    for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
 
     # -- the run -------------------------------------------------------------------------------
 
@@ -291,19 +210,15 @@ class Launcher:
         int
             The exit status (see the module docstring).
         """
-        with self._signal_handlers():
+        with SignalHandlers(self._signals.append):
+            proxy = Proxy((self.description.transport or TransportSpec()).endpoints())
             try:
-                proxy = self.proxy_factory(self.description.transport)
+                endpoints = proxy.start()
             except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
                 self.out.log(f"cannot start the proxy: {exc}")
                 return 1
-            self.out.log(f"proxy: publishers -> {proxy.pub_endpoint}, "
-                         f"subscribers -> {proxy.sub_endpoint}")
-            self._env = {
-                "PYTHONUNBUFFERED": "1",
-                "VIBRISSA_PUB_ENDPOINT": proxy.pub_endpoint,
-                "VIBRISSA_SUB_ENDPOINT": proxy.sub_endpoint,
-            }
+            self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub}")
+            self._env = {"PYTHONUNBUFFERED": "1", **endpoints.to_env()}
             self._params_dir = tempfile.mkdtemp(prefix="vibrissa-launch-")
             try:
                 self._supervise()

@@ -48,6 +48,7 @@ import zmq
 from vibrissa.msgs import NodeStatus
 from vibrissa.msgs.messages import NODE_STATES
 from vibrissa.runtime.args import NodeArgs
+from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire import (
     DEFAULT_HWM,
     STATUS_TOPIC,
@@ -145,10 +146,9 @@ class Node:
             if self._own_context:
                 self.context.destroy(linger=0)
             raise
-        self._previous_handlers: dict[int, Any] = {}
-        if handle_signals and threading.current_thread() is threading.main_thread():
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                self._previous_handlers[signum] = signal.signal(signum, self._on_signal)
+        self._signals = SignalHandlers(self._on_signal)
+        if handle_signals:
+            self._signals.install()
         self._thread = threading.Thread(target=self._heartbeat_loop, daemon=True,
                                         name=f"vibrissa-heartbeat{self.fqn}")
         self._thread.start()
@@ -257,7 +257,7 @@ class Node:
         """Sleep unless a stop comes first; returns ``True`` if the full time passed."""
         return not self._stop.wait(seconds)
 
-    def _on_signal(self, signum: int, frame: types.FrameType | None) -> None:
+    def _on_signal(self, signum: int) -> None:
         if self._stop.is_set() and signum == signal.SIGINT:
             raise KeyboardInterrupt
         log.info("%s: %s, stopping", self.fqn, signal.Signals(signum).name)
@@ -354,9 +354,7 @@ class Node:
             # Closes sockets the application made on node.context and forgot (term() would
             # hang on them), then returns once queued messages left or their linger ran out.
             self.context.destroy(linger=round(linger_s * 1000))
-        for signum, handler in self._previous_handlers.items():
-            signal.signal(signum, handler)
-        self._previous_handlers.clear()
+        self._signals.restore()
 
     def __enter__(self) -> Node:
         return self

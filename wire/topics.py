@@ -10,6 +10,12 @@ STATUS_TOPIC = "/vibrissa/status"
 _TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
+def validate_token(name: str, what: str = "node name") -> None:
+    """Raise ``ValueError`` naming ``name`` unless it is one token ``[A-Za-z_][A-Za-z0-9_]*``."""
+    if not isinstance(name, str) or not _TOKEN.fullmatch(name):
+        raise ValueError(f"invalid {what} {name!r}: must match [A-Za-z_][A-Za-z0-9_]*")
+
+
 def validate_name(name: str, what: str = "topic name") -> None:
     """Raise ``ValueError`` naming ``name`` unless it is a valid ROS 2-style name.
 
@@ -69,6 +75,5 @@ def resolve_topic(
 def node_fqn(name: str, namespace: str = "/") -> str:
     """Fully qualified node name: ``/ns/name``; ``name`` is one token."""
     validate_namespace(namespace)
-    if not _TOKEN.fullmatch(name or ""):
-        raise ValueError(f"invalid node name {name!r}: must match [A-Za-z_][A-Za-z0-9_]*")
+    validate_token(name)
     return f"{namespace.rstrip('/')}/{name}"

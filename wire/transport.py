@@ -41,7 +41,7 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any, TypeAlias
+from typing import Any, ClassVar, TypeAlias
 
 import msgpack
 import zmq
@@ -92,14 +92,18 @@ class Endpoints:
     pub: str
     sub: str
 
+    BASE_PORT: ClassVar[int] = 7400
+    MAX_DOMAIN: ClassVar[int] = (65535 - BASE_PORT - 1) // 2
+    """The largest domain id whose two ports exist."""
+
     @classmethod
     def for_domain(cls, domain_id: int = 0) -> Endpoints:
         """``tcp://127.0.0.1:{7400 + 2 id}`` (pub) and ``{7401 + 2 id}`` (sub)."""
         if isinstance(domain_id, bool) or not isinstance(domain_id, int):
             raise ValueError(f"domain_id must be an int, got {type(domain_id).__name__}")
-        if not 0 <= domain_id <= (65535 - 7401) // 2:
+        if not 0 <= domain_id <= cls.MAX_DOMAIN:
             raise ValueError(f"domain_id {domain_id} gives no valid port")
-        port = 7400 + 2 * domain_id
+        port = cls.BASE_PORT + 2 * domain_id
         return cls(f"tcp://127.0.0.1:{port}", f"tcp://127.0.0.1:{port + 1}")
 
     @classmethod

@@ -265,3 +265,24 @@ def test_unreadable_file_is_named(tmp_path: Path) -> None:
     missing = tmp_path / "nope.yaml"
     with pytest.raises(LaunchFileError, match=re.escape(f"{missing}: cannot read")):
         load_launch_file(missing)
+
+
+@pytest.mark.parametrize(("key", "value", "words"), [
+    ("remap", "[{from: ~wrench, to: /w}]", "private names '~' are not supported"),
+    ("remap", "[{from: wrench, to: 'a//b'}]", "token ''"),
+    ("namespace", "/bad-ns", "invalid namespace"),
+    ("name", "two.tokens", "invalid node name"),
+])
+def test_names_follow_the_wire_rules(tmp_path: Path, key: str, value: str, words: str) -> None:
+    # The launch file checks names with the same rules the node applies at start (a `~` remap
+    # used to pass here and stop the node with exit 2).
+    message = error_of(tmp_path, f"launch:\n  - node: {{exec: reconstructor, {key}: {value}}}\n")
+    assert f"launch[0].node.{key}" in message and words in message, message
+
+
+def test_an_unknown_node_is_refused_before_anything_starts(tmp_path: Path) -> None:
+    message = error_of(tmp_path, "launch:\n  - node: {pkg: vibrissa, exec: reconstuctor}\n")
+    assert "launch[0].node.exec: package 'vibrissa' has no node 'reconstuctor'" in message
+    assert "known: mapper, reconstructor, recorder, wrench_source" in message
+    message = error_of(tmp_path, "launch:\n  - node: {pkg: nopkg, exec: reconstructor}\n")
+    assert "no installed package 'nopkg' registers nodes" in message

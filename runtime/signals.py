@@ -1,0 +1,48 @@
+"""SIGINT/SIGTERM handling: the one place that installs and restores handlers.
+
+A handler only records (calls ``on_signal(signum)``): whoever installed it acts in its own loop,
+since a handler runs between any two bytecodes and must not take locks. Handlers can only be
+installed from the main thread; elsewhere installing is a no-op.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import types
+from collections.abc import Callable, Sequence
+from typing import Any
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class SignalHandlers:
+    """Calls ``on_signal(signum)`` on ``signums`` between :meth:`install` and :meth:`restore`
+    (or inside a ``with`` block), then puts the previous handlers back."""
+
+    def __init__(self, on_signal: Callable[[int], None],
+                 signums: Sequence[signal.Signals] = STOP_SIGNALS) -> None:
+        self._on_signal = on_signal
+        self._signums = tuple(signums)
+        self._previous: dict[int, Any] = {}  # what signal.signal returned
+
+    def install(self) -> None:
+        """Install the handlers (main thread only; a no-op elsewhere)."""
+        if threading.current_thread() is threading.main_thread() and not self._previous:
+            self._previous = {s: signal.signal(s, self._handle) for s in self._signums}
+
+    def restore(self) -> None:
+        """Put the previous handlers back (idempotent)."""
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+    def _handle(self, signum: int, frame: types.FrameType | None) -> None:
+        self._on_signal(signum)
+
+    def __enter__(self) -> SignalHandlers:
+        self.install()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.restore()

@@ -14,9 +14,10 @@ import zmq
 
 from vibrissa.nodes import recorder
 from vibrissa.runtime import Node
+from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.runtime.signals import SignalHandlers
-from vibrissa.wire.bag import BagReader, export_json, play_bag
-from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher
+from vibrissa.wire.bag import BagReader, PlayResult, export_json, play_bag
+from vibrissa.wire.transport import Endpoints
 
 
 def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
@@ -128,24 +129,13 @@ def _play(args: argparse.Namespace) -> int:
 
 
 def _play_gated(args: argparse.Namespace, rate: float | None, endpoints: Endpoints,
-                stop: threading.Event) -> Any:
+                stop: threading.Event) -> PlayResult:
     """Play as node ``bag_player``: each publisher is held until ``--wait-for`` nodes are up."""
     with Node("bag_player", endpoints=endpoints, handle_signals=False) as node:
-
-        def make(topic: str, msg_type: MessageTypes, hwm: int) -> Publisher:
-            return node.create_publisher(topic, msg_type, wait_for=args.wait_for, hwm=hwm)
-
-        def ready(publishers: dict[str, Publisher]) -> bool:
-            for topic in publishers:
-                if not node.wait_for_subscribers(topic, args.wait_for, args.wait_timeout):
-                    print(f"vibrissa bag play: {args.wait_for} not ready on {topic} after "
-                          f"{args.wait_timeout} s", file=sys.stderr)
-                    return False
-            return True
-
         node.set_state("running")
-        return play_bag(args.bag, rate=rate, topics=args.topics, wait_s=args.wait,
-                        stop=stop, make_publisher=make, ready=ready)
+        result, _ = play_bag_gated(node, args.bag, args.wait_for, args.wait_timeout, rate=rate,
+                                   topics=args.topics, stop=stop)
+        return result
 
 
 def _info(args: argparse.Namespace) -> int:

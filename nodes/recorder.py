@@ -144,15 +144,7 @@ def subscription(topics: Iterable[str]) -> dict[str, None] | None:
 
 def subscribe(node: Node, topics: Iterable[str]) -> Subscriber:
     """The node's subscriber on ``topics`` (resolved in its namespace), or on every topic."""
-    wanted = subscription(topics)
-    if wanted is not None:
-        return node.create_subscriber(wanted)
-    try:
-        return node.create_subscriber(None)  # type: ignore[arg-type]
-    except (AttributeError, TypeError):
-        # This runtime cannot subscribe a node to every topic: record through a plain
-        # subscriber (not counted in the node's status).
-        return Subscriber(None, node.endpoints, node.context)
+    return node.create_subscriber(subscription(topics))
 
 
 @dataclass

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import logging
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -38,12 +37,13 @@ import numpy as np
 
 from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Trail, first_contact, simulate_sweeps
 from vibrissa.ticks import Tick, array_ticks, sequential_ticks
 from vibrissa.units import RodScale
-from vibrissa.wire.bag import BagReader, play_bag
-from vibrissa.wire.transport import DEFAULT_HWM, MessageTypes, Publisher
+from vibrissa.wire.bag import BagReader
+from vibrissa.wire.transport import DEFAULT_HWM
 
 log = logging.getLogger(__name__)
 
@@ -212,24 +212,6 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
     return count
 
 
-class _NodeStop(threading.Event):
-    """A ``threading.Event`` view of ``node.stop_requested`` for ``play_bag``'s ``stop``."""
-
-    def __init__(self, node: Node) -> None:
-        super().__init__()
-        self._node = node
-
-    def is_set(self) -> bool:
-        return self._node.stop_requested or super().is_set()
-
-    def wait(self, timeout: float | None = None) -> bool:
-        if timeout is None:
-            while not self.is_set():
-                self._node.sleep(0.1)
-            return True
-        return not self._node.sleep(timeout) or super().is_set()
-
-
 def replay_topics(bag: str) -> dict[str, bool]:
     """Wrench topics of ``bag`` (``REPLAY_TYPES``) -> whether it holds an EndOfStream on them."""
     info = BagReader(bag).info()
@@ -246,21 +228,10 @@ def run_replay(node: Node, params: WrenchSourceParams) -> int:
     if not topics:
         log.error("%s: %s has no %s topic", node.fqn, params.bag, " or ".join(REPLAY_TYPES))
         return -1
-    publishers: dict[str, Publisher] = {}
-
-    def make(topic: str, msg_type: MessageTypes, hwm: int) -> Publisher:
-        publishers[topic] = node.create_publisher(topic, msg_type, wait_for=params.wait_for,
-                                                  hwm=hwm)
-        return publishers[topic]
-
-    def ready(pubs: dict[str, Publisher]) -> bool:
-        return all(node.wait_for_subscribers(p.topic, params.wait_for, params.wait_timeout_s)
-                   for p in pubs.values()) if params.wait_for else True
-
     node.set_state("running", f"replaying {params.bag}")
-    result = play_bag(params.bag, rate=params.replay_rate or None, topics=list(topics),
-                      wait_s=0.0 if params.wait_for else 0.5, stop=_NodeStop(node),
-                      make_publisher=make, ready=ready)
+    result, publishers = play_bag_gated(
+        node, params.bag, params.wait_for, params.wait_timeout_s, rate=params.replay_rate or None,
+        topics=list(topics))
     if result.interrupted and not node.stop_requested:
         return -1
     for topic, has_eos in topics.items():

@@ -187,11 +187,13 @@ class Node:
         return publisher
 
     def create_subscriber(
-        self, topics: Mapping[str, MessageTypes | None], hwm: int = DEFAULT_HWM
+        self, topics: Mapping[str, MessageTypes | None] | None, hwm: int = DEFAULT_HWM
     ) -> Subscriber:
         """Subscriber on the resolved ``topics`` (topic -> type or tuple of types, ``None`` for
-        any type)."""
-        resolved = {self.resolve(topic): msg_type for topic, msg_type in topics.items()}
+        any type), or on every topic (``topics=None``, e.g. a recorder); its counters are in
+        the node's status either way."""
+        resolved = None if topics is None else {
+            self.resolve(topic): msg_type for topic, msg_type in topics.items()}
         subscriber = Subscriber(resolved, self.endpoints, self.context, hwm)
         with self._lock:
             self._subscribers.append(subscriber)
@@ -248,6 +250,11 @@ class Node:
     def stop_requested(self) -> bool:
         """Whether a signal or ``request_stop`` asked the node to stop."""
         return self._stop.is_set()
+
+    @property
+    def stop_event(self) -> threading.Event:
+        """Set when a signal or ``request_stop`` asks the node to stop (to wait on)."""
+        return self._stop
 
     def request_stop(self) -> None:
         """Ask every loop of the node to end."""

@@ -85,3 +85,44 @@ def test_recorder_node_process_stops_on_end_of_stream(tmp_path: Path,
     records = list(BagReader(out))
     assert [r.payload for r in records[:-1]] == sent
     assert records[-1].type_name == EndOfStream.TYPE_NAME
+
+
+def test_recording_every_topic_reports_its_counters(tmp_path: Path, endpoints: Endpoints) -> None:
+    # The record-all subscriber is the node's own: its received/lost/rejected reach the status.
+    out = tmp_path / "all.mcap"
+    params = tmp_path / "rec.yaml"
+    params.write_text(yaml.safe_dump({"output": str(out), "stop_on_eos": True, "eos_grace_s": 0.2}))
+    env = {**os.environ, **endpoints.to_env()}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vibrissa.nodes.recorder", "--name", "rec", "--params-file",
+         str(params)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    last: NodeStatus | None = None
+    try:
+        with Publisher("/w9/wrench", WhiskerWrench, endpoints) as pub, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
+            deadline = time.monotonic() + TIMEOUT_S
+            while last is None or "/w9/wrench" not in last.seen_topics:
+                assert time.monotonic() < deadline, "recorder never reported /w9/wrench"
+                pub.ping("/test")
+                got = status.receive(0.1)
+                if got is not None and isinstance(got.msg, NodeStatus) and got.msg.node == "/rec":
+                    last = got.msg
+            for i in range(40):
+                pub.publish(wrench(i))
+            pub.publish_end_of_stream("/test")
+            while proc.poll() is None or (last is not None and last.state != "finished"):
+                assert time.monotonic() < deadline, "recorder did not finish"
+                got = status.receive(0.1)
+                if got is not None and isinstance(got.msg, NodeStatus) and got.msg.node == "/rec":
+                    last = got.msg
+                elif got is None and proc.poll() is not None:
+                    break
+            _, err = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert last is not None and last.counters["received"] >= 41, last
+    assert last.counters["lost"] == 0 and last.counters["rejected"] == 0
+    assert sum(1 for r in BagReader(out) if r.topic == "/w9/wrench") == 41

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+import tracemalloc
 from typing import Any
 
 import msgpack
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
 
 from vibrissa.msgs import (
     MESSAGE_TYPES,
@@ -433,3 +436,101 @@ def test_array_types_refuse_nan_wrong_dtype_and_wrong_version() -> None:
         refuse(pack(obj), VersionMismatchError, msg.TYPE_NAME, "version 2")
     with pytest.raises(ValueError, match="point"):
         encode(ContactPointArray(**{**contact_array().__dict__, "point": [[np.nan, 0, 0], [0, 0, 0]]}))
+
+
+# -- fuzzing (hypothesis): whatever the bytes, a message or a DecodeError, never anything else,
+# and nothing allocated that the bytes do not back.
+
+SAMPLES = {type(m).TYPE_NAME: encode(m) for m in samples()}
+FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+# Any value msgpack can carry (ints within its 64-bit range).
+scalars = (st.none() | st.booleans() | st.integers(-(2**63), 2**64 - 1)
+           | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=20)
+           | st.binary(max_size=64))
+values = st.recursive(scalars, lambda inner: st.lists(inner, max_size=4)
+                      | st.dictionaries(st.text(max_size=8) | st.integers(-5, 5), inner, max_size=4),
+                      max_leaves=12)
+# Array headers, plausible and not: dtypes, shapes (also huge), data of any length.
+headers = st.fixed_dictionaries({
+    "dtype": st.sampled_from(["<f8", "<i4", ">f8", "|b1", "<f4", "O", "V8", "<U3", "", "<f8x"])
+    | st.text(max_size=6),
+    "shape": st.lists(st.integers(-3, 10**12) | st.text(max_size=2), max_size=4) | values,
+    "data": st.binary(max_size=128) | values,
+})
+
+
+def decodes_or_refuses(payload: bytes) -> None:
+    """The property: a message, or a DecodeError."""
+    try:
+        msg = decode(payload)
+    except DecodeError:
+        return
+    assert isinstance(msg, Message)
+
+
+@pytest.mark.parametrize("type_name", sorted(MESSAGE_TYPES))
+def test_every_type_has_a_fuzz_sample(type_name: str) -> None:
+    assert type_name in SAMPLES
+
+
+@FUZZ
+@given(st.binary(max_size=512))
+@example(b"")
+@example(b"\xc1")  # a byte msgpack never uses
+@example(b"\x81\xa5_type\xc0")  # {"_type": nil}
+def test_random_bytes(payload: bytes) -> None:
+    decodes_or_refuses(payload)
+
+
+@FUZZ
+@given(st.sampled_from(sorted(SAMPLES)), st.data())
+def test_truncated_and_extended_payloads(type_name: str, data: st.DataObject) -> None:
+    payload = SAMPLES[type_name]
+    cut = data.draw(st.integers(0, len(payload)))
+    decodes_or_refuses(payload[:cut])
+    decodes_or_refuses(payload + data.draw(st.binary(min_size=1, max_size=16)))
+
+
+@FUZZ
+@given(st.sampled_from(sorted(SAMPLES)), st.data())
+def test_a_field_replaced_deleted_or_added(type_name: str, data: st.DataObject) -> None:
+    obj: dict[Any, Any] = msgpack.unpackb(SAMPLES[type_name], raw=False)
+    key = data.draw(st.sampled_from(sorted(obj)))
+    action = data.draw(st.sampled_from(["replace", "delete", "add", "header"]))
+    if action == "replace":
+        obj[key] = data.draw(values)
+    elif action == "delete":
+        del obj[key]
+    elif action == "add":
+        obj[data.draw(st.text(max_size=8) | st.integers(-5, 5))] = data.draw(values)
+    else:
+        obj[key] = data.draw(headers)
+    decodes_or_refuses(msgpack.packb(obj))
+
+
+@FUZZ
+@given(st.sampled_from(sorted(SAMPLES)), st.data())
+def test_array_header_keys_mutated(type_name: str, data: st.DataObject) -> None:
+    obj: dict[Any, Any] = msgpack.unpackb(SAMPLES[type_name], raw=False)
+    arrays = sorted(k for k, v in obj.items() if isinstance(v, dict) and "dtype" in v)
+    if not arrays:
+        return
+    header = obj[data.draw(st.sampled_from(arrays))]
+    part = data.draw(st.sampled_from(["dtype", "shape", "data"]))
+    header[part] = data.draw(headers)[part]
+    decodes_or_refuses(msgpack.packb(obj))
+
+
+@pytest.mark.parametrize("shape", [[10**12, 3], [2**62, 2**62], [10**6, 10**6, 3], [-1, 3]])
+def test_a_huge_shape_claim_is_refused_without_allocating(shape: list[int]) -> None:
+    obj = msgpack.unpackb(SAMPLES["vibrissa/WhiskerWrenchArray"], raw=False)
+    obj["f0"] = {"dtype": "<f8", "shape": shape, "data": np.zeros(9).tobytes()}
+    tracemalloc.start()
+    try:
+        with pytest.raises(DecodeError):
+            decode(msgpack.packb(obj))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, f"decode allocated {peak} bytes for a claim it could not back"

@@ -31,6 +31,18 @@ def rx(topic: str, pub: int, msg: Any) -> Received:
     return Received(topic, msg, encode(msg), Header(pub, 0), 0.0)
 
 
+def seen(pub: Publisher, status: Subscriber, node: str) -> NodeStatus:
+    """The readiness handshake: ping until ``node`` reports ``pub``'s topic; its status."""
+    deadline = time.monotonic() + TIMEOUT_S
+    while True:
+        assert time.monotonic() < deadline, f"{node} never reported {pub.topic}"
+        pub.ping("/test")
+        got = status.receive(0.1)
+        if got is not None and isinstance(got.msg, NodeStatus) and got.msg.node == node \
+                and pub.topic in got.msg.seen_topics:
+            return got.msg
+
+
 def test_end_of_stream_waits_for_every_publisher_and_grace() -> None:
     eos = EndOfStream(stamp=0.0, source="/a", count=1)
     tracker = EndOfStreamTracker(eos_grace_s=0.5)
@@ -63,14 +75,7 @@ def test_recorder_node_process_stops_on_end_of_stream(tmp_path: Path,
     try:
         with Publisher("/w0/wrench", WhiskerWrench, endpoints) as pub, \
                 Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
-            deadline = time.monotonic() + TIMEOUT_S
-            ready = False
-            while not ready:  # the readiness handshake: ping until the node reports the topic
-                assert time.monotonic() < deadline, "recorder never reported /w0/wrench"
-                pub.ping("/test")
-                got = status.receive(0.1)
-                ready = got is not None and isinstance(got.msg, NodeStatus) and \
-                    got.msg.node == "/w0/rec" and "/w0/wrench" in got.msg.seen_topics
+            seen(pub, status, "/w0/rec")
             sent = []
             for i in range(50):
                 pub.publish(wrench(i))
@@ -96,17 +101,11 @@ def test_recording_every_topic_reports_its_counters(tmp_path: Path, endpoints: E
     proc = subprocess.Popen(
         [sys.executable, "-m", "vibrissa.nodes.recorder", "--name", "rec", "--params-file",
          str(params)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    last: NodeStatus | None = None
     try:
         with Publisher("/w9/wrench", WhiskerWrench, endpoints) as pub, \
                 Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
+            last = seen(pub, status, "/rec")
             deadline = time.monotonic() + TIMEOUT_S
-            while last is None or "/w9/wrench" not in last.seen_topics:
-                assert time.monotonic() < deadline, "recorder never reported /w9/wrench"
-                pub.ping("/test")
-                got = status.receive(0.1)
-                if got is not None and isinstance(got.msg, NodeStatus) and got.msg.node == "/rec":
-                    last = got.msg
             for i in range(40):
                 pub.publish(wrench(i))
             pub.publish_end_of_stream("/test")

@@ -177,6 +177,14 @@ class Probe:
     def status_of(self, fqn: str, predicate: Callable[[NodeStatus], bool],
                   timeout: float = 30.0) -> NodeStatus:
         """The first status of ``fqn`` that satisfies ``predicate``."""
+        status = self.wait_status(fqn, predicate, timeout)
+        if status is None:
+            pytest.fail(f"no matching status of {fqn} within {timeout} s: {self.statuses.get(fqn)}")
+        return status
+
+    def wait_status(self, fqn: str, predicate: Callable[[NodeStatus], bool],
+                    timeout: float) -> NodeStatus | None:
+        """:meth:`status_of`, or None after ``timeout`` (the node may still be starting)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             rx = self.status_sub.receive(0.1)
@@ -184,7 +192,7 @@ class Probe:
                 self.statuses[rx.msg.node] = rx.msg
                 if rx.msg.node == fqn and predicate(rx.msg):
                     return rx.msg
-        pytest.fail(f"no matching status of {fqn} within {timeout} s: {self.statuses.get(fqn)}")
+        return None
 
     def close(self) -> None:
         self.node.close(drain_s=0.0)
@@ -394,7 +402,7 @@ def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path:
             status = probe.statuses.get(fqn)
             if status is not None and WRENCH in status.seen_topics:
                 break
-            probe.status_of(fqn, lambda s: True, timeout=1.0)
+            probe.wait_status(fqn, lambda s: True, timeout=1.0)  # still starting: ping again
         good_wrench = _good_wrench()
         good = encode(good_wrench)
         bad = _bad_payloads(good)

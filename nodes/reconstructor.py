@@ -155,7 +155,8 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: RodScale = _UNIT_ROD
     counts = [1 if isinstance(msg, WhiskerWrench) else len(msg.whisker_ids) for msg in msgs]
     columns = ("clamp_orientation", "clamp_position", "f0", "m0")
     if len(msgs) == 1:  # (N, ...) rows as they are; a wrench's (3,) as its one row
-        q, p0, f0, m0 = (np.atleast_2d(getattr(msgs[0], name)) for name in columns)
+        values = [getattr(msgs[0], name) for name in columns]
+        q, p0, f0, m0 = values if values[0].ndim == 2 else (value[None] for value in values)
     else:  # vstack takes a wrench's (3,) as one row too
         q, p0, f0, m0 = (np.vstack([getattr(msg, name) for msg in msgs]) for name in columns)
     result = reconstruct_si(q, p0, f0, m0, rod)

@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +31,21 @@ def wrench(i: int) -> WhiskerWrench:
 
 def rx(topic: str, pub: int, msg: Any) -> Received:
     return Received(topic, msg, encode(msg), Header(pub, 0), 0.0)
+
+
+@contextmanager
+def recorder(params: Path, endpoints: Endpoints, *args: str) -> Iterator[subprocess.Popen[str]]:
+    """The recorder node as a process named ``rec``; killed if still running at the end."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vibrissa.nodes.recorder", "--name", "rec", "--params-file",
+         str(params), *args], env={**os.environ, **endpoints.to_env()}, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
 
 
 def seen(pub: Publisher, status: Subscriber, node: str) -> NodeStatus:
@@ -67,25 +84,16 @@ def test_recorder_node_process_stops_on_end_of_stream(tmp_path: Path,
     params = tmp_path / "rec.yaml"
     params.write_text(yaml.safe_dump({"output": str(out), "topics": ["wrench"],
                                       "stop_on_eos": True, "eos_grace_s": 0.2}))
-    env = {**os.environ, **endpoints.to_env()}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "vibrissa.nodes.recorder", "--name", "rec", "--namespace", "/w0",
-         "--params-file", str(params)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True)
-    try:
-        with Publisher("/w0/wrench", WhiskerWrench, endpoints) as pub, \
-                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
-            seen(pub, status, "/w0/rec")
-            sent = []
-            for i in range(50):
-                pub.publish(wrench(i))
-                sent.append(encode(wrench(i)))
-            pub.publish_end_of_stream("/test")
-            _, err = proc.communicate(timeout=TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+    with recorder(params, endpoints, "--namespace", "/w0") as proc, \
+            Publisher("/w0/wrench", WhiskerWrench, endpoints) as pub, \
+            Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
+        seen(pub, status, "/w0/rec")
+        sent = []
+        for i in range(50):
+            pub.publish(wrench(i))
+            sent.append(encode(wrench(i)))
+        pub.publish_end_of_stream("/test")
+        _, err = proc.communicate(timeout=TIMEOUT_S)
     assert proc.returncode == 0, err
     records = list(BagReader(out))
     assert [r.payload for r in records[:-1]] == sent
@@ -97,30 +105,22 @@ def test_recording_every_topic_reports_its_counters(tmp_path: Path, endpoints: E
     out = tmp_path / "all.mcap"
     params = tmp_path / "rec.yaml"
     params.write_text(yaml.safe_dump({"output": str(out), "stop_on_eos": True, "eos_grace_s": 0.2}))
-    env = {**os.environ, **endpoints.to_env()}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "vibrissa.nodes.recorder", "--name", "rec", "--params-file",
-         str(params)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        with Publisher("/w9/wrench", WhiskerWrench, endpoints) as pub, \
-                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
-            last = seen(pub, status, "/rec")
-            deadline = time.monotonic() + TIMEOUT_S
-            for i in range(40):
-                pub.publish(wrench(i))
-            pub.publish_end_of_stream("/test")
-            while proc.poll() is None or (last is not None and last.state != "finished"):
-                assert time.monotonic() < deadline, "recorder did not finish"
-                got = status.receive(0.1)
-                if got is not None and isinstance(got.msg, NodeStatus) and got.msg.node == "/rec":
-                    last = got.msg
-                elif got is None and proc.poll() is not None:
-                    break
-            _, err = proc.communicate(timeout=TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+    with recorder(params, endpoints) as proc, \
+            Publisher("/w9/wrench", WhiskerWrench, endpoints) as pub, \
+            Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
+        last = seen(pub, status, "/rec")
+        deadline = time.monotonic() + TIMEOUT_S
+        for i in range(40):
+            pub.publish(wrench(i))
+        pub.publish_end_of_stream("/test")
+        while proc.poll() is None or (last is not None and last.state != "finished"):
+            assert time.monotonic() < deadline, "recorder did not finish"
+            got = status.receive(0.1)
+            if got is not None and isinstance(got.msg, NodeStatus) and got.msg.node == "/rec":
+                last = got.msg
+            elif got is None and proc.poll() is not None:
+                break
+        _, err = proc.communicate(timeout=TIMEOUT_S)
     assert proc.returncode == 0, err
     assert last is not None and last.counters["received"] >= 41, last
     assert last.counters["lost"] == 0 and last.counters["rejected"] == 0

@@ -164,11 +164,9 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: RodScale = _UNIT_ROD
                                        result.force_n, result.status)
     pose_ok, flags = result.pose_ok.tolist(), status.tolist()
     valid = [ok and not flag & _NO_CONTACT for ok, flag in zip(pose_ok, flags, strict=True)]
-    if any(isinstance(msg, WhiskerWrenchArray) for msg in msgs):
-        for value in (point, s1, phase, force, status):
-            value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
-    if any(isinstance(msg, WhiskerWrench) for msg in msgs):  # plain numbers for ContactPoint
-        points, s1s, phases, forces = point.tolist(), s1.tolist(), phase.tolist(), force.tolist()
+    for value in (point, s1, phase, force, status):
+        value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
+    s1s, phases = s1.tolist(), phase.tolist()
     outcomes = []
     first = 0
     for msg, n in zip(msgs, counts, strict=True):
@@ -179,8 +177,8 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: RodScale = _UNIT_ROD
             if kept:
                 contacts = ContactPoint(
                     stamp=msg.stamp, seq=msg.seq, whisker_id=msg.whisker_id, frame_id=msg.frame_id,
-                    point=points[first], s1=s1s[first], phase=ContactPhase(phases[first]),
-                    force=forces[first], status=ContactStatus(flags[first]))
+                    point=point[first], s1=s1s[first], phase=ContactPhase(phases[first]),
+                    force=force[first], status=ContactStatus(flags[first]))
         else:
             if kept == n:
                 rows_kept: slice | list[int] = slice(first, last)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -206,8 +207,7 @@ def reconstruct_row(
     return s1, phase, math.atan2(e_uy, e_ux), status
 
 
-@dataclass(frozen=True)
-class ReconstructionSI:
+class ReconstructionSI(NamedTuple):
     """Contact points reconstructed from SI wrenches with clamp poses; one entry per sample.
 
     Attributes

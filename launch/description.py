@@ -32,13 +32,14 @@ import re
 import shlex
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
 import yaml
 
-from vibrissa.wire.topics import validate_name, validate_namespace, validate_token
+from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
 from vibrissa.wire.transport import Endpoints
 
 __all__ = [
@@ -57,10 +58,7 @@ __all__ = [
 
 ON_EXIT_ACTIONS = ("shutdown",)
 
-_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
-_PKG = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*\Z")
 _SUBST = re.compile(r"\$\(([^()]*)\)")
-# Highest domain id whose ports 7400 + 2*id, 7401 + 2*id are still valid TCP ports.
 
 
 class LaunchFileError(ValueError):
@@ -113,7 +111,7 @@ class Remap:
 class TransportSpec:
     """Where the launcher's proxy binds.
 
-    Either a ``domain`` id (ports ``7400 + 2*id`` and ``7401 + 2*id`` on loopback), or explicit
+    Either a ``domain`` id (loopback ports, ``Endpoints.for_domain``), or explicit
     ``pub_endpoint`` (XSUB, publishers connect) and ``sub_endpoint`` (XPUB, subscribers connect),
     or neither: free loopback ports.
     """
@@ -177,7 +175,7 @@ class NodeSpec:
     @property
     def fqn(self) -> str:
         """Fully qualified node name, e.g. ``/whisker0/reconstructor``."""
-        return f"{self.namespace.rstrip('/')}/{self.name}"
+        return node_fqn(self.name, self.namespace)
 
     def params_dict(self) -> dict[str, Any]:
         """The parameters as a mapping, in declaration order."""
@@ -340,15 +338,11 @@ class _Parser:
             raise self.error(path, f"expected a list, got {_show(value)}")
         return value
 
-    def string(self, value: Any, path: str, pattern: re.Pattern[str] | None = None,
-               what: str = "", check: Callable[[str], None] | None = None) -> str:
-        """A string; matching ``pattern`` (else "invalid ``what``"), or passing ``check`` (a
-        name rule of the wire that raises ValueError)."""
+    def string(self, value: Any, path: str, check: Callable[[str], None] | None = None) -> str:
+        """A string, passing ``check`` if given (a name rule of the wire, raising ValueError)."""
         value = self.retyped(value, path)
         if not isinstance(value, str):
             raise self.error(path, f"expected str, got {_show(value)}")
-        if pattern is not None and not pattern.match(value):
-            raise self.error(path, f"invalid {what} {value!r}")
         if check is not None:
             try:
                 check(value)
@@ -403,7 +397,7 @@ class _Parser:
 
     def arg(self, value: Any, path: str) -> LaunchArg:
         body = self.mapping(value, path, ("name",), ("default", "description"))
-        name = self.string(body["name"], f"{path}.name", _IDENT, "argument name")
+        name = self.string(body["name"], f"{path}.name", partial(validate_token, what="argument name"))
         default = None
         if "default" in body:
             default = self.text(body["default"], f"{path}.default")
@@ -452,9 +446,9 @@ class _Parser:
                 raise self.error(f"{path}.cmd", "expected a non-empty list")
             cmd = tuple(self.text(v, f"{path}.cmd[{i}]") for i, v in enumerate(items))
         else:
-            executable = self.string(body["exec"], f"{path}.exec", _IDENT, "executable")
+            executable = self.string(body["exec"], f"{path}.exec")
             if "pkg" in body:
-                pkg = self.string(body["pkg"], f"{path}.pkg", _PKG, "package")
+                pkg = self.string(body["pkg"], f"{path}.pkg")
             try:
                 node_module(pkg, executable)
             except ValueError as exc:
@@ -508,7 +502,8 @@ class _Parser:
         for i, entry in enumerate(self.list_of(body.get("env", []), f"{path}.env")):
             where = f"{path}.env[{i}]"
             item = self.mapping(entry, where, ("name", "value"), ())
-            ename = self.string(item["name"], f"{where}.name", _IDENT, "environment variable")
+            ename = self.string(item["name"], f"{where}.name",
+                                partial(validate_token, what="environment variable"))
             env.append((ename, self.text(item["value"], f"{where}.value")))
 
         respawn = self.boolean(body.get("respawn", False), f"{path}.respawn")
@@ -556,8 +551,12 @@ def parse_arg_overrides(items: Sequence[str], source: str = "command line") -> d
     overrides: dict[str, str] = {}
     for item in items:
         name, sep, value = item.partition(":=")
-        if not sep or not _IDENT.match(name):
+        if not sep:
             raise LaunchFileError(source, "", f"bad argument {item!r}: expected NAME:=VALUE")
+        try:
+            validate_token(name, "argument name")
+        except ValueError as exc:
+            raise LaunchFileError(source, "", f"bad argument {item!r}: {exc}") from None
         overrides[name] = value
     return overrides
 

@@ -1,8 +1,8 @@
 """``vibrissa launch FILE.yaml [name:=value ...]``: run a node graph from a YAML launch file.
 
 The launcher starts the XSUB/XPUB proxy in its own process, then every node in file order as
-a child in its own process group, with ``VIBRISSA_PUB_ENDPOINT``/``VIBRISSA_SUB_ENDPOINT`` in
-its environment and its parameters in a temporary YAML file. Each line a child writes is
+a child in its own process group, with the proxy's endpoints in its environment
+(``Endpoints.to_env()``) and its parameters in a temporary YAML file. Each line a child writes is
 echoed with a ``[name] `` prefix. Nodes that fail are respawned per their policy; a failed
 ``required`` node, a node with ``on_exit: shutdown`` finishing, Ctrl-C or SIGTERM shut the graph
 down in reverse start order (SIGINT, grace period, SIGTERM, grace period, SIGKILL).

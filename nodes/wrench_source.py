@@ -223,7 +223,8 @@ def replay_topics(bag: str) -> dict[str, bool]:
 
 
 def run_replay(node: Node, params: WrenchSourceParams) -> int:
-    """Play the bag's wrench topics (``vibrissa.wire.bag.play_bag``); messages sent."""
+    """Play the bag's wrench topics, held until ``wait_for`` nodes are ready
+    (``vibrissa.runtime.playback.play_bag_gated``); messages sent, -1 on failure."""
     topics = replay_topics(params.bag)
     if not topics:
         log.error("%s: %s has no %s topic", node.fqn, params.bag, " or ".join(REPLAY_TYPES))

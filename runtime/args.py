@@ -56,6 +56,3 @@ def _key_value(text: str) -> tuple[str, str]:
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"expected KEY:=VALUE, got {text!r}")
     return key, value
-
-
-# -- parameters ------------------------------------------------------------------------------

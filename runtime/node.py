@@ -75,8 +75,6 @@ def configure_logging(level: int | str | None = None) -> None:
                         format="%(levelname)s %(name)s: %(message)s", force=True)
 
 
-
-
 @dataclasses.dataclass
 class _Gate:
     publisher: Publisher

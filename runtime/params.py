@@ -12,6 +12,9 @@ from typing import Any, TypeVar
 
 import yaml
 
+# Not msgspec.convert: for a dataclass it ignores unknown keys (strictness is the point here),
+# takes a ``field(init=False)`` (the nodes' derived ``rod``) for a required key, and gives the
+# key path of a wrong value only inside its message text, which would have to be re-parsed.
 P = TypeVar("P")
 
 
@@ -131,6 +134,3 @@ def _check(value: object, hint: Any, name: str, source: str) -> Any:
         f"{source}: parameter {name!r} expects {expected or hint}, "
         f"got {type(value).__name__} ({value!r})"
     )
-
-
-# -- logging ---------------------------------------------------------------------------------

@@ -76,4 +76,4 @@ def node_fqn(name: str, namespace: str = "/") -> str:
     """Fully qualified node name: ``/ns/name``; ``name`` is one token."""
     validate_namespace(namespace)
     validate_token(name)
-    return f"{namespace.rstrip('/')}/{name}"
+    return _expand(name, namespace)

@@ -274,8 +274,8 @@ def test_unreadable_file_is_named(tmp_path: Path) -> None:
     ("name", "two.tokens", "invalid node name"),
 ])
 def test_names_follow_the_wire_rules(tmp_path: Path, key: str, value: str, words: str) -> None:
-    # The launch file checks names with the same rules the node applies at start (a `~` remap
-    # used to pass here and stop the node with exit 2).
+    # The launch file checks names with the same rules the node applies at start, so a name
+    # the node would refuse (exit 2 at start) is refused before anything starts.
     message = error_of(tmp_path, f"launch:\n  - node: {{exec: reconstructor, {key}: {value}}}\n")
     assert f"launch[0].node.{key}" in message and words in message, message
 

@@ -156,6 +156,18 @@ def test_bad_file_or_argument_exits_2_and_starts_nothing(tmp_path: Path) -> None
     assert not pid_file.exists()
 
 
+def test_a_private_name_exits_2_naming_file_and_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    node = fixture_node("printer", "printer")
+    node["remap"] = [{"from": "~wrench", "to": "/whisker0/wrench"}]
+    path = write_launch(tmp_path, node)
+    assert launcher_main([str(path)]) == 2
+    out, err = capsys.readouterr()
+    assert f"{path}: launch[0].node.remap[0].from: invalid topic name '~wrench'" in err, err
+    assert "[launch]" not in err and out == ""
+
+
 def test_kill_9_with_respawn_restarts_and_completes(
     tmp_path: Path, launcher_procs: list[subprocess.Popen[str]]
 ) -> None:

@@ -6,40 +6,16 @@ import argparse
 import math
 import sys
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import zmq
 
+from vibrissa.cli.graph import add_endpoint_flags, endpoints_from, stop_on_signals
 from vibrissa.nodes import recorder
 from vibrissa.runtime import Node
 from vibrissa.runtime.playback import play_bag_gated
-from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire.bag import BagReader, PlayResult, export_json, play_bag
 from vibrissa.wire.transport import Endpoints
-
-
-def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
-    """``--pub``/``--sub`` overrides of ``Endpoints.from_env()`` (VIBRISSA_DOMAIN_ID)."""
-    parser.add_argument("--pub", metavar="ENDPOINT",
-                        help="proxy endpoint publishers connect to (XSUB)")
-    parser.add_argument("--sub", metavar="ENDPOINT",
-                        help="proxy endpoint subscribers connect to (XPUB)")
-
-
-def endpoints_from(args: argparse.Namespace) -> Endpoints:
-    """Endpoints from ``--pub``/``--sub`` where given, the environment otherwise."""
-    env = Endpoints.from_env()
-    return Endpoints(args.pub or env.pub, args.sub or env.sub)
-
-
-@contextmanager
-def stop_on_signals() -> Iterator[threading.Event]:
-    """An event set by SIGINT/SIGTERM while inside; restores the previous handlers."""
-    stop = threading.Event()
-    with SignalHandlers(lambda signum: stop.set()):
-        yield stop
 
 
 def register(subparsers: Any) -> None:
@@ -139,12 +115,7 @@ def _play_gated(args: argparse.Namespace, rate: float | None, endpoints: Endpoin
 
 
 def _info(args: argparse.Namespace) -> int:
-    try:
-        info = BagReader(args.bag).info()
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"vibrissa bag info: {exc}", file=sys.stderr)
-        return 1
-    print(info.format())
+    print(BagReader(args.bag).info().format())
     return 0
 
 

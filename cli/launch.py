@@ -8,8 +8,17 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from vibrissa.launch.description import LaunchDescription, LaunchFileError, load_launch_file, parse_arg_overrides
+from vibrissa.cli.graph import domain_id
+from vibrissa.launch.description import (
+    LaunchDescription,
+    LaunchFileError,
+    check_node_params,
+    load_launch_file,
+    parse_arg_overrides,
+)
 from vibrissa.launch.launcher import DEFAULT_GRACE_S, Launcher, node_command, resolve_launch_file
+from vibrissa.runtime.node import DEBUG_ENV
+from vibrissa.wire.transport import DOMAIN_ENV
 
 
 def run_launch(args: argparse.Namespace) -> int:
@@ -29,6 +38,7 @@ def run_launch(args: argparse.Namespace) -> int:
     try:
         overrides = parse_arg_overrides(args.overrides)
         description = load_launch_file(path, overrides)
+        check_node_params(description)
     except LaunchFileError as exc:
         print(f"vibrissa launch: error: {exc}", file=sys.stderr)
         return 2
@@ -42,7 +52,7 @@ def run_launch(args: argparse.Namespace) -> int:
             for key, value in spec.params_dict().items():
                 print(f"[{spec.name}]   param {key}: {value!r}")
         return 0
-    return Launcher(description, grace_s=args.grace).run()
+    return Launcher(description, grace_s=args.grace, domain=args.domain, debug=args.debug).run()
 
 
 def _print_args(description: LaunchDescription) -> None:
@@ -79,7 +89,12 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("file", help="launch file path, or the name of a packaged launch file")
     parser.add_argument("overrides", nargs="*", metavar="NAME:=VALUE",
-                        help="launch argument values")
+                        help="launch argument values (before or after the flags)")
+    parser.add_argument("--domain", type=domain_id, metavar="N",
+                        help=f"run the graph on domain N (default: ${DOMAIN_ENV}, else 0, "
+                             "else the next free one); the tools take the same --domain")
+    parser.add_argument("--debug", action="store_true",
+                        help=f"nodes print the traceback of an error at start ({DEBUG_ENV}=1)")
     parser.add_argument("--grace", type=seconds, default=DEFAULT_GRACE_S, metavar="SECONDS",
                         help="wait after SIGINT, then after SIGTERM, before escalating "
                              f"(default {DEFAULT_GRACE_S:g})")
@@ -87,15 +102,26 @@ def register(subparsers: Any) -> None:
                         help="list the launch file's arguments and exit")
     parser.add_argument("--dry-run", action="store_true",
                         help="validate and print the node commands without starting anything")
-    parser.set_defaults(func=run_launch)
+    parser.set_defaults(func=run_launch, overrides_anywhere=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``vibrissa launch`` alone (same as ``vibrissa launch ...``)."""
     parser = argparse.ArgumentParser(prog="vibrissa")
     register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["launch", *(sys.argv[1:] if argv is None else argv)])
+    args = parse_command_line(parser, ["launch", *(sys.argv[1:] if argv is None else argv)])
     return int(args.func(args))
+
+
+def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
+    """``parser.parse_args``, except that a command with ``overrides_anywhere`` also takes its
+    ``NAME:=VALUE`` overrides after its flags (``launch demo --dry-run out:=x``)."""
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        if not getattr(args, "overrides_anywhere", False) or not all(":=" in e for e in extras):
+            parser.error(f"unrecognized arguments: {' '.join(extras)}")
+        args.overrides = [*args.overrides, *extras]
+    return args
 
 
 if __name__ == "__main__":

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
+
+from vibrissa.cli.launch import parse_command_line
+from vibrissa.runtime.node import DEBUG_ENV
 
 # Each module registers its subcommands with `register(subparsers)`; every subparser
 # sets `func(args) -> int`.
@@ -23,8 +28,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return int(args.func(args))
+    """Run one command; its exit status.
+
+    An error that escapes a command is one line on stderr and status 1 (its traceback with
+    ``VIBRISSA_DEBUG=1``); output cut off by its reader (``| head``) ends the command quietly
+    with status 141 (128 + SIGPIPE), as a shell tool that the pipe kills.
+    """
+    args = parse_command_line(build_parser(), sys.argv[1:] if argv is None else argv)
+    command = " ".join(filter(None, (args.command, getattr(args, f"{args.command}_command", ""))))
+    try:
+        return int(args.func(args))
+    except BrokenPipeError:
+        # Nobody reads stdout any more: point it at /dev/null so that the interpreter's
+        # final flush does not fail again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
+    except KeyboardInterrupt:
+        return 128 + signal.SIGINT
+    except Exception as exc:  # noqa: BLE001 - one line for the user, the traceback on demand
+        if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+            raise
+        if isinstance(exc, (OSError, ValueError)):  # a missing file, a file of the wrong kind
+            print(f"vibrissa {command}: error: {exc}", file=sys.stderr)
+        else:
+            print(f"vibrissa {command}: error: {type(exc).__name__}: {exc} (for the "
+                  f"traceback: {DEBUG_ENV}=1)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -10,11 +10,11 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import Any, NamedTuple, TextIO
 
 import numpy as np
 
-from vibrissa.cli.bag import add_endpoint_flags, endpoints_from, stop_on_signals
+from vibrissa.cli.graph import add_endpoint_flags, endpoints_from, nothing_heard, stop_on_signals
 from vibrissa.msgs import EndOfStream, Message, NodeStatus, to_jsonable
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 from vibrissa.wire.transport import Endpoints, Subscriber
@@ -111,10 +111,10 @@ def survey(endpoints: Endpoints, listen_s: float, context: Any = None) -> dict[s
 
 
 def _list(args: argparse.Namespace) -> int:
-    topics = survey(endpoints_from(args), args.listen)
+    endpoints = endpoints_from(args)
+    topics = survey(endpoints, args.listen)
     if not topics:
-        print("no topics seen (is the graph running? check VIBRISSA_DOMAIN_ID or --pub/--sub)",
-              file=sys.stderr)
+        print(f"vibrissa topic list: {nothing_heard(args, endpoints)}", file=sys.stderr)
         return 1
     rows = [("TOPIC", "TYPE", "PUBLISHERS", "SUBSCRIBERS")]
     for name in sorted(topics):
@@ -155,12 +155,19 @@ def format_message(topic: str, msg: Message, as_json: bool) -> str:
     return "\n".join(lines)
 
 
+class EchoResult(NamedTuple):
+    """How ``echo`` ended: messages printed, and whether its timeout ended it."""
+
+    printed: int
+    timed_out: bool
+
+
 def echo(
     endpoints: Endpoints, topic: str, *, count: int = 0, as_json: bool = False,
     timeout_s: float = 0.0, stop: threading.Event | None = None, out: TextIO | None = None,
     context: Any = None,
-) -> int:
-    """Print messages on ``topic``; returns how many were printed.
+) -> EchoResult:
+    """Print messages on ``topic``.
 
     Stops after ``count`` messages (0: no limit), after ``timeout_s`` s without a message
     (0: never) or when ``stop`` is set.
@@ -175,19 +182,26 @@ def echo(
             rx = sub.receive(0.1)
             if rx is None:
                 if timeout_s > 0 and time.monotonic() - last > timeout_s:
-                    break
+                    return EchoResult(printed, timed_out=True)
                 continue
             last = time.monotonic()
             print(format_message(rx.topic, rx.msg, as_json), file=out, flush=True)
             printed += 1
-    return printed
+    return EchoResult(printed, timed_out=False)
 
 
 def _echo(args: argparse.Namespace) -> int:
+    endpoints = endpoints_from(args)
     with stop_on_signals() as stop:
-        n = echo(endpoints_from(args), args.topic, count=args.count, as_json=args.json,
-                 timeout_s=args.timeout, stop=stop)
-    return 1 if args.count > 0 and n < args.count else 0
+        result = echo(endpoints, args.topic, count=args.count, as_json=args.json,
+                      timeout_s=args.timeout, stop=stop)
+    if result.timed_out:
+        print(f"vibrissa topic echo: no message on {args.topic} for {args.timeout:g} s "
+              f"({result.printed} printed)", file=sys.stderr)
+        if result.printed == 0:
+            print(f"vibrissa topic echo: {nothing_heard(args, endpoints)}", file=sys.stderr)
+        return 1
+    return 1 if args.count > 0 and result.printed < args.count else 0
 
 
 # -- hz --------------------------------------------------------------------------------------

@@ -4,7 +4,7 @@ The format follows ROS 2's YAML launch files where it fits::
 
     launch:
       - arg: {name: mu, default: "0.2", description: "friction coefficient"}
-      - transport: {domain: 3}            # optional; default: free loopback ports
+      - transport: {domain: 3}            # optional; default: VIBRISSA_DOMAIN_ID, else 0
       - node:
           pkg: vibrissa                   # runs `python -m` the module pkg registers for exec
           exec: reconstructor             # ... or `cmd: [prog, arg, ...]` instead of pkg/exec
@@ -26,6 +26,7 @@ names the file and the key path, e.g. ``demo.yaml: launch[2].node.respawn: expec
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
 import os
 import re
@@ -39,6 +40,7 @@ from typing import Any
 
 import yaml
 
+from vibrissa.runtime.params import ParamError, check_params
 from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
 from vibrissa.wire.transport import Endpoints
 
@@ -51,6 +53,7 @@ __all__ = [
     "Param",
     "Remap",
     "TransportSpec",
+    "check_node_params",
     "load_launch_file",
     "parse_arg_overrides",
     "parse_launch",
@@ -111,22 +114,15 @@ class Remap:
 class TransportSpec:
     """Where the launcher's proxy binds.
 
-    Either a ``domain`` id (loopback ports, ``Endpoints.for_domain``), or explicit
-    ``pub_endpoint`` (XSUB, publishers connect) and ``sub_endpoint`` (XPUB, subscribers connect),
-    or neither: free loopback ports.
+    Either a ``domain`` id (its loopback ports, ``Endpoints.for_domain``; the launch fails when
+    another graph holds them), or explicit ``pub_endpoint`` (XSUB, publishers connect) and
+    ``sub_endpoint`` (XPUB, subscribers connect), or neither: the domain of
+    ``VIBRISSA_DOMAIN_ID`` (default 0), or the next free one (``vibrissa.launch.launcher``).
     """
 
     domain: int | None = None
     pub_endpoint: str | None = None
     sub_endpoint: str | None = None
-
-    def endpoints(self) -> Endpoints:
-        """Where the proxy binds (``Endpoints.free()`` for free loopback ports)."""
-        if self.domain is not None:
-            return Endpoints.for_domain(self.domain)
-        if self.pub_endpoint is not None and self.sub_endpoint is not None:
-            return Endpoints(self.pub_endpoint, self.sub_endpoint)
-        return Endpoints.free()
 
 
 NODE_ENTRY_POINTS = "vibrissa.nodes"
@@ -191,6 +187,34 @@ class LaunchDescription:
     arg_values: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
     transport: TransportSpec | None = None
     nodes: tuple[NodeSpec, ...] = ()
+
+
+def check_node_params(description: LaunchDescription) -> None:
+    """Check every ``pkg``/``exec`` node's parameters with its own parameter dataclass (the
+    ``PARAMS`` of the node's module) before anything starts: types, ranges and specs such as
+    surfaces and bag files, exactly as the node will load them. A ``cmd`` node, or a module
+    without ``PARAMS``, checks its own.
+
+    Raises
+    ------
+    LaunchFileError
+        One line naming the file, the node, the parameter and the value, e.g.
+        ``demo.yaml: node 'wrench_source': parameter 'mu' expects float, got str ('abc')``.
+    """
+    for spec in description.nodes:
+        if spec.executable is None:
+            continue
+        where = f"node '{spec.name}'"
+        try:
+            module = importlib.import_module(node_module(spec.pkg, spec.executable))
+        except ValueError as exc:
+            raise LaunchFileError(description.source, where, str(exc)) from None
+        params_class = getattr(module, "PARAMS", None)
+        if params_class is not None:
+            try:
+                check_params(params_class, spec.params_dict(), where)
+            except ParamError as exc:
+                raise LaunchFileError(description.source, "", str(exc)) from None
 
 
 # ---------------------------------------------------------------------------------------------

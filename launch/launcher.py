@@ -1,7 +1,11 @@
 """``vibrissa launch FILE.yaml [name:=value ...]``: run a node graph from a YAML launch file.
 
-The launcher starts the XSUB/XPUB proxy in its own process, then every node in file order as
-a child in its own process group, with the proxy's endpoints in its environment
+The launcher starts the XSUB/XPUB proxy in its own process on the ports of a domain (as ROS 2's
+``ROS_DOMAIN_ID``: ``--domain``, the file's ``transport``, else ``VIBRISSA_DOMAIN_ID``, default 0,
+or the next free domain when another graph holds that one), so that ``vibrissa topic`` and
+``vibrissa bag`` find the graph without flags and two graphs never share a proxy. Then it starts
+every node in file order as a child in its own process group, with the proxy's endpoints in its
+environment
 (``Endpoints.to_env()``) and its parameters in a temporary YAML file. Each line a child writes is
 echoed with a ``[name] `` prefix. Nodes that fail are respawned per their policy; a failed
 ``required`` node, a node with ``on_exit: shutdown`` finishing, Ctrl-C or SIGTERM shut the graph
@@ -15,6 +19,7 @@ invalid launch file or argument (nothing is started); 128 + signal number after 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 import signal
@@ -35,8 +40,9 @@ from vibrissa.launch.description import (
     TransportSpec,
     node_module,
 )
+from vibrissa.runtime.node import DEBUG_ENV
 from vibrissa.runtime.signals import SignalHandlers
-from vibrissa.wire.transport import Proxy
+from vibrissa.wire.transport import DOMAIN_ENV, Endpoints, Proxy
 
 __all__ = [
     "DEFAULT_GRACE_S",
@@ -47,6 +53,8 @@ __all__ = [
 ]
 
 DEFAULT_GRACE_S = 5.0
+DOMAIN_TRIES = 32
+"""Domains tried from the preferred one when it is taken and no domain was asked for."""
 _POLL_S = 0.02
 _READER_JOIN_S = 2.0
 _LOG_PREFIX = "[launch] "
@@ -177,6 +185,10 @@ class Launcher:
         Where prefixed child output and the launcher's own log go (default: sys streams).
     python : str
         Interpreter for ``pkg``/``exec`` nodes.
+    domain : int, optional
+        The graph's domain (``--domain``), over the launch file's; it must be free.
+    debug : bool
+        Nodes log the traceback of an error that ends them (``VIBRISSA_DEBUG=1``).
     """
 
     def __init__(
@@ -187,8 +199,12 @@ class Launcher:
         stdout: IO[str] | None = None,
         stderr: IO[str] | None = None,
         python: str = sys.executable,
+        domain: int | None = None,
+        debug: bool = False,
     ) -> None:
         self.description = description
+        self.domain = domain
+        self.debug = debug
         self.grace_s = grace_s
         self.out = _Output(stdout or sys.stdout, stderr or sys.stderr)
         self.python = python
@@ -211,14 +227,13 @@ class Launcher:
             The exit status (see the module docstring).
         """
         with SignalHandlers(self._signals.append):
-            proxy = Proxy((self.description.transport or TransportSpec()).endpoints())
-            try:
-                endpoints = proxy.start()
-            except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
-                self.out.log(f"cannot start the proxy: {exc}")
+            started = self._start_proxy()
+            if started is None:
                 return 1
-            self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub}")
-            self._env = {"PYTHONUNBUFFERED": "1", **endpoints.to_env()}
+            proxy, domain_env = started
+            assert proxy.endpoints is not None
+            self._env = {"PYTHONUNBUFFERED": "1", **proxy.endpoints.to_env(), **domain_env,
+                         **({DEBUG_ENV: "1"} if self.debug else {})}
             self._params_dir = tempfile.mkdtemp(prefix="vibrissa-launch-")
             try:
                 self._supervise()
@@ -228,6 +243,55 @@ class Launcher:
                     proxy.stop()
                 shutil.rmtree(self._params_dir, ignore_errors=True)
         return self._finish()
+
+    def _start_proxy(self) -> tuple[Proxy, dict[str, str]] | None:
+        """Bind the graph's proxy: the launch file's endpoints, else the domain of ``domain``
+        or of the file (taken or fail), else the environment's domain (default 0) or, when
+        that is taken by another graph, the next free one. Returns the proxy and the domain
+        variable for the nodes, or ``None`` after logging why nothing could be bound."""
+        spec = self.description.transport or TransportSpec()
+        if spec.pub_endpoint is not None and spec.sub_endpoint is not None:
+            proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint))
+            try:
+                endpoints = proxy.start()
+            except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
+                self.out.log(f"cannot start the proxy: {exc}")
+                return None
+            self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
+                         f"(tools: --pub {endpoints.pub} --sub {endpoints.sub})")
+            return proxy, {}
+        fixed = self.domain if self.domain is not None else spec.domain
+        if fixed is not None:
+            candidates = [fixed]
+        else:
+            try:
+                preferred = Endpoints.env_domain()
+            except ValueError as exc:
+                self.out.log(f"cannot choose a domain: {exc}")
+                return None
+            candidates = list(range(preferred, min(preferred + DOMAIN_TRIES, Endpoints.MAX_DOMAIN + 1)))
+        for domain in candidates:
+            proxy = Proxy(Endpoints.for_domain(domain))
+            try:
+                endpoints = proxy.start()
+            except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
+                if getattr(exc, "errno", None) == errno.EADDRINUSE:
+                    continue
+                self.out.log(f"cannot start the proxy on domain {domain}: {exc}")
+                return None
+            if domain != candidates[0]:
+                self.out.log(f"domain {candidates[0]} is in use by another graph; this graph "
+                             f"runs on domain {domain}")
+            tools = ("tools find it without flags" if domain == 0 and DOMAIN_ENV not in os.environ
+                     else f"tools: --domain {domain} or {DOMAIN_ENV}={domain}")
+            self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
+                         f"(domain {domain}; {tools})")
+            return proxy, {DOMAIN_ENV: str(domain)}
+        taken = (f"domain {fixed} is in use" if fixed is not None
+                 else f"domains {candidates[0]}-{candidates[-1]} are all in use")
+        self.out.log(f"cannot start the proxy: {taken} (another graph has bound its ports); "
+                     "choose a free one with --domain N")
+        return None
 
     def _supervise(self) -> None:
         for node in self.nodes:

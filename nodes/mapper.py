@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -49,14 +48,18 @@ from vibrissa.nodes.surface_fit import (
     split_lines,
     write_ply,
 )
-from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.units import RodScale
-from vibrissa.wire.topics import resolve_topic
+from vibrissa.wire.topics import resolve_topic, validate_name
 
 log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
+
+MAX_DEPTH = 12
+"""Deepest Poisson octree: 4096^3 cells, beyond what a contact cloud can fill."""
 
 
 @dataclass(frozen=True)
@@ -107,7 +110,33 @@ class MapperParams:
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "rod", RodScale(self.rod_length_m))  # checks L > 0
+        require_positive("rod_length_m", self.rod_length_m)
+        object.__setattr__(self, "rod", RodScale(self.rod_length_m))
+        require(len(self.topics) > 0, "topics", self.topics, "one or more topic names")
+        for topic in self.topics:
+            require_parsed("topics", topic, validate_name)
+        for name in (self.cloud_topic, self.mesh_topic):
+            require_parsed("cloud_topic/mesh_topic", name, validate_name)
+        for name in self.wait_for:
+            require_parsed("wait_for", name, validate_name)
+        if isinstance(self.expected_sources, int):
+            require(self.expected_sources >= 1, "expected_sources", self.expected_sources,
+                    "a count >= 1 or a list of node names")
+        else:
+            for name in self.expected_sources:
+                require_parsed("expected_sources", name, validate_name)
+        require(bool(self.out_dir), "out_dir", self.out_dir, "a folder")
+        if self.true_surface:
+            require_parsed("true_surface", self.true_surface, parse_surface)
+        require(1 <= self.depth <= MAX_DEPTH, "depth", self.depth,
+                f"an octree depth in [1, {MAX_DEPTH}]")
+        require_non_negative("trim_distance_m", self.trim_distance_m)
+        require_non_negative("trim_factor", self.trim_factor)
+        require_non_negative("timeout_s", self.timeout_s)
+
+
+PARAMS = MapperParams
+"""The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
 
 @dataclass
@@ -381,10 +410,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = NodeArgs.parse(argv, prog="python -m vibrissa.nodes.mapper")
     configure_logging()
     params = load_params(MapperParams, args.params_file, args.params)
+    Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
     with Node.from_args(args) as node:
         run(node, params)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

@@ -32,7 +32,6 @@ tick of one row, so both message shapes take the same path.
 from __future__ import annotations
 
 import logging
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TypeAlias
@@ -53,9 +52,11 @@ from vibrissa.msgs import (
     encode,
 )
 from vibrissa.reconstruct import reconstruct_si
-from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.params import require, require_parsed, require_positive
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
+from vibrissa.wire.topics import validate_name
 from vibrissa.wire.transport import Received
 
 log = logging.getLogger(__name__)
@@ -111,10 +112,18 @@ class ReconstructorParams:
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))  # checks > 0
-        if self.drain_limit < 1 or self.max_batch < 1:
-            raise ValueError("drain_limit and max_batch must be >= 1, got "
-                             f"{self.drain_limit}, {self.max_batch}")
+        require_positive("rod_length_m", self.rod_length_m)
+        require_positive("rod_ei_nm2", self.rod_ei_nm2)
+        object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))
+        for name in (self.input_topic, self.output_topic, *self.wait_for):
+            require_parsed("input_topic/output_topic/wait_for", name, validate_name)
+        for key in ("drain_limit", "max_batch", "receive_hwm"):
+            value = getattr(self, key)
+            require(value >= 1, key, value, "an integer >= 1")
+
+
+PARAMS = ReconstructorParams
+"""The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
 
 Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
@@ -304,4 +313,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

@@ -14,15 +14,16 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from vibrissa.msgs import EndOfStream
-from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.wire.bag import BagWriter
+from vibrissa.wire.topics import validate_name
 from vibrissa.wire.transport import Received, Subscriber
 
 log = logging.getLogger(__name__)
@@ -58,6 +59,19 @@ class RecorderParams:
     duration_s: float = 0.0
     chunk_size: int = 64 * 1024
     flush_interval_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        require(bool(self.output), "output", self.output, "a file name")
+        for topic in self.topics:
+            require_parsed("topics", topic, validate_name)
+        require_non_negative("eos_grace_s", self.eos_grace_s)
+        require_non_negative("duration_s", self.duration_s)
+        require(self.chunk_size >= 1, "chunk_size", self.chunk_size, "a size >= 1 byte")
+        require_positive("flush_interval_s", self.flush_interval_s)
+
+
+PARAMS = RecorderParams
+"""The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
 
 class EndOfStreamTracker:
@@ -232,4 +246,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

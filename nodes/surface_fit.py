@@ -26,7 +26,12 @@ A whisker's contact cloud is a handful of dense *lines* on the object (one per s
   there).
 
 Points are voxel-downsampled first (``voxel`` = 1/4 of the Poisson cell), which evens out the
-density along the lines without losing a line.
+density along the lines without losing a line. The reconstruction runs on one thread: with
+more, its parallel sums round differently from run to run and the same cloud gives meshes
+with different triangle counts.
+
+Open3D (2 s and ~180 MB to import) is imported by the functions that use it, so that a node
+that is stopped before its fit, or a launcher checking the mapper's parameters, never loads it.
 """
 
 from __future__ import annotations
@@ -36,7 +41,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-import open3d as o3d
 from scipy.spatial import cKDTree
 
 FloatArray = npt.NDArray[np.float64]
@@ -196,11 +200,13 @@ def fit_surface(
     if len(points) < 4 or extent == 0.0:
         return SurfaceFit(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), method, trim,
                           spacing)
+    import open3d as o3d
+
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals)
     cloud = cloud.voxel_down_sample(extent / 2**params.depth / 4)
     mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-        cloud, depth=params.depth, linear_fit=True)
+        cloud, depth=params.depth, linear_fit=True, n_threads=1)
     vertices = np.asarray(mesh.vertices)
     distance = cKDTree(points).query(vertices)[0]
     mesh.remove_vertices_by_mask(distance > trim)
@@ -213,6 +219,8 @@ def fit_surface(
 def write_ply(path: str, points: FloatArray, triangles: IntArray | None = None,
               normals: FloatArray | None = None) -> None:
     """Write a point cloud (``triangles`` None) or a triangle mesh as PLY (Open3D)."""
+    import open3d as o3d
+
     if triangles is None:
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
         if normals is not None:

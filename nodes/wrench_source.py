@@ -27,7 +27,7 @@ are the paper's dimensionless values, L = ``rod_length_m`` and EI = ``rod_ei_nm2
 from __future__ import annotations
 
 import logging
-import sys
+import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -36,13 +36,20 @@ from typing import Literal
 import numpy as np
 
 from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
-from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.params import (
+    require,
+    require_non_negative,
+    require_parsed,
+    require_positive,
+)
 from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import Trail, first_contact, simulate_sweeps
 from vibrissa.ticks import Tick, array_ticks, sequential_ticks
 from vibrissa.units import RodScale
-from vibrissa.wire.bag import BagReader
+from vibrissa.wire.bag import BagReader, check_bag_file
+from vibrissa.wire.topics import validate_name
 from vibrissa.wire.transport import DEFAULT_HWM
 
 log = logging.getLogger(__name__)
@@ -50,6 +57,9 @@ log = logging.getLogger(__name__)
 REPLAY_TYPES = (WhiskerWrench.TYPE_NAME, WhiskerWrenchArray.TYPE_NAME)
 
 IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
+
+MAX_STEP = 0.1
+"""Largest clamp step, units of L: coarser steps jump over the contact episodes."""
 
 
 @dataclass(frozen=True)
@@ -119,20 +129,36 @@ class WrenchSourceParams:
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))  # checks > 0
-        if self.rate_hz < 0 or self.replay_rate < 0:
-            raise ValueError(f"rate_hz and replay_rate must be >= 0, got {self.rate_hz}, "
-                             f"{self.replay_rate}")
-        if self.mode == "replay" and not self.bag:
-            raise ValueError("mode 'replay' needs the parameter 'bag'")
-        if self.whisker_ids and len(self.whisker_ids) != len(self.y0):
-            raise ValueError(f"whisker_ids needs one name per y0 ({len(self.y0)}), got "
-                             f"{len(self.whisker_ids)}")
+        require_positive("rod_length_m", self.rod_length_m)
+        require_positive("rod_ei_nm2", self.rod_ei_nm2)
+        object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))
+        require_non_negative("rate_hz", self.rate_hz)
+        require_non_negative("replay_rate", self.replay_rate)
+        require_non_negative("wait_timeout_s", self.wait_timeout_s)
+        require_parsed("topic", self.topic, validate_name)
+        for name in self.wait_for:
+            require_parsed("wait_for", name, validate_name)
+        if self.mode == "replay":
+            require(bool(self.bag), "bag", self.bag, "an .mcap file in mode 'replay'")
+            require_parsed("bag", self.bag, check_bag_file)
+            return
+        require_parsed("surface", self.surface, parse_surface)
+        require(len(self.y0) > 0 and all(math.isfinite(y) for y in self.y0), "y0", self.y0,
+                "one or more finite offsets")
+        require_non_negative("mu", self.mu)
+        require(math.isfinite(self.step) and 0 < self.step <= MAX_STEP, "step", self.step,
+                f"a number in (0, {MAX_STEP:g}] (units of L)")
+        require(not self.whisker_ids or len(self.whisker_ids) == len(self.y0), "whisker_ids",
+                self.whisker_ids, f"one name per y0 ({len(self.y0)})")
 
     @property
     def array_whisker_ids(self) -> list[str]:
         """Names of the array's rows, one per ``y0``."""
         return list(self.whisker_ids) or [f"whisker{i}" for i in range(len(self.y0))]
+
+
+PARAMS = WrenchSourceParams
+"""The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
 
 def tick_messages(
@@ -257,4 +283,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

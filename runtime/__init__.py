@@ -6,7 +6,8 @@ runs inside a ``Node`` (see ``vibrissa.runtime.node``).
 """
 
 from vibrissa.runtime.args import NodeArgs
-from vibrissa.runtime.node import Node, configure_logging
-from vibrissa.runtime.params import load_params
+from vibrissa.runtime.node import Node, configure_logging, run_main
+from vibrissa.runtime.params import ParamError, check_params, load_params
 
-__all__ = ["Node", "NodeArgs", "configure_logging", "load_params"]
+__all__ = ["Node", "NodeArgs", "ParamError", "check_params", "configure_logging", "load_params",
+           "run_main"]

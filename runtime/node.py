@@ -40,14 +40,15 @@ import sys
 import threading
 import time
 import types
-from collections.abc import Iterable, Mapping
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, NoReturn
 
 import zmq
 
 from vibrissa.msgs import NodeStatus
 from vibrissa.msgs.messages import NODE_STATES
 from vibrissa.runtime.args import NodeArgs
+from vibrissa.runtime.params import ParamError
 from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire import (
     DEFAULT_HWM,
@@ -63,6 +64,32 @@ from vibrissa.wire.transport import MessageTypes
 log = logging.getLogger(__name__)
 
 PING_PERIOD_S = 0.1
+DEBUG_ENV = "VIBRISSA_DEBUG"
+"""Set to 1 (``vibrissa launch --debug`` does) for the traceback of an error that ends a node."""
+
+
+def run_main(main: Callable[[], int]) -> NoReturn:
+    """Run a node's ``main`` as the process and exit with its status.
+
+    An exception that ends the node is one log line, its traceback only with
+    ``VIBRISSA_DEBUG=1``; the status is 2 for refused parameters (``ParamError``), 1 for any
+    other error and 130 for a Ctrl-C that came before the node took over the signals.
+    """
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        code = 130
+    except ParamError as exc:
+        log.error("%s", exc)
+        code = 2
+    except Exception as exc:  # noqa: BLE001 - reported once, then the process ends
+        if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+            log.exception("stopped by an error")
+        else:
+            log.error("stopped by %s: %s (for the traceback: %s=1 or vibrissa launch --debug)",
+                      type(exc).__name__, exc, DEBUG_ENV)
+        code = 1
+    sys.exit(code)
 
 
 def configure_logging(level: int | str | None = None) -> None:

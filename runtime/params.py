@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -16,6 +17,10 @@ import yaml
 # takes a ``field(init=False)`` (the nodes' derived ``rod``) for a required key, and gives the
 # key path of a wrong value only inside its message text, which would have to be re-parsed.
 P = TypeVar("P")
+
+
+class ParamError(ValueError):
+    """A parameter value that a node refuses; the message names the source, key and value."""
 
 
 def load_params(
@@ -31,34 +36,79 @@ def load_params(
 
     Raises
     ------
-    ValueError
+    ParamError
         Unknown key (naming the file and key), wrong type (naming key, expected and actual
-        type), a missing required parameter, or a file that is not a mapping.
+        type), a value the dataclass refuses, a missing required parameter, or a file that is
+        not a mapping.
     """
     if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
         raise TypeError(f"load_params needs a dataclass type, got {cls!r}")
     values: dict[str, Any] = {}
-    source = "defaults"
+    sources = [str(params_file)] if params_file is not None else []
+    sources += ["--param"] if overrides else []
+    source = " and ".join(sources) or "defaults"
     if params_file is not None:
-        source = str(params_file)
         try:
             data = yaml.safe_load(Path(params_file).read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ValueError(f"{source}: not valid YAML: {exc}") from exc
+        except (OSError, yaml.YAMLError) as exc:
+            raise ParamError(f"{params_file}: cannot read parameters: {exc}") from exc
         if not isinstance(data, dict):
             kind = type(data).__name__
-            raise ValueError(f"{source}: expected a mapping of parameters, got a {kind}")
-        values.update(_typed_values(cls, data, source, from_text=False))
+            raise ParamError(f"{params_file}: expected a mapping of parameters, got a {kind}")
+        values.update(_typed_values(cls, data, str(params_file), from_text=False))
     if overrides:
         values.update(_typed_values(cls, overrides, "--param", from_text=True))
+    return _build(cls, values, source)
+
+
+def require(ok: bool, name: str, value: object, rule: str) -> None:
+    """A dataclass's own check: ``ValueError`` ``parameter NAME must be RULE, got VALUE``."""
+    if not ok:
+        raise ValueError(f"parameter {name!r} must be {rule}, got {value!r}")
+
+
+def require_positive(name: str, value: float) -> None:
+    """``value`` is a finite number > 0 (``require``)."""
+    require(math.isfinite(value) and value > 0, name, value, "a finite number > 0")
+
+
+def require_non_negative(name: str, value: float) -> None:
+    """``value`` is a finite number >= 0 (``require``)."""
+    require(math.isfinite(value) and value >= 0, name, value, "a finite number >= 0")
+
+
+def require_parsed(name: str, value: object, parse: Callable[[Any], object]) -> None:
+    """``parse(value)`` succeeds (a spec such as a surface, a bag file); its error is named."""
+    try:
+        parse(value)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"parameter {name!r}: {exc}") from None
+
+
+def check_params(cls: type[P], data: Mapping[str, object], source: str) -> P:
+    """``cls`` from already typed values (e.g. a launch file's ``param`` list), as a node
+    would load them; ``source`` prefixes every error (``demo.yaml: node 'mapper'``).
+
+    Raises
+    ------
+    ParamError
+        As ``load_params``.
+    """
+    return _build(cls, _typed_values(cls, data, source, from_text=False), source)
+
+
+def _build(cls: type[P], values: Mapping[str, Any], source: str) -> P:
     missing = [
-        f.name for f in dataclasses.fields(cls)
+        f.name for f in dataclasses.fields(cls)  # type: ignore[arg-type]
         if f.init and f.name not in values
         and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
     ]
     if missing:
-        raise ValueError(f"{source}: missing required parameter(s) {missing} of {cls.__name__}")
-    return cls(**values)
+        raise ParamError(f"{source}: missing required parameter(s) {missing} of {cls.__name__}")
+    try:
+        return cls(**values)
+    except ValueError as exc:  # the dataclass's own checks (__post_init__)
+        raise ParamError(f"{source}: {exc}") from None
 
 
 def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text: bool,
@@ -69,7 +119,7 @@ def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text:
     for key, value in data.items():
         name = f"{prefix}{key}"
         if key not in known:
-            raise ValueError(
+            raise ParamError(
                 f"{source}: unknown parameter {name!r} for {cls.__name__} "
                 f"(known: {', '.join(sorted(known))})"
             )
@@ -78,13 +128,13 @@ def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text:
             try:
                 value = yaml.safe_load(value)
             except yaml.YAMLError as exc:
-                raise ValueError(f"{source}: parameter {name!r}: {value!r} is not YAML") from exc
+                raise ParamError(f"{source}: parameter {name!r}: {value!r} is not YAML") from exc
         out[key] = _check(value, hint, name, source)
     return out
 
 
 def _check(value: object, hint: Any, name: str, source: str) -> Any:
-    """``value`` converted to type ``hint``, or ``ValueError`` naming the parameter."""
+    """``value`` converted to type ``hint``, or ``ParamError`` naming the parameter."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if hint is Any:
         return value
@@ -130,7 +180,7 @@ def _check(value: object, hint: Any, name: str, source: str) -> Any:
     elif isinstance(hint, type) and origin is None and isinstance(value, hint):
         return value
     expected = getattr(hint, "__name__", None) if origin is None else None
-    raise ValueError(
+    raise ParamError(
         f"{source}: parameter {name!r} expects {expected or hint}, "
         f"got {type(value).__name__} ({value!r})"
     )

@@ -45,6 +45,7 @@ __all__ = [
     "BagRecord",
     "BagWriter",
     "PlayResult",
+    "check_bag_file",
     "TopicInfo",
     "export_json",
     "play_bag",
@@ -315,6 +316,27 @@ class BagWriter(contextlib.AbstractContextManager["BagWriter"]):
             self._file.close()
 
 
+def check_bag_file(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a ``Path`` if it is a file that starts as an MCAP file does (or as much of
+    that start as the file holds).
+
+    Raises
+    ------
+    FileNotFoundError
+        Nothing (or no file) at ``path``.
+    ValueError
+        A file that is not MCAP (its first bytes are not the MCAP magic).
+    """
+    file = Path(path)
+    if not file.is_file():
+        raise FileNotFoundError(f"no bag at {file}" + (" (a folder)" if file.is_dir() else ""))
+    with open(file, "rb") as f:
+        head = f.read(len(_MAGIC))
+    if head != _MAGIC[: len(head)]:  # a shorter head is a bag cut off at its very start
+        raise ValueError(f"{file} is not an MCAP file (it does not start with the MCAP magic)")
+    return file
+
+
 class BagReader:
     """Read a bag written by :class:`BagWriter`, also one that was cut off mid-write.
 
@@ -332,9 +354,7 @@ class BagReader:
     """
 
     def __init__(self, path: str | os.PathLike[str], topics: Iterable[str] | None = None):
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise FileNotFoundError(f"no bag at {self.path}")
+        self.path = check_bag_file(path)
         self.topics = None if topics is None else frozenset(topics)
         self.truncated = False
         self.unreadable_bytes = 0

@@ -35,10 +35,11 @@ import dataclasses
 import itertools
 import logging
 import os
+import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, ClassVar, TypeAlias
@@ -60,6 +61,7 @@ from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 __all__ = [
     "DEFAULT_HWM",
+    "DOMAIN_ENV",
     "Endpoints",
     "Header",
     "MessageTypes",
@@ -80,7 +82,7 @@ MessageTypes: TypeAlias = type[Message] | tuple[type[Message], ...]
 
 _ENV_PUB = "VIBRISSA_PUB_ENDPOINT"
 _ENV_SUB = "VIBRISSA_SUB_ENDPOINT"
-_ENV_DOMAIN = "VIBRISSA_DOMAIN_ID"
+DOMAIN_ENV = "VIBRISSA_DOMAIN_ID"
 _CONTROL_IDS = itertools.count()
 _FAIR_RUN = 64  # messages in a row from one socket before a subscriber looks at the others
 
@@ -115,12 +117,33 @@ class Endpoints:
             return cls(pub, sub)
         if pub or sub:
             raise ValueError(f"set both {_ENV_PUB} and {_ENV_SUB}, or neither")
-        text = env.get(_ENV_DOMAIN, "0")
+        return cls.for_domain(cls.env_domain(env))
+
+    @classmethod
+    def env_domain(cls, environ: Mapping[str, str] | None = None) -> int:
+        """The domain id in ``VIBRISSA_DOMAIN_ID``, 0 when unset; ``ValueError`` names a bad one."""
+        env = os.environ if environ is None else environ
+        text = env.get(DOMAIN_ENV, "").strip() or "0"
         try:
             domain_id = int(text)
         except ValueError:
-            raise ValueError(f"{_ENV_DOMAIN}={text!r} is not an integer") from None
-        return cls.for_domain(domain_id)
+            raise ValueError(f"{DOMAIN_ENV}={text!r} is not an integer") from None
+        if not 0 <= domain_id <= cls.MAX_DOMAIN:
+            raise ValueError(f"{DOMAIN_ENV}={domain_id} is not in [0, {cls.MAX_DOMAIN}]")
+        return domain_id
+
+    @classmethod
+    def domains_in_use(cls, domain_ids: Iterable[int], timeout_s: float = 0.2) -> list[int]:
+        """The domains of ``domain_ids`` whose subscriber port accepts a TCP connection on
+        loopback, i.e. where a graph (a launcher's proxy) is probably running."""
+        found = []
+        for domain_id in domain_ids:
+            port = cls.BASE_PORT + 2 * domain_id + 1
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+                probe.settimeout(timeout_s)
+                if probe.connect_ex(("127.0.0.1", port)) == 0:
+                    found.append(domain_id)
+        return found
 
     @classmethod
     def free(cls, host: str = "127.0.0.1") -> Endpoints:

@@ -64,9 +64,9 @@ def talker(endpoints: Endpoints, context: zmq.Context[Any]) -> Iterator[Publishe
 def test_echo_json_lines(endpoints: Endpoints, talker: Publisher,
                          context: zmq.Context[Any]) -> None:
     out = io.StringIO()
-    n = echo(endpoints, "/w0/wrench", count=3, as_json=True, timeout_s=5.0, out=out,
-             context=context)
-    assert n == 3
+    result = echo(endpoints, "/w0/wrench", count=3, as_json=True, timeout_s=5.0, out=out,
+                  context=context)
+    assert result == (3, False)
     rows = [json.loads(line) for line in out.getvalue().splitlines()]
     assert len(rows) == 3
     assert all(r["topic"] == "/w0/wrench" and r["type"] == WhiskerWrench.TYPE_NAME for r in rows)

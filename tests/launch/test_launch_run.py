@@ -272,16 +272,16 @@ def test_on_exit_shutdown_ends_the_launch_cleanly(tmp_path: Path) -> None:
 
 
 def test_show_args_and_dry_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    arg = {"arg": {"name": "mu", "default": "0.2", "description": "friction coefficient"}}
+    arg = {"arg": {"name": "length", "default": "0.2", "description": "rod length"}}
     node = {"exec": "reconstructor", "namespace": "/whisker0",
-            "param": [{"name": "mu", "value": "$(var mu)"}]}
+            "param": [{"name": "rod_length_m", "value": "$(var length)"}]}
     path = write_launch(tmp_path, arg, {"node": node})
     assert launcher_main([str(path), "--show-args"]) == 0
-    assert "mu: friction coefficient  [default: '0.2']" in capsys.readouterr().out
-    assert launcher_main(["--dry-run", str(path), "mu:=0.5"]) == 0
+    assert "length: rod length  [default: '0.2']" in capsys.readouterr().out
+    assert launcher_main(["--dry-run", str(path), "length:=0.5"]) == 0
     out = capsys.readouterr().out
     assert "-m vibrissa.nodes.reconstructor --name reconstructor --namespace /whisker0" in out
-    assert "[reconstructor]   param mu: 0.5" in out
+    assert "[reconstructor]   param rod_length_m: 0.5" in out
 
 
 @pytest.mark.parametrize("transport", [None, {"domain": 5000 + os.getpid() % 5000}])

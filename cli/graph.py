@@ -1,0 +1,81 @@
+"""What the graph tools share (``topic``, ``bag``): where the graph is, how to stop."""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from vibrissa.runtime.signals import SignalHandlers
+from vibrissa.wire.transport import DOMAIN_ENV, Endpoints
+
+SCANNED_DOMAINS = range(32)
+"""Domains probed for running graphs when a tool hears nothing on its own."""
+
+
+def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
+    """``--domain`` and ``--pub``/``--sub``, overriding ``VIBRISSA_DOMAIN_ID`` (default 0)."""
+    parser.add_argument("--domain", type=domain_id, metavar="N",
+                        help=f"the graph's domain (default: ${DOMAIN_ENV}, else 0; "
+                             "`vibrissa launch` prints it)")
+    parser.add_argument("--pub", metavar="ENDPOINT",
+                        help="proxy endpoint publishers connect to (XSUB), over --domain")
+    parser.add_argument("--sub", metavar="ENDPOINT",
+                        help="proxy endpoint subscribers connect to (XPUB), over --domain")
+
+
+def domain_id(text: str) -> int:
+    """Argparse type: a domain id in [0, ``Endpoints.MAX_DOMAIN``]."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer domain id, got {text!r}") from None
+    if not 0 <= value <= Endpoints.MAX_DOMAIN:
+        raise argparse.ArgumentTypeError(f"domain id must be in [0, {Endpoints.MAX_DOMAIN}], "
+                                         f"got {value}")
+    return value
+
+
+def endpoints_from(args: argparse.Namespace) -> Endpoints:
+    """``--pub``/``--sub`` where given, else ``--domain``, else the environment.
+
+    Raises ``ValueError`` for a bad ``VIBRISSA_DOMAIN_ID`` (or only one of the endpoint
+    variables).
+    """
+    base = Endpoints.for_domain(args.domain) if args.domain is not None else Endpoints.from_env()
+    return Endpoints(args.pub or base.pub, args.sub or base.sub)
+
+
+def where(args: argparse.Namespace, endpoints: Endpoints) -> str:
+    """The graph a tool looked at, for messages: ``domain 0 (tcp://...)``."""
+    if args.pub or args.sub:
+        return f"--pub {endpoints.pub} --sub {endpoints.sub}"
+    domain = args.domain if args.domain is not None else Endpoints.env_domain()
+    return f"domain {domain} ({endpoints.sub})"
+
+
+def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
+    """What to tell a user whose tool heard no graph: where it looked, and where graphs run
+    (domains 0-31 and the 32 from the tool's own, where a launch moves when its is taken)."""
+    domain = args.domain if args.domain is not None else Endpoints.env_domain()
+    nearby = range(domain, min(domain + len(SCANNED_DOMAINS), Endpoints.MAX_DOMAIN + 1))
+    running = Endpoints.domains_in_use(sorted(set(SCANNED_DOMAINS) | set(nearby)))
+    here = where(args, endpoints)
+    text = f"no running graph heard on {here}"
+    others = [d for d in running if Endpoints.for_domain(d) != endpoints]
+    if others:
+        listed = ", ".join(str(d) for d in others)
+        text += f"; graphs are running on domain {listed}: pass --domain N (or {DOMAIN_ENV}=N)"
+    else:
+        text += ("; start one (`vibrissa launch demo`), or point at yours with --domain N "
+                 f"({DOMAIN_ENV}=N) or --pub/--sub")
+    return text
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[threading.Event]:
+    """An event set by SIGINT/SIGTERM while inside; restores the previous handlers."""
+    stop = threading.Event()
+    with SignalHandlers(lambda signum: stop.set()):
+        yield stop

@@ -1,0 +1,59 @@
+"""Tool errors are one line and an honest exit status, never a traceback."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vibrissa.cli.main import main as vibrissa_main
+from vibrissa.msgs import WhiskerWrench, encode
+from vibrissa.wire.bag import BagWriter
+
+
+def vibrissa(*words: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k != "VIBRISSA_DEBUG"}
+    return subprocess.run([sys.executable, "-m", "vibrissa.cli.main", *words], env=env,
+                          capture_output=True, text=True, timeout=60, **kwargs)  # type: ignore[call-overload]
+
+
+@pytest.mark.parametrize("words", [
+    ("bag", "play", "{missing}"),
+    ("bag", "export", "{missing}", "-o", "{tmp}/out.mcap"),
+    ("bag", "info", "{missing}"),
+])
+def test_a_missing_bag_is_one_line_and_exit_1(tmp_path: Path, words: tuple[str, ...]) -> None:
+    missing = tmp_path / "nope.mcap"
+    result = vibrissa(*(w.format(missing=missing, tmp=tmp_path) for w in words))
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    assert result.stderr.strip() == f"vibrissa bag {words[1]}: error: no bag at {missing}"
+
+
+def test_bag_info_of_a_csv_says_it_is_not_mcap(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    csv = tmp_path / "sweep.csv"
+    csv.write_text("x0,y0,phase\n0.8,0.0,tip\n")
+    assert vibrissa_main(["bag", "info", str(csv)]) == 1
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert f"{csv} is not an MCAP file" in err
+
+
+def test_bag_info_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
+    bag = tmp_path / "many.mcap"
+    with BagWriter(bag) as writer:
+        for i in range(2000):  # a line per topic: more than a pipe holds (64 KiB)
+            msg = WhiskerWrench(stamp=0.0, seq=0, whisker_id="w", frame_id="world",
+                                clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 1],
+                                f0=[0, 0, 0], m0=[0, 0, 0])
+            writer.write(f"/w{i}/wrench", encode(msg), i)
+    result = subprocess.run(
+        f"{sys.executable} -m vibrissa.cli.main bag info {bag} | head -1; "
+        "echo status ${PIPESTATUS[0]}", shell=True, executable="/bin/bash",
+        capture_output=True, text=True, timeout=60)
+    assert result.stdout.splitlines()[1:] == ["status 141"]  # 128 + SIGPIPE, as `cat` would
+    assert "Traceback" not in result.stderr and "BrokenPipeError" not in result.stderr

@@ -1,0 +1,104 @@
+"""Parameters are checked before anything starts; a node that fails at start says why in one
+line (its traceback only on request)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vibrissa.cli.main import main as vibrissa_main
+from vibrissa.launch.description import check_node_params, load_launch_file
+from vibrissa.launch.launcher import resolve_launch_file
+from vibrissa.msgs import EndOfStream, encode
+from vibrissa.wire.bag import BagWriter
+
+
+def tiny_bag(path: Path) -> Path:
+    with BagWriter(path) as bag:
+        bag.write("/whisker0/wrench", encode(EndOfStream(stamp=0.0, source="/x", count=0)), 0)
+    return path
+
+
+@pytest.mark.parametrize("name", ["demo", "record_demo", "replay_demo"])
+def test_packaged_launch_files_pass_the_node_checks(name: str, tmp_path: Path) -> None:
+    overrides = {"bag": str(tiny_bag(tmp_path / "in.mcap"))} if name == "replay_demo" else {}
+    check_node_params(load_launch_file(resolve_launch_file(name), overrides))
+
+
+@pytest.mark.parametrize(("override", "expected"), [
+    ("mu:=abc", "node 'wrench_source': parameter 'mu' expects float, got str ('abc')"),
+    ("array:=maybe", "node 'wrench_source': parameter 'array' expects bool, got str ('maybe')"),
+    ("surface:=cube:s=1", "node 'wrench_source': parameter 'surface': surface spec 'cube:s=1': "
+                          "unknown kind 'cube'"),
+    ("step:=-0.001", "node 'wrench_source': parameter 'step' must be a number in (0, 0.1]"),
+    ("mu:=-0.1", "node 'wrench_source': parameter 'mu' must be a finite number >= 0, got -0.1"),
+    ("surface:=sphere:r=-1", "node 'wrench_source': parameter 'surface'"),
+])
+def test_a_bad_value_is_one_line_before_anything_starts(
+    override: str, expected: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert vibrissa_main(["launch", "demo", override]) == 2
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("vibrissa launch: error: ") and "demo.yaml: " in lines[0]
+    assert expected in lines[0]
+    assert "[launch]" not in out + err  # no proxy, no node was started
+
+
+def test_a_missing_or_foreign_replay_bag_is_refused_before_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "nope.mcap"
+    assert vibrissa_main(["launch", "replay_demo", f"bag:={missing}"]) == 2
+    assert f"node 'wrench_source': parameter 'bag': no bag at {missing}" in capsys.readouterr().err
+    csv = tmp_path / "sweep.csv"
+    csv.write_text("x0,y0\n0,0\n")
+    assert vibrissa_main(["launch", "replay_demo", f"bag:={csv}"]) == 2
+    assert "is not an MCAP file" in capsys.readouterr().err
+
+
+def test_overrides_may_follow_the_flags(capsys: pytest.CaptureFixture[str]) -> None:
+    assert vibrissa_main(["launch", "demo", "--dry-run", "mu:=0.3", "out:=elsewhere"]) == 0
+    out = capsys.readouterr().out
+    assert "[wrench_source]   param mu: 0.3" in out
+    assert "[mapper]   param out_dir: 'elsewhere'" in out
+    with pytest.raises(SystemExit):
+        vibrissa_main(["launch", "demo", "--dry-run", "--bogus"])
+
+
+def run_node(module: str, *args: str, debug: bool = False) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k != "VIBRISSA_DEBUG"}
+    if debug:
+        env["VIBRISSA_DEBUG"] = "1"
+    return subprocess.run([sys.executable, "-m", module, "--name", "n", *args], env=env,
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_a_node_with_refused_parameters_exits_2_in_one_line(tmp_path: Path) -> None:
+    result = run_node("vibrissa.nodes.wrench_source", "--param", "mode:=replay",
+                      "--param", f"bag:={tmp_path / 'gone.mcap'}")
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines() == [
+        f"ERROR vibrissa.runtime.node: --param: parameter 'bag': no bag at {tmp_path / 'gone.mcap'}"]
+
+
+def test_a_node_failing_at_start_prints_its_traceback_only_when_asked(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    args = ("vibrissa.nodes.mapper", "--param", f"out_dir:={blocker / 'map'}")
+    quiet = run_node(*args)
+    assert quiet.returncode == 1
+    assert "Traceback" not in quiet.stderr
+    lines = quiet.stderr.strip().splitlines()
+    assert len(lines) == 1 and "stopped by NotADirectoryError" in lines[0], quiet.stderr
+    assert "VIBRISSA_DEBUG=1" in lines[0]
+    loud = run_node(*args, debug=True)
+    assert loud.returncode == 1
+    assert "Traceback (most recent call last)" in loud.stderr
+    assert "NotADirectoryError" in loud.stderr

@@ -22,6 +22,8 @@ from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.sweep import simulate_sweep
 
 EXIT_USAGE = 2
+EXIT_NO_CONTACT = 3
+"""``vibrissa sweep``: the trail never touches the object."""
 
 
 def _surface(text: str) -> Surface:
@@ -66,6 +68,9 @@ def register(subparsers: Any) -> None:
         "sweep", help="Step 1: simulate one frictional sweep, write its support reactions",
         description="Simulate one quasi-static sweep of the clamp along -x at y0 (paper units, "
         "eq. 1) and write one CSV row per equilibrium plus a JSON summary beside it.",
+        epilog=f"exit status: 0 swept, 1 no equilibrium after the first contact, {EXIT_USAGE} bad "
+        f"arguments, {EXIT_NO_CONTACT} no contact (the straight rod clears the object all "
+        "along the trail).",
     )
     p.add_argument("--surface", type=_surface, default=parse_surface(PAPER_SURFACE),
                    metavar="SPEC", help=f"object, e.g. {PAPER_SURFACE} (the default)")
@@ -107,9 +112,15 @@ def _sweep(args: argparse.Namespace) -> int:
     output: Path = args.output
     tables.write_sweep_csv(output, sweep)
     tables.write_json(output.with_suffix(".json"), tables.sweep_summary(sweep, args.surface.spec))
-    print(f"sweep: {sweep.n_steps} equilibria, ended by {sweep.end} at x0={sweep.x0_end:.6g}, "
-          f"{len(sweep.phase_changes)} phase changes, {time.perf_counter() - start:.1f} s "
-          f"-> {output}", file=sys.stderr)
+    if sweep.end is not SweepEnd.NO_CONTACT:
+        print(f"sweep: {sweep.n_steps} equilibria, ended by {sweep.end} at "
+              f"x0={sweep.x0_end:.6g}, {len(sweep.phase_changes)} phase changes, "
+              f"{time.perf_counter() - start:.1f} s -> {output}", file=sys.stderr)
+    if sweep.end is SweepEnd.NO_CONTACT:
+        print(f"sweep: no contact: the straight rod on the trail y0={args.y0:g} clears "
+              f"{args.surface.spec} all along it; the CSV holds its header only "
+              f"(exit {EXIT_NO_CONTACT})", file=sys.stderr)
+        return EXIT_NO_CONTACT
     if sweep.end is SweepEnd.NO_EQUILIBRIUM:
         print("sweep: error: no equilibrium found for the first step after the first contact "
               "(a solver failure); a larger --step, e.g. 0.001, may get past it", file=sys.stderr)

@@ -17,7 +17,10 @@ Publishes
 Files in ``out_dir`` (for frame ``world``; another frame F gets the suffix ``_F``):
 ``cloud.ply`` (points + normals), ``mesh.ply``, ``map.png`` (cloud and mesh over the true
 surface), ``report.json`` and ``report.txt``. Then the node exits 0 (the demo launch ends
-on it with ``on_exit: shutdown``).
+on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams ended without a
+single contact point (only the reports are written, and they say so). Stopped (SIGINT,
+SIGTERM) before the streams end, it writes nothing and exits 0; a stop during the fit ends
+the process at once (Open3D does not return to Python until it is done).
 
 Fitting: screened Poisson on contact normals taken from the contact force with its component
 along the contact line removed, trimmed to the data; see ``vibrissa.nodes.surface_fit`` for
@@ -50,6 +53,7 @@ from vibrissa.nodes.surface_fit import (
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
+from vibrissa.runtime.signals import default_actions
 from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.units import RodScale
 from vibrissa.wire.topics import resolve_topic, validate_name
@@ -57,6 +61,9 @@ from vibrissa.wire.topics import resolve_topic, validate_name
 log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
+
+EXIT_EMPTY_MAP = 3
+"""Exit status of a mapper whose streams ended without a single contact point."""
 
 MAX_DEPTH = 12
 """Deepest Poisson octree: 4096^3 cells, beyond what a contact cloud can fill."""
@@ -343,7 +350,8 @@ def format_report(report: dict[str, Any]) -> str:
     def mm(value: float | None) -> str:
         return "n/a" if value is None else f"{value * 1e3:.4g} mm"
 
-    lines = [f"contact points: {report['n_points']} (sources: "
+    empty = " - THE MAP IS EMPTY" if report["n_points"] == 0 else ""
+    lines = [f"contact points: {report['n_points']}{empty} (sources: "
              f"{', '.join(report['sources_ended']) or 'none ended'})",
              f"true surface: {report['true_surface'] or 'not given'} "
              f"(L = {report['rod_length_m']} m)",
@@ -363,8 +371,9 @@ def format_report(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(node: Node, params: MapperParams) -> dict[str, Any]:
-    """Accumulate until every source ended (or ``timeout_s`` idle), then map; the report."""
+def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
+    """Accumulate until every source ended (or ``timeout_s`` idle), then map; the report
+    (``None`` when stopped before the streams ended: nothing is fitted or written)."""
     expected: int | list[str] = (
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
@@ -384,16 +393,23 @@ def run(node: Node, params: MapperParams) -> dict[str, Any]:
             log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)", node.fqn,
                         params.timeout_s, sorted(acc.ended))
             break
-    if node.stop_requested and not acc.done:
-        log.info("%s: stopped before the end of the streams (%d points)", node.fqn,
-                 acc.n_points)
+    if node.stop_requested:
+        log.warning("%s: stopped before the end of the streams: no map written (%d contact "
+                    "points received, sources ended: %s)", node.fqn, acc.n_points,
+                    ", ".join(sorted(acc.ended)) or "none")
+        return None
     node.set_state("running", f"fitting {acc.n_points} points")
-    report, messages = write_outputs(acc, params, Path(params.out_dir))
+    with default_actions():  # Open3D holds the interpreter while fitting: a stop ends us at once
+        report, messages = write_outputs(acc, params, Path(params.out_dir))
     for cloud, mesh in messages:
         cloud_pub.publish(cloud)
         mesh_pub.publish(mesh)
     cloud_pub.publish_end_of_stream(node.fqn)
     mesh_pub.publish_end_of_stream(node.fqn)
+    if report["n_points"] == 0:
+        log.error("%s: the map is empty: no contact point arrived (sources ended: %s); a "
+                  "trail whose straight rod clears the object never touches it, see the "
+                  "wrench source's log", node.fqn, ", ".join(sorted(acc.ended)) or "none")
     print(f"map of {report['n_points']} contact points written to {params.out_dir}:",
           flush=True)
     for frame in report["frames"]:
@@ -412,8 +428,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     params = load_params(MapperParams, args.params_file, args.params)
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
     with Node.from_args(args) as node:
-        run(node, params)
-    return 0
+        report = run(node, params)
+    return EXIT_EMPTY_MAP if report is not None and report["n_points"] == 0 else 0
 
 
 if __name__ == "__main__":

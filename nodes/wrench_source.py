@@ -45,7 +45,7 @@ from vibrissa.runtime.params import (
 )
 from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Trail, first_contact, simulate_sweeps
+from vibrissa.sweep import SweepRun, Trail, first_contact
 from vibrissa.ticks import Tick, array_ticks, sequential_ticks
 from vibrissa.units import RodScale
 from vibrissa.wire.bag import BagReader, check_bag_file
@@ -193,49 +193,70 @@ def tick_messages(
             seq += 1
 
 
+PROGRESS_PERIOD_S = 2.0
+"""Seconds between the progress lines of a simulation in the log."""
+
+
 def run_sim(node: Node, params: WrenchSourceParams) -> int:
-    """Simulate the sweeps and publish them; returns the number of messages sent."""
+    """Simulate the sweeps and publish each sample as soon as it is solved (paced by
+    ``rate_hz``); returns the number of messages sent, -1 when ``wait_for`` timed out."""
     publisher = node.create_publisher(
         params.topic, WhiskerWrenchArray if params.array else WhiskerWrench,
         wait_for=params.wait_for, hwm=DEFAULT_HWM * 10)
     surface = parse_surface(params.surface)
     trails = [Trail(float(y0), params.mu) for y0 in params.y0]
-    node.set_state("running", f"simulating {len(trails)} sweep(s) past {surface.spec}")
-    t0 = time.monotonic()
+    touches = [first_contact(surface, trail.y0) for trail in trails]
+    for trail, touch in zip(trails, touches, strict=True):
+        if touch is None:
+            log.warning("%s: the trail y0=%g (units of L) never touches %s: the straight "
+                        "rod clears the object all along it (no contact, no samples)",
+                        node.fqn, trail.y0, surface.spec)
     x_grid = None
     if params.array:  # one grid for all: from the first touch of any whisker
-        touches = [first_contact(surface, trail.y0) for trail in trails]
         x_grid = max((touch[0] for touch in touches if touch is not None), default=0.0)
-    sweeps = simulate_sweeps(surface, trails, params.step, x_grid=x_grid)
-    total = sum(s.n_steps for s in sweeps)
-    log.info("%s: %d sweep(s), %d samples in %.1f s (ends: %s)", node.fqn, len(sweeps), total,
-             time.monotonic() - t0, ", ".join(s.end for s in sweeps))
+    run = SweepRun(surface, trails, params.step, x_grid=x_grid)
     if params.wait_for and not node.wait_for_subscribers(
         params.topic, params.wait_for, params.wait_timeout_s
     ):
         return -1
-    period = 1.0 / params.rate_hz if params.rate_hz > 0 else 0.0
-    t_start = time.monotonic()
-    count = 0
+    node.set_state("running", f"simulating {len(trails)} sweep(s) past {surface.spec}")
     if x_grid is None:  # one whisker, its sweeps one after the other
-        ticks = sequential_ticks(sweeps, params.rod)
-        whisker_ids = [params.whisker_id] * len(sweeps)
+        ticks = sequential_ticks(run, params.rod)
+        whisker_ids = [params.whisker_id] * len(trails)
     else:
-        ticks = array_ticks(sweeps, x_grid, params.step, params.rod)
+        ticks = array_ticks(run, params.rod)
         whisker_ids = params.array_whisker_ids
     messages = tick_messages(ticks, whisker_ids, params.frame_id, params.array, clock=time.time)
-    for msg in messages:
+    period = 1.0 / params.rate_hz if params.rate_hz > 0 else 0.0
+    t_start = time.monotonic()
+    next_report = t_start + PROGRESS_PERIOD_S
+    count = 0
+    while not node.stop_requested:
+        msg = next(messages, None)
+        if msg is None:
+            break
         if period:
             delay = t_start + count * period - time.monotonic()
             if delay > 0 and not node.sleep(delay):
                 break
-        if node.stop_requested:
-            break
         publisher.publish(msg)
         count += 1
+        if time.monotonic() >= next_report:
+            next_report += PROGRESS_PERIOD_S
+            log.info("%s: %s", node.fqn, _progress(run, count, time.monotonic() - t_start))
     publisher.publish_end_of_stream(node.fqn)
-    log.info("%s: published %d messages and EndOfStream on %s", node.fqn, count, publisher.topic)
+    state = "stopped" if node.stop_requested else "done"
+    log.info("%s: %s; %s: %d messages and EndOfStream on %s", node.fqn,
+             _progress(run, count, time.monotonic() - t_start), state, count, publisher.topic)
     return count
+
+
+def _progress(run: SweepRun, sent: int, elapsed_s: float) -> str:
+    """``sweeps ended 2/5 (detachment, snap-off), 4310 published in 4.1 s``."""
+    ends = [p.end for p in (run.progress(i) for i in range(len(run.trails)))]
+    ended = [str(end) for end in ends if end is not None]
+    return (f"sweeps ended {len(ended)}/{len(ends)}" + (f" ({', '.join(ended)})" if ended else "")
+            + f", {sent} published in {elapsed_s:.1f} s")
 
 
 def replay_topics(bag: str) -> dict[str, bool]:

@@ -10,7 +10,8 @@ from __future__ import annotations
 import signal
 import threading
 import types
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -46,3 +47,19 @@ class SignalHandlers:
 
     def __exit__(self, *exc_info: object) -> None:
         self.restore()
+
+
+@contextmanager
+def default_actions(signums: Sequence[signal.Signals] = STOP_SIGNALS) -> Iterator[None]:
+    """While inside, ``signums`` take their default action: SIGINT and SIGTERM end the process
+    at once. For a native call that holds the interpreter for seconds (no Python handler runs
+    until it returns). Main thread only; elsewhere a no-op."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_DFL) for s in signums}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)

@@ -461,15 +461,34 @@ class _Track:
 ProgressCallback = Callable[[int, int], None]
 
 
-def simulate_sweeps(
-    surface: Surface,
-    trails: Sequence[Trail],
-    step: float = 0.001,
-    max_steps: int = 100_000,
-    progress: ProgressCallback | None = None,
-    x_grid: float | None = None,
-) -> list[Sweep]:
-    """Simulate several sweeps past one object, solved together step by step.
+@dataclass(frozen=True)
+class SweepProgress:
+    """Where one sweep of a `SweepRun` stands.
+
+    Attributes
+    ----------
+    n_steps : int
+        Equilibria found so far.
+    x0 : float
+        Clamp position of the last equilibrium (or of the first contact), units of L; NaN on
+        a trail that misses the object.
+    x_touch : float
+        Clamp x0 at the first contact, units of L (NaN: no contact).
+    end : SweepEnd or None
+        How the sweep ended; None while it goes on.
+    """
+
+    n_steps: int
+    x0: float
+    x_touch: float
+    end: SweepEnd | None
+
+
+class SweepRun:
+    """Several sweeps past one object, solved together one step at a time.
+
+    ``simulate_sweeps`` runs it to the end; a consumer that wants equilibria as they are
+    solved (a live sensor stream) calls ``advance`` itself and reads ``reactions``.
 
     Parameters
     ----------
@@ -481,33 +500,83 @@ def simulate_sweeps(
         Clamp displacement per step along -x, units of L.
     max_steps : int
         Safety cap on the steps of one sweep (ends with ``SweepEnd.MAX_STEPS``).
-    progress : callable, optional
-        Called as ``progress(finished_sweeps, total_sweeps)`` whenever a sweep ends.
     x_grid : float, optional
         One grid of clamp positions x0 = x_grid - k step (k integer) for every trail, as for
         the whiskers of a rigid array moving together: each sweep's first step goes from its
         touch to the next grid point, a partial step. By default each trail's grid starts at
         its own first contact.
     """
-    if not step > 0:
-        raise ValueError(f"step must be > 0, got {step}")
-    for trail in trails:
-        if not trail.mu >= 0:
-            raise ValueError(f"mu must be >= 0, got {trail.mu}")
-    tracks = [_start(surface, trail, step, x_grid) for trail in trails]
-    done = sum(track.end is not None for track in tracks)
+
+    def __init__(self, surface: Surface, trails: Sequence[Trail], step: float = 0.001,
+                 max_steps: int = 100_000, x_grid: float | None = None) -> None:
+        if not step > 0:
+            raise ValueError(f"step must be > 0, got {step}")
+        for trail in trails:
+            if not trail.mu >= 0:
+                raise ValueError(f"mu must be >= 0, got {trail.mu}")
+        self.surface = surface
+        self.trails = list(trails)
+        self.step = step
+        self.max_steps = max_steps
+        self.x_grid = x_grid
+        self._tracks = [_start(surface, trail, step, x_grid) for trail in trails]
+
+    @property
+    def done(self) -> bool:
+        """Whether every sweep has ended."""
+        return all(track.end is not None for track in self._tracks)
+
+    def advance(self) -> None:
+        """Move every sweep that goes on by one step (no-op once ``done``)."""
+        active = [t for t in self._tracks if t.end is None]
+        if active:
+            _advance(self.surface, active, self.step, self.max_steps)
+
+    def progress(self, index: int) -> SweepProgress:
+        """Where sweep ``index`` stands."""
+        track = self._tracks[index]
+        x0 = track.rows[-1][0] if track.rows else track.x0
+        return SweepProgress(len(track.rows), float(x0), float(track.x_touch), track.end)
+
+    def reactions(self, index: int, start: int = 0) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Clamp positions x0 (n,) and reactions f0, m0 (n, 3) of sweep ``index``'s
+        equilibria ``start``, ``start + 1``, ... found so far, units of L, EI/L^2, EI/L."""
+        rows = self._tracks[index].rows[start:]
+        n = len(rows)
+        q = np.array([r[3] for r in rows]).reshape(n, 4)
+        f0, m0 = _clamp_reactions(q, np.array([r[6] for r in rows]).reshape(n, 3))
+        return np.array([r[0] for r in rows], dtype=float), f0, m0
+
+    def sweeps(self) -> list[Sweep]:
+        """Every sweep as it stands (complete once ``done``)."""
+        return [_finish(track, self.step) for track in self._tracks]
+
+
+def simulate_sweeps(
+    surface: Surface,
+    trails: Sequence[Trail],
+    step: float = 0.001,
+    max_steps: int = 100_000,
+    progress: ProgressCallback | None = None,
+    x_grid: float | None = None,
+) -> list[Sweep]:
+    """Simulate several sweeps past one object, solved together step by step (`SweepRun`,
+    whose parameters these are).
+
+    ``progress``, if given, is called as ``progress(finished_sweeps, total_sweeps)`` at the
+    start and whenever a sweep ends.
+    """
+    run = SweepRun(surface, trails, step, max_steps, x_grid)
+    done = sum(run.progress(i).end is not None for i in range(len(run.trails)))
     if progress:
-        progress(done, len(tracks))
-    while True:
-        active = [t for t in tracks if t.end is None]
-        if not active:
-            break
-        _advance(surface, active, step, max_steps)
-        finished = sum(track.end is not None for track in tracks)
+        progress(done, len(run.trails))
+    while not run.done:
+        run.advance()
+        finished = sum(run.progress(i).end is not None for i in range(len(run.trails)))
         if progress and finished != done:
-            progress(finished, len(tracks))
+            progress(finished, len(run.trails))
         done = finished
-    return [_finish(track, step) for track in tracks]
+    return run.sweeps()
 
 
 def simulate_sweep(surface: Surface, y0: float, mu: float, step: float = 0.001) -> Sweep:
@@ -772,6 +841,16 @@ def _record(track: _Track, refined: bool) -> None:
     track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force))
 
 
+def _clamp_reactions(q: FloatArray, force: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """f0, m0 (n, 3) of states ``q`` (n, 4) with contact forces ``force`` (n, 3).
+
+    From the rod's own internal loads at s = 0 (not from r x F, so that the statics
+    m0 + r x F = 0 stays a check of the elastica): f0 = -F, m0 = -kappa0 e_w.
+    """
+    e_w = bending_plane(q[:, 0])[1]
+    return -force, -q[:, 3:4] * e_w
+
+
 def _finish(track: _Track, step: float) -> Sweep:
     rows = track.rows
     n = len(rows)
@@ -782,12 +861,8 @@ def _finish(track: _Track, step: float) -> Sweep:
     contact = np.array([r[4] for r in rows]).reshape(n, 3)
     normal = np.array([r[5] for r in rows]).reshape(n, 3)
     force = np.array([r[6] for r in rows]).reshape(n, 3)
-    psi_frame, fu, fv, kappa0 = q.T
-    e_w = bending_plane(psi_frame)[1]
-    # Clamp reactions from the rod's own internal loads at s = 0 (not from r x F, so that the
-    # statics m0 + r x F = 0 stays a check of the elastica): f0 = -F, m0 = -kappa0 e_w.
-    f0 = -force
-    m0 = -kappa0[:, None] * e_w
+    _, fu, fv, kappa0 = q.T
+    f0, m0 = _clamp_reactions(q, force)
     psi = -np.arctan2(m0[:, 0], m0[:, 1])
     fn = np.einsum("ni,ni->n", force, normal)
     ft = np.linalg.norm(force - fn[:, None] * normal, axis=1)

@@ -206,3 +206,16 @@ def test_study_figures_small_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     for name in pngs:
         data = (tmp_path / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+
+
+def test_a_sweep_that_never_touches_exits_3_and_says_why(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "miss.csv"
+    assert main(["sweep", "--y0", "2.0", "--mu", "0.1", "-o", str(out)]) == mechanics.EXIT_NO_CONTACT == 3
+    err = capsys.readouterr().err
+    assert "no contact: the straight rod on the trail y0=2 clears paraboloid" in err
+    assert "nan" not in err
+    header, rows = read_rows(out)
+    assert header == list(SWEEP_COLUMNS) and rows == []
+    assert json.loads(out.with_suffix(".json").read_text())["end"] == "no-contact"

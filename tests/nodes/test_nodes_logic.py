@@ -32,7 +32,7 @@ from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, 
 from vibrissa.nodes.wrench_source import WrenchSourceParams, tick_messages
 from vibrissa.reconstruct import reconstruct
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Sweep, Trail, first_contact, simulate_sweeps
+from vibrissa.sweep import SweepRun, Trail, first_contact, simulate_sweeps
 from vibrissa.ticks import array_ticks, sequential_ticks
 from vibrissa.units import RodScale
 from vibrissa.wire.transport import Header, Received
@@ -66,16 +66,16 @@ def reconstruct_array(tick: WhiskerWrenchArray, rod: RodScale = UNIT_ROD) -> Rec
     return reconstruct_messages([tick], rod)[0]
 
 
-def sweep_wrenches(sweeps: list[Sweep], whisker_id: str, frame_id: str, rod: RodScale
+def sweep_wrenches(run: SweepRun, whisker_id: str, frame_id: str, rod: RodScale
                    ) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
     """The wrench source's one path, one whisker sweeping one sweep after the other."""
-    return tick_messages(sequential_ticks(sweeps, rod), [whisker_id] * len(sweeps), frame_id)
+    return tick_messages(sequential_ticks(run, rod), [whisker_id] * len(run.trails), frame_id)
 
 
-def sweep_arrays(sweeps: list[Sweep], x_grid: float, step: float, whisker_ids: list[str],
-                 frame_id: str, rod: RodScale) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
+def sweep_arrays(run: SweepRun, whisker_ids: list[str], frame_id: str, rod: RodScale
+                 ) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
     """The wrench source's one path, the sweeps as one rigid array."""
-    return tick_messages(array_ticks(sweeps, x_grid, step, rod), whisker_ids, frame_id, array=True)
+    return tick_messages(array_ticks(run, rod), whisker_ids, frame_id, array=True)
 
 
 def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:
@@ -100,24 +100,22 @@ def _to_si(wrenches: list[WhiskerWrench], length: float, ei: float,
                           f0=w.f0 * ei / length**2, m0=w.m0 * ei / length) for w in wrenches]
 
 
-class _SweepStub:
-    """The fields of ``vibrissa.sweep.Sweep`` that ``sweep_wrenches`` reads."""
-
-    def __init__(self, p0: np.ndarray, f0: np.ndarray, m0: np.ndarray) -> None:
-        self.p0, self.f0, self.m0, self.n_steps = p0, f0, m0, len(p0)
-
-
 def test_sweep_wrenches_are_si_with_running_seq() -> None:
-    rng = np.random.default_rng(0)
-    sweeps = [_SweepStub(*rng.normal(size=(3, k, 3))) for k in (4, 3)]
+    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
+    trails = [Trail(0.0, 0.1), Trail(0.3, 0.0)]
+    sweeps = simulate_sweeps(surface, trails, 0.02)
     length, ei = 0.05, 2e-4
-    msgs = list(sweep_wrenches(sweeps, "w7", "world", RodScale(length, ei)))  # type: ignore[arg-type]
-    assert [m.seq for m in msgs] == list(range(7))
+    msgs = list(sweep_wrenches(SweepRun(surface, trails, 0.02), "w7", "world",
+                               RodScale(length, ei)))
+    n0, n1 = sweeps[0].n_steps, sweeps[1].n_steps
+    assert n0 > 3 and n1 > 3
+    assert [m.seq for m in msgs] == list(range(n0 + n1))
     assert all(m.whisker_id == "w7" for m in msgs)
-    np.testing.assert_array_equal(msgs[5].clamp_orientation, [0, 0, 0, 1])
-    np.testing.assert_allclose(msgs[5].clamp_position, sweeps[1].p0[1] * length, rtol=1e-15)
-    np.testing.assert_allclose(msgs[5].f0, sweeps[1].f0[1] * ei / length**2, rtol=1e-15)
-    np.testing.assert_allclose(msgs[5].m0, sweeps[1].m0[1] * ei / length, rtol=1e-15)
+    last = msgs[n0 + 2]  # the third equilibrium of the second sweep
+    np.testing.assert_array_equal(last.clamp_orientation, [0, 0, 0, 1])
+    np.testing.assert_allclose(last.clamp_position, sweeps[1].p0[2] * length, rtol=1e-15)
+    np.testing.assert_allclose(last.f0, sweeps[1].f0[2] * ei / length**2, rtol=1e-15)
+    np.testing.assert_allclose(last.m0, sweeps[1].m0[2] * ei / length, rtol=1e-15)
 
 
 def test_batch_equals_library_and_counts_no_contact() -> None:
@@ -232,7 +230,8 @@ def test_an_array_of_whiskers_moves_as_one_and_reconstructs_its_sweeps() -> None
     x_grid = max(t[0] for t in (first_contact(surface, y) for y in y0) if t is not None)
     sweeps = simulate_sweeps(surface, [Trail(y, 0.2) for y in y0], step, x_grid=x_grid)
     assert sweeps[2].end == "no-contact" and all(s.end == "detachment" for s in sweeps[:2])
-    arrays = list(sweep_arrays(sweeps, x_grid, step, ["a", "b", "c"], "world", rod))
+    arrays = list(sweep_arrays(SweepRun(surface, [Trail(y, 0.2) for y in y0], step,
+                                        x_grid=x_grid), ["a", "b", "c"], "world", rod))
     assert [m.seq for m in arrays] == list(range(len(arrays)))
     assert len(arrays) - 1 == max(round((x_grid - s.x0[-1]) / step) for s in sweeps[:2])
     loaded = 0

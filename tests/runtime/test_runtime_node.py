@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 from typing import Any
 
@@ -139,3 +141,28 @@ def test_exception_in_the_node_reports_error(endpoints: Endpoints) -> None:
     assert crash.state == "error"
     with pytest.raises(ValueError, match="state"):
         crash.set_state("sleeping")
+
+
+def test_inside_default_actions_a_signal_ends_a_native_call_at_once() -> None:
+    """A C call that holds the interpreter (here sum over a huge range) runs no Python
+    handler; inside ``default_actions`` SIGINT still ends the process within a second."""
+    script = (
+        "import sys\n"
+        "from vibrissa.runtime.signals import SignalHandlers, default_actions\n"
+        "with SignalHandlers(lambda s: None):\n"
+        "    with default_actions():\n"
+        "        print('busy', flush=True)\n"
+        "        sum(range(10**12))\n"
+        "print('returned', flush=True)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline() == "busy\n"
+    time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    try:
+        rc = proc.wait(5)
+    finally:
+        proc.kill()
+    assert rc == -signal.SIGINT
+    assert time.monotonic() - sent < 1.0

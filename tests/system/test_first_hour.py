@@ -1,0 +1,162 @@
+"""What a new user meets in the first hour, with real processes: a graph that is live while
+it simulates, Ctrl-C that stops it at once, and a run that misses the object said plainly."""
+
+from __future__ import annotations
+
+import copy
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from vibrissa.msgs import EndOfStream, WhiskerWrench
+from vibrissa.wire import Endpoints, Subscriber
+
+LAUNCH = Path(__file__).parents[2] / "launch"
+DOMAIN = 24000 + os.getpid() % 4000
+
+
+class Launch:
+    """``vibrissa launch`` in the background; stdout and stderr lines with arrival times."""
+
+    def __init__(self, path: Path, *words: str, domain: int | None = None) -> None:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("VIBRISSA_")}
+        if domain is not None:
+            env["VIBRISSA_DOMAIN_ID"] = str(domain)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "vibrissa.cli.main", "launch", "--grace", "5", str(path),
+             *words], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.lines: list[tuple[float, str]] = []
+        self._readers = [threading.Thread(target=self._pump, args=(pipe,), daemon=True)
+                         for pipe in (self.proc.stdout, self.proc.stderr)]
+        for reader in self._readers:
+            reader.start()
+
+    def _pump(self, pipe: Any) -> None:
+        for line in pipe:
+            self.lines.append((time.monotonic(), line))
+
+    def text(self) -> str:
+        return "".join(line for _, line in sorted(self.lines))
+
+    def wait_line(self, pattern: str, timeout: float = 60.0) -> float:
+        """Arrival time of the first line matching ``pattern``."""
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for t, line in list(self.lines):
+                if rx.search(line):
+                    return t
+            if self.proc.poll() is not None:
+                for reader in self._readers:
+                    reader.join(5)
+                if not any(rx.search(line) for _, line in self.lines):
+                    break
+            time.sleep(0.02)
+        pytest.fail(f"no line matching {pattern!r}:\n{self.text()}")
+
+    def wait(self, timeout: float = 120.0) -> int:
+        try:
+            rc = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            pytest.fail(f"launch did not end within {timeout} s:\n{self.text()}")
+        for reader in self._readers:
+            reader.join(5)
+        return rc
+
+
+def demo_with(tmp_path: Path, **wrench_params: Any) -> Path:
+    """The demo launch file with some wrench source parameters changed."""
+    doc = yaml.safe_load((LAUNCH / "demo.yaml").read_text())
+    doc = copy.deepcopy(doc)
+    for entry in doc["launch"]:
+        node = entry.get("node")
+        if node and node["name"] == "wrench_source":
+            params = {p["name"]: p for p in node["param"]}
+            for key, value in wrench_params.items():
+                if key in params:
+                    params[key]["value"] = value
+                else:
+                    node["param"].append({"name": key, "value": value})
+    path = tmp_path / "demo.launch.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_samples_stream_while_the_sweeps_are_solved(tmp_path: Path) -> None:
+    """The first sample goes out long before the simulation ends, and the stream is spread
+    over the simulation instead of one burst at its end."""
+    launch = Launch(LAUNCH / "demo.yaml", f"out:={tmp_path / 'map'}", domain=DOMAIN)
+    endpoints = Endpoints.for_domain(DOMAIN)
+    arrivals: list[float] = []
+    try:
+        launch.wait_line(r"proxy: .*\(domain")
+        with Subscriber({"/whisker0/wrench": WhiskerWrench}, endpoints) as sub:
+            while True:
+                rx = sub.receive(60.0)
+                assert rx is not None, launch.text()
+                if isinstance(rx.msg, EndOfStream):
+                    break
+                arrivals.append(time.monotonic())
+        assert launch.wait() == 0, launch.text()
+    finally:
+        if launch.proc.poll() is None:
+            launch.proc.kill()
+    done = launch.wait_line(r"wrench_source\] .*done: 10474 messages")
+    progress = [t for t, line in launch.lines if "sweeps ended" in line and "done:" not in line]
+    assert len(progress) >= 2, launch.text()  # progress is logged while it works
+    span = arrivals[-1] - arrivals[0]
+    assert len(arrivals) > 10_000 - 500  # the subscriber may join a moment late
+    assert span > 0.5 * (done - progress[0] + 2.0)  # spread out, not a burst at the end
+    share_in_first_half = sum(t < arrivals[0] + span / 2 for t in arrivals) / len(arrivals)
+    assert share_in_first_half > 0.1
+
+
+def test_ctrl_c_during_the_simulation_stops_every_node_within_a_second(tmp_path: Path) -> None:
+    launch = Launch(LAUNCH / "demo.yaml", f"out:={tmp_path / 'map'}", "step:=0.0002",
+                    domain=DOMAIN + 40)
+    launch.wait_line(r"wrench_source\] .*sweeps ended 0/5")  # mid-simulation
+    sent = time.monotonic()
+    launch.proc.send_signal(signal.SIGINT)
+    rc = launch.wait(30)
+    elapsed = time.monotonic() - sent
+    text = launch.text()
+    assert rc == 128 + signal.SIGINT, text
+    assert "escalating" not in text and "SIGKILL" not in text, text
+    for name in ("wrench_source", "reconstructor", "mapper"):
+        assert re.search(rf"{name}\s+stopped by launcher \(exit 0\)", text), text
+    assert elapsed < 3.0, text  # three nodes, one after the other, each well within 1 s
+    assert "no map written" in text
+    assert "Traceback" not in text
+
+
+def test_a_run_that_never_touches_the_object_fails_and_says_why(tmp_path: Path) -> None:
+    launch = Launch(demo_with(tmp_path, y0=[2.0, 2.5]), f"out:={tmp_path / 'map'}",
+                    domain=DOMAIN + 80)
+    rc = launch.wait()
+    text = launch.text()
+    assert rc == 1, text
+    for y0 in ("2", "2.5"):
+        assert f"the trail y0={y0} (units of L) never touches" in text
+    assert "the map is empty: no contact point arrived" in text
+    assert "required node 'mapper' exited with code 3" in text
+    assert "THE MAP IS EMPTY" in (tmp_path / "map" / "report.txt").read_text()
+
+
+def test_trails_that_miss_a_sphere_are_named(tmp_path: Path) -> None:
+    launch = Launch(LAUNCH / "demo.yaml", f"out:={tmp_path / 'map'}", "step:=0.004",
+                    "surface:=sphere:r=0.3,cz=0.8", domain=DOMAIN + 120)
+    assert launch.wait() == 0, launch.text()
+    text = launch.text()
+    for y0 in ("-0.4", "0.4"):
+        assert f"the trail y0={y0} (units of L) never touches" in text
+    assert "the trail y0=0.2 (units of L)" not in text

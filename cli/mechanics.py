@@ -68,9 +68,12 @@ def register(subparsers: Any) -> None:
         "sweep", help="Step 1: simulate one frictional sweep, write its support reactions",
         description="Simulate one quasi-static sweep of the clamp along -x at y0 (paper units, "
         "eq. 1) and write one CSV row per equilibrium plus a JSON summary beside it.",
-        epilog=f"exit status: 0 swept, 1 no equilibrium after the first contact, {EXIT_USAGE} bad "
+        epilog=f"columns of SWEEP.csv (units of eq. 1: L rod length, EI bending stiffness):\n"
+        f"{tables.columns_help(tables.SWEEP_COLUMNS)}\n\n"
+        f"exit status: 0 swept, 1 no equilibrium after the first contact, {EXIT_USAGE} bad "
         f"arguments, {EXIT_NO_CONTACT} no contact (the straight rod clears the object all "
         "along the trail).",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--surface", type=_surface, default=parse_surface(PAPER_SURFACE),
                    metavar="SPEC", help=f"object, e.g. {PAPER_SURFACE} (the default)")
@@ -84,8 +87,11 @@ def register(subparsers: Any) -> None:
 
     p = subparsers.add_parser(
         "reconstruct", help="Step 2: contact points from clamp positions and support reactions",
-        description="Read x0, y0 (z0 = 0 unless given) and f0x..m0z from a CSV and write the "
-        "reconstructed contact points rx, ry, rz, s1, phase, status (and err with --surface).",
+        description="Read x0, y0 (z0 = 0 unless given) and f0x..m0z from a CSV and write, "
+        "row for row, the clamp position and the reconstructed contact point.",
+        epilog="columns of RCP.csv (units of eq. 1: L rod length, EI bending stiffness):\n"
+        f"{tables.columns_help(('x0', 'y0', 'z0', *tables.RECONSTRUCTION_COLUMNS[2:], 'err'))}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", type=Path, metavar="SWEEP.csv")
     p.add_argument("--surface", type=_surface, metavar="SPEC",
@@ -135,7 +141,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
         return _fail("reconstruct", f"argument SWEEP.csv: {exc}")
     rec = reconstruct(table.p0, table.f0, table.m0)
     error = reconstruction_error(args.surface, rec.point) if args.surface is not None else None
-    tables.write_reconstruction_csv(args.output, rec, error)
+    tables.write_reconstruction_csv(args.output, table, rec, error)
     invalid = Counter(tables.status_name(int(s)) for s in rec.status[~rec.valid])
     line = f"reconstruct: {len(rec.status)} rows, {int(rec.valid.sum())} with a contact"
     if invalid:

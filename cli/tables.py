@@ -25,10 +25,49 @@ SWEEP_COLUMNS = (
     "x0", "y0", "phase", "s1", "psi",
     "f0x", "f0y", "f0z", "m0x", "m0y", "m0z",
     "px", "py", "pz", "fn", "ft",
-    "state", "nx", "ny", "nz",
+    "state", "nx", "ny", "nz", "refined",
 )
 WRENCH_COLUMNS = ("x0", "y0", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z")
-RECONSTRUCTION_COLUMNS = ("rx", "ry", "rz", "s1", "phase", "status")
+RECONSTRUCTION_COLUMNS = ("x0", "y0", "rx", "ry", "rz", "s1", "phase", "status")
+"""Without the optional z0 (after y0, when the input has it) and err (last, with --surface)."""
+
+COLUMNS: dict[str, tuple[str, str]] = {
+    "x0": ("L", "clamp position P0, x (the trail runs along -x)"),
+    "y0": ("L", "clamp position P0, y (the trail's offset)"),
+    "z0": ("L", "clamp position P0, z (reconstruct: carried from the input when it has it)"),
+    "phase": ("-", "tip or tangential contact"),
+    "s1": ("L", "arc length from the clamp to the contact"),
+    "psi": ("rad", "angle of the bending plane E_psi about the clamp axis (eq. 20)"),
+    "f0x": ("EI/L^2", "clamp reaction force on the rod, x (f0 + F = 0)"),
+    "f0y": ("EI/L^2", "clamp reaction force on the rod, y"),
+    "f0z": ("EI/L^2", "clamp reaction force on the rod, z"),
+    "m0x": ("EI/L", "clamp reaction moment on the rod about P0, x (m0 + r x F = 0)"),
+    "m0y": ("EI/L", "clamp reaction moment, y"),
+    "m0z": ("EI/L", "clamp reaction moment, z (0: no twist)"),
+    "px": ("L", "simulated contact point P1, x"),
+    "py": ("L", "simulated contact point P1, y"),
+    "pz": ("L", "simulated contact point P1, z"),
+    "fn": ("EI/L^2", "normal component of the contact force F on the rod"),
+    "ft": ("EI/L^2", "tangential (friction) component of F"),
+    "state": ("-", "slide or stick"),
+    "nx": ("-", "outward unit normal of the object at P1, x"),
+    "ny": ("-", "outward unit normal, y"),
+    "nz": ("-", "outward unit normal, z"),
+    "refined": ("-", "1: reached by sub-steps or as part of a longer step (positions before "
+                     "it may be missing), 0: one plain step"),
+    "rx": ("L", "reconstructed contact point, x (empty without a contact)"),
+    "ry": ("L", "reconstructed contact point, y"),
+    "rz": ("L", "reconstructed contact point, z"),
+    "status": ("-", "ok, or why there is no contact (vibrissa.ContactStatus names)"),
+    "err": ("L", "|signed distance| of the reconstructed point to --surface"),
+}
+"""Every CSV column: (unit, meaning). Units are the paper's (eq. 1): L is the rod length, EI its
+bending stiffness."""
+
+
+def columns_help(names: Iterable[str]) -> str:
+    """The ``--help`` text of CSV columns: ``name [unit]: meaning`` per line."""
+    return "\n".join(f"  {name} [{COLUMNS[name][0]}]: {COLUMNS[name][1]}" for name in names)
 UNITS = {
     "length": "L (rod length)",
     "force": "EI/L^2",
@@ -52,11 +91,14 @@ class WrenchTable:
         Clamp positions (x0, y0, z0), units of L.
     f0, m0 : ndarray, shape (N, 3)
         Clamp reactions on the rod, EI/L^2 and EI/L.
+    has_z0 : bool
+        Whether the file had a z0 column (else z0 = 0).
     """
 
     p0: NDArray[np.float64]
     f0: NDArray[np.float64]
     m0: NDArray[np.float64]
+    has_z0: bool = False
 
 
 def _cell(value: float) -> str:
@@ -82,6 +124,7 @@ def write_sweep_csv(path: Path, sweep: Sweep) -> None:
             *map(_cell, sweep.f0[i]), *map(_cell, sweep.m0[i]), *map(_cell, sweep.contact[i]),
             _cell(sweep.fn[i]), _cell(sweep.ft[i]),
             STATE_NAMES[int(sweep.state[i])], *map(_cell, sweep.normal[i]),
+            "1" if sweep.refined[i] else "0",
         ]
         for i in range(sweep.n_steps)
     )
@@ -156,6 +199,7 @@ def read_wrench_csv(path: Path) -> WrenchTable:
         p0=np.column_stack([values["x0"], values["y0"], z0]),
         f0=np.column_stack([values["f0x"], values["f0y"], values["f0z"]]),
         m0=np.column_stack([values["m0x"], values["m0y"], values["m0z"]]),
+        has_z0="z0" in values,
     )
 
 
@@ -168,12 +212,15 @@ def status_name(status: int) -> str:
 
 
 def write_reconstruction_csv(
-    path: Path, rec: Reconstruction, error: NDArray[np.float64] | None = None
+    path: Path, table: WrenchTable, rec: Reconstruction, error: NDArray[np.float64] | None = None
 ) -> None:
-    """Columns rx, ry, rz, s1, phase, status (and err if given); no contact: empty rx..s1."""
-    columns = [*RECONSTRUCTION_COLUMNS, *(["err"] if error is not None else [])]
+    """Columns x0, y0 (z0 when ``table`` has it) of the input row, then rx, ry, rz, s1, phase,
+    status (and err if given); no contact: empty rx..s1."""
+    position = ["x0", "y0", *(["z0"] if table.has_z0 else [])]
+    columns = [*position, *RECONSTRUCTION_COLUMNS[2:], *(["err"] if error is not None else [])]
     rows = (
         [
+            *map(_cell, table.p0[i, :len(position)]),
             *map(_cell, rec.point[i]), _cell(rec.s1[i]), ContactPhase(rec.phase[i]).label,
             status_name(int(rec.status[i])),
             *([_cell(error[i])] if error is not None else []),

@@ -5,7 +5,9 @@ Coarse steps (0.01 L and up) keep these fast; the physics of the core is tested 
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,7 +17,7 @@ import pytest
 
 from vibrissa.cli import mechanics
 from vibrissa.cli.main import main
-from vibrissa.cli.tables import RECONSTRUCTION_COLUMNS, SWEEP_COLUMNS
+from vibrissa.cli.tables import COLUMNS, RECONSTRUCTION_COLUMNS, SWEEP_COLUMNS
 from vibrissa.study import run_study
 
 SURFACE = "paraboloid:a=0.5,b=1,h=0.4"
@@ -49,8 +51,9 @@ def test_sweep_csv_columns_and_values(sweep_csv: Path) -> None:
     header, rows = read_rows(sweep_csv)
     assert header[: len(REQUIRED_SWEEP_COLUMNS)] == REQUIRED_SWEEP_COLUMNS
     assert header == list(SWEEP_COLUMNS)
-    assert header[16:] == ["state", "nx", "ny", "nz"]
+    assert header[16:] == ["state", "nx", "ny", "nz", "refined"]
     assert len(rows) > 100
+    assert {row["refined"] for row in rows} == {"0"}  # plain steps on this trail
     assert {row["phase"] for row in rows} == {"tip", "tangential"}
     assert {row["state"] for row in rows} <= {"slide", "stick"}
     x0 = column(rows, "x0")
@@ -87,9 +90,11 @@ def test_reconstruct_round_trip(sweep_csv: Path, tmp_path: Path,
     out = tmp_path / "rcp.csv"
     assert main(["reconstruct", str(sweep_csv), "--surface", SURFACE, "-o", str(out)]) == 0
     header, rows = read_rows(out)
+    assert header == ["x0", "y0", "rx", "ry", "rz", "s1", "phase", "status", "err"]
     assert header == [*RECONSTRUCTION_COLUMNS, "err"]
     _, sweep_rows = read_rows(sweep_csv)
     assert len(rows) == len(sweep_rows)
+    assert [(r["x0"], r["y0"]) for r in rows] == [(r["x0"], r["y0"]) for r in sweep_rows]
     for r, p in zip("xyz", "xyz", strict=True):
         np.testing.assert_allclose(column(rows, f"r{r}"), column(sweep_rows, f"p{p}"),
                                    rtol=0, atol=ROUND_TRIP_TOL)
@@ -111,8 +116,9 @@ def test_reconstruct_keeps_rows_without_contact(tmp_path: Path,
     out = tmp_path / "rcp.csv"
     assert main(["reconstruct", str(src), "-o", str(out)]) == 0
     header, rows = read_rows(out)
-    assert header == list(RECONSTRUCTION_COLUMNS)
+    assert header == ["x0", "y0", "z0", *RECONSTRUCTION_COLUMNS[2:]]
     assert len(rows) == 3
+    assert [row["x0"] for row in rows] == ["0.1"] * 3 and rows[1]["z0"] == "0.0"
     assert rows[0]["rx"] == rows[0]["s1"] == "" and rows[0]["status"] == "no_force"
     assert rows[2]["rx"] == "" and "non_finite_input" in rows[2]["status"]
     err = capsys.readouterr().err
@@ -219,3 +225,22 @@ def test_a_sweep_that_never_touches_exits_3_and_says_why(
     header, rows = read_rows(out)
     assert header == list(SWEEP_COLUMNS) and rows == []
     assert json.loads(out.with_suffix(".json").read_text())["end"] == "no-contact"
+
+
+def test_readme_and_help_give_every_column_with_its_unit() -> None:
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    sweep_help = mechanics_help("sweep")
+    reconstruct_help = mechanics_help("reconstruct")
+    for name, (unit, _) in COLUMNS.items():
+        assert f"| `{name}` | {unit} |" in readme, name
+        if name in SWEEP_COLUMNS:
+            assert f"  {name} [{unit}]: " in sweep_help, name
+        if name in (*RECONSTRUCTION_COLUMNS, "z0", "err"):
+            assert f"  {name} [{unit}]: " in reconstruct_help, name
+    assert set(SWEEP_COLUMNS) | set(RECONSTRUCTION_COLUMNS) | {"z0", "err"} == set(COLUMNS)
+
+
+def mechanics_help(command: str) -> str:
+    with pytest.raises(SystemExit), contextlib.redirect_stdout(io.StringIO()) as out:
+        main([command, "--help"])
+    return out.getvalue()

@@ -473,3 +473,18 @@ def test_accumulator_ends_on_count_or_names() -> None:
     assert not named.done
     named.add(EndOfStream(stamp=0.0, source="/b", count=1))
     assert named.done
+
+
+def test_the_same_cloud_gives_the_same_mesh_bit_for_bit() -> None:
+    """Open3D's Poisson sums in parallel and rounds differently from run to run unless it runs
+    on one thread; the map of identical input must be identical."""
+    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
+    sweeps = simulate_sweeps(surface, [Trail(y, 0.2) for y in (-0.4, -0.2, 0.0, 0.2, 0.4)], 0.004)
+    points = np.concatenate([s.contact for s in sweeps])
+    lines = split_lines(points)
+    normals = contact_normals(points, np.concatenate([s.force for s in sweeps]), lines)
+    fits = [fit_surface(points, normals, lines) for _ in range(3)]
+    assert len(fits[0].triangles) > 1000
+    for fit in fits[1:]:
+        np.testing.assert_array_equal(fit.vertices, fits[0].vertices)
+        np.testing.assert_array_equal(fit.triangles, fits[0].triangles)

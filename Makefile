@@ -24,9 +24,9 @@ study: setup
 	$(VENV)/bin/vibrissa study paper -o $(OUT)/study
 
 test: setup
-	$(PY) -m ruff check vibrissa msgs wire runtime launch nodes cli tests benchmarks
-	$(PY) -m mypy vibrissa msgs wire runtime launch nodes cli
-	$(PY) -m pytest -p no:dash
+	$(PY) -m ruff check vibrissa msgs wire runtime launch nodes cli tests benchmarks docs/examples
+	$(PY) -m mypy vibrissa msgs wire runtime launch nodes cli docs/examples
+	$(PY) -m pytest -p no:dash -n auto
 
 bench: setup
 	$(PY) benchmarks/bench_mechanics.py

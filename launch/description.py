@@ -20,7 +20,8 @@ The format follows ROS 2's YAML launch files where it fits::
           on_exit: shutdown
 
 Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)`` and
-``$(dirname)`` (the launch file's directory). Every error is a `LaunchFileError` whose message
+``$(dirname)`` (the launch file's directory) and ``$(python)`` (the interpreter running the
+launch, for ``cmd`` nodes written in Python). Every error is a `LaunchFileError` whose message
 names the file and the key path, e.g. ``demo.yaml: launch[2].node.respawn: expected bool``.
 """
 
@@ -31,6 +32,7 @@ import importlib.metadata
 import os
 import re
 import shlex
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -293,7 +295,7 @@ class _Parser:
     # -- substitutions -------------------------------------------------------------------------
 
     def substitute(self, text: str, path: str) -> str:
-        """Resolve ``$(var ...)``, ``$(env ...)`` and ``$(dirname)`` in ``text``."""
+        """Resolve ``$(var ...)``, ``$(env ...)``, ``$(dirname)`` and ``$(python)``."""
 
         def one(match: re.Match[str]) -> str:
             words = match.group(1).split()
@@ -316,10 +318,12 @@ class _Parser:
                 )
             if kind == "dirname" and not rest:
                 return self.dirname
+            if kind == "python" and not rest:
+                return sys.executable
             raise self.error(
                 path,
                 f"bad substitution {match.group(0)!r}; expected $(var NAME), $(env NAME), "
-                "$(env NAME default) or $(dirname)",
+                "$(env NAME default), $(dirname) or $(python)",
             )
 
         result = _SUBST.sub(one, text)

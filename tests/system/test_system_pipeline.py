@@ -310,10 +310,10 @@ def test_a_cut_off_bag_replays_every_complete_message(demo_run: dict[str, Any]) 
 
 
 def _killed_reconstructor(tmp: Path, respawn: bool) -> tuple[Launch, list[ContactPoint]]:
-    """Run a slow (50 Hz) demo, kill -9 the reconstructor after 20 points; wait for the end."""
+    """Run a slow (25 Hz) demo, kill -9 the reconstructor after 20 points; wait for the end."""
     launch_entries = small_demo(tmp / f"out-respawn-{respawn}")
     set_param(node(launch_entries, "wrench_source"), "y0", [0.3])
-    set_param(node(launch_entries, "wrench_source"), "rate_hz", 50.0)
+    set_param(node(launch_entries, "wrench_source"), "rate_hz", 25.0)  # 8 s: room to respawn
     launch = Launch(tmp, launch_entries, f"out:={tmp}/out-{respawn}", f"step:={STEP}",
                     f"respawn:={'true' if respawn else 'false'}")
     probe = Probe(launch.endpoints(), [CONTACT])

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -48,7 +49,7 @@ def run_launch(args: argparse.Namespace) -> int:
     if args.dry_run:
         for spec in description.nodes:
             params = "<params-file>" if spec.params else None
-            print(f"[{spec.name}] " + " ".join(node_command(spec, params)))
+            print(f"[{spec.name}] " + shlex.join(node_command(spec, params)))
             for key, value in spec.params_dict().items():
                 print(f"[{spec.name}]   param {key}: {value!r}")
         return 0

@@ -47,12 +47,18 @@ from vibrissa.wire.transport import DOMAIN_ENV, Endpoints, Proxy
 __all__ = [
     "DEFAULT_GRACE_S",
     "Launcher",
+    "RUN_MODULE",
     "NodeOutcome",
     "node_command",
     "resolve_launch_file",
 ]
 
 DEFAULT_GRACE_S = 5.0
+RUN_MODULE = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+              "runpy.run_module(sys.argv.pop(1), run_name='__main__', alter_sys=True)")
+"""How a package node starts: ``python -c RUN_MODULE MODULE ...`` runs MODULE as ``python -m``
+would, except that a SIGINT before the node takes over its signals (its imports take a second
+or two) ends the process at once and quietly, instead of in a KeyboardInterrupt traceback."""
 DOMAIN_TRIES = 32
 """Domains tried from the preferred one when it is taken and no domain was asked for."""
 _POLL_S = 0.02
@@ -126,14 +132,14 @@ def node_command(spec: NodeSpec, params_file: str | None, python: str = sys.exec
     Returns
     -------
     list of str
-        ``python -m <the node's module>`` (or ``cmd``) ``--name N --namespace NS
+        ``python -c RUN_MODULE <the node's module>`` (or ``cmd``) ``--name N --namespace NS
         [--params-file F] [--remap FROM:=TO]... [args...]``.
     """
     if spec.cmd is not None:
         argv = list(spec.cmd)
     else:
         assert spec.executable is not None  # exactly one of cmd and executable
-        argv = [python, "-m", node_module(spec.pkg, spec.executable)]
+        argv = [python, "-c", RUN_MODULE, node_module(spec.pkg, spec.executable)]
     argv += ["--name", spec.name, "--namespace", spec.namespace]
     if params_file is not None:
         argv += ["--params-file", params_file]

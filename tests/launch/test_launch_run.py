@@ -19,7 +19,7 @@ import yaml
 
 from vibrissa.cli.launch import main as launcher_main
 from vibrissa.launch.description import NodeSpec, Remap
-from vibrissa.launch.launcher import node_command
+from vibrissa.launch.launcher import RUN_MODULE, node_command
 
 FIXTURES = Path(__file__).parents[1] / "fixtures"
 TIMEOUT_S = 30.0
@@ -102,7 +102,7 @@ def test_node_command_for_package_nodes() -> None:
     spec = NodeSpec(name="reconstructor", namespace="/whisker0", executable="reconstructor",
                     remaps=(Remap("wrench", "/whisker0/wrench"),), args=("--verbose",))
     assert node_command(spec, "/tmp/p.yaml", python="py") == [
-        "py", "-m", "vibrissa.nodes.reconstructor", "--name", "reconstructor",
+        "py", "-c", RUN_MODULE, "vibrissa.nodes.reconstructor", "--name", "reconstructor",
         "--namespace", "/whisker0", "--params-file", "/tmp/p.yaml",
         "--remap", "wrench:=/whisker0/wrench", "--verbose",
     ]
@@ -280,7 +280,7 @@ def test_show_args_and_dry_run(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "length: rod length  [default: '0.2']" in capsys.readouterr().out
     assert launcher_main(["--dry-run", str(path), "length:=0.5"]) == 0
     out = capsys.readouterr().out
-    assert "-m vibrissa.nodes.reconstructor --name reconstructor --namespace /whisker0" in out
+    assert "vibrissa.nodes.reconstructor --name reconstructor --namespace /whisker0" in out
     assert "[reconstructor]   param rod_length_m: 0.5" in out
 
 

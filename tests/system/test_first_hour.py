@@ -139,6 +139,18 @@ def test_ctrl_c_during_the_simulation_stops_every_node_within_a_second(tmp_path:
     assert "Traceback" not in text
 
 
+def test_ctrl_c_while_the_nodes_still_start_is_quiet(tmp_path: Path) -> None:
+    launch = Launch(LAUNCH / "demo.yaml", f"out:={tmp_path / 'map'}", domain=DOMAIN + 60)
+    launch.wait_line(r"started 'mapper'")
+    time.sleep(0.5)  # past the interpreter's own start (~0.1 s), every node still importing
+    launch.proc.send_signal(signal.SIGINT)
+    rc = launch.wait(30)
+    text = launch.text()
+    assert rc == 128 + signal.SIGINT, text
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text, text
+    assert "escalating" not in text, text
+
+
 def test_a_run_that_never_touches_the_object_fails_and_says_why(tmp_path: Path) -> None:
     launch = Launch(demo_with(tmp_path, y0=[2.0, 2.5]), f"out:={tmp_path / 'map'}",
                     domain=DOMAIN + 80)

@@ -10,11 +10,13 @@ OUT ?= out
 
 setup: $(STAMP)
 
+# pip -qq and PYTHONWARNINGS: only errors, not the index and build-backend notes of every run.
 $(STAMP): pyproject.toml
+	@echo "setting up $(VENV) (system library, venv, package; a minute or two the first time)"
 	bash scripts/ensure_system_deps.sh
 	test -x $(PY) || python3 -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	PYTHONWARNINGS=ignore $(PY) -m pip install -qq --upgrade pip
+	PYTHONWARNINGS=ignore $(PY) -m pip install -qq -e '.[dev]'
 	touch $(STAMP)
 
 demo: setup

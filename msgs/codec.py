@@ -38,6 +38,8 @@ from vibrissa.msgs.messages import (
     FieldSpec,
     Message,
     check_shape,
+    enum_member,
+    enum_values_ok,
     field_specs,
 )
 
@@ -165,6 +167,8 @@ def _unpack(payload: bytes) -> dict[str, Any]:
         raise MalformedPayloadError(f"malformed payload ({len(payload)} bytes): {exc}") from exc
     if not isinstance(obj, dict):
         raise MalformedPayloadError(f"payload is a {type(obj).__name__}, expected a msgpack map")
+    if not all(type(key) is str for key in obj):
+        raise MalformedPayloadError("payload map has a key that is not a string")
     return obj
 
 
@@ -202,8 +206,19 @@ def decode(
     Raises
     ------
     DecodeError
-        One of its subclasses, with a message naming the type and field.
+        One of its subclasses, with a message naming the type and field; for any input, no
+        other exception (a case the checks miss is a ``MalformedPayloadError`` naming it).
     """
+    try:
+        return _decode(payload, expected)
+    except DecodeError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever the bytes, the codec's own error
+        raise MalformedPayloadError(
+            f"undecodable payload ({len(payload)} bytes): {type(exc).__name__}: {exc}") from exc
+
+
+def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] | None) -> Message:
     obj = _unpack(payload)
     name = obj.pop("_type", None)
     version = obj.pop("_v", None)
@@ -312,7 +327,7 @@ def _make_layout(cls: type[Message]) -> _Layout | None:
             fields.append((name, _ARRAY, (spec.dtype_str, [size], size * spec.dtype.itemsize,
                                           spec.dtype, floats)))
         elif spec.kind == ARRAY:
-            fields.append((name, _SHAPED, (spec.dtype_str, spec.shape, spec.dtype)))
+            fields.append((name, _SHAPED, (spec.dtype_str, spec.shape, spec.dtype, spec.enum)))
         elif spec.kind == STR_LIST:
             fields.append((name, _STR_LIST, spec.length))
         else:
@@ -332,6 +347,8 @@ def _decode_fast(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> Me
         if code == _SHAPED:
             value = _shaped_array(value, check, sizes)
             if value is None or not _all_finite(value):
+                return None
+            if check[3] is not None and not enum_values_ok(check[3], value):
                 return None
         elif code == _STR_LIST:
             if type(value) is not list or not all(type(item) is str for item in value):
@@ -372,10 +389,10 @@ def _decode_fast(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> Me
     return msg
 
 
-def _shaped_array(value: Any, check: tuple[str, tuple[int | str, ...], np.dtype[Any]],
+def _shaped_array(value: Any, check: tuple[str, tuple[int | str, ...], np.dtype[Any], Any],
                   sizes: dict[str, int]) -> np.ndarray | None:
     """The array of a wire map whose shape fits the pattern (symbols bound in ``sizes``)."""
-    dtype_str, pattern, dtype = check
+    dtype_str, pattern, dtype, _ = check
     if type(value) is not dict or len(value) != 3:
         return None
     data, shape = value.get("data"), value.get("shape")
@@ -415,7 +432,7 @@ def _decode_int(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, in
         raise _type_error(t, f, "int", value)
     if spec.enum is not None:
         try:
-            return spec.enum(value)
+            return enum_member(spec.enum, value)
         except ValueError as exc:
             raise FieldTypeError(f"{t}.{f}: {exc}", t, f) from exc
     return value
@@ -458,6 +475,8 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
         array = array.reshape(shape)
     if not _all_finite(array):
         raise NonFiniteError(f"{t}.{f}: non-finite value in array", t, f)
+    if spec.enum is not None and not enum_values_ok(spec.enum, array):
+        raise FieldTypeError(f"{t}.{f}: values that are not {spec.enum.__name__} members", t, f)
     return array
 
 

@@ -107,6 +107,24 @@ class FieldSpec:
         return True
 
 
+def enum_values_ok(enum_type: type[enum.IntEnum] | type[enum.IntFlag], values: Any) -> bool:
+    """Whether every value (an int or an int array) is a member of ``enum_type``: a defined
+    value of an IntEnum, or a combination of defined bits of an IntFlag (no others)."""
+    array = np.asarray(values)
+    if issubclass(enum_type, enum.IntFlag):
+        mask = functools.reduce(lambda a, b: a | int(b), enum_type, 0)
+        return bool(np.all(array >= 0) and not np.any(array & ~mask))
+    return bool(np.all(np.isin(array, [int(m) for m in enum_type])))
+
+
+def enum_member(enum_type: type[enum.IntEnum] | type[enum.IntFlag], value: int) -> Any:
+    """``enum_type(value)``; ``ValueError`` for a value that is not a member (``enum_values_ok``:
+    an IntFlag refuses undefined bits, which Python's own conversion keeps)."""
+    if not enum_values_ok(enum_type, value):
+        raise ValueError(f"{value} is not a valid {enum_type.__name__}")
+    return enum_type(value)
+
+
 def _spec(**kwargs: Any) -> Any:
     return field(metadata={"spec": FieldSpec(**kwargs)})
 
@@ -128,9 +146,10 @@ def _text(doc: str, choices: tuple[str, ...] = ()) -> Any:
 
 
 def _array(
-    shape: tuple[int | str, ...], unit: str, doc: str, dtype: np.dtype[Any] = FLOAT64
+    shape: tuple[int | str, ...], unit: str, doc: str, dtype: np.dtype[Any] = FLOAT64,
+    enum: type[enum.IntEnum] | type[enum.IntFlag] | None = None,
 ) -> Any:
-    return _spec(kind=ARRAY, shape=shape, unit=unit, doc=doc, dtype=dtype)
+    return _spec(kind=ARRAY, shape=shape, unit=unit, doc=doc, dtype=dtype, enum=enum)
 
 
 def _stamp() -> Any:
@@ -193,6 +212,8 @@ def _coerce(cls: type, name: str, spec: FieldSpec, value: Any, sizes: dict[str, 
             array = np.array(value, dtype=spec.dtype, copy=True)
             array.flags.writeable = False
         check_shape(where, spec.shape, array.shape, sizes)
+        if spec.enum is not None and not enum_values_ok(spec.enum, array):
+            raise ValueError(f"{where} holds values that are not {spec.enum.__name__} members")
         return array
     if spec.kind == FLOAT:
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
@@ -201,7 +222,7 @@ def _coerce(cls: type, name: str, spec: FieldSpec, value: Any, sizes: dict[str, 
     if spec.kind in (INT, ENUM):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise TypeError(f"{where} expects an int, got {type(value).__name__}")
-        return spec.enum(int(value)) if spec.enum is not None else int(value)
+        return enum_member(spec.enum, int(value)) if spec.enum is not None else int(value)
     if spec.kind == STR:
         if not isinstance(value, str):
             raise TypeError(f"{where} expects a str, got {type(value).__name__}")
@@ -324,9 +345,10 @@ class ContactPointArray(Message):
     point: FloatArray = _array(("N", 3), "m", "contact point on the rod, in frame_id")
     s1: FloatArray = _array(("N",), "m", "arc length of the contact along the rod from the clamp")
     phase: IntArray = _array(
-        ("N",), "", "ContactPhase: 0 none, 1 tip, 2 tangential", dtype=INT32)
+        ("N",), "", "ContactPhase: 0 none, 1 tip, 2 tangential", dtype=INT32, enum=ContactPhase)
     force: FloatArray = _array(("N", 3), "N", "contact force on the rod, in frame_id")
-    status: IntArray = _array(("N",), "", "ContactStatus bit flags; 0 = OK", dtype=INT32)
+    status: IntArray = _array(("N",), "", "ContactStatus bit flags; 0 = OK", dtype=INT32,
+                              enum=ContactStatus)
 
 
 @dataclass(frozen=True, eq=False)

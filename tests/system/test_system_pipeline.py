@@ -370,8 +370,11 @@ def _bad_payloads(good: bytes) -> dict[str, bytes]:
 
     f0 = msgpack.unpackb(good, raw=False)["f0"]
     nan_f0 = {**f0, "data": np.array([np.nan, 0.0, 0.0], "<f8").tobytes()}
+    mixed_keys = msgpack.unpackb(good, raw=False)
+    mixed_keys.update({b"zz": 1, "yy": 2})  # once a TypeError inside the codec
     return {"field type": edited(seq="forty-two"), "version": edited(_v=99),
-            "truncated": good[: len(good) // 2], "nan": edited(f0=nan_f0)}
+            "truncated": good[: len(good) // 2], "nan": edited(f0=nan_f0),
+            "mixed keys": bytes(msgpack.packb(mixed_keys))}
 
 
 def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path: Path) -> None:
@@ -408,6 +411,9 @@ def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path:
         bad = _bad_payloads(good)
         for seq, payload in enumerate(bad.values()):
             send(payload, seq)
+            # the same on the status topic, which every node's heartbeat thread reads
+            sock.send_multipart([STATUS_TOPIC.encode() + b"\0",
+                                 msgpack.packb({"pub": pub_id + 1, "seq": seq}), payload])
         send(good, len(bad))
         rx = None
         deadline = time.monotonic() + 30
@@ -422,6 +428,8 @@ def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path:
         assert status.counters["rejected"] == len(bad), status.counters
         assert status.counters["received"] == 1 and status.counters["lost"] == 0
         assert launch.proc.poll() is None  # still running
+        later = time.time()  # and its heartbeat too
+        assert probe.status_of(fqn, lambda s: s.stamp > later).state == "running"
         assert launch.text().count("rejected message") >= len(bad)  # logged, not raised
     finally:
         sock.close()

@@ -502,8 +502,9 @@ def test_a_field_replaced_deleted_or_added(type_name: str, data: st.DataObject) 
         obj[key] = data.draw(values)
     elif action == "delete":
         del obj[key]
-    elif action == "add":
-        obj[data.draw(st.text(max_size=8) | st.integers(-5, 5))] = data.draw(values)
+    elif action == "add":  # also keys of other types than the str keys of every map
+        obj[data.draw(st.text(max_size=8) | st.integers(-5, 5) | st.binary(max_size=4))] = (
+            data.draw(values))
     else:
         obj[key] = data.draw(headers)
     decodes_or_refuses(msgpack.packb(obj))
@@ -534,3 +535,30 @@ def test_a_huge_shape_claim_is_refused_without_allocating(shape: list[int]) -> N
     finally:
         tracemalloc.stop()
     assert peak < 1 << 20, f"decode allocated {peak} bytes for a claim it could not back"
+
+
+@pytest.mark.parametrize("type_name", sorted(SAMPLES))
+def test_a_map_with_str_and_bytes_keys_is_refused(type_name: str) -> None:
+    """Found by a structural fuzzer: an unknown bytes key beside str keys made the codec raise
+    TypeError (sorting mixed keys), which no receive path caught."""
+    obj: dict[Any, Any] = msgpack.unpackb(SAMPLES[type_name], raw=False)
+    obj[b"zz"] = 1
+    obj["yy"] = 2
+    refuse(pack(obj), MalformedPayloadError, "not a string")
+
+
+def test_undefined_flag_bits_and_phases_are_refused() -> None:
+    point = msgpack.unpackb(SAMPLES["vibrissa/ContactPoint"], raw=False)
+    undefined = 1 << 20  # ContactStatus defines no such bit
+    assert not ContactStatus(undefined) & ~undefined  # Python's IntFlag itself keeps it
+    refuse(pack({**point, "status": undefined}), FieldTypeError, "ContactPoint.status")
+    refuse(pack({**point, "status": -1}), FieldTypeError, "ContactPoint.status")
+    refuse(pack({**point, "phase": 7}), FieldTypeError, "ContactPoint.phase")
+    array = msgpack.unpackb(encode(contact_array()), raw=False)  # two rows
+    for name, bad in (("status", [0, undefined]), ("phase", [1, 3]), ("phase", [-1, 1])):
+        header = {**array[name], "data": np.array(bad, "<i4").tobytes()}
+        refuse(pack({**array, name: header}), FieldTypeError, f"ContactPointArray.{name}")
+    with pytest.raises(ValueError, match="not a valid ContactStatus"):
+        ContactPoint(**{**samples()[1].__dict__, "status": undefined})
+    with pytest.raises(ValueError, match="not ContactPhase members"):
+        ContactPointArray(**{**contact_array().__dict__, "phase": [1, 5]})

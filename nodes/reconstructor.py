@@ -19,7 +19,7 @@ Samples without a consistent contact are **counted, not sent**: the codec refuse
 point-less reconstruction carries, and a point with finite placeholder zeros would be a point
 on the map. Counters in this node's ``NodeStatus`` (besides the runtime's received, published,
 rejected, lost): ``contacts`` (points published), ``no_contact`` (valid wrench, no consistent
-contact), ``bad_pose`` (clamp quaternion of zero or non-finite length), ``batches`` and
+contact, or a result that overflows to inf near the float limit), ``bad_pose`` (clamp quaternion of zero or non-finite length), ``batches`` and
 ``max_batch`` (batches and the largest, in messages); the first three count rows. Undecodable
 input (wrong type, version, field type, truncated bytes, NaN) is rejected and counted by the
 transport (``rejected``) and the node carries on.
@@ -172,7 +172,12 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: RodScale = _UNIT_ROD
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
     pose_ok, flags = result.pose_ok.tolist(), status.tolist()
-    valid = [ok and not flag & _NO_CONTACT for ok, flag in zip(pose_ok, flags, strict=True)]
+    # A row whose result overflows (finite inputs near the float limit, rotated) has no
+    # contact that can be published: it counts as no consistent contact.
+    finite = (np.isfinite(point).all(axis=1) & np.isfinite(force).all(axis=1)
+              & np.isfinite(s1)).tolist()
+    valid = [ok and fin and not flag & _NO_CONTACT
+             for ok, fin, flag in zip(pose_ok, finite, flags, strict=True)]
     for value in (point, s1, phase, force, status):
         value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
     s1s, phases = s1.tolist(), phase.tolist()

@@ -488,3 +488,23 @@ def test_the_same_cloud_gives_the_same_mesh_bit_for_bit() -> None:
     for fit in fits[1:]:
         np.testing.assert_array_equal(fit.vertices, fits[0].vertices)
         np.testing.assert_array_equal(fit.triangles, fits[0].triangles)
+
+
+def test_a_result_that_overflows_is_counted_as_no_contact_not_published() -> None:
+    """Finite inputs near the float limit, rotated, once gave a valid row with an infinite
+    force: encoding it raised inside the node's publish and the node exited."""
+    q = np.array([0.79623251, 0.10475497, -0.46211826, -0.37614744])
+    p0 = np.array([-1.30861562e308, 1.49614536e308, 1.16312171e308])
+    f0 = np.array([1.15378996e308, -9.47832554e307, 1.11655258e308])
+    m0 = np.array([4.86599216e153, 9.48589037e153, 5.07180288e153])
+    wrench = WhiskerWrench(stamp=1.0, seq=3, whisker_id="w", frame_id="world", clamp_position=p0,
+                           clamp_orientation=q, f0=f0, m0=m0)
+    decode(encode(wrench))  # the codec takes it: every value is finite
+    single = reconstruct_messages([wrench])[0]
+    array = reconstruct_messages([WhiskerWrenchArray(
+        stamp=1.0, seq=3, frame_id="world", whisker_ids=["w", "v"], clamp_position=[p0, p0],
+        clamp_orientation=[q, q], f0=[f0, f0], m0=[m0, np.zeros(3)])])[0]
+    assert (single.contacts, single.no_contact, single.bad_pose) == (None, 1, 0)
+    assert array.contacts is not None and array.contacts.whisker_ids == []
+    assert (array.no_contact, array.bad_pose) == (2, 0)
+    encode(array.contacts)  # what is published can be encoded

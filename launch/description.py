@@ -224,11 +224,21 @@ def check_node_params(description: LaunchDescription) -> None:
 
 
 class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 booleans and duplicate keys rejected.
+    """SafeLoader with YAML 1.2 booleans, duplicate keys and aliases rejected.
 
     Only ``true``/``false`` are booleans, so ``respawn: yes`` is reported as a wrong type
-    instead of silently meaning true; a repeated key is an error instead of last-one-wins.
+    instead of silently meaning true; a repeated key is an error instead of last-one-wins. An
+    alias (``*name``) is refused where it stands: a few hundred bytes of nested aliases expand
+    to 10^8 values (a "billion laughs"), and a recursive one never ends.
     """
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):  # type: ignore[no-untyped-call]
+            event = self.peek_event()  # type: ignore[no-untyped-call]
+            raise yaml.composer.ComposerError(
+                None, None, f"aliases (*{event.anchor}) are not allowed in launch files",
+                event.start_mark)
+        return super().compose_node(parent, index)  # type: ignore[no-untyped-call]
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: set[Any] = set()
@@ -714,7 +724,14 @@ def load_launch_file(
     """
     source = os.fspath(path)
     try:
-        text = Path(source).read_text(encoding="utf-8")
+        data = Path(source).read_bytes()
     except OSError as exc:
         raise LaunchFileError(source, "", f"cannot read: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise LaunchFileError(source, f"line {line}, column {column}",
+                              f"not UTF-8 text (byte 0x{data[exc.start]:02x})") from None
     return parse_launch(_load_yaml(text, source), source, overrides, environ=environ)

@@ -286,3 +286,29 @@ def test_an_unknown_node_is_refused_before_anything_starts(tmp_path: Path) -> No
     assert "known: mapper, reconstructor, recorder, wrench_source" in message
     message = error_of(tmp_path, "launch:\n  - node: {pkg: nopkg, exec: reconstructor}\n")
     assert "no installed package 'nopkg' registers nodes" in message
+
+
+def alias_bomb(levels: int) -> str:
+    """A YAML document whose aliases expand to 10**levels leaves in a few hundred bytes."""
+    lines = ['l0: &l0 ["x","x","x","x","x","x","x","x","x","x"]']
+    for i in range(1, levels):
+        lines.append(f"l{i}: &l{i} [{','.join([f'*l{i - 1}'] * 10)}]")
+    return "\n".join(lines) + f"\nlaunch: [*l{levels - 1}]\n"
+
+
+@pytest.mark.parametrize("text", [alias_bomb(5), "launch: &x [*x]\n",
+                                  "launch:\n  - arg: &a {name: a}\n  - arg: *a\n"])
+def test_aliases_are_refused_where_they_stand(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "alias.yaml"
+    path.write_text(text)
+    with pytest.raises(LaunchFileError, match=r"line \d+, column \d+: aliases \(\*\w+\) are not "
+                                              r"allowed in launch files"):
+        load_launch_file(path)
+
+
+def test_a_file_that_is_not_utf8_names_the_place(tmp_path: Path) -> None:
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes('launch:\n  - arg: {name: a, default: "caf\xe9"}\n'.encode("latin-1"))
+    with pytest.raises(LaunchFileError, match=r"latin1.yaml: line 2, column 33: not UTF-8 text "
+                                              r"\(byte 0xe9\)"):
+        load_launch_file(path)

@@ -18,9 +18,10 @@ Publishes
 Samples without a consistent contact are **counted, not sent**: the codec refuses the NaN a
 point-less reconstruction carries, and a point with finite placeholder zeros would be a point
 on the map. Counters in this node's ``NodeStatus`` (besides the runtime's received, published,
-rejected, lost): ``contacts`` (points published), ``no_contact`` (valid wrench, no consistent
-contact, or a result that overflows to inf near the float limit), ``bad_pose`` (clamp quaternion of zero or non-finite length), ``batches`` and
-``max_batch`` (batches and the largest, in messages); the first three count rows. Undecodable
+rejected, lost, anomalies): ``contacts`` (points published), ``no_contact`` (valid wrench, no
+consistent contact, or a result that overflows to inf near the float limit), ``bad_pose``
+(clamp quaternion of zero or non-finite length), ``batches`` and ``max_batch`` (batches and
+the largest, in messages); the first three count rows. Undecodable
 input (wrong type, version, field type, truncated bytes, NaN) is rejected and counted by the
 transport (``rejected``) and the node carries on.
 

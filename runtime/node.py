@@ -27,7 +27,9 @@ not advance ``seq``, so they never look like loss (see ``vibrissa.wire.transport
 
 Stopping: SIGINT/SIGTERM set ``stop_requested`` (a second SIGINT raises
 ``KeyboardInterrupt``); ``close()`` (or leaving the ``with`` block) reports the final state,
-gives queued messages up to ``drain_s`` to leave and closes every socket.
+gives queued messages up to ``drain_s`` to leave and closes every socket. If the runtime itself
+failed (its heartbeat thread), it stopped the node and leaving the ``with`` block raises
+``NodeError``: the process fails instead of ending as if its work were done.
 """
 
 from __future__ import annotations
@@ -66,6 +68,11 @@ log = logging.getLogger(__name__)
 PING_PERIOD_S = 0.1
 DEBUG_ENV = "VIBRISSA_DEBUG"
 """Set to 1 (``vibrissa launch --debug`` does) for the traceback of an error that ends a node."""
+
+
+class NodeError(RuntimeError):
+    """The node runtime failed (e.g. its heartbeat thread): leaving the ``with Node`` block
+    raises it, so that the process ends with a failure, not as if its work were done."""
 
 
 def run_main(main: Callable[[], int]) -> NoReturn:
@@ -164,6 +171,7 @@ class Node:
         self._gates: list[_Gate] = []
         self._peers: dict[str, set[str]] = {}  # node -> seen_topics from its last status
         self.counters: dict[str, int] = {}
+        self.failure: str | None = None  # why the runtime stopped the node, if it did
         try:
             self._status_pub = Publisher(STATUS_TOPIC, NodeStatus, self.endpoints, self.context)
             self._status_sub = Subscriber({STATUS_TOPIC: NodeStatus}, self.endpoints, self.context)
@@ -301,7 +309,8 @@ class Node:
         """The node's current ``NodeStatus``."""
         with self._lock:
             publishers, subscribers = list(self._publishers), list(self._subscribers)
-        totals = {"received": 0, "published": 0, "rejected": 0, "lost": 0, "pings": 0}
+        totals = {"received": 0, "published": 0, "rejected": 0, "lost": 0, "pings": 0,
+                  "anomalies": 0}
         seen: set[str] = set()
         subscribes: dict[str, str] = {}
         for sub in subscribers:
@@ -338,8 +347,10 @@ class Node:
                 if received is not None and isinstance(received.msg, NodeStatus):
                     self._peers[received.msg.node] = set(received.msg.seen_topics)
             self._status_pub.publish(self.status())  # the final state
-        except Exception:  # the thread must not die silently: stop the node instead
+        except Exception as exc:  # the thread must not die silently: stop the node instead
             log.exception("%s: heartbeat thread failed", self.fqn)
+            self.failure = f"heartbeat thread failed: {type(exc).__name__}: {exc}"
+            self._state = "error"
             self._stop.set()
 
     def _service_gates(self, now: float) -> None:
@@ -400,3 +411,5 @@ class Node:
         if exc is not None and not isinstance(exc, KeyboardInterrupt):
             self.set_state("error", f"{type(exc).__name__}: {exc}")
         self.close()
+        if exc is None and self.failure is not None:
+            raise NodeError(f"{self.fqn}: {self.failure}")

@@ -38,7 +38,7 @@ import os
 import socket
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from types import TracebackType
@@ -62,6 +62,8 @@ from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 __all__ = [
     "DEFAULT_HWM",
     "DOMAIN_ENV",
+    "MAX_PUBLISHERS",
+    "MAX_SEQ_GAP",
     "Endpoints",
     "Header",
     "MessageTypes",
@@ -76,6 +78,14 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HWM = 10_000
 """Default send/receive high-water mark, messages per socket (per peer for PUB/XPUB)."""
+
+MAX_SEQ_GAP = 1_000_000
+"""Largest seq gap counted as lost messages: a publisher does not lose a million messages
+between two that arrive (a subscriber's queue holds DEFAULT_HWM); a larger jump is a forged or
+reset sequence, counted in ``TopicCounters.anomalies``."""
+
+MAX_PUBLISHERS = 1024
+"""Publishers (per topic and id) whose sequence a subscriber follows at once."""
 
 MessageTypes: TypeAlias = type[Message] | tuple[type[Message], ...]
 """What a subscriber expects on a topic: one message class or a tuple of them."""
@@ -478,6 +488,7 @@ class TopicCounters:
     lost: int = 0  # missing seq numbers
     rejected: int = 0  # frames that did not decode (counted, logged, never raised)
     pings: int = 0
+    anomalies: int = 0  # seq jumps beyond MAX_SEQ_GAP: forged or reset, not counted as lost
 
 
 class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
@@ -510,7 +521,8 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                 self._expected[topic] = None if types is None else (*types, Ping, EndOfStream)
         self.counters: dict[str, TopicCounters] = {t: TopicCounters() for t in topics or ()}
         self._seen: set[str] = set()
-        self._next_seq: dict[tuple[str, int], int] = {}  # per (topic, publisher id)
+        # per (topic, publisher id), least recently heard first; at most MAX_PUBLISHERS
+        self._next_seq: OrderedDict[tuple[str, int], int] = OrderedDict()
         # Direct publishers: discovered from statuses when any topic but the status is taken.
         self._discover = topics is None or any(t != STATUS_TOPIC for t in topics)
         self._status_wanted = topics is None or STATUS_TOPIC in topics
@@ -541,11 +553,11 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         return set(self._seen)
 
     def totals(self) -> dict[str, int]:
-        """Counters summed over topics: received, lost, rejected, pings."""
+        """Counters summed over topics: received, lost, rejected, pings, anomalies."""
         counters = list(self.counters.values())  # one atomic copy: read by the status thread
         return {
             name: sum(getattr(c, name) for c in counters)
-            for name in ("received", "lost", "rejected", "pings")
+            for name in ("received", "lost", "rejected", "pings", "anomalies")
         }
 
     def receive(self, timeout_s: float) -> Received | None:
@@ -674,9 +686,20 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
     def _track(self, topic: str, counters: TopicCounters, header: Header, is_ping: bool) -> None:
         key = (topic, header.pub)
         expected = self._next_seq.get(key)
+        if expected is None and len(self._next_seq) >= MAX_PUBLISHERS:
+            # a flood of publisher ids (forged headers) must not grow the table: forget the
+            # one heard from least recently (if it comes back, its counting starts over)
+            self._next_seq.popitem(last=False)
+        elif expected is not None:
+            self._next_seq.move_to_end(key)
         if expected is not None:
             gap = header.seq - expected
-            if gap > 0:
+            if gap > MAX_SEQ_GAP or gap < -MAX_SEQ_GAP:
+                counters.anomalies += 1
+                log.warning("%s: publisher %016x jumped from seq %d to %d: not counted as "
+                            "loss (a forged or reset sequence)", topic, header.pub, expected,
+                            header.seq)
+            elif gap > 0:
                 counters.lost += gap
                 log.warning(
                     "%s: lost %d message(s) from publisher %016x (seq %d..%d)",

@@ -14,6 +14,7 @@ import zmq
 
 from vibrissa.msgs import EndOfStream, NodeStatus, RobotPose
 from vibrissa.runtime import Node
+from vibrissa.runtime.node import NodeError
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Subscriber
 
 TIMEOUT_S = 3.0
@@ -166,3 +167,20 @@ def test_inside_default_actions_a_signal_ends_a_native_call_at_once() -> None:
         proc.kill()
     assert rc == -signal.SIGINT
     assert time.monotonic() - sent < 1.0
+
+
+def test_a_failed_heartbeat_stops_the_node_and_fails_its_with_block(
+    endpoints: Endpoints, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Once a status that could not be encoded ended the heartbeat thread, the node stopped
+    and exited 0, as if its work were done; the launcher then carried on without it."""
+    with pytest.raises(NodeError, match="heartbeat thread failed: ValueError: unencodable"):
+        with node("beat", endpoints) as n:
+            def broken() -> NodeStatus:
+                raise ValueError("unencodable")
+            monkeypatch.setattr(n, "status", broken)
+            n._beat_now.set()
+            deadline = time.monotonic() + 5
+            while not n.stop_requested and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert n.stop_requested

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 import msgpack
@@ -10,8 +11,9 @@ import numpy as np
 import pytest
 import zmq
 
-from vibrissa.msgs import ContactPoint, EndOfStream, Ping, WhiskerWrench, encode
+from vibrissa.msgs import ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench, encode
 from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
+from vibrissa.wire.transport import MAX_PUBLISHERS
 
 TIMEOUT_S = 2.0
 
@@ -169,3 +171,47 @@ def test_held_messages_are_sent_in_order_on_release(
         got = [rx.msg.seq for _ in range(5) if (rx := sub.receive(TIMEOUT_S)) is not None]
         assert got == [0, 1, 2, 3, 4]  # type: ignore[attr-defined]
         assert sub.counters["/h"].lost == 0
+
+
+def test_forged_sequence_headers_stay_bounded_and_plausible(
+    proxy: Proxy, context: zmq.Context[Any], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Huge jumps, seqs near 2**64 and a flood of publisher ids: no 2**64 "lost" messages,
+    an anomaly count instead, a bounded table, and a status that still encodes."""
+    raw = context.socket(zmq.PUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    raw.connect(proxy.endpoints.pub)
+    payload = encode(wrench(0))
+
+    def send(pub_id: int, seq: int) -> None:
+        raw.send_multipart([b"/w0/wrench\0", msgpack.packb({"pub": pub_id, "seq": seq}),
+                            payload])
+
+    try:
+        with Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context,
+                        hwm=100_000) as sub:
+            deadline = time.monotonic() + TIMEOUT_S
+            while sub.receive(0.05) is None and time.monotonic() < deadline:
+                send(1, 0)  # until the subscription is up
+            with caplog.at_level(logging.WARNING, logger="vibrissa.wire.transport"):
+                for seq in (1, 2**63, 2**64 - 2, 2**64 - 1, 5, 6, 9):
+                    send(1, seq)
+                n_ids = MAX_PUBLISHERS + 500
+                for pub_id in range(2, 2 + n_ids):
+                    send(pub_id, 2**62)
+                    send(pub_id, 2**62 + 1)
+                got = 0
+                while sub.receive(1.0) is not None:
+                    got += 1
+            counters = sub.counters["/w0/wrench"]
+            assert got == 7 + 2 * n_ids
+            # 1 -> 2**63 -> 2**64-2 and 6 -> ... jumps: anomalies; 2**64-1 -> 5 back: anomaly;
+            # 6 -> 9: two lost, plausibly
+            assert counters.anomalies == 3 and counters.lost == 2, counters
+            assert len(sub._next_seq) == MAX_PUBLISHERS
+            status = NodeStatus(stamp=0.0, node="/n", state="running",
+                                counters={"lost": counters.lost, "anomalies": counters.anomalies},
+                                publishes={}, subscribes={}, seen_topics=[])
+            encode(status)
+    finally:
+        raw.close()

@@ -31,6 +31,7 @@ reconstruction error), mesh -> surface = max/mean over mesh vertices.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import time
@@ -49,6 +50,7 @@ from vibrissa.nodes.surface_fit import (
     contact_normals,
     fit_surface,
     split_lines,
+    too_little_for_a_surface,
     write_ply,
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
@@ -257,7 +259,7 @@ def plot_map(path: Path, points: FloatArray, fit: SurfaceFit, surface: Surface |
 
     fig = plt.figure(figsize=(9, 7))
     ax: Any = fig.add_subplot(projection="3d")
-    if surface is not None and len(points) >= 3:
+    if surface is not None and too_little_for_a_surface(points) is None:
         # A grid over the cloud's principal plane, projected onto the true surface.
         center = points.mean(axis=0)
         _, _, axes = np.linalg.svd(points - center, full_matrices=False)
@@ -289,8 +291,15 @@ def plot_map(path: Path, points: FloatArray, fit: SurfaceFit, surface: Surface |
 
 
 def _suffix(frame_id: str) -> str:
-    return "" if frame_id == "world" else "_" + "".join(
-        c if c.isalnum() or c in "-_" else "_" for c in frame_id)
+    """File name suffix of a frame: ``""`` for ``world``, ``_<frame_id>`` for a short name of
+    letters, digits, ``-`` and ``_``, else a cut-down name with a hash of the whole id, so that
+    any two frames get distinct files and every name fits the file system."""
+    if frame_id == "world":
+        return ""
+    safe = "".join(c if c.isascii() and (c.isalnum() or c in "-_") else "_" for c in frame_id)
+    if safe == frame_id and len(frame_id) <= 64:
+        return f"_{frame_id}"
+    return f"_{safe[:40]}-{hashlib.sha1(frame_id.encode()).hexdigest()[:10]}"
 
 
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
@@ -304,9 +313,14 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
         t0 = time.monotonic()
         result, fit, points, normals = fit_frame(frame_id, cloud, params, surface)
         sfx = _suffix(frame_id)
-        files = {"cloud": out_dir / f"cloud{sfx}.ply", "mesh": out_dir / f"mesh{sfx}.ply"}
+        files = {"cloud": out_dir / f"cloud{sfx}.ply"}
         write_ply(str(files["cloud"]), points, normals=normals)
-        write_ply(str(files["mesh"]), fit.vertices, fit.triangles)
+        if len(fit.vertices):
+            files["mesh"] = out_dir / f"mesh{sfx}.ply"
+            write_ply(str(files["mesh"]), fit.vertices, fit.triangles)
+        else:
+            log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
+                        fit.method.removeprefix("none: "))
         if params.plot:
             files["png"] = out_dir / f"map{sfx}.png"
             plot_map(files["png"], points, fit, surface, params.rod,

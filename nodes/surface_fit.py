@@ -164,6 +164,19 @@ def line_spacing(points: FloatArray, lines: IntArray) -> float:
     return float(np.median(nearest))
 
 
+def too_little_for_a_surface(points: FloatArray) -> str | None:
+    """Why ``points`` (N, 3) cannot carry a surface (fewer than 4, all at one point, all on one
+    straight line), or ``None`` when they can."""
+    if len(points) < 4:
+        return f"{len(points)} point(s), a surface needs 4 or more"
+    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    if not singular[0] > 1e-9 * float(np.abs(points).max()):
+        return f"all {len(points)} points at one place"
+    if singular[1] <= 1e-9 * singular[0]:
+        return f"all {len(points)} points on one straight line"
+    return None
+
+
 def fit_surface(
     points: FloatArray,
     normals: FloatArray,
@@ -184,7 +197,8 @@ def fit_surface(
     Returns
     -------
     SurfaceFit
-        Possibly empty (no triangles) for fewer than 4 points.
+        Empty (no vertices, ``method`` says why) for points that cannot carry a surface
+        (``too_little_for_a_surface``).
     """
     params = params or FitParams()
     points = np.asarray(points, dtype=np.float64)
@@ -197,9 +211,10 @@ def fit_surface(
     )
     method = (f"poisson(depth={params.depth}, normals=contact force minus line tangent, "
               f"trim={trim:.4g})")
-    if len(points) < 4 or extent == 0.0:
-        return SurfaceFit(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), method, trim,
-                          spacing)
+    too_little = too_little_for_a_surface(points)
+    if too_little is not None:
+        return SurfaceFit(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
+                          f"none: {too_little}", trim, spacing)
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))

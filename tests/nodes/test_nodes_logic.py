@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -12,15 +13,17 @@ from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import quaternion_matrices
 from vibrissa.msgs import (
+    ContactPhase,
     ContactPoint,
     ContactPointArray,
+    ContactStatus,
     EndOfStream,
     WhiskerWrench,
     WhiskerWrenchArray,
     decode,
     encode,
 )
-from vibrissa.nodes.mapper import Accumulator, MapperParams
+from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
 from vibrissa.nodes.reconstructor import (
     BatchCollector,
     Reconstructed,
@@ -508,3 +511,45 @@ def test_a_result_that_overflows_is_counted_as_no_contact_not_published() -> Non
     assert array.contacts is not None and array.contacts.whisker_ids == []
     assert (array.no_contact, array.bad_pose) == (2, 0)
     encode(array.contacts)  # what is published can be encoded
+
+
+def _contact(i: int, point: list[float], frame_id: str = "world") -> ContactPoint:
+    return ContactPoint(stamp=0.0, seq=i, whisker_id="w0", frame_id=frame_id, point=point, s1=0.5,
+                        phase=ContactPhase.TIP, force=[0.0, 0.0, 1.0], status=ContactStatus.OK)
+
+
+@pytest.mark.parametrize(("points", "why"), [
+    ([[0.0, 0.0, 0.5]], "1 point(s), a surface needs 4 or more"),
+    ([[0.1 * i, 0.0, 0.5] for i in range(3)], "3 point(s), a surface needs 4 or more"),
+    ([[0.01 * i, 0.02 * i, 0.5 - 0.01 * i] for i in range(100)],
+     "all 100 points on one straight line"),
+    ([[0.1, 0.1, 0.5]] * 50, "all 50 points at one place"),
+])
+def test_too_little_for_a_surface_is_a_report_line_and_the_cloud_is_written(
+    tmp_path: Path, points: list[list[float]], why: str
+) -> None:
+    acc = Accumulator(1)
+    for i, point in enumerate(points):
+        acc.add(_contact(i, point))
+    report, messages = write_outputs(acc, MapperParams(out_dir=str(tmp_path)), tmp_path)
+    frame = report["frames"][0]
+    assert frame["method"] == f"none: {why}"
+    assert (frame["n_vertices"], frame["n_triangles"]) == (0, 0)
+    assert sorted(frame["files"]) == ["cloud", "png"]
+    assert not (tmp_path / "mesh.ply").exists()
+    assert (tmp_path / "cloud.ply").stat().st_size > 0
+    assert f"method: none: {why}" in (tmp_path / "report.txt").read_text()
+    cloud, mesh = messages[0]
+    assert len(cloud.points) == len(points) and len(mesh.vertices) == 0
+
+
+def test_frame_ids_that_collide_or_are_long_get_files_of_their_own(tmp_path: Path) -> None:
+    frames = ["a/b", "a_b", "f" * 300, "ω"]
+    acc = Accumulator(1)
+    for frame in frames:
+        for i in range(12):
+            acc.add(_contact(i, [0.01 * i, 0.02 * (i % 3), 0.5 + 0.001 * i * i], frame))
+    report, _ = write_outputs(acc, MapperParams(out_dir=str(tmp_path), plot=False), tmp_path)
+    clouds = [frame["files"]["cloud"] for frame in report["frames"]]
+    assert len(set(clouds)) == len(frames)
+    assert all(len(Path(c).name) < 80 and Path(c).exists() for c in clouds)

@@ -14,8 +14,11 @@ to its last complete record and reports how many bytes it could not use.
 from __future__ import annotations
 
 import contextlib
+import heapq
 import io
+import itertools
 import json
+import logging
 import math
 import os
 import struct
@@ -30,9 +33,10 @@ from typing import IO, Any, NamedTuple
 import zmq
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
 from vibrissa.msgs import EndOfStream, codec
@@ -50,6 +54,8 @@ __all__ = [
     "export_json",
     "play_bag",
 ]
+
+log = logging.getLogger(__name__)
 
 MSGPACK_ENCODING = "msgpack"
 JSON_ENCODING = "json"
@@ -343,7 +349,9 @@ class BagReader:
     Iterating yields :class:`BagRecord` in log-time order: through the chunk index for a
     finished bag; for a cut-off bag (no footer) by streaming through the file, each chunk
     sorted, up to the last complete chunk. After a full iteration, ``truncated`` and
-    ``unreadable_bytes`` tell whether and how much of the file's tail was lost.
+    ``unreadable_bytes`` tell whether and how much of the file's tail was lost, and
+    ``damaged_chunks`` how many chunks of a finished bag were skipped as unreadable (their bytes
+    count in ``unreadable_bytes``; the messages around them are all read, none twice).
 
     Parameters
     ----------
@@ -358,6 +366,7 @@ class BagReader:
         self.topics = None if topics is None else frozenset(topics)
         self.truncated = False
         self.unreadable_bytes = 0
+        self.damaged_chunks = 0
 
     def __iter__(self) -> Iterator[BagRecord]:
         return self.records()
@@ -375,29 +384,63 @@ class BagReader:
         """Yield every readable message (see class docstring)."""
         self.truncated = False
         self.unreadable_bytes = 0
+        self.damaged_chunks = 0
+        summary = None
         if self.is_finished():
             try:
                 with open(self.path, "rb") as f:
-                    reader = SeekingReader(f)
-                    summary = reader.get_summary()
-                if summary is not None and summary.chunk_indexes:
-                    yield from self._indexed()
-                    return
+                    summary = SeekingReader(f).get_summary()
             except _DAMAGE_ERRORS:
-                pass  # closing magic but a broken summary: fall back to streaming
-        yield from self._streamed()
+                summary = None  # closing magic but a broken summary: stream instead
+        if summary is not None and summary.chunk_indexes:
+            yield from self._indexed(summary)
+        else:
+            yield from self._streamed()
 
     def _keep(self, topic: str) -> bool:
         return self.topics is None or topic in self.topics
 
-    def _indexed(self) -> Iterator[BagRecord]:
+    def _indexed(self, summary: Summary) -> Iterator[BagRecord]:
+        """Chunk by chunk through the index, in log-time order: a damaged chunk is skipped
+        and counted (``damaged_chunks``, its bytes in ``unreadable_bytes``), the chunks
+        after it are read as if nothing happened."""
+        chunks = sorted(summary.chunk_indexes,
+                        key=lambda c: (c.message_start_time, c.chunk_start_offset))
+        pending: list[tuple[int, int, BagRecord]] = []  # a heap by (log time, arrival)
+        order = itertools.count()
         with open(self.path, "rb") as f:
-            reader = SeekingReader(f)
-            topics = None if self.topics is None else sorted(self.topics)
-            for schema, channel, message in reader.iter_messages(
-                topics=topics, log_time_order=True
-            ):
-                yield _record(schema, channel, message)
+            for i, index in enumerate(chunks):
+                try:
+                    records = self._chunk_records(f, index, summary)
+                except _DAMAGE_ERRORS:
+                    self.damaged_chunks += 1
+                    self.unreadable_bytes += index.chunk_length
+                    continue
+                for record in records:
+                    heapq.heappush(pending, (record.log_time_ns, next(order), record))
+                # everything before the next chunk's first message is in order now
+                bound = chunks[i + 1].message_start_time if i + 1 < len(chunks) else None
+                while pending and (bound is None or pending[0][0] < bound):
+                    yield heapq.heappop(pending)[2]
+
+    def _chunk_records(self, f: IO[bytes], index: ChunkIndex, summary: Summary
+                       ) -> list[BagRecord]:
+        """The kept messages of one chunk, in file order (raises one of ``_DAMAGE_ERRORS``
+        when the chunk does not read or its CRC does not match)."""
+        f.seek(index.chunk_start_offset)
+        raw = f.read(index.chunk_length)
+        if len(raw) != index.chunk_length:
+            raise EOFError(f"chunk at {index.chunk_start_offset} runs past the end of the file")
+        chunk = next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
+        if not isinstance(chunk, Chunk):
+            raise McapError(f"no chunk at offset {index.chunk_start_offset}")
+        out = []
+        for record in breakup_chunk(chunk, validate_crc=True):
+            if isinstance(record, McapMessage):
+                channel = summary.channels.get(record.channel_id)
+                if channel is not None and self._keep(channel.topic):
+                    out.append(_record(summary.schemas.get(channel.schema_id), channel, record))
+        return out
 
     def _streamed(self) -> Iterator[BagRecord]:
         size = self.path.stat().st_size
@@ -657,6 +700,11 @@ def play_bag(
             publishers[rec.topic].publish_raw(rec.payload)
             result.published[rec.topic] += 1
         result.wall_s = time.monotonic() - t_wall0
+        if reader.damaged_chunks or reader.truncated:
+            log.warning("%s: %d damaged chunk(s) skipped%s; %d unreadable bytes, their "
+                        "messages not played", path, reader.damaged_chunks,
+                        ", cut off at the end" if reader.truncated else "",
+                        reader.unreadable_bytes)
         return result
     finally:
         if own:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -171,3 +172,46 @@ def test_writer_rejects_bad_sizes(tmp_path: Path) -> None:
 def test_missing_bag(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError):
         BagReader(tmp_path / "nope.mcap")
+
+
+def test_a_corrupted_chunk_is_skipped_counted_and_never_duplicated(tmp_path: Path) -> None:
+    """Once the indexed read failed at the damaged chunk and the fallback streamed the file
+    from its start: the first half came twice and the second half never."""
+    path = tmp_path / "bag.mcap"
+    written = write_bag(path, n=400, chunk_size=4096, max_chunk_messages=32)
+    ends = chunk_ends(path)
+    data = bytearray(path.read_bytes())
+    middle = len(ends) // 2
+    start, end = ends[middle - 1][0], ends[middle][0]
+    data[(start + end) // 2: (start + end) // 2 + 8] = b"\xff" * 8  # inside chunk `middle`
+    path.write_bytes(bytes(data))
+    reader = BagReader(path)
+    got = [(r.topic, r.log_time_ns, r.payload) for r in reader]
+    lost = ends[middle][1] - ends[middle - 1][1]
+    assert got == written[: ends[middle - 1][1]] + written[ends[middle][1]:]
+    assert len(got) == len(written) - lost
+    with open(path, "rb") as f:
+        indexes = make_reader(f).get_summary().chunk_indexes  # type: ignore[union-attr]
+    damaged = [c for c in indexes
+               if c.chunk_start_offset <= (start + end) // 2 < c.chunk_start_offset + c.chunk_length]
+    assert reader.damaged_chunks == 1 and reader.unreadable_bytes == damaged[0].chunk_length
+
+
+def test_a_chunk_claiming_terabytes_is_skipped_not_allocated(tmp_path: Path) -> None:
+    path = tmp_path / "bag.mcap"
+    written = write_bag(path, n=100, chunk_size=4096, max_chunk_messages=32)
+    ends = chunk_ends(path)
+    data = bytearray(path.read_bytes())
+    # the first chunk's uncompressed_size: after opcode (1), length (8), start and end time (16)
+    data[26: 34] = (2**42).to_bytes(8, "little")  # the magic (8) comes first: 8 + 1 + 8 + 16
+    path.write_bytes(bytes(data))
+    tracemalloc.start()
+    try:
+        reader = BagReader(path)
+        got = [(r.topic, r.log_time_ns, r.payload) for r in reader]
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 64 << 20
+    assert got == written[ends[0][1]:]  # the first chunk skipped, the rest read
+    assert reader.damaged_chunks == 1

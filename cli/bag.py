@@ -34,6 +34,7 @@ def register(subparsers: Any) -> None:
                    help="with --until-eos, keep recording S seconds after the last end")
     p.add_argument("--name", default="bag_recorder",
                    help="node name in the graph's status (for readiness gates)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing FILE.mcap")
     add_endpoint_flags(p)
     p.set_defaults(func=_record)
 
@@ -72,6 +73,7 @@ def _record(args: argparse.Namespace) -> int:
         stop_on_eos=args.until_eos,
         eos_grace_s=args.eos_grace,
         duration_s=args.duration,
+        overwrite=args.overwrite,
     )
     what = ", ".join(params.topics) if params.topics else "all topics"
     print(f"recording {what} to {params.output}", file=sys.stderr, flush=True)

@@ -34,8 +34,10 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -302,6 +304,18 @@ def _suffix(frame_id: str) -> str:
     return f"_{safe[:40]}-{hashlib.sha1(frame_id.encode()).hexdigest()[:10]}"
 
 
+@contextmanager
+def _whole(path: Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write to, renamed to ``path`` once written and
+    removed if writing fails (e.g. a full disk): a reader never sees half a file."""
+    partial = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        yield partial
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
                   ) -> tuple[dict[str, Any], list[tuple[ContactCloud, SurfaceMesh]]]:
     """Fit every frame, write PLYs, PNGs and the reports; returns (report, messages)."""
@@ -314,17 +328,20 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
         result, fit, points, normals = fit_frame(frame_id, cloud, params, surface)
         sfx = _suffix(frame_id)
         files = {"cloud": out_dir / f"cloud{sfx}.ply"}
-        write_ply(str(files["cloud"]), points, normals=normals)
+        with _whole(files["cloud"]) as partial:
+            write_ply(str(partial), points, normals=normals)
         if len(fit.vertices):
             files["mesh"] = out_dir / f"mesh{sfx}.ply"
-            write_ply(str(files["mesh"]), fit.vertices, fit.triangles)
+            with _whole(files["mesh"]) as partial:
+                write_ply(str(partial), fit.vertices, fit.triangles)
         else:
             log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
                         fit.method.removeprefix("none: "))
         if params.plot:
             files["png"] = out_dir / f"map{sfx}.png"
-            plot_map(files["png"], points, fit, surface, params.rod,
-                     f"{frame_id}: {len(points)} contacts, {fit.method}")
+            with _whole(files["png"]) as partial:
+                plot_map(partial, points, fit, surface, params.rod,
+                         f"{frame_id}: {len(points)} contacts, {fit.method}")
         result.files = {k: str(v) for k, v in files.items()}
         results.append(result)
         stamp = time.time()
@@ -354,8 +371,10 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
     report["files"] = {"report_json": str(report_json), "report_txt": str(report_txt)}
-    report_json.write_text(json.dumps(report, indent=2) + "\n")
-    report_txt.write_text(format_report(report))
+    with _whole(report_json) as partial:
+        partial.write_text(json.dumps(report, indent=2) + "\n")
+    with _whole(report_txt) as partial:
+        partial.write_text(format_report(report))
     return report, messages
 
 

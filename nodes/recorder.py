@@ -50,6 +50,8 @@ class RecorderParams:
         Bag chunk size, bytes (a crash loses at most one chunk).
     flush_interval_s
         Flush a chunk in progress at least this often, s.
+    overwrite
+        Replace an existing ``output``; by default an existing file is refused.
     """
 
     output: str = "recording.mcap"
@@ -59,9 +61,13 @@ class RecorderParams:
     duration_s: float = 0.0
     chunk_size: int = 64 * 1024
     flush_interval_s: float = 1.0
+    overwrite: bool = False
 
     def __post_init__(self) -> None:
         require(bool(self.output), "output", self.output, "a file name")
+        require(self.overwrite or not Path(self.output).exists(), "output", self.output,
+                "a new file (it exists: overwrite it with overwrite: true, or "
+                "`vibrissa bag record --overwrite`)")
         for topic in self.topics:
             require_parsed("topics", topic, validate_name)
         require_non_negative("eos_grace_s", self.eos_grace_s)
@@ -227,7 +233,11 @@ def run(node: Node, params: RecorderParams) -> RecordResult:
     subscriber = subscribe(node, params.topics)
     try:
         node.set_state("running", f"recording to {params.output}")
-        result = record(params, subscriber, lambda: node.stop_requested)
+        try:
+            result = record(params, subscriber, lambda: node.stop_requested)
+        except OSError as exc:  # e.g. a full disk: the bag keeps its complete chunks
+            raise OSError(f"cannot write {params.output}: {exc.strerror or exc}; the bag keeps "
+                          "what it holds up to its last complete chunk") from None
         log.info("%s: %d messages written to %s (%s; lost %d, rejected %d)", node.fqn,
                  result.count, params.output, result.reason, result.lost, result.rejected)
         return result

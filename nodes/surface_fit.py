@@ -30,13 +30,13 @@ density along the lines without losing a line. The reconstruction runs on one th
 more, its parallel sums round differently from run to run and the same cloud gives meshes
 with different triangle counts.
 
-Open3D (2 s and ~180 MB to import) is imported by the functions that use it, so that a node
-that is stopped before its fit, or a launcher checking the mapper's parameters, never loads it.
+Open3D (2 s and ~180 MB to import) is imported by ``fit_surface`` only, so that a node that is
+stopped before its fit, or a launcher checking the mapper's parameters, never loads it. PLY
+files are written with numpy (``write_ply``): Open3D's writer reports success on a full disk.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -233,17 +233,28 @@ def fit_surface(
 
 def write_ply(path: str, points: FloatArray, triangles: IntArray | None = None,
               normals: FloatArray | None = None) -> None:
-    """Write a point cloud (``triangles`` None) or a triangle mesh as PLY (Open3D)."""
-    import open3d as o3d
+    """Write a point cloud (``triangles`` None, optionally with normals) or a triangle mesh as
+    binary little-endian PLY, the layout Open3D writes and reads.
 
-    if triangles is None:
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-        if normals is not None:
-            cloud.normals = o3d.utility.Vector3dVector(normals)
-        ok = o3d.io.write_point_cloud(os.fspath(path), cloud)  # type: ignore[arg-type]
-    else:
-        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(points),
-                                         o3d.utility.Vector3iVector(triangles.astype(np.int32)))
-        ok = o3d.io.write_triangle_mesh(os.fspath(path), mesh)  # type: ignore[arg-type]
-    if not ok:
-        raise OSError(f"could not write {path}")
+    Written with numpy rather than Open3D, whose writer reports success when the disk is full:
+    here a failed write raises ``OSError``.
+    """
+    points = np.asarray(points, dtype="<f8").reshape(-1, 3)
+    properties = ["x", "y", "z"]
+    vertices = points
+    if triangles is None and normals is not None:
+        properties += ["nx", "ny", "nz"]
+        vertices = np.hstack([points, np.asarray(normals, dtype="<f8").reshape(-1, 3)])
+    header = ["ply", "format binary_little_endian 1.0", "comment Created by vibrissa",
+              f"element vertex {len(vertices)}", *(f"property double {p}" for p in properties)]
+    faces = None
+    if triangles is not None:
+        faces = np.zeros(len(triangles), dtype=[("n", "u1"), ("v", "<u4", (3,))])
+        faces["n"] = 3
+        faces["v"] = triangles
+        header += [f"element face {len(faces)}", "property list uchar uint vertex_indices"]
+    with open(path, "wb") as f:
+        f.write(("\n".join([*header, "end_header"]) + "\n").encode("ascii"))
+        f.write(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
+        if faces is not None:
+            f.write(faces.tobytes())

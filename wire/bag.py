@@ -28,6 +28,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import TracebackType
 from typing import IO, Any, NamedTuple
 
 import zmq
@@ -225,8 +226,15 @@ class BagWriter(contextlib.AbstractContextManager["BagWriter"]):
         self._closed = False
         self.message_count = 0
 
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if exc is None:
+            self.close()
+            return
+        # Writing failed (e.g. a full disk): closing may fail the same way; the error that
+        # matters is the first, and the bag stays readable up to its last complete chunk.
+        with contextlib.suppress(Exception):
+            self.close()
 
     def register_schema(self, type_name: str, version: int, schema: dict[str, Any]) -> int:
         """Register ``schema`` for (type, version) once; return its MCAP schema id."""

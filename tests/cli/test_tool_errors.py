@@ -57,3 +57,18 @@ def test_bag_info_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=60)
     assert result.stdout.splitlines()[1:] == ["status 141"]  # 128 + SIGPIPE, as `cat` would
     assert "Traceback" not in result.stderr and "BrokenPipeError" not in result.stderr
+
+
+def test_bag_record_refuses_an_existing_file_unless_asked(tmp_path: Path) -> None:
+    existing = tmp_path / "keep.mcap"
+    existing.write_bytes(b"precious")
+    env_domain = str(27000 + os.getpid() % 2000)  # nobody publishes there
+    refused = vibrissa("bag", "record", "-o", str(existing), "--duration", "0.2",
+                       "--domain", env_domain)
+    assert refused.returncode == 1
+    assert "exists: overwrite it" in refused.stderr and "--overwrite" in refused.stderr
+    assert existing.read_bytes() == b"precious"
+    replaced = vibrissa("bag", "record", "-o", str(existing), "--duration", "0.2", "--overwrite",
+                        "--domain", env_domain)
+    assert replaced.returncode == 0, replaced.stderr
+    assert existing.read_bytes().startswith(b"\x89MCAP0\r\n")

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import resource
+import signal
+import subprocess
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +42,7 @@ from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import SweepRun, Trail, first_contact, simulate_sweeps
 from vibrissa.ticks import array_ticks, sequential_ticks
 from vibrissa.units import RodScale
+from vibrissa.wire.bag import BagReader
 from vibrissa.wire.transport import Header, Received
 
 UNIT_ROD = RodScale()
@@ -553,3 +558,70 @@ def test_frame_ids_that_collide_or_are_long_get_files_of_their_own(tmp_path: Pat
     clouds = [frame["files"]["cloud"] for frame in report["frames"]]
     assert len(set(clouds)) == len(frames)
     assert all(len(Path(c).name) < 80 and Path(c).exists() for c in clouds)
+
+
+def run_with_file_size_limit(script: str, limit_bytes: int) -> subprocess.CompletedProcess[str]:
+    """``script`` in a Python whose files cannot grow past ``limit_bytes``: writes beyond it
+    fail as on a full disk (EFBIG instead of ENOSPC; SIGXFSZ is ignored)."""
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120, preexec_fn=limit)  # noqa: PLW1509 - the test's own child
+
+
+def test_a_full_disk_leaves_no_half_written_map_file(tmp_path: Path) -> None:
+    script = f"""
+import numpy as np
+from pathlib import Path
+from vibrissa.msgs import ContactPhase, ContactPoint
+from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
+acc = Accumulator(1)
+for i in range(3000):
+    acc.add(ContactPoint(stamp=0.0, seq=i, whisker_id="w", frame_id="world",
+                         point=[0.001 * (i % 60), 0.001 * (i // 60), 0.5 + 1e-4 * (i % 7)],
+                         s1=0.5, phase=ContactPhase.TIP, force=[0.0, 0.0, 1.0], status=0))
+out = Path({str(tmp_path)!r})
+try:
+    write_outputs(acc, MapperParams(out_dir=str(out), plot=False), out)
+except OSError as exc:
+    print("error:", exc)
+"""
+    result = run_with_file_size_limit(script, 20_000)  # the cloud alone is ~100 kB
+    assert "error:" in result.stdout, result.stdout + result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no file at all, half or whole
+
+
+def test_a_full_disk_stops_the_recorder_with_one_error_and_a_readable_bag(
+    tmp_path: Path,
+) -> None:
+    bag = tmp_path / "rec.mcap"
+    script = f"""
+import numpy as np
+from vibrissa.msgs import WhiskerWrench, encode
+from vibrissa.nodes.recorder import RecorderParams, record
+from vibrissa.wire.bag import BagReader
+from vibrissa.wire.transport import Header, Received
+
+class Endless:
+    seq = 0
+    def receive(self, timeout_s):
+        self.seq += 1
+        msg = WhiskerWrench(stamp=0.0, seq=self.seq, whisker_id="w", frame_id="world",
+                            clamp_position=np.random.rand(3), clamp_orientation=[0, 0, 0, 1],
+                            f0=np.random.rand(3), m0=np.random.rand(3))
+        return Received("/w/wrench", msg, encode(msg), Header(1, self.seq), 0.0)
+    def totals(self):
+        return {{"lost": 0, "rejected": 0}}
+
+try:
+    record(RecorderParams(output={str(bag)!r}, chunk_size=4096), Endless())
+except OSError as exc:
+    print("error:", exc.errno, "chained:", exc.__context__ is not None)
+"""
+    result = run_with_file_size_limit(script, 200_000)
+    # the write's own error, not a second one from closing the bag on the same full disk
+    assert result.stdout.strip() == "error: 27 chained: False", result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    got = list(BagReader(bag))
+    assert len(got) > 100 and all(r.topic == "/w/wrench" for r in got)

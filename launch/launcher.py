@@ -11,6 +11,10 @@ echoed with a ``[name] `` prefix. Nodes that fail are respawned per their policy
 ``required`` node, a node with ``on_exit: shutdown`` finishing, Ctrl-C or SIGTERM shut the graph
 down in reverse start order (SIGINT, grace period, SIGTERM, grace period, SIGKILL).
 
+Nodes die with their launcher: each child asks the kernel for a SIGTERM when the launcher
+dies (``PR_SET_PDEATHSIG``), so a SIGKILLed launcher leaves no node behind; the temporary
+parameter folder of a launcher that died is removed by the next launch.
+
 Exit status: 0 when every node ended with 0 (or was stopped by the launcher after an
 ``on_exit: shutdown``); 1 when a node failed for good (the last line names it); 2 for an
 invalid launch file or argument (nothing is started); 128 + signal number after Ctrl-C/SIGTERM.
@@ -19,6 +23,7 @@ invalid launch file or argument (nothing is started); 128 + signal number after 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
 import os
 import shutil
@@ -28,6 +33,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from typing import IO
@@ -240,7 +246,8 @@ class Launcher:
             assert proxy.endpoints is not None
             self._env = {"PYTHONUNBUFFERED": "1", **proxy.endpoints.to_env(), **domain_env,
                          **({DEBUG_ENV: "1"} if self.debug else {})}
-            self._params_dir = tempfile.mkdtemp(prefix="vibrissa-launch-")
+            remove_orphaned_params_dirs()
+            self._params_dir = tempfile.mkdtemp(prefix=f"{PARAMS_DIR_PREFIX}{os.getpid()}-")
             try:
                 self._supervise()
             finally:
@@ -340,6 +347,7 @@ class Launcher:
             proc = subprocess.Popen(
                 argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                 env=env, start_new_session=True,  # own process group: signalled as a whole
+                preexec_fn=_die_with_parent(os.getpid()),
             )
         except OSError as exc:
             node.proc = None
@@ -472,6 +480,50 @@ class Launcher:
             return 128 + self._signals[0]
         self.out.log("launch finished")
         return 0
+
+
+PARAMS_DIR_PREFIX = "vibrissa-launch-"
+"""Temporary parameter folders: ``vibrissa-launch-<launcher pid>-<random>`` in the temp dir."""
+
+_PR_SET_PDEATHSIG = 1
+_LIBC = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
+
+
+def _die_with_parent(launcher_pid: int) -> Callable[[], None] | None:
+    """What a child runs between fork and exec: a SIGTERM to it when the launcher dies (Linux;
+    elsewhere nothing). If the launcher is already gone, it ends at once."""
+    if _LIBC is None:
+        return None
+    libc = _LIBC
+
+    def set_parent_death_signal() -> None:
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        if os.getppid() != launcher_pid:  # the launcher died before the prctl took effect
+            os._exit(1)
+    return set_parent_death_signal
+
+
+def remove_orphaned_params_dirs(temp_dir: str | None = None) -> list[str]:
+    """Remove the parameter folders of launchers that are gone (killed before they could
+    clean up); returns what was removed. Folders of running launchers and of other users are
+    left alone."""
+    removed = []
+    base = temp_dir or tempfile.gettempdir()
+    for entry in os.scandir(base):
+        name = entry.name
+        if not name.startswith(PARAMS_DIR_PREFIX) or not entry.is_dir(follow_symlinks=False):
+            continue
+        pid_text = name[len(PARAMS_DIR_PREFIX):].partition("-")[0]
+        if not pid_text.isdigit() or entry.stat(follow_symlinks=False).st_uid != os.getuid():
+            continue
+        try:
+            os.kill(int(pid_text), 0)
+            continue  # its launcher still runs
+        except (ProcessLookupError, PermissionError):
+            pass  # gone (a process of another user has its pid now)
+        shutil.rmtree(entry.path, ignore_errors=True)
+        removed.append(entry.path)
+    return removed
 
 
 def _has_exited(proc: subprocess.Popen[bytes] | None) -> bool:

@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -19,7 +20,12 @@ import yaml
 
 from vibrissa.cli.launch import main as launcher_main
 from vibrissa.launch.description import NodeSpec, Remap
-from vibrissa.launch.launcher import RUN_MODULE, node_command
+from vibrissa.launch.launcher import (
+    PARAMS_DIR_PREFIX,
+    RUN_MODULE,
+    node_command,
+    remove_orphaned_params_dirs,
+)
 
 FIXTURES = Path(__file__).parents[1] / "fixtures"
 TIMEOUT_S = 30.0
@@ -300,3 +306,25 @@ def test_nodes_talk_through_the_launcher_proxy(
         port = 7400 + 2 * transport["domain"]
         assert f"publishers -> tcp://127.0.0.1:{port}, subscribers -> " \
                f"tcp://127.0.0.1:{port + 1}" in err
+
+
+def test_nodes_die_with_a_killed_launcher_and_the_next_launch_cleans_up(tmp_path: Path) -> None:
+    pid_file = tmp_path / "pids"
+    sleeper = fixture_node("sleeper", "sleeper", pid_file=str(pid_file), seconds=120)
+    path = write_launch(tmp_path, sleeper)
+    proc = start(path)
+    try:
+        wait_for(lambda: len(pids(pid_file)) == 1, "the node to start")
+        node_pid = pids(pid_file)[0]
+        left = [p for p in Path(tempfile.gettempdir()).glob(f"{PARAMS_DIR_PREFIX}{proc.pid}-*")]
+        assert len(left) == 1
+        proc.kill()  # SIGKILL: the launcher cleans up nothing
+        proc.communicate(timeout=TIMEOUT_S)
+        wait_for(lambda: not alive(node_pid), "the node to die with its launcher", timeout=5.0)
+        assert left[0].exists()  # nobody removed it yet
+        assert str(left[0]) in remove_orphaned_params_dirs()  # what the next launch does first
+        assert not left[0].exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()

@@ -430,11 +430,15 @@ class BagReader:
                 bound = chunks[i + 1].message_start_time if i + 1 < len(chunks) else None
                 while pending and (bound is None or pending[0][0] < bound):
                     yield heapq.heappop(pending)[2]
+        while pending:  # held back for a last chunk that turned out damaged
+            yield heapq.heappop(pending)[2]
 
     def _chunk_records(self, f: IO[bytes], index: ChunkIndex, summary: Summary
                        ) -> list[BagRecord]:
         """The kept messages of one chunk, in file order (raises one of ``_DAMAGE_ERRORS``
         when the chunk does not read or its CRC does not match)."""
+        if index.chunk_start_offset + index.chunk_length > os.fstat(f.fileno()).st_size:
+            raise EOFError(f"chunk at {index.chunk_start_offset} runs past the end of the file")
         f.seek(index.chunk_start_offset)
         raw = f.read(index.chunk_length)
         if len(raw) != index.chunk_length:

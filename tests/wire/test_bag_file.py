@@ -174,14 +174,16 @@ def test_missing_bag(tmp_path: Path) -> None:
         BagReader(tmp_path / "nope.mcap")
 
 
-def test_a_corrupted_chunk_is_skipped_counted_and_never_duplicated(tmp_path: Path) -> None:
+@pytest.mark.parametrize("where", ["middle", "last"])
+def test_a_corrupted_chunk_is_skipped_counted_and_never_duplicated(tmp_path: Path,
+                                                                   where: str) -> None:
     """Once the indexed read failed at the damaged chunk and the fallback streamed the file
     from its start: the first half came twice and the second half never."""
     path = tmp_path / "bag.mcap"
     written = write_bag(path, n=400, chunk_size=4096, max_chunk_messages=32)
     ends = chunk_ends(path)
     data = bytearray(path.read_bytes())
-    middle = len(ends) // 2
+    middle = len(ends) // 2 if where == "middle" else len(ends) - 1
     start, end = ends[middle - 1][0], ends[middle][0]
     data[(start + end) // 2: (start + end) // 2 + 8] = b"\xff" * 8  # inside chunk `middle`
     path.write_bytes(bytes(data))

@@ -61,6 +61,7 @@ from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 __all__ = [
     "DEFAULT_HWM",
+    "DEFAULT_MAX_MESSAGE_BYTES",
     "DOMAIN_ENV",
     "MAX_PUBLISHERS",
     "MAX_SEQ_GAP",
@@ -78,6 +79,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HWM = 10_000
 """Default send/receive high-water mark, messages per socket (per peer for PUB/XPUB)."""
+
+DEFAULT_MAX_MESSAGE_BYTES = 64 << 20
+"""Largest frame the proxy takes from a publisher, bytes (a cloud of 1.4 M points fits)."""
 
 MAX_SEQ_GAP = 1_000_000
 """Largest seq gap counted as lost messages: a publisher does not lose a million messages
@@ -204,6 +208,11 @@ class Proxy:
 
     Bind to ``Endpoints.free()`` for free ports; ``start()`` returns the bound endpoints.
     Stopping sends ``TERMINATE`` on an inproc control socket (``zmq.proxy_steerable``).
+
+    A publisher that sends a frame larger than ``max_message_bytes`` is disconnected by the
+    XSUB (ZeroMQ's ``MAXMSGSIZE``): nothing of it reaches a subscriber's queue, and the
+    subscribers stay connected. (The limit belongs here, on the bound side: on a connecting
+    SUB socket one oversized frame would cut its connection for good.)
     """
 
     def __init__(
@@ -211,10 +220,12 @@ class Proxy:
         endpoints: Endpoints | None = None,
         context: zmq.Context[Any] | None = None,
         hwm: int = DEFAULT_HWM,
+        max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
     ) -> None:
         self._requested = endpoints if endpoints is not None else Endpoints.from_env()
         self._context = context if context is not None else zmq.Context.instance()
         self._hwm = hwm
+        self._max_message_bytes = max_message_bytes
         self._thread: threading.Thread | None = None
         self._control: zmq.Socket[Any] | None = None
         self.endpoints: Endpoints | None = None
@@ -225,6 +236,7 @@ class Proxy:
             raise RuntimeError("proxy already started")
         control_address = f"inproc://vibrissa-proxy-control-{os.getpid()}-{next(_CONTROL_IDS)}"
         xsub = _socket(self._context, zmq.XSUB, self._hwm)
+        xsub.setsockopt(zmq.MAXMSGSIZE, self._max_message_bytes)
         xpub = _socket(self._context, zmq.XPUB, self._hwm)
         control_in = self._context.socket(zmq.PAIR)
         control_in.setsockopt(zmq.LINGER, 0)

@@ -215,3 +215,28 @@ def test_forged_sequence_headers_stay_bounded_and_plausible(
             encode(status)
     finally:
         raw.close()
+
+
+def test_the_proxy_drops_an_oversized_frame_and_its_sender_only(
+    context: zmq.Context[Any],
+) -> None:
+    with Proxy(Endpoints.free(), context=context, max_message_bytes=1 << 20) as proxy, \
+            Publisher("/w0/wrench", WhiskerWrench, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context) as sub:
+        connect(pub, sub)
+        big = context.socket(zmq.PUB)
+        big.setsockopt(zmq.LINGER, 0)
+        big.connect(proxy.endpoints.pub)
+        try:
+            time.sleep(0.3)  # the intruder's connection is up
+            big.send_multipart([b"/w0/wrench\0", msgpack.packb({"pub": 99, "seq": 0}),
+                                b"x" * (10 << 20)])
+            time.sleep(0.3)
+            pub.publish(wrench(0))
+            rx = sub.receive(TIMEOUT_S)
+            assert rx is not None and isinstance(rx.msg, WhiskerWrench)  # still connected
+            assert sub.receive(0.3) is None  # and the 10 MB frame never came
+            counters = sub.counters["/w0/wrench"]
+            assert (counters.received, counters.rejected) == (1, 0)
+        finally:
+            big.close()

@@ -18,7 +18,9 @@ Files in ``out_dir`` (for frame ``world``; another frame F gets the suffix ``_F`
 ``cloud.ply`` (points + normals), ``mesh.ply``, ``map.png`` (cloud and mesh over the true
 surface), ``report.json`` and ``report.txt``. Then the node exits 0 (the demo launch ends
 on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams ended without a
-single contact point (only the reports are written, and they say so). Stopped (SIGINT,
+single contact point (only the reports are written, and they say so), or ``EXIT_LOST_DATA`` (4)
+when input messages were lost (the report lists every input stream: sent, received, lost),
+unless ``allow_loss``. Stopped (SIGINT,
 SIGTERM) before the streams end, it writes nothing and exits 0; a stop during the fit ends
 the process at once (Open3D does not return to Python until it is done).
 
@@ -61,6 +63,7 @@ from vibrissa.runtime.signals import default_actions
 from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.units import RodScale
 from vibrissa.wire.topics import resolve_topic, validate_name
+from vibrissa.wire.transport import StreamEnd
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +71,9 @@ FloatArray = npt.NDArray[np.float64]
 
 EXIT_EMPTY_MAP = 3
 """Exit status of a mapper whose streams ended without a single contact point."""
+
+EXIT_LOST_DATA = 4
+"""Exit status of a mapper that lost input messages (unless ``allow_loss``)."""
 
 MAX_DEPTH = 12
 """Deepest Poisson octree: 4096^3 cells, beyond what a contact cloud can fill."""
@@ -97,6 +103,9 @@ class MapperParams:
         Fit what has arrived after this long without a message, s (0 = wait for the ends).
     plot
         Write ``map.png``.
+    allow_loss
+        Exit 0 even when input messages were lost (the report says so either way); by
+        default a lossy map exits ``EXIT_LOST_DATA`` (4).
     cloud_topic, mesh_topic
         Output topics.
     wait_for
@@ -115,6 +124,7 @@ class MapperParams:
     trim_factor: float = 0.6
     timeout_s: float = 0.0
     plot: bool = True
+    allow_loss: bool = False
     cloud_topic: str = "contact_cloud"
     mesh_topic: str = "surface_mesh"
     wait_for: tuple[str, ...] = ()
@@ -316,9 +326,14 @@ def _whole(path: Path) -> Iterator[Path]:
         partial.unlink(missing_ok=True)
 
 
-def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
+def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
+                  streams: Sequence[StreamEnd] = (), lost: int = 0,
                   ) -> tuple[dict[str, Any], list[tuple[ContactCloud, SurfaceMesh]]]:
-    """Fit every frame, write PLYs, PNGs and the reports; returns (report, messages)."""
+    """Fit every frame, write PLYs, PNGs and the reports; returns (report, messages).
+
+    ``streams`` are the input streams that ended (what each said was sent, what arrived,
+    what was lost) and ``lost`` the input messages lost in all, for the report.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     surface = parse_surface(params.true_surface) if params.true_surface else None
     results: list[FrameResult] = []
@@ -367,6 +382,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path
             (r.cloud_to_surface_max for r in results if r.cloud_to_surface_max is not None),
             default=None),
         "frames": [asdict(r) for r in results],
+        "lost": lost,
+        "streams": [asdict(stream) for stream in streams],
     }
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
@@ -390,6 +407,11 @@ def format_report(report: dict[str, Any]) -> str:
              f"(L = {report['rod_length_m']} m)",
              f"max reconstruction error (cloud -> true surface): "
              f"{mm(report['max_reconstruction_error_m'])}"]
+    if report["lost"]:
+        lines.append(f"LOST: {report['lost']} contact message(s) never arrived")
+    for stream in report["streams"]:
+        lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
+                     f"{stream['received']} received, {stream['lost']} lost")
     for frame in report["frames"]:
         lines += [
             f"frame {frame['frame_id']}: {frame['n_points']} points",
@@ -433,7 +455,12 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
         return None
     node.set_state("running", f"fitting {acc.n_points} points")
     with default_actions():  # Open3D holds the interpreter while fitting: a stop ends us at once
-        report, messages = write_outputs(acc, params, Path(params.out_dir))
+        report, messages = write_outputs(acc, params, Path(params.out_dir),
+                                         list(subscriber.ended_streams),
+                                         subscriber.totals()["lost"])
+    if report["lost"]:
+        log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
+                  report["lost"], " (allowed: allow_loss)" if params.allow_loss else "")
     for cloud, mesh in messages:
         cloud_pub.publish(cloud)
         mesh_pub.publish(mesh)
@@ -462,7 +489,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
     with Node.from_args(args) as node:
         report = run(node, params)
-    return EXIT_EMPTY_MAP if report is not None and report["n_points"] == 0 else 0
+    if report is not None and report["n_points"] == 0:
+        return EXIT_EMPTY_MAP
+    if report is not None and report["lost"] and not params.allow_loss:
+        return EXIT_LOST_DATA
+    return 0
 
 
 if __name__ == "__main__":

@@ -71,6 +71,7 @@ __all__ = [
     "Proxy",
     "Publisher",
     "Received",
+    "StreamEnd",
     "Subscriber",
     "TopicCounters",
 ]
@@ -492,6 +493,25 @@ class Received:
     receive_time: float
 
 
+@dataclass(frozen=True)
+class StreamEnd:
+    """One stream (a publisher on a topic) that ended, as a subscriber saw it: what its
+    ``EndOfStream`` says was sent, what arrived, and what was lost (gaps in ``seq``, plus what
+    was sent before the first message heard)."""
+
+    topic: str
+    pub: int
+    source: str
+    sent: int
+    received: int
+    lost: int
+
+    def describe(self) -> str:
+        """``stream of /src (pub 0123...) ended: 100 sent, 98 received, 2 lost``."""
+        return (f"stream of {self.source} (pub {self.pub:016x}) ended: {self.sent} sent, "
+                f"{self.received} received, {self.lost} lost")
+
+
 @dataclass
 class TopicCounters:
     """Per-topic counts of a subscriber (messages)."""
@@ -535,6 +555,8 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         self._seen: set[str] = set()
         # per (topic, publisher id), least recently heard first; at most MAX_PUBLISHERS
         self._next_seq: OrderedDict[tuple[str, int], int] = OrderedDict()
+        self._stream_counts: dict[tuple[str, int], list[int]] = {}  # [data received, lost]
+        self.ended_streams: deque[StreamEnd] = deque(maxlen=MAX_PUBLISHERS)
         # Direct publishers: discovered from statuses when any topic but the status is taken.
         self._discover = topics is None or any(t != STATUS_TOPIC for t in topics)
         self._status_wanted = topics is None or STATUS_TOPIC in topics
@@ -683,7 +705,29 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
             counters.pings += 1
             return None
         counters.received += 1
+        if isinstance(msg, EndOfStream):
+            self._end_stream(topic, counters, header, msg)
+        else:
+            self._stream_counts.setdefault((topic, header.pub), [0, 0])[0] += 1
         return Received(topic, msg, payload, header, now)
+
+    def _end_stream(self, topic: str, counters: TopicCounters, header: Header,
+                    eos: EndOfStream) -> None:
+        """Compare what the stream's end says was sent with what arrived; messages missing
+        from before the first one heard (no seq gap shows them) count as lost too."""
+        received, lost = self._stream_counts.pop((topic, header.pub), [0, 0])
+        missing = eos.count - received - lost
+        if missing > 0:
+            counters.lost += missing
+            lost += missing
+        elif missing < 0:
+            counters.anomalies += 1  # more arrived than were sent: forged or repeated
+        end = StreamEnd(topic, header.pub, eos.source, eos.count, received, lost)
+        self.ended_streams.append(end)
+        if lost or missing < 0:
+            log.warning("%s: %s", topic, end.describe())
+        else:
+            log.debug("%s: %s", topic, end.describe())
 
     def _learn_from_status(self, payload: bytes) -> None:
         """Learn direct publishers from a status the caller does not take (one that does not
@@ -701,7 +745,8 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         if expected is None and len(self._next_seq) >= MAX_PUBLISHERS:
             # a flood of publisher ids (forged headers) must not grow the table: forget the
             # one heard from least recently (if it comes back, its counting starts over)
-            self._next_seq.popitem(last=False)
+            forgotten, _ = self._next_seq.popitem(last=False)
+            self._stream_counts.pop(forgotten, None)
         elif expected is not None:
             self._next_seq.move_to_end(key)
         if expected is not None:
@@ -713,6 +758,7 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                             header.seq)
             elif gap > 0:
                 counters.lost += gap
+                self._stream_counts.setdefault(key, [0, 0])[1] += gap
                 log.warning(
                     "%s: lost %d message(s) from publisher %016x (seq %d..%d)",
                     topic, gap, header.pub, expected, header.seq - 1,

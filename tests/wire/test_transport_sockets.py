@@ -89,8 +89,11 @@ def test_exact_loss_count_when_the_subscriber_falls_behind(
         assert counters.lost == n - data > 0
         assert counters.received + counters.lost == pub.sent == n + 1
         print(f"hwm={hwm}: published {n}, received {data}, lost {counters.lost}")
-        gaps = [r for r in caplog.records if "lost" in r.getMessage()]
+        gaps = [r for r in caplog.records if "lost %d message(s)" in str(r.msg)]
         assert sum(int(str(r.args[1])) for r in gaps if isinstance(r.args, tuple)) == counters.lost
+        # the stream's end compares: what it says was sent, what arrived, what was lost
+        [end] = sub.ended_streams
+        assert (end.sent, end.received, end.lost) == (n, data, n - data)
 
 
 def test_rejected_payloads_are_counted_and_delivery_goes_on(
@@ -240,3 +243,28 @@ def test_the_proxy_drops_an_oversized_frame_and_its_sender_only(
             assert (counters.received, counters.rejected) == (1, 0)
         finally:
             big.close()
+
+
+def test_messages_lost_before_the_first_one_heard_count_at_the_end_of_the_stream(
+    proxy: Proxy, context: zmq.Context[Any]
+) -> None:
+    """No seq gap shows messages sent before a subscriber heard the first one; the stream's
+    EndOfStream (count = messages sent) does."""
+    with Subscriber({"/late": WhiskerWrench}, proxy.endpoints, context) as sub, \
+            Publisher("/late", WhiskerWrench, proxy.endpoints, context) as pub:
+        for i in range(5):  # nobody hears these: the subscription is not up yet
+            pub.publish(wrench(i))
+        connect(pub, sub)  # (the first ping it hears announces seq 5)
+        for i in range(5, 8):
+            pub.publish(wrench(i))
+        pub.publish_end_of_stream("/src")
+        received = []
+        while (rx := sub.receive(TIMEOUT_S)) is not None:
+            received.append(rx.msg)
+            if isinstance(rx.msg, EndOfStream):
+                break
+        assert [m.seq for m in received[:-1]] == [5, 6, 7]
+        counters = sub.counters["/late"]
+        assert counters.lost == 5
+        [end] = sub.ended_streams
+        assert (end.source, end.sent, end.received, end.lost) == ("/src", 8, 3, 5)

@@ -1,0 +1,69 @@
+"""A real mapper process on loopback: a stream that lost a message on the way is named in the
+report, and the mapper's exit status says so unless the loss is allowed."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from vibrissa.msgs import ContactPhase, ContactPoint, ContactStatus, NodeStatus
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
+
+TOPIC = "/w/contact"
+
+
+def contact(i: int) -> ContactPoint:
+    return ContactPoint(stamp=0.0, seq=i, whisker_id="w", frame_id="world",
+                        point=[0.01 * (i % 4), 0.01 * (i // 4), 0.5 + 0.001 * i], s1=0.5,
+                        phase=ContactPhase.TIP, force=[0.0, 0.0, 1.0], status=ContactStatus.OK)
+
+
+@pytest.mark.parametrize("allow_loss", [False, True])
+def test_a_lost_contact_is_reported_and_fails_the_mapper(
+    tmp_path: Path, endpoints: Endpoints, allow_loss: bool
+) -> None:
+    env = {**os.environ, **endpoints.to_env()}
+    mapper = subprocess.Popen(
+        [sys.executable, "-m", "vibrissa.nodes.mapper", "--name", "mapper",
+         "--param", f"topics:=[{TOPIC}]", "--param", f"out_dir:={tmp_path}",
+         "--param", "plot:=false", "--param", f"allow_loss:={str(allow_loss).lower()}"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        with Publisher(TOPIC, ContactPoint, endpoints) as pub, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:  # ping until the mapper hears the topic
+                pub.ping("/test")
+                rx = statuses.receive(0.1)
+                if rx is not None and rx.msg.node == "/mapper" and TOPIC in rx.msg.seen_topics:
+                    break
+            else:
+                pytest.fail("the mapper never heard the topic")
+            for i in range(12):
+                if i == 5:  # sent, and lost on the way: its seq is used, it never arrives
+                    pub.sent += 1
+                    pub.published += 1
+                    continue
+                pub.publish(contact(i))
+            pub.publish_end_of_stream("/test")
+        out, _ = mapper.communicate(timeout=120)
+    finally:
+        if mapper.poll() is None:
+            mapper.kill()
+            mapper.communicate()
+    assert mapper.returncode == (0 if allow_loss else 4), out
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["n_points"] == 11 and report["lost"] == 1
+    [stream] = report["streams"]
+    assert (stream["topic"], stream["source"], stream["sent"], stream["received"],
+            stream["lost"]) == (TOPIC, "/test", 12, 11, 1)
+    text = (tmp_path / "report.txt").read_text()
+    assert "LOST: 1 contact message(s) never arrived" in text
+    assert f"input {TOPIC} from /test: 12 sent, 11 received, 1 lost" in text
+    assert "lost on the way to the map" in out

@@ -17,6 +17,7 @@ The format follows ROS 2's YAML launch files where it fits::
           respawn_delay: 0.2
           respawn_max: 5
           required: true
+          finite: false                   # true: its work ends by itself (exit 0 is success)
           on_exit: shutdown
 
 Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)`` and
@@ -168,6 +169,7 @@ class NodeSpec:
     respawn_delay: float = 0.0
     respawn_max: int | None = None
     required: bool = False
+    finite: bool = False
     on_exit: str | None = None
 
     @property
@@ -467,7 +469,7 @@ class _Parser:
 
     def node(self, value: Any, path: str) -> NodeSpec:
         keys = ("pkg", "exec", "cmd", "args", "name", "namespace", "param", "remap", "env",
-                "respawn", "respawn_delay", "respawn_max", "required", "on_exit")
+                "respawn", "respawn_delay", "respawn_max", "required", "finite", "on_exit")
         body = self.mapping(value, path, (), keys)
         has_exec, has_cmd = "exec" in body, "cmd" in body
         if has_exec == has_cmd:
@@ -553,6 +555,7 @@ class _Parser:
             if key in body and not respawn:
                 raise self.error(f"{path}.{key}", "has no effect without 'respawn: true'")
         required = self.boolean(body.get("required", False), f"{path}.required")
+        finite = self.boolean(body.get("finite", False), f"{path}.finite")
         on_exit = None
         if "on_exit" in body:
             on_exit = self.string(body["on_exit"], f"{path}.on_exit")
@@ -563,7 +566,7 @@ class _Parser:
             name=name, namespace=namespace, pkg=pkg, executable=executable, cmd=cmd, args=args,
             params=tuple(params), remaps=tuple(remaps), env=tuple(env), respawn=respawn,
             respawn_delay=respawn_delay, respawn_max=respawn_max, required=required,
-            on_exit=on_exit,
+            finite=finite, on_exit=on_exit,
         )
 
 

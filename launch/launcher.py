@@ -15,6 +15,10 @@ Nodes die with their launcher: each child asks the kernel for a SIGTERM when the
 dies (``PR_SET_PDEATHSIG``), so a SIGKILLed launcher leaves no node behind; the temporary
 parameter folder of a launcher that died is removed by the next launch.
 
+A ``required`` node that ends while the others still run fails the graph (or is respawned)
+whatever its exit status, unless it is ``finite`` (its work ends by itself, as a simulated
+source's) and exits 0.
+
 Exit status: 0 when every node ended with 0 (or was stopped by the launcher after an
 ``on_exit: shutdown``); 1 when a node failed for good (the last line names it); 2 for an
 invalid launch file or argument (nothing is started); 128 + signal number after Ctrl-C/SIGTERM.
@@ -393,13 +397,18 @@ class Launcher:
         node.state = "done"
         if self._shutting_down:
             return
-        if rc == 0:
+        early = (rc == 0 and spec.required and not spec.finite and spec.on_exit != "shutdown"
+                 and any(other.state != "done" for other in self.nodes if other is not node))
+        if rc == 0 and not early:
             self.out.log(f"'{spec.name}' finished (exit 0)")
             if spec.on_exit == "shutdown":
                 self.out.log(f"'{spec.name}' has on_exit: shutdown; shutting down")
                 self._shutting_down = True
             return
-        what = note or _what_happened(rc)
+        # A required node that ends while the graph runs on left it without a part it needs,
+        # whatever its exit status, unless its work ends by itself (finite: true).
+        what = note or ("ended (exit 0) while the graph still runs (a node whose work ends "
+                        "by itself is marked finite: true)" if early else _what_happened(rc))
         if spec.respawn and (spec.respawn_max is None or outcome.respawns < spec.respawn_max):
             node.state = "waiting"
             node.respawn_at = time.monotonic() + spec.respawn_delay

@@ -328,3 +328,24 @@ def test_nodes_die_with_a_killed_launcher_and_the_next_launch_cleans_up(tmp_path
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+
+
+@pytest.mark.parametrize("finite", [False, True])
+def test_a_required_node_ending_while_the_graph_runs_fails_it_unless_finite(
+    tmp_path: Path, finite: bool
+) -> None:
+    """Once a required node whose heartbeat had failed exited 0 and the launcher carried on
+    without it; a node that must keep running may not end early, whatever its status."""
+    early = fixture_node("early", "sleeper", seconds=0.3)
+    early.update(required=True, finite=finite)
+    waiting = fixture_node("waiting", "sleeper", seconds=2.0)
+    rc, out, err = launch(write_launch(tmp_path, early, waiting))
+    if finite:
+        assert rc == 0, err
+        assert "[waiting] waiting done" in out  # the graph ran to its end
+    else:
+        assert rc == 1
+        assert err.strip().splitlines()[-1] == (
+            "[launch] launch failed: required node 'early' ended (exit 0) while the graph "
+            "still runs (a node whose work ends by itself is marked finite: true)")
+        assert "[waiting] waiting interrupted" in out

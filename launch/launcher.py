@@ -15,6 +15,10 @@ Nodes die with their launcher: each child asks the kernel for a SIGTERM when the
 dies (``PR_SET_PDEATHSIG``), so a SIGKILLed launcher leaves no node behind; the temporary
 parameter folder of a launcher that died is removed by the next launch.
 
+The launcher listens to the nodes' statuses: the summary gives, per node, what it published
+and received (all its starts together) and what it lost or refused, and names every node whose
+input did not arrive in full.
+
 A ``required`` node that ends while the others still run fails the graph (or is respawned)
 whatever its exit status, unless it is ``finite`` (its work ends by itself, as a simulated
 source's) and exits 0.
@@ -50,9 +54,11 @@ from vibrissa.launch.description import (
     TransportSpec,
     node_module,
 )
+from vibrissa.msgs import NodeStatus
 from vibrissa.runtime.node import DEBUG_ENV
 from vibrissa.runtime.signals import SignalHandlers
-from vibrissa.wire.transport import DOMAIN_ENV, Endpoints, Proxy
+from vibrissa.wire.topics import STATUS_TOPIC
+from vibrissa.wire.transport import DOMAIN_ENV, Endpoints, Proxy, Subscriber
 
 __all__ = [
     "DEFAULT_GRACE_S",
@@ -231,6 +237,8 @@ class Launcher:
         self._signals_at_shutdown = 0
         self._env: dict[str, str] = {}
         self._params_dir: str | None = None
+        self._statuses: Subscriber | None = None
+        self.traffic = Traffic()
 
     # -- the run -------------------------------------------------------------------------------
 
@@ -248,6 +256,7 @@ class Launcher:
                 return 1
             proxy, domain_env = started
             assert proxy.endpoints is not None
+            self._statuses = Subscriber({STATUS_TOPIC: NodeStatus}, proxy.endpoints)
             self._env = {"PYTHONUNBUFFERED": "1", **proxy.endpoints.to_env(), **domain_env,
                          **({DEBUG_ENV: "1"} if self.debug else {})}
             remove_orphaned_params_dirs()
@@ -256,6 +265,9 @@ class Launcher:
                 self._supervise()
             finally:
                 self._shutdown()
+                self._collect_statuses(0.3)  # the nodes' final statuses
+                self._statuses.close()
+                self._statuses = None
                 with contextlib.suppress(Exception):
                     proxy.stop()
                 shutil.rmtree(self._params_dir, ignore_errors=True)
@@ -327,7 +339,7 @@ class Launcher:
                     self._start(node)
             if all(node.state == "done" for node in self.nodes):
                 return
-            time.sleep(_POLL_S)
+            self._collect_statuses(_POLL_S)
 
     def _check_signals(self) -> bool:
         if not self._signals:
@@ -469,14 +481,36 @@ class Launcher:
             time.sleep(_POLL_S)
         return _has_exited(proc)
 
+    def _collect_statuses(self, timeout_s: float = 0.0) -> None:
+        """Take the statuses that arrived (waiting up to ``timeout_s`` for the first)."""
+        if self._statuses is None:
+            return
+        rx = self._statuses.receive(timeout_s)
+        while rx is not None:
+            if isinstance(rx.msg, NodeStatus):
+                self.traffic.add(rx.msg)
+            rx = self._statuses.receive(0.0)
+
     def _finish(self) -> int:
         outcomes = [node.outcome for node in self.nodes]
         width = max(len(o.name) for o in outcomes)
         result_width = max(len(o.describe()) for o in outcomes)
         self.out.log("summary:")
-        for o in outcomes:
+        shortfalls = []
+        for node, o in zip(self.nodes, outcomes, strict=True):
+            moved = self.traffic.of(node.spec.fqn)
+            flow = ""
+            if moved is not None:
+                flow = f"  published {moved['published']}  received {moved['received']}"
+                flow += "".join(f"  {key} {moved[key]}" for key in ("lost", "rejected",
+                                                                      "anomalies") if moved[key])
+                if moved["lost"] or moved["rejected"]:
+                    shortfalls.append(f"'{o.name}' lost {moved['lost']} and refused "
+                                      f"{moved['rejected']} input message(s)")
             self.out.log(f"  {o.name:<{width}}  {o.describe():<{result_width}}  "
-                         f"starts {o.starts}  respawns {o.respawns}")
+                         f"starts {o.starts}  respawns {o.respawns}{flow}")
+        if shortfalls:
+            self.out.log("data did not arrive in full: " + "; ".join(shortfalls))
         if self._failure is not None:
             self.out.log(f"launch failed: {self._failure}")
             return 1
@@ -489,6 +523,35 @@ class Launcher:
             return 128 + self._signals[0]
         self.out.log("launch finished")
         return 0
+
+
+class Traffic:
+    """What the nodes' statuses say they moved: per node, the last counters of each of its
+    starts, summed (a respawned node counts from 0 again)."""
+
+    KEYS = ("published", "received", "lost", "rejected", "anomalies")
+
+    def __init__(self) -> None:
+        self._banked: dict[str, dict[str, int]] = {}
+        self._current: dict[str, dict[str, int]] = {}
+
+    def add(self, status: NodeStatus) -> None:
+        """Take a node's status."""
+        counts = {key: int(status.counters.get(key, 0)) for key in self.KEYS}
+        current = self._current.get(status.node)
+        if current is not None and (counts["published"] < current["published"]
+                                    or counts["received"] < current["received"]):
+            banked = self._banked.setdefault(status.node, dict.fromkeys(self.KEYS, 0))
+            for key in self.KEYS:  # a new start: what the last one moved stays counted
+                banked[key] += current[key]
+        self._current[status.node] = counts
+
+    def of(self, fqn: str) -> dict[str, int] | None:
+        """The node's totals, or None if it never reported."""
+        if fqn not in self._current:
+            return None
+        banked = self._banked.get(fqn, dict.fromkeys(self.KEYS, 0))
+        return {key: banked[key] + self._current[fqn][key] for key in self.KEYS}
 
 
 PARAMS_DIR_PREFIX = "vibrissa-launch-"

@@ -344,6 +344,9 @@ def test_killed_node_with_respawn_comes_back_and_the_run_completes(tmp_path: Pat
     assert "'mapper' finished (exit 0)" in launch.text()
     seqs = [p.seq for p in points]
     assert seqs == sorted(seqs) and seqs[-1] > 20  # points after the respawn arrived too
+    # what went by while it was down is said, in the summary (once "launch finished", silent)
+    match = re.search(r"data did not arrive in full: 'reconstructor' lost (\d+)", launch.text())
+    assert match and int(match.group(1)) > 0, launch.text()
 
 
 def test_killed_node_without_respawn_fails_the_launch_naming_it(tmp_path: Path) -> None:

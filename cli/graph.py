@@ -47,18 +47,22 @@ def endpoints_from(args: argparse.Namespace) -> Endpoints:
     return Endpoints(args.pub or base.pub, args.sub or base.sub)
 
 
+def _domain(args: argparse.Namespace) -> int:
+    """The domain a tool looks at: ``--domain``, else the environment's."""
+    return args.domain if args.domain is not None else Endpoints.env_domain()
+
+
 def where(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """The graph a tool looked at, for messages: ``domain 0 (tcp://...)``."""
     if args.pub or args.sub:
         return f"--pub {endpoints.pub} --sub {endpoints.sub}"
-    domain = args.domain if args.domain is not None else Endpoints.env_domain()
-    return f"domain {domain} ({endpoints.sub})"
+    return f"domain {_domain(args)} ({endpoints.sub})"
 
 
 def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """What to tell a user whose tool heard no graph: where it looked, and where graphs run
     (domains 0-31 and the 32 from the tool's own, where a launch moves when its is taken)."""
-    domain = args.domain if args.domain is not None else Endpoints.env_domain()
+    domain = _domain(args)
     nearby = range(domain, min(domain + len(SCANNED_DOMAINS), Endpoints.MAX_DOMAIN + 1))
     running = Endpoints.domains_in_use(sorted(set(SCANNED_DOMAINS) | set(nearby)))
     here = where(args, endpoints)

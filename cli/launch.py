@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from vibrissa.cli.graph import domain_id
+from vibrissa.cli.main import parse_command_line
 from vibrissa.launch.description import (
     LaunchDescription,
     LaunchFileError,
@@ -112,17 +113,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     register(parser.add_subparsers(dest="command", required=True))
     args = parse_command_line(parser, ["launch", *(sys.argv[1:] if argv is None else argv)])
     return int(args.func(args))
-
-
-def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
-    """``parser.parse_args``, except that a command with ``overrides_anywhere`` also takes its
-    ``NAME:=VALUE`` overrides after its flags (``launch demo --dry-run out:=x``)."""
-    args, extras = parser.parse_known_args(argv)
-    if extras:
-        if not getattr(args, "overrides_anywhere", False) or not all(":=" in e for e in extras):
-            parser.error(f"unrecognized arguments: {' '.join(extras)}")
-        args.overrides = [*args.overrides, *extras]
-    return args
 
 
 if __name__ == "__main__":

@@ -7,13 +7,24 @@ import importlib
 import os
 import signal
 import sys
+from collections.abc import Sequence
 
-from vibrissa.cli.launch import parse_command_line
 from vibrissa.runtime.node import DEBUG_ENV
 
 # Each module registers its subcommands with `register(subparsers)`; every subparser
 # sets `func(args) -> int`.
 _COMMAND_MODULES = ("mechanics", "launch", "bag", "topic")
+
+
+def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
+    """``parser.parse_args``, except that a command with ``overrides_anywhere`` also takes its
+    ``NAME:=VALUE`` overrides after its flags (``launch demo --dry-run out:=x``)."""
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        if not getattr(args, "overrides_anywhere", False) or not all(":=" in e for e in extras):
+            parser.error(f"unrecognized arguments: {' '.join(extras)}")
+        args.overrides = [*args.overrides, *extras]
+    return args
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -44,6 +44,7 @@ from vibrissa.runtime.params import (
     require_positive,
 )
 from vibrissa.runtime.playback import play_bag_gated
+from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import SweepRun, Trail, first_contact
 from vibrissa.ticks import Tick, array_ticks, sequential_ticks
@@ -205,16 +206,16 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
         wait_for=params.wait_for, hwm=DEFAULT_HWM * 10)
     surface = parse_surface(params.surface)
     trails = [Trail(float(y0), params.mu) for y0 in params.y0]
-    touches = [first_contact(surface, trail.y0) for trail in trails]
-    for trail, touch in zip(trails, touches, strict=True):
-        if touch is None:
+    x_grid = None
+    if params.array:  # one grid for all: from the first touch of any whisker
+        touches = [first_contact(surface, trail.y0) for trail in trails]
+        x_grid = max((touch[0] for touch in touches if touch is not None), default=0.0)
+    run = SweepRun(surface, trails, params.step, x_grid=x_grid)
+    for i, trail in enumerate(trails):
+        if run.progress(i).end is SweepEnd.NO_CONTACT:
             log.warning("%s: the trail y0=%g (units of L) never touches %s: the straight "
                         "rod clears the object all along it (no contact, no samples)",
                         node.fqn, trail.y0, surface.spec)
-    x_grid = None
-    if params.array:  # one grid for all: from the first touch of any whisker
-        x_grid = max((touch[0] for touch in touches if touch is not None), default=0.0)
-    run = SweepRun(surface, trails, params.step, x_grid=x_grid)
     if params.wait_for and not node.wait_for_subscribers(
         params.topic, params.wait_for, params.wait_timeout_s
     ):

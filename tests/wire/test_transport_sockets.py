@@ -183,6 +183,7 @@ def test_forged_sequence_headers_stay_bounded_and_plausible(
     an anomaly count instead, a bounded table, and a status that still encodes."""
     raw = context.socket(zmq.PUB)
     raw.setsockopt(zmq.LINGER, 0)
+    raw.setsockopt(zmq.SNDHWM, 100_000)  # the burst below must not overflow the sender
     raw.connect(proxy.endpoints.pub)
     payload = encode(wrench(0))
 
@@ -250,10 +251,10 @@ def test_messages_lost_before_the_first_one_heard_count_at_the_end_of_the_stream
 ) -> None:
     """No seq gap shows messages sent before a subscriber heard the first one; the stream's
     EndOfStream (count = messages sent) does."""
-    with Subscriber({"/late": WhiskerWrench}, proxy.endpoints, context) as sub, \
-            Publisher("/late", WhiskerWrench, proxy.endpoints, context) as pub:
-        for i in range(5):  # nobody hears these: the subscription is not up yet
+    with Publisher("/late", WhiskerWrench, proxy.endpoints, context) as pub:
+        for i in range(5):  # nobody hears these: no subscriber exists yet
             pub.publish(wrench(i))
+        sub = Subscriber({"/late": WhiskerWrench}, proxy.endpoints, context)
         connect(pub, sub)  # (the first ping it hears announces seq 5)
         for i in range(5, 8):
             pub.publish(wrench(i))
@@ -268,3 +269,4 @@ def test_messages_lost_before_the_first_one_heard_count_at_the_end_of_the_stream
         assert counters.lost == 5
         [end] = sub.ended_streams
         assert (end.source, end.sent, end.received, end.lost) == ("/src", 8, 3, 5)
+        sub.close()

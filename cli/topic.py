@@ -94,12 +94,12 @@ def survey(endpoints: Endpoints, listen_s: float, context: Any = None) -> dict[s
                 for t, type_name in rx.msg.publishes.items():
                     e = topics.setdefault(t, TopicEntry())
                     e.publishers.add(rx.msg.node)
-                    e.types.add(type_name)
+                    e.types.update(type_name.split("|"))  # a publisher of several types
                 for t, type_name in rx.msg.subscribes.items():
                     e = topics.setdefault(t, TopicEntry())
                     e.subscribers.add(rx.msg.node)
                     if type_name != "*":
-                        e.types.add(type_name)
+                        e.types.update(type_name.split("|"))
         for t in sub.seen_topics:  # pinged but silent topics
             topics.setdefault(t, TopicEntry())
     for t, ids in wire_ids.items():

@@ -46,7 +46,8 @@ def talker(endpoints: Endpoints, context: zmq.Context[Any]) -> Iterator[Publishe
                 status.publish(NodeStatus(
                     stamp=time.time(), node="/talker", state="running",
                     counters={"received": 0, "published": i, "rejected": 0, "lost": 0},
-                    publishes={"/w0/wrench": WhiskerWrench.TYPE_NAME},
+                    publishes={"/w0/wrench": WhiskerWrench.TYPE_NAME,
+                               "/w0/mixed": "vibrissa/ContactPoint|vibrissa/ContactPointArray"},
                     subscribes={"/w0/contact": ContactPoint.TYPE_NAME}, seen_topics=[]))
             i += 1
 
@@ -109,6 +110,7 @@ def test_list_from_status_and_traffic(endpoints: Endpoints, talker: Publisher,
     topics = survey(endpoints, 1.0)
     assert topics["/w0/wrench"].publishers == {"/talker"}
     assert topics["/w0/wrench"].types == {WhiskerWrench.TYPE_NAME}
+    assert topics["/w0/mixed"].types == {"vibrissa/ContactPoint", "vibrissa/ContactPointArray"}
     assert topics["/w0/wrench"].messages > 10
     assert topics["/w0/contact"].subscribers == {"/talker"}
     assert STATUS_TOPIC in topics

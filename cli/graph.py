@@ -8,6 +8,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from vibrissa.runtime.signals import SignalHandlers
+from vibrissa.wire.security import KEYS_ENV, Keys
 from vibrissa.wire.transport import DOMAIN_ENV, Endpoints
 
 SCANNED_DOMAINS = range(32)
@@ -15,7 +16,8 @@ SCANNED_DOMAINS = range(32)
 
 
 def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
-    """``--domain`` and ``--pub``/``--sub``, overriding ``VIBRISSA_DOMAIN_ID`` (default 0)."""
+    """``--domain``, ``--pub``/``--sub`` and ``--keys``, over ``VIBRISSA_DOMAIN_ID`` (default 0)
+    and ``VIBRISSA_KEYS``."""
     parser.add_argument("--domain", type=domain_id, metavar="N",
                         help=f"the graph's domain (default: ${DOMAIN_ENV}, else 0; "
                              "`vibrissa launch` prints it)")
@@ -23,6 +25,8 @@ def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
                         help="proxy endpoint publishers connect to (XSUB), over --domain")
     parser.add_argument("--sub", metavar="ENDPOINT",
                         help="proxy endpoint subscribers connect to (XPUB), over --domain")
+    parser.add_argument("--keys", metavar="DIR",
+                        help=f"CURVE keys of a graph launched with keys (default: ${KEYS_ENV})")
 
 
 def domain_id(text: str) -> int:
@@ -41,10 +45,11 @@ def endpoints_from(args: argparse.Namespace) -> Endpoints:
     """``--pub``/``--sub`` where given, else ``--domain``, else the environment.
 
     Raises ``ValueError`` for a bad ``VIBRISSA_DOMAIN_ID`` (or only one of the endpoint
-    variables).
+    variables) and ``KeysError`` for a key folder that cannot be used.
     """
+    keys = Keys.load(args.keys) if args.keys else Keys.from_env()
     base = Endpoints.for_domain(args.domain) if args.domain is not None else Endpoints.from_env()
-    return Endpoints(args.pub or base.pub, args.sub or base.sub)
+    return Endpoints(args.pub or base.pub, args.sub or base.sub, keys)
 
 
 def _domain(args: argparse.Namespace) -> int:
@@ -66,8 +71,15 @@ def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
     nearby = range(domain, min(domain + len(SCANNED_DOMAINS), Endpoints.MAX_DOMAIN + 1))
     running = Endpoints.domains_in_use(sorted(set(SCANNED_DOMAINS) | set(nearby)))
     here = where(args, endpoints)
+    if not (args.pub or args.sub) and domain in running:
+        if endpoints.keys is None:
+            return (f"a graph runs on {here} but let nothing through: it was probably launched "
+                    f"with keys; pass --keys DIR (or {KEYS_ENV}=DIR) with a folder it allows")
+        return (f"a graph runs on {here} but let nothing through: it does not allow the keys "
+                f"of {endpoints.keys.folder} (is it a client folder of that graph's "
+                "`vibrissa keys FOLDER --client NAME`?), or it runs without keys")
     text = f"no running graph heard on {here}"
-    others = [d for d in running if Endpoints.for_domain(d) != endpoints]
+    others = [d for d in running if Endpoints.for_domain(d).sub != endpoints.sub]
     if others:
         listed = ", ".join(str(d) for d in others)
         text += f"; graphs are running on domain {listed}: pass --domain N (or {DOMAIN_ENV}=N)"

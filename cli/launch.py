@@ -20,6 +20,7 @@ from vibrissa.launch.description import (
 )
 from vibrissa.launch.launcher import DEFAULT_GRACE_S, Launcher, node_command, resolve_launch_file
 from vibrissa.runtime.node import DEBUG_ENV
+from vibrissa.wire.security import KEYS_ENV, Keys, KeysError
 from vibrissa.wire.transport import DOMAIN_ENV
 
 
@@ -54,7 +55,13 @@ def run_launch(args: argparse.Namespace) -> int:
             for key, value in spec.params_dict().items():
                 print(f"[{spec.name}]   param {key}: {value!r}")
         return 0
-    return Launcher(description, grace_s=args.grace, domain=args.domain, debug=args.debug).run()
+    try:
+        keys = Keys.load(args.keys) if args.keys else None
+    except KeysError as exc:
+        print(f"vibrissa launch: error: {exc}", file=sys.stderr)
+        return 2
+    return Launcher(description, grace_s=args.grace, domain=args.domain, debug=args.debug,
+                    keys=keys).run()
 
 
 def _print_args(description: LaunchDescription) -> None:
@@ -95,6 +102,10 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--domain", type=domain_id, metavar="N",
                         help=f"run the graph on domain N (default: ${DOMAIN_ENV}, else 0, "
                              "else the next free one); the tools take the same --domain")
+    parser.add_argument("--keys", metavar="DIR",
+                        help="encrypt and authenticate every socket with the CURVE keys of DIR "
+                             f"(`vibrissa keys DIR`; default: ${KEYS_ENV}, else the file's "
+                             "transport.keys, else none)")
     parser.add_argument("--debug", action="store_true",
                         help=f"nodes print the traceback of an error at start ({DEBUG_ENV}=1)")
     parser.add_argument("--grace", type=seconds, default=DEFAULT_GRACE_S, metavar="SECONDS",

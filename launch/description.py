@@ -5,6 +5,7 @@ The format follows ROS 2's YAML launch files where it fits::
     launch:
       - arg: {name: mu, default: "0.2", description: "friction coefficient"}
       - transport: {domain: 3}            # optional; default: VIBRISSA_DOMAIN_ID, else 0
+                                          # keys: DIR  encrypts and authenticates (CURVE)
       - node:
           pkg: vibrissa                   # runs `python -m` the module pkg registers for exec
           exec: reconstructor             # ... or `cmd: [prog, arg, ...]` instead of pkg/exec
@@ -18,6 +19,7 @@ The format follows ROS 2's YAML launch files where it fits::
           respawn_max: 5
           required: true
           finite: false                   # true: its work ends by itself (exit 0 is success)
+          allow_loss: false               # true: input lost or refused is not a failure
           on_exit: shutdown
 
 Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)`` and
@@ -121,11 +123,13 @@ class TransportSpec:
     another graph holds them), or explicit ``pub_endpoint`` (XSUB, publishers connect) and
     ``sub_endpoint`` (XPUB, subscribers connect), or neither: the domain of
     ``VIBRISSA_DOMAIN_ID`` (default 0), or the next free one (``vibrissa.launch.launcher``).
+    ``keys``: a key folder (``vibrissa keys``); every socket of the graph then speaks CURVE.
     """
 
     domain: int | None = None
     pub_endpoint: str | None = None
     sub_endpoint: str | None = None
+    keys: str | None = None
 
 
 NODE_ENTRY_POINTS = "vibrissa.nodes"
@@ -170,6 +174,7 @@ class NodeSpec:
     respawn_max: int | None = None
     required: bool = False
     finite: bool = False
+    allow_loss: bool = False
     on_exit: str | None = None
 
     @property
@@ -445,12 +450,14 @@ class _Parser:
         return LaunchArg(name=name, default=default, description=description)
 
     def transport(self, value: Any, path: str) -> TransportSpec:
-        body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint"))
+        body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint", "keys"))
+        keys = self.string(body["keys"], f"{path}.keys") if "keys" in body else None
         if "domain" in body:
             if "pub_endpoint" in body or "sub_endpoint" in body:
                 raise self.error(path, "give either domain or pub_endpoint/sub_endpoint, not both")
             return TransportSpec(
-                domain=self.integer(body["domain"], f"{path}.domain", 0, Endpoints.MAX_DOMAIN)
+                domain=self.integer(body["domain"], f"{path}.domain", 0, Endpoints.MAX_DOMAIN),
+                keys=keys,
             )
         if ("pub_endpoint" in body) != ("sub_endpoint" in body):
             missing = "sub_endpoint" if "pub_endpoint" in body else "pub_endpoint"
@@ -464,12 +471,13 @@ class _Parser:
                         f"{path}.{key}", f"expected a ZeroMQ endpoint like tcp://HOST:PORT, "
                         f"got {endpoint!r}"
                     )
-            return TransportSpec(pub_endpoint=pub, sub_endpoint=sub)
-        return TransportSpec()
+            return TransportSpec(pub_endpoint=pub, sub_endpoint=sub, keys=keys)
+        return TransportSpec(keys=keys)
 
     def node(self, value: Any, path: str) -> NodeSpec:
         keys = ("pkg", "exec", "cmd", "args", "name", "namespace", "param", "remap", "env",
-                "respawn", "respawn_delay", "respawn_max", "required", "finite", "on_exit")
+                "respawn", "respawn_delay", "respawn_max", "required", "finite", "allow_loss",
+                "on_exit")
         body = self.mapping(value, path, (), keys)
         has_exec, has_cmd = "exec" in body, "cmd" in body
         if has_exec == has_cmd:
@@ -556,6 +564,7 @@ class _Parser:
                 raise self.error(f"{path}.{key}", "has no effect without 'respawn: true'")
         required = self.boolean(body.get("required", False), f"{path}.required")
         finite = self.boolean(body.get("finite", False), f"{path}.finite")
+        allow_loss = self.boolean(body.get("allow_loss", False), f"{path}.allow_loss")
         on_exit = None
         if "on_exit" in body:
             on_exit = self.string(body["on_exit"], f"{path}.on_exit")
@@ -566,7 +575,7 @@ class _Parser:
             name=name, namespace=namespace, pkg=pkg, executable=executable, cmd=cmd, args=args,
             params=tuple(params), remaps=tuple(remaps), env=tuple(env), respawn=respawn,
             respawn_delay=respawn_delay, respawn_max=respawn_max, required=required,
-            finite=finite, on_exit=on_exit,
+            finite=finite, allow_loss=allow_loss, on_exit=on_exit,
         )
 
 

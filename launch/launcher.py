@@ -23,9 +23,14 @@ A ``required`` node that ends while the others still run fails the graph (or is 
 whatever its exit status, unless it is ``finite`` (its work ends by itself, as a simulated
 source's) and exits 0.
 
+With keys (``--keys``, the file's ``transport.keys``, else ``VIBRISSA_KEYS``) the proxy and
+every node speak CURVE (``vibrissa.wire.security``); the summary counts the peers refused.
+
 Exit status: 0 when every node ended with 0 (or was stopped by the launcher after an
 ``on_exit: shutdown``); 1 when a node failed for good (the last line names it); 2 for an
-invalid launch file or argument (nothing is started); 128 + signal number after Ctrl-C/SIGTERM.
+invalid launch file or argument (nothing is started); ``EXIT_LOST_DATA`` (4) when nothing
+failed but a node without ``allow_loss`` lost or refused input; 128 + signal number after
+Ctrl-C/SIGTERM.
 """
 
 from __future__ import annotations
@@ -55,8 +60,9 @@ from vibrissa.launch.description import (
     node_module,
 )
 from vibrissa.msgs import NodeStatus
-from vibrissa.runtime.node import DEBUG_ENV
+from vibrissa.runtime.node import DEBUG_ENV, EXIT_LOST_DATA
 from vibrissa.runtime.signals import SignalHandlers
+from vibrissa.wire.security import Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC
 from vibrissa.wire.transport import DOMAIN_ENV, Endpoints, Proxy, Subscriber
 
@@ -211,6 +217,8 @@ class Launcher:
         The graph's domain (``--domain``), over the launch file's; it must be free.
     debug : bool
         Nodes log the traceback of an error that ends them (``VIBRISSA_DEBUG=1``).
+    keys : Keys, optional
+        CURVE keys (``--keys``), over the launch file's and ``VIBRISSA_KEYS``.
     """
 
     def __init__(
@@ -223,9 +231,12 @@ class Launcher:
         python: str = sys.executable,
         domain: int | None = None,
         debug: bool = False,
+        keys: Keys | None = None,
     ) -> None:
         self.description = description
         self.domain = domain
+        self.keys = keys
+        self.refused_peers = 0
         self.debug = debug
         self.grace_s = grace_s
         self.out = _Output(stdout or sys.stdout, stderr or sys.stderr)
@@ -268,6 +279,7 @@ class Launcher:
                 self._collect_statuses(0.3)  # the nodes' final statuses
                 self._statuses.close()
                 self._statuses = None
+                self.refused_peers = proxy.refused
                 with contextlib.suppress(Exception):
                     proxy.stop()
                 shutil.rmtree(self._params_dir, ignore_errors=True)
@@ -279,15 +291,21 @@ class Launcher:
         that is taken by another graph, the next free one. Returns the proxy and the domain
         variable for the nodes, or ``None`` after logging why nothing could be bound."""
         spec = self.description.transport or TransportSpec()
+        try:
+            keys = self.keys or (Keys.load(spec.keys) if spec.keys else Keys.from_env())
+        except KeysError as exc:
+            self.out.log(f"cannot use the keys: {exc}")
+            return None
+        secured = "" if keys is None else f"; CURVE with the keys of {keys.folder}"
         if spec.pub_endpoint is not None and spec.sub_endpoint is not None:
-            proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint))
+            proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint, keys))
             try:
                 endpoints = proxy.start()
             except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
                 self.out.log(f"cannot start the proxy: {exc}")
                 return None
             self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
-                         f"(tools: --pub {endpoints.pub} --sub {endpoints.sub})")
+                         f"(tools: --pub {endpoints.pub} --sub {endpoints.sub}{secured})")
             return proxy, {}
         fixed = self.domain if self.domain is not None else spec.domain
         if fixed is not None:
@@ -300,7 +318,7 @@ class Launcher:
                 return None
             candidates = list(range(preferred, min(preferred + DOMAIN_TRIES, Endpoints.MAX_DOMAIN + 1)))
         for domain in candidates:
-            proxy = Proxy(Endpoints.for_domain(domain))
+            proxy = Proxy(Endpoints.for_domain(domain).with_keys(keys))
             try:
                 endpoints = proxy.start()
             except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
@@ -314,7 +332,7 @@ class Launcher:
             tools = ("tools find it without flags" if domain == 0 and DOMAIN_ENV not in os.environ
                      else f"tools: --domain {domain} or {DOMAIN_ENV}={domain}")
             self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
-                         f"(domain {domain}; {tools})")
+                         f"(domain {domain}; {tools}{secured})")
             return proxy, {DOMAIN_ENV: str(domain)}
         taken = (f"domain {fixed} is in use" if fixed is not None
                  else f"domains {candidates[0]}-{candidates[-1]} are all in use")
@@ -496,7 +514,8 @@ class Launcher:
         width = max(len(o.name) for o in outcomes)
         result_width = max(len(o.describe()) for o in outcomes)
         self.out.log("summary:")
-        shortfalls = []
+        shortfalls: list[tuple[bool, str]] = []
+        refused_peers = self.refused_peers
         for node, o in zip(self.nodes, outcomes, strict=True):
             moved = self.traffic.of(node.spec.fqn)
             flow = ""
@@ -505,12 +524,18 @@ class Launcher:
                 flow += "".join(f"  {key} {moved[key]}" for key in ("lost", "rejected",
                                                                       "anomalies") if moved[key])
                 if moved["lost"] or moved["rejected"]:
-                    shortfalls.append(f"'{o.name}' lost {moved['lost']} and refused "
-                                      f"{moved['rejected']} input message(s)")
+                    allowed = " (allow_loss)" if node.spec.allow_loss else ""
+                    shortfalls.append((node.spec.allow_loss, f"'{o.name}' lost {moved['lost']} "
+                                       f"and refused {moved['rejected']} input message(s)"
+                                       f"{allowed}"))
+                refused_peers += moved["refused_peers"]
             self.out.log(f"  {o.name:<{width}}  {o.describe():<{result_width}}  "
                          f"starts {o.starts}  respawns {o.respawns}{flow}")
+        if refused_peers:
+            self.out.log(f"refused {refused_peers} connection(s) without an allowed key "
+                         f"({self.refused_peers} at the proxy)")
         if shortfalls:
-            self.out.log("data did not arrive in full: " + "; ".join(shortfalls))
+            self.out.log("data did not arrive in full: " + "; ".join(t for _, t in shortfalls))
         if self._failure is not None:
             self.out.log(f"launch failed: {self._failure}")
             return 1
@@ -521,6 +546,10 @@ class Launcher:
             return 1
         if self._signals:
             return 128 + self._signals[0]
+        if not all(allowed for allowed, _ in shortfalls):
+            self.out.log("launch finished, but data were lost (allow_loss: true on the node "
+                         "accepts that)")
+            return EXIT_LOST_DATA
         self.out.log("launch finished")
         return 0
 
@@ -529,7 +558,7 @@ class Traffic:
     """What the nodes' statuses say they moved: per node, the last counters of each of its
     starts, summed (a respawned node counts from 0 again)."""
 
-    KEYS = ("published", "received", "lost", "rejected", "anomalies")
+    KEYS = ("published", "received", "lost", "rejected", "anomalies", "refused_peers")
 
     def __init__(self) -> None:
         self._banked: dict[str, dict[str, int]] = {}

@@ -58,6 +58,7 @@ from vibrissa.nodes.surface_fit import (
     write_ply,
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.runtime.signals import default_actions
 from vibrissa.surfaces import Surface, parse_surface
@@ -71,9 +72,6 @@ FloatArray = npt.NDArray[np.float64]
 
 EXIT_EMPTY_MAP = 3
 """Exit status of a mapper whose streams ended without a single contact point."""
-
-EXIT_LOST_DATA = 4
-"""Exit status of a mapper that lost input messages (unless ``allow_loss``)."""
 
 MAX_DEPTH = 12
 """Deepest Poisson octree: 4096^3 cells, beyond what a contact cloud can fill."""

@@ -61,11 +61,16 @@ from vibrissa.wire import (
     node_fqn,
     resolve_topic,
 )
+from vibrissa.wire.security import Guard
 from vibrissa.wire.transport import MessageTypes
 
 log = logging.getLogger(__name__)
 
 PING_PERIOD_S = 0.1
+EXIT_LOST_DATA = 4
+"""Exit status of a node, or a launch, whose input did not arrive in full (lost or refused
+messages), when nothing else failed."""
+
 DEBUG_ENV = "VIBRISSA_DEBUG"
 """Set to 1 (``vibrissa launch --debug`` does) for the traceback of an error that ends a node."""
 
@@ -320,6 +325,8 @@ class Node:
             for topic, msg_types in (sub.topics or {"*": None}).items():
                 subscribes[topic] = "|".join(t.TYPE_NAME for t in msg_types) if msg_types else "*"
         totals["published"] = sum(p.published for p in publishers)
+        if self.endpoints.keys is not None:
+            totals["refused_peers"] = Guard.refused_in(self.context)
         totals.update(self.counters)  # one C-level copy: safe against the node's updates
         return NodeStatus(
             stamp=time.time(), node=self.fqn, state=self._state, counters=totals,
@@ -394,6 +401,7 @@ class Node:
         for pub in [*publishers, self._status_pub]:
             pub.close(linger_s)
         if self._own_context:
+            Guard.stop_for(self.context)
             # Closes sockets the application made on node.context and forgot (term() would
             # hang on them), then returns once queued messages left or their linger ran out.
             self.context.destroy(linger=round(linger_s * 1000))

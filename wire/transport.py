@@ -31,7 +31,7 @@ seen (``Subscriber.seen_topics``), which nodes report in their status.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
+import errno
 import itertools
 import logging
 import os
@@ -40,7 +40,8 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar, TypeAlias
 
@@ -57,6 +58,7 @@ from vibrissa.msgs import (
     encode,
     peek_type,
 )
+from vibrissa.wire.security import Guard, Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 __all__ = [
@@ -104,10 +106,12 @@ _FAIR_RUN = 64  # messages in a row from one socket before a subscriber looks at
 
 @dataclass(frozen=True)
 class Endpoints:
-    """Where publishers connect (``pub``, the proxy's XSUB) and subscribers (``sub``, XPUB)."""
+    """Where publishers connect (``pub``, the proxy's XSUB) and subscribers (``sub``, XPUB),
+    and the CURVE keys that get a process in (``None``: plain sockets, see ``security``)."""
 
     pub: str
     sub: str
+    keys: Keys | None = None
 
     BASE_PORT: ClassVar[int] = 7400
     MAX_DOMAIN: ClassVar[int] = (65535 - BASE_PORT - 1) // 2
@@ -125,14 +129,20 @@ class Endpoints:
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> Endpoints:
-        """From ``VIBRISSA_PUB_ENDPOINT``/``VIBRISSA_SUB_ENDPOINT``, else ``VIBRISSA_DOMAIN_ID``."""
+        """From ``VIBRISSA_PUB_ENDPOINT``/``VIBRISSA_SUB_ENDPOINT``, else ``VIBRISSA_DOMAIN_ID``;
+        keys from ``VIBRISSA_KEYS`` (``KeysError`` names a folder that cannot be used)."""
         env = os.environ if environ is None else environ
+        keys = Keys.from_env(env)
         pub, sub = env.get(_ENV_PUB), env.get(_ENV_SUB)
         if pub and sub:
-            return cls(pub, sub)
+            return cls(pub, sub, keys)
         if pub or sub:
             raise ValueError(f"set both {_ENV_PUB} and {_ENV_SUB}, or neither")
-        return cls.for_domain(cls.env_domain(env))
+        return cls.for_domain(cls.env_domain(env)).with_keys(keys)
+
+    def with_keys(self, keys: Keys | None) -> Endpoints:
+        """The same endpoints, entered with ``keys``."""
+        return replace(self, keys=keys)
 
     @classmethod
     def env_domain(cls, environ: Mapping[str, str] | None = None) -> int:
@@ -166,8 +176,9 @@ class Endpoints:
         return cls(f"tcp://{host}:*", f"tcp://{host}:*")
 
     def to_env(self) -> dict[str, str]:
-        """The environment variables that hand these endpoints to a node process."""
-        return {_ENV_PUB: self.pub, _ENV_SUB: self.sub}
+        """The environment variables that hand these endpoints (and keys) to a node process."""
+        return {_ENV_PUB: self.pub, _ENV_SUB: self.sub,
+                **(self.keys.to_env() if self.keys is not None else {})}
 
     def direct_bind(self, pub_id: int) -> str | None:
         """Where a direct publisher ``pub_id`` binds, beside the proxy's XSUB: a free port on
@@ -182,6 +193,26 @@ class Endpoints:
         if scheme in ("ipc", "inproc"):
             return f"{self.pub}-{pub_id:016x}"
         return None
+
+    def allows_direct(self, endpoint: str) -> bool:
+        """Whether ``endpoint`` is one ``direct_bind`` could have given: a port on the proxy's
+        host, a socket file beside the proxy's. A subscriber connects to no other announced
+        endpoint, so a forged status cannot send it to another host or folder."""
+        scheme, sep, address = self.pub.partition("://")
+        if scheme == "tcp":
+            host = address.rpartition(":")[0]
+            port = endpoint.rpartition(":")[2]
+            return bool(host) and endpoint == f"tcp://{host}:{port}" and port.isdigit()
+        if scheme in ("ipc", "inproc"):
+            suffix = endpoint.removeprefix(f"{self.pub}-")
+            return suffix != endpoint and len(suffix) == 16 and all(
+                c in "0123456789abcdef" for c in suffix)
+        return False
+
+    @property
+    def addresses(self) -> tuple[str, str]:
+        """``(pub, sub)``, without the keys."""
+        return self.pub, self.sub
 
 
 def _remove_socket_file(endpoint: str) -> None:
@@ -202,6 +233,32 @@ def _socket(context: zmq.Context[Any], kind: int, hwm: int) -> zmq.Socket[Any]:
     sock.setsockopt(zmq.SNDHWM, max(hwm, DEFAULT_HWM) if kind == zmq.SUB else hwm)
     sock.setsockopt(zmq.RCVHWM, hwm)
     return sock
+
+
+def _bind(sock: zmq.Socket[Any], address: str, keys: Keys | None) -> None:
+    """Bind ``sock`` as a CURVE server when there are keys; an ipc socket file only in a
+    folder no other user can enter."""
+    if keys is not None:
+        keys.serve_with(sock, sock.context)
+    if address.startswith("ipc://"):
+        _check_private_folder(Path(address[len("ipc://"):]).parent)
+    sock.bind(address)
+
+
+def _connect(sock: zmq.Socket[Any], address: str, keys: Keys | None) -> None:
+    if keys is not None:
+        keys.connect_with(sock)
+    sock.connect(address)
+
+
+def _check_private_folder(folder: Path) -> None:
+    """Create ``folder`` 0700, or refuse one that others may enter (their processes could
+    connect to a socket file in it, whatever its mode)."""
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    info = folder.stat()
+    if info.st_mode & 0o077 or info.st_uid != os.getuid():
+        raise zmq.ZMQError(errno.EACCES, f"ipc folder {folder} must be yours and private (mode "
+                           f"{info.st_mode & 0o777:04o}; chmod 700 it or use another folder)")
 
 
 class Proxy:
@@ -241,14 +298,15 @@ class Proxy:
         xpub = _socket(self._context, zmq.XPUB, self._hwm)
         control_in = self._context.socket(zmq.PAIR)
         control_in.setsockopt(zmq.LINGER, 0)
+        keys = self._requested.keys
         try:
-            xsub.bind(self._requested.pub)
-            xpub.bind(self._requested.sub)
+            _bind(xsub, self._requested.pub, keys)
+            _bind(xpub, self._requested.sub, keys)
             control_in.bind(control_address)
             self._control = self._context.socket(zmq.PAIR)
             self._control.setsockopt(zmq.LINGER, 0)
             self._control.connect(control_address)
-        except zmq.ZMQError:
+        except (zmq.ZMQError, KeysError):
             for sock in (xsub, xpub, control_in):
                 sock.close()
             if self._control is not None:
@@ -256,7 +314,8 @@ class Proxy:
                 self._control = None
             raise
         self.endpoints = Endpoints(
-            xsub.getsockopt_string(zmq.LAST_ENDPOINT), xpub.getsockopt_string(zmq.LAST_ENDPOINT)
+            xsub.getsockopt_string(zmq.LAST_ENDPOINT), xpub.getsockopt_string(zmq.LAST_ENDPOINT),
+            keys,
         )
         # The sockets move to the proxy thread here; thread start is the memory barrier
         # ZeroMQ asks for when a socket changes threads.
@@ -264,7 +323,8 @@ class Proxy:
             target=self._run, args=(xsub, xpub, control_in), name="vibrissa-proxy", daemon=True
         )
         self._thread.start()
-        log.info("proxy: publishers -> %s, subscribers -> %s", *dataclasses.astuple(self.endpoints))
+        log.info("proxy: publishers -> %s, subscribers -> %s%s", *self.endpoints.addresses,
+                 " (CURVE)" if keys is not None else "")
         return self.endpoints
 
     @staticmethod
@@ -278,6 +338,11 @@ class Proxy:
         finally:
             for sock in (xsub, xpub, control):
                 sock.close()
+
+    @property
+    def refused(self) -> int:
+        """Peers refused so far for want of an allowed key (with keys; else 0)."""
+        return Guard.refused_in(self._context)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop forwarding and close the sockets (idempotent)."""
@@ -294,7 +359,7 @@ class Proxy:
             self._control = None
             self._thread = None
             if self.endpoints is not None:
-                for endpoint in dataclasses.astuple(self.endpoints):
+                for endpoint in self.endpoints.addresses:
                     _remove_socket_file(endpoint)
 
     def __enter__(self) -> Proxy:
@@ -365,17 +430,17 @@ class Publisher(contextlib.AbstractContextManager["Publisher"]):
         try:
             bind = endpoints.direct_bind(self.pub_id) if direct else None
             if bind is not None:
-                self.endpoint = self._bind_or_none(bind)
+                self.endpoint = self._bind_or_none(bind, endpoints.keys)
             if self.endpoint is None:
-                self._socket.connect(endpoints.pub)
+                _connect(self._socket, endpoints.pub, endpoints.keys)
         except zmq.ZMQError:
             self._socket.close()
             raise
 
-    def _bind_or_none(self, address: str) -> str | None:
+    def _bind_or_none(self, address: str, keys: Keys | None) -> str | None:
         try:
-            self._socket.bind(address)
-        except zmq.ZMQError as exc:
+            _bind(self._socket, address, keys)
+        except (zmq.ZMQError, KeysError) as exc:
             log.warning("%s: cannot bind %s (%s); publishing through the proxy",
                         self.topic, address, exc)
             return None
@@ -564,7 +629,9 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         self._direct_prefixes = [p for p in prefixes if p != status_prefix]
         self.direct_endpoints: set[str] = set()
         self._context = context if context is not None else zmq.Context.instance()
+        self._endpoints = endpoints or Endpoints.from_env()
         self._hwm = hwm
+        self._refused_endpoints: set[str] = set()  # announced, not beside the proxy
         self._direct: zmq.Socket[Any] | None = None  # made at the first announced endpoint
         self._poller: zmq.Poller | None = None
         self._socket = _socket(self._context, zmq.SUB, hwm)
@@ -576,7 +643,7 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                 self._socket.setsockopt(zmq.SUBSCRIBE, prefix)
             if self._discover and not self._status_wanted:
                 self._socket.setsockopt(zmq.SUBSCRIBE, status_prefix)
-            self._socket.connect((endpoints or Endpoints.from_env()).sub)
+            _connect(self._socket, self._endpoints.sub, self._endpoints.keys)
         except zmq.ZMQError:
             self._socket.close()
             raise
@@ -648,8 +715,17 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                 continue
             if self.topics is not None and topic not in self.topics:
                 continue
+            if not self._endpoints.allows_direct(endpoint):
+                if len(self._refused_endpoints) < MAX_PUBLISHERS:
+                    if endpoint not in self._refused_endpoints:
+                        log.warning("%s announces %s on %s: not beside the proxy (%s), ignored",
+                                    status.node, endpoint, topic, self._endpoints.pub)
+                    self._refused_endpoints.add(endpoint)
+                continue
             if self._direct is None:
                 self._direct = _socket(self._context, zmq.SUB, self._hwm)
+                if self._endpoints.keys is not None:
+                    self._endpoints.keys.connect_with(self._direct)
                 # Endpoints of nodes that are gone stay connected (what they sent last must
                 # still be read); ZeroMQ retries them at most every 5 s.
                 self._direct.setsockopt(zmq.RECONNECT_IVL_MAX, 5000)

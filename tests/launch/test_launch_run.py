@@ -6,6 +6,7 @@ Every wait has a deadline so that a hang fails fast.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -26,6 +27,7 @@ from vibrissa.launch.launcher import (
     node_command,
     remove_orphaned_params_dirs,
 )
+from vibrissa.runtime.node import EXIT_LOST_DATA
 
 FIXTURES = Path(__file__).parents[1] / "fixtures"
 TIMEOUT_S = 30.0
@@ -349,3 +351,19 @@ def test_a_required_node_ending_while_the_graph_runs_fails_it_unless_finite(
             "[launch] launch failed: required node 'early' ended (exit 0) while the graph "
             "still runs (a node whose work ends by itself is marked finite: true)")
         assert "[waiting] waiting interrupted" in out
+
+
+@pytest.mark.parametrize("allow_loss", [False, True])
+def test_a_run_that_lost_data_says_so_in_its_exit_status(tmp_path: Path,
+                                                         allow_loss: bool) -> None:
+    lossy = fixture_node("lossy", "lossy", lost=3)
+    lossy["allow_loss"] = allow_loss
+    rc, out, err = launch(write_launch(tmp_path, lossy))
+    assert "[lossy] lost 3" in out, out + err
+    assert re.search(r"lossy .* received 3  lost 3", err), err
+    assert "data did not arrive in full: 'lossy' lost 3 and refused 0" in err
+    if allow_loss:
+        assert rc == 0 and "(allow_loss)" in err and "launch finished" in err
+    else:
+        assert rc == EXIT_LOST_DATA, err
+        assert "launch finished, but data were lost" in err

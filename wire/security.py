@@ -1,0 +1,302 @@
+"""ZeroMQ CURVE for a graph: key folders, encrypted and authenticated sockets, the guard.
+
+A key folder (``vibrissa keys DIR``) holds::
+
+    graph.key, graph.key_secret   the graph's pair: every bound socket (the proxy, direct
+                                  publishers) serves with it, every member connects with it
+    authorized/NAME.key           public keys of further clients allowed in
+    clients/NAME/                 what a client NAME needs: graph.key, NAME.key, NAME.key_secret
+
+A process whose folder holds ``graph.key_secret`` is a member of the graph (it may bind);
+a client folder holds exactly one other secret, its own, and connects only. Secret files must
+be readable by their owner alone (0600), as ssh asks of its keys.
+
+With keys, every socket speaks CURVE (encrypted, each peer proves its key). A bound socket asks
+the process's `Guard` (ZeroMQ's ZAP handler, RFC 27) about each client key: allowed are the
+graph's own and ``authorized/*.key``. ``ZAP_ENFORCE_DOMAIN`` makes a server refuse everyone
+when no guard answers, so a stopped guard never opens the door. The guard also counts every
+failed handshake (a plain-text peer, a wrong server key, a key not allowed) from the sockets'
+monitors: ZAP alone never hears of a peer that does not speak CURVE.
+
+pyzmq writes and reads the certificate files (``zmq.auth``); its ``ThreadAuthenticator`` is not
+used because it neither counts refusals nor watches the monitors, which this one thread does.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import shutil
+import stat
+import tempfile
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import zmq
+import zmq.auth
+from zmq.utils.monitor import parse_monitor_message
+
+__all__ = ["GRAPH_KEY", "KEYS_ENV", "Guard", "Keys", "KeysError", "create_keys"]
+
+log = logging.getLogger(__name__)
+
+KEYS_ENV = "VIBRISSA_KEYS"
+"""Environment variable naming the key folder of a process (unset: no CURVE)."""
+
+GRAPH_KEY = "graph"
+ZAP_DOMAIN = "vibrissa"
+_ZAP_ENDPOINT = "inproc://zeromq.zap.01"
+_FAILED_HANDSHAKE = (zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+                     | zmq.EVENT_HANDSHAKE_FAILED_AUTH)
+_LOG_EVERY_S = 10.0  # a refused peer retries ~10 times a second: one log line per interval
+
+
+class KeysError(ValueError):
+    """A key folder or file that cannot be used; the message names it and says why."""
+
+
+@dataclass(frozen=True)
+class Keys:
+    """The CURVE keys of one process (z85-encoded, 40 bytes each).
+
+    ``server_public`` is the graph's public key, which every client checks its server against;
+    ``secret`` of a member is the graph's secret (``serves``); ``allowed`` are the client keys
+    a bound socket lets in.
+    """
+
+    folder: Path
+    name: str
+    public: bytes
+    secret: bytes
+    server_public: bytes
+    allowed: frozenset[bytes]
+
+    @property
+    def serves(self) -> bool:
+        """Whether this process holds the graph's secret, i.e. may bind sockets."""
+        return self.name == GRAPH_KEY
+
+    @classmethod
+    def load(cls, folder: str | os.PathLike[str]) -> Keys:
+        """The keys of a folder made by `create_keys` (the graph's or a client's)."""
+        root = Path(folder)
+        if not root.is_dir():
+            raise KeysError(f"key folder {root} does not exist (make one: vibrissa keys {root})")
+        secrets = sorted(root.glob("*.key_secret"))
+        if (root / f"{GRAPH_KEY}.key_secret").exists():
+            name = GRAPH_KEY
+        elif len(secrets) == 1:
+            name = secrets[0].name.removesuffix(".key_secret")
+        else:
+            found = ", ".join(p.name for p in secrets) or "none"
+            raise KeysError(f"key folder {root}: expected {GRAPH_KEY}.key_secret or exactly one "
+                            f"client's NAME.key_secret, found {found}")
+        public, secret = _read_pair(root / f"{name}.key_secret")
+        server_public, _ = _read_key(root / f"{GRAPH_KEY}.key")
+        allowed = {server_public}
+        authorized = root / "authorized"
+        if authorized.is_dir():
+            mode = authorized.stat().st_mode
+            if mode & 0o022:
+                raise KeysError(f"{authorized} may be written by others (mode "
+                                f"{stat.S_IMODE(mode):04o}), who could let themselves in: "
+                                f"chmod 700 {authorized}")
+            allowed |= {_read_key(path)[0] for path in sorted(authorized.glob("*.key"))}
+        return cls(root, name, public, secret, server_public, frozenset(allowed))
+
+    @classmethod
+    def from_env(cls, environ: Mapping[str, str] | None = None) -> Keys | None:
+        """The keys of the folder in ``VIBRISSA_KEYS``; ``None`` when it is unset or empty."""
+        folder = (os.environ if environ is None else environ).get(KEYS_ENV, "")
+        return cls.load(folder) if folder else None
+
+    def to_env(self) -> dict[str, str]:
+        """The environment variable that hands these keys to a child process."""
+        return {KEYS_ENV: str(self.folder)}
+
+    def connect_with(self, sock: zmq.Socket[Any]) -> None:
+        """Make ``sock`` a CURVE client of the graph (before it connects)."""
+        sock.curve_secretkey = self.secret
+        sock.curve_publickey = self.public
+        sock.curve_serverkey = self.server_public
+
+    def serve_with(self, sock: zmq.Socket[Any], context: zmq.Context[Any]) -> None:
+        """Make ``sock`` a CURVE server guarded by the context's `Guard` (before it binds)."""
+        if not self.serves:
+            raise KeysError(f"client keys {self.folder} cannot bind a socket of the graph")
+        Guard.of(context, self).watch(sock)
+        sock.curve_server = True
+        sock.curve_secretkey = self.secret
+        sock.setsockopt_string(zmq.ZAP_DOMAIN, ZAP_DOMAIN)
+        sock.setsockopt(zmq.ZAP_ENFORCE_DOMAIN, 1)
+
+
+def _read_key(path: Path) -> tuple[bytes, bytes | None]:
+    try:
+        public, secret = zmq.auth.load_certificate(path)
+    except (OSError, ValueError) as exc:
+        raise KeysError(f"cannot read key {path}: {exc}") from None
+    for key in (public, secret):
+        if key is not None and len(key) != 40:
+            raise KeysError(f"key {path} is not a 40-character z85 CURVE key")
+    return public, secret
+
+
+def _read_pair(path: Path) -> tuple[bytes, bytes]:
+    mode = path.stat().st_mode
+    if mode & 0o077:
+        raise KeysError(f"secret key {path} is accessible by others (mode "
+                        f"{stat.S_IMODE(mode):04o}): chmod 600 {path}")
+    public, secret = _read_key(path)
+    if secret is None:
+        raise KeysError(f"{path} holds no secret key")
+    return public, secret
+
+
+def create_keys(folder: str | os.PathLike[str], clients: tuple[str, ...] = ()) -> list[Path]:
+    """Make the graph's key pair in ``folder`` (0700) unless it is there, and a pair for each
+    client not there yet; returns the files written. Secrets are 0600 from the start: each
+    pair is made in a private temporary folder and moved in."""
+    root = Path(folder)
+    root.mkdir(mode=0o700, parents=True, exist_ok=True)
+    written: list[Path] = []
+    if not (root / f"{GRAPH_KEY}.key_secret").exists():
+        written += _new_pair(root, GRAPH_KEY)
+    for name in clients:
+        if not name.isidentifier():
+            raise KeysError(f"client name {name!r}: use letters, digits and _")
+        if name == GRAPH_KEY:
+            raise KeysError(f"{GRAPH_KEY!r} is the graph's own key, not a client's")
+        home = root / "clients" / name
+        if home.exists():
+            continue
+        home.parent.mkdir(mode=0o700, exist_ok=True)
+        home.mkdir(mode=0o700)
+        written += _new_pair(home, name)
+        shutil.copy(root / f"{GRAPH_KEY}.key", home / f"{GRAPH_KEY}.key")
+        (root / "authorized").mkdir(mode=0o700, exist_ok=True)
+        shutil.copy(home / f"{name}.key", root / "authorized" / f"{name}.key")
+        written += [home / f"{GRAPH_KEY}.key", root / "authorized" / f"{name}.key"]
+    return written
+
+
+def _new_pair(folder: Path, name: str) -> list[Path]:
+    with tempfile.TemporaryDirectory(dir=folder) as private:  # 0700 by tempfile
+        public, secret = zmq.auth.create_certificates(private, name)
+        os.chmod(secret, 0o600)
+        os.chmod(public, 0o644)
+        moved = [folder / Path(public).name, folder / Path(secret).name]
+        os.replace(public, moved[0])
+        os.replace(secret, moved[1])
+    return moved
+
+
+class Guard:
+    """The ZAP handler of one context, in a thread, and the counter of refused peers.
+
+    ``refused`` counts failed handshakes on every watched (bound) socket; each refusal is
+    logged, at most one line per 10 s and client address.
+    """
+
+    _guards: ClassVar[dict[int, Guard]] = {}
+    _lock: ClassVar[threading.Lock] = threading.Lock()
+
+    def __init__(self, context: zmq.Context[Any], allowed: frozenset[bytes]) -> None:
+        self._context = context
+        self._allowed = allowed
+        self.refused = 0
+        self._monitors: queue.SimpleQueue[zmq.Socket[Any]] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._last_log: dict[str, float] = {}
+        zap = context.socket(zmq.REP)
+        zap.setsockopt(zmq.LINGER, 0)
+        zap.bind(_ZAP_ENDPOINT)
+        self._thread = threading.Thread(target=self._run, args=(zap,), name="vibrissa-zap",
+                                        daemon=True)
+        self._thread.start()
+
+    @classmethod
+    def of(cls, context: zmq.Context[Any], keys: Keys) -> Guard:
+        """The running guard of ``context``, started with ``keys.allowed`` if there is none."""
+        with cls._lock:
+            guard = cls._guards.get(id(context))
+            if guard is None or not guard._thread.is_alive():
+                guard = cls._guards[id(context)] = cls(context, keys.allowed)
+            elif guard._allowed != keys.allowed:
+                raise KeysError("one context serves with one set of allowed keys")
+            return guard
+
+    @classmethod
+    def stop_for(cls, context: zmq.Context[Any]) -> int:
+        """Stop the guard of ``context`` (before the context ends); returns its refusals."""
+        with cls._lock:
+            guard = cls._guards.pop(id(context), None)
+        if guard is None:
+            return 0
+        guard._stop.set()
+        guard._thread.join(1.0)
+        return guard.refused
+
+    @classmethod
+    def refused_in(cls, context: zmq.Context[Any]) -> int:
+        """Peers refused so far by the guard of ``context`` (0 without one)."""
+        guard = cls._guards.get(id(context))
+        return 0 if guard is None else guard.refused
+
+    def watch(self, sock: zmq.Socket[Any]) -> None:
+        """Count the failed handshakes of ``sock`` (call before it binds)."""
+        self._monitors.put(sock.get_monitor_socket(_FAILED_HANDSHAKE))
+
+    def _run(self, zap: zmq.Socket[Any]) -> None:
+        poller = zmq.Poller()
+        poller.register(zap, zmq.POLLIN)
+        monitors: list[zmq.Socket[Any]] = []
+        try:
+            while not self._stop.is_set():
+                while not self._monitors.empty():
+                    monitor = self._monitors.get()
+                    monitors.append(monitor)
+                    poller.register(monitor, zmq.POLLIN)
+                for sock, _ in poller.poll(100):
+                    if sock is zap:
+                        zap.send_multipart(self._answer(zap.recv_multipart()))
+                    else:
+                        self._on_event(sock, poller, monitors)
+        except zmq.ZMQError as exc:  # the context ended under it (destroy)
+            log.debug("guard stopped: %s", exc)
+        finally:
+            for sock in (zap, *monitors):
+                sock.close(linger=0)
+
+    def _answer(self, request: list[bytes]) -> list[bytes]:
+        """The ZAP reply (RFC 27): 200 for an allowed CURVE key, 400 for anything else."""
+        if len(request) < 6:
+            return [b"1.0", b"", b"500", b"malformed ZAP request", b"", b""]
+        version, request_id, _domain, _address, _identity, mechanism = request[:6]
+        credentials = request[6:]
+        if mechanism == b"CURVE" and len(credentials) == 1 and len(credentials[0]) == 32:
+            key = zmq.utils.z85.encode(credentials[0])
+            if key in self._allowed:
+                return [version, request_id, b"200", b"OK", key, b""]
+        return [version, request_id, b"400", b"key not allowed", b"", b""]
+
+    def _on_event(self, monitor: zmq.Socket[Any], poller: zmq.Poller,
+                  monitors: list[zmq.Socket[Any]]) -> None:
+        event = parse_monitor_message(monitor.recv_multipart())
+        if event["event"] == zmq.EVENT_MONITOR_STOPPED:
+            poller.unregister(monitor)
+            monitors.remove(monitor)
+            monitor.close(linger=0)
+            return
+        self.refused += 1
+        address = event["endpoint"].decode(errors="replace")
+        now = time.monotonic()
+        if now - self._last_log.get(address, -_LOG_EVERY_S) >= _LOG_EVERY_S:
+            self._last_log[address] = now
+            log.warning("refused a peer on %s without an allowed key (%d refused so far)",
+                        address, self.refused)

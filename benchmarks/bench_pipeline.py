@@ -11,8 +11,10 @@ Floor, in the same run, with the same payload and the same pacing::
 
     load (bare PUB) --> echo (SUB -> PUB, forwards the bytes) --> sink (bare SUB)
 
-and the floor through the broker (``proxied``): the same bare processes connected through the
-proxy, as tools and raw publishers are (what the broker costs without any work)::
+the pipeline with CURVE on every socket (``curve``: keys of ``vibrissa keys``, the ZAP guards;
+the sink connects with the graph's key), and the floor through the broker (``proxied``): the
+same bare processes connected through the proxy, as tools and raw publishers are (what the
+broker costs without any work)::
 
     load --/bench/wrench--> proxy --> echo --/bench/contact--> proxy --> sink
 
@@ -51,12 +53,14 @@ import numpy as np
 import zmq
 
 from vibrissa.wire import Endpoints
+from vibrissa.wire.security import Keys, create_keys
 
 WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
 UNITS = ("wrench", "tick")  # one WhiskerWrench per whisker, or one WhiskerWrenchArray per tick
-MODES = ("bare", "proxied", "vibrissa")  # the floor, the floor through the proxy, the pipeline
+MODES = ("bare", "proxied", "vibrissa", "curve")
+# the floor, the floor through the proxy, the pipeline, the pipeline encrypted and authenticated
 
 
 # -- helper processes (python bench_pipeline.py _proxy | _load | _echo ...) ----------------------
@@ -180,9 +184,10 @@ def _echo(source: str, endpoint: str, via_proxy: bool) -> None:
 
 
 def _proxy() -> None:
+    from vibrissa.wire.security import Keys
     from vibrissa.wire.transport import Proxy
 
-    proxy = Proxy(Endpoints.free(), zmq.Context(), hwm=1_000_000)
+    proxy = Proxy(Endpoints.free().with_keys(Keys.from_env()), zmq.Context(), hwm=1_000_000)
     bound = proxy.start()
     print(bound.pub, bound.sub, flush=True)
     try:
@@ -307,18 +312,26 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
             time.sleep(1.5)
             header_seq = False
         else:
-            proxy = _python(me, "_proxy", stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            keys = None
+            secured: dict[str, str] = {}
+            if mode == "curve":
+                create_keys(tmp / "keys")
+                keys = Keys.load(tmp / "keys")
+                keys.connect_with(sink)
+                secured = keys.to_env()
+            env = {**os.environ, "VIBRISSA_LOG_LEVEL": "WARNING", **secured}
+            proxy = _python(me, "_proxy", stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
             helpers.append(proxy)
             assert proxy.stdout is not None
             pub_ep, sub_ep = proxy.stdout.readline().split()
-            env = {**os.environ, "VIBRISSA_PUB_ENDPOINT": pub_ep,
-                   "VIBRISSA_SUB_ENDPOINT": sub_ep, "VIBRISSA_LOG_LEVEL": "WARNING"}
+            env.update({"VIBRISSA_PUB_ENDPOINT": pub_ep, "VIBRISSA_SUB_ENDPOINT": sub_ep})
             sink.setsockopt(zmq.SUBSCRIBE, CONTACT.encode() + b"\0")
             sink.connect(sub_ep)
             helpers.append(_python("-m", "vibrissa.nodes.reconstructor", "--name",
                                    "reconstructor", "--namespace", "/bench", env=env))
-            sink.connect(_announced(Endpoints(pub_ep, sub_ep), "/bench/reconstructor", CONTACT))
-            load = _python(me, "_load", "vibrissa", unit, "", str(n), str(rate), str(out),
+            sink.connect(_announced(Endpoints(pub_ep, sub_ep, keys), "/bench/reconstructor",
+                                    CONTACT))
+            load = _python(me, "_load", mode, unit, "", str(n), str(rate), str(out),
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
             helpers.append(load)
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
@@ -431,12 +444,21 @@ def main(argv: list[str] | None = None) -> int:
     for unit in units:
         _table(runs, unit, rates, args.repeat)
     for unit in units:
-        target = [r for r in runs if (r.unit, r.rate, r.mode) == (unit, 32000, "vibrissa")]
-        if target:
-            lost = max(r.lost for r in target)
-            sustained = sum(r.sustained for r in target)
-            print(f"32 whiskers x 1 kHz, per {unit}: {'zero loss' if lost == 0 else f'LOST {lost}'}"
-                  f", sustained in {sustained}/{len(target)} runs")
+        for mode in ("vibrissa", "curve"):
+            target = [r for r in runs if (r.unit, r.rate, r.mode) == (unit, 32000, mode)]
+            if target:
+                lost = max(r.lost for r in target)
+                sustained = sum(r.sustained for r in target)
+                print(f"32 whiskers x 1 kHz, per {unit} ({mode}): "
+                      f"{'zero loss' if lost == 0 else f'LOST {lost}'}, sustained in "
+                      f"{sustained}/{len(target)} runs, pooled p99 {_pooled_p99(target):.0f} us")
+        plain = [r for r in runs if (r.unit, r.mode) == (unit, "vibrissa")]
+        curve = [r for r in runs if (r.unit, r.mode) == (unit, "curve")]
+        if plain and curve:
+            pairs = list(zip(curve, plain, strict=True))
+            print(f"CURVE overhead per {unit}: p50 x{np.median([a.pct(50) / b.pct(50) for a, b in pairs]):.2f}, "
+                  f"p99 x{np.median([a.pct(99) / b.pct(99) for a, b in pairs]):.2f} "
+                  "(median over rates and repeats of curve / vibrissa)")
     return 0
 
 

@@ -37,7 +37,7 @@ import re
 import shlex
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from types import MappingProxyType
@@ -47,7 +47,7 @@ import yaml
 
 from vibrissa.runtime.params import ParamError, check_params
 from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
-from vibrissa.wire.transport import Endpoints
+from vibrissa.wire.transport import DEFAULT_MAX_MESSAGE_BYTES, Endpoints
 
 __all__ = [
     "ON_EXIT_ACTIONS",
@@ -124,12 +124,14 @@ class TransportSpec:
     ``sub_endpoint`` (XPUB, subscribers connect), or neither: the domain of
     ``VIBRISSA_DOMAIN_ID`` (default 0), or the next free one (``vibrissa.launch.launcher``).
     ``keys``: a key folder (``vibrissa keys``); every socket of the graph then speaks CURVE.
+    ``max_message_bytes``: the largest frame the proxy takes from a publisher.
     """
 
     domain: int | None = None
     pub_endpoint: str | None = None
     sub_endpoint: str | None = None
     keys: str | None = None
+    max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES
 
 
 NODE_ENTRY_POINTS = "vibrissa.nodes"
@@ -450,15 +452,19 @@ class _Parser:
         return LaunchArg(name=name, default=default, description=description)
 
     def transport(self, value: Any, path: str) -> TransportSpec:
-        body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint", "keys"))
-        keys = self.string(body["keys"], f"{path}.keys") if "keys" in body else None
+        body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint", "keys",
+                                              "max_message_bytes"))
+        common = TransportSpec(
+            keys=self.string(body["keys"], f"{path}.keys") if "keys" in body else None,
+            max_message_bytes=self.integer(body.get("max_message_bytes",
+                                                    DEFAULT_MAX_MESSAGE_BYTES),
+                                           f"{path}.max_message_bytes", 1024),
+        )
         if "domain" in body:
             if "pub_endpoint" in body or "sub_endpoint" in body:
                 raise self.error(path, "give either domain or pub_endpoint/sub_endpoint, not both")
-            return TransportSpec(
-                domain=self.integer(body["domain"], f"{path}.domain", 0, Endpoints.MAX_DOMAIN),
-                keys=keys,
-            )
+            return replace(common, domain=self.integer(body["domain"], f"{path}.domain", 0,
+                                                       Endpoints.MAX_DOMAIN))
         if ("pub_endpoint" in body) != ("sub_endpoint" in body):
             missing = "sub_endpoint" if "pub_endpoint" in body else "pub_endpoint"
             raise self.error(f"{path}.{missing}", "missing (give both endpoints or neither)")
@@ -471,8 +477,8 @@ class _Parser:
                         f"{path}.{key}", f"expected a ZeroMQ endpoint like tcp://HOST:PORT, "
                         f"got {endpoint!r}"
                     )
-            return TransportSpec(pub_endpoint=pub, sub_endpoint=sub, keys=keys)
-        return TransportSpec(keys=keys)
+            return replace(common, pub_endpoint=pub, sub_endpoint=sub)
+        return common
 
     def node(self, value: Any, path: str) -> NodeSpec:
         keys = ("pkg", "exec", "cmd", "args", "name", "namespace", "param", "remap", "env",

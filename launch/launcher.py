@@ -298,7 +298,8 @@ class Launcher:
             return None
         secured = "" if keys is None else f"; CURVE with the keys of {keys.folder}"
         if spec.pub_endpoint is not None and spec.sub_endpoint is not None:
-            proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint, keys))
+            proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint, keys),
+                          max_message_bytes=spec.max_message_bytes)
             try:
                 endpoints = proxy.start()
             except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch
@@ -318,7 +319,8 @@ class Launcher:
                 return None
             candidates = list(range(preferred, min(preferred + DOMAIN_TRIES, Endpoints.MAX_DOMAIN + 1)))
         for domain in candidates:
-            proxy = Proxy(Endpoints.for_domain(domain).with_keys(keys))
+            proxy = Proxy(Endpoints.for_domain(domain).with_keys(keys),
+                          max_message_bytes=spec.max_message_bytes)
             try:
                 endpoints = proxy.start()
             except Exception as exc:  # noqa: BLE001 - any failure to bind ends the launch

@@ -51,6 +51,7 @@ __all__ = [
     "MalformedPayloadError",
     "MissingFieldError",
     "NonFiniteError",
+    "OversizeError",
     "UnexpectedTypeError",
     "UnknownFieldError",
     "UnknownTypeError",
@@ -74,6 +75,10 @@ class DecodeError(ValueError):
 
 class MalformedPayloadError(DecodeError):
     """Not a msgpack map with ``_type`` and ``_v`` (truncated, garbage, wrong layout)."""
+
+
+class OversizeError(DecodeError):
+    """A payload longer than its type's (or every expected type's) ``MAX_BYTES``."""
 
 
 class UnknownTypeError(DecodeError):
@@ -219,6 +224,13 @@ def decode(
 
 
 def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] | None) -> Message:
+    if expected is not None:  # refused before a byte of it is read
+        allowed = expected if isinstance(expected, tuple) else (expected,)
+        limit = max(t.MAX_BYTES for t in allowed)
+        if len(payload) > limit:
+            names = ", ".join(t.TYPE_NAME for t in allowed)
+            raise OversizeError(f"payload of {len(payload)} bytes, more than the {limit} "
+                                f"bytes of {names}")
     obj = _unpack(payload)
     name = obj.pop("_type", None)
     version = obj.pop("_v", None)
@@ -232,6 +244,9 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
         if cls not in allowed:
             names = ", ".join(t.TYPE_NAME for t in allowed)
             raise UnexpectedTypeError(f"got {name}, expected {names}", name)
+    if len(payload) > cls.MAX_BYTES:
+        raise OversizeError(f"payload of {len(payload)} bytes, more than the {cls.MAX_BYTES} "
+                            f"bytes of {name}", name)
     if version != cls.VERSION:
         raise VersionMismatchError(
             f"{name} version {version} on the wire, this build reads version {cls.VERSION}", name

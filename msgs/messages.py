@@ -169,11 +169,20 @@ def field_specs(cls: type) -> tuple[tuple[str, FieldSpec], ...]:
     return specs  # type: ignore[no-any-return]
 
 
+MAX_PAYLOAD_BYTES = 64 << 20
+"""The largest payload of any type (a cloud of 2.8 M points), bytes."""
+
+
 class Message:
-    """Base of every wire message: construction-time checks and array-aware equality."""
+    """Base of every wire message: construction-time checks and array-aware equality.
+
+    ``MAX_BYTES`` bounds an encoded payload of the type: decode refuses a longer one before
+    reading it, so a flood of oversized frames costs a receiver a length check each.
+    """
 
     TYPE_NAME: ClassVar[str]
     VERSION: ClassVar[int]
+    MAX_BYTES: ClassVar[int] = 64 << 10  # one sample: a few hundred bytes and its names
 
     def __post_init__(self) -> None:
         sizes: dict[str, int] = {}
@@ -314,6 +323,7 @@ class WhiskerWrenchArray(Message):
     """
 
     TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrenchArray"
+    MAX_BYTES: ClassVar[int] = 1 << 20  # some 9 000 whiskers
     VERSION: ClassVar[int] = 1
 
     stamp: float = _stamp()
@@ -336,6 +346,7 @@ class ContactPointArray(Message):
     """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/ContactPointArray"
+    MAX_BYTES: ClassVar[int] = 1 << 20  # some 9 000 whiskers
     VERSION: ClassVar[int] = 1
 
     stamp: float = _stamp()
@@ -357,6 +368,7 @@ class ContactCloud(Message):
 
     TYPE_NAME: ClassVar[str] = "vibrissa/ContactCloud"
     VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = MAX_PAYLOAD_BYTES
 
     stamp: float = _stamp()
     frame_id: str = _frame_id()
@@ -375,6 +387,7 @@ class SurfaceMesh(Message):
 
     TYPE_NAME: ClassVar[str] = "vibrissa/SurfaceMesh"
     VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = MAX_PAYLOAD_BYTES
 
     stamp: float = _stamp()
     frame_id: str = _frame_id()
@@ -415,6 +428,7 @@ class NodeStatus(Message):
     """Heartbeat of a node on /vibrissa/status (every 0.5 s)."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/NodeStatus"
+    MAX_BYTES: ClassVar[int] = 1 << 20  # thousands of topics
     VERSION: ClassVar[int] = 2
 
     stamp: float = _stamp()

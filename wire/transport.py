@@ -58,6 +58,7 @@ from vibrissa.msgs import (
     encode,
     peek_type,
 )
+from vibrissa.msgs.messages import MAX_PAYLOAD_BYTES
 from vibrissa.wire.security import Guard, Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
@@ -83,8 +84,8 @@ log = logging.getLogger(__name__)
 DEFAULT_HWM = 10_000
 """Default send/receive high-water mark, messages per socket (per peer for PUB/XPUB)."""
 
-DEFAULT_MAX_MESSAGE_BYTES = 64 << 20
-"""Largest frame the proxy takes from a publisher, bytes (a cloud of 1.4 M points fits)."""
+DEFAULT_MAX_MESSAGE_BYTES = MAX_PAYLOAD_BYTES
+"""Largest frame the proxy takes from a publisher, bytes: the largest payload of any type."""
 
 MAX_SEQ_GAP = 1_000_000
 """Largest seq gap counted as lost messages: a publisher does not lose a million messages

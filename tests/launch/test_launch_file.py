@@ -139,6 +139,10 @@ def test_transport_entries(tmp_path: Path) -> None:
         "launch:\n  - transport: {pub_endpoint: 'tcp://127.0.0.1:9000', "
         "sub_endpoint: 'tcp://127.0.0.1:9001'}\n" + node)))
     assert desc.transport == TransportSpec(None, "tcp://127.0.0.1:9000", "tcp://127.0.0.1:9001")
+    desc = load_launch_file(write(tmp_path, (
+        "launch:\n  - transport: {keys: '$(dirname)/keys', max_message_bytes: 4096}\n" + node)))
+    assert desc.transport == TransportSpec(keys=f"{tmp_path}/keys", max_message_bytes=4096)
+    assert TransportSpec().max_message_bytes == 64 << 20
 
 
 def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
@@ -235,6 +239,10 @@ def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
          "launch[0].transport.sub_endpoint: missing"),
         ("  - transport: {pub_endpoint: a, sub_endpoint: b}\n  - node: {cmd: [x], name: n}\n",
          "launch[0].transport.pub_endpoint: expected a ZeroMQ endpoint"),
+        ("  - transport: {max_message_bytes: 100}\n  - node: {cmd: [x], name: n}\n",
+         "launch[0].transport.max_message_bytes: expected an int >= 1024, got 100"),
+        ("  - transport: {keys: [a]}\n  - node: {cmd: [x], name: n}\n",
+         "launch[0].transport.keys: expected str"),
         ("  - transport: {}\n  - transport: {}\n  - node: {cmd: [x], name: n}\n",
          "launch[1].transport: only one transport entry is allowed"),
     ],

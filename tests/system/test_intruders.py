@@ -12,7 +12,9 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
+from typing import Any
 
 from tests.system.test_first_hour import Launch, demo_with
 from vibrissa.wire.security import create_keys
@@ -82,3 +84,68 @@ def test_without_the_key_nothing_gets_in_and_nothing_is_read(tmp_path: Path) -> 
     assert f"contact points: {published} (sources: /whisker0/reconstructor)" in report, report
     assert (f"input /whisker0/contact from /whisker0/reconstructor: {published} sent, "
             f"{published} received, 0 lost") in report, report  # the forged end was not heard
+
+
+def _peak_rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status", encoding="ascii") as status:
+        for line in status:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    raise AssertionError("no VmHWM")
+
+
+def test_a_flood_of_huge_arrays_is_refused_without_filling_memory(tmp_path: Path) -> None:
+    """Found by an attack: 1 GB of 10 MB WhiskerWrenchArrays took a reconstructor to 4.1 GB
+    (it decoded each). Each is now refused by its length, counted, and memory stays put."""
+    import msgpack
+    import numpy as np
+    import zmq
+
+    from vibrissa.msgs import NodeStatus, WhiskerWrenchArray, encode
+    from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Subscriber
+
+    context: zmq.Context[Any] = zmq.Context()
+    proxy = Proxy(Endpoints.free(), context)
+    endpoints = proxy.start()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("VIBRISSA_")}
+    node = subprocess.Popen([sys.executable, "-m", "vibrissa.nodes.reconstructor", "--name",
+                             "reconstructor", "--namespace", "/w"],
+                            env={**env, **endpoints.to_env()}, stderr=subprocess.DEVNULL)
+    n = 95_000  # 10.5 MB each
+    rng = np.random.default_rng(0)
+    huge = encode(WhiskerWrenchArray(
+        stamp=0.0, seq=0, frame_id="world", whisker_ids=[f"w{i}" for i in range(n)],
+        clamp_position=rng.normal(size=(n, 3)), clamp_orientation=np.tile([0, 0, 0, 1.0], (n, 1)),
+        f0=rng.normal(size=(n, 3)), m0=rng.normal(size=(n, 3))))
+    burst = 50  # 0.5 GB
+    sock = context.socket(zmq.PUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.SNDHWM, burst + 10)
+    try:
+        with Subscriber({STATUS_TOPIC: NodeStatus}, endpoints, context) as statuses:
+            def status(until: Any) -> NodeStatus:
+                deadline = time.monotonic() + 60
+                while time.monotonic() < deadline:
+                    rx = statuses.receive(0.5)
+                    if rx is not None and isinstance(rx.msg, NodeStatus) and \
+                            rx.msg.node == "/w/reconstructor" and until(rx.msg):
+                        return rx.msg
+                raise AssertionError("no such status from the reconstructor")
+
+            status(lambda s: s.state == "running")
+            before = _peak_rss_mb(node.pid)
+            sock.connect(endpoints.pub)
+            time.sleep(0.5)
+            for seq in range(burst):
+                sock.send_multipart([b"/w/wrench\0", msgpack.packb({"pub": 5, "seq": seq}), huge])
+            final = status(lambda s: s.counters.get("rejected", 0) >= burst)
+            assert final.counters["rejected"] == burst and final.counters["lost"] == 0
+            assert node.poll() is None
+            growth = _peak_rss_mb(node.pid) - before
+            assert growth < 100, f"the reconstructor grew by {growth:.0f} MB"  # was > 1 GB
+    finally:
+        sock.close()
+        node.terminate()
+        node.wait(10)
+        proxy.stop()
+        context.destroy(linger=0)

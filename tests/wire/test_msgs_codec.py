@@ -29,6 +29,7 @@ from vibrissa.msgs import (
     MissingFieldError,
     NodeStatus,
     NonFiniteError,
+    OversizeError,
     Ping,
     RobotPose,
     SurfaceMesh,
@@ -562,3 +563,25 @@ def test_undefined_flag_bits_and_phases_are_refused() -> None:
         ContactPoint(**{**samples()[1].__dict__, "status": undefined})
     with pytest.raises(ValueError, match="not ContactPhase members"):
         ContactPointArray(**{**contact_array().__dict__, "phase": [1, 5]})
+
+
+def test_a_payload_over_its_types_size_is_refused_before_it_is_read() -> None:
+    """Found by flooding a live reconstructor with 10 MB arrays: it decoded every one and grew
+    to 4.1 GB. Each type bounds its payload; the expected types' bound is checked first."""
+    n = 10_000  # a 1.1 MB array, over WhiskerWrenchArray.MAX_BYTES (1 MiB)
+    rng = np.random.default_rng(0)
+    big = encode(WhiskerWrenchArray(
+        stamp=0.0, seq=0, frame_id="world", whisker_ids=[f"w{i}" for i in range(n)],
+        clamp_position=rng.normal(size=(n, 3)), clamp_orientation=np.tile([0.0, 0, 0, 1], (n, 1)),
+        f0=rng.normal(size=(n, 3)), m0=rng.normal(size=(n, 3))))
+    assert len(big) > WhiskerWrenchArray.MAX_BYTES == 1 << 20
+    refuse(big, OversizeError, f"payload of {len(big)} bytes", "vibrissa/WhiskerWrenchArray")
+    refuse(big, OversizeError, "more than the 1048576 bytes",
+           expected=(WhiskerWrench, WhiskerWrenchArray))
+    garbage = b"\xc1" * (WhiskerWrench.MAX_BYTES + 1)  # not even msgpack: never unpacked
+    refuse(garbage, OversizeError, "vibrissa/WhiskerWrench", expected=WhiskerWrench)
+    refuse(garbage[:-1], MalformedPayloadError, expected=WhiskerWrench)
+    assert WhiskerWrench.MAX_BYTES == 64 << 10 and ContactCloud.MAX_BYTES == 64 << 20
+    cloud = ContactCloud(stamp=0.0, frame_id="world", points=rng.normal(size=(50_000, 3)),
+                         normals=np.zeros((50_000, 3)))
+    assert decode(encode(cloud), ContactCloud) == cloud  # large types keep their room

@@ -23,7 +23,10 @@ node publishes is encoded and buffered in order, while the thread pings the topi
 ``seen_topics`` (it never hands pings to the application), and its node reports that in its
 next status. Once every named node reports the topic, the subscription path is proven up
 and the thread releases the buffer, in order, and later messages go straight out. Pings do
-not advance ``seq``, so they never look like loss (see ``vibrissa.wire.transport``).
+not advance ``seq``, so they never look like loss (see ``vibrissa.wire.transport``). With
+every status, and once more at close, the thread also pings each publisher that has sent
+anything: a tail of a stream that never arrived (its ``EndOfStream`` included) shows as a seq
+gap at the subscribers within a heartbeat, instead of not at all.
 
 Stopping: SIGINT/SIGTERM set ``stop_requested`` (a second SIGINT raises
 ``KeyboardInterrupt``); ``close()`` (or leaving the ``with`` block) reports the final state,
@@ -348,17 +351,27 @@ class Node:
                 if now >= next_beat or self._beat_now.is_set() or seen != was_seen:
                     self._beat_now.clear()
                     self._status_pub.publish(self.status())
+                    if now >= next_beat:
+                        self._ping_streams()
                     next_beat = now + self.heartbeat_s
                 self._service_gates(now)
                 received = self._status_sub.receive(0.02)
                 if received is not None and isinstance(received.msg, NodeStatus):
                     self._peers[received.msg.node] = set(received.msg.seen_topics)
+            self._ping_streams()
             self._status_pub.publish(self.status())  # the final state
         except Exception as exc:  # the thread must not die silently: stop the node instead
             log.exception("%s: heartbeat thread failed", self.fqn)
             self.failure = f"heartbeat thread failed: {type(exc).__name__}: {exc}"
             self._state = "error"
             self._stop.set()
+
+    def _ping_streams(self) -> None:
+        """Ping every publisher that has sent anything (the next seq: a lost tail shows)."""
+        with self._lock:
+            publishers = [p for p in self._publishers if p.sent and not p.held]
+        for publisher in publishers:
+            publisher.ping(self.fqn)
 
     def _service_gates(self, now: float) -> None:
         with self._lock:

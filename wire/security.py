@@ -84,7 +84,7 @@ class Keys:
     @classmethod
     def load(cls, folder: str | os.PathLike[str]) -> Keys:
         """The keys of a folder made by `create_keys` (the graph's or a client's)."""
-        root = Path(folder)
+        root = Path(folder).absolute()  # handed to children, whatever their working folder
         if not root.is_dir():
             raise KeysError(f"key folder {root} does not exist (make one: vibrissa keys {root})")
         secrets = sorted(root.glob("*.key_secret"))

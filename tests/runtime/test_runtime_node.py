@@ -184,3 +184,25 @@ def test_a_failed_heartbeat_stops_the_node_and_fails_its_with_block(
             while not n.stop_requested and time.monotonic() < deadline:
                 time.sleep(0.01)
             assert n.stop_requested
+
+
+def test_a_lost_tail_shows_within_a_heartbeat(endpoints: Endpoints) -> None:
+    """The end of a stream dropped on its way (as a full send queue drops it, silently for the
+    sender): the next heartbeat's ping carries the next seq, and the subscriber counts it."""
+    with node("sink", endpoints) as sink, node("source", endpoints, heartbeat_s=0.2) as source:
+        sub = sink.create_subscriber({"/w0/data": RobotPose})
+        pub = source.create_publisher("data", RobotPose, wait_for=["sink"])
+        deadline = time.monotonic() + TIMEOUT_S
+        while not source.wait_for_subscribers("data", ["sink"], 0.05):
+            assert sub.receive(0.05) is None and time.monotonic() < deadline  # takes the pings
+        for i in range(20):
+            pub.publish(pose(i))
+        send = pub._socket.send_multipart
+        pub._socket.send_multipart = lambda frames, **kw: None  # type: ignore[method-assign]
+        pub.publish_end_of_stream(source.fqn)  # never leaves
+        pub._socket.send_multipart = send  # type: ignore[method-assign]
+        got, deadline = 0, time.monotonic() + TIMEOUT_S
+        while sub.counters["/w0/data"].lost == 0 and time.monotonic() < deadline:
+            got += sub.receive(0.05) is not None
+        assert got == 20
+        assert sub.counters["/w0/data"].lost == 1  # the end of stream

@@ -52,6 +52,7 @@ import msgpack
 import numpy as np
 import zmq
 
+from vibrissa.msgs import Ping, peek_type
 from vibrissa.wire import Endpoints
 from vibrissa.wire.security import Keys, create_keys
 
@@ -244,6 +245,8 @@ def _sink(sock: zmq.Socket[Any], n: int, header_seq: bool, timeout_s: float) -> 
             break
         frames = sock.recv_multipart()
         now = time.time()
+        if header_seq and peek_type(frames[2])[0] == Ping.TYPE_NAME:
+            continue  # a node's keep-alive ping: it carries the next seq, not a message
         seq = (msgpack.unpackb(frames[1])["seq"] if header_seq
                else int.from_bytes(frames[1], "little"))
         if seq < n:

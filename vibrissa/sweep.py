@@ -5,6 +5,12 @@ equilibrium of the planar elastica (eq. 11) in the plane E_psi through P0 spanne
 e_u = (cos psi, sin psi, 0). The unknowns of a step are q = (psi, Fu, Fv, kappa0): the plane, the
 contact force on the rod in that plane and the clamp curvature; the closed-form elastica
 (:mod:`vibrissa.elastica`) turns q into the contact P1, s1 and the rod's tangent there.
+
+Frames: q lives in the clamp frame C of its step (the rod leaves along C's e_z, E_psi contains
+it); the object, the contact P1, its normal and force live in W, where the object is fixed.
+Every equation is evaluated with the step's clamp pose X_WC (``Trail.clamp_pose``: on the
+paper's trail the identity rotation at (x0, y0, 0)), so that the friction chord of eq. 7
+joins two contact points on the object whatever the clamp does between them.
 Conditions (four equations, solved by Newton's method with a finite-difference Jacobian,
 batched over all sweeps of a study):
 
@@ -85,6 +91,13 @@ class Trail:
     y0: float
     mu: float
 
+    def clamp_pose(self, x0: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The clamp poses X_WC at positions ``x0`` (n,) of the trail: origins p_WC (n, 3) =
+        (x0, y0, 0) and rotations R_WC (n, 3, 3) = identity (the rod leaves along W's e_z)."""
+        x0 = np.asarray(x0, dtype=float).reshape(-1)
+        p_WC = np.column_stack([x0, np.full_like(x0, self.y0), np.zeros_like(x0)])
+        return p_WC, np.broadcast_to(np.eye(3), (len(x0), 3, 3))
+
 
 @dataclass
 class Sweep:
@@ -95,10 +108,11 @@ class Sweep:
     solver found none for the first step after the first contact: a solver failure, reported
     rather than hidden) or the step cap.
 
-    Frames: all vectors in the world frame W = the clamp frame of the trail (clamp axis e_z).
-    ``f0``, ``m0`` are the clamp's reactions on the rod (moment about P0); ``force`` is the
-    contact force on the rod, ``normal`` the surface's outward unit normal at the contact,
-    ``fn`` = F . n >= 0 and ``ft`` = |F - fn n| the normal and friction magnitudes.
+    Frames: ``f0``, ``m0`` are the clamp's reactions on the rod (moment about P0) in the clamp
+    frame C; ``contact`` and ``force`` (the contact force on the rod) and ``normal`` (the
+    surface's outward unit normal at the contact) are in W; ``fn`` = F . n >= 0 and
+    ``ft`` = |F - fn n| the normal and friction magnitudes. On a trail C and W have the same
+    axes (clamp axis e_z).
 
     Rows are one per step of ``step`` along the grid x_grid - k step (x_grid: the first contact,
     or the grid shared by the trails of an array, see :func:`simulate_sweeps`), except that a step
@@ -134,15 +148,17 @@ class Sweep:
 
     @property
     def p0(self) -> FloatArray:
-        """Clamp positions (N, 3)."""
-        return np.column_stack([self.x0, np.full_like(self.x0, self.trail.y0), np.zeros_like(self.x0)])
+        """Clamp positions p_WC (N, 3)."""
+        return self.trail.clamp_pose(self.x0)[0]
 
     def elastic_line(self, index: int, n_points: int = 101) -> FloatArray:
-        """Points (n_points, 3) of the rod's axis at step ``index``, from the clamp to the tip."""
+        """Points (n_points, 3) of the rod's axis at step ``index``, from the clamp to the tip,
+        in W."""
         psi, fu, fv, kappa0 = self._q[index]
         u, v = planar_line(fu, fv, kappa0, np.linspace(0.0, 1.0, n_points))
-        e_u = bending_plane(np.array([psi]))[0][0]
-        return self.p0[index] + np.outer(u, e_u) + np.outer(v, _E_Z)
+        e_u_C = bending_plane(np.array([psi]))[0][0]
+        p_WC, R_WC = self.trail.clamp_pose(self.x0[index : index + 1])
+        return p_WC[0] + np.outer(u, R_WC[0] @ e_u_C) + np.outer(v, R_WC[0][:, 2])
 
     def summary(self) -> dict[str, object]:
         """How the sweep went, JSON-ready."""
@@ -170,10 +186,11 @@ _MODE_TIP, _MODE_TANGENTIAL, _MODE_STICK = 0, 1, 2
 
 @dataclass
 class _Batch:
-    """Fixed data of the rows solved together (one row per sweep attempt)."""
+    """Fixed data of the rows solved together (one row per sweep attempt): the clamp pose
+    (origin p_WC (n, 3), rotation R_WC (n, 3, 3)), friction, where the contact was, the mode."""
 
-    x0: FloatArray
-    y0: FloatArray
+    p_WC: FloatArray
+    R_WC: FloatArray
     mu: FloatArray
     anchor: FloatArray  # previous contact point (sliding) or the held point (sticking), (n, 3)
     mode: NDArray[np.int64]
@@ -183,7 +200,7 @@ class _Batch:
         return _Batch(*(getattr(self, name)[rows] for name in _BATCH_FIELDS))
 
 
-_BATCH_FIELDS = ("x0", "y0", "mu", "anchor", "mode", "locked")
+_BATCH_FIELDS = ("p_WC", "R_WC", "mu", "anchor", "mode", "locked")
 
 
 @dataclass
@@ -210,15 +227,16 @@ def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
+    """The residuals of q = (psi, Fu, Fv, kappa0) in the clamp frames C of the rows; geometry
+    and forces of the state in W, where the object is."""
     psi, fu, fv, kappa0 = q[:, :4].T
     contact = planar_contact(fu, fv, kappa0)
-    e_u, e_w = bending_plane(psi)
-    p1 = np.column_stack([batch.x0, batch.y0, np.zeros_like(psi)]) + contact.u1[:, None] * e_u
-    p1[:, 2] += contact.v1
-    tangent = np.cos(contact.phi1)[:, None] * e_u
-    tangent[:, 2] += np.sin(contact.phi1)
-    force = fu[:, None] * e_u
-    force[:, 2] += fv
+    e_u_C, e_w_C = bending_plane(psi)
+    R = batch.R_WC
+    e_u, e_w, e_v = _rotate(R, e_u_C), _rotate(R, e_w_C), R[:, :, 2]  # e_v: the clamp axis
+    p1 = batch.p_WC + contact.u1[:, None] * e_u + contact.v1[:, None] * e_v
+    tangent = np.cos(contact.phi1)[:, None] * e_u + np.sin(contact.phi1)[:, None] * e_v
+    force = fu[:, None] * e_u + fv[:, None] * e_v
     gap = surface.value(p1)
     normal = surface.normal(p1)
 
@@ -232,7 +250,8 @@ def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
         f = np.hypot(fu, fv)
         in_plane = np.einsum("ni,ni->n", direction, e_w)
         d_u = np.einsum("ni,ni->n", direction, e_u)
-        along = (fu * direction[:, 2] - fv * d_u) / f
+        d_v = np.einsum("ni,ni->n", direction, e_v)
+        along = (fu * d_v - fv * d_u) / f
     in_plane = np.where(batch.locked, psi, in_plane)
 
     tip = contact.s1 - 1.0
@@ -241,6 +260,11 @@ def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
     stick = batch.mode == _MODE_STICK
     residual[stick, 1:] = (p1 - batch.anchor)[stick]
     return _State(residual, p1, contact.s1, tangent, normal, force, kappa0, e_w, contact.status)
+
+
+def _rotate(R: FloatArray, v: FloatArray) -> FloatArray:
+    """Rows of vectors v (n, 3) rotated by the rows of R (n, 3, 3)."""
+    return np.matmul(R, v[:, :, None])[:, :, 0]
 
 
 def _newton(surface: Surface, q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
@@ -327,7 +351,8 @@ def _held_at_slip(
     e1, e2 = _tangent_basis(surface.normal(batch.anchor))
     r, theta = np.exp(z[:, 0:1]), z[:, 1:2]
     held = surface.closest_point(batch.anchor + r * (np.cos(theta) * e1 + np.sin(theta) * e2))
-    hold = _Batch(batch.x0, batch.y0, batch.mu, held, np.full(len(z), _MODE_STICK), batch.locked)
+    hold = _Batch(batch.p_WC, batch.R_WC, batch.mu, held, np.full(len(z), _MODE_STICK),
+                  batch.locked)
     q_held, state, converged = _newton(surface, q, hold)
     fn = np.einsum("ni,ni->n", state.force, state.normal)
     chord = batch.anchor - state.p1
@@ -367,7 +392,8 @@ def _small_slip(
             jac[:, :, j] = (_held_at_slip(surface, probe, q, batch)[0] - mismatch) / steps[j]
         delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch, strict=False)])
         z += np.clip(delta, -1.0, 1.0)
-    as_slide = _Batch(batch.x0, batch.y0, batch.mu, batch.anchor, np.full(len(z), _MODE_TIP), batch.locked)
+    as_slide = _Batch(batch.p_WC, batch.R_WC, batch.mu, batch.anchor, np.full(len(z), _MODE_TIP),
+                      batch.locked)
     final = _evaluate(surface, q, as_slide)
     return q, final, _converged(final, as_slide)
 
@@ -539,13 +565,17 @@ class SweepRun:
         return SweepProgress(len(track.rows), float(x0), float(track.x_touch), track.end)
 
     def reactions(self, index: int, start: int = 0) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Clamp positions x0 (n,) and reactions f0, m0 (n, 3) of sweep ``index``'s
-        equilibria ``start``, ``start + 1``, ... found so far, units of L, EI/L^2, EI/L."""
-        rows = self._tracks[index].rows[start:]
+        """Clamp positions x0 (n,) and reactions f0, m0 (n, 3) in the clamp frame of sweep
+        ``index``'s equilibria ``start``, ``start + 1``, ... found so far, units of L, EI/L^2,
+        EI/L."""
+        track = self._tracks[index]
+        rows = track.rows[start:]
         n = len(rows)
         q = np.array([r[3] for r in rows]).reshape(n, 4)
-        f0, m0 = _clamp_reactions(q, np.array([r[6] for r in rows]).reshape(n, 3))
-        return np.array([r[0] for r in rows], dtype=float), f0, m0
+        x0 = np.array([r[0] for r in rows], dtype=float)
+        f0, m0 = _clamp_reactions(q, np.array([r[6] for r in rows]).reshape(n, 3),
+                                  track.trail.clamp_pose(x0)[1])
+        return x0, f0, m0
 
     def sweeps(self) -> list[Sweep]:
         """Every sweep as it stands (complete once ``done``)."""
@@ -659,7 +689,7 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
     A smooth detachment needs no refinement: once the reactions have faded and the straight
     rod at ``target`` clears the object, the unloaded rod is the equilibrium there.
     """
-    if _ending(track) is SweepEnd.DETACHMENT and _straight_rod_clears(surface, track.trail.y0, target):
+    if _ending(track) is SweepEnd.DETACHMENT and _straight_rod_clears(surface, track.trail, target):
         track.end, track.x0_end = SweepEnd.DETACHMENT, track.x0
         return
     span = track.x0 - target  # one step, or less for the partial first step onto a shared grid
@@ -678,9 +708,10 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
     track.x0_end = track.rows[-1][0] if track.rows else track.x0
 
 
-def _straight_rod_clears(surface: Surface, y0: float, x0: float) -> bool:
-    """Whether the undeformed rod, clamped at (x0, y0, 0) along e_z, lies outside the object."""
-    t_in, t_out = surface.line_interval([x0, y0, 0.0], _E_Z)
+def _straight_rod_clears(surface: Surface, trail: Trail, x0: float) -> bool:
+    """Whether the undeformed rod, clamped at x0 on the trail, lies outside the object."""
+    p_WC, R_WC = trail.clamp_pose(np.array([x0]))
+    t_in, t_out = surface.line_interval(p_WC, R_WC[:, :, 2])
     inside_somewhere = t_in[0] < 1.0 and t_out[0] > 0.0  # NaN: the line misses the object
     return not inside_somewhere
 
@@ -732,9 +763,10 @@ def _attempt(
             rows = np.array([i for i in rows if i in stuck], dtype=np.int64)
         if len(rows) == 0:
             return
+        poses = [tracks[i].trail.clamp_pose(targets[i : i + 1]) for i in rows]
         batch = _Batch(
-            x0=targets[rows],
-            y0=np.array([tracks[i].trail.y0 for i in rows]),
+            p_WC=np.concatenate([p for p, _ in poses]),
+            R_WC=np.concatenate([R for _, R in poses]),
             mu=np.array([tracks[i].trail.mu for i in rows]),
             anchor=np.array([tracks[i].anchor if modes[i] == _MODE_STICK else tracks[i].p1 for i in rows]),
             mode=modes[rows],
@@ -841,14 +873,16 @@ def _record(track: _Track, refined: bool) -> None:
     track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force))
 
 
-def _clamp_reactions(q: FloatArray, force: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """f0, m0 (n, 3) of states ``q`` (n, 4) with contact forces ``force`` (n, 3).
+def _clamp_reactions(q: FloatArray, force_W: FloatArray, R_WC: FloatArray
+                     ) -> tuple[FloatArray, FloatArray]:
+    """f0, m0 (n, 3) in the clamp frames C of states ``q`` (n, 4) with contact forces
+    ``force_W`` (n, 3) in W and clamp rotations ``R_WC`` (n, 3, 3).
 
     From the rod's own internal loads at s = 0 (not from r x F, so that the statics
     m0 + r x F = 0 stays a check of the elastica): f0 = -F, m0 = -kappa0 e_w.
     """
-    e_w = bending_plane(q[:, 0])[1]
-    return -force, -q[:, 3:4] * e_w
+    e_w_C = bending_plane(q[:, 0])[1]
+    return -np.matmul(force_W[:, None, :], R_WC)[:, 0, :], -q[:, 3:4] * e_w_C
 
 
 def _finish(track: _Track, step: float) -> Sweep:
@@ -862,7 +896,7 @@ def _finish(track: _Track, step: float) -> Sweep:
     normal = np.array([r[5] for r in rows]).reshape(n, 3)
     force = np.array([r[6] for r in rows]).reshape(n, 3)
     _, fu, fv, kappa0 = q.T
-    f0, m0 = _clamp_reactions(q, force)
+    f0, m0 = _clamp_reactions(q, force, track.trail.clamp_pose(x0)[1])
     psi = -np.arctan2(m0[:, 0], m0[:, 1])
     fn = np.einsum("ni,ni->n", force, normal)
     ft = np.linalg.norm(force - fn[:, None] * normal, axis=1)

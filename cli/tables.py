@@ -116,7 +116,7 @@ def _write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]]
 
 def write_sweep_csv(path: Path, sweep: Sweep) -> None:
     """One row per equilibrium of ``sweep`` with :data:`SWEEP_COLUMNS`."""
-    y0 = float(sweep.trail.y0)
+    y0 = sweep.y0
     rows = (
         [
             _cell(sweep.x0[i]), _cell(y0), ContactPhase(sweep.phase[i]).label,
@@ -134,7 +134,7 @@ def write_sweep_csv(path: Path, sweep: Sweep) -> None:
 def sweep_summary(sweep: Sweep, surface_spec: str) -> dict[str, Any]:
     """The JSON sidecar of a sweep CSV: how it ended, phase changes, inputs and units."""
     summary = sweep.summary()
-    summary["y0"], summary["mu"] = float(sweep.trail.y0), float(sweep.trail.mu)
+    summary["y0"], summary["mu"] = sweep.y0, float(sweep.trail.mu)
     return {"surface": surface_spec, **summary, "units": UNITS}
 
 

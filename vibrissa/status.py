@@ -50,6 +50,7 @@ class SweepEnd(str, enum.Enum):
     NO_CONTACT = "no-contact"  # the trail misses the object
     NO_EQUILIBRIUM = "no-equilibrium"  # the solver found none for the first step after the touch
     MAX_STEPS = "max-steps"  # the safety cap on the steps of one sweep
+    PATH_END = "path-end"  # the clamp's path ended while in contact
 
     def __str__(self) -> str:
         return self.value

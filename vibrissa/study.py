@@ -51,7 +51,7 @@ class StudyCase:
 
     @property
     def y0(self) -> float:
-        return float(self.sweep.trail.y0)
+        return self.sweep.y0
 
     @property
     def mu(self) -> float:

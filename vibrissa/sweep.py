@@ -61,6 +61,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,12 +85,62 @@ _EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step t
 _REFINEMENTS = 6  # a failed step is retried with up to 2**6 sub-steps before it counts as snap-off
 
 
+class ClampPath(Protocol):
+    """A clamp's path as Step 1 follows it, with the friction ``mu`` of its contacts.
+
+    The path is parametrised by a coordinate x0 that decreases along it, in units of L (the
+    clamp's x on the paper's trail); the steps of a sweep are x0 = x_grid - k step. ``x_end``
+    is where the path ends (-inf: never).
+    """
+
+    @property
+    def mu(self) -> float:
+        """Coulomb friction coefficient of the contacts."""
+        ...
+
+    @property
+    def x_end(self) -> float:
+        """Where the path ends, units of L (-inf: never)."""
+        ...
+
+    @property
+    def x_grid(self) -> float | None:
+        """The path's own grid of steps x_grid - k step (its samples), or None: each sweep's
+        grid starts at its first contact."""
+        ...
+
+    def clamp_pose(self, x0: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Clamp poses X_WC at ``x0`` (n,): origins p_WC (n, 3), rotations R_WC (n, 3, 3)."""
+        ...
+
+    def first_contact(self, surface: Surface) -> tuple[float, FloatArray] | None:
+        """The first x0 at which the straight rod touches the object, and the touch point in
+        W; None when it never does."""
+        ...
+
+    def symmetric(self, surface: Surface) -> bool:
+        """Whether the object is its own mirror image across the path's bending-plane of
+        symmetry (then psi stays 0 exactly)."""
+        ...
+
+
 @dataclass(frozen=True)
 class Trail:
-    """A straight clamp trail parallel to x at lateral offset ``y0`` with friction ``mu``."""
+    """A straight clamp trail parallel to x at lateral offset ``y0`` with friction ``mu``: the
+    paper's path (Sec. II-E), x0 the clamp's x."""
 
     y0: float
     mu: float
+    x_end: float = -math.inf
+    x_grid: float | None = None
+
+    def first_contact(self, surface: Surface) -> tuple[float, FloatArray] | None:
+        """See :func:`first_contact`."""
+        return first_contact(surface, self.y0)
+
+    def symmetric(self, surface: Surface) -> bool:
+        """Whether the object is symmetric across the vertical plane y = y0 of the trail."""
+        return surface.is_mirror_symmetric([0.0, self.y0, 0.0], [0.0, 1.0, 0.0])
 
     def clamp_pose(self, x0: FloatArray) -> tuple[FloatArray, FloatArray]:
         """The clamp poses X_WC at positions ``x0`` (n,) of the trail: origins p_WC (n, 3) =
@@ -121,7 +172,7 @@ class Sweep:
     steps reached through sub-steps (the chord of eq. 7 is then a sub-step's).
     """
 
-    trail: Trail
+    trail: ClampPath
     step: float
     x0: FloatArray
     phase: NDArray[np.int64]
@@ -147,6 +198,11 @@ class Sweep:
         return len(self.x0)
 
     @property
+    def y0(self) -> float:
+        """The lateral offset of a trail (NaN on another path), units of L."""
+        return self.trail.y0 if isinstance(self.trail, Trail) else math.nan
+
+    @property
     def p0(self) -> FloatArray:
         """Clamp positions p_WC (N, 3)."""
         return self.trail.clamp_pose(self.x0)[0]
@@ -163,7 +219,7 @@ class Sweep:
     def summary(self) -> dict[str, object]:
         """How the sweep went, JSON-ready."""
         return {
-            "y0": self.trail.y0,
+            "y0": self.trail.y0 if isinstance(self.trail, Trail) else None,
             "mu": self.trail.mu,
             "step": self.step,
             "n_steps": self.n_steps,
@@ -465,7 +521,7 @@ def _slice_x_max(surface: Surface, y0: float, z: FloatArray) -> FloatArray:
 class _Track:
     """Mutable progress of one sweep."""
 
-    trail: Trail
+    trail: ClampPath
     locked: bool
     x0: float
     q: FloatArray
@@ -533,7 +589,7 @@ class SweepRun:
         its own first contact.
     """
 
-    def __init__(self, surface: Surface, trails: Sequence[Trail], step: float = 0.001,
+    def __init__(self, surface: Surface, trails: Sequence[ClampPath], step: float = 0.001,
                  max_steps: int = 100_000, x_grid: float | None = None) -> None:
         if not step > 0:
             raise ValueError(f"step must be > 0, got {step}")
@@ -584,7 +640,7 @@ class SweepRun:
 
 def simulate_sweeps(
     surface: Surface,
-    trails: Sequence[Trail],
+    trails: Sequence[ClampPath],
     step: float = 0.001,
     max_steps: int = 100_000,
     progress: ProgressCallback | None = None,
@@ -614,22 +670,26 @@ def simulate_sweep(surface: Surface, y0: float, mu: float, step: float = 0.001) 
     return simulate_sweeps(surface, [Trail(y0, mu)], step)[0]
 
 
-def _start(surface: Surface, trail: Trail, step: float, x_grid: float | None) -> _Track:
-    locked = surface.is_mirror_symmetric([0.0, trail.y0, 0.0], [0.0, 1.0, 0.0])
-    touch = first_contact(surface, trail.y0)
+def _start(surface: Surface, trail: ClampPath, step: float, x_grid: float | None) -> _Track:
+    locked = trail.symmetric(surface)
+    touch = trail.first_contact(surface)
     if touch is None:
         track = _Track(trail, locked, np.nan, np.zeros(4), _MODE_TIP, np.zeros(3), np.zeros(3))
         track.end = SweepEnd.NO_CONTACT
         return track
     x_start, p_touch = touch
-    normal = surface.normal(p_touch)[0]
+    p_WC, R_WC = (a[0] for a in trail.clamp_pose(np.array([x_start])))
+    n_W = surface.normal(p_touch)[0]
+    normal = R_WC.T @ n_W  # in C
     psi = 0.0 if locked or np.hypot(normal[0], normal[1]) == 0 else float(np.arctan2(normal[1], normal[0]))
     n_u = normal[0] * np.cos(psi) + normal[1] * np.sin(psi)
-    s_touch = float(p_touch[2])
-    x_grid = x_start if x_grid is None else x_grid
-    # Small-deflection guess for the first step: the touching point must move out by the
-    # penetration (clamp travel) * |n_x| along n; a load P at s deflects it by P s^3 / 3.
-    depth = (x_start - _next_grid_point(x_start, x_grid, step)) * abs(normal[0])
+    s_touch = float((p_touch - p_WC) @ R_WC[:, 2])
+    x_grid = x_grid if x_grid is not None else trail.x_grid if trail.x_grid is not None else x_start
+    # Small-deflection guess for the first step: the touching point of the straight rod would
+    # go into the object by ``depth`` along n; a load P at s deflects it by P s^3 / 3.
+    p_next, R_next = (a[0] for a in trail.clamp_pose(
+        np.array([max(_next_grid_point(x_start, x_grid, step), trail.x_end)])))
+    depth = abs((p_next + s_touch * R_next[:, 2] - p_touch) @ n_W)
     magnitude = 3.0 * depth / (max(n_u * n_u, 0.05) * max(s_touch, 0.05) ** 3)
     fu, fv = magnitude * n_u, magnitude * normal[2]
     q = np.array([psi, fu, fv, -s_touch * fu])
@@ -646,6 +706,12 @@ def _next_grid_point(x0: float, x_grid: float, step: float) -> float:
 
 def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int) -> None:
     """Move every track one step; failures are retried with refined sub-steps."""
+    for track in tracks:
+        if _next_grid_point(track.x0, track.x_grid, step) < track.trail.x_end - 1e-9 * step:
+            track.end, track.x0_end = SweepEnd.PATH_END, track.x0
+    tracks = [t for t in tracks if t.end is None]
+    if not tracks:
+        return
     targets = np.array([_next_grid_point(t.x0, t.x_grid, step) for t in tracks])
     reached = _attempt(surface, tracks, targets, step)
     for track, target, ok in zip(tracks, targets, reached, strict=False):
@@ -670,6 +736,8 @@ def _longer_step(surface: Surface, track: _Track, step: float) -> bool:
     next_point = _next_grid_point(track.x0, track.x_grid, step)
     for multiple in (2, 4, 8, 16):
         target = next_point - (multiple - 1) * step
+        if target < track.trail.x_end - 1e-9 * step:
+            break
         if _attempt(surface, [track], np.array([target]), multiple * step)[0]:
             _record(track, refined=True)
             # The loads grow about linearly here: the state one step back on the line from
@@ -708,7 +776,7 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
     track.x0_end = track.rows[-1][0] if track.rows else track.x0
 
 
-def _straight_rod_clears(surface: Surface, trail: Trail, x0: float) -> bool:
+def _straight_rod_clears(surface: Surface, trail: ClampPath, x0: float) -> bool:
     """Whether the undeformed rod, clamped at x0 on the trail, lies outside the object."""
     p_WC, R_WC = trail.clamp_pose(np.array([x0]))
     t_in, t_out = surface.line_interval(p_WC, R_WC[:, :, 2])

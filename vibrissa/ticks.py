@@ -48,7 +48,7 @@ def sequential_ticks(run: SweepRun, rod: RodScale) -> Iterator[Tick]:
         sent = 0
         while True:
             x0, f0, m0 = run.reactions(index, sent)
-            p0 = np.column_stack([x0, np.full_like(x0, trail.y0), np.zeros_like(x0)])
+            p0 = trail.clamp_pose(x0)[0]
             p0_m, (f0_n, m0_nm) = p0 * rod.length_m, rod.wrench_to_si(f0, m0)
             for i in range(len(x0)):
                 yield Tick([index], p0_m[i:i + 1], f0_n[i:i + 1], m0_nm[i:i + 1])
@@ -100,7 +100,7 @@ def array_ticks(run: SweepRun, rod: RodScale) -> Iterator[Tick]:
                 continue
             x, f, m = row if row is not None else (x0, zero, zero)
             whiskers.append(i)
-            p0.append([x, trail.y0, 0.0])
+            p0.append(trail.clamp_pose(np.array([x]))[0][0])
             f0_rows.append(f)
             m0_rows.append(m)
         count = len(whiskers)

@@ -13,7 +13,7 @@ from vibrissa.runtime.node import DEBUG_ENV
 
 # Each module registers its subcommands with `register(subparsers)`; every subparser
 # sets `func(args) -> int`.
-_COMMAND_MODULES = ("mechanics", "launch", "bag", "topic", "keys")
+_COMMAND_MODULES = ("mechanics", "scenes", "launch", "bag", "topic", "keys")
 
 
 def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:

@@ -101,12 +101,12 @@ class WrenchTable:
     has_z0: bool = False
 
 
-def _cell(value: float) -> str:
+def cell(value: float) -> str:
     value = float(value)
     return "" if math.isnan(value) else repr(value)
 
 
-def _write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]]) -> None:
+def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle, lineterminator="\n")
@@ -119,16 +119,16 @@ def write_sweep_csv(path: Path, sweep: Sweep) -> None:
     y0 = sweep.y0
     rows = (
         [
-            _cell(sweep.x0[i]), _cell(y0), ContactPhase(sweep.phase[i]).label,
-            _cell(sweep.s1[i]), _cell(sweep.psi[i]),
-            *map(_cell, sweep.f0[i]), *map(_cell, sweep.m0[i]), *map(_cell, sweep.contact[i]),
-            _cell(sweep.fn[i]), _cell(sweep.ft[i]),
-            STATE_NAMES[int(sweep.state[i])], *map(_cell, sweep.normal[i]),
+            cell(sweep.x0[i]), cell(y0), ContactPhase(sweep.phase[i]).label,
+            cell(sweep.s1[i]), cell(sweep.psi[i]),
+            *map(cell, sweep.f0[i]), *map(cell, sweep.m0[i]), *map(cell, sweep.contact[i]),
+            cell(sweep.fn[i]), cell(sweep.ft[i]),
+            STATE_NAMES[int(sweep.state[i])], *map(cell, sweep.normal[i]),
             "1" if sweep.refined[i] else "0",
         ]
         for i in range(sweep.n_steps)
     )
-    _write_csv(path, SWEEP_COLUMNS, rows)
+    write_csv(path, SWEEP_COLUMNS, rows)
 
 
 def sweep_summary(sweep: Sweep, surface_spec: str) -> dict[str, Any]:
@@ -220,14 +220,14 @@ def write_reconstruction_csv(
     columns = [*position, *RECONSTRUCTION_COLUMNS[2:], *(["err"] if error is not None else [])]
     rows = (
         [
-            *map(_cell, table.p0[i, :len(position)]),
-            *map(_cell, rec.point[i]), _cell(rec.s1[i]), ContactPhase(rec.phase[i]).label,
+            *map(cell, table.p0[i, :len(position)]),
+            *map(cell, rec.point[i]), cell(rec.s1[i]), ContactPhase(rec.phase[i]).label,
             status_name(int(rec.status[i])),
-            *([_cell(error[i])] if error is not None else []),
+            *([cell(error[i])] if error is not None else []),
         ]
         for i in range(len(rec.status))
     )
-    _write_csv(path, columns, rows)
+    write_csv(path, columns, rows)
 
 
 def read_csv_columns(path: Path) -> dict[str, list[str]]:

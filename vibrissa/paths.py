@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
+from vibrissa.frames import Transform
 from vibrissa.surfaces import Surface
 
 FloatArray = NDArray[np.float64]
@@ -27,50 +28,68 @@ _TOUCH_ITERATIONS = 200  # bisection of the touch between two samples: to the la
 
 @dataclass(frozen=True)
 class SampledPath:
-    """A clamp path through samples ``k = 0 .. N-1`` (x0 = -k h), with friction ``mu``.
+    """A clamp path through robot samples ``k = 0 .. N-1`` (x0 = -k h), with friction ``mu``.
+
+    The robot's pose X_WR is interpolated between samples (position linear, orientation slerp)
+    and the clamp follows at X_WC = X_WR X_RC (``mount``; identity: the samples are the
+    clamp's own poses).
 
     Attributes
     ----------
-    p_WC : ndarray, shape (N, 3)
-        Clamp origins, units of L.
+    p_WR : ndarray, shape (N, 3)
+        Robot origins, units of L.
     rotations : scipy.spatial.transform.Rotation, N rotations
-        R_WC of the samples (the rod leaves along C's e_z).
+        R_WR of the samples.
     mu : float
         Coulomb friction of the contacts.
+    mount : Transform
+        X_RC, the clamp on the robot, units of L (the rod leaves along C's e_z).
+    h : float, optional
+        Path coordinate per sample, units of L; by default the largest distance a point of
+        the straight rod moves between two samples (given: a part of a longer path keeps the
+        whole path's).
     """
 
-    p_WC: FloatArray
+    p_WR: FloatArray
     rotations: Rotation
     mu: float
-    h: float = field(init=False)
+    mount: Transform = field(default_factory=Transform)
+    h: float = 0.0
     x_end: float = field(init=False)
     x_grid: float = 0.0  # the steps of Step 1 are the samples
     _slerp: Slerp = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        p = np.array(self.p_WC, dtype=float)
+        p = np.array(self.p_WR, dtype=float)
         if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2:
-            raise ValueError(f"p_WC must be (N >= 2, 3), got shape {p.shape}")
+            raise ValueError(f"p_WR must be (N >= 2, 3), got shape {p.shape}")
         if len(self.rotations) != len(p):
             raise ValueError(f"{len(self.rotations)} rotations for {len(p)} positions")
         if not np.all(np.isfinite(p)):
-            raise ValueError("p_WC must be finite")
+            raise ValueError("p_WR must be finite")
         if not self.mu >= 0:
             raise ValueError(f"mu must be >= 0, got {self.mu}")
-        # The rod's points move at most |dp| + |dtheta| (its length is 1) between samples.
-        turn = (self.rotations[:-1].inv() * self.rotations[1:]).magnitude()
-        travel = np.linalg.norm(np.diff(p, axis=0), axis=1) + turn
-        h = float(np.max(travel))
+        h = self.h
+        if not h:
+            # A point of the rod, at most |p_RC| + 1 from R's origin, moves at most
+            # |dp_WR| + |dtheta| (|p_RC| + 1) between samples.
+            turn = (self.rotations[:-1].inv() * self.rotations[1:]).magnitude()
+            reach = float(np.linalg.norm(self.mount.translation)) + 1.0
+            h = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1) + turn * reach))
         if not h > 0:
             raise ValueError("the clamp does not move along the path")
-        object.__setattr__(self, "p_WC", p)
+        object.__setattr__(self, "p_WR", p)
         object.__setattr__(self, "h", h)
         object.__setattr__(self, "x_end", -(len(p) - 1) * h)
         object.__setattr__(self, "_slerp", Slerp(np.arange(len(p), dtype=float), self.rotations))
 
     @property
     def n_samples(self) -> int:
-        return len(self.p_WC)
+        return len(self.p_WR)
+
+    def tail(self, k: int) -> SampledPath:
+        """The path from sample ``k`` on (its x0 = this path's x0 + k h)."""
+        return SampledPath(self.p_WR[k:], self.rotations[k:], self.mu, self.mount, self.h)
 
     def x0_of(self, k: FloatArray) -> FloatArray:
         """The path coordinate x0 of (fractional) sample indices ``k``."""
@@ -86,8 +105,11 @@ class SampledPath:
         lam = np.clip(lam, 0.0, last)
         k = np.minimum(np.floor(lam).astype(np.int64), last - 1)
         frac = lam - k
-        p = self.p_WC[k] + frac[:, None] * (self.p_WC[k + 1] - self.p_WC[k])
-        return p, self._slerp(lam).as_matrix()
+        p_WR = self.p_WR[k] + frac[:, None] * (self.p_WR[k + 1] - self.p_WR[k])
+        R_WR = self._slerp(lam).as_matrix()
+        if self.mount.is_identity:
+            return p_WR, R_WR
+        return p_WR + R_WR @ self.mount.translation, R_WR @ self.mount.R
 
     def penetrates(self, surface: Surface, x0: FloatArray) -> NDArray[np.bool_]:
         """Whether the straight rod at ``x0`` (n,) has points inside the object."""

@@ -23,7 +23,7 @@ def straight(x_from: float, y0: float, step: float, n: int, mu: float) -> Sample
 
 
 def moved(path: SampledPath, X: Transform) -> SampledPath:
-    return SampledPath(X.apply(path.p_WC), X.rotation * path.rotations, path.mu)
+    return SampledPath(X.apply(path.p_WR), X.rotation * path.rotations, path.mu)
 
 
 def check_physics(sweep: Sweep, surface_spec: str, path: SampledPath) -> None:

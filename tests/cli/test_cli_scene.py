@@ -1,0 +1,107 @@
+"""``vibrissa simulate SCENE.yaml -o DIR``: the file formats of the issue's contract, and one
+clear line for every bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vibrissa.cli.main import main
+
+SCENE = """\
+mu: 0.25
+objects:
+  - name: ball
+    shape: sphere
+    radius_m: 0.015
+    position_m: [0.03, 0.0, 0.04]
+  - name: egg
+    shape: ellipsoid
+    semi_axes_m: [0.012, 0.008, 0.01]
+    position_m: [-0.03, 0.01, 0.045]
+    quaternion_xyzw: [0, 0, 0.3826834, 0.9238795]
+whiskers:
+  - name: w0
+    length_m: 0.05
+    ei_nm2: 2.0e-5
+  - name: w1
+    length_m: 0.04
+    ei_nm2: 1.0e-5
+    mount: {position_m: [0.0, -0.01, 0.0], quaternion_xyzw: [0.0998334, 0, 0, 0.9950042]}
+path: path.csv
+"""
+CONTRACT = ["t", "phase", "s1", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z", "px", "py", "pz"]
+
+
+def write_path(folder: Path, n: int = 300) -> None:
+    yaw = 0.3 * np.arange(n) / n
+    x = np.linspace(0.10, -0.06, n)
+    lines = ["t,x,y,z,qx,qy,qz,qw"] + [
+        f"{0.01 * i},{x[i]},0.0,0.0,0.0,0.0,{np.sin(yaw[i] / 2)},{np.cos(yaw[i] / 2)}"
+        for i in range(n)]
+    (folder / "path.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    out = tmp_path / "out"
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(out), "--workers", "1"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for name in ("w0", "w1"):
+        with (out / f"{name}.csv").open() as handle:
+            rows = list(csv.reader(handle))
+        assert rows[0][: len(CONTRACT)] == CONTRACT and len(rows) == 301
+        phases = [row[1] for row in rows[1:]]
+        assert set(phases) <= {"none", "tip", "tangential", "unresolved"}
+        counts = summary["whiskers"][name]["samples_per_phase"]
+        assert counts == {p: phases.count(p) for p in ("none", "tip", "tangential", "unresolved")}
+        for row in rows[1:]:
+            if row[1] == "none":
+                assert row[9:12] == ["", "", ""] and all(float(v) == 0.0 for v in row[3:9])
+            elif row[1] in ("tip", "tangential"):
+                assert all(v != "" for v in row[2:12])
+    episodes = summary["whiskers"]["w0"]["episodes"]
+    assert [e["object"] for e in episodes] == ["ball", "egg"]
+    assert episodes[0]["end"] in ("detachment", "snap-off", "path-end")
+    assert 0.0 < episodes[0]["t_first_contact"] < episodes[1]["t_first_contact"] < 3.0
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (("radius_m: 0.015", "radius: 0.015"), "scene.yaml: objects[0]: unknown key 'radius'"),
+    (("    ei_nm2: 2.0e-5\n", ""), "scene.yaml: whiskers[0]: missing 'ei_nm2'"),
+    (("shape: sphere", "shape: cube"), "scene.yaml: objects[0].shape: expected one of sphere"),
+    (("[0, 0, 0.3826834, 0.9238795]", "[0, 0, 0.5, 0.9]"),
+     "objects[1].quaternion_xyzw: [0.0, 0.0, 0.5, 0.9] is not a unit quaternion"),
+    (("mu: 0.25", "mu: high"), "scene.yaml: mu: expected a finite number"),
+    (("path: path.csv", "path: nowhere.csv"), "nowhere.csv"),
+    (("length_m: 0.05", "length_m: -0.05"), "whiskers[0]: length_m and ei_nm2 must be > 0"),
+])
+def test_a_bad_scene_is_one_line_naming_file_and_key(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      change: tuple[str, str], message: str) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE.replace(*change))
+    write_path(tmp_path)
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize(("row", "line", "message"), [
+    (5, "0.04,0.1,0,0,0,0,0.5,0.9", "path.csv: row 5: quaternion"),
+    (3, "0.0,0.1,0,0,0,0,0,1", "path times must increase strictly (row 3)"),
+    (2, "0.01,0.1,0,0,0,0,0", "path.csv: row 2: expected 8 values, got 7"),
+    (4, "0.03,abc,0,0,0,0,0,1", "path.csv: row 4: not a number"),
+])
+def test_a_bad_path_row_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str], row: int,
+                                 line: str, message: str) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    lines = (tmp_path / "path.csv").read_text().splitlines()
+    lines[row] = line
+    (tmp_path / "path.csv").write_text("\n".join(lines) + "\n")
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 1
+    assert message in capsys.readouterr().err

@@ -1,0 +1,107 @@
+"""Scenes: whiskers of their own L and EI on a moving robot, past posed objects; contact
+episodes along the path, checked by physics and by Step 2 (round trip in the world frame)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vibrissa.frames import Transform
+from vibrissa.reconstruct import reconstruct_si
+from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
+
+L0 = 0.05
+CUP = SceneObject("cup", "paraboloid", {"a_per_m": 0.5 / L0, "b_per_m": 1 / L0, "h_m": 0.4 * L0})
+BALL = SceneObject("ball", "sphere", {"radius_m": 0.3 * L0},
+                   Transform(translation=[-2.5 * L0, 0.0, 0.8 * L0]))
+STRAIGHT = robot_path(np.arange(900) * 0.01,
+                      np.column_stack([np.linspace(1.2 * L0, -3.3 * L0, 900), np.zeros((900, 2))]),
+                      np.tile([0.0, 0.0, 0.0, 1.0], (900, 1)))
+TILTED = Whisker("tilted", 0.8 * L0, 1e-5, Transform.from_xyz_rpy([0, 0.1 * L0, 0], [0.1, 0, 0]))
+PLAIN = Whisker("plain", L0, 2e-5)
+ASIDE = Whisker("aside", L0, 2e-5, Transform(translation=[0.0, 5 * L0, 0.0]))
+
+
+@pytest.fixture(scope="module")
+def results() -> dict[str, object]:
+    scene = Scene(0.2, (CUP, BALL), (PLAIN, TILTED, ASIDE), STRAIGHT)
+    return {r.name: r for r in simulate(scene, workers=2)} | {"scene": scene}
+
+
+def clamp_poses(scene: Scene, whisker: Whisker) -> tuple[np.ndarray, Rotation]:
+    R_WR = scene.path.R_WR
+    return (scene.path.p_WR + R_WR.apply(np.array(whisker.X_RC.translation)),
+            R_WR * whisker.X_RC.rotation)
+
+
+def test_snap_off_then_unresolved_then_a_second_episode(results) -> None:
+    r, scene = results["tilted"], results["scene"]
+    assert [e.object for e in r.episodes] == ["cup", "ball"]
+    assert r.episodes[0].end == "snap-off"
+    phases = r.phase
+    in_cup = np.flatnonzero(r.object == 0)
+    last = int(in_cup[phases[in_cup] != SamplePhase.UNRESOLVED][-1])
+    unresolved = np.flatnonzero(phases == SamplePhase.UNRESOLVED)
+    unresolved = unresolved[: np.argmax(np.diff(unresolved, append=np.inf) > 1) + 1]  # the first run
+    assert len(unresolved) > 10 and unresolved[0] == last + 1
+    assert np.all(np.isnan(r.f0_n[unresolved])) and np.all(np.isnan(r.p_W_m[unresolved]))
+    # independently: the straight rod of those samples is inside the cup, and the next is not
+    p_WC, R_WC = clamp_poses(scene, TILTED)
+    cup = CUP.surface(1.0)
+    for k in (unresolved[0], unresolved[-1], unresolved[-1] + 1):
+        rod = p_WC[k] + np.outer(np.linspace(0, TILTED.length_m, 400), R_WC[k].apply([0, 0, 1]))
+        assert (np.min(cup.value(rod)) < 0) == (k != unresolved[-1] + 1), k
+    second = np.flatnonzero(r.object == 1)
+    assert second[0] > unresolved[-1] + 1 and r.episodes[1].t_first_contact > r.t[unresolved[-1]]
+
+
+def test_a_side_graze_starts_tangential(results) -> None:
+    r = results["plain"]
+    ball = np.flatnonzero((r.object == 1) & (r.phase != SamplePhase.UNRESOLVED))
+    first = ball[0]
+    assert r.phase[first] == SamplePhase.TANGENTIAL and r.s1_m[first] < 0.99 * PLAIN.length_m
+
+
+def test_a_whisker_that_never_touches_is_free_throughout(results) -> None:
+    r = results["aside"]
+    assert r.episodes == [] and np.all(r.phase == SamplePhase.NONE)
+    assert np.all(r.f0_n == 0) and np.all(np.isnan(r.p_W_m))
+
+
+@pytest.mark.parametrize("name", ["plain", "tilted"])
+def test_every_contact_sample_obeys_statics_and_round_trips_through_step_2(results, name) -> None:
+    r, scene = results[name], results["scene"]
+    whisker = next(w for w in scene.whiskers if w.name == name)
+    rows = np.flatnonzero((r.phase == SamplePhase.TIP) | (r.phase == SamplePhase.TANGENTIAL))
+    assert len(rows) > 100
+    p_WC, R_WC = clamp_poses(scene, whisker)
+    # statics in C: m0 + r x F = 0 with F = -f0
+    r_C = R_WC[rows].inv().apply(r.p_W_m[rows] - p_WC[rows])
+    moment = r.m0_nm[rows] - np.cross(r_C, r.f0_n[rows])
+    assert np.max(np.abs(moment)) < 1e-9 * whisker.ei_nm2 / whisker.length_m
+    assert np.max(np.abs(r.m0_nm[rows, 2])) < 1e-12 * whisker.ei_nm2 / whisker.length_m
+    # the contact on the object touched, in units of L
+    for index, obj in enumerate(scene.objects):
+        mine = rows[r.object[rows] == index]
+        if len(mine):
+            gap = obj.surface(whisker.length_m).signed_distance(r.p_W_m[mine] / whisker.length_m)
+            assert np.max(np.abs(gap)) < 1e-9
+    # Step 2 from the clamp pose and (f0, m0) alone recovers the world contact point
+    rec = reconstruct_si(R_WC[rows].as_quat(), p_WC[rows], r.f0_n[rows], r.m0_nm[rows],
+                         whisker.scale)
+    assert np.max(np.linalg.norm(rec.point_m - r.p_W_m[rows], axis=1)) < 1e-9 * whisker.length_m
+    np.testing.assert_allclose(rec.s1_m, r.s1_m[rows], rtol=0, atol=1e-9 * whisker.length_m)
+
+
+def test_bad_scenes_are_refused_by_name() -> None:
+    with pytest.raises(ValueError, match="row 2: quaternion"):
+        robot_path([0.0, 1.0], np.zeros((2, 3)), [[0, 0, 0, 1.0], [0, 0, 0.5, 1.0]])
+    with pytest.raises(ValueError, match="increase strictly"):
+        robot_path([0.0, 0.0], np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+    with pytest.raises(ValueError, match="object 'x': a sphere needs radius_m"):
+        SceneObject("x", "sphere", {})
+    with pytest.raises(ValueError, match="shape must be one of"):
+        SceneObject("x", "cube", {})
+    with pytest.raises(ValueError, match="whisker names must be unique"):
+        Scene(0.1, (), (PLAIN, PLAIN), STRAIGHT)

@@ -1,0 +1,290 @@
+"""Scenes: objects placed in the world, whiskers on a robot, the robot's path; Step 1 for every
+whisker along the path (``vibrissa.simulate``, ``vibrissa simulate SCENE.yaml``).
+
+SI at this boundary (m, N, N m, s); inside, each whisker is dimensionless in its own L and EI
+(``RodScale``): the objects and the path are scaled by 1/L for it.
+
+Along the path a whisker has contact episodes. Each starts where its straight rod first
+touches an object between two samples (at its tip, or a side graze of the shaft) and is one
+sweep of Step 1 (``vibrissa.sweep``) on that object, one equilibrium per path sample, until it
+ends: ``detachment`` (the rod came free smoothly), ``snap-off`` (no equilibrium near the last
+one) or ``path-end``. After a snap-off the straight rod may still be inside the object: those
+samples are ``unresolved`` (no wrench, no point) until it is free again; then the next touch is
+searched for. Samples that Step 1 stepped over (the first steps after a touch may be taken as
+2-16 samples at once, see ``vibrissa.sweep``) are ``unresolved`` as well.
+
+Several objects: a whisker touches one at a time. An episode follows the object touched
+first; another object that the rod would meet meanwhile is ignored until the episode ends (the
+rod is taken to pass it), and is then found by the next search if the straight rod touches it
+from outside (one the straight rod is inside of keeps the samples ``unresolved``).
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+from collections.abc import Callable, Mapping
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from vibrissa.frames import Transform
+from vibrissa.paths import SampledPath
+from vibrissa.status import ContactPhase, SweepEnd
+from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
+from vibrissa.sweep import simulate_sweeps
+from vibrissa.units import RodScale
+
+FloatArray = NDArray[np.float64]
+
+SHAPES = ("sphere", "ellipsoid", "paraboloid")
+
+
+class SamplePhase(enum.IntEnum):
+    """A whisker at one path sample: free, in tip or tangential contact, or unresolved."""
+
+    NONE = ContactPhase.NONE.value
+    TIP = ContactPhase.TIP.value
+    TANGENTIAL = ContactPhase.TANGENTIAL.value
+    UNRESOLVED = 3
+
+    @property
+    def label(self) -> str:
+        """``none``, ``tip``, ``tangential`` or ``unresolved``."""
+        return self.name.lower()
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """A convex solid placed in W: ``shape`` with its sizes in m, and its pose X_WO (m).
+
+    ``sizes``: sphere ``radius_m``; ellipsoid ``semi_axes_m`` (a, b, c along O's x, y, z);
+    paraboloid ``a_per_m``, ``b_per_m``, ``h_m`` (the solid z >= a x^2 + b y^2 + h in O).
+    """
+
+    name: str
+    shape: str
+    sizes: Mapping[str, Any]
+    X_WO: Transform = field(default_factory=Transform)
+
+    def __post_init__(self) -> None:
+        if self.shape not in SHAPES:
+            raise ValueError(f"object {self.name!r}: shape must be one of {', '.join(SHAPES)}, "
+                             f"got {self.shape!r}")
+        self.surface(1.0)  # checks the sizes
+
+    def surface(self, length_m: float) -> Surface:
+        """The object in units of a rod of length ``length_m``."""
+        pose = Transform(self.X_WO.rotation, self.X_WO.translation / length_m)
+        try:
+            if self.shape == "sphere":
+                return Sphere(self._size("radius_m") / length_m, pose)
+            if self.shape == "ellipsoid":
+                a, b, c = (self._size("semi_axes_m", i) / length_m for i in range(3))
+                return Ellipsoid(a, b, c, pose)
+            return Paraboloid(self._size("a_per_m") * length_m, self._size("b_per_m") * length_m,
+                              self._size("h_m") / length_m, pose)
+        except ValueError as exc:
+            raise ValueError(f"object {self.name!r}: {exc}") from None
+
+    def _size(self, key: str, index: int | None = None) -> float:
+        if key not in self.sizes:
+            raise ValueError(f"a {self.shape} needs {key}")
+        value = self.sizes[key]
+        if index is not None:
+            if not isinstance(value, (list, tuple)) or len(value) != 3:
+                raise ValueError(f"{key} must be 3 numbers, got {value!r}")
+            value = value[index]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise ValueError(f"{key} must be a finite number, got {value!r}")
+        return float(value)
+
+
+@dataclass(frozen=True)
+class Whisker:
+    """A rod of length ``length_m`` and bending stiffness ``ei_nm2``, clamped at X_RC on the
+    robot; it leaves the clamp along C's +z."""
+
+    name: str
+    length_m: float
+    ei_nm2: float
+    X_RC: Transform = field(default_factory=Transform)
+
+    @property
+    def scale(self) -> RodScale:
+        return RodScale(self.length_m, self.ei_nm2)
+
+
+@dataclass(frozen=True)
+class RobotPath:
+    """Stamped robot poses X_WR: times ``t`` (N,) s, strictly increasing; positions
+    ``p_WR`` (N, 3) m; orientations ``R_WR`` (N rotations)."""
+
+    t: FloatArray
+    p_WR: FloatArray
+    R_WR: Rotation
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float)
+        if t.ndim != 1 or len(t) < 2:
+            raise ValueError(f"a path needs at least 2 samples, got {t.shape}")
+        steps = np.diff(t)
+        if not np.all(steps > 0):
+            first = int(np.flatnonzero(~(steps > 0))[0]) + 2  # 1-based row of the later sample
+            raise ValueError(f"path times must increase strictly (row {first})")
+        p = np.asarray(self.p_WR, dtype=float)
+        if p.shape != (len(t), 3) or len(self.R_WR) != len(t):
+            raise ValueError(f"path: {len(t)} times, positions {p.shape}, {len(self.R_WR)} rotations")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "p_WR", p)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Objects in W, whiskers on the robot, the robot's path, one friction ``mu``."""
+
+    mu: float
+    objects: tuple[SceneObject, ...]
+    whiskers: tuple[Whisker, ...]
+    path: RobotPath
+
+    def __post_init__(self) -> None:
+        if not self.mu >= 0:
+            raise ValueError(f"mu must be >= 0, got {self.mu}")
+        for kind, items in (("object", self.objects), ("whisker", self.whiskers)):
+            names = [item.name for item in items]
+            if len(set(names)) != len(names):
+                raise ValueError(f"{kind} names must be unique, got {names}")
+        if not self.whiskers:
+            raise ValueError("a scene needs at least one whisker")
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One contact of a whisker: the object, when it began and how it ended, and the time of
+    every phase change (t, from, to)."""
+
+    object: str
+    t_first_contact: float
+    end: str
+    phase_changes: list[tuple[float, str, str]]
+
+
+@dataclass
+class WhiskerResult:
+    """Step 1 of one whisker along the path, one row per path sample.
+
+    ``phase`` (N,) `SamplePhase`; ``s1_m`` (N,) the contact's arc length, m; ``f0_n``,
+    ``m0_nm`` (N, 3) the clamp's reaction on the rod about the clamp point in the clamp frame
+    C, N and N m (zero when free, NaN when unresolved); ``p_W_m`` (N, 3) the contact point in
+    W, m (NaN without one); ``object`` (N,) index into the scene's objects (-1: none).
+    """
+
+    name: str
+    t: FloatArray
+    phase: NDArray[np.int64]
+    s1_m: FloatArray
+    f0_n: FloatArray
+    m0_nm: FloatArray
+    p_W_m: FloatArray
+    object: NDArray[np.int64]
+    episodes: list[Episode]
+
+    def counts(self) -> dict[str, int]:
+        """Samples per phase."""
+        return {phase.label: int(np.sum(self.phase == phase)) for phase in SamplePhase}
+
+
+def simulate(scene: Scene, workers: int | None = None,
+             progress: Callable[[int, int], None] | None = None) -> list[WhiskerResult]:
+    """Step 1 of every whisker of ``scene`` along its path, whiskers spread over ``workers``
+    processes (default: all cores; 1: in this process). ``progress(done, total)`` after each
+    whisker."""
+    workers = (os.cpu_count() or 1) if workers is None else workers
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    total = len(scene.whiskers)
+    if progress:
+        progress(0, total)
+    if workers == 1 or total == 1:
+        results = []
+        for whisker in scene.whiskers:
+            results.append(simulate_whisker(scene, whisker))
+            if progress:
+                progress(len(results), total)
+        return results
+    with ProcessPoolExecutor(min(workers, total)) as pool:
+        futures = [pool.submit(simulate_whisker, scene, whisker) for whisker in scene.whiskers]
+        results = []
+        for future in futures:
+            results.append(future.result())
+            if progress:
+                progress(len(results), total)
+    return results
+
+
+def simulate_whisker(scene: Scene, whisker: Whisker) -> WhiskerResult:
+    """Step 1 of one whisker of ``scene`` along the path (its contact episodes)."""
+    length = whisker.length_m
+    surfaces = [obj.surface(length) for obj in scene.objects]
+    mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
+    path = SampledPath(scene.path.p_WR / length, scene.path.R_WR, scene.mu, mount)
+    n = path.n_samples
+    t = scene.path.t
+    phase = np.full(n, SamplePhase.NONE, dtype=np.int64)
+    s1, f0, m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
+    contact, touched = np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
+    episodes: list[Episode] = []
+
+    def skip_unresolved(k: int) -> int:
+        """The first sample from ``k`` on where the straight rod is outside every object."""
+        while k < n and any(path.penetrates(s, path.x0_of(np.array([k])))[0] for s in surfaces):
+            phase[k], f0[k], m0[k] = SamplePhase.UNRESOLVED, np.nan, np.nan
+            k += 1
+        return k
+
+    k = skip_unresolved(0)
+    while k < n - 1:
+        rest = path.tail(k)
+        touches = [(touch, i) for i, surface in enumerate(surfaces)
+                   if (touch := rest.first_contact(surface)) is not None]
+        if not touches:
+            break
+        (_x_touch, _p), i = max(touches, key=lambda item: item[0][0])  # the first on the path
+        sweep = simulate_sweeps(surfaces[i], [rest], rest.h)[0]
+        rows = k + np.rint(-sweep.x0 / rest.h).astype(np.int64)
+        if len(rows):
+            span = slice(rows[0], rows[-1] + 1)
+            phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
+            f0[span], m0[span] = np.nan, np.nan
+            phase[rows] = sweep.phase
+            s1[rows] = sweep.s1 * length
+            f0[rows], m0[rows] = whisker.scale.wrench_to_si(sweep.f0, sweep.m0)
+            contact[rows] = sweep.contact * length
+            touched[span] = i
+        t_touch = float(np.interp(-sweep.x_touch / rest.h + k, np.arange(n), t))
+        changes = [(float(np.interp(-x0 / rest.h + k, np.arange(n), t)), old, new)
+                   for x0, old, new in sweep.phase_changes]
+        episodes.append(Episode(scene.objects[i].name, t_touch, str(sweep.end), changes))
+        if sweep.end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
+            break
+        k = skip_unresolved(int(rows[-1]) + 1 if len(rows)
+                            else int(np.floor(-sweep.x_touch / rest.h)) + k + 1)
+    return WhiskerResult(whisker.name, t, phase, s1, f0, m0, contact, touched, episodes)
+
+
+def robot_path(t: ArrayLike, p_WR: ArrayLike, q_WR_xyzw: ArrayLike) -> RobotPath:
+    """A `RobotPath` from quaternions (x, y, z, w), which must be unit (to 1e-6): a
+    ValueError names the first row that is not."""
+    q = np.asarray(q_WR_xyzw, dtype=float)
+    norms = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6))
+    if len(bad):
+        raise ValueError(f"row {int(bad[0]) + 1}: quaternion {q[bad[0]].tolist()} is not a unit "
+                         f"quaternion (norm {norms[bad[0]]:.9g})")
+    return RobotPath(np.asarray(t, dtype=float), np.asarray(p_WR, dtype=float),
+                     Rotation.from_quat(q))

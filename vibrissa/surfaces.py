@@ -39,6 +39,11 @@ class Surface(ABC):
     def _quadric(self) -> tuple[FloatArray, FloatArray, float]:
         """Body-frame (Q (3, 3) symmetric positive semi-definite, l (3,), c)."""
 
+    @property
+    def quadric(self) -> tuple[FloatArray, FloatArray, float]:
+        """Body-frame (Q (3, 3), l (3,), c): g_B(p) = p' Q p + l . p + c."""
+        return self._quadric()
+
     @abstractmethod
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
         """Closest surface point (N, 3) to body-frame points q_B (N, 3)."""

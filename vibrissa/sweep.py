@@ -61,12 +61,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.elastica import planar_contact, planar_line
+from vibrissa.equilibrium import (
+    MODE_STICK,
+    MODE_TANGENTIAL,
+    MODE_TIP,
+    NEWTON_TOL,
+    evaluate_rows,
+    newton_rows,
+)
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Surface
 
@@ -76,9 +84,7 @@ SLIDE, STICK = 0, 1
 STATE_NAMES = {SLIDE: "slide", STICK: "stick"}
 
 _E_Z = np.array([0.0, 0.0, 1.0])
-_NEWTON_TOL = 1e-12
 _DIRECTION_TOL = 1e-8
-_NEWTON_MAX_ITER = 40
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 _EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step tries longer ones
@@ -237,7 +243,7 @@ class Sweep:
 # One batched evaluation of the equilibrium conditions
 
 
-_MODE_TIP, _MODE_TANGENTIAL, _MODE_STICK = 0, 1, 2
+_MODE_TIP, _MODE_TANGENTIAL, _MODE_STICK = MODE_TIP, MODE_TANGENTIAL, MODE_STICK
 
 
 @dataclass
@@ -284,94 +290,38 @@ def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
     """The residuals of q = (psi, Fu, Fv, kappa0) in the clamp frames C of the rows; geometry
-    and forces of the state in W, where the object is."""
-    psi, fu, fv, kappa0 = q[:, :4].T
-    contact = planar_contact(fu, fv, kappa0)
-    e_u_C, e_w_C = bending_plane(psi)
-    R = batch.R_WC
-    e_u, e_w, e_v = _rotate(R, e_u_C), _rotate(R, e_w_C), R[:, :, 2]  # e_v: the clamp axis
-    p1 = batch.p_WC + contact.u1[:, None] * e_u + contact.v1[:, None] * e_v
-    tangent = np.cos(contact.phi1)[:, None] * e_u + np.sin(contact.phi1)[:, None] * e_v
-    force = fu[:, None] * e_u + fv[:, None] * e_v
-    gap = surface.value(p1)
-    normal = surface.normal(p1)
-
-    chord = batch.anchor - p1
-    chord -= np.einsum("ni,ni->n", chord, normal)[:, None] * normal
-    chord_length = np.linalg.norm(chord, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slide_dir = np.where(chord_length[:, None] > 0, chord / chord_length[:, None], 0.0)
-        direction = normal + batch.mu[:, None] * slide_dir
-        direction /= np.linalg.norm(direction, axis=1)[:, None]
-        f = np.hypot(fu, fv)
-        in_plane = np.einsum("ni,ni->n", direction, e_w)
-        d_u = np.einsum("ni,ni->n", direction, e_u)
-        d_v = np.einsum("ni,ni->n", direction, e_v)
-        along = (fu * d_v - fv * d_u) / f
-    in_plane = np.where(batch.locked, psi, in_plane)
-
-    tip = contact.s1 - 1.0
-    tangential = np.einsum("ni,ni->n", tangent, normal)
-    residual = np.column_stack([np.where(batch.mode == _MODE_TANGENTIAL, tangential, tip), gap, in_plane, along])
-    stick = batch.mode == _MODE_STICK
-    residual[stick, 1:] = (p1 - batch.anchor)[stick]
-    return _State(residual, p1, contact.s1, tangent, normal, force, kappa0, e_w, contact.status)
-
-
-def _rotate(R: FloatArray, v: FloatArray) -> FloatArray:
-    """Rows of vectors v (n, 3) rotated by the rows of R (n, 3, 3)."""
-    return np.matmul(R, v[:, :, None])[:, :, 0]
+    and forces of the state in W, where the object is (``vibrissa.equilibrium``)."""
+    return _as_state(evaluate_rows(np.ascontiguousarray(q[:, :4], dtype=float),
+                                   *_row_arrays(batch), *_object_arrays(surface)))
 
 
 def _newton(surface: Surface, q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
     """Solve the four conditions for every row, starting from q0; returns q, state, converged."""
-    q = q0.copy()
-    state = _evaluate(surface, q, batch)
-    norm = np.max(np.abs(state.residual), axis=1)
-    for _ in range(_NEWTON_MAX_ITER):
-        pending = ~(norm < _NEWTON_TOL) & np.isfinite(norm)
-        if not pending.any():
-            break
-        rows = np.flatnonzero(pending)
-        sub = batch.take(rows)
-        q_rows = q[rows]
-        # Forward differences; loads are perturbed relative to the row's load magnitude.
-        load = np.max(np.abs(q_rows[:, 1:]), axis=1, keepdims=True)
-        scale = np.column_stack([np.ones(len(rows)), np.repeat(1e-3 * load, 3, axis=1)])
-        h = np.maximum(1e-8 * np.maximum(np.abs(q_rows), scale), 1e-300)
-        probes = np.repeat(q_rows[None], 4, axis=0)
-        for j in range(4):
-            probes[j, :, j] += h[:, j]
-        probe_batch = _Batch(*(np.concatenate([getattr(sub, name)] * 4) for name in _BATCH_FIELDS))
-        probe_state = _evaluate(surface, probes.reshape(-1, 4), probe_batch)
-        jac = (probe_state.residual.reshape(4, len(rows), 4) - state.residual[rows][None]) / h.T[:, :, None]
-        jac = np.transpose(jac, (1, 2, 0))  # (rows, equation, unknown)
-        try:
-            delta = np.linalg.solve(jac, -state.residual[rows][:, :, None])[:, :, 0]
-        except np.linalg.LinAlgError:
-            pairs = zip(jac, state.residual[rows], strict=True)
-            delta = np.stack([np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in pairs])
-        # Keep the plane from spinning in one step.
-        delta *= np.minimum(1.0, 0.3 / np.maximum(np.abs(delta[:, 0]), 1e-300))[:, None]
-        accepted = np.zeros(len(rows), dtype=bool)
-        for _halving in range(10):
-            trial = q_rows + delta
-            trial_state = _evaluate(surface, trial, sub)
-            trial_norm = np.max(np.abs(trial_state.residual), axis=1)
-            take = ((trial_norm < norm[rows]) | (trial_norm < _NEWTON_TOL)) & ~accepted
-            if take.any():
-                idx = rows[take]
-                q[idx] = trial[take]
-                norm[idx] = trial_norm[take]
-                _copy_rows(state, trial_state, idx, take)
-                accepted |= take
-            if accepted.all():
-                break
-            delta[~accepted] *= 0.5
-        if not accepted.any():
-            break
-        norm[rows[~accepted]] = np.nan  # stalled: no further progress on those rows
+    q, out = newton_rows(np.ascontiguousarray(q0, dtype=float), *_row_arrays(batch),
+                         *_object_arrays(surface))
+    state = _as_state(out)
     return q, state, _converged(state, batch)
+
+
+def _row_arrays(batch: _Batch) -> tuple[Any, ...]:
+    return (np.ascontiguousarray(batch.p_WC, dtype=float),
+            np.ascontiguousarray(batch.R_WC, dtype=float),
+            np.ascontiguousarray(batch.mu, dtype=float),
+            np.ascontiguousarray(batch.anchor, dtype=float),
+            np.ascontiguousarray(batch.mode, dtype=np.int64),
+            np.ascontiguousarray(batch.locked, dtype=np.bool_))
+
+
+def _object_arrays(surface: Surface) -> tuple[Any, ...]:
+    Q, linear, c = surface.quadric
+    return (np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(linear, dtype=float),
+            float(c), np.ascontiguousarray(surface.pose.R), np.ascontiguousarray(surface.pose.translation))
+
+
+def _as_state(out: FloatArray) -> _State:
+    return _State(residual=out[:, 0:4], p1=out[:, 4:7], s1=out[:, 7], tangent=out[:, 8:11],
+                  normal=out[:, 11:14], force=out[:, 14:17], kappa0=out[:, 17],
+                  e_w=out[:, 18:21], status=out[:, 21].astype(np.int64))
 
 
 def _converged(state: _State, batch: _Batch) -> NDArray[np.bool_]:
@@ -384,7 +334,7 @@ def _converged(state: _State, batch: _Batch) -> NDArray[np.bool_]:
     sliding = batch.mode != _MODE_STICK
     geometry = np.where(sliding[:, None], residual * [1.0, 1.0, 0.0, 0.0], residual)
     direction_ok = np.where(sliding, np.max(residual[:, 2:], axis=1) < _DIRECTION_TOL, True)
-    return (np.max(geometry, axis=1) < _NEWTON_TOL) & direction_ok
+    return (np.max(geometry, axis=1) < NEWTON_TOL) & direction_ok
 
 
 def _tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -455,11 +405,6 @@ def _small_slip(
 
 
 _STATE_FIELDS = ("residual", "p1", "s1", "tangent", "normal", "force", "kappa0", "e_w", "status")
-
-
-def _copy_rows(target: _State, source: _State, rows: NDArray[np.int64], mask: NDArray[np.bool_]) -> None:
-    for name in _STATE_FIELDS:
-        getattr(target, name)[rows] = getattr(source, name)[mask]
 
 
 def _admissible(state: _State, batch: _Batch, previous_p1: FloatArray, jump: float) -> NDArray[np.bool_]:

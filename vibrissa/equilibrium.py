@@ -1,0 +1,220 @@
+"""The compiled kernels of Step 1: the equilibrium conditions of one step and Newton's method
+on them, one row (one sweep attempt) at a time (``vibrissa.compiled``).
+
+``vibrissa.sweep`` states the conditions and drives the sweeps; these kernels evaluate them.
+A row is q = (psi, Fu, Fv, kappa0) in the clamp frame C of its step, the clamp pose X_WC, the
+friction mu, the anchor (previous or held contact point, W), the mode (tip, tangential, stick)
+and whether psi is locked; the object is the quadric g(p_B) = p_B' Q p_B + l' p_B + c in its
+body frame B, placed at X_WB. Per row the arithmetic is that of the conditions in
+``vibrissa.sweep``'s module docstring, written out for scalars: a sweep's step costs a few
+microseconds of arithmetic instead of the calls of numpy array code on one row.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vibrissa.compiled import compiled
+from vibrissa.elastica import planar_contact_scalar
+
+FloatArray = NDArray[np.float64]
+
+MODE_TIP, MODE_TANGENTIAL, MODE_STICK = 0, 1, 2
+NEWTON_TOL = 1e-12
+NEWTON_MAX_ITER = 40
+STATE_WIDTH = 22
+"""A row's state: residual 0:4, p1 4:7, s1 7, tangent 8:11, normal 11:14, force 14:17,
+kappa0 17, e_w 18:21, status 21."""
+
+
+@compiled
+def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
+                 anchor: FloatArray, mode: int, locked: bool, Q: FloatArray, lin: FloatArray,
+                 c: float, R_WB: FloatArray, p_WB: FloatArray, out: FloatArray) -> None:
+    """The state of one row at ``q`` into ``out`` (``STATE_WIDTH``)."""
+    psi, fu, fv, kappa0 = q[0], q[1], q[2], q[3]
+    u1, v1, s1, phi1, status = planar_contact_scalar(fu, fv, kappa0)
+    cp, sp = math.cos(psi), math.sin(psi)
+    e_u = np.empty(3)
+    e_w = np.empty(3)
+    e_v = np.empty(3)
+    for i in range(3):
+        e_u[i] = R_WC[i, 0] * cp + R_WC[i, 1] * sp + R_WC[i, 2] * 0.0
+        e_w[i] = R_WC[i, 0] * sp + R_WC[i, 1] * -cp + R_WC[i, 2] * 0.0
+        e_v[i] = R_WC[i, 2]
+    cos1, sin1 = math.cos(phi1), math.sin(phi1)
+    p1 = np.empty(3)
+    tangent = np.empty(3)
+    force = np.empty(3)
+    for i in range(3):
+        p1[i] = p_WC[i] + u1 * e_u[i] + v1 * e_v[i]
+        tangent[i] = cos1 * e_u[i] + sin1 * e_v[i]
+        force[i] = fu * e_u[i] + fv * e_v[i]
+    # the object: first-order signed distance and outward normal of its quadric
+    p_B = np.empty(3)
+    for j in range(3):
+        p_B[j] = ((p1[0] - p_WB[0]) * R_WB[0, j] + (p1[1] - p_WB[1]) * R_WB[1, j]
+                  + (p1[2] - p_WB[2]) * R_WB[2, j])
+    g = c
+    grad = np.empty(3)
+    for j in range(3):
+        qp = p_B[0] * Q[0, j] + p_B[1] * Q[1, j] + p_B[2] * Q[2, j]
+        g += p_B[j] * qp + lin[j] * p_B[j]
+        grad[j] = 2.0 * qp + lin[j]
+    grad_norm = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
+    gap = g / grad_norm
+    normal = np.empty(3)
+    for i in range(3):
+        normal[i] = (R_WB[i, 0] * grad[0] + R_WB[i, 1] * grad[1] + R_WB[i, 2] * grad[2]) / grad_norm
+    # Coulomb (eq. 7): F along n + mu t, t towards the anchor in the tangent plane
+    chord = np.empty(3)
+    for i in range(3):
+        chord[i] = anchor[i] - p1[i]
+    along_n = chord[0] * normal[0] + chord[1] * normal[1] + chord[2] * normal[2]
+    for i in range(3):
+        chord[i] -= along_n * normal[i]
+    chord_length = math.sqrt(chord[0] ** 2 + chord[1] ** 2 + chord[2] ** 2)
+    direction = np.empty(3)
+    for i in range(3):
+        slide = chord[i] / chord_length if chord_length > 0 else 0.0
+        direction[i] = normal[i] + mu * slide
+    size = math.sqrt(direction[0] ** 2 + direction[1] ** 2 + direction[2] ** 2)
+    for i in range(3):
+        direction[i] /= size
+    f = math.hypot(fu, fv)
+    in_plane = direction[0] * e_w[0] + direction[1] * e_w[1] + direction[2] * e_w[2]
+    d_u = direction[0] * e_u[0] + direction[1] * e_u[1] + direction[2] * e_u[2]
+    d_v = direction[0] * e_v[0] + direction[1] * e_v[1] + direction[2] * e_v[2]
+    along = (fu * d_v - fv * d_u) / f
+    if locked:
+        in_plane = psi
+    if mode == MODE_STICK:
+        out[0], out[1], out[2], out[3] = s1 - 1.0, p1[0] - anchor[0], p1[1] - anchor[1], p1[2] - anchor[2]
+    else:
+        tangential = tangent[0] * normal[0] + tangent[1] * normal[1] + tangent[2] * normal[2]
+        out[0] = tangential if mode == MODE_TANGENTIAL else s1 - 1.0
+        out[1], out[2], out[3] = gap, in_plane, along
+    for i in range(3):
+        out[4 + i] = p1[i]
+        out[8 + i] = tangent[i]
+        out[11 + i] = normal[i]
+        out[14 + i] = force[i]
+        out[18 + i] = e_w[i]
+    out[7] = s1
+    out[17] = kappa0
+    out[21] = status
+
+
+@compiled
+def _residual_norm(state: FloatArray) -> float:
+    """max |residual|, NaN if any is NaN (as numpy's max)."""
+    worst = 0.0
+    for i in range(4):
+        value = abs(state[i])
+        if value != value:
+            return math.nan
+        worst = max(worst, value)
+    return worst
+
+
+@compiled
+def newton_row(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
+               anchor: FloatArray, mode: int, locked: bool, Q: FloatArray, lin: FloatArray,
+               c: float, R_WB: FloatArray, p_WB: FloatArray, q: FloatArray,
+               state: FloatArray) -> None:
+    """Newton's method on one row from ``q0``: forward-difference Jacobian (loads perturbed
+    relative to the row's load), at most 0.3 rad of psi per step, step halving until the
+    residual decreases; the solution into ``q`` and its state into ``state``."""
+    for j in range(4):
+        q[j] = q0[j]
+    evaluate_row(q, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB, state)
+    norm = _residual_norm(state)
+    probe_state = np.empty(STATE_WIDTH)
+    trial_state = np.empty(STATE_WIDTH)
+    probe = np.empty(4)
+    trial = np.empty(4)
+    jac = np.empty((4, 4))
+    rhs = np.empty(4)
+    h = np.empty(4)
+    for _ in range(NEWTON_MAX_ITER):
+        if norm < NEWTON_TOL or not math.isfinite(norm):
+            return
+        load = max(abs(q[1]), abs(q[2]), abs(q[3]))
+        for j in range(4):
+            scale = 1.0 if j == 0 else 1e-3 * load
+            h[j] = max(1e-8 * max(abs(q[j]), scale), 1e-300)
+        for j in range(4):
+            for k in range(4):
+                probe[k] = q[k]
+            probe[j] += h[j]
+            evaluate_row(probe, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB,
+                         probe_state)
+            for i in range(4):
+                jac[i, j] = (probe_state[i] - state[i]) / h[j]
+        for i in range(4):
+            rhs[i] = -state[i]
+        delta = _solve(jac, rhs)
+        limit = min(1.0, 0.3 / max(abs(delta[0]), 1e-300))  # keep the plane from spinning
+        for j in range(4):
+            delta[j] *= limit
+        accepted = False
+        for _halving in range(10):
+            for j in range(4):
+                trial[j] = q[j] + delta[j]
+            evaluate_row(trial, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB,
+                         trial_state)
+            trial_norm = _residual_norm(trial_state)
+            if trial_norm < norm or trial_norm < NEWTON_TOL:
+                for j in range(4):
+                    q[j] = trial[j]
+                for k in range(STATE_WIDTH):
+                    state[k] = trial_state[k]
+                norm = trial_norm
+                accepted = True
+                break
+            for j in range(4):
+                delta[j] *= 0.5
+        if not accepted:
+            return  # stalled: no further progress on this row
+
+
+@compiled
+def _solve(jac: FloatArray, rhs: FloatArray) -> FloatArray:
+    """jac^-1 rhs; least squares where jac is singular."""
+    try:
+        x = np.linalg.solve(jac, rhs)
+    except Exception:  # noqa: BLE001 - numba: LinAlgError for a singular matrix
+        x = np.linalg.lstsq(jac, rhs)[0]
+    return x.astype(np.float64)
+
+
+@compiled
+def evaluate_rows(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArray,
+                  anchor: FloatArray, mode: NDArray[np.int64], locked: NDArray[np.bool_],
+                  Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray, p_WB: FloatArray
+                  ) -> FloatArray:
+    """``evaluate_row`` of every row: states (n, ``STATE_WIDTH``)."""
+    n = q.shape[0]
+    out = np.empty((n, STATE_WIDTH))
+    for r in range(n):
+        evaluate_row(q[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q, lin, c,
+                     R_WB, p_WB, out[r])
+    return out
+
+
+@compiled
+def newton_rows(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArray,
+                anchor: FloatArray, mode: NDArray[np.int64], locked: NDArray[np.bool_],
+                Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray, p_WB: FloatArray
+                ) -> tuple[FloatArray, FloatArray]:
+    """``newton_row`` of every row: solutions q (n, 4) and their states."""
+    n = q0.shape[0]
+    q = np.empty((n, 4))
+    out = np.empty((n, STATE_WIDTH))
+    for r in range(n):
+        newton_row(q0[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q, lin, c,
+                   R_WB, p_WB, q[r], out[r])
+    return q, out

@@ -33,7 +33,7 @@ from scipy.optimize import root  # noqa: E402
 from vibrissa.reconstruct import reconstruct  # noqa: E402
 from vibrissa.study import PAPER_SURFACE, run_study  # noqa: E402
 from vibrissa.surfaces import Surface, parse_surface  # noqa: E402
-from vibrissa.sweep import Sweep  # noqa: E402
+from vibrissa.sweep import Sweep, Trail, simulate_sweeps  # noqa: E402
 
 FloatArray = NDArray[np.float64]
 IVP_TOL = {"rtol": 1e-11, "atol": 1e-13}
@@ -162,7 +162,15 @@ def main() -> None:
     shoot_step = (time.perf_counter() - start) / args.shooting_steps
     rows.append((f"Step 1 baseline: solve_ivp in root, tip step mu=0 ({args.shooting_steps} steps)",
                  f"{shoot_step * 1e3:.1f} ms/step", f"{failures} failed"))
-    rows.append(("Step 1 ratio baseline / library per step", f"{shoot_step / lib_step:.0f}x", ""))
+    rows.append(("Step 1 ratio baseline / library per step (study)", f"{shoot_step / lib_step:.0f}x",
+                 ""))
+    # One sweep alone, as `vibrissa sweep` runs it (no batching to hide per-step overhead).
+    single = _median_of(lambda: simulate_sweeps(surface, [Trail(0.2, 0.3)], 0.002), 3)
+    n_single = simulate_sweeps(surface, [Trail(0.2, 0.3)], 0.002)[0].n_steps
+    rows.append(("Step 1 library: one sweep y0=0.2 mu=0.3 step 0.002, per equilibrium",
+                 f"{single / n_single * 1e3:.2f} ms", f"{n_single} equilibria, {single:.2f} s"))
+    rows.append(("Step 1 ratio baseline / library per step (one sweep)",
+                 f"{shoot_step / (single / n_single):.0f}x", ""))
     rows.append(("Step 1 agreement: max |P1|, |m0| difference",
                  f"{worst_point:.1e}, {worst_m0:.1e}", "L, EI/L"))
 

@@ -105,3 +105,29 @@ def test_bad_scenes_are_refused_by_name() -> None:
         SceneObject("x", "cube", {})
     with pytest.raises(ValueError, match="whisker names must be unique"):
         Scene(0.1, (), (PLAIN, PLAIN), STRAIGHT)
+
+
+def test_moving_the_whole_scene_moves_the_contacts_and_keeps_every_clamp_wrench() -> None:
+    rng = np.random.default_rng(21)
+    X = Transform(Rotation.random(random_state=rng), rng.uniform(-0.3, 0.3, 3))
+    n = 600
+    theta = np.linspace(0.0, 0.9, n)
+    path = robot_path(np.arange(n) * 0.01,
+                      np.column_stack([0.12 - 0.2 * np.sin(theta), 0.2 * (1 - np.cos(theta)) - 0.03,
+                                       np.zeros(n)]),
+                      Rotation.from_euler("z", -theta[:, None]).as_quat())
+    egg = SceneObject("egg", "ellipsoid", {"semi_axes_m": [0.015, 0.01, 0.012]},
+                      Transform.from_xyz_rpy([0.0, 0.025, 0.04], [0.1, 0.2, 0.5]))
+    whisker = Whisker("w", 0.045, 2e-5, Transform.from_xyz_rpy([0.0, 0.01, 0.0], [-0.2, 0.1, 0]))
+    scene = Scene(0.3, (egg,), (whisker,), path)
+    moved = Scene(0.3, (SceneObject("egg", "ellipsoid", egg.sizes, X @ egg.X_WO),), (whisker,),
+                  robot_path(path.t, X.apply(path.p_WR), (X.rotation * path.R_WR).as_quat()))
+    (a,), (b,) = simulate(scene, workers=1), simulate(moved, workers=1)
+    assert a.episodes and [e.end for e in a.episodes] == [e.end for e in b.episodes]
+    np.testing.assert_array_equal(a.phase, b.phase)
+    rows = np.flatnonzero((a.phase == SamplePhase.TIP) | (a.phase == SamplePhase.TANGENTIAL))
+    scale_f, scale_m = whisker.scale.force_n, whisker.scale.moment_nm
+    np.testing.assert_allclose(b.f0_n[rows] / scale_f, a.f0_n[rows] / scale_f, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.m0_nm[rows] / scale_m, a.m0_nm[rows] / scale_m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.p_W_m[rows], X.apply(a.p_W_m[rows]), rtol=0,
+                               atol=1e-12 * whisker.length_m)

@@ -110,14 +110,59 @@ class Transform:
         return f_A, self.rotate(m_B) + np.cross(self.translation, f_A)
 
 
+@dataclass(frozen=True)
+class PoseSamples:
+    """Poses X_AB(t) of a frame B in A, sampled at strictly increasing ``t`` (N,): between
+    samples the position is linear and the orientation follows the shortest great arc
+    (slerp); outside [t_0, t_{N-1}] there is no pose (no extrapolation).
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Sample times (any unit; a path's sample index will do).
+    p_AB : ndarray, shape (N, 3)
+        B's origin in A.
+    rotations : scipy.spatial.transform.Rotation, N rotations
+        R_AB.
+    """
+
+    t: FloatArray
+    p_AB: FloatArray
+    rotations: Rotation
+    _slerp: Slerp = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        t = np.array(self.t, dtype=float).reshape(-1)
+        p = np.array(self.p_AB, dtype=float)
+        if len(t) < 2 or not np.all(np.diff(t) > 0):
+            raise ValueError("pose samples need at least 2 strictly increasing times")
+        if p.shape != (len(t), 3) or len(self.rotations) != len(t):
+            raise ValueError(f"{len(t)} times, positions {p.shape}, {len(self.rotations)} rotations")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "p_AB", p)
+        object.__setattr__(self, "_slerp", Slerp(t, self.rotations))
+
+    def at(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Positions (n, 3) and rotation matrices (n, 3, 3) at times ``t`` (n,); ValueError
+        outside the samples."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        if np.any(~(t >= self.t[0])) or np.any(~(t <= self.t[-1])):
+            raise ValueError(f"t outside the samples [{self.t[0]}, {self.t[-1]}]: no extrapolation")
+        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 2)
+        frac = (t - self.t[k]) / (self.t[k + 1] - self.t[k])
+        p = self.p_AB[k] + frac[:, None] * (self.p_AB[k + 1] - self.p_AB[k])
+        return p, self._slerp(t).as_matrix()
+
+
 def interpolate(X_a: Transform, X_b: Transform, t: float) -> Transform:
-    """The pose a fraction ``t`` (0 to 1) of the way from ``X_a`` to ``X_b``: position linear,
-    orientation along the shortest great arc (slerp)."""
+    """The pose a fraction ``t`` (0 to 1) of the way from ``X_a`` to ``X_b`` (`PoseSamples`'
+    rule: position linear, orientation slerp)."""
     if not 0.0 <= t <= 1.0:
         raise ValueError(f"t must be in [0, 1] (no extrapolation), got {t}")
-    rotations = Rotation.concatenate([X_a.rotation, X_b.rotation])
-    rotation = Slerp([0.0, 1.0], rotations)([t])[0]
-    return Transform(rotation, (1.0 - t) * X_a.translation + t * X_b.translation)
+    samples = PoseSamples(np.array([0.0, 1.0]), np.array([X_a.translation, X_b.translation]),
+                          Rotation.concatenate([X_a.rotation, X_b.rotation]))
+    p, R = samples.at([t])
+    return Transform(Rotation.from_matrix(R[0]), p[0])
 
 
 @compiled

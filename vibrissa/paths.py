@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
-from vibrissa.frames import Transform
+from vibrissa.frames import PoseSamples, Transform
 from vibrissa.surfaces import Surface
 
 FloatArray = NDArray[np.float64]
@@ -57,7 +57,7 @@ class SampledPath:
     h: float = 0.0
     x_end: float = field(init=False)
     x_grid: float = 0.0  # the steps of Step 1 are the samples
-    _slerp: Slerp = field(init=False, repr=False)
+    _poses: PoseSamples = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         p = np.array(self.p_WR, dtype=float)
@@ -81,7 +81,8 @@ class SampledPath:
         object.__setattr__(self, "p_WR", p)
         object.__setattr__(self, "h", h)
         object.__setattr__(self, "x_end", -(len(p) - 1) * h)
-        object.__setattr__(self, "_slerp", Slerp(np.arange(len(p), dtype=float), self.rotations))
+        object.__setattr__(self, "_poses", PoseSamples(np.arange(len(p), dtype=float), p,
+                                                       self.rotations))
 
     @property
     def n_samples(self) -> int:
@@ -102,11 +103,7 @@ class SampledPath:
         last = self.n_samples - 1
         if np.any(lam < -1e-9) or np.any(lam > last + 1e-9):
             raise ValueError(f"x0 outside the path [{self.x_end}, 0]")
-        lam = np.clip(lam, 0.0, last)
-        k = np.minimum(np.floor(lam).astype(np.int64), last - 1)
-        frac = lam - k
-        p_WR = self.p_WR[k] + frac[:, None] * (self.p_WR[k + 1] - self.p_WR[k])
-        R_WR = self._slerp(lam).as_matrix()
+        p_WR, R_WR = self._poses.at(np.clip(lam, 0.0, last))
         if self.mount.is_identity:
             return p_WR, R_WR
         return p_WR + R_WR @ self.mount.translation, R_WR @ self.mount.R

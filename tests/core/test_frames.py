@@ -83,3 +83,21 @@ def test_compiled_quaternion_kernel_matches_scipy() -> None:
     zero = np.empty((3, 3))
     assert quaternion_matrix(np.zeros(4), zero) == 0.0
     assert not np.isfinite(zero).all()  # not a rotation: callers check |q|^2
+
+
+def test_pose_samples_interpolate_between_uneven_samples_and_never_extrapolate() -> None:
+    from scipy.spatial.transform import Rotation
+
+    from vibrissa.frames import PoseSamples
+
+    samples = PoseSamples(np.array([0.0, 1.0, 3.0]),
+                          np.array([[0.0, 0, 0], [1.0, 0, 0], [1.0, 2.0, 0]]),
+                          Rotation.from_euler("z", [[0.0], [0.5], [1.5]]))
+    p, R = samples.at([0.5, 2.0, 3.0])
+    np.testing.assert_allclose(p, [[0.5, 0, 0], [1.0, 1.0, 0], [1.0, 2.0, 0]], atol=1e-15)
+    np.testing.assert_allclose(R[1], Rotation.from_euler("z", 1.0).as_matrix(), atol=1e-15)
+    for outside in (-1e-9, 3.0 + 1e-9, float("nan")):
+        with pytest.raises(ValueError, match="no extrapolation"):
+            samples.at([outside])
+    with pytest.raises(ValueError, match="strictly increasing"):
+        PoseSamples(np.array([0.0, 0.0]), np.zeros((2, 3)), Rotation.identity(2))

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vibrissa.frames import Transform, interpolate, quaternion_matrices, quaternion_matrix
+from vibrissa.frames import (
+    PoseSamples,
+    Transform,
+    interpolate,
+    quaternion_matrices,
+    quaternion_matrix,
+)
 
 RNG = np.random.default_rng(7)
 
@@ -86,10 +92,6 @@ def test_compiled_quaternion_kernel_matches_scipy() -> None:
 
 
 def test_pose_samples_interpolate_between_uneven_samples_and_never_extrapolate() -> None:
-    from scipy.spatial.transform import Rotation
-
-    from vibrissa.frames import PoseSamples
-
     samples = PoseSamples(np.array([0.0, 1.0, 3.0]),
                           np.array([[0.0, 0, 0], [1.0, 0, 0], [1.0, 2.0, 0]]),
                           Rotation.from_euler("z", [[0.0], [0.5], [1.5]]))

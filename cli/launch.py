@@ -45,6 +45,12 @@ def run_launch(args: argparse.Namespace) -> int:
     except LaunchFileError as exc:
         print(f"vibrissa launch: error: {exc}", file=sys.stderr)
         return 2
+    file_keys = description.transport.keys if description.transport else None
+    try:  # --keys, else the file's, else VIBRISSA_KEYS (the launcher reads that one itself)
+        keys = Keys.load(args.keys or file_keys) if args.keys or file_keys else None
+    except KeysError as exc:
+        print(f"vibrissa launch: error: {exc}", file=sys.stderr)
+        return 2
     if args.show_args:
         _print_args(description)
         return 0
@@ -55,11 +61,6 @@ def run_launch(args: argparse.Namespace) -> int:
             for key, value in spec.params_dict().items():
                 print(f"[{spec.name}]   param {key}: {value!r}")
         return 0
-    try:
-        keys = Keys.load(args.keys) if args.keys else None
-    except KeysError as exc:
-        print(f"vibrissa launch: error: {exc}", file=sys.stderr)
-        return 2
     return Launcher(description, grace_s=args.grace, domain=args.domain, debug=args.debug,
                     keys=keys).run()
 

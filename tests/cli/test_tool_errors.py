@@ -72,3 +72,21 @@ def test_bag_record_refuses_an_existing_file_unless_asked(tmp_path: Path) -> Non
                         "--domain", env_domain)
     assert replaced.returncode == 0, replaced.stderr
     assert existing.read_bytes().startswith(b"\x89MCAP0\r\n")
+
+
+def test_keys_that_cannot_be_used_stop_a_launch_before_anything_starts(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "nowhere"
+    assert vibrissa_main(["launch", "demo", "--keys", str(missing), "--dry-run"]) == 2
+    assert f"key folder {missing} does not exist" in capsys.readouterr().err
+    loose = tmp_path / "keys"
+    assert vibrissa_main(["keys", str(loose)]) == 0
+    os.chmod(loose / "graph.key_secret", 0o644)
+    launch_file = tmp_path / "keyed.yaml"
+    launch_file.write_text(f"launch:\n  - transport: {{keys: {loose}}}\n"
+                           "  - node: {cmd: [x], name: n}\n")
+    capsys.readouterr()
+    assert vibrissa_main(["launch", str(launch_file), "--dry-run"]) == 2
+    assert "accessible by others (mode 0644): chmod 600" in capsys.readouterr().err
+    assert vibrissa_main(["topic", "list", "--keys", str(loose)]) == 1
+    assert "chmod 600" in capsys.readouterr().err

@@ -33,7 +33,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -72,7 +72,7 @@ class Keys:
     folder: Path
     name: str
     public: bytes
-    secret: bytes
+    secret: bytes = field(repr=False)  # never in a log line or a traceback
     server_public: bytes
     allowed: frozenset[bytes]
 

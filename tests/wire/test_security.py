@@ -107,6 +107,9 @@ def test_key_folder_layout_and_modes(tmp_path: Path) -> None:
     assert laptop.server_public == graph.public == graph.server_public
     assert laptop.public in graph.allowed and graph.public in graph.allowed
     assert zmq.auth.load_certificate(folder / "authorized/laptop.key")[0] == laptop.public
+    for keys in (graph, laptop):  # a secret never shows in a log line or a traceback
+        assert keys.secret.decode() not in repr(keys)
+        assert keys.secret.decode() not in repr(Endpoints.for_domain(0).with_keys(keys))
 
 
 def test_unusable_key_folders_are_refused_by_name(tmp_path: Path, keys_dir: Path) -> None:

@@ -225,6 +225,11 @@ def write_results(out: Path, scene: Scene, results: list[WhiskerResult]) -> list
     return written
 
 
+def print_sample_progress(whisker: str, sample: int, samples: int) -> None:
+    """A worker's progress line on stderr (module level: worker processes unpickle it)."""
+    print(f"  {whisker}: sample {sample} of {samples}", file=sys.stderr, flush=True)
+
+
 def run_simulate(args: argparse.Namespace) -> int:
     """The ``simulate`` subcommand."""
     scene = load_scene(args.scene)
@@ -237,7 +242,8 @@ def run_simulate(args: argparse.Namespace) -> int:
         if done:
             print(f"  {done}/{total} whiskers done", file=sys.stderr, flush=True)
 
-    results = simulate(scene, workers=args.workers, progress=progress)
+    results = simulate(scene, workers=args.workers, progress=progress,
+                       sample_progress=print_sample_progress)
     for path in write_results(Path(args.out), scene, results):
         print(f"wrote {path}")
     return 0

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import enum
 import os
+import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -36,7 +37,7 @@ from vibrissa.frames import Transform
 from vibrissa.paths import SampledPath
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
-from vibrissa.sweep import simulate_sweeps
+from vibrissa.sweep import SweepRun
 from vibrissa.units import RodScale
 
 FloatArray = NDArray[np.float64]
@@ -199,11 +200,19 @@ class WhiskerResult:
         return {phase.label: int(np.sum(self.phase == phase)) for phase in SamplePhase}
 
 
+SampleProgress = Callable[[str, int, int], None]
+"""``progress(whisker, sample, samples)``: how far along the path a whisker's Step 1 is."""
+
+PROGRESS_PERIOD_S = 2.0
+
+
 def simulate(scene: Scene, workers: int | None = None,
-             progress: Callable[[int, int], None] | None = None) -> list[WhiskerResult]:
+             progress: Callable[[int, int], None] | None = None,
+             sample_progress: SampleProgress | None = None) -> list[WhiskerResult]:
     """Step 1 of every whisker of ``scene`` along its path, whiskers spread over ``workers``
     processes (default: all cores; 1: in this process). ``progress(done, total)`` after each
-    whisker."""
+    whisker; ``sample_progress`` (picklable, for the worker processes) every 2 s of a whisker's
+    work."""
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -213,12 +222,13 @@ def simulate(scene: Scene, workers: int | None = None,
     if workers == 1 or total == 1:
         results = []
         for whisker in scene.whiskers:
-            results.append(simulate_whisker(scene, whisker))
+            results.append(simulate_whisker(scene, whisker, sample_progress))
             if progress:
                 progress(len(results), total)
         return results
     with ProcessPoolExecutor(min(workers, total)) as pool:
-        futures = [pool.submit(simulate_whisker, scene, whisker) for whisker in scene.whiskers]
+        futures = [pool.submit(simulate_whisker, scene, whisker, sample_progress)
+                   for whisker in scene.whiskers]
         results = []
         for future in futures:
             results.append(future.result())
@@ -227,8 +237,10 @@ def simulate(scene: Scene, workers: int | None = None,
     return results
 
 
-def simulate_whisker(scene: Scene, whisker: Whisker) -> WhiskerResult:
-    """Step 1 of one whisker of ``scene`` along the path (its contact episodes)."""
+def simulate_whisker(scene: Scene, whisker: Whisker,
+                     progress: SampleProgress | None = None) -> WhiskerResult:
+    """Step 1 of one whisker of ``scene`` along the path (its contact episodes);
+    ``progress(name, sample, samples)`` every 2 s of work."""
     length = whisker.length_m
     surfaces = [obj.surface(length) for obj in scene.objects]
     mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
@@ -247,6 +259,7 @@ def simulate_whisker(scene: Scene, whisker: Whisker) -> WhiskerResult:
             k += 1
         return k
 
+    next_report = time.monotonic() + PROGRESS_PERIOD_S
     k = skip_unresolved(0)
     while k < n - 1:
         rest = path.tail(k)
@@ -255,7 +268,13 @@ def simulate_whisker(scene: Scene, whisker: Whisker) -> WhiskerResult:
         if not touches:
             break
         (_x_touch, _p), i = max(touches, key=lambda item: item[0][0])  # the first on the path
-        sweep = simulate_sweeps(surfaces[i], [rest], rest.h)[0]
+        run = SweepRun(surfaces[i], [rest], rest.h)
+        while not run.done:
+            run.advance()
+            if progress is not None and time.monotonic() >= next_report:
+                progress(whisker.name, k + int(-run.progress(0).x0 / rest.h), n)
+                next_report = time.monotonic() + PROGRESS_PERIOD_S
+        sweep = run.sweeps()[0]
         rows = k + np.rint(-sweep.x0 / rest.h).astype(np.int64)
         if len(rows):
             span = slice(rows[0], rows[-1] + 1)

@@ -131,3 +131,17 @@ def test_moving_the_whole_scene_moves_the_contacts_and_keeps_every_clamp_wrench(
     np.testing.assert_allclose(b.m0_nm[rows] / scale_m, a.m0_nm[rows] / scale_m, rtol=0, atol=1e-12)
     np.testing.assert_allclose(b.p_W_m[rows], X.apply(a.p_W_m[rows]), rtol=0,
                                atol=1e-12 * whisker.length_m)
+
+
+def test_long_work_reports_how_far_along_the_path_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    import vibrissa.scene
+
+    monkeypatch.setattr(vibrissa.scene, "PROGRESS_PERIOD_S", 0.0)  # report at every step
+    reports: list[tuple[str, int, int]] = []
+    scene = Scene(0.2, (CUP,), (PLAIN,), STRAIGHT)
+    (result,) = simulate(scene, workers=1, sample_progress=lambda *r: reports.append(r))
+    samples = [sample for name, sample, total in reports]
+    assert {(name, total) for name, _, total in reports} == {("plain", 900)}
+    assert len(samples) > 100 and samples == sorted(samples)
+    contact = np.flatnonzero(result.phase != SamplePhase.NONE)
+    assert contact[0] <= samples[0] and samples[-1] <= contact[-1] + 1

@@ -15,6 +15,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vibrissa.compiled import compiled
 from vibrissa.frames import Transform
 
 FloatArray = NDArray[np.float64]
@@ -131,16 +132,7 @@ class Paraboloid(Surface):
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
         # p - q = lam grad g(p) gives x = qx/(1 - 2 a lam), y = qy/(1 - 2 b lam), z = qz - lam;
         # the constraint is increasing in lam below 1/(2 max(a, b)): bracket and bisect.
-        qx, qy, qz = q_B.T
-        a, b, h = self.a, self.b, self.h
-
-        def constraint(lam: FloatArray) -> FloatArray:
-            return a * (qx / (1 - 2 * a * lam)) ** 2 + b * (qy / (1 - 2 * b * lam)) ** 2 + h - qz + lam
-
-        hi = np.full(len(q_B), (1.0 - 1e-15) / (2.0 * max(a, b)))
-        lo = np.minimum(qz - h, 0.0) - 1.0
-        lam = _bisect_increasing(constraint, lo, hi)
-        return np.stack([qx / (1 - 2 * a * lam), qy / (1 - 2 * b * lam), qz - lam], axis=1)
+        return _paraboloid_closest(np.ascontiguousarray(q_B, dtype=float), self.a, self.b, self.h)
 
 
 class Ellipsoid(Surface):
@@ -185,6 +177,33 @@ class Sphere(Ellipsoid):
 
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
         return self.radii[0] * q_B / np.linalg.norm(q_B, axis=1, keepdims=True)
+
+
+@compiled
+def _paraboloid_closest(q_B: FloatArray, a: float, b: float, h: float) -> FloatArray:
+    """Closest points (N, 3) on z = a x^2 + b y^2 + h to points q_B (N, 3), body frame.
+
+    p - q = lam grad g(p) gives x = qx/(1 - 2 a lam), y = qy/(1 - 2 b lam), z = qz - lam; the
+    constraint g(p(lam)) is increasing in lam below 1/(2 max(a, b)): bracket and bisect, per
+    point, to the last bit.
+    """
+    out = np.empty_like(q_B)
+    for n in range(q_B.shape[0]):
+        qx, qy, qz = q_B[n, 0], q_B[n, 1], q_B[n, 2]
+        lo = min(qz - h, 0.0) - 1.0
+        hi = (1.0 - 1e-15) / (2.0 * max(a, b))
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            x, y = qx / (1 - 2 * a * mid), qy / (1 - 2 * b * mid)
+            if a * x * x + b * y * y + h - qz + mid > 0:
+                hi = mid
+            else:
+                lo = mid
+            if hi - lo <= 4e-16 * max(abs(mid), 1.0):
+                break
+        lam = 0.5 * (lo + hi)
+        out[n, 0], out[n, 1], out[n, 2] = qx / (1 - 2 * a * lam), qy / (1 - 2 * b * lam), qz - lam
+    return out
 
 
 def _bisect_increasing(function, lo: FloatArray, hi: FloatArray) -> FloatArray:  # type: ignore[no-untyped-def]

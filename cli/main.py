@@ -12,8 +12,11 @@ from collections.abc import Sequence
 from vibrissa.runtime.node import DEBUG_ENV
 
 # Each module registers its subcommands with `register(subparsers)`; every subparser
-# sets `func(args) -> int`.
+# sets `func(args) -> int`. A command imports only its own module (start-up time).
 _COMMAND_MODULES = ("mechanics", "scenes", "launch", "bag", "topic", "keys")
+_MODULE_OF = {"sweep": "mechanics", "reconstruct": "mechanics", "study": "mechanics",
+              "simulate": "scenes", "launch": "launch", "bag": "bag", "topic": "topic",
+              "keys": "keys"}
 
 
 def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
@@ -27,13 +30,16 @@ def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> 
     return args
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``vibrissa`` parser: with a known ``command``, only that command's module is
+    imported; else every command's (``--help``, a misspelt command)."""
     parser = argparse.ArgumentParser(
         prog="vibrissa",
         description="Vibrissa-like tactile sensing: simulate, reconstruct, run the node graph.",
     )
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in _COMMAND_MODULES:
+    modules = (_MODULE_OF[command],) if command in _MODULE_OF else _COMMAND_MODULES
+    for name in modules:
         importlib.import_module(f"vibrissa.cli.{name}").register(subparsers)
     return parser
 
@@ -45,7 +51,9 @@ def main(argv: list[str] | None = None) -> int:
     ``VIBRISSA_DEBUG=1``); output cut off by its reader (``| head``) ends the command quietly
     with status 141 (128 + SIGPIPE), as a shell tool that the pipe kills.
     """
-    args = parse_command_line(build_parser(), sys.argv[1:] if argv is None else argv)
+    argv = sys.argv[1:] if argv is None else argv
+    command = argv[0] if argv and not argv[0].startswith("-") else None
+    args = parse_command_line(build_parser(command), argv)
     command = " ".join(filter(None, (args.command, getattr(args, f"{args.command}_command", ""))))
     try:
         return int(args.func(args))

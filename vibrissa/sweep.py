@@ -811,21 +811,28 @@ def _attempt(
             for k in np.flatnonzero(converged & ~ok):
                 stuck[int(rows[k])] = (q[k], _take_state(state, int(k)), int(k))
 
-    solve_stage(sliding_mode, "slide")
-    # In stick-slip the slides alternate between creeps and jumps: predict from two steps back.
-    solve_stage(sliding_mode, "alternating")
-    solve_stage(other_mode, "slide")
-    # Where no sliding state is near, the contact may stick (inside the friction cone) ...
-    solve_stage(stick_mode, "stick")
-    if not fallbacks:
-        return success
-    # ... or slip only slightly from where it was: a tip slide in polar coordinates around the
-    # held point, started from the stuck state (well conditioned for a slip of any length).
-    solve_stage(np.full(n, _MODE_TIP), "anchored")
-    # Friction continuation (mu from 0 up) is the last resort for steps whose sliding state is
-    # far from the predictor.
-    solve_stage(sliding_mode, "continuation")
-    solve_stage(other_mode, "continuation")
+    stages = [
+        (sliding_mode, "slide"),
+        # In stick-slip the slides alternate between creeps and jumps: predict from two back.
+        (sliding_mode, "alternating"),
+        (other_mode, "slide"),
+        # Where no sliding state is near, the contact may stick (inside the friction cone) ...
+        (stick_mode, "stick"),
+    ]
+    if fallbacks:
+        stages += [
+            # ... or slip only slightly from where it was: a tip slide in polar coordinates
+            # around the held point, from the stuck state (well conditioned for any slip).
+            (np.full(n, _MODE_TIP), "anchored"),
+            # Friction continuation (mu from 0 up) is the last resort for steps whose sliding
+            # state is far from the predictor.
+            (sliding_mode, "continuation"),
+            (other_mode, "continuation"),
+        ]
+    for modes, kind in stages:
+        if success.all():
+            break  # the later stages take only the rows still unsolved
+        solve_stage(modes, kind)
     return success
 
 

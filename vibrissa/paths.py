@@ -11,7 +11,6 @@ paper's trail is one clamp displacement.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -111,22 +110,18 @@ class SampledPath:
     def penetrates(self, surface: Surface, x0: FloatArray) -> NDArray[np.bool_]:
         """Whether the straight rod at ``x0`` (n,) has points inside the object."""
         p, R = self.clamp_pose(x0)
-        t_in, t_out = surface.line_interval(p, R[:, :, 2])
-        with np.errstate(invalid="ignore"):
-            return (t_in < 1.0) & (t_out > 0.0)
+        return surface.segment_inside(p, R[:, :, 2])
 
-    def first_contact(self, surface: Surface, after: float = 0.0
-                      ) -> tuple[float, FloatArray] | None:
-        """The first x0 <= ``after`` where the straight rod, free just before, touches the
-        object, and the touch point in W: the tip, or the point of a side graze (the rod's
-        line tangent to the object with 0 < s < 1). None when it never does on the path.
+    def first_contact(self, surface: Surface) -> tuple[float, FloatArray] | None:
+        """The first x0 where the straight rod, free just before, touches the object, and the
+        touch point in W: the tip, or the point of a side graze (the rod's line tangent to the
+        object with 0 < s < 1). None when it never does on the path, or when the rod starts
+        inside the object (use ``tail`` to search from a later sample).
 
         Between the last free sample and the first one that penetrates, the touch is found
         by bisection of the fractional sample index to the last bit.
         """
-        start = -after / self.h
-        k_first = int(math.floor(start + 1e-9))
-        grid = np.concatenate([[start], np.arange(k_first + 1, self.n_samples, dtype=float)])
+        grid = np.arange(self.n_samples, dtype=float)
         inside = self.penetrates(surface, self.x0_of(grid))
         if inside[0]:
             return None  # the rod starts inside: no touch from outside here (unresolved)

@@ -102,6 +102,13 @@ class Surface(ABC):
         never = ~np.isfinite(root) & ~linear
         return np.where(never, np.nan, lo), np.where(never, np.nan, hi)
 
+    def segment_inside(self, a_W: ArrayLike, d_W: ArrayLike) -> NDArray[np.bool_]:
+        """Whether the segments a + t d, 0 <= t <= 1, have points inside the object (N,); a
+        straight rod of length 1 clamped at a along d, for instance."""
+        t_in, t_out = self.line_interval(a_W, d_W)
+        with np.errstate(invalid="ignore"):  # NaN: the line misses the object
+            return (t_in < 1.0) & (t_out > 0.0)
+
     def is_mirror_symmetric(self, point_W: ArrayLike, normal_W: ArrayLike) -> bool:
         """Whether the object is its own mirror image across the plane (point, normal)."""
         point = np.asarray(point_W, dtype=float)

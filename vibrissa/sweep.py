@@ -724,9 +724,7 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
 def _straight_rod_clears(surface: Surface, trail: ClampPath, x0: float) -> bool:
     """Whether the undeformed rod, clamped at x0 on the trail, lies outside the object."""
     p_WC, R_WC = trail.clamp_pose(np.array([x0]))
-    t_in, t_out = surface.line_interval(p_WC, R_WC[:, :, 2])
-    inside_somewhere = t_in[0] < 1.0 and t_out[0] > 0.0  # NaN: the line misses the object
-    return not inside_somewhere
+    return not surface.segment_inside(p_WC, R_WC[:, :, 2])[0]
 
 
 def _ending(track: _Track) -> SweepEnd:

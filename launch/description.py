@@ -125,6 +125,8 @@ class TransportSpec:
     ``VIBRISSA_DOMAIN_ID`` (default 0), or the next free one (``vibrissa.launch.launcher``).
     ``keys``: a key folder (``vibrissa keys``); every socket of the graph then speaks CURVE.
     ``max_message_bytes``: the largest frame the proxy takes from a publisher.
+    ``max_buffered_bytes``: what each subscriber of a node buffers at most (its default is
+    ``DEFAULT_MAX_BUFFERED_BYTES``).
     """
 
     domain: int | None = None
@@ -132,6 +134,7 @@ class TransportSpec:
     sub_endpoint: str | None = None
     keys: str | None = None
     max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES
+    max_buffered_bytes: int | None = None
 
 
 NODE_ENTRY_POINTS = "vibrissa.nodes"
@@ -453,12 +456,15 @@ class _Parser:
 
     def transport(self, value: Any, path: str) -> TransportSpec:
         body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint", "keys",
-                                              "max_message_bytes"))
+                                              "max_message_bytes", "max_buffered_bytes"))
         common = TransportSpec(
             keys=self.string(body["keys"], f"{path}.keys") if "keys" in body else None,
             max_message_bytes=self.integer(body.get("max_message_bytes",
                                                     DEFAULT_MAX_MESSAGE_BYTES),
                                            f"{path}.max_message_bytes", 1024),
+            max_buffered_bytes=self.integer(body["max_buffered_bytes"],
+                                            f"{path}.max_buffered_bytes", 1 << 20)
+            if "max_buffered_bytes" in body else None,
         )
         if "domain" in body:
             if "pub_endpoint" in body or "sub_endpoint" in body:

@@ -64,7 +64,7 @@ from vibrissa.runtime.node import DEBUG_ENV, EXIT_LOST_DATA
 from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire.security import Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC
-from vibrissa.wire.transport import DOMAIN_ENV, Endpoints, Proxy, Subscriber
+from vibrissa.wire.transport import BUFFER_ENV, DOMAIN_ENV, Endpoints, Proxy, Subscriber
 
 __all__ = [
     "DEFAULT_GRACE_S",
@@ -268,8 +268,11 @@ class Launcher:
             proxy, domain_env = started
             assert proxy.endpoints is not None
             self._statuses = Subscriber({STATUS_TOPIC: NodeStatus}, proxy.endpoints)
+            transport = self.description.transport or TransportSpec()
             self._env = {"PYTHONUNBUFFERED": "1", **proxy.endpoints.to_env(), **domain_env,
-                         **({DEBUG_ENV: "1"} if self.debug else {})}
+                         **({DEBUG_ENV: "1"} if self.debug else {}),
+                         **({BUFFER_ENV: str(transport.max_buffered_bytes)}
+                            if transport.max_buffered_bytes is not None else {})}
             remove_orphaned_params_dirs()
             self._params_dir = tempfile.mkdtemp(prefix=f"{PARAMS_DIR_PREFIX}{os.getpid()}-")
             try:

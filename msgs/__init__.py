@@ -16,6 +16,7 @@ from vibrissa.msgs.codec import (
     decode,
     encode,
     json_schema,
+    payload_limit,
     peek_type,
     to_jsonable,
 )
@@ -66,6 +67,7 @@ __all__ = [
     "decode",
     "encode",
     "json_schema",
+    "payload_limit",
     "peek_type",
     "to_jsonable",
 ]

@@ -30,6 +30,7 @@ from vibrissa.msgs.messages import (
     ENUM,
     FLOAT,
     INT,
+    MAX_PAYLOAD_BYTES,
     MESSAGE_TYPES,
     STR,
     STR_INT_MAP,
@@ -59,6 +60,7 @@ __all__ = [
     "decode",
     "encode",
     "json_schema",
+    "payload_limit",
     "peek_type",
     "to_jsonable",
 ]
@@ -223,14 +225,21 @@ def decode(
             f"undecodable payload ({len(payload)} bytes): {type(exc).__name__}: {exc}") from exc
 
 
+def payload_limit(expected: type[Message] | tuple[type[Message], ...] | None) -> int:
+    """The longest payload ``decode`` reads when it expects ``expected``, bytes."""
+    if expected is None:
+        return MAX_PAYLOAD_BYTES
+    allowed = expected if isinstance(expected, tuple) else (expected,)
+    return max(t.MAX_BYTES for t in allowed)
+
+
 def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] | None) -> Message:
-    if expected is not None:  # refused before a byte of it is read
-        allowed = expected if isinstance(expected, tuple) else (expected,)
-        limit = max(t.MAX_BYTES for t in allowed)
-        if len(payload) > limit:
-            names = ", ".join(t.TYPE_NAME for t in allowed)
-            raise OversizeError(f"payload of {len(payload)} bytes, more than the {limit} "
-                                f"bytes of {names}")
+    limit = payload_limit(expected)  # refused before a byte of it is read
+    if len(payload) > limit:
+        names = "any type" if expected is None else ", ".join(
+            t.TYPE_NAME for t in (expected if isinstance(expected, tuple) else (expected,)))
+        raise OversizeError(f"payload of {len(payload)} bytes, more than the {limit} bytes "
+                            f"of {names}")
     obj = _unpack(payload)
     name = obj.pop("_type", None)
     version = obj.pop("_v", None)

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import itertools
 import logging
 import os
@@ -56,15 +57,19 @@ from vibrissa.msgs import (
     Ping,
     decode,
     encode,
+    payload_limit,
     peek_type,
 )
 from vibrissa.msgs.messages import MAX_PAYLOAD_BYTES
+from vibrissa.wire.inbox import PIPE_HWM, Inbox
 from vibrissa.wire.security import Guard, Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 __all__ = [
     "DEFAULT_HWM",
+    "DEFAULT_MAX_BUFFERED_BYTES",
     "DEFAULT_MAX_MESSAGE_BYTES",
+    "BUFFER_ENV",
     "DOMAIN_ENV",
     "MAX_PUBLISHERS",
     "MAX_SEQ_GAP",
@@ -87,6 +92,13 @@ DEFAULT_HWM = 10_000
 DEFAULT_MAX_MESSAGE_BYTES = MAX_PAYLOAD_BYTES
 """Largest frame the proxy takes from a publisher, bytes: the largest payload of any type."""
 
+DEFAULT_MAX_BUFFERED_BYTES = 256 << 20
+"""What a subscriber buffers at most, bytes (plus one message of any size the proxy takes);
+``VIBRISSA_MAX_BUFFERED_BYTES`` sets another default (a launch file's
+``transport.max_buffered_bytes`` does, for its nodes)."""
+
+BUFFER_ENV = "VIBRISSA_MAX_BUFFERED_BYTES"
+
 MAX_SEQ_GAP = 1_000_000
 """Largest seq gap counted as lost messages: a publisher does not lose a million messages
 between two that arrive (a subscriber's queue holds DEFAULT_HWM); a larger jump is a forged or
@@ -102,7 +114,6 @@ _ENV_PUB = "VIBRISSA_PUB_ENDPOINT"
 _ENV_SUB = "VIBRISSA_SUB_ENDPOINT"
 DOMAIN_ENV = "VIBRISSA_DOMAIN_ID"
 _CONTROL_IDS = itertools.count()
-_FAIR_RUN = 64  # messages in a row from one socket before a subscriber looks at the others
 
 
 @dataclass(frozen=True)
@@ -599,6 +610,10 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
     It listens on the proxy and, for every topic it takes other than ``/vibrissa/status``, on
     each direct publisher of that topic that a ``NodeStatus`` announces (``direct_endpoints``);
     statuses it reads only for that are neither counted nor returned.
+
+    What it buffers is bounded: a thread takes messages off the sockets as they arrive into
+    a queue of at most ``max_buffered_bytes`` bytes and ``hwm`` messages (``wire.inbox``);
+    what does not fit is dropped, counted in ``dropped``, and shows as lost on its topic.
     """
 
     def __init__(
@@ -607,7 +622,10 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         endpoints: Endpoints | None = None,
         context: zmq.Context[Any] | None = None,
         hwm: int = DEFAULT_HWM,
+        max_buffered_bytes: int | None = None,
     ) -> None:
+        self.max_buffered_bytes = (_buffered_bytes_from_env() if max_buffered_bytes is None
+                                   else max_buffered_bytes)
         self.topics: dict[str, tuple[type[Message], ...] | None] | None = None
         self._expected: dict[str, tuple[type[Message], ...] | None] = {}
         prefixes = [b""]
@@ -631,22 +649,23 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         self.direct_endpoints: set[str] = set()
         self._context = context if context is not None else zmq.Context.instance()
         self._endpoints = endpoints or Endpoints.from_env()
-        self._hwm = hwm
         self._refused_endpoints: set[str] = set()  # announced, not beside the proxy
         self._direct: zmq.Socket[Any] | None = None  # made at the first announced endpoint
-        self._poller: zmq.Poller | None = None
-        self._socket = _socket(self._context, zmq.SUB, hwm)
-        self._sockets = [self._socket]
-        self._turn = 0  # index of the socket that gave the last message
-        self._run = 0  # messages in a row from it
+        sock = _socket(self._context, zmq.SUB, PIPE_HWM)
         try:
             for prefix in prefixes:
-                self._socket.setsockopt(zmq.SUBSCRIBE, prefix)
+                sock.setsockopt(zmq.SUBSCRIBE, prefix)
             if self._discover and not self._status_wanted:
-                self._socket.setsockopt(zmq.SUBSCRIBE, status_prefix)
-            _connect(self._socket, self._endpoints.sub, self._endpoints.keys)
+                sock.setsockopt(zmq.SUBSCRIBE, status_prefix)
+            _connect(sock, self._endpoints.sub, self._endpoints.keys)
         except zmq.ZMQError:
-            self._socket.close()
+            sock.close()
+            raise
+        try:
+            self._inbox = Inbox(self._context, [sock], self.max_buffered_bytes, hwm,
+                                self._payload_limit)
+        except (ValueError, zmq.ZMQError):
+            sock.close()
             raise
 
     @property
@@ -662,52 +681,31 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
             for name in ("received", "lost", "rejected", "pings", "anomalies")
         }
 
+    @property
+    def queued_bytes(self) -> int:
+        """Bytes received and not yet taken by ``receive``."""
+        return self._inbox.queued_bytes
+
+    @property
+    def dropped(self) -> int:
+        """Messages dropped because the receive queue was full (each also counts as lost on
+        its topic once a later message of its stream shows the gap)."""
+        return self._inbox.dropped
+
     def receive(self, timeout_s: float) -> Received | None:
         """Next message, or ``None`` when none arrives within ``timeout_s`` seconds.
 
         Pings and malformed messages are consumed here (counted, rejected ones logged) and
         never returned or raised.
         """
-        deadline = None
+        deadline = time.monotonic() + timeout_s
         while True:
-            frames = self._queued()  # what is already queued needs no poll
-            if frames is None:
-                if deadline is None:
-                    deadline = time.monotonic() + timeout_s
-                remaining_ms = max(0, round((deadline - time.monotonic()) * 1000))
-                if self._poller is None:
-                    ready = bool(self._socket.poll(remaining_ms, zmq.POLLIN))
-                else:
-                    ready = bool(self._poller.poll(remaining_ms))
-                if not ready:
-                    return None
-                continue
-            received = self._handle(frames)
+            taken = self._inbox.take(deadline - time.monotonic())
+            if taken is None:
+                return None
+            received = self._handle(*taken)
             if received is not None:
                 return received
-
-    def _queued(self) -> list[bytes] | None:
-        """A message already queued on a socket, or ``None``.
-
-        The socket that gave the last message is tried first (no failed read per message
-        under a backlog); after ``_FAIR_RUN`` messages in a row from it the others go first
-        once, so that neither path starves the other.
-        """
-        sockets = self._sockets
-        first = self._turn
-        if self._run >= _FAIR_RUN:
-            first = (first + 1) % len(sockets)
-            self._run = 0
-        for k in range(len(sockets)):
-            index = (first + k) % len(sockets)
-            try:
-                frames = sockets[index].recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                continue
-            self._run = self._run + 1 if index == self._turn else 1
-            self._turn = index
-            return frames
-        return None
 
     def _connect_announced(self, status: NodeStatus) -> None:
         """Connect to the direct publishers that ``status`` announces on topics taken here."""
@@ -723,29 +721,46 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                                     status.node, endpoint, topic, self._endpoints.pub)
                     self._refused_endpoints.add(endpoint)
                 continue
-            if self._direct is None:
-                self._direct = _socket(self._context, zmq.SUB, self._hwm)
-                if self._endpoints.keys is not None:
-                    self._endpoints.keys.connect_with(self._direct)
-                # Endpoints of nodes that are gone stay connected (what they sent last must
-                # still be read); ZeroMQ retries them at most every 5 s.
-                self._direct.setsockopt(zmq.RECONNECT_IVL_MAX, 5000)
-                for prefix in self._direct_prefixes:
-                    self._direct.setsockopt(zmq.SUBSCRIBE, prefix)
-                self._sockets.append(self._direct)
-                self._poller = zmq.Poller()
-                for sock in self._sockets:
-                    self._poller.register(sock, zmq.POLLIN)
-            try:
-                self._direct.connect(endpoint)
-            except zmq.ZMQError as exc:
-                log.warning("%s announces %s on %s, cannot connect: %s",
-                            status.node, endpoint, topic, exc)
-                continue
             self.direct_endpoints.add(endpoint)
-            log.debug("%s: direct from %s at %s", topic, status.node, endpoint)
+            self._inbox.call(functools.partial(self._connect_direct, endpoint, status.node,
+                                               topic))
 
-    def _handle(self, frames: list[bytes]) -> Received | None:
+    def _connect_direct(self, endpoint: str, node: str, topic: str) -> None:
+        """Connect the direct socket (made at the first endpoint) to ``endpoint``; runs on the
+        inbox thread, which owns the sockets."""
+        if self._direct is None:
+            self._direct = _socket(self._context, zmq.SUB, PIPE_HWM)
+            # an announced peer is not trusted with frames larger than the proxy takes
+            self._direct.setsockopt(zmq.MAXMSGSIZE, DEFAULT_MAX_MESSAGE_BYTES)
+            if self._endpoints.keys is not None:
+                self._endpoints.keys.connect_with(self._direct)
+            # Endpoints of nodes that are gone stay connected (what they sent last must
+            # still be read); ZeroMQ retries them at most every 5 s.
+            self._direct.setsockopt(zmq.RECONNECT_IVL_MAX, 5000)
+            for prefix in self._direct_prefixes:
+                self._direct.setsockopt(zmq.SUBSCRIBE, prefix)
+            self._inbox.add_socket(self._direct)
+        try:
+            self._direct.connect(endpoint)
+        except zmq.ZMQError as exc:
+            log.warning("%s announces %s on %s, cannot connect: %s", node, endpoint, topic, exc)
+            return
+        log.debug("%s: direct from %s at %s", topic, node, endpoint)
+
+    def _payload_limit(self, topic_frame: bytes) -> int:
+        """The longest payload worth keeping on ``topic_frame`` (inbox thread: reads only
+        what ``__init__`` wrote)."""
+        try:
+            topic = topic_frame[:-1].decode()
+        except UnicodeDecodeError:
+            return 0  # refused anyway
+        if topic == STATUS_TOPIC and topic not in self._expected:
+            return NodeStatus.MAX_BYTES  # read only to find direct publishers
+        return payload_limit(self._expected.get(topic))
+
+    def _handle(self, frames: list[bytes], cut: int = 0) -> Received | None:
+        """Deliver, count or refuse one message; ``cut``: the length of a payload the inbox
+        did not keep (refused here by its length alone)."""
         now = time.time()
         if len(frames) != 3 or not frames[0].endswith(b"\0"):
             self._reject("?", f"{len(frames)} frames, expected [topic\\0, header, payload]")
@@ -767,6 +782,11 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
             header = _parse_header(raw_header)
         except ValueError as exc:
             self._reject(topic, str(exc))
+            return None
+        if cut:
+            self._track(topic, counters, header, is_ping=False)  # it did use its seq
+            self._reject(topic, f"payload of {cut} bytes, more than the "
+                                f"{self._payload_limit(raw_topic)} taken on {topic}")
             return None
         try:
             msg = decode(payload, self._expected.get(topic))
@@ -856,12 +876,24 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         log.warning("%s: rejected message: %s", topic, reason)
 
     def close(self) -> None:
-        """Close the sockets (linger 0)."""
-        for sock in self._sockets:
-            sock.close()
+        """Stop taking messages and close the sockets (linger 0)."""
+        self._inbox.close()
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+def _buffered_bytes_from_env() -> int:
+    text = os.environ.get(BUFFER_ENV, "").strip()
+    if not text:
+        return DEFAULT_MAX_BUFFERED_BYTES
+    try:
+        value = int(text)
+    except ValueError:
+        raise ValueError(f"{BUFFER_ENV}={text!r} is not an integer") from None
+    if value < 1:
+        raise ValueError(f"{BUFFER_ENV}={value} must be at least 1")
+    return value
 
 
 def _parse_header(raw: bytes) -> Header:

@@ -143,6 +143,10 @@ def test_transport_entries(tmp_path: Path) -> None:
         "launch:\n  - transport: {keys: '$(dirname)/keys', max_message_bytes: 4096}\n" + node)))
     assert desc.transport == TransportSpec(keys=f"{tmp_path}/keys", max_message_bytes=4096)
     assert TransportSpec().max_message_bytes == 64 << 20
+    desc = load_launch_file(write(tmp_path, (
+        "launch:\n  - transport: {max_buffered_bytes: 2097152}\n" + node)))
+    assert desc.transport == TransportSpec(max_buffered_bytes=2 << 20)
+    assert TransportSpec().max_buffered_bytes is None  # each subscriber's default
 
 
 def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
@@ -241,6 +245,8 @@ def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
          "launch[0].transport.pub_endpoint: expected a ZeroMQ endpoint"),
         ("  - transport: {max_message_bytes: 100}\n  - node: {cmd: [x], name: n}\n",
          "launch[0].transport.max_message_bytes: expected an int >= 1024, got 100"),
+        ("  - transport: {max_buffered_bytes: 1000}\n  - node: {cmd: [x], name: n}\n",
+         "launch[0].transport.max_buffered_bytes: expected an int >= 1048576, got 1000"),
         ("  - transport: {keys: [a]}\n  - node: {cmd: [x], name: n}\n",
          "launch[0].transport.keys: expected str"),
         ("  - transport: {}\n  - transport: {}\n  - node: {cmd: [x], name: n}\n",

@@ -145,6 +145,14 @@ def test_output_is_prefixed_and_node_gets_its_command_line(tmp_path: Path) -> No
     assert "[launch] launch finished" in err
 
 
+def test_the_transport_byte_bound_reaches_every_node(tmp_path: Path) -> None:
+    path = write_launch(tmp_path, {"transport": {"max_buffered_bytes": 8 << 20}},
+                        fixture_node("printer", "printer"))
+    rc, out, err = launch(path)
+    assert rc == 0, err
+    assert f"[printer] env VIBRISSA_MAX_BUFFERED_BYTES={8 << 20}" in out.splitlines()
+
+
 def test_bad_file_or_argument_exits_2_and_starts_nothing(tmp_path: Path) -> None:
     pid_file = tmp_path / "pids"
     sleeper = fixture_node("sleeper", "sleeper", pid_file=str(pid_file), seconds=0.1)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import zmq
 
-from vibrissa.msgs import ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench, encode
+from vibrissa.msgs import ContactCloud, ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench, encode
 from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
-from vibrissa.wire.transport import MAX_PUBLISHERS
+from vibrissa.wire.transport import BUFFER_ENV, DEFAULT_MAX_BUFFERED_BYTES, MAX_PUBLISHERS
 
 TIMEOUT_S = 2.0
 
@@ -270,3 +270,49 @@ def test_messages_lost_before_the_first_one_heard_count_at_the_end_of_the_stream
         [end] = sub.ended_streams
         assert (end.source, end.sent, end.received, end.lost) == ("/src", 8, 3, 5)
         sub.close()
+
+
+def test_a_subscriber_that_does_not_read_buffers_at_most_its_byte_bound(
+    proxy: Proxy, context: zmq.Context[Any]
+) -> None:
+    n, points, bound = 60, 20_000, 4 << 20  # 60 clouds of 0.96 MB into a 4 MiB bound
+    cloud = ContactCloud(stamp=0.0, frame_id="world", points=np.zeros((points, 3)),
+                         normals=np.zeros((points, 3)))
+    size = len(encode(cloud))
+    with Publisher("/map/cloud", ContactCloud, proxy.endpoints, context, hwm=n + 10) as pub, \
+            Subscriber({"/map/cloud": ContactCloud}, proxy.endpoints, context,
+                       max_buffered_bytes=bound) as sub:
+        connect(pub, sub)
+        for _ in range(n):  # nobody reads: the queue fills to its bound, then drops
+            pub.publish(cloud)
+        deadline = time.monotonic() + 10.0
+        while sub.dropped + sub.queued_bytes // size < n and time.monotonic() < deadline:
+            time.sleep(0.05)
+        queued = sub.queued_bytes
+        assert bound - size < queued <= bound, (queued, bound)
+        assert sub.dropped == n - queued // size > 0
+        data = 0
+        while (rx := sub.receive(0.5)) is not None:
+            data += 1
+        assert data == queued // size
+        pub.publish_end_of_stream("/test")  # the queue is empty again: this one arrives
+        rx = sub.receive(TIMEOUT_S)
+        assert rx is not None and isinstance(rx.msg, EndOfStream)
+        [end] = sub.ended_streams  # every dropped message is a counted loss
+        assert (end.sent, end.received, end.lost) == (n, data, sub.dropped)
+
+
+def test_the_byte_bound_comes_from_the_environment_when_not_given(
+    proxy: Proxy, context: zmq.Context[Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(BUFFER_ENV, str(3 << 20))
+    with Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context) as sub:
+        assert sub.max_buffered_bytes == 3 << 20
+    with Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context, max_buffered_bytes=5) as sub:
+        assert sub.max_buffered_bytes == 5
+    monkeypatch.setenv(BUFFER_ENV, "lots")
+    with pytest.raises(ValueError, match="VIBRISSA_MAX_BUFFERED_BYTES='lots' is not an integer"):
+        Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context)
+    monkeypatch.delenv(BUFFER_ENV)
+    with Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context) as sub:
+        assert sub.max_buffered_bytes == DEFAULT_MAX_BUFFERED_BYTES

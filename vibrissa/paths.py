@@ -25,6 +25,15 @@ FloatArray = NDArray[np.float64]
 _TOUCH_ITERATIONS = 200  # bisection of the touch between two samples: to the last bit of lambda
 
 
+def rod_motion(p_WR: FloatArray, rotations: Rotation, mount: Transform) -> FloatArray:
+    """A bound on how far a point of the straight rod moves between consecutive samples (N-1,),
+    units of L: a point at most |p_RC| + 1 from R's origin moves at most
+    |dp_WR| + |dtheta| (|p_RC| + 1)."""
+    turn = (rotations[:-1].inv() * rotations[1:]).magnitude()
+    reach = float(np.linalg.norm(mount.translation)) + 1.0
+    return np.asarray(np.linalg.norm(np.diff(p_WR, axis=0), axis=1) + turn * reach)
+
+
 @dataclass(frozen=True)
 class SampledPath:
     """A clamp path through robot samples ``k = 0 .. N-1`` (x0 = -k h), with friction ``mu``.
@@ -68,15 +77,9 @@ class SampledPath:
             raise ValueError("p_WR must be finite")
         if not self.mu >= 0:
             raise ValueError(f"mu must be >= 0, got {self.mu}")
-        h = self.h
-        if not h:
-            # A point of the rod, at most |p_RC| + 1 from R's origin, moves at most
-            # |dp_WR| + |dtheta| (|p_RC| + 1) between samples.
-            turn = (self.rotations[:-1].inv() * self.rotations[1:]).magnitude()
-            reach = float(np.linalg.norm(self.mount.translation)) + 1.0
-            h = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1) + turn * reach))
+        h = self.h or float(np.max(rod_motion(p, self.rotations, self.mount)))
         if not h > 0:
-            raise ValueError("the clamp does not move along the path")
+            h = 1.0  # the clamp stays put: the coordinate only counts samples
         object.__setattr__(self, "p_WR", p)
         object.__setattr__(self, "h", h)
         object.__setattr__(self, "x_end", -(len(p) - 1) * h)

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import Transform
-from vibrissa.paths import SampledPath
+from vibrissa.paths import SampledPath, rod_motion
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
 from vibrissa.sweep import SweepRun
@@ -205,6 +205,10 @@ SampleProgress = Callable[[str, int, int], None]
 
 PROGRESS_PERIOD_S = 2.0
 
+PAUSE_L = 1e-12
+"""A sample where no point of the straight rod moved more than this (units of L) since the
+sample before is a pause: it repeats that sample."""
+
 
 def simulate(scene: Scene, workers: int | None = None,
              progress: Callable[[int, int], None] | None = None,
@@ -244,9 +248,37 @@ def simulate_whisker(scene: Scene, whisker: Whisker,
     length = whisker.length_m
     surfaces = [obj.surface(length) for obj in scene.objects]
     mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
-    path = SampledPath(scene.path.p_WR / length, scene.path.R_WR, scene.mu, mount)
+    p_WR = scene.path.p_WR / length
+    # Where the robot pauses nothing changes (Coulomb friction does not depend on rate): Step 1
+    # runs on the samples where the clamp moved, and each pause repeats the sample before it.
+    moved = np.concatenate([[True], rod_motion(p_WR, scene.path.R_WR, mount) > PAUSE_L])
+    moved[-1] |= not moved[1:].any()  # a robot that never moves: its first and last sample
+    kept = np.flatnonzero(moved)
+    path = SampledPath(p_WR[kept], scene.path.R_WR[kept], scene.mu, mount)
+    result = _simulate_moving(scene, whisker, path, surfaces, scene.path.t, kept, progress)
+    of_sample = np.cumsum(moved) - 1  # the moving sample each sample repeats
+    for name in ("phase", "s1_m", "f0_n", "m0_nm", "p_W_m", "object"):
+        setattr(result, name, getattr(result, name)[of_sample])
+    result.t = scene.path.t
+    return result
+
+
+def _simulate_moving(scene: Scene, whisker: Whisker, path: SampledPath, surfaces: list[Surface],
+                     t_all: FloatArray, kept: NDArray[np.int64],
+                     progress: SampleProgress | None) -> WhiskerResult:
+    """Step 1 on the samples ``kept`` (of ``t_all``) where the clamp moves, ``path``."""
+    length = whisker.length_m
     n = path.n_samples
-    t = scene.path.t
+    t = t_all[kept]
+
+    def time_at(lam: float) -> float:
+        """The time at the fractional moving sample ``lam``: the clamp moves from the sample
+        before kept[j] (where a pause ends) to kept[j]."""
+        j = min(int(np.ceil(lam)), n - 1)
+        if j == 0:
+            return float(t[0])
+        start = t_all[kept[j] - 1]
+        return float(start + (lam - (j - 1)) * (t_all[kept[j]] - start))
     phase = np.full(n, SamplePhase.NONE, dtype=np.int64)
     s1, f0, m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
     contact, touched = np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
@@ -285,9 +317,8 @@ def simulate_whisker(scene: Scene, whisker: Whisker,
             f0[rows], m0[rows] = whisker.scale.wrench_to_si(sweep.f0, sweep.m0)
             contact[rows] = sweep.contact * length
             touched[span] = i
-        t_touch = float(np.interp(-sweep.x_touch / rest.h + k, np.arange(n), t))
-        changes = [(float(np.interp(-x0 / rest.h + k, np.arange(n), t)), old, new)
-                   for x0, old, new in sweep.phase_changes]
+        t_touch = time_at(-sweep.x_touch / rest.h + k)
+        changes = [(time_at(-x0 / rest.h + k), old, new) for x0, old, new in sweep.phase_changes]
         episodes.append(Episode(scene.objects[i].name, t_touch, str(sweep.end), changes))
         if sweep.end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             break

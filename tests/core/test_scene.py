@@ -145,3 +145,44 @@ def test_long_work_reports_how_far_along_the_path_it_is(monkeypatch: pytest.Monk
     assert len(samples) > 100 and samples == sorted(samples)
     contact = np.flatnonzero(result.phase != SamplePhase.NONE)
     assert contact[0] <= samples[0] and samples[-1] <= contact[-1] + 1
+
+
+def test_a_pause_repeats_the_sample_before_it_and_changes_nothing_else() -> None:
+    """Coulomb friction does not depend on rate: a robot that stops in contact (here while the
+    rod slides along the cup's side) holds its wrench, and the rest of the run is unchanged."""
+    x = np.linspace(1.2 * L0, -1.0 * L0, 300)
+    k, pause = 150, 40
+    paused_x = np.concatenate([x[:k], np.full(pause, x[k - 1]), x[k:]])
+
+    def run(xs: np.ndarray, t: np.ndarray) -> object:
+        path = robot_path(t, np.column_stack([xs, np.zeros((len(xs), 2))]),
+                          np.tile([0.0, 0.0, 0.0, 1.0], (len(xs), 1)))
+        return simulate(Scene(0.2, (CUP,), (PLAIN,), path), workers=1)[0]
+
+    plain = run(x, np.arange(len(x)) * 0.01)
+    t = np.concatenate([np.arange(k) * 0.01, (k - 1) * 0.01 + np.arange(1, pause + 1) * 0.001,
+                        (k - 1) * 0.01 + pause * 0.001 + np.arange(1, len(x) - k + 1) * 0.01])
+    paused = run(paused_x, t)
+    assert plain.phase[k - 1] in (SamplePhase.TIP, SamplePhase.TANGENTIAL)  # in contact
+    moving = np.r_[0:k, k + pause:len(paused_x)]
+    for name in ("phase", "s1_m", "f0_n", "m0_nm", "p_W_m", "object"):
+        before, after = getattr(plain, name), getattr(paused, name)
+        np.testing.assert_array_equal(after[moving], before, err_msg=name)
+        np.testing.assert_array_equal(after[k:k + pause], np.repeat(before[[k - 1]], pause, 0),
+                                      err_msg=name)
+    [before], [after] = plain.episodes, paused.episodes
+    assert before.end == after.end and after.t_first_contact == before.t_first_contact
+    # what happened after the pause happened later by the pause's duration
+    shift = pause * 0.001
+    assert [(round(t0 + (shift if t0 > (k - 1) * 0.01 else 0), 9), a, b)
+            for t0, a, b in before.phase_changes] == \
+        [(round(t1, 9), a, b) for t1, a, b in after.phase_changes]
+
+
+@pytest.mark.parametrize(("x_m", "expected"), [(0.0, SamplePhase.UNRESOLVED),
+                                              (3 * L0, SamplePhase.NONE)])
+def test_a_robot_that_never_moves(x_m: float, expected: SamplePhase) -> None:
+    path = robot_path(np.arange(5) * 0.1, np.tile([x_m, 0.0, 0.0], (5, 1)),
+                      np.tile([0.0, 0.0, 0.0, 1.0], (5, 1)))
+    [r] = simulate(Scene(0.2, (CUP,), (PLAIN,), path), workers=1)
+    assert np.all(r.phase == expected) and r.episodes == []  # the rod stands in the cup, or free

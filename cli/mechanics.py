@@ -96,6 +96,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("input", type=Path, metavar="SWEEP.csv")
     p.add_argument("--surface", type=_surface, metavar="SPEC",
                    help="object to measure the error against (adds column err)")
+    p.add_argument("--scene", type=Path, metavar="SCENE.yaml",
+                   help="read WRENCHES.csv instead (columns t,whisker,f0x..m0z: clamp frames, "
+                   "N, N m) and write POINTS.csv (t,whisker,px,py,pz,s1,phase,status: W, m), "
+                   "the clamps posed by the scene's path at each t and its whiskers' mounts")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="RCP.csv")
     p.set_defaults(func=_reconstruct)
 
@@ -135,6 +139,12 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _reconstruct(args: argparse.Namespace) -> int:
+    if args.scene is not None:
+        if args.surface is not None:
+            return _fail("reconstruct", "--surface is for SWEEP.csv; a scene has its objects")
+        from vibrissa.cli.scenes import run_reconstruct  # scenes only when asked for
+
+        return run_reconstruct(args)
     try:
         table = tables.read_wrench_csv(args.input)
     except tables.TableError as exc:

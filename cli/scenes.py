@@ -15,6 +15,9 @@ SCENE.yaml (world frame W, z up)::
 
 Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample) and
 ``DIR/summary.json`` (per whisker: contact episodes, phase changes, samples per phase).
+
+Also Step 2 of such a scene offline: ``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o
+POINTS.csv`` (``WRENCH_COLUMNS`` in, ``POINT_COLUMNS`` out, row for row).
 """
 
 from __future__ import annotations
@@ -22,13 +25,17 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
+from numpy.typing import NDArray
 
+from vibrissa.cli import tables
 from vibrissa.cli.tables import cell, write_csv
 from vibrissa.frames import Transform
 from vibrissa.scene import (
@@ -39,9 +46,13 @@ from vibrissa.scene import (
     SceneObject,
     Whisker,
     WhiskerResult,
+    reconstruct_along,
     robot_path,
     simulate,
 )
+from vibrissa.status import ContactPhase
+
+FloatArray = NDArray[np.float64]
 
 SCENE_COLUMNS: dict[str, tuple[str, str]] = {
     "t": ("s", "time of the path sample"),
@@ -246,6 +257,80 @@ def run_simulate(args: argparse.Namespace) -> int:
                        sample_progress=print_sample_progress)
     for path in write_results(Path(args.out), scene, results):
         print(f"wrote {path}")
+    return 0
+
+
+WRENCH_COLUMNS = ("t", "whisker", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z")
+"""The columns ``vibrissa reconstruct WRENCHES.csv --scene`` reads (more are ignored)."""
+
+POINT_COLUMNS = {
+    "t": ("s", "the input row's time"),
+    "whisker": ("-", "the input row's whisker"),
+    "px": ("m", "contact point, x in W (empty: no consistent contact)"),
+    "py": ("m", "contact point, y in W"),
+    "pz": ("m", "contact point, z in W"),
+    "s1": ("m", "arc length of the contact from the clamp"),
+    "phase": ("-", "none, tip or tangential"),
+    "status": ("-", "ok, the ContactStatus flags joined by |, or no_pose (t outside the path)"),
+}
+"""The columns of POINTS.csv: (unit, meaning)."""
+
+
+def read_wrenches(path: Path) -> tuple[list[str], FloatArray, list[str], FloatArray, FloatArray]:
+    """WRENCHES.csv: the t texts, t (s), whisker names, f0 (N) and m0 (N m) in clamp frames;
+    `SceneError` names the file and the column or row. An empty wrench cell is a missing value
+    (Step 2 flags it ``non_finite_input``)."""
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.reader(handle))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{path}: {exc}") from None
+    header = [c.strip() for c in rows[0]] if rows else []
+    missing = [name for name in WRENCH_COLUMNS if name not in header]
+    if missing:
+        raise SceneError(f"{path.name}: missing column(s) {', '.join(missing)} (the columns are "
+                         f"{','.join(WRENCH_COLUMNS)})")
+    at = {name: header.index(name) for name in WRENCH_COLUMNS}
+    t_text, names = [], []
+    values = np.empty((len(rows) - 1, 7))
+    for i, row in enumerate(rows[1:]):
+        if len(row) != len(header):
+            raise SceneError(f"{path.name}: row {i + 1}: expected {len(header)} values, "
+                             f"got {len(row)}")
+        t_text.append(row[at["t"]].strip())
+        names.append(row[at["whisker"]].strip())
+        for j, name in enumerate(("t", *WRENCH_COLUMNS[2:])):
+            text = row[at[name]].strip()
+            try:
+                values[i, j] = float(text) if text or name != "t" else math.nan
+            except ValueError:
+                raise SceneError(f"{path.name}: row {i + 1}, column {name}: {text!r} is not a "
+                                 f"number") from None
+        if not math.isfinite(values[i, 0]):
+            raise SceneError(f"{path.name}: row {i + 1}: t must be a finite number")
+    return t_text, values[:, 0], names, values[:, 1:4], values[:, 4:7]
+
+
+def run_reconstruct(args: argparse.Namespace) -> int:
+    """``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o POINTS.csv``."""
+    scene = load_scene(args.scene)
+    t_text, t, names, f0, m0 = read_wrenches(Path(args.input))
+    try:
+        rec = reconstruct_along(scene, t, names, f0, m0)
+    except ValueError as exc:
+        raise SceneError(f"{Path(args.input).name}: {exc}") from None
+    status = [tables.status_name(int(rec.status[i])) if rec.pose_ok[i] else "no_pose"
+              for i in range(len(t))]
+    rows = ([t_text[i], names[i], *(cell(v) for v in rec.point_m[i]), cell(rec.s1_m[i]),
+             ContactPhase(rec.phase[i]).label, status[i]] for i in range(len(t)))
+    write_csv(Path(args.output), tuple(POINT_COLUMNS), rows)
+    found = int(np.sum(np.isfinite(rec.point_m[:, 0])))
+    counts = Counter(name for name in status if name not in ("ok", "axial_load"))
+    line = f"reconstruct: {len(t)} rows, {found} with a contact"
+    if counts:
+        line += f", {sum(counts.values())} without (" + ", ".join(
+            f"{name}: {n}" for name, n in sorted(counts.items())) + ")"
+    print(f"{line} -> {args.output}", file=sys.stderr)
     return 0
 
 

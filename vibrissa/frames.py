@@ -145,13 +145,18 @@ class PoseSamples:
     def at(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Positions (n, 3) and rotation matrices (n, 3, 3) at times ``t`` (n,); ValueError
         outside the samples."""
+        p, rotations = self.poses_at(t)
+        return p, rotations.as_matrix()
+
+    def poses_at(self, t: ArrayLike) -> tuple[FloatArray, Rotation]:
+        """`at`, with the orientations as a `Rotation`."""
         t = np.asarray(t, dtype=float).reshape(-1)
         if np.any(~(t >= self.t[0])) or np.any(~(t <= self.t[-1])):
             raise ValueError(f"t outside the samples [{self.t[0]}, {self.t[-1]}]: no extrapolation")
         k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 2)
         frac = (t - self.t[k]) / (self.t[k + 1] - self.t[k])
         p = self.p_AB[k] + frac[:, None] * (self.p_AB[k + 1] - self.p_AB[k])
-        return p, self._slerp(t).as_matrix()
+        return p, self._slerp(t)
 
 
 def interpolate(X_a: Transform, X_b: Transform, t: float) -> Transform:

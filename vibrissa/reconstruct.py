@@ -260,10 +260,11 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
     rod
         L and EI of the rod.
     """
+    # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
+    q, p, f0, m0 = (np.require(a, dtype=float, requirements=["C", "W"])
+                    for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
     pose_ok, point, s1, phase, force, status = _rows_si(
-        np.ascontiguousarray(q_WC_xyzw, dtype=float), np.ascontiguousarray(p_WC_m, dtype=float),
-        np.ascontiguousarray(f0_C_n, dtype=float), np.ascontiguousarray(m0_C_nm, dtype=float),
-        rod.length_m, rod.force_n, rod.moment_nm)
+        q, p, f0, m0, rod.length_m, rod.force_n, rod.moment_nm)
     return ReconstructionSI(pose_ok, point, s1, phase, force, status)
 
 

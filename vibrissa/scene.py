@@ -24,7 +24,7 @@ from __future__ import annotations
 import enum
 import os
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -33,8 +33,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from vibrissa.frames import Transform
+from vibrissa.frames import PoseSamples, Transform
 from vibrissa.paths import SampledPath, rod_motion
+from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
 from vibrissa.sweep import SweepRun
@@ -142,6 +143,20 @@ class RobotPath:
             raise ValueError(f"path: {len(t)} times, positions {p.shape}, {len(self.R_WR)} rotations")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "p_WR", p)
+
+    def at(self, t: ArrayLike) -> tuple[NDArray[np.bool_], FloatArray, Rotation]:
+        """Robot poses at stamps ``t`` (n,): whether the path covers each stamp, and there the
+        position (n, 3) and R_WR, interpolated between the samples around it (position linear,
+        orientation slerp; `vibrissa.frames.PoseSamples`). A stamp outside [t_0, t_N-1] is not
+        covered (never extrapolated): NaN position and identity rotation."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        covered = (t >= self.t[0]) & (t <= self.t[-1])
+        p = np.full((len(t), 3), np.nan)
+        q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+        if covered.any():
+            p[covered], rotations = PoseSamples(self.t, self.p_WR, self.R_WR).poses_at(t[covered])
+            q[covered] = rotations.as_quat()
+        return covered, p, Rotation.from_quat(q)
 
 
 @dataclass(frozen=True)
@@ -325,6 +340,44 @@ def _simulate_moving(scene: Scene, whisker: Whisker, path: SampledPath, surfaces
         k = skip_unresolved(int(rows[-1]) + 1 if len(rows)
                             else int(np.floor(-sweep.x_touch / rest.h)) + k + 1)
     return WhiskerResult(whisker.name, t, phase, s1, f0, m0, contact, touched, episodes)
+
+
+def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
+                      f0_C_n: ArrayLike, m0_C_nm: ArrayLike) -> ReconstructionSI:
+    """Step 2 of wrenches measured along the scene's path, one row per measurement.
+
+    Row i: whisker ``whisker[i]`` (by name; its own L, EI and mount), at time ``t_s[i]``, with
+    the clamp's reaction ``f0_C_n[i]``, ``m0_C_nm[i]`` in its clamp frame C (N, N m). The clamp
+    is at X_WC = X_WR(t) X_RC with the robot pose interpolated at t (`RobotPath.at`); a row
+    whose t the path does not cover has ``pose_ok`` False and no point. A row gives the same
+    bits alone or in any batch. ValueError names an unknown whisker and its row.
+    """
+    t = np.asarray(t_s, dtype=float).reshape(-1)
+    f0, m0 = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (f0_C_n, m0_C_nm))
+    names = list(whisker)
+    if not len(names) == len(t) == len(f0) == len(m0):
+        raise ValueError(f"{len(t)} times, {len(names)} whisker names, {len(f0)} f0 and "
+                         f"{len(m0)} m0 rows")
+    index = {w.name: i for i, w in enumerate(scene.whiskers)}
+    unknown = [i for i, name in enumerate(names) if name not in index]
+    if unknown:
+        raise ValueError(f"row {unknown[0]}: whisker {names[unknown[0]]!r} is not in the scene "
+                         f"({', '.join(index)})")
+    rows_of = np.array([index[name] for name in names], dtype=np.int64)
+    covered, p_WR, R_WR = scene.path.at(t)
+    out = ReconstructionSI(np.zeros(len(t), bool), np.full((len(t), 3), np.nan),
+                           np.full(len(t), np.nan), np.zeros(len(t), np.int32),
+                           np.full((len(t), 3), np.nan), np.zeros(len(t), np.int32))
+    for i, w in enumerate(scene.whiskers):
+        rows = np.flatnonzero((rows_of == i) & covered)
+        if len(rows) == 0:
+            continue
+        p_WC = p_WR[rows] + R_WR[rows].apply(np.array(w.X_RC.translation))  # scipy: writable
+        q_WC = (R_WR[rows] * w.X_RC.rotation).as_quat()
+        part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], w.scale)
+        for mine, theirs in zip(out, part, strict=True):
+            mine[rows] = theirs
+    return out
 
 
 def robot_path(t: ArrayLike, p_WR: ArrayLike, q_WR_xyzw: ArrayLike) -> RobotPath:

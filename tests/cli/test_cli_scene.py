@@ -105,3 +105,87 @@ def test_a_bad_path_row_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[s
     (tmp_path / "path.csv").write_text("\n".join(lines) + "\n")
     assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 1
     assert message in capsys.readouterr().err
+
+
+def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The issue's offline interface: Step 2 through the scene's poses, row for row, from the
+    wrenches `vibrissa simulate` wrote (shuffled, with rows between samples and off the path)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from vibrissa.reconstruct import reconstruct_si
+    from vibrissa.units import RodScale
+
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    out = tmp_path / "out"
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(out), "--workers", "1"]) == 0
+    rows, truth = [], []
+    for name in ("w0", "w1"):
+        with (out / f"{name}.csv").open() as handle:
+            for row in list(csv.DictReader(handle)):
+                if row["phase"] == "unresolved":
+                    continue
+                rows.append([row["t"], name, *(row[c] for c in CONTRACT[3:9])])
+                truth.append((row["phase"], [row[c] for c in ("px", "py", "pz")]))
+    between = ["0.555", "w1", "0.001", "-0.002", "0.0005", "1e-5", "2e-5", "0"]  # mid-sample
+    off = ["3.5", "w0", "0.001", "0", "0", "0", "0", "0"]  # after the path's last pose
+    order = np.random.default_rng(3).permutation(len(rows))
+    table = [rows[i] for i in order] + [between, off]
+    text = "extra,t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n" + "".join(
+        "x," + ",".join(r) + "\n" for r in table)
+    (tmp_path / "wrenches.csv").write_text(text)
+    points = tmp_path / "points.csv"
+    assert main(["reconstruct", str(tmp_path / "wrenches.csv"), "--scene",
+                 str(tmp_path / "scene.yaml"), "-o", str(points)]) == 0
+    with points.open() as handle:
+        result = list(csv.reader(handle))
+    assert result[0] == ["t", "whisker", "px", "py", "pz", "s1", "phase", "status"]
+    result = result[1:]
+    assert [r[:2] for r in result] == [r[:2] for r in table]  # same rows, same order
+    touching = 0
+    for got, i in zip(result, order, strict=False):
+        phase, p_true = truth[i]
+        length = 0.05 if got[1] == "w0" else 0.04
+        if phase == "none":
+            assert got[2:5] == ["", "", ""] and got[6] == "none" and got[7] == "no_force"
+        else:
+            touching += 1
+            assert got[6] == phase and got[7] in ("ok", "axial_load")
+            error = np.linalg.norm(np.array(got[2:5], float) - np.array(p_true, float))
+            assert error < 1e-9 * length, (got, p_true)
+    assert touching > 100
+    # between two samples: the pose is interpolated (position linear, orientation slerp)
+    t = np.arange(300) * 0.01
+    yaw = 0.3 * np.arange(300) / 300
+    x = np.linspace(0.10, -0.06, 300)
+    R_WR = Slerp(t, Rotation.from_euler("z", yaw[:, None]))([0.555])
+    p_WR = np.array([[np.interp(0.555, t, x), 0.0, 0.0]])
+    mount = Rotation.from_quat([0.0998334, 0, 0, 0.9950042])
+    q_WC = (R_WR * mount).as_quat()
+    p_WC = p_WR + R_WR.apply([0.0, -0.01, 0.0])
+    expected = reconstruct_si(q_WC, p_WC, np.array([[0.001, -0.002, 0.0005]]),
+                              np.array([[1e-5, 2e-5, 0.0]]), RodScale(0.04, 1e-5))
+    got = result[-2]
+    assert np.allclose(np.array(got[2:5], float), expected.point_m[0], rtol=0, atol=1e-12)
+    assert result[-1][2:5] == ["", "", ""] and result[-1][7] == "no_pose"  # never extrapolated
+    err = capsys.readouterr().err
+    assert f"reconstruct: {len(table)} rows, {touching + 1} with a contact" in err, err
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y\n", "wrenches.csv: missing column(s) m0z"),
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n0.1,w9,0,0,0,0,0,0\n",
+     "wrenches.csv: row 0: whisker 'w9' is not in the scene (w0, w1)"),
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n0.1,w0,0,zero,0,0,0,0\n",
+     "wrenches.csv: row 1, column f0y: 'zero' is not a number"),
+])
+def test_reconstruct_with_a_scene_names_what_is_wrong(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, message: str) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    (tmp_path / "wrenches.csv").write_text(text)
+    assert main(["reconstruct", str(tmp_path / "wrenches.csv"), "--scene",
+                 str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "p.csv")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err

@@ -1,0 +1,95 @@
+"""Frames over time (tf2's semantics): lookups interpolate exactly as scipy's Slerp and a
+straight line do, compose static mounts, and never extrapolate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from vibrissa.frame_buffer import ConnectivityError, ExtrapolationError, FrameBuffer
+from vibrissa.frames import Transform
+
+RNG = np.random.default_rng(7)
+T = np.cumsum(RNG.uniform(0.005, 0.02, 200))  # robot poses at an uneven rate
+P = np.cumsum(RNG.normal(size=(200, 3)) * 0.01, axis=0)
+R = Rotation.from_rotvec(np.cumsum(RNG.normal(size=(200, 3)) * 0.05, axis=0))
+MOUNT = Transform(Rotation.from_euler("xyz", [0.3, -0.2, 1.1]), [0.05, -0.02, 0.01])
+
+
+def robot_buffer(history_s: float = 100.0) -> FrameBuffer:
+    buffer = FrameBuffer(history_s)
+    buffer.set_static("base_link", "w0/clamp", MOUNT)
+    for k in RNG.permutation(len(T)):  # out of order, as several streams may interleave
+        buffer.add("world", "base_link", float(T[k]), Transform(R[k], P[k]))
+    return buffer
+
+
+def test_lookup_interpolates_as_slerp_and_a_straight_line_and_composes_the_mount() -> None:
+    buffer = robot_buffer()
+    stamps = RNG.uniform(T[0], T[-1], 500)
+    R_ref = Slerp(T, R)(stamps) * MOUNT.rotation
+    k = np.searchsorted(T, stamps) - 1
+    frac = (stamps - T[k]) / (T[k + 1] - T[k])
+    p_WR = P[k] + frac[:, None] * (P[k + 1] - P[k])
+    p_ref = p_WR + Slerp(T, R)(stamps).apply(np.array(MOUNT.translation))
+    for i, stamp in enumerate(stamps):
+        X_WC = buffer.lookup("world", "w0/clamp", float(stamp))
+        assert np.allclose(X_WC.translation, p_ref[i], rtol=0, atol=1e-14)
+        assert (X_WC.rotation * R_ref[i].inv()).magnitude() < 1e-12
+        # and the other way round: the world in the clamp frame
+        X_CW = buffer.lookup("w0/clamp", "world", float(stamp))
+        assert np.allclose((X_CW @ X_WC).matrix, np.eye(4), rtol=0, atol=1e-13)
+    # at a sample: that pose exactly
+    X = buffer.lookup("world", "base_link", float(T[17]))
+    assert np.array_equal(X.translation, P[17]) and np.array_equal(X.R, R[17].as_matrix())
+
+
+def test_a_straight_line_robot_moves_linearly_in_time() -> None:
+    buffer = FrameBuffer()
+    buffer.add("odom", "base_link", 1.0, Transform(translation=[0.0, 0.0, 0.0]))
+    buffer.add("odom", "base_link", 3.0, Transform(translation=[2.0, -4.0, 0.0]))
+    X = buffer.lookup("odom", "base_link", 2.5)
+    assert X.translation.tolist() == [1.5, -3.0, 0.0]
+    assert np.array_equal(X.R, np.eye(3))
+
+
+def test_never_extrapolates_and_names_frames_and_times() -> None:
+    buffer = robot_buffer()
+    with pytest.raises(ExtrapolationError, match=r"cannot look up w0/clamp in world at "
+                       r"t=.*base_link in world is known from t=.* s newer than the last pose"):
+        buffer.lookup("world", "w0/clamp", float(T[-1]) + 0.05)
+    with pytest.raises(ExtrapolationError, match="older than the kept history"):
+        buffer.lookup("world", "w0/clamp", float(T[0]) - 1e-6)
+
+
+def test_history_is_bounded() -> None:
+    buffer = FrameBuffer(history_s=1.0)
+    for k in range(300):  # 3 s at 100 Hz
+        buffer.add("world", "base_link", 0.01 * k, Transform(translation=[0.01 * k, 0, 0]))
+    buffer.lookup("world", "base_link", 2.5)
+    with pytest.raises(ExtrapolationError, match="older than the kept history"):
+        buffer.lookup("world", "base_link", 1.5)
+    buffer.add("world", "base_link", 0.5, Transform())  # too old to keep: ignored
+    assert buffer.latest("world", "base_link") == pytest.approx(2.99)
+
+
+def test_unknown_frames_and_a_second_tree_are_named() -> None:
+    buffer = robot_buffer()
+    with pytest.raises(ConnectivityError, match="unknown frame 'w9/clamp'"):
+        buffer.lookup("world", "w9/clamp", float(T[5]))
+    buffer.set_static("map", "landmark", Transform())
+    with pytest.raises(ConnectivityError, match="landmark is under map, world under world"):
+        buffer.lookup("world", "landmark", float(T[5]))
+
+
+@pytest.mark.parametrize(("call", "message"), [
+    (lambda b: b.set_static("odom", "w0/clamp", Transform()), "already has the parent base_link"),
+    (lambda b: b.set_static("world", "base_link", Transform()), "is stamped already"),
+    (lambda b: b.add("base_link", "w0/clamp", 0.0, Transform()), "is static already"),
+    (lambda b: b.set_static("w0/clamp", "world", Transform()), "would close a loop"),
+    (lambda b: b.add("world", "base_link", float("nan"), Transform()), "must be finite"),
+])
+def test_an_inconsistent_tree_is_refused(call, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        call(robot_buffer())

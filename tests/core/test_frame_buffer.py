@@ -40,9 +40,16 @@ def test_lookup_interpolates_as_slerp_and_a_straight_line_and_composes_the_mount
         # and the other way round: the world in the clamp frame
         X_CW = buffer.lookup("w0/clamp", "world", float(stamp))
         assert np.allclose((X_CW @ X_WC).matrix, np.eye(4), rtol=0, atol=1e-13)
-    # at a sample: that pose exactly
+    # at a sample: that pose (to rounding)
     X = buffer.lookup("world", "base_link", float(T[17]))
-    assert np.array_equal(X.translation, P[17]) and np.array_equal(X.R, R[17].as_matrix())
+    assert np.allclose(X.matrix[:3], np.column_stack([R[17].as_matrix(), P[17]]), rtol=0,
+                       atol=1e-15)
+    # many stamps at once: the same as one by one
+    p_many, R_many = buffer.lookup_many("world", "w0/clamp", stamps[:50])
+    for i in range(50):
+        X_WC = buffer.lookup("world", "w0/clamp", float(stamps[i]))
+        assert np.allclose(p_many[i], X_WC.translation, rtol=0, atol=1e-15)
+        assert (R_many[i] * X_WC.rotation.inv()).magnitude() < 1e-14
 
 
 def test_a_straight_line_robot_moves_linearly_in_time() -> None:

@@ -28,6 +28,7 @@ whiskers:
   - name: w0
     length_m: 0.05
     ei_nm2: 2.0e-5
+    mount: {position_m: [0.0, 0.0, 0.0]}
   - name: w1
     length_m: 0.04
     ei_nm2: 1.0e-5
@@ -74,6 +75,10 @@ def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path) -> None
 @pytest.mark.parametrize(("change", "message"), [
     (("radius_m: 0.015", "radius: 0.015"), "scene.yaml: objects[0]: unknown key 'radius'"),
     (("    ei_nm2: 2.0e-5\n", ""), "scene.yaml: whiskers[0]: missing 'ei_nm2'"),
+    (("    mount: {position_m: [0.0, 0.0, 0.0]}\n", ""), "scene.yaml: whiskers[0]: missing 'mount'"),
+    (("length_m: 0.04", "length_m: -0.04"),
+     "scene.yaml: whiskers[1]: length_m and ei_nm2 must be > 0, got -0.04"),
+    (("name: w1", "name: w0"), "scene.yaml: whiskers[1]: the name 'w0' is taken by whiskers[0]"),
     (("shape: sphere", "shape: cube"), "scene.yaml: objects[0].shape: expected one of sphere"),
     (("[0, 0, 0.3826834, 0.9238795]", "[0, 0, 0.5, 0.9]"),
      "objects[1].quaternion_xyzw: [0.0, 0.0, 0.5, 0.9] is not a unit quaternion"),
@@ -189,3 +194,18 @@ def test_reconstruct_with_a_scene_names_what_is_wrong(
                  str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "p.csv")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
+
+
+def test_the_whiskers_of_a_scene_file_are_the_robot_description(tmp_path: Path) -> None:
+    from vibrissa.runtime.scene_file import SceneError, load_robot
+
+    (tmp_path / "scene.yaml").write_text(SCENE)  # its path file need not exist for this
+    w0, w1 = load_robot(tmp_path / "scene.yaml")
+    assert (w0.name, w0.length_m, w0.ei_nm2, w1.name, w1.length_m) == ("w0", 0.05, 2e-5, "w1", 0.04)
+    assert np.allclose(w1.X_RC.quaternion_xyzw, [0.0998334, 0, 0, 0.9950042])
+    (tmp_path / "robot.yaml").write_text("whiskers:\n  - {name: a, length_m: 0.03, ei_nm2: 1e-5}\n")
+    with pytest.raises(SceneError, match=r"robot.yaml: whiskers\[0\]: missing 'mount'"):
+        load_robot(tmp_path / "robot.yaml")
+    (tmp_path / "robot.yaml").write_text("mu: 0.2\n")
+    with pytest.raises(SceneError, match="robot.yaml: missing 'whiskers'"):
+        load_robot(tmp_path / "robot.yaml")

@@ -66,10 +66,10 @@ from vibrissa.wire.security import Guard, Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 __all__ = [
+    "BUFFER_ENV",
     "DEFAULT_HWM",
     "DEFAULT_MAX_BUFFERED_BYTES",
     "DEFAULT_MAX_MESSAGE_BYTES",
-    "BUFFER_ENV",
     "DOMAIN_ENV",
     "MAX_PUBLISHERS",
     "MAX_SEQ_GAP",
@@ -101,7 +101,7 @@ BUFFER_ENV = "VIBRISSA_MAX_BUFFERED_BYTES"
 
 MAX_SEQ_GAP = 1_000_000
 """Largest seq gap counted as lost messages: a publisher does not lose a million messages
-between two that arrive (a subscriber's queue holds DEFAULT_HWM); a larger jump is a forged or
+between two that arrive (a subscriber's queue holds at most its hwm); a larger jump is a forged or
 reset sequence, counted in ``TopicCounters.anomalies``."""
 
 MAX_PUBLISHERS = 1024

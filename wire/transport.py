@@ -611,9 +611,10 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
     each direct publisher of that topic that a ``NodeStatus`` announces (``direct_endpoints``);
     statuses it reads only for that are neither counted nor returned.
 
-    What it buffers is bounded: a thread takes messages off the sockets as they arrive into
-    a queue of at most ``max_buffered_bytes`` bytes and ``hwm`` messages (``wire.inbox``);
-    what does not fit is dropped, counted in ``dropped``, and shows as lost on its topic.
+    What it buffers is bounded: while the caller is busy elsewhere a thread takes messages off
+    the sockets into a queue of at most ``max_buffered_bytes`` bytes and ``hwm`` messages
+    (``wire.inbox``); what does not fit is dropped, counted in ``dropped``, and shows as lost
+    on its topic.
     """
 
     def __init__(
@@ -722,12 +723,12 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                     self._refused_endpoints.add(endpoint)
                 continue
             self.direct_endpoints.add(endpoint)
-            self._inbox.call(functools.partial(self._connect_direct, endpoint, status.node,
-                                               topic))
+            self._inbox.run_locked(functools.partial(self._connect_direct, endpoint,
+                                                     status.node, topic))
 
     def _connect_direct(self, endpoint: str, node: str, topic: str) -> None:
-        """Connect the direct socket (made at the first endpoint) to ``endpoint``; runs on the
-        inbox thread, which owns the sockets."""
+        """Connect the direct socket (made at the first endpoint) to ``endpoint``; runs with
+        the inbox's sockets to itself."""
         if self._direct is None:
             self._direct = _socket(self._context, zmq.SUB, PIPE_HWM)
             # an announced peer is not trusted with frames larger than the proxy takes
@@ -739,7 +740,7 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
             self._direct.setsockopt(zmq.RECONNECT_IVL_MAX, 5000)
             for prefix in self._direct_prefixes:
                 self._direct.setsockopt(zmq.SUBSCRIBE, prefix)
-            self._inbox.add_socket(self._direct)
+            self._inbox.add_socket_locked(self._direct)
         try:
             self._direct.connect(endpoint)
         except zmq.ZMQError as exc:
@@ -748,8 +749,8 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         log.debug("%s: direct from %s at %s", topic, node, endpoint)
 
     def _payload_limit(self, topic_frame: bytes) -> int:
-        """The longest payload worth keeping on ``topic_frame`` (inbox thread: reads only
-        what ``__init__`` wrote)."""
+        """The longest payload worth keeping on ``topic_frame`` (also called on the inbox's
+        drainer thread: reads only what ``__init__`` wrote)."""
         try:
             topic = topic_frame[:-1].decode()
         except UnicodeDecodeError:

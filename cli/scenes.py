@@ -162,7 +162,7 @@ def read_wrenches(path: Path) -> tuple[list[str], FloatArray, list[str], FloatAr
         for j, name in enumerate(("t", *WRENCH_COLUMNS[2:])):
             text = row[at[name]].strip()
             try:
-                values[i, j] = float(text) if text or name != "t" else math.nan
+                values[i, j] = float(text) if text else math.nan
             except ValueError:
                 raise SceneError(f"{path.name}: row {i + 1}, column {name}: {text!r} is not a "
                                  f"number") from None
@@ -175,10 +175,12 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     """``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o POINTS.csv``."""
     scene = load_scene(args.scene)
     t_text, t, names, f0, m0 = read_wrenches(Path(args.input))
-    try:
-        rec = reconstruct_along(scene, t, names, f0, m0)
-    except ValueError as exc:
-        raise SceneError(f"{Path(args.input).name}: {exc}") from None
+    known = [w.name for w in scene.whiskers]
+    for i, name in enumerate(names):
+        if name not in known:
+            raise SceneError(f"{Path(args.input).name}: row {i + 1}: whisker {name!r} is not in "
+                             f"{Path(args.scene).name} ({', '.join(known)})")
+    rec = reconstruct_along(scene, t, names, f0, m0)
     status = [tables.status_name(int(rec.status[i])) if rec.pose_ok[i] else "no_pose"
               for i in range(len(t))]
     rows = ([t_text[i], names[i], *(cell(v) for v in rec.point_m[i]), cell(rec.s1_m[i]),

@@ -166,8 +166,8 @@ def interpolate(X_a: Transform, X_b: Transform, t: float) -> Transform:
         raise ValueError(f"t must be in [0, 1] (no extrapolation), got {t}")
     samples = PoseSamples(np.array([0.0, 1.0]), np.array([X_a.translation, X_b.translation]),
                           Rotation.concatenate([X_a.rotation, X_b.rotation]))
-    p, R = samples.at([t])
-    return Transform(Rotation.from_matrix(R[0]), p[0])
+    p, rotations = samples.poses_at([t])
+    return Transform(rotations[0], p[0])
 
 
 @compiled

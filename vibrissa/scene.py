@@ -350,7 +350,7 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
     the clamp's reaction ``f0_C_n[i]``, ``m0_C_nm[i]`` in its clamp frame C (N, N m). The clamp
     is at X_WC = X_WR(t) X_RC with the robot pose interpolated at t (`RobotPath.at`); a row
     whose t the path does not cover has ``pose_ok`` False and no point. A row gives the same
-    bits alone or in any batch. ValueError names an unknown whisker and its row.
+    bits alone or in any batch. ValueError names an unknown whisker and its index.
     """
     t = np.asarray(t_s, dtype=float).reshape(-1)
     f0, m0 = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (f0_C_n, m0_C_nm))
@@ -361,7 +361,7 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
     index = {w.name: i for i, w in enumerate(scene.whiskers)}
     unknown = [i for i, name in enumerate(names) if name not in index]
     if unknown:
-        raise ValueError(f"row {unknown[0]}: whisker {names[unknown[0]]!r} is not in the scene "
+        raise ValueError(f"whisker[{unknown[0]}] = {names[unknown[0]]!r} is not in the scene "
                          f"({', '.join(index)})")
     rows_of = np.array([index[name] for name in names], dtype=np.int64)
     covered, p_WR, R_WR = scene.path.at(t)

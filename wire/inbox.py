@@ -34,7 +34,8 @@ PIPE_HWM = 1000
 while the drainer sleeps (more push back on the sender)."""
 
 DRAIN_PERIOD_S = 0.002
-"""How often the drainer empties the sockets while the taker is busy elsewhere."""
+"""How often the drainer takes up to ``_FAIR_RUN`` messages off each socket while the taker is
+busy elsewhere (beyond that rate ZeroMQ holds the rest, then pushes back)."""
 
 _FAIR_RUN = 64  # messages in a row from one socket before the others get a turn
 
@@ -44,9 +45,8 @@ class Inbox:
     FIFO of at most ``max_bytes`` bytes and ``max_messages`` messages (``dropped``,
     ``dropped_bytes``: what did not fit; one warning per run of drops)."""
 
-    def __init__(self, context: zmq.Context[Any], sockets: list[zmq.Socket[Any]],
-                 max_bytes: int, max_messages: int, payload_limit: Callable[[bytes], int],
-                 name: str = "vibrissa-inbox") -> None:
+    def __init__(self, sockets: list[zmq.Socket[Any]], max_bytes: int, max_messages: int,
+                 payload_limit: Callable[[bytes], int], name: str = "vibrissa-inbox") -> None:
         if max_bytes < 1 or max_messages < 1:
             raise ValueError(f"an inbox needs room: max_bytes {max_bytes}, "
                              f"max_messages {max_messages}")
@@ -108,11 +108,12 @@ class Inbox:
                 sock.close()
 
     def _drain_while_busy(self) -> None:
+        """One pass over the sockets per period (never a loop that a flood could keep going
+        while the taker waits for the lock)."""
         while not self._stop.wait(DRAIN_PERIOD_S):
             if self._lock.acquire(blocking=False):  # else the taker is reading them itself
                 try:
-                    while self._read():
-                        pass
+                    self._read()
                 except zmq.ZMQError:
                     # a context destroyed under it closes its sockets: that is an end
                     if not any(sock.closed for sock in self._sockets):

@@ -663,8 +663,7 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
             sock.close()
             raise
         try:
-            self._inbox = Inbox(self._context, [sock], self.max_buffered_bytes, hwm,
-                                self._payload_limit)
+            self._inbox = Inbox([sock], self.max_buffered_bytes, hwm, self._payload_limit)
         except (ValueError, zmq.ZMQError):
             sock.close()
             raise

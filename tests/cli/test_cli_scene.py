@@ -134,9 +134,10 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
                 rows.append([row["t"], name, *(row[c] for c in CONTRACT[3:9])])
                 truth.append((row["phase"], [row[c] for c in ("px", "py", "pz")]))
     between = ["0.555", "w1", "0.001", "-0.002", "0.0005", "1e-5", "2e-5", "0"]  # mid-sample
+    missing = ["0.5", "w0", "0.001", "", "0", "0", "0", "0"]  # an empty cell: a missing value
     off = ["3.5", "w0", "0.001", "0", "0", "0", "0", "0"]  # after the path's last pose
     order = np.random.default_rng(3).permutation(len(rows))
-    table = [rows[i] for i in order] + [between, off]
+    table = [rows[i] for i in order] + [between, missing, off]
     text = "extra,t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n" + "".join(
         "x," + ",".join(r) + "\n" for r in table)
     (tmp_path / "wrenches.csv").write_text(text)
@@ -171,8 +172,9 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
     p_WC = p_WR + R_WR.apply([0.0, -0.01, 0.0])
     expected = reconstruct_si(q_WC, p_WC, np.array([[0.001, -0.002, 0.0005]]),
                               np.array([[1e-5, 2e-5, 0.0]]), RodScale(0.04, 1e-5))
-    got = result[-2]
+    got = result[-3]
     assert np.allclose(np.array(got[2:5], float), expected.point_m[0], rtol=0, atol=1e-12)
+    assert result[-2][2:5] == ["", "", ""] and result[-2][7] == "non_finite_input"
     assert result[-1][2:5] == ["", "", ""] and result[-1][7] == "no_pose"  # never extrapolated
     err = capsys.readouterr().err
     assert f"reconstruct: {len(table)} rows, {touching + 1} with a contact" in err, err
@@ -181,7 +183,9 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
 @pytest.mark.parametrize(("text", "message"), [
     ("t,whisker,f0x,f0y,f0z,m0x,m0y\n", "wrenches.csv: missing column(s) m0z"),
     ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n0.1,w9,0,0,0,0,0,0\n",
-     "wrenches.csv: row 0: whisker 'w9' is not in the scene (w0, w1)"),
+     "wrenches.csv: row 1: whisker 'w9' is not in scene.yaml (w0, w1)"),
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n,w0,0,0,0,0,0,0\n",
+     "wrenches.csv: row 1: t must be a finite number"),
     ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n0.1,w0,0,zero,0,0,0,0\n",
      "wrenches.csv: row 1, column f0y: 'zero' is not a number"),
 ])

@@ -81,14 +81,15 @@ def _payloads(n: int, unit: str) -> list[bytes]:
         if unit == "tick":
             k = valid[np.arange(i * WHISKERS, (i + 1) * WHISKERS) % len(valid)]
             out.append(encode(WhiskerWrenchArray(
-                stamp=0.0, seq=i, frame_id="world",
+                stamp=0.0, seq=i, pose_frame_id="world", frame_ids=[f"whisker{j}/clamp" for j in range(WHISKERS)],
                 whisker_ids=[f"whisker{j}" for j in range(WHISKERS)], clamp_position=p0[k],
                 clamp_orientation=np.tile([0.0, 0.0, 0.0, 1.0], (WHISKERS, 1)), f0=f0[k],
                 m0=m0[k])))
             continue
         k = valid[i % len(valid)]
         out.append(encode(WhiskerWrench(
-            stamp=0.0, seq=i, whisker_id=f"whisker{i % WHISKERS}", frame_id="world",
+            stamp=0.0, seq=i, whisker_id=f"whisker{i % WHISKERS}",
+            frame_id=f"whisker{i % WHISKERS}/clamp", pose_frame_id="world",
             clamp_position=p0[k], clamp_orientation=[0.0, 0.0, 0.0, 1.0], f0=f0[k], m0=m0[k])))
     return out
 

@@ -2,8 +2,8 @@
 
 A payload is a msgpack map ``{"_type": TYPE_NAME, "_v": VERSION, <field>: <value>, ...}``.
 A numeric array is a map ``{"dtype": "<f8", "shape": [N, 3], "data": <raw little-endian bytes>}``
-(never a list of floats). ``None`` in an optional field is msgpack nil; an optional field may
-also be absent. Only finite floats go on the wire: ``encode`` refuses NaN/inf with
+(never a list of floats). An optional field that is ``None`` is left out (a payload with
+msgpack nil there decodes too). Only finite floats go on the wire: ``encode`` refuses NaN/inf with
 ``ValueError`` and ``decode`` with ``NonFiniteError``.
 
 Decoded arrays are read-only views of the immutable ``bytes`` objects msgpack unpacks them
@@ -25,6 +25,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from vibrissa.frames import clamp_frame
 from vibrissa.msgs.messages import (
     ARRAY,
     ENUM,
@@ -38,6 +39,8 @@ from vibrissa.msgs.messages import (
     STR_STR_MAP,
     FieldSpec,
     Message,
+    WhiskerWrench,
+    WhiskerWrenchArray,
     check_shape,
     enum_member,
     enum_values_ok,
@@ -142,12 +145,14 @@ def encode(msg: Message) -> bytes:
     values = msg.__dict__
     for name, spec in field_specs(cls):
         value = values[name]
+        if value is None:  # an optional field: left out
+            continue
         if spec.kind == ARRAY:
             if not _all_finite(value):
                 raise ValueError(f"encode: {cls.TYPE_NAME}.{name} holds a non-finite value")
             # dtype and shape were checked when the message was made
             out[name] = {"dtype": spec.dtype_str, "shape": value.shape, "data": value.tobytes()}
-        elif spec.kind == FLOAT and value is not None and not math.isfinite(value):
+        elif spec.kind == FLOAT and not math.isfinite(value):
             raise ValueError(f"encode: {cls.TYPE_NAME}.{name} is {value}")
         else:
             out[name] = int(value) if spec.kind == ENUM else value
@@ -257,13 +262,18 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
         raise OversizeError(f"payload of {len(payload)} bytes, more than the {cls.MAX_BYTES} "
                             f"bytes of {name}", name)
     if version != cls.VERSION:
-        raise VersionMismatchError(
-            f"{name} version {version} on the wire, this build reads version {cls.VERSION}", name
-        )
-    layout = _fast_layout(cls)
-    if layout is not None and obj.keys() == layout.names:
+        upgrade = _UPGRADES.get((name, version))
+        if upgrade is None:
+            reads = ", ".join(str(v) for v in sorted(
+                {cls.VERSION} | {v for n, v in _UPGRADES if n == name}))
+            raise VersionMismatchError(
+                f"{name} version {version} on the wire, this build reads version {reads}", name)
+        obj = upgrade(obj)
+    layout = _fast_layout(cls, obj.keys())
+    if layout is not None:
         fast = _decode_fast(cls, layout, obj)
         if fast is not None:
+            _check_fields(fast)
             return fast
     # The general path: also the one that finds and names what is wrong.
     values: dict[str, Any] = {}
@@ -274,7 +284,8 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
                 continue  # the dataclass default applies
             raise MissingFieldError(f"{name}: missing field {field_name!r}", name, field_name)
         value = obj.pop(field_name)
-        values[field_name] = _DECODERS[spec.kind](name, field_name, spec, value, sizes)
+        values[field_name] = (None if value is None and spec.optional
+                              else _DECODERS[spec.kind](name, field_name, spec, value, sizes))
     if obj:
         extra = sorted(obj)[0]
         raise UnknownFieldError(f"{name}: unknown field {extra!r}", name, extra)
@@ -284,7 +295,51 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
     msg = object.__new__(cls)
     msg.__dict__.update(_defaults(cls))
     msg.__dict__.update(values)
+    _check_fields(msg)
     return msg
+
+
+def _check_fields(msg: Message) -> None:
+    try:
+        msg.check_fields()
+    except ValueError as exc:
+        raise MissingFieldError(str(exc), msg.TYPE_NAME) from None
+
+
+# -- older versions -------------------------------------------------------------------------
+#
+# An upgrade turns the fields of an older version's payload into the current version's, before
+# any of them is checked: the current version's checks then apply to them in full. It must not
+# fail on any input (the payload is untrusted): what it cannot move it leaves for the checks.
+
+
+def _wrench_v1(obj: dict[str, Any]) -> dict[str, Any]:
+    """WhiskerWrench 1 -> 2: ``frame_id`` named the pose's frame; the wrench is in the clamp
+    frame of ``whisker_id``."""
+    if "frame_id" in obj:
+        obj["pose_frame_id"] = obj.pop("frame_id")
+    whisker = obj.get("whisker_id")
+    obj["frame_id"] = clamp_frame(whisker) if isinstance(whisker, str) else whisker
+    return obj
+
+
+def _wrench_array_v1(obj: dict[str, Any]) -> dict[str, Any]:
+    """WhiskerWrenchArray 1 -> 2: as `_wrench_v1`, one clamp frame per row."""
+    if "frame_id" in obj:
+        obj["pose_frame_id"] = obj.pop("frame_id")
+    whiskers = obj.get("whisker_ids")
+    if isinstance(whiskers, list) and all(isinstance(w, str) for w in whiskers):
+        obj["frame_ids"] = [clamp_frame(w) for w in whiskers]
+    else:
+        obj["frame_ids"] = whiskers
+    return obj
+
+
+_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
+    (WhiskerWrench.TYPE_NAME, 1): _wrench_v1,
+    (WhiskerWrenchArray.TYPE_NAME, 1): _wrench_array_v1,
+}
+"""(type name, older version) -> its upgrade to the type's current version."""
 
 
 def _defaults(cls: type[Message]) -> dict[str, Any]:
@@ -301,12 +356,13 @@ _DEFAULTS: dict[type, dict[str, Any]] = {}
 
 # -- decode, fast path --------------------------------------------------------------------
 #
-# Types without optional fields or maps (WhiskerWrench, ContactPoint, their arrays, ...):
-# payloads are checked field by field with exact-type tests, a precomputed header for fixed
-# 1-d arrays and the shape pattern for the others; anything unusual (a missing, extra or
-# optional field, an int for a float, a wrong shape, a NaN, ...) returns None and the general
-# path decodes it again and raises the specific error. The fast path accepts a subset of what
-# the general path accepts and returns the same message, so the two cannot disagree.
+# Types without maps (WhiskerWrench, ContactPoint, their arrays, ...), one layout per set of
+# present fields (optional ones present or left out): payloads are checked field by field
+# with exact-type tests, a precomputed header for fixed 1-d arrays and the shape pattern for
+# the others; anything unusual (a missing or extra field, a nil, an int for a float, a wrong
+# shape, a NaN, ...) returns None and the general path decodes it again and raises the
+# specific error. The fast path accepts a subset of what the general path accepts and returns
+# the same message, so the two cannot disagree.
 
 _FLOAT, _INT, _ENUM, _STR, _ARRAY, _SHAPED, _STR_LIST = range(7)
 
@@ -318,18 +374,30 @@ class _Layout:
     # (dtype str, shape list, byte count, dtype, struct unpacker of '<f8' data or None), other
     # array -> (dtype str, shape pattern, dtype), string list -> its length symbol or ""
     fields: tuple[tuple[str, int, Any], ...]
+    left_out: tuple[str, ...]  # optional fields not in the payload: None
 
 
-def _fast_layout(cls: type[Message]) -> _Layout | None:
-    if cls not in _LAYOUTS:
-        _LAYOUTS[cls] = _make_layout(cls)
-    return _LAYOUTS[cls]
+def _fast_layout(cls: type[Message], names: Any) -> _Layout | None:
+    """The layout of payloads of ``cls`` with exactly the fields ``names`` (None: no fast
+    path, e.g. a required field is missing or an unknown one is there)."""
+    key = (cls, frozenset(names))
+    layout = _LAYOUTS.get(key)
+    if layout is None:
+        layout = _make_layout(cls, key[1])
+        if layout is not None:  # only valid field sets are kept: garbage cannot grow the cache
+            _LAYOUTS[key] = layout
+    return layout
 
 
-def _make_layout(cls: type[Message]) -> _Layout | None:
+def _make_layout(cls: type[Message], names: frozenset[str]) -> _Layout | None:
+    specs = field_specs(cls)
+    if not names <= {name for name, _ in specs}:
+        return None
     fields: list[tuple[str, int, Any]] = []
-    for name, spec in field_specs(cls):
-        if spec.optional:
+    for name, spec in specs:
+        if name not in names:
+            if spec.optional:
+                continue  # left out: None
             return None
         if spec.kind == FLOAT:
             fields.append((name, _FLOAT, None))
@@ -356,10 +424,11 @@ def _make_layout(cls: type[Message]) -> _Layout | None:
             fields.append((name, _STR_LIST, spec.length))
         else:
             return None
-    return _Layout(frozenset(name for name, _, _ in fields), tuple(fields))
+    return _Layout(names, tuple(fields),
+                   tuple(name for name, spec in specs if spec.optional and name not in names))
 
 
-_LAYOUTS: dict[type, _Layout | None] = {}
+_LAYOUTS: dict[tuple[type, frozenset[str]], _Layout] = {}
 
 
 def _decode_fast(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> Message | None:
@@ -408,6 +477,8 @@ def _decode_fast(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> Me
         values[name] = value
     if not math.isfinite(total):
         return None
+    for name in layout.left_out:
+        values[name] = None
     msg = object.__new__(cls)
     msg.__dict__.update(values)
     return msg
@@ -442,8 +513,6 @@ def _type_error(type_name: str, field: str, want: str, value: Any) -> FieldTypeE
 
 
 def _decode_float(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, int]) -> Any:
-    if value is None and spec.optional:
-        return None
     if isinstance(value, bool) or not isinstance(value, (float, int)):
         raise _type_error(t, f, "float", value)
     if not math.isfinite(value):
@@ -505,8 +574,6 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
 
 
 def _decode_str_list(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, int]) -> Any:
-    if value is None and spec.optional:
-        return None
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise _type_error(t, f, "list[str]", value)
     if spec.length:

@@ -192,6 +192,10 @@ class Message:
             if (value is None and spec.optional) or spec.accepts_as_is(value, sizes):
                 continue
             object.__setattr__(self, name, _coerce(type(self), name, spec, value, sizes))
+        self.check_fields()
+
+    def check_fields(self) -> None:
+        """Rules across fields (``ValueError``); the codec runs them on decode too."""
 
     def __eq__(self, other: object) -> bool:
         if type(other) is not type(self):
@@ -276,23 +280,44 @@ def check_shape(
 
 @dataclass(frozen=True, eq=False)
 class WhiskerWrench(Message):
-    """One sample of a whisker's base force/torque sensor, with the clamp pose X_WC."""
+    """One sample of a whisker's base force/torque sensor, in the whisker's clamp frame C.
+
+    A sensor measures in its own frame and does not know where it is: the clamp's pose comes
+    from the robot's pose stream and the robot description (``vibrissa.frame_buffer``). A
+    source that knows the pose (a simulation, a motion-capture rig) may send it along as
+    X_PC in ``pose_frame_id``: all three pose fields or none.
+
+    Version 1 carried the pose in every sample, with ``frame_id`` naming the pose's frame: it
+    decodes as version 2 with that frame as ``pose_frame_id`` and ``frame_id`` the clamp
+    frame ``<whisker_id>/clamp`` (``vibrissa.frames.clamp_frame``).
+    """
 
     TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrench"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
 
     stamp: float = _stamp()
     seq: int = _count("the source's sample counter")
     whisker_id: str = _text("which whisker the sample is from")
-    frame_id: str = _frame_id("frame the clamp pose is given in, normally 'world'")
-    clamp_position: FloatArray = _array((3,), "m", "p_WC: clamp frame C's origin, in frame_id")
-    clamp_orientation: FloatArray = _array(
-        (4,), "", "R_WC: unit quaternion (x, y, z, w) of clamp frame C in frame_id, z = rod axis"
-    )
+    frame_id: str = _frame_id("the clamp frame C the wrench is measured in, e.g. 'w0/clamp'")
     f0: FloatArray = _array((3,), "N", "force of the clamp on the rod, expressed in C")
     m0: FloatArray = _array(
         (3,), "N m", "moment of the clamp on the rod about C's origin, expressed in C"
     )
+    pose_frame_id: str | None = _optional(
+        kind=STR, doc="frame P of the clamp pose, e.g. 'world'; omitted without a pose")
+    clamp_position: FloatArray | None = _optional(
+        kind=ARRAY, shape=(3,), unit="m", dtype=FLOAT64, doc="p_PC: C's origin in P, or omitted")
+    clamp_orientation: FloatArray | None = _optional(
+        kind=ARRAY, shape=(4,), dtype=FLOAT64,
+        doc="R_PC: unit quaternion (x, y, z, w) of C in P, z = rod axis, or omitted")
+
+    def check_fields(self) -> None:
+        _check_pose_fields(self)
+
+    @property
+    def has_pose(self) -> bool:
+        """Whether the clamp pose came with the sample."""
+        return self.pose_frame_id is not None
 
 
 @dataclass(frozen=True, eq=False)
@@ -317,28 +342,54 @@ class ContactPoint(Message):
 
 @dataclass(frozen=True, eq=False)
 class WhiskerWrenchArray(Message):
-    """One tick of a multi-whisker array: the base wrench and clamp pose X_WC of each whisker.
+    """One tick of a multi-whisker array: the base wrench of each whisker in its clamp frame.
 
-    Row i of every field belongs to whisker ``whisker_ids[i]``; all rows share ``stamp``.
+    Row i of every field belongs to whisker ``whisker_ids[i]``, measured in the clamp frame
+    ``frame_ids[i]``; all rows share ``stamp``. The clamp poses X_PC may come along, as in
+    WhiskerWrench: all three pose fields or none. Version 1 (poses in ``frame_id``) decodes as
+    version 2 with ``pose_frame_id`` = that frame and the clamp frames ``<whisker>/clamp``.
     """
 
     TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrenchArray"
-    MAX_BYTES: ClassVar[int] = 1 << 20  # some 9 000 whiskers
-    VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = 1 << 20  # some 5 000 whiskers
+    VERSION: ClassVar[int] = 2
 
     stamp: float = _stamp()
     seq: int = _count("the source's tick counter")
-    frame_id: str = _frame_id("frame the clamp poses are given in, normally 'world'")
     whisker_ids: list[str] = _spec(kind=STR_LIST, length="N", doc="whisker of each row")
-    clamp_position: FloatArray = _array(
-        ("N", 3), "m", "p_WC: each clamp frame C's origin, in frame_id")
-    clamp_orientation: FloatArray = _array(
-        ("N", 4), "", "R_WC: unit quaternion (x, y, z, w) of each clamp frame C in frame_id, "
-        "z = rod axis")
+    frame_ids: list[str] = _spec(
+        kind=STR_LIST, length="N", doc="clamp frame C each row is measured in, e.g. 'w0/clamp'")
     f0: FloatArray = _array(("N", 3), "N", "force of the clamp on the rod, expressed in its C")
     m0: FloatArray = _array(
         ("N", 3), "N m", "moment of the clamp on the rod about C's origin, expressed in its C"
     )
+    pose_frame_id: str | None = _optional(
+        kind=STR, doc="frame P of the clamp poses, e.g. 'world'; omitted without poses")
+    clamp_position: FloatArray | None = _optional(
+        kind=ARRAY, shape=("N", 3), unit="m", dtype=FLOAT64,
+        doc="p_PC: each clamp frame C's origin in P, or omitted")
+    clamp_orientation: FloatArray | None = _optional(
+        kind=ARRAY, shape=("N", 4), dtype=FLOAT64,
+        doc="R_PC: unit quaternion (x, y, z, w) of each C in P, z = rod axis, or omitted")
+
+    def check_fields(self) -> None:
+        _check_pose_fields(self)
+
+    @property
+    def has_pose(self) -> bool:
+        """Whether the clamp poses came with the tick."""
+        return self.pose_frame_id is not None
+
+
+def _check_pose_fields(msg: WhiskerWrench | WhiskerWrenchArray) -> None:
+    present = [name for name in _POSE_FIELDS if getattr(msg, name) is not None]
+    if present and len(present) != len(_POSE_FIELDS):
+        missing = [name for name in _POSE_FIELDS if name not in present]
+        raise ValueError(f"{type(msg).__name__}: the clamp pose needs {', '.join(_POSE_FIELDS)} "
+                         f"together; {', '.join(missing)} missing")
+
+
+_POSE_FIELDS = ("pose_frame_id", "clamp_position", "clamp_orientation")
 
 
 @dataclass(frozen=True, eq=False)

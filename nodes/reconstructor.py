@@ -33,13 +33,18 @@ tick of one row, so both message shapes take the same path.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TypeAlias
 
 import numpy as np
 import numpy.typing as npt
 
+from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
+from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform, clamp_frame
 from vibrissa.msgs import (
     ContactPhase,
     ContactPoint,
@@ -47,6 +52,7 @@ from vibrissa.msgs import (
     ContactStatus,
     EndOfStream,
     Message,
+    RobotPose,
     WhiskerWrench,
     WhiskerWrenchArray,
     decode,
@@ -54,7 +60,9 @@ from vibrissa.msgs import (
 )
 from vibrissa.reconstruct import reconstruct_si
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
-from vibrissa.runtime.params import require, require_parsed, require_positive
+from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
+from vibrissa.runtime.scene_file import load_robot
+from vibrissa.scene import Whisker
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
 from vibrissa.wire.topics import validate_name
@@ -94,9 +102,26 @@ class ReconstructorParams:
         Exit (status 0) after forwarding the first ``EndOfStream``; by default the node runs
         until stopped, like a sensor driver.
     rod_length_m
-        L, m.
+        L, m (every whisker, without ``robot``).
     rod_ei_nm2
-        EI, N m^2.
+        EI, N m^2 (every whisker, without ``robot``).
+    robot
+        The robot description (a scene file, or a file of its ``whiskers``): each whisker's
+        L, EI and mount X_RC on ``robot_frame``. With it, wrenches in clamp frames are placed
+        through the robot's poses on ``pose_topic``; without it, only wrenches that carry
+        their clamp pose are (the others count as ``no_pose``).
+    pose_topic
+        RobotPose topic: the pose of ``robot_frame`` in ``map_frame`` (or in a frame whose
+        own pose is on the topic too), stamped.
+    map_frame, robot_frame
+        Frame of the contact points of wrenches without a pose, and the robot's body frame
+        the mounts hang on.
+    pose_timeout_s
+        How long a wrench waits for the robot pose at its stamp (the pose stream may lag),
+        s; then its rows count as ``no_pose`` and the node moves on.
+    history_s
+        Robot poses kept for interpolation, s: a wrench older than the newest pose by more
+        than this counts as ``no_pose``.
     rod
         L and EI as ``vibrissa.units.RodScale`` (derived, not a parameter).
     """
@@ -110,9 +135,22 @@ class ReconstructorParams:
     exit_on_eos: bool = False
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
+    robot: str = ""
+    pose_topic: str = "/robot/pose"
+    map_frame: str = WORLD_FRAME
+    robot_frame: str = ROBOT_FRAME
+    pose_timeout_s: float = 0.5
+    history_s: float = DEFAULT_HISTORY_S
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        if self.robot:
+            require_parsed("robot", self.robot, load_robot)
+        require_parsed("pose_topic", self.pose_topic, validate_name)
+        for key in ("map_frame", "robot_frame"):
+            require(bool(getattr(self, key)), key, getattr(self, key), "a frame name")
+        require_non_negative("pose_timeout_s", self.pose_timeout_s)
+        require_positive("history_s", self.history_s)
         require_positive("rod_length_m", self.rod_length_m)
         require_positive("rod_ei_nm2", self.rod_ei_nm2)
         object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))
@@ -129,6 +167,9 @@ PARAMS = ReconstructorParams
 
 Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
 
+Rods: TypeAlias = RodScale | Mapping[str, RodScale]
+"""One rod for every whisker, or each whisker's by name (the robot description)."""
+
 
 @dataclass
 class Reconstructed:
@@ -139,37 +180,107 @@ class Reconstructed:
     contacts
         For a WhiskerWrench, its ContactPoint, or None without a consistent contact; for a
         WhiskerWrenchArray, a ContactPointArray of its rows with one (possibly none). SI, in
-        the input's ``frame_id``, same ``stamp`` and ``seq``.
+        the frame of the clamp pose the input carried, else in the map frame; same ``stamp``
+        and ``seq``.
     no_contact
         Rows whose reconstruction has no consistent contact (not in ``contacts``).
     bad_pose
         Rows skipped because their clamp quaternion has zero or non-finite length.
+    no_pose
+        Rows without a clamp pose: none came with them and the frame buffer has none at their
+        stamp (``errors`` says why).
+    unknown_whisker
+        Rows of a whisker the robot description does not list (``errors`` names it).
     """
 
     contacts: ContactPoint | ContactPointArray | None
     no_contact: int
     bad_pose: int
+    no_pose: int = 0
+    unknown_whisker: int = 0
+    errors: list[str] = field(default_factory=list)
 
 
-def reconstruct_messages(msgs: Sequence[Wrenches], rod: RodScale = _UNIT_ROD
+@dataclass
+class _Rows:
+    """The rows of one message on their way to Step 2: clamp poses in ``frame_id`` where
+    ``placed``."""
+
+    q: FloatArray
+    p: FloatArray
+    f0: FloatArray
+    m0: FloatArray
+    placed: npt.NDArray[np.bool_]
+    rods: list[RodScale] | None  # per row (None: the one rod of every row)
+    frame_id: str
+    no_pose: int = 0
+    unknown_whisker: int = 0
+    errors: list[str] = field(default_factory=list)
+
+
+def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str) -> _Rows:
+    single = isinstance(msg, WhiskerWrench)
+    whiskers = [msg.whisker_id] if single else msg.whisker_ids
+    f0, m0 = (msg.f0[None], msg.m0[None]) if single else (msg.f0, msg.m0)
+    n = len(whiskers)
+    placed = np.ones(n, bool)
+    errors: list[str] = []
+    if msg.has_pose:
+        q, p = msg.clamp_orientation, msg.clamp_position
+        q, p = (q[None], p[None]) if single else (q, p)
+        frame_id = msg.pose_frame_id
+        no_pose = 0
+    else:
+        frame_id = map_frame
+        if frames is None:
+            q, p = np.zeros((n, 4)), np.zeros((n, 3))
+            placed[:] = False
+            errors.append("a wrench without clamp pose needs the robot description (parameter "
+                          "'robot') and the robot's poses")
+        else:
+            sources = [msg.frame_id] if single else msg.frame_ids
+            poses = frames.lookup_rows(map_frame, sources, np.full(n, msg.stamp))
+            q, p, placed = poses.q_xyzw, poses.p, poses.ok
+            errors += poses.errors
+        no_pose = n - int(placed.sum())
+    rods: list[RodScale] | None = None
+    unknown = 0
+    if not isinstance(rod, RodScale):
+        rods = [rod.get(w, _UNIT_ROD) for w in whiskers]
+        missing = [i for i, w in enumerate(whiskers) if w not in rod]
+        if missing:
+            unknown = int(placed[missing].sum())
+            placed[missing] = False
+            errors += [f"whisker {whiskers[i]!r} is not in the robot description "
+                       f"({', '.join(rod)})" for i in missing[:1]]
+    return _Rows(q, p, f0, m0, placed, rods, frame_id, no_pose, unknown, errors)
+
+
+def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
+                         frames: FrameBuffer | None = None, map_frame: str = WORLD_FRAME
                          ) -> list[Reconstructed]:
     """Reconstruct a batch of messages in one Step 2 call (``vibrissa.reconstruct.reconstruct_si``).
 
-    A WhiskerWrench is a tick of one row: the rows of every message of the batch, in order,
-    go through one compiled call, so a backlog costs one call instead of one per message (on
-    a few dozen rows the cost is the calls, not the rows). Step 2 works row by row: a row's
-    point does not depend on the batch it arrived in (batches follow arrival timing), so a
-    replayed bag gives the live run's points bit for bit, and a wrench gives the same bits as
-    the same row of an array.
+    A row's clamp pose is the one its message carries, else its clamp frame in ``map_frame``
+    at the message's stamp from ``frames`` (`FrameBuffer.lookup_rows`); its rod is ``rod``, or
+    its whisker's from the mapping. A WhiskerWrench is a tick of one row: the rows of every
+    message of the batch, in order, go through one compiled call, so a backlog costs one call
+    instead of one per message (on a few dozen rows the cost is the calls, not the rows).
+    Step 2 works row by row: a row's point does not depend on the batch it arrived in
+    (batches follow arrival timing), so a replayed bag gives the live run's points bit for
+    bit, and a wrench gives the same bits as the same row of an array.
     """
-    counts = [1 if isinstance(msg, WhiskerWrench) else len(msg.whisker_ids) for msg in msgs]
-    columns = ("clamp_orientation", "clamp_position", "f0", "m0")
-    if len(msgs) == 1:  # (N, ...) rows as they are; a wrench's (3,) as its one row
-        values = [getattr(msgs[0], name) for name in columns]
-        q, p0, f0, m0 = values if values[0].ndim == 2 else (value[None] for value in values)
-    else:  # vstack takes a wrench's (3,) as one row too
-        q, p0, f0, m0 = (np.vstack([getattr(msg, name) for msg in msgs]) for name in columns)
-    result = reconstruct_si(q, p0, f0, m0, rod)
+    parts = [_rows(msg, rod, frames, map_frame) for msg in msgs]
+    if len(parts) == 1 and parts[0].placed.all():  # the rows as they are
+        part = parts[0]
+        q, p0, f0, m0 = part.q, part.p, part.f0, part.m0
+        rods: Rods | list[RodScale] = part.rods if part.rods is not None else rod
+    else:
+        q, p0, f0, m0 = (np.vstack([getattr(part, name)[part.placed] for part in parts])
+                         for name in ("q", "p", "f0", "m0"))
+        rods = rod if isinstance(rod, RodScale) else [
+            r for part in parts for r, ok in zip(part.rods or (), part.placed, strict=True) if ok]
+    result = reconstruct_si(q, p0, f0, m0, rods)  # type: ignore[arg-type]
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
     pose_ok, flags = result.pose_ok.tolist(), status.tolist()
@@ -184,40 +295,45 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: RodScale = _UNIT_ROD
     s1s, phases = s1.tolist(), phase.tolist()
     outcomes = []
     first = 0
-    for msg, n in zip(msgs, counts, strict=True):
+    for msg, part in zip(msgs, parts, strict=True):
+        n = int(part.placed.sum())
         last = first + n
         good, kept = sum(pose_ok[first:last]), sum(valid[first:last])
         contacts: ContactPoint | ContactPointArray | None = None
         if isinstance(msg, WhiskerWrench):
             if kept:
                 contacts = ContactPoint(
-                    stamp=msg.stamp, seq=msg.seq, whisker_id=msg.whisker_id, frame_id=msg.frame_id,
-                    point=point[first], s1=s1s[first], phase=ContactPhase(phases[first]),
-                    force=force[first], status=ContactStatus(flags[first]))
+                    stamp=msg.stamp, seq=msg.seq, whisker_id=msg.whisker_id,
+                    frame_id=part.frame_id, point=point[first], s1=s1s[first],
+                    phase=ContactPhase(phases[first]), force=force[first],
+                    status=ContactStatus(flags[first]))
         else:
-            if kept == n:
+            whisker_ids = [w for w, ok in zip(msg.whisker_ids, part.placed, strict=True) if ok]
+            if kept == len(msg.whisker_ids):
                 rows_kept: slice | list[int] = slice(first, last)
-                whisker_ids = msg.whisker_ids
             else:
                 rows_kept = [i for i in range(first, last) if valid[i]]
-                whisker_ids = [msg.whisker_ids[i - first] for i in rows_kept]
+                whisker_ids = [whisker_ids[i - first] for i in rows_kept]
             contacts = ContactPointArray(
-                stamp=msg.stamp, seq=msg.seq, frame_id=msg.frame_id, whisker_ids=whisker_ids,
+                stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
                 point=point[rows_kept], s1=s1[rows_kept], phase=phase[rows_kept],
                 force=force[rows_kept], status=status[rows_kept])
-        outcomes.append(Reconstructed(contacts, no_contact=good - kept, bad_pose=n - good))
+        outcomes.append(Reconstructed(contacts, no_contact=good - kept, bad_pose=n - good,
+                                      no_pose=part.no_pose, unknown_whisker=part.unknown_whisker,
+                                      errors=part.errors))
         first = last
     return outcomes
 
 
 def collect_batch(
-    receive: Callable[[float], Received | None], timeout_s: float, max_batch: int
+    receive: Callable[[float], Received | None], timeout_s: float, max_batch: int,
+    on_pose: Callable[[RobotPose], None] = lambda pose: None,
 ) -> tuple[list[Wrenches], EndOfStream | None]:
     """Wait up to ``timeout_s`` for one message, then drain what is already queued.
 
     Draining stops at ``max_batch`` messages (a WhiskerWrenchArray counts as one) or at an
     ``EndOfStream``, which is returned separately so that it goes downstream after the points
-    of the wrenches before it.
+    of the wrenches before it. A RobotPose goes to ``on_pose`` as it comes.
     """
     batch: list[Wrenches] = []
     rx = receive(timeout_s)
@@ -227,6 +343,8 @@ def collect_batch(
             return batch, msg
         if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
             batch.append(msg)
+        elif isinstance(msg, RobotPose):
+            on_pose(msg)
         if len(batch) >= max_batch:
             break
         rx = receive(0.0)
@@ -243,17 +361,81 @@ class BatchCollector:
     """
 
     def __init__(self, receive: Callable[[float], Received | None], drain_limit: int,
-                 max_batch: int) -> None:
+                 max_batch: int, on_pose: Callable[[RobotPose], None] = lambda pose: None
+                 ) -> None:
         self._receive = receive
+        self._on_pose = on_pose
         self.drain_limit = drain_limit
         self.max_batch = max_batch
         self.limit = drain_limit
 
     def collect(self, timeout_s: float) -> tuple[list[Wrenches], EndOfStream | None]:
         """The next batch (see :func:`collect_batch`) and the limit for the one after."""
-        batch, eos = collect_batch(self._receive, timeout_s, self.limit)
+        batch, eos = collect_batch(self._receive, timeout_s, self.limit, self._on_pose)
         self.limit = self.max_batch if len(batch) >= self.limit else self.drain_limit
         return batch, eos
+
+
+class PoseWait:
+    """Wrenches waiting for the robot pose at their stamp, in arrival order.
+
+    A wrench is ready when it carries its clamp pose, or when every frame it was measured in
+    can be looked up in the map frame at its stamp (the pose stream has passed it); one that
+    has waited ``timeout_s`` is let through too, and its rows then count as ``no_pose``. The
+    order of the wrenches is kept: one that waits holds back those behind it.
+    """
+
+    def __init__(self, frames: FrameBuffer | None, map_frame: str, timeout_s: float,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.frames = frames
+        self.map_frame = map_frame
+        self.timeout_s = timeout_s
+        self._clock = clock
+        self._queue: deque[tuple[float, Wrenches]] = deque()
+        self._newest: dict[str, float] = {}  # frame -> newest stamp it can be looked up at
+
+    def __len__(self) -> int:
+        return len(self._queue)
+
+    def add(self, msgs: Sequence[Wrenches]) -> None:
+        now = self._clock()
+        self._queue.extend((now, msg) for msg in msgs)
+
+    def poses_changed(self) -> None:
+        """A pose arrived: what can be looked up has changed."""
+        self._newest.clear()
+
+    def take(self) -> list[Wrenches]:
+        """The wrenches from the front that are ready or have waited ``timeout_s``."""
+        out: list[Wrenches] = []
+        deadline = self._clock() - self.timeout_s
+        while self._queue:
+            arrived, msg = self._queue[0]
+            if arrived > deadline and not self._ready(msg):
+                break
+            out.append(self._queue.popleft()[1])
+        return out
+
+    def wait_s(self) -> float:
+        """Seconds until the front wrench times out (inf with none waiting)."""
+        if not self._queue:
+            return math.inf
+        return max(0.0, self._queue[0][0] + self.timeout_s - self._clock())
+
+    def _ready(self, msg: Wrenches) -> bool:
+        if msg.has_pose or self.frames is None:
+            return True
+        sources = [msg.frame_id] if isinstance(msg, WhiskerWrench) else msg.frame_ids
+        for source in dict.fromkeys(sources):
+            newest = self._newest.get(source)
+            if newest is None:
+                newest = self.frames.newest(self.map_frame, source)
+                if newest is None:
+                    return False
+                self._newest[source] = newest
+            if newest < msg.stamp:
+                return False
+        return True
 
 
 def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
@@ -262,50 +444,106 @@ def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
                              else int(contacts is not None))
     counters["no_contact"] += outcome.no_contact
     counters["bad_pose"] += outcome.bad_pose
+    counters["no_pose"] += outcome.no_pose
+    counters["unknown_whisker"] += outcome.unknown_whisker
 
 
-def _compile_kernels(rod: RodScale) -> None:
-    """Compile Step 2 for the arrays the node will see (or load it from numba's cache) now, so
-    that the first wrench is not late by the compile time (~3 s on a fresh install): decoded
-    messages hold read-only arrays, a backlog of ticks is concatenated into writable ones."""
+def robot_frames(whiskers: Sequence[Whisker], robot_frame: str = ROBOT_FRAME,
+                 history_s: float = DEFAULT_HISTORY_S) -> FrameBuffer:
+    """A frame buffer with the mounts of the robot description: each whisker's clamp frame
+    (`vibrissa.frames.clamp_frame`) at X_RC in ``robot_frame``."""
+    frames = FrameBuffer(history_s)
+    for whisker in whiskers:
+        frames.set_static(robot_frame, clamp_frame(whisker.name), whisker.X_RC)
+    return frames
+
+
+def _compile_kernels(rod: Rods) -> None:
+    """Compile Step 2 and the frame kernels for the arrays the node will see (or load them
+    from numba's cache) now, so that the first wrench is not late by the compile time (~3 s
+    on a fresh install): decoded messages hold read-only arrays, a backlog of ticks is
+    concatenated into writable ones."""
+    one = rod if isinstance(rod, RodScale) else next(iter(rod.values()), _UNIT_ROD)
     tick = decode(encode(WhiskerWrenchArray(
-        stamp=0.0, seq=0, frame_id="world", whisker_ids=["warm-up"], clamp_position=[[0.0, 0.0, 0.0]],
-        clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=[[0.1 * rod.force_n, 0.0, 0.0]],
-        m0=[[0.0, 0.05 * rod.moment_nm, 0.0]])), WhiskerWrenchArray)
+        stamp=0.0, seq=0, whisker_ids=["warm-up"], frame_ids=["warm-up/clamp"],
+        f0=[[0.1 * one.force_n, 0.0, 0.0]], m0=[[0.0, 0.05 * one.moment_nm, 0.0]],
+        pose_frame_id="world", clamp_position=[[0.0, 0.0, 0.0]],
+        clamp_orientation=[[0.0, 0.0, 0.0, 1.0]])), WhiskerWrenchArray)
     wrench = decode(encode(WhiskerWrench(
-        stamp=0.0, seq=0, whisker_id="warm-up", frame_id="world", clamp_position=[0.0, 0.0, 0.0],
-        clamp_orientation=[0.0, 0.0, 0.0, 1.0], f0=tick.f0[0], m0=tick.m0[0])), WhiskerWrench)
+        stamp=0.0, seq=0, whisker_id="warm-up", frame_id="warm-up/clamp", f0=tick.f0[0],
+        m0=tick.m0[0], pose_frame_id="world", clamp_position=[0.0, 0.0, 0.0],
+        clamp_orientation=[0.0, 0.0, 0.0, 1.0])), WhiskerWrench)
     for batch in ([tick], [tick, tick], [wrench]):
-        reconstruct_messages(batch, rod)
+        reconstruct_messages(batch, one)
+    frames = robot_frames([Whisker("warm-up", 1.0, 1.0)])
+    for stamp in (0.0, 1.0):
+        frames.add("world", ROBOT_FRAME, stamp, Transform())
+    frames.lookup_rows("world", ["warm-up/clamp"] * 2, [0.5, 0.5])
+
+
+def _on_pose(frames: FrameBuffer, wait: PoseWait, counters: dict[str, int], fqn: str
+             ) -> Callable[[RobotPose], None]:
+    def on_pose(pose: RobotPose) -> None:
+        try:
+            frames.add(pose.frame_id, pose.child_frame_id, pose.stamp,
+                       Transform.from_quaternion(pose.orientation, pose.position))
+        except ValueError as exc:  # a zero quaternion, a frame that would close a loop, ...
+            counters["bad_robot_pose"] += 1
+            if counters["bad_robot_pose"] == 1 or counters["bad_robot_pose"] % 1000 == 0:
+                log.warning("%s: robot pose refused (%d so far): %s", fqn,
+                            counters["bad_robot_pose"], exc)
+            return
+        counters["robot_poses"] += 1
+        wait.poses_changed()
+    return on_pose
 
 
 def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     counters = node.counters
-    counters.update(contacts=0, no_contact=0, bad_pose=0, batches=0, max_batch=0)
-    subscriber = node.create_subscriber(
-        {params.input_topic: (WhiskerWrench, WhiskerWrenchArray)}, hwm=params.receive_hwm)
+    counters.update(contacts=0, no_contact=0, bad_pose=0, no_pose=0, unknown_whisker=0,
+                    robot_poses=0, bad_robot_pose=0, batches=0, max_batch=0)
+    whiskers = load_robot(params.robot) if params.robot else ()
+    rod: Rods = {w.name: w.scale for w in whiskers} if whiskers else params.rod
+    frames = robot_frames(whiskers, params.robot_frame, params.history_s) if whiskers else None
+    topics: dict[str, object] = {params.input_topic: (WhiskerWrench, WhiskerWrenchArray)}
+    if frames is not None:
+        topics[params.pose_topic] = RobotPose
+    subscriber = node.create_subscriber(topics, hwm=params.receive_hwm)  # type: ignore[arg-type]
     publisher = node.create_publisher(params.output_topic, (ContactPoint, ContactPointArray),
                                       wait_for=params.wait_for)
-    batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch)
-    rod = params.rod
+    wait = PoseWait(frames, params.map_frame, params.pose_timeout_s)
+    on_pose = _on_pose(frames, wait, counters, node.fqn) if frames is not None else (
+        lambda pose: None)
+    batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, on_pose)
     _compile_kernels(rod)
     node.set_state("running")
+    ends: list[EndOfStream] = []  # held until the wrenches before them are out
+    reported: set[str] = set()
     while not node.stop_requested:
-        batch, eos = batches.collect(0.1)
-        for outcome in reconstruct_messages(batch, rod) if batch else ():
+        batch, eos = batches.collect(min(0.1, wait.wait_s()))
+        wait.add(batch)
+        if eos is not None:
+            ends.append(eos)
+        ready = wait.take()
+        for outcome in reconstruct_messages(ready, rod, frames, params.map_frame) if ready else ():
             if outcome.contacts is not None:
                 publisher.publish(outcome.contacts)
             _count(counters, outcome)
-        if batch:
+            for error in outcome.errors:
+                if error not in reported and len(reported) < 100:
+                    reported.add(error)
+                    log.warning("%s: %s", node.fqn, error)
+        if ready:
             counters["batches"] += 1
-            counters["max_batch"] = max(counters["max_batch"], len(batch))
-        if eos is not None:
+            counters["max_batch"] = max(counters["max_batch"], len(ready))
+        while ends and not len(wait):
+            end = ends.pop(0)
             publisher.publish_end_of_stream(node.fqn)
-            log.info("%s: EndOfStream from %s (%d samples); %s", node.fqn, eos.source,
-                     eos.count, ", ".join(f"{k} {v}" for k, v in counters.items()))
+            log.info("%s: EndOfStream from %s (%d samples); %s", node.fqn, end.source,
+                     end.count, ", ".join(f"{k} {v}" for k, v in counters.items()))
             if params.exit_on_eos:
-                break
+                return
 
 
 def main(argv: Sequence[str] | None = None) -> int:

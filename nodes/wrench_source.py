@@ -35,6 +35,7 @@ from typing import Literal
 
 import numpy as np
 
+from vibrissa.frames import clamp_frame
 from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import (
@@ -171,7 +172,8 @@ def tick_messages(
 ) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
     """Each tick as a WhiskerWrenchArray (``array``) or each of its rows as a WhiskerWrench.
 
-    Row r of a tick is whisker ``whisker_ids[tick.whiskers[r]]``, clamped with the identity
+    Row r of a tick is whisker ``whisker_ids[tick.whiskers[r]]``, measured in its clamp frame
+    (`vibrissa.frames.clamp_frame`), with its clamp pose in ``frame_id``: the identity
     orientation (C parallel to W). ``seq`` counts messages from 0; ``stamp`` is ``clock()``
     when the message is made (e.g. ``time.time``, the publish time, as for a live sensor).
     """
@@ -181,16 +183,16 @@ def tick_messages(
         ids = [whisker_ids[w] for w in tick.whiskers]
         if array:
             yield WhiskerWrenchArray(
-                stamp=clock(), seq=seq, frame_id=frame_id, whisker_ids=ids,
-                clamp_position=tick.p_WC_m, clamp_orientation=np.tile(IDENTITY_QUATERNION, (n, 1)),
-                f0=tick.f0_C_n, m0=tick.m0_C_nm)
+                stamp=clock(), seq=seq, whisker_ids=ids, frame_ids=[clamp_frame(w) for w in ids],
+                f0=tick.f0_C_n, m0=tick.m0_C_nm, pose_frame_id=frame_id,
+                clamp_position=tick.p_WC_m, clamp_orientation=np.tile(IDENTITY_QUATERNION, (n, 1)))
             seq += 1
             continue
         for r in range(n):
             yield WhiskerWrench(
-                stamp=clock(), seq=seq, whisker_id=ids[r], frame_id=frame_id,
-                clamp_position=tick.p_WC_m[r], clamp_orientation=IDENTITY_QUATERNION,
-                f0=tick.f0_C_n[r], m0=tick.m0_C_nm[r])
+                stamp=clock(), seq=seq, whisker_id=ids[r], frame_id=clamp_frame(ids[r]),
+                f0=tick.f0_C_n[r], m0=tick.m0_C_nm[r], pose_frame_id=frame_id,
+                clamp_position=tick.p_WC_m[r], clamp_orientation=IDENTITY_QUATERNION)
             seq += 1
 
 

@@ -3,28 +3,32 @@ joined by static transforms (a whisker's mount) or by stamped poses (the robot i
 ``odom``, from a pose stream).
 
 A lookup at a stamp composes the transforms along the tree, each stamped one interpolated
-between the two poses around the stamp (position linear, orientation slerp:
-`vibrissa.frames.PoseSamples`); `lookup_many` does it for many stamps at once (13 us a stamp
-in batches of 1000, against some 0.7 ms for a single lookup: scipy's per-call cost). It never
-extrapolates: a stamp newer than the last pose or older than the kept history is an
-`ExtrapolationError` naming the frames and the times.
+between the two poses around the stamp (position linear, orientation slerp, the rule of
+`vibrissa.frames.PoseSamples`, with the compiled quaternion kernels of `vibrissa.frames`: a
+sensor tick cannot spend scipy's per-call cost); `lookup_many` does it for many stamps at once
+and `lookup_rows` for the rows of a sensor array. It never extrapolates: a stamp newer than
+the last pose or older than the kept history is an `ExtrapolationError` naming the frames and
+the times.
 """
 
 from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from vibrissa.frames import PoseSamples, Transform
+from vibrissa.frames import Transform, quaternion_products, quaternion_rotate, quaternion_slerp
 
-__all__ = ["ConnectivityError", "ExtrapolationError", "FrameBuffer", "FrameError"]
+__all__ = ["ConnectivityError", "ExtrapolationError", "FrameBuffer", "FrameError", "RowPoses"]
 
 DEFAULT_HISTORY_S = 10.0
+
+FloatArray = NDArray[np.float64]
 
 
 class FrameError(LookupError):
@@ -46,16 +50,50 @@ class _Edge:
     parent: str
     static: Transform | None = None
     stamps: list[float] = field(default_factory=list)
-    poses: list[Transform] = field(default_factory=list)
-    samples: PoseSamples | None = None  # of the poses, made at the first lookup after a change
+    poses: list[FloatArray] = field(default_factory=list)  # (x, y, z, qx, qy, qz, qw) each
+    arrays: tuple[FloatArray, FloatArray, FloatArray] | None = None  # of stamps and poses
 
-    def interpolated(self) -> PoseSamples | None:
-        """The poses as `PoseSamples` (None with a single pose)."""
-        if self.samples is None and len(self.stamps) > 1:
-            self.samples = PoseSamples(np.array(self.stamps),
-                                       np.array([X.translation for X in self.poses]),
-                                       Rotation.concatenate([X.rotation for X in self.poses]))
-        return self.samples
+    def kept(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Stamps (n,), positions (n, 3) and quaternions (n, 4) of the kept poses (made at
+        the first lookup after a change)."""
+        if self.arrays is None:
+            poses = np.array(self.poses)
+            self.arrays = (np.array(self.stamps), poses[:, :3], poses[:, 3:])
+        return self.arrays
+
+    def at(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Positions (n, 3) and quaternions (n, 4) at stamps ``t`` (n,) within the kept ones:
+        position linear, orientation slerp between the two poses around each stamp."""
+        if self.static is not None:
+            return (np.tile(self.static.translation, (len(t), 1)),
+                    np.tile(self.static.quaternion_xyzw, (len(t), 1)))
+        stamps, p, q = self.kept()
+        if len(stamps) == 1:  # one pose, and every stamp is its stamp
+            return np.tile(p[0], (len(t), 1)), np.tile(q[0], (len(t), 1))
+        k = np.clip(np.searchsorted(stamps, t, side="right") - 1, 0, len(stamps) - 2)
+        frac = (t - stamps[k]) / (stamps[k + 1] - stamps[k])
+        return (p[k] + frac[:, None] * (p[k + 1] - p[k]),
+                quaternion_slerp(q[k], q[k + 1], frac))
+
+
+@dataclass
+class RowPoses:
+    """Poses of rows (n) from `FrameBuffer.lookup_rows`: whether each was found, its position
+    (n, 3) and quaternion (x, y, z, w) (n, 4) (NaN and identity where not), and the errors of
+    the rows not found (each distinct message once)."""
+
+    ok: NDArray[np.bool_]
+    p: NDArray[np.float64]
+    q_xyzw: NDArray[np.float64]
+    errors: list[str]
+
+    def note(self, error: str) -> None:
+        if error not in self.errors:
+            self.errors.append(error)
+
+
+_RowPlan = tuple[dict[str, NDArray[np.int64]], FloatArray, FloatArray, list[str]]
+_MAX_PLANS = 64
 
 
 class FrameBuffer:
@@ -67,6 +105,9 @@ class FrameBuffer:
             raise ValueError(f"history_s must be > 0, got {history_s}")
         self.history_s = history_s
         self._edges: dict[str, _Edge] = {}  # by child frame
+        self._anchors: dict[str, tuple[str, FloatArray, FloatArray]] = {}  # lookup_rows'
+        self._plans: dict[tuple[str, ...], _RowPlan] = {}  # lookup_rows' of frame lists
+
 
     @property
     def frames(self) -> set[str]:
@@ -77,6 +118,8 @@ class FrameBuffer:
         """A transform that does not change (a mount); replaces an earlier static one."""
         edge = self._edge(parent, child, static=True)
         edge.static = X_parent_child
+        self._anchors.clear()
+        self._plans.clear()
 
     def add(self, parent: str, child: str, stamp: float, X_parent_child: Transform) -> None:
         """The pose of ``child`` in ``parent`` at ``stamp`` (s); a pose at a stamp already kept
@@ -86,13 +129,14 @@ class FrameBuffer:
         edge = self._edge(parent, child, static=False)
         if edge.stamps and stamp < edge.stamps[-1] - self.history_s:
             return
-        edge.samples = None
+        edge.arrays = None
+        pose = np.concatenate([X_parent_child.translation, X_parent_child.quaternion_xyzw])
         k = bisect.bisect_left(edge.stamps, stamp)
         if k < len(edge.stamps) and edge.stamps[k] == stamp:
-            edge.poses[k] = X_parent_child
+            edge.poses[k] = pose
         else:
             edge.stamps.insert(k, stamp)
-            edge.poses.insert(k, X_parent_child)
+            edge.poses.insert(k, pose)
         old = bisect.bisect_left(edge.stamps, edge.stamps[-1] - self.history_s)
         if old:
             del edge.stamps[:old], edge.poses[:old]
@@ -103,6 +147,115 @@ class FrameBuffer:
         if edge is None or edge.parent != parent or not edge.stamps:
             return None
         return edge.stamps[-1]
+
+    def newest(self, target: str, source: str) -> float | None:
+        """The newest stamp at which ``source`` can be looked up in ``target``: the oldest of
+        the newest poses of the stamped edges between them (inf when all are static); None
+        when a frame is unknown or the two are not joined (yet)."""
+        try:
+            up_source, root_source = self._chain(source)
+            up_target, root_target = self._chain(target)
+        except ConnectivityError:
+            return None
+        if root_source != root_target:
+            return None
+        while up_source and up_target and up_source[-1] == up_target[-1]:  # the common part
+            up_source.pop()
+            up_target.pop()
+        return min((self._edges[f].stamps[-1] for f in up_source + up_target
+                    if self._edges[f].stamps), default=math.inf)
+
+    def lookup_rows(self, target: str, sources: Sequence[str], stamps: ArrayLike) -> RowPoses:
+        """X_target_source of each row (n): frame ``sources[i]`` at ``stamps[i]``, for the
+        rows of a sensor array (frames under one moving frame, stamps shared).
+
+        Each source is split into its static part up to its first stamped ancestor A (a
+        mount, composed once) and A at the row's stamps; rows are looked up per A and per
+        distinct stamp, so a tick of 32 clamps on one robot costs one interpolation. A row that
+        cannot be looked up has ``ok`` False and its error in ``errors``; nothing raises.
+        """
+        t = np.asarray(stamps, dtype=float).reshape(-1)
+        n = len(t)
+        if len(sources) != n:
+            raise ValueError(f"{len(sources)} sources for {n} stamps")
+        out = RowPoses(np.zeros(n, bool), np.full((n, 3), np.nan), np.tile([0.0, 0, 0, 1], (n, 1)),
+                       [])
+        plan = self._plans.get(tuple(sources))
+        if plan is None:
+            plan = self._plan(tuple(sources))
+        by_anchor, mount_p, mount_q, unknown = plan
+        for error in unknown:
+            out.note(error)
+        for anchor, rows in by_anchor.items():
+            t_rows = t[rows]
+            if t_rows[0] == t_rows[-1] and (t_rows == t_rows[0]).all():  # a tick: one stamp
+                unique, inverse = t_rows[:1], np.zeros(len(rows), dtype=np.int64)
+            else:
+                unique, inverse = np.unique(t_rows, return_inverse=True)
+            found = np.ones(len(unique), bool)
+            try:
+                p_TA, q_TA = self._lookup(target, anchor, unique)
+            except FrameError:  # some stamps only: find which, one by one
+                p_TA, q_TA = np.zeros((len(unique), 3)), np.tile([0.0, 0, 0, 1], (len(unique), 1))
+                for k in range(len(unique)):
+                    try:
+                        p_TA[k], q_TA[k] = (a[0] for a in self._lookup(target, anchor, unique[k:k + 1]))
+                    except FrameError as exc:
+                        found[k] = False
+                        out.note(str(exc))
+            rows_a = rows
+            if not found.all():
+                rows_a, inverse = rows[found[inverse]], inverse[found[inverse]]
+                if len(rows_a) == 0:
+                    continue
+            q_rows = q_TA[inverse]
+            out.p[rows_a] = p_TA[inverse] + quaternion_rotate(q_rows, mount_p[rows_a])
+            out.q_xyzw[rows_a] = quaternion_products(q_rows, mount_q[rows_a])
+            out.ok[rows_a] = True
+        return out
+
+    def _plan(self, sources: tuple[str, ...]) -> _RowPlan:
+        """Rows grouped by the anchor of their frame (`_anchor`), the static poses of the
+        frames in their anchors (positions, quaternions), and the errors of unknown frames."""
+        n = len(sources)
+        by_anchor: dict[str, list[int]] = {}
+        mount_p, mount_q = np.zeros((n, 3)), np.tile([0.0, 0, 0, 1], (n, 1))
+        unknown: list[str] = []
+        for i, source in enumerate(sources):
+            anchored = self._anchor(source)
+            if anchored is None:
+                error = (f"unknown frame {source!r} (known: "
+                         f"{', '.join(sorted(self.frames)) or 'none yet'})")
+                if error not in unknown:
+                    unknown.append(error)
+                continue
+            anchor, mount_p[i], mount_q[i] = anchored
+            by_anchor.setdefault(anchor, []).append(i)
+        plan = ({anchor: np.array(rows) for anchor, rows in by_anchor.items()}, mount_p, mount_q,
+                unknown)
+        if len(self._plans) >= _MAX_PLANS:
+            self._plans.clear()
+        if not unknown:  # a frame may become known: plans with unknown frames are not kept
+            self._plans[sources] = plan
+        return plan
+
+    def _anchor(self, frame: str) -> tuple[str, FloatArray, FloatArray] | None:
+        """The first frame from ``frame`` up whose edge to its parent is stamped (or the root),
+        and the static pose of ``frame`` in it (position, quaternion); None for an unknown
+        frame."""
+        cached = self._anchors.get(frame)
+        if cached is not None:
+            return cached
+        if frame not in self.frames:
+            return None
+        X = Transform()
+        anchor = frame
+        while anchor in self._edges and self._edges[anchor].static is not None:
+            edge = self._edges[anchor]
+            X = edge.static @ X  # type: ignore[operator]
+            anchor = edge.parent
+        self._anchors[frame] = (anchor, X.translation, X.quaternion_xyzw)
+        return self._anchors[frame]
 
     def lookup(self, target: str, source: str, stamp: float) -> Transform:
         """X_target_source at ``stamp``: the pose of ``source`` in ``target``.
@@ -121,7 +274,11 @@ class FrameBuffer:
                     ) -> tuple[NDArray[np.float64], Rotation]:
         """`lookup` at each of ``stamps`` (n,): positions of ``source`` in ``target`` (n, 3) and
         R_target_source; one error for the first stamp that cannot be looked up."""
-        t = np.asarray(stamps, dtype=float).reshape(-1)
+        p, q = self._lookup(target, source, np.asarray(stamps, dtype=float).reshape(-1))
+        return p, Rotation.from_quat(q)
+
+    def _lookup(self, target: str, source: str, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """`lookup_many` as positions (n, 3) and quaternions (n, 4)."""
         up_source, root_source = self._chain(source)
         up_target, root_target = self._chain(target)
         if root_source != root_target:
@@ -132,28 +289,32 @@ class FrameBuffer:
         while up_source and up_target and up_source[-1] == up_target[-1]:
             up_source.pop()
             up_target.pop()
-        p_s, R_s = self._compose(up_source, t, target, source)
-        p_t, R_t = self._compose(up_target, t, target, source)
-        R_ts = R_t.inv()
-        return R_ts.apply(p_s - p_t), R_ts * R_s
+        p_s, q_s = self._compose(up_source, t, target, source)
+        if not up_target:
+            return p_s, q_s
+        p_t, q_t = self._compose(up_target, t, target, source)
+        q_t_inv = q_t * np.array([-1.0, -1.0, -1.0, 1.0])  # the conjugate: R_top_target^-1
+        return quaternion_rotate(q_t_inv, p_s - p_t), quaternion_products(q_t_inv, q_s)
 
-    def _compose(self, chain: list[str], t: NDArray[np.float64], target: str, source: str
-                 ) -> tuple[NDArray[np.float64], Rotation]:
-        """X_top_first at each of ``t`` for ``chain`` (child first)."""
-        p = np.zeros((len(t), 3))
-        R = Rotation.identity(len(t))
-        for child in chain:
-            p_edge, R_edge = self._at(child, t, target, source)
-            p, R = p_edge + R_edge.apply(p), R_edge * R
-        return p, R
+    def _compose(self, chain: list[str], t: FloatArray, target: str, source: str
+                 ) -> tuple[FloatArray, FloatArray]:
+        """X_top_first at each of ``t`` for ``chain`` (child first): positions, quaternions."""
+        p, q = np.zeros((len(t), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+        for k, child in enumerate(chain):
+            edge = self._edges[child]
+            self._check_covered(edge, child, t, target, source)
+            p_edge, q_edge = edge.at(t)
+            if k == 0:
+                p, q = p_edge, q_edge
+            else:
+                p, q = p_edge + quaternion_rotate(q_edge, p), quaternion_products(q_edge, q)
+        return p, q
 
-    def _at(self, child: str, t: NDArray[np.float64], target: str, source: str
-            ) -> tuple[NDArray[np.float64], Rotation]:
-        edge = self._edges[child]
-        if edge.static is not None:
-            return (np.tile(edge.static.translation, (len(t), 1)),
-                    Rotation.concatenate([edge.static.rotation] * len(t)))
+    @staticmethod
+    def _check_covered(edge: _Edge, child: str, t: FloatArray, target: str, source: str) -> None:
         stamps = edge.stamps
+        if edge.static is not None:
+            return
         outside = ~((t >= stamps[0]) & (t <= stamps[-1]))
         if outside.any():
             stamp = float(t[np.flatnonzero(outside)[0]])
@@ -164,12 +325,6 @@ class FrameBuffer:
                 + (f"{stamp - stamps[-1]:.6g} s newer than the last pose" if newer
                    else f"{stamps[0] - stamp:.6g} s older than the kept history")
                 + "; no extrapolation)")
-        samples = edge.interpolated()
-        if samples is None:  # one pose, and every stamp is its stamp
-            only = edge.poses[0]
-            return (np.tile(only.translation, (len(t), 1)),
-                    Rotation.concatenate([only.rotation] * len(t)))
-        return samples.poses_at(t)
 
     def _edge(self, parent: str, child: str, static: bool) -> _Edge:
         for name in (parent, child):
@@ -183,6 +338,8 @@ class FrameBuffer:
                 raise ValueError(f"{child} in {parent} would close a loop: {parent} is already "
                                  f"under {child}")
             edge = self._edges[child] = _Edge(parent)
+            self._anchors.clear()
+            self._plans.clear()
         elif edge.parent != parent:
             raise ValueError(f"frame {child} already has the parent {edge.parent}; a frame has "
                              f"one parent (got {parent})")

@@ -18,6 +18,7 @@ kappa0 = -m0w (eq. 22) is >= 0, which is eq. 20: psi = -atan2(m0x, m0y).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -242,10 +243,10 @@ class ReconstructionSI(NamedTuple):
 
 def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
                    f0_C_n: NDArray[np.float64], m0_C_nm: NDArray[np.float64],
-                   rod: RodScale) -> ReconstructionSI:
+                   rod: RodScale | Sequence[RodScale]) -> ReconstructionSI:
     """Step 2 in SI: contact points from clamp poses and wrenches as a sensor graph has them.
 
-    Each row is converted to the paper's units with ``rod`` (``vibrissa.units.RodScale``),
+    Each row is converted to the paper's units with its rod (``vibrissa.units.RodScale``),
     reconstructed by :func:`reconstruct_row` and converted back, in one compiled call; a row
     gives the same bits alone or in any batch.
 
@@ -258,13 +259,21 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
     f0_C_n, m0_C_nm : ndarray, shape (N, 3)
         Clamp reaction on the rod in C, N and N m (moment about the clamp point).
     rod
-        L and EI of the rod.
+        L and EI of the rod: one for every row, or one per row (N) for whiskers of
+        different rods.
     """
     # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
     q, p, f0, m0 = (np.require(a, dtype=float, requirements=["C", "W"])
                     for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
-    pose_ok, point, s1, phase, force, status = _rows_si(
-        q, p, f0, m0, rod.length_m, rod.force_n, rod.moment_nm)
+    if isinstance(rod, RodScale):
+        units = [np.full(len(q), value) for value in (rod.length_m, rod.force_n, rod.moment_nm)]
+    else:
+        if len(rod) != len(q):
+            raise ValueError(f"rod: {len(rod)} rods for {len(q)} rows")
+        units = [np.array([(r.length_m, r.force_n, r.moment_nm) for r in rod]).reshape(-1, 3)[:, j]
+                 for j in range(3)]
+    length_m, force_n, moment_nm = (np.ascontiguousarray(u) for u in units)
+    pose_ok, point, s1, phase, force, status = _rows_si(q, p, f0, m0, length_m, force_n, moment_nm)
     return ReconstructionSI(pose_ok, point, s1, phase, force, status)
 
 
@@ -290,15 +299,17 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
 
 @compiled
 def _rows_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
-             m0: NDArray[np.float64], length_m: float, force_n: float, moment_nm: float
+             m0: NDArray[np.float64], length_m: NDArray[np.float64], force_n: NDArray[np.float64],
+             moment_nm: NDArray[np.float64]
              ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64],
                         NDArray[np.int32], NDArray[np.float64], NDArray[np.int32]]:
-    """:func:`_row_si` of every row (N, ...)."""
+    """:func:`_row_si` of every row (N, ...), each with its rod's units (N,)."""
     n = q_xyzw.shape[0]
     pose_ok = np.empty(n, dtype=np.bool_)
     point, force, s1 = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     phase, status = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
     for i in range(n):
         pose_ok[i], s1[i], phase[i], status[i] = _row_si(
-            q_xyzw[i], p0[i], f0[i], m0[i], length_m, force_n, moment_nm, point[i], force[i])
+            q_xyzw[i], p0[i], f0[i], m0[i], length_m[i], force_n[i], moment_nm[i], point[i],
+            force[i])
     return pose_ok, point, s1, phase, force, status

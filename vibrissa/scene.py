@@ -368,15 +368,15 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
     out = ReconstructionSI(np.zeros(len(t), bool), np.full((len(t), 3), np.nan),
                            np.full(len(t), np.nan), np.zeros(len(t), np.int32),
                            np.full((len(t), 3), np.nan), np.zeros(len(t), np.int32))
-    for i, w in enumerate(scene.whiskers):
-        rows = np.flatnonzero((rows_of == i) & covered)
-        if len(rows) == 0:
-            continue
-        p_WC = p_WR[rows] + R_WR[rows].apply(np.array(w.X_RC.translation))  # scipy: writable
-        q_WC = (R_WR[rows] * w.X_RC.rotation).as_quat()
-        part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], w.scale)
-        for mine, theirs in zip(out, part, strict=True):
-            mine[rows] = theirs
+    rows = np.flatnonzero(covered)
+    which = rows_of[rows]
+    mount_p = np.array([w.X_RC.translation for w in scene.whiskers])[which]
+    mount_R = Rotation.from_quat(np.array([w.X_RC.quaternion_xyzw for w in scene.whiskers])[which])
+    p_WC = p_WR[rows] + R_WR[rows].apply(mount_p)
+    q_WC = (R_WR[rows] * mount_R).as_quat()
+    part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], [scene.whiskers[k].scale for k in which])
+    for mine, theirs in zip(out, part, strict=True):
+        np.asarray(mine)[rows] = theirs
     return out
 
 

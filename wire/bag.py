@@ -169,9 +169,11 @@ def _format_time(t_ns: int) -> str:
 
 
 def _schema_json(type_name: str, version: int) -> dict[str, Any]:
-    """JSON schema of a message type, with the wire version; minimal if the type is unknown."""
+    """JSON schema of a message type, with the wire version; minimal if the type or its
+    version is unknown (e.g. an older version's payloads, replayed and recorded again)."""
     cls = codec.MESSAGE_TYPES.get(type_name)
-    schema: dict[str, Any] = dict(codec.json_schema(cls)) if cls is not None else {}
+    known = cls is not None and cls.VERSION == version
+    schema: dict[str, Any] = dict(codec.json_schema(cls)) if known else {}  # type: ignore[arg-type]
     schema.setdefault("title", type_name)
     schema.setdefault("type", "object")
     schema[VERSION_KEY] = version

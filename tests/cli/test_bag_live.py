@@ -21,7 +21,7 @@ TIMEOUT_S = 5.0
 
 def wrench(i: int) -> WhiskerWrench:
     return WhiskerWrench(
-        stamp=0.01 * i, seq=i, whisker_id="w0", frame_id="world",
+        stamp=0.01 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
         clamp_position=[0.0, 0.0, 0.1 * i], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
         f0=[0.0, 0.01 * i, 0.0], m0=[1e-3 * i, 0.0, 0.0],
     )

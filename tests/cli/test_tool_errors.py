@@ -47,7 +47,7 @@ def test_bag_info_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
     bag = tmp_path / "many.mcap"
     with BagWriter(bag) as writer:
         for i in range(2000):  # a line per topic: more than a pipe holds (64 KiB)
-            msg = WhiskerWrench(stamp=0.0, seq=0, whisker_id="w", frame_id="world",
+            msg = WhiskerWrench(stamp=0.0, seq=0, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                                 clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 1],
                                 f0=[0, 0, 0], m0=[0, 0, 0])
             writer.write(f"/w{i}/wrench", encode(msg), i)

@@ -22,7 +22,7 @@ RATE_HZ = 50.0
 
 def wrench(i: int) -> WhiskerWrench:
     return WhiskerWrench(
-        stamp=0.02 * i, seq=i, whisker_id="w0", frame_id="world",
+        stamp=0.02 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
         clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
         f0=[0.0, 0.01 * i, 0.0], m0=[0.0, 0.0, 0.0],
     )

@@ -100,3 +100,28 @@ def test_unknown_frames_and_a_second_tree_are_named() -> None:
 def test_an_inconsistent_tree_is_refused(call, message) -> None:
     with pytest.raises(ValueError, match=message):
         call(robot_buffer())
+
+
+def test_lookup_rows_equals_lookup_per_row_and_flags_rows_it_cannot_place() -> None:
+    buffer = robot_buffer()
+    mount_1 = Transform(Rotation.from_euler("y", -0.7), [0.0, 0.03, -0.01])
+    buffer.set_static("base_link", "w1/clamp", mount_1)
+    buffer.set_static("w1/clamp", "w1/sensor", Transform(Rotation.from_euler("z", 0.4), [0, 0, 0.002]))
+    stamps = np.repeat(RNG.uniform(T[0], T[-1], 20), 3)  # ticks: rows share a stamp
+    sources = ["w0/clamp", "w1/clamp", "w1/sensor"] * 20
+    stamps[4] = T[-1] + 0.01  # newer than the last pose
+    sources[7] = "w9/clamp"  # unknown
+    rows = buffer.lookup_rows("world", sources, stamps)
+    assert rows.ok.tolist() == [i not in (4, 7) for i in range(60)]
+    for i in np.flatnonzero(rows.ok):
+        X = buffer.lookup("world", sources[i], float(stamps[i]))
+        assert np.allclose(rows.p[i], X.translation, rtol=0, atol=1e-15)
+        assert (Rotation.from_quat(rows.q_xyzw[i]) * X.rotation.inv()).magnitude() < 1e-14
+    assert np.isnan(rows.p[[4, 7]]).all()
+    assert len(rows.errors) == 2
+    assert "newer than the last pose" in rows.errors[1] or "newer than the last pose" in rows.errors[0]
+    assert any("unknown frame 'w9/clamp'" in e for e in rows.errors)
+    # what can be looked up, up to when
+    assert buffer.newest("world", "w1/sensor") == T[-1]
+    assert buffer.newest("base_link", "w1/sensor") == np.inf
+    assert buffer.newest("world", "w9/clamp") is None

@@ -23,7 +23,7 @@ TIMEOUT_S = 20.0
 
 def wrench(i: int) -> WhiskerWrench:
     return WhiskerWrench(
-        stamp=0.01 * i, seq=i, whisker_id="w0", frame_id="world",
+        stamp=0.01 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
         clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
         f0=[0.0, 0.01 * i, 0.0], m0=[0.0, 0.0, 0.0],
     )

@@ -94,7 +94,7 @@ def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:
     m0 = rng.normal(0, 1, (n, 3))
     f0[0] = 0.0  # no force: no contact
     m0[0] = 0.0
-    return [WhiskerWrench(stamp=float(i), seq=i, whisker_id="w", frame_id="world",
+    return [WhiskerWrench(stamp=float(i), seq=i, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                           clamp_position=p0[i], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
                           f0=f0[i], m0=m0[i], **kwargs) for i in range(n)]
 
@@ -102,7 +102,7 @@ def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:
 def _to_si(wrenches: list[WhiskerWrench], length: float, ei: float,
            quaternion: Any = None) -> list[WhiskerWrench]:
     """The wrenches of a rod of length ``length`` and stiffness ``ei`` (written out, not RodScale)."""
-    return [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
+    return [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                           clamp_position=w.clamp_position * length,
                           clamp_orientation=w.clamp_orientation if quaternion is None else quaternion,
                           f0=w.f0 * ei / length**2, m0=w.m0 * ei / length) for w in wrenches]
@@ -146,7 +146,7 @@ def test_a_wrench_gives_the_same_point_bit_for_bit_in_any_batch(quaternion) -> N
     # Batches follow arrival timing; a bag replay must still give the live run's points.
     length, ei = 0.04, 3e-3
     wrenches = _to_si(_wrenches(48), length, ei, quaternion)
-    wrenches[5] = WhiskerWrench(stamp=0.0, seq=5, whisker_id="w", frame_id="world",
+    wrenches[5] = WhiskerWrench(stamp=0.0, seq=5, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                                 clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 0],
                                 f0=[1.0, 0, 0], m0=[0, 1.0, 0])
     whole = reconstruct_wrenches(wrenches, RodScale(length, ei))
@@ -199,7 +199,7 @@ def test_clamp_orientation_rotates_the_contact() -> None:
     np.testing.assert_allclose(R, np.eye(3) + np.sin(angle) * K
                                + (1 - np.cos(angle)) * K @ K, atol=1e-15)
     straight = _wrenches()
-    turned = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="world",
+    turned = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                             clamp_position=w.clamp_position, clamp_orientation=q * 2.0,
                             f0=w.f0, m0=w.m0) for w in straight]  # not unit: normalised
     a, b = reconstruct_wrenches(straight), reconstruct_wrenches(turned)
@@ -212,7 +212,7 @@ def test_clamp_orientation_rotates_the_contact() -> None:
 
 def test_zero_quaternion_is_counted_as_bad_pose() -> None:
     w = _wrenches(3)
-    bad = WhiskerWrench(stamp=0.0, seq=9, whisker_id="w", frame_id="world",
+    bad = WhiskerWrench(stamp=0.0, seq=9, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                         clamp_position=w[1].clamp_position, clamp_orientation=[0, 0, 0, 0],
                         f0=w[1].f0, m0=w[1].m0)
     result = reconstruct_wrenches([w[1], bad])
@@ -223,7 +223,8 @@ def test_zero_quaternion_is_counted_as_bad_pose() -> None:
 def _tick(wrenches: list[WhiskerWrench], seq: int = 4) -> WhiskerWrenchArray:
     """The wrenches as the rows of one array message."""
     return WhiskerWrenchArray(
-        stamp=2.5, seq=seq, frame_id="world", whisker_ids=[f"w{w.seq}" for w in wrenches],
+        stamp=2.5, seq=seq, pose_frame_id="world",
+        frame_ids=[f"w{w.seq}/clamp" for w in wrenches], whisker_ids=[f"w{w.seq}" for w in wrenches],
         clamp_position=np.stack([w.clamp_position for w in wrenches]),
         clamp_orientation=np.stack([w.clamp_orientation for w in wrenches]),
         f0=np.stack([w.f0 for w in wrenches]), m0=np.stack([w.m0 for w in wrenches]))
@@ -269,7 +270,8 @@ def test_array_equals_library_and_per_wrench_path_and_counts_rows() -> None:
     unit = _wrenches(32)
     q = np.random.default_rng(5).normal(size=(32, 4))
     q[7] = 0.0  # bad pose
-    wrenches = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id=f"w{w.seq}", frame_id="world",
+    wrenches = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id=f"w{w.seq}",
+                              frame_id=f"w{w.seq}/clamp", pose_frame_id="world",
                               clamp_position=w.clamp_position * length, clamp_orientation=q[i],
                               f0=w.f0 * ei / length**2, m0=w.m0 * ei / length)
                 for i, w in enumerate(unit)]
@@ -368,7 +370,8 @@ def test_a_backlog_of_arrays_gives_each_tick_its_own_points_bit_for_bit() -> Non
             q[2] = 0.0  # bad pose in the middle of the batch
         # (forces 10x those of _wrenches: most rows then have a contact)
         ticks.append(WhiskerWrenchArray(
-            stamp=2.5, seq=seq, frame_id="world", whisker_ids=[f"w{i}" for i in range(n)],
+            stamp=2.5, seq=seq, pose_frame_id="world",
+            frame_ids=[f"w{i}/clamp" for i in range(n)], whisker_ids=[f"w{i}" for i in range(n)],
             clamp_position=np.reshape([w.clamp_position for w in rows], (n, 3)),
             clamp_orientation=q, f0=10.0 * np.reshape([w.f0 for w in rows], (n, 3)),
             m0=np.reshape([w.m0 for w in rows], (n, 3))))
@@ -382,7 +385,8 @@ def test_a_backlog_of_arrays_gives_each_tick_its_own_points_bit_for_bit() -> Non
     assert sum(len(r.contacts.whisker_ids) for r in together) > 40
     # and each tick's rows are those of its wrenches one by one, bit for bit
     for tick, result in zip(ticks, together, strict=True):
-        rows = [WhiskerWrench(stamp=0.0, seq=i, whisker_id=tick.whisker_ids[i], frame_id="world",
+        rows = [WhiskerWrench(stamp=0.0, seq=i, whisker_id=tick.whisker_ids[i],
+                              frame_id=f"{tick.whisker_ids[i]}/clamp", pose_frame_id="world",
                               clamp_position=tick.clamp_position[i],
                               clamp_orientation=tick.clamp_orientation[i], f0=tick.f0[i],
                               m0=tick.m0[i]) for i in range(len(tick.whisker_ids))]
@@ -505,12 +509,14 @@ def test_a_result_that_overflows_is_counted_as_no_contact_not_published() -> Non
     p0 = np.array([-1.30861562e308, 1.49614536e308, 1.16312171e308])
     f0 = np.array([1.15378996e308, -9.47832554e307, 1.11655258e308])
     m0 = np.array([4.86599216e153, 9.48589037e153, 5.07180288e153])
-    wrench = WhiskerWrench(stamp=1.0, seq=3, whisker_id="w", frame_id="world", clamp_position=p0,
+    wrench = WhiskerWrench(stamp=1.0, seq=3, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+                           clamp_position=p0,
                            clamp_orientation=q, f0=f0, m0=m0)
     decode(encode(wrench))  # the codec takes it: every value is finite
     single = reconstruct_messages([wrench])[0]
     array = reconstruct_messages([WhiskerWrenchArray(
-        stamp=1.0, seq=3, frame_id="world", whisker_ids=["w", "v"], clamp_position=[p0, p0],
+        stamp=1.0, seq=3, pose_frame_id="world",
+        frame_ids=["w/clamp", "v/clamp"], whisker_ids=["w", "v"], clamp_position=[p0, p0],
         clamp_orientation=[q, q], f0=[f0, f0], m0=[m0, np.zeros(3)])])[0]
     assert (single.contacts, single.no_contact, single.bad_pose) == (None, 1, 0)
     assert array.contacts is not None and array.contacts.whisker_ids == []
@@ -607,7 +613,7 @@ class Endless:
     seq = 0
     def receive(self, timeout_s):
         self.seq += 1
-        msg = WhiskerWrench(stamp=0.0, seq=self.seq, whisker_id="w", frame_id="world",
+        msg = WhiskerWrench(stamp=0.0, seq=self.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                             clamp_position=np.random.rand(3), clamp_orientation=[0, 0, 0, 1],
                             f0=np.random.rand(3), m0=np.random.rand(3))
         return Received("/w/wrench", msg, encode(msg), Header(1, self.seq), 0.0)

@@ -30,7 +30,8 @@ wrench = Publisher("/whisker0/wrench", WhiskerWrench, endpoints)
 contact = Publisher("/whisker0/contact", ContactPoint, endpoints)
 deadline = time.monotonic() + float(sys.argv[2])
 while time.monotonic() < deadline:
-    wrench.publish(WhiskerWrench(stamp=0.0, seq=0, whisker_id="whisker0", frame_id="world",
+    wrench.publish(WhiskerWrench(stamp=0.0, seq=0, whisker_id="whisker0",
+                                 frame_id="whisker0/clamp", pose_frame_id="world",
                                  clamp_position=[0.0, 0.0, 0.0],
                                  clamp_orientation=[0.0, 0.0, 0.0, 1.0],
                                  f0=[0.0, 1.0, 0.0], m0=[0.0, 0.0, 0.5]))
@@ -114,7 +115,8 @@ def test_a_flood_of_huge_arrays_is_refused_without_filling_memory(tmp_path: Path
     n = 95_000  # 10.5 MB each
     rng = np.random.default_rng(0)
     huge = encode(WhiskerWrenchArray(
-        stamp=0.0, seq=0, frame_id="world", whisker_ids=[f"w{i}" for i in range(n)],
+        stamp=0.0, seq=0, pose_frame_id="world",
+        frame_ids=[f"w{i}/clamp" for i in range(n)], whisker_ids=[f"w{i}" for i in range(n)],
         clamp_position=rng.normal(size=(n, 3)), clamp_orientation=np.tile([0, 0, 0, 1.0], (n, 1)),
         f0=rng.normal(size=(n, 3)), m0=rng.normal(size=(n, 3))))
     burst = 50  # 0.5 GB

@@ -35,12 +35,12 @@ def message(i: int) -> Message:
     if i % 3 == 0:
         n = 1 + i % 4
         return WhiskerWrenchArray(
-            stamp=1.0 + 0.01 * i, seq=i // 3, frame_id="world",
+            stamp=1.0 + 0.01 * i, seq=i // 3, pose_frame_id="world", frame_ids=[f"w{k}/clamp" for k in range(n)],
             whisker_ids=[f"w{k}" for k in range(n)], clamp_position=rng.normal(size=(n, 3)),
             clamp_orientation=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
             f0=rng.normal(size=(n, 3)), m0=rng.normal(size=(n, 3)))
     return WhiskerWrench(
-        stamp=1.0 + 0.01 * i, seq=i, whisker_id="w0", frame_id="world",
+        stamp=1.0 + 0.01 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
         clamp_position=rng.normal(size=3), clamp_orientation=np.array([0.0, 0.0, 0.0, 1.0]),
         f0=rng.normal(size=3), m0=rng.normal(size=3))
 

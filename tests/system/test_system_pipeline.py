@@ -362,7 +362,7 @@ def _good_wrench() -> WhiskerWrench:
     while True:
         p0, f0, m0 = rng.uniform(-1, 1, 3), rng.normal(size=3), rng.normal(size=3)
         if reconstruct(p0, f0, m0).valid[0]:
-            return WhiskerWrench(stamp=1.0, seq=42, whisker_id="w", frame_id="world",
+            return WhiskerWrench(stamp=1.0, seq=42, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                                  clamp_position=p0, clamp_orientation=[0, 0, 0, 1], f0=f0, m0=m0)
 
 
@@ -454,7 +454,8 @@ def _sweep_ticks(length: float, ei: float, whiskers: int) -> tuple[list[WhiskerW
         rows = slice(start, start + whiskers)
         n = len(p0[rows])
         ticks.append(WhiskerWrenchArray(
-            stamp=float(seq), seq=seq, frame_id="world",
+            stamp=float(seq), seq=seq, pose_frame_id="world",
+            frame_ids=[f"w{i}/clamp" for i in range(n)] + ["idle/clamp"],
             whisker_ids=[f"w{i}" for i in range(n)] + ["idle"],
             clamp_position=np.vstack([p0[rows] * length, [0.0, 0.0, 0.0]]),
             clamp_orientation=np.tile(q, (n + 1, 1)),

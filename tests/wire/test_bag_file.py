@@ -21,7 +21,7 @@ T0_NS = 1_700_000_000_000_000_000
 def wrench(i: int) -> WhiskerWrench:
     rng = np.random.default_rng(i)
     return WhiskerWrench(
-        stamp=1.0 + 0.01 * i, seq=i, whisker_id=f"w{i % 2}", frame_id="world",
+        stamp=1.0 + 0.01 * i, seq=i, whisker_id=f"w{i % 2}", frame_id=f"w{i % 2}/clamp", pose_frame_id="world",
         clamp_position=rng.normal(size=3), clamp_orientation=np.array([0.0, 0.0, 0.0, 1.0]),
         f0=rng.normal(size=3), m0=rng.normal(size=3),
     )
@@ -76,7 +76,7 @@ def test_schemas_registered_once_per_type(tmp_path: Path) -> None:
     for schema in summary.schemas.values():
         assert schema.encoding == "jsonschema"
         data = json.loads(schema.data)
-        assert data[VERSION_KEY] == 1
+        assert data[VERSION_KEY] == (WhiskerWrench if "Wrench" in schema.name else EndOfStream).VERSION
         assert data["properties"].keys() == json_schema(WhiskerWrench if "Wrench" in schema.name
                                                         else EndOfStream)["properties"].keys()
     channels = summary.channels.values()

@@ -52,7 +52,7 @@ def wrench() -> WhiskerWrench:
         stamp=12.5,
         seq=7,
         whisker_id="w0",
-        frame_id="world",
+        frame_id="w0/clamp", pose_frame_id="world",
         clamp_position=[0.1, 0.2, 0.3],
         clamp_orientation=[0.0, 0.0, 0.0, 1.0],
         f0=[0.01, -0.02, 0.5],
@@ -63,7 +63,8 @@ def wrench() -> WhiskerWrench:
 def wrench_array() -> WhiskerWrenchArray:
     rng = np.random.default_rng(3)
     return WhiskerWrenchArray(
-        stamp=12.5, seq=7, frame_id="world", whisker_ids=["w0", "w1", "w2"],
+        stamp=12.5, seq=7, pose_frame_id="world",
+        frame_ids=["w0/clamp", "w1/clamp", "w2/clamp"], whisker_ids=["w0", "w1", "w2"],
         clamp_position=rng.normal(size=(3, 3)), clamp_orientation=np.tile([0.0, 0, 0, 1], (3, 1)),
         f0=rng.normal(size=(3, 3)), m0=rng.normal(size=(3, 3)),
     )
@@ -157,7 +158,7 @@ def test_enums_come_back_as_enums() -> None:
 
 def test_constructed_arrays_are_read_only_copies() -> None:
     f0 = np.array([1.0, 2.0, 3.0])
-    msg = WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="world",
+    msg = WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                         clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 1], f0=f0, m0=f0)
     f0[0] = 99.0
     assert msg.f0[0] == 1.0
@@ -167,14 +168,15 @@ def test_constructed_arrays_are_read_only_copies() -> None:
 
 def test_constructor_checks_shapes_and_shared_sizes() -> None:
     with pytest.raises(ValueError, match="WhiskerWrench.f0"):
-        WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="world", clamp_position=[0, 0, 0],
+        WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+                      clamp_position=[0, 0, 0],
                       clamp_orientation=[0, 0, 0, 1], f0=[1.0, 2.0], m0=[0, 0, 0])
     with pytest.raises(ValueError, match="ContactCloud.normals"):
         ContactCloud(stamp=0, frame_id="world", points=np.zeros((4, 3)), normals=np.zeros((3, 3)))
 
 
 def test_encode_refuses_non_finite() -> None:
-    msg = WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="world",
+    msg = WhiskerWrench(stamp=0, seq=0, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                         clamp_position=[0, 0, np.nan], clamp_orientation=[0, 0, 0, 1],
                         f0=[0, 0, 0], m0=[0, 0, 0])
     with pytest.raises(ValueError, match="clamp_position"):
@@ -212,10 +214,74 @@ def test_unknown_type() -> None:
 
 
 def test_wrong_version() -> None:
-    obj = raw(wrench())
+    for version in (0, 3, -1, 1 << 40):
+        obj = raw(wrench())
+        obj["_v"] = version
+        error = refuse(pack(obj), VersionMismatchError, "WhiskerWrench", f"version {version}",
+                       "reads version 1, 2")
+        assert error.type_name == WhiskerWrench.TYPE_NAME
+    obj = raw(ContactPoint(stamp=0.0, seq=0, whisker_id="w", frame_id="world", point=[0, 0, 0],
+                           s1=0.5, phase=1, force=[0, 0, 0], status=0))
     obj["_v"] = 2
-    error = refuse(pack(obj), VersionMismatchError, "WhiskerWrench", "version 2")
-    assert error.type_name == WhiskerWrench.TYPE_NAME
+    refuse(pack(obj), VersionMismatchError, "ContactPoint", "reads version 1")
+
+
+def _v1_wrench(whisker: str = "w7") -> dict[str, Any]:
+    """A WhiskerWrench as version 1 wrote it (written out: the pose's frame in frame_id)."""
+    def array(values: list[float]) -> dict[str, Any]:
+        return {"dtype": "<f8", "shape": [len(values)], "data": np.array(values).tobytes()}
+    return {"_type": "vibrissa/WhiskerWrench", "_v": 1, "stamp": 2.0, "seq": 5,
+            "whisker_id": whisker, "frame_id": "odom", "clamp_position": array([0.1, 0.2, 0.3]),
+            "clamp_orientation": array([0.0, 0.0, 0.6, 0.8]), "f0": array([1.0, 2.0, 3.0]),
+            "m0": array([0.0, -1.0, 0.5])}
+
+
+def test_version_1_wrenches_decode_with_their_pose_in_the_clamp_frame() -> None:
+    msg = decode(pack(_v1_wrench()), WhiskerWrench)
+    assert isinstance(msg, WhiskerWrench) and msg.has_pose
+    assert (msg.frame_id, msg.pose_frame_id, msg.whisker_id, msg.seq) == ("w7/clamp", "odom", "w7", 5)
+    assert msg.clamp_position.tolist() == [0.1, 0.2, 0.3]
+    assert msg.clamp_orientation.tolist() == [0.0, 0.0, 0.6, 0.8]
+    assert msg.f0.tolist() == [1.0, 2.0, 3.0] and msg.m0.tolist() == [0.0, -1.0, 0.5]
+    rows = np.arange(6.0).reshape(2, 3)
+    tick = {"_type": "vibrissa/WhiskerWrenchArray", "_v": 1, "stamp": 1.0, "seq": 0,
+            "frame_id": "world", "whisker_ids": ["a", "b"],
+            "clamp_position": {"dtype": "<f8", "shape": [2, 3], "data": rows.tobytes()},
+            "clamp_orientation": {"dtype": "<f8", "shape": [2, 4],
+                                  "data": np.tile([0.0, 0, 0, 1], (2, 1)).tobytes()},
+            "f0": {"dtype": "<f8", "shape": [2, 3], "data": rows.tobytes()},
+            "m0": {"dtype": "<f8", "shape": [2, 3], "data": (-rows).tobytes()}}
+    array = decode(pack(tick))
+    assert isinstance(array, WhiskerWrenchArray)
+    assert array.frame_ids == ["a/clamp", "b/clamp"] and array.pose_frame_id == "world"
+    assert array.f0.tolist() == rows.tolist()
+
+
+def test_version_1_payloads_are_checked_as_strictly_as_version_2() -> None:
+    for key, value, error in (("whisker_id", 3, FieldTypeError), ("frame_id", None, MissingFieldError),
+                              ("f0", "x", FieldTypeError), ("extra", 1, UnknownFieldError)):
+        obj = _v1_wrench()
+        obj[key] = value
+        refuse(pack(obj), error)
+    obj = _v1_wrench()
+    del obj["clamp_position"]  # a version 1 pose is complete or the payload is refused
+    refuse(pack(obj), MissingFieldError, "clamp_position")
+
+
+def test_a_wrench_without_pose_is_measured_in_its_clamp_frame() -> None:
+    msg = WhiskerWrench(stamp=1.0, seq=0, whisker_id="w0", frame_id="w0/clamp", f0=[1, 0, 0],
+                        m0=[0, 0.1, 0])
+    assert not msg.has_pose and decode(encode(msg)) == msg
+    assert set(raw(msg)) == {"_type", "_v", "stamp", "seq", "whisker_id", "frame_id", "f0", "m0"}
+    with pytest.raises(ValueError, match="together; clamp_orientation missing"):
+        WhiskerWrench(stamp=1.0, seq=0, whisker_id="w0", frame_id="w0/clamp", f0=[1, 0, 0],
+                      m0=[0, 0.1, 0], pose_frame_id="world", clamp_position=[0, 0, 0])
+    obj = raw(msg)
+    obj["pose_frame_id"] = "world"  # a pose frame without the pose
+    refuse(pack(obj), MissingFieldError, "clamp_position, clamp_orientation missing")
+    obj = raw(msg)
+    obj["pose_frame_id"] = None  # nil for a left-out optional field is read as left out
+    assert decode(pack(obj)) == msg
 
 
 def test_unexpected_type() -> None:
@@ -433,8 +499,8 @@ def test_array_types_refuse_nan_wrong_dtype_and_wrong_version() -> None:
     refuse(pack(obj), ArrayDtypeError, "ContactPointArray.phase")
     for msg in (wrench_array(), contact_array()):
         obj = raw(msg)
-        obj["_v"] = 2
-        refuse(pack(obj), VersionMismatchError, msg.TYPE_NAME, "version 2")
+        obj["_v"] = msg.VERSION + 1
+        refuse(pack(obj), VersionMismatchError, msg.TYPE_NAME, f"version {msg.VERSION + 1}")
     with pytest.raises(ValueError, match="point"):
         encode(ContactPointArray(**{**contact_array().__dict__, "point": [[np.nan, 0, 0], [0, 0, 0]]}))
 
@@ -571,7 +637,8 @@ def test_a_payload_over_its_types_size_is_refused_before_it_is_read() -> None:
     n = 10_000  # a 1.1 MB array, over WhiskerWrenchArray.MAX_BYTES (1 MiB)
     rng = np.random.default_rng(0)
     big = encode(WhiskerWrenchArray(
-        stamp=0.0, seq=0, frame_id="world", whisker_ids=[f"w{i}" for i in range(n)],
+        stamp=0.0, seq=0, pose_frame_id="world",
+        frame_ids=[f"w{i}/clamp" for i in range(n)], whisker_ids=[f"w{i}" for i in range(n)],
         clamp_position=rng.normal(size=(n, 3)), clamp_orientation=np.tile([0.0, 0, 0, 1], (n, 1)),
         f0=rng.normal(size=(n, 3)), m0=rng.normal(size=(n, 3))))
     assert len(big) > WhiskerWrenchArray.MAX_BYTES == 1 << 20

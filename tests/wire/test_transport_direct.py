@@ -21,7 +21,7 @@ TOPIC = "/w0/wrench"
 
 def wrench(seq: int) -> WhiskerWrench:
     return WhiskerWrench(
-        stamp=0.001 * seq, seq=seq, whisker_id="w0", frame_id="world",
+        stamp=0.001 * seq, seq=seq, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
         clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
         f0=[0.0, 0.01 * seq, 0.0], m0=[0.0, 0.0, 0.0],
     )

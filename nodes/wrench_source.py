@@ -12,6 +12,13 @@ Publishes
 ``topic`` : WhiskerWrenchArray
     mode ``sim`` with ``array``: the trails are the whiskers of one rigid array moving together;
     one message per clamp step with a row per whisker, then ``EndOfStream``.
+``topic`` : WhiskerWrenchArray, and ``pose_topic`` (default ``/robot/pose``) : RobotPose
+    mode ``scene``: a robot's whiskers along its path (``vibrissa simulate`` of ``scene``, run
+    on start): one array per path sample with a row per whisker that has a wrench there (an
+    ``unresolved`` sample has none), each row in its clamp frame with no pose, stamped with
+    the path's time; and the robot's pose X_WR (``world`` -> ``robot_frame``) at
+    ``pose_rate_hz`` on the path's clock, each published ``pose_delay_s`` after its stamp in
+    the stream (and a last one at the path's end); then ``EndOfStream`` on both.
 every WhiskerWrench or WhiskerWrenchArray topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order, each message with its own type (a topic may mix both), followed by the
@@ -34,9 +41,10 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
-from vibrissa.frames import clamp_frame
-from vibrissa.msgs import EndOfStream, WhiskerWrench, WhiskerWrenchArray
+from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
+from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench, WhiskerWrenchArray
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import (
     require,
@@ -45,6 +53,8 @@ from vibrissa.runtime.params import (
     require_positive,
 )
 from vibrissa.runtime.playback import play_bag_gated
+from vibrissa.runtime.scene_file import load_scene
+from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate
 from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import SweepRun, Trail, first_contact
@@ -55,6 +65,8 @@ from vibrissa.wire.topics import validate_name
 from vibrissa.wire.transport import DEFAULT_HWM
 
 log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
 
 REPLAY_TYPES = (WhiskerWrench.TYPE_NAME, WhiskerWrenchArray.TYPE_NAME)
 
@@ -71,7 +83,22 @@ class WrenchSourceParams:
     Attributes
     ----------
     mode
-        ``sim`` (simulate sweeps) or ``replay`` (play ``bag``).
+        ``sim`` (simulate sweeps), ``scene`` (a robot along its path, ``scene``) or
+        ``replay`` (play ``bag``).
+    scene
+        Mode ``scene``: the scene file (objects, whiskers, path; ``vibrissa simulate``).
+    pose_topic, map_frame, robot_frame
+        Mode ``scene``: where the robot's poses go, and the frames they join.
+    pose_rate_hz
+        Mode ``scene``: robot poses per second of path time.
+    pose_delay_s
+        Mode ``scene``: each pose goes out this long after its stamp in the stream (a
+        localisation that lags), s.
+    noise_force_n, noise_moment_nm, seed
+        Mode ``scene``: standard deviation of Gaussian noise added to each wrench component
+        (N, N m), and the seed of the noise.
+    workers
+        Mode ``scene``: processes of the simulation on start (0: one per core).
     surface
         Object spec for ``vibrissa.surfaces.parse_surface``, units of L (mode ``sim``).
     y0
@@ -111,7 +138,7 @@ class WrenchSourceParams:
         L and EI as ``vibrissa.units.RodScale`` (derived, not a parameter).
     """
 
-    mode: Literal["sim", "replay"] = "sim"
+    mode: Literal["sim", "scene", "replay"] = "sim"
     surface: str = "paraboloid:a=0.5,b=1,h=0.4"
     y0: tuple[float, ...] = (0.0,)
     mu: float = 0.0
@@ -128,6 +155,16 @@ class WrenchSourceParams:
     wait_timeout_s: float = 60.0
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
+    scene: str = ""
+    pose_topic: str = "/robot/pose"
+    map_frame: str = WORLD_FRAME
+    robot_frame: str = ROBOT_FRAME
+    pose_rate_hz: float = 100.0
+    pose_delay_s: float = 0.0
+    noise_force_n: float = 0.0
+    noise_moment_nm: float = 0.0
+    seed: int = 0
+    workers: int = 0
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -143,6 +180,14 @@ class WrenchSourceParams:
         if self.mode == "replay":
             require(bool(self.bag), "bag", self.bag, "an .mcap file in mode 'replay'")
             require_parsed("bag", self.bag, check_bag_file)
+            return
+        if self.mode == "scene":
+            require(bool(self.scene), "scene", self.scene, "a scene file in mode 'scene'")
+            require_parsed("scene", self.scene, load_scene)
+            require_parsed("pose_topic", self.pose_topic, validate_name)
+            require_positive("pose_rate_hz", self.pose_rate_hz)
+            for key in ("pose_delay_s", "noise_force_n", "noise_moment_nm", "workers"):
+                require_non_negative(key, getattr(self, key))
             return
         require_parsed("surface", self.surface, parse_surface)
         require(len(self.y0) > 0 and all(math.isfinite(y) for y in self.y0), "y0", self.y0,
@@ -262,6 +307,85 @@ def _progress(run: SweepRun, sent: int, elapsed_s: float) -> str:
             + f", {sent} published in {elapsed_s:.1f} s")
 
 
+def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchSourceParams
+                 ) -> Iterator[tuple[float, WhiskerWrenchArray | RobotPose]]:
+    """The messages of mode ``scene`` in publishing order, each with its time in the stream
+    (the path's clock): a WhiskerWrenchArray per path sample at its time, and the robot's
+    poses at ``pose_rate_hz`` (and at the path's end), each ``pose_delay_s`` after its stamp;
+    a pose goes before a wrench of the same stream time."""
+    t = scene.path.t
+    names = [r.name for r in results]
+    frame_ids = [clamp_frame(name) for name in names]
+    f0 = np.stack([r.f0_n for r in results], axis=1)  # (samples, whiskers, 3)
+    m0 = np.stack([r.m0_nm for r in results], axis=1)
+    has = np.stack([r.phase != SamplePhase.UNRESOLVED for r in results], axis=1)
+    rng = np.random.default_rng(params.seed)
+    if params.noise_force_n:
+        f0 = f0 + rng.normal(0.0, params.noise_force_n, f0.shape)
+    if params.noise_moment_nm:
+        m0 = m0 + rng.normal(0.0, params.noise_moment_nm, m0.shape)
+    pose_t = np.arange(t[0], t[-1], 1.0 / params.pose_rate_hz)
+    pose_t = np.append(pose_t, t[-1])
+    _, p_WR, R_WR = scene.path.at(pose_t)
+    q_WR = R_WR.as_quat()
+    j = 0
+    for k, stamp in enumerate(t.tolist()):
+        while j < len(pose_t) and pose_t[j] + params.pose_delay_s <= stamp:
+            yield float(pose_t[j] + params.pose_delay_s), _pose(params, pose_t[j], p_WR[j], q_WR[j])
+            j += 1
+        rows = np.flatnonzero(has[k])
+        yield stamp, WhiskerWrenchArray(
+            stamp=stamp, seq=k, whisker_ids=[names[i] for i in rows],
+            frame_ids=[frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])
+    for rest in range(j, len(pose_t)):
+        yield (float(pose_t[rest] + params.pose_delay_s),
+               _pose(params, pose_t[rest], p_WR[rest], q_WR[rest]))
+
+
+def _pose(params: WrenchSourceParams, stamp: float, p: FloatArray, q: FloatArray) -> RobotPose:
+    return RobotPose(stamp=float(stamp), frame_id=params.map_frame,
+                     child_frame_id=params.robot_frame, position=p, orientation=q)
+
+
+def run_scene(node: Node, params: WrenchSourceParams) -> int:
+    """Simulate the scene, then play it (paced by ``rate_hz``: path samples per second);
+    returns the number of messages sent, -1 when ``wait_for`` timed out."""
+    wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
+                                     hwm=DEFAULT_HWM * 10)
+    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
+                                  hwm=DEFAULT_HWM * 10)
+    scene = load_scene(params.scene)
+    node.set_state("running", f"simulating {len(scene.whiskers)} whisker(s) along the path")
+    t0 = time.monotonic()
+    results = simulate(scene, workers=params.workers or None)
+    log.info("%s: simulated %d whisker(s) x %d path samples in %.1f s: %s", node.fqn,
+             len(results), len(scene.path.t), time.monotonic() - t0,
+             "; ".join(f"{r.name} {r.counts()}" for r in results))
+    for topic in (params.topic, params.pose_topic):
+        if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,
+                                                             params.wait_timeout_s):
+            return -1
+    node.set_state("running", f"playing {params.scene}")
+    t = scene.path.t
+    wall_per_s = (len(t) - 1) / (params.rate_hz * (t[-1] - t[0])) if params.rate_hz else 0.0
+    start = time.monotonic()
+    count = 0
+    for stream_t, msg in scene_stream(scene, results, params):
+        if node.stop_requested:
+            break
+        if wall_per_s:
+            delay = start + (stream_t - t[0]) * wall_per_s - time.monotonic()
+            if delay > 0 and not node.sleep(delay):
+                break
+        (poses if isinstance(msg, RobotPose) else wrenches).publish(msg)
+        count += 1
+    wrenches.publish_end_of_stream(node.fqn)
+    poses.publish_end_of_stream(node.fqn)
+    log.info("%s: %d messages and EndOfStream on %s and %s in %.1f s", node.fqn, count,
+             wrenches.topic, poses.topic, time.monotonic() - start)
+    return count
+
+
 def replay_topics(bag: str) -> dict[str, bool]:
     """Wrench topics of ``bag`` (``REPLAY_TYPES``) -> whether it holds an EndOfStream on them."""
     info = BagReader(bag).info()
@@ -299,7 +423,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging()
     params = load_params(WrenchSourceParams, args.params_file, args.params)
     with Node.from_args(args) as node:
-        sent = run_sim(node, params) if params.mode == "sim" else run_replay(node, params)
+        run = {"sim": run_sim, "scene": run_scene, "replay": run_replay}[params.mode]
+        sent = run(node, params)
         if sent < 0:
             node.set_state("error", "downstream not ready or replay failed")
             return 1

@@ -65,7 +65,7 @@ from vibrissa.runtime.scene_file import load_robot
 from vibrissa.scene import Whisker
 from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale
-from vibrissa.wire.topics import validate_name
+from vibrissa.wire.topics import resolve_topic, validate_name
 from vibrissa.wire.transport import Received
 
 log = logging.getLogger(__name__)
@@ -327,19 +327,20 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
 
 def collect_batch(
     receive: Callable[[float], Received | None], timeout_s: float, max_batch: int,
-    on_pose: Callable[[RobotPose], None] = lambda pose: None,
+    on_pose: Callable[[RobotPose], None] = lambda pose: None, end_topic: str | None = None,
 ) -> tuple[list[Wrenches], EndOfStream | None]:
     """Wait up to ``timeout_s`` for one message, then drain what is already queued.
 
     Draining stops at ``max_batch`` messages (a WhiskerWrenchArray counts as one) or at an
-    ``EndOfStream``, which is returned separately so that it goes downstream after the points
+    ``EndOfStream`` (on ``end_topic`` when given: the end of the pose stream is not the end
+    of the wrenches), which is returned separately so that it goes downstream after the points
     of the wrenches before it. A RobotPose goes to ``on_pose`` as it comes.
     """
     batch: list[Wrenches] = []
     rx = receive(timeout_s)
     while rx is not None:
         msg: Message = rx.msg
-        if isinstance(msg, EndOfStream):
+        if isinstance(msg, EndOfStream) and end_topic in (None, rx.topic):
             return batch, msg
         if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
             batch.append(msg)
@@ -361,17 +362,19 @@ class BatchCollector:
     """
 
     def __init__(self, receive: Callable[[float], Received | None], drain_limit: int,
-                 max_batch: int, on_pose: Callable[[RobotPose], None] = lambda pose: None
-                 ) -> None:
+                 max_batch: int, on_pose: Callable[[RobotPose], None] = lambda pose: None,
+                 end_topic: str | None = None) -> None:
         self._receive = receive
         self._on_pose = on_pose
+        self._end_topic = end_topic
         self.drain_limit = drain_limit
         self.max_batch = max_batch
         self.limit = drain_limit
 
     def collect(self, timeout_s: float) -> tuple[list[Wrenches], EndOfStream | None]:
         """The next batch (see :func:`collect_batch`) and the limit for the one after."""
-        batch, eos = collect_batch(self._receive, timeout_s, self.limit, self._on_pose)
+        batch, eos = collect_batch(self._receive, timeout_s, self.limit, self._on_pose,
+                                   self._end_topic)
         self.limit = self.max_batch if len(batch) >= self.limit else self.drain_limit
         return batch, eos
 
@@ -515,7 +518,8 @@ def run(node: Node, params: ReconstructorParams) -> None:
     wait = PoseWait(frames, params.map_frame, params.pose_timeout_s)
     on_pose = _on_pose(frames, wait, counters, node.fqn) if frames is not None else (
         lambda pose: None)
-    batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, on_pose)
+    batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, on_pose,
+                             resolve_topic(params.input_topic, node.namespace))
     _compile_kernels(rod)
     node.set_state("running")
     ends: list[EndOfStream] = []  # held until the wrenches before them are out

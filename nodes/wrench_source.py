@@ -19,7 +19,7 @@ Publishes
     the path's time; and the robot's pose X_WR (``world`` -> ``robot_frame``) at
     ``pose_rate_hz`` on the path's clock, each published ``pose_delay_s`` after its stamp in
     the stream (and a last one at the path's end); then ``EndOfStream`` on both.
-every WhiskerWrench or WhiskerWrenchArray topic of ``bag`` : the recorded types
+every WhiskerWrench, WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order, each message with its own type (a topic may mix both), followed by the
     recorded ``EndOfStream`` (or one of its own when the bag has none, e.g. a cut-off bag).
@@ -68,7 +68,7 @@ log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 
-REPLAY_TYPES = (WhiskerWrench.TYPE_NAME, WhiskerWrenchArray.TYPE_NAME)
+REPLAY_TYPES = (WhiskerWrench.TYPE_NAME, WhiskerWrenchArray.TYPE_NAME, RobotPose.TYPE_NAME)
 
 IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
 

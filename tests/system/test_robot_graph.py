@@ -1,0 +1,106 @@
+"""The robot node graph with real processes (launch/robot.yaml): wrenches in clamp frames and a
+lagging pose stream give the library's contact points on the true surfaces, and a bag of the
+wrench and pose topics replays to the same points bit for bit."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, entries, node, set_param
+from vibrissa.msgs import ContactPointArray, EndOfStream
+from vibrissa.runtime.scene_file import load_scene
+from vibrissa.scene import SamplePhase, reconstruct_along, simulate
+
+SCENE = LAUNCH / "robot" / "scene.yaml"
+CONTACT, WRENCH, POSE = "/robot/contact", "/robot/wrench", "/robot/pose"
+
+
+def _run(tmp: Path, launch_entries: list[dict[str, Any]], *words: str
+         ) -> tuple[int, list[ContactPointArray], EndOfStream, Launch, dict[str, int]]:
+    launch = Launch(tmp, launch_entries, *words)
+    probe = Probe(launch.endpoints(), [CONTACT])
+    try:
+        arrays, eos = probe._until_end(ContactPointArray, TIMEOUT_S)
+        status = probe.status_of("/robot/reconstructor",
+                                 lambda s: s.counters.get("published", 0) >= eos.count, 30)
+        rc = launch.wait()
+    finally:
+        probe.close()
+        launch.kill()
+    return rc, arrays, eos, launch, dict(status.counters)
+
+
+@pytest.fixture(scope="module")
+def robot_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """launch/robot.yaml with the pose stream 50 ms late, the probe, and a recorder of the
+    wrench and pose topics."""
+    tmp = tmp_path_factory.mktemp("robot")
+    bag = tmp / "robot.mcap"
+    launch = entries("robot.yaml")
+    source = node(launch, "wrench_source")
+    set_param(source, "wait_for", ["reconstructor", "/recorder"])
+    set_param(node(launch, "reconstructor"), "wait_for", ["/mapper", "/probe"])
+    launch.insert(len(launch) - 1, {"node": {
+        "pkg": "vibrissa", "exec": "recorder", "name": "recorder",
+        "param": [{"name": "output", "value": str(bag)}, {"name": "topics", "value": [WRENCH, POSE]}]}})
+    rc, arrays, eos, ended, counters = _run(tmp, launch, f"out:={tmp / 'out'}", "pose_delay:=0.05",
+                                            f"scene:={SCENE}")
+    yield {"rc": rc, "arrays": arrays, "eos": eos, "text": ended.text(), "tmp": tmp, "bag": bag,
+           "counters": counters, "out": tmp / "out"}
+
+
+def test_the_robot_demo_gives_the_library_points_on_the_true_surfaces(robot_run: dict[str, Any]
+                                                                       ) -> None:
+    assert robot_run["rc"] == 0, robot_run["text"]
+    scene = load_scene(SCENE)
+    results = simulate(scene, workers=1)
+    lengths = {w.name: w.length_m for w in scene.whiskers}
+    # the library: Step 1 along the path, then Step 2 of its wrenches through the poses
+    t = np.repeat(scene.path.t, len(results))
+    names = [r.name for r in results] * len(scene.path.t)
+    f0 = np.stack([r.f0_n for r in results], axis=1).reshape(-1, 3)
+    m0 = np.stack([r.m0_nm for r in results], axis=1).reshape(-1, 3)
+    resolved = np.stack([r.phase != SamplePhase.UNRESOLVED for r in results], axis=1).reshape(-1)
+    rec = reconstruct_along(scene, t[resolved], [n for n, ok in zip(names, resolved, strict=True) if ok],
+                            f0[resolved], m0[resolved])
+    valid = rec.pose_ok & (rec.status == 0) | (rec.pose_ok & (rec.status == 4))  # OK, AXIAL_LOAD
+    expected = {(float(stamp), name): point for stamp, name, point, ok in zip(
+        t[resolved], [n for n, ok in zip(names, resolved, strict=True) if ok], rec.point_m, valid, strict=True) if ok}
+    arrays: list[ContactPointArray] = robot_run["arrays"]
+    assert [a.seq for a in arrays] == list(range(len(scene.path.t)))
+    got = {(a.stamp, w): p for a in arrays for w, p in zip(a.whisker_ids, a.point, strict=True)}
+    assert got.keys() == expected.keys()
+    assert len(got) > 1000 and {w for _, w in got} >= {"w00", "w01", "w10", "w11"}
+    surfaces = [obj.surface(1.0) for obj in scene.objects]
+    for key, point in got.items():
+        length = lengths[key[1]]
+        assert np.abs(point - expected[key]).max() <= 1e-12 * length, key
+        on = min(abs(float(s.signed_distance(point[None])[0])) for s in surfaces)
+        assert on <= 1e-9 * length, (key, on)
+    assert all(a.frame_id == "world" for a in arrays)
+    # a lag of 50 ms costs no point: every wrench waited for its pose
+    counters = robot_run["counters"]
+    assert counters["no_pose"] == 0 and counters["unknown_whisker"] == 0
+    assert counters["robot_poses"] > 300
+    out = robot_run["out"]
+    assert (out / "cloud.ply").is_file() and (out / "map.png").stat().st_size > 20_000
+
+
+def test_a_bag_of_the_wrench_and_pose_topics_replays_to_the_same_points(
+        robot_run: dict[str, Any]) -> None:
+    assert robot_run["rc"] == 0, robot_run["text"]
+    launch = entries("robot.yaml")
+    source = node(launch, "wrench_source")
+    source["param"] = [{"name": "mode", "value": "replay"}, {"name": "bag", "value": str(robot_run["bag"])},
+                       {"name": "replay_rate", "value": 0}, {"name": "wait_for", "value": ["reconstructor"]}]
+    set_param(node(launch, "reconstructor"), "wait_for", ["/mapper", "/probe"])
+    tmp: Path = robot_run["tmp"]
+    rc, arrays, _, ended, counters = _run(tmp, launch, f"out:={tmp / 'replay'}", f"scene:={SCENE}")
+    assert rc == 0, ended.text()
+    assert arrays == robot_run["arrays"]  # every field, bit for bit
+    assert counters["no_pose"] == 0

@@ -225,6 +225,14 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str) 
     n = len(whiskers)
     placed = np.ones(n, bool)
     errors: list[str] = []
+    rods: list[RodScale] | None = None
+    missing: list[int] = []
+    if not isinstance(rod, RodScale):
+        rods = [rod.get(w, _UNIT_ROD) for w in whiskers]
+        missing = [i for i, w in enumerate(whiskers) if w not in rod]
+        if missing:
+            errors.append(f"whisker {whiskers[missing[0]]!r} is not in the robot description "
+                          f"({', '.join(rod)})")
     if msg.has_pose:
         q, p = msg.clamp_orientation, msg.clamp_position
         q, p = (q[None], p[None]) if single else (q, p)
@@ -242,18 +250,10 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str) 
             poses = frames.lookup_rows(map_frame, sources, np.full(n, msg.stamp))
             q, p, placed = poses.q_xyzw, poses.p, poses.ok
             errors += poses.errors
+        placed[missing] = True  # counted as unknown whiskers, not as rows without a pose
         no_pose = n - int(placed.sum())
-    rods: list[RodScale] | None = None
-    unknown = 0
-    if not isinstance(rod, RodScale):
-        rods = [rod.get(w, _UNIT_ROD) for w in whiskers]
-        missing = [i for i, w in enumerate(whiskers) if w not in rod]
-        if missing:
-            unknown = int(placed[missing].sum())
-            placed[missing] = False
-            errors += [f"whisker {whiskers[i]!r} is not in the robot description "
-                       f"({', '.join(rod)})" for i in missing[:1]]
-    return _Rows(q, p, f0, m0, placed, rods, frame_id, no_pose, unknown, errors)
+    placed[missing] = False
+    return _Rows(q, p, f0, m0, placed, rods, frame_id, no_pose, len(missing), errors)
 
 
 def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,

@@ -37,7 +37,7 @@ from vibrissa.nodes.reconstructor import (
 )
 from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, split_lines
 from vibrissa.nodes.wrench_source import WrenchSourceParams, tick_messages
-from vibrissa.reconstruct import reconstruct
+from vibrissa.reconstruct import reconstruct, reconstruct_si
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import SweepRun, Trail, first_contact, simulate_sweeps
 from vibrissa.ticks import array_ticks, sequential_ticks
@@ -631,3 +631,81 @@ except OSError as exc:
     assert "Traceback" not in result.stderr
     got = list(BagReader(bag))
     assert len(got) > 100 and all(r.topic == "/w/wrench" for r in got)
+
+
+# -- wrenches in clamp frames, placed through the robot's poses ----------------------------------
+
+
+def _robot_wrench(stamp: float, seq: int, whiskers: tuple[str, ...] = ("a", "b")) -> WhiskerWrenchArray:
+    n = len(whiskers)
+    return WhiskerWrenchArray(stamp=stamp, seq=seq, whisker_ids=list(whiskers),
+                              frame_ids=[f"{w}/clamp" for w in whiskers],
+                              f0=np.tile([2e-3, 0.0, 0.0], (n, 1)), m0=np.tile([0.0, 5e-5, 0.0], (n, 1)))
+
+
+def test_a_pose_stream_that_stops_makes_wrenches_no_pose_after_the_timeout() -> None:
+    from vibrissa.frames import Transform
+    from vibrissa.nodes.reconstructor import PoseWait, robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
+                Whisker("b", 0.03, 9e-5, Transform.from_xyz_rpy([0, -0.02, 0.01], [1.5, 0, 0]))]
+    frames = robot_frames(whiskers)
+    now = [100.0]
+    wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
+    for stamp in (0.0, 0.01):
+        frames.add("world", "base_link", stamp, Transform.from_xyz_rpy([stamp, 0, 0]))
+    wait.poses_changed()
+    wait.add([_robot_wrench(0.005, 0), _robot_wrench(0.02, 1), _robot_wrench(0.008, 2)])
+    ready = wait.take()
+    assert [m.seq for m in ready] == [0]  # seq 1 is newer than the last pose: it waits (and 2 behind it)
+    assert wait.wait_s() == pytest.approx(0.5)
+    now[0] += 0.49
+    assert wait.take() == []
+    now[0] += 0.02  # the pose stream has stopped: after pose_timeout_s, on without a pose
+    late = wait.take()
+    assert [m.seq for m in late] == [1, 2] and len(wait) == 0
+    rods = {w.name: w.scale for w in whiskers}
+    out = reconstruct_messages(ready + late, rods, frames, "world")
+    assert [(o.no_pose, o.unknown_whisker) for o in out] == [(0, 0), (2, 0), (0, 0)]
+    assert "newer than the last pose" in out[1].errors[0]
+    # placed rows are those of the pose interpolated at their stamp, mount composed
+    X = frames.lookup("world", "b/clamp", 0.005)
+    assert out[0].contacts is not None and out[0].contacts.frame_id == "world"
+    expected = reconstruct_si(X.quaternion_xyzw[None], X.translation[None], [[2e-3, 0, 0]],
+                              [[0, 5e-5, 0]], rods["b"])
+    rows = out[0].contacts.whisker_ids
+    assert "b" in rows
+    np.testing.assert_allclose(out[0].contacts.point[rows.index("b")], expected.point_m[0],
+                               rtol=0, atol=1e-15)
+
+
+def test_rows_of_a_whisker_the_robot_does_not_have_are_counted_and_named() -> None:
+    from vibrissa.frames import Transform
+    from vibrissa.nodes.reconstructor import robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0]))]
+    frames = robot_frames(whiskers)
+    for stamp in (0.0, 1.0):
+        frames.add("world", "base_link", stamp, Transform())
+    (out,) = reconstruct_messages([_robot_wrench(0.5, 0, ("a", "ghost"))],
+                                  {w.name: w.scale for w in whiskers}, frames)
+    assert (out.unknown_whisker, out.no_pose) == (1, 0)
+    assert any("'ghost' is not in the robot description (a)" in e for e in out.errors)
+    assert out.contacts is not None and "ghost" not in out.contacts.whisker_ids
+
+
+def test_a_bad_robot_description_is_a_parameter_error_naming_it(tmp_path: Path) -> None:
+    from vibrissa.nodes.reconstructor import ReconstructorParams
+
+    for body, words in (
+        ("whiskers:\n  - {name: w0, length_m: 0.05, ei_nm2: 1.0e-4}\n", "missing 'mount'"),
+        ("whiskers:\n  - {name: w0, length_m: -0.05, ei_nm2: 1.0e-4, mount: {}}\n", "length_m"),
+        ("objects: []\n", "missing 'whiskers'"),
+    ):
+        robot = tmp_path / "robot.yaml"
+        robot.write_text(body)
+        with pytest.raises(ValueError, match="parameter 'robot'") as info:
+            ReconstructorParams(robot=str(robot))
+        assert words in str(info.value) and "robot.yaml" in str(info.value)

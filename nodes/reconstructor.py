@@ -3,31 +3,38 @@
 Subscribes
 ----------
 ``input_topic`` (default ``wrench``) : WhiskerWrench or WhiskerWrenchArray
-    SI: clamp position m, f0 N, m0 N m (in the clamp frame C), pose X_WC in ``frame_id``;
-    an array holds one row per whisker of one tick.
+    SI: f0 N, m0 N m in the clamp frame C (``frame_id`` / ``frame_ids``), with or without
+    the clamp pose X_PC (``pose_frame_id``); an array holds one row per whisker of one tick.
+``pose_topic`` (default ``/robot/pose``, only with ``robot``) : RobotPose
+    The robot's poses, kept in a frame buffer (``vibrissa.frame_buffer``) with the mounts of
+    the robot description.
 
 Publishes
 ---------
 ``output_topic`` (default ``contact``) : ContactPoint or ContactPointArray
     One ContactPoint per WhiskerWrench with a consistent contact (status OK or AXIAL_LOAD),
-    in the wrench's ``frame_id``, same ``stamp``, ``seq`` and ``whisker_id``; one
-    ContactPointArray per WhiskerWrenchArray (same ``stamp``, ``seq``, ``frame_id``) with
-    the rows that have a consistent contact (possibly none); then an ``EndOfStream`` of its
-    own for every ``EndOfStream`` that arrives on the input (after the points before it).
+    same ``stamp``, ``seq`` and ``whisker_id``; one ContactPointArray per WhiskerWrenchArray
+    (same ``stamp``, ``seq``) with the rows that have a consistent contact (possibly none);
+    in the pose's frame when the wrench carried one, else in ``map_frame`` (the clamp pose
+    interpolated at the wrench's stamp); then an ``EndOfStream`` of its own for every
+    ``EndOfStream`` on ``input_topic`` (after the points of the wrenches before it).
 
 Samples without a consistent contact are **counted, not sent**: the codec refuses the NaN a
 point-less reconstruction carries, and a point with finite placeholder zeros would be a point
 on the map. Counters in this node's ``NodeStatus`` (besides the runtime's received, published,
-rejected, lost, anomalies): ``contacts`` (points published), ``no_contact`` (valid wrench, no
-consistent contact, or a result that overflows to inf near the float limit), ``bad_pose``
-(clamp quaternion of zero or non-finite length), ``batches`` and ``max_batch`` (batches and
-the largest, in messages); the first three count rows. Undecodable
-input (wrong type, version, field type, truncated bytes, NaN) is rejected and counted by the
-transport (``rejected``) and the node carries on.
+rejected, lost, anomalies), in rows: ``contacts`` (points published), ``no_contact`` (valid
+wrench, no consistent contact, or a result that overflows to inf near the float limit),
+``bad_pose`` (clamp quaternion of zero or non-finite length), ``no_pose`` (no clamp pose at
+the wrench's stamp within ``pose_timeout_s``), ``unknown_whisker`` (not in the robot
+description); and ``robot_poses``, ``bad_robot_pose`` (poses taken, refused), ``batches`` and
+``max_batch`` (batches and the largest, in messages). Undecodable input (wrong type, version,
+field type, truncated bytes, NaN) is rejected and counted by the transport (``rejected``) and
+the node carries on.
 
-Step 2 in SI, with the clamp pose and ``vibrissa.units.RodScale`` (L = ``rod_length_m``, EI =
-``rod_ei_nm2``), is the core's ``vibrissa.reconstruct.reconstruct_si``; a WhiskerWrench is a
-tick of one row, so both message shapes take the same path.
+Step 2 in SI, with the clamp pose and each row's ``vibrissa.units.RodScale`` (its whisker's
+from ``robot``, else ``rod_length_m`` and ``rod_ei_nm2``), is the core's
+``vibrissa.reconstruct.reconstruct_si``; a WhiskerWrench is a tick of one row, so both
+message shapes take the same path.
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, 
 from vibrissa.msgs import ContactPointArray, EndOfStream
 from vibrissa.runtime.scene_file import load_scene
 from vibrissa.scene import SamplePhase, reconstruct_along, simulate
+from vibrissa.status import ContactStatus
 
 SCENE = LAUNCH / "robot" / "scene.yaml"
 CONTACT, WRENCH, POSE = "/robot/contact", "/robot/wrench", "/robot/pose"
@@ -68,7 +69,7 @@ def test_the_robot_demo_gives_the_library_points_on_the_true_surfaces(robot_run:
     resolved = np.stack([r.phase != SamplePhase.UNRESOLVED for r in results], axis=1).reshape(-1)
     rec = reconstruct_along(scene, t[resolved], [n for n, ok in zip(names, resolved, strict=True) if ok],
                             f0[resolved], m0[resolved])
-    valid = rec.pose_ok & (rec.status == 0) | (rec.pose_ok & (rec.status == 4))  # OK, AXIAL_LOAD
+    valid = rec.pose_ok & np.isin(rec.status, [ContactStatus.OK, ContactStatus.AXIAL_LOAD])
     expected = {(float(stamp), name): point for stamp, name, point, ok in zip(
         t[resolved], [n for n, ok in zip(names, resolved, strict=True) if ok], rec.point_m, valid, strict=True) if ok}
     arrays: list[ContactPointArray] = robot_run["arrays"]

@@ -45,6 +45,7 @@ from typing import Any
 
 import yaml
 
+from vibrissa.runtime import yaml_numbers
 from vibrissa.runtime.params import ParamError, check_params
 from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
 from vibrissa.wire.transport import DEFAULT_MAX_MESSAGE_BYTES, Endpoints
@@ -235,7 +236,7 @@ def check_node_params(description: LaunchDescription) -> None:
 # YAML loading
 
 
-class _StrictLoader(yaml.SafeLoader):
+class _StrictLoader(yaml_numbers.Loader):
     """SafeLoader with YAML 1.2 booleans, duplicate keys and aliases rejected.
 
     Only ``true``/``false`` are booleans, so ``respawn: yes`` is reported as a wrong type
@@ -271,7 +272,7 @@ class _StrictLoader(yaml.SafeLoader):
 _BOOL_TAG = "tag:yaml.org,2002:bool"
 _StrictLoader.yaml_implicit_resolvers = {
     first: [(tag, rx) for tag, rx in resolvers if tag != _BOOL_TAG]
-    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    for first, resolvers in yaml_numbers.Loader.yaml_implicit_resolvers.items()
 }
 _StrictLoader.add_implicit_resolver(
     _BOOL_TAG, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")

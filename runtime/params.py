@@ -13,6 +13,8 @@ from typing import Any, TypeVar
 
 import yaml
 
+from vibrissa.runtime import yaml_numbers
+
 # Not msgspec.convert: for a dataclass it ignores unknown keys (strictness is the point here),
 # takes a ``field(init=False)`` (the nodes' derived ``rod``) for a required key, and gives the
 # key path of a wrong value only inside its message text, which would have to be re-parsed.
@@ -49,7 +51,7 @@ def load_params(
     source = " and ".join(sources) or "defaults"
     if params_file is not None:
         try:
-            data = yaml.safe_load(Path(params_file).read_text()) or {}
+            data = yaml_numbers.load(Path(params_file).read_text()) or {}
         except (OSError, yaml.YAMLError) as exc:
             raise ParamError(f"{params_file}: cannot read parameters: {exc}") from exc
         if not isinstance(data, dict):
@@ -126,7 +128,7 @@ def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text:
         hint = hints[key]
         if from_text and isinstance(value, str) and hint is not str:
             try:
-                value = yaml.safe_load(value)
+                value = yaml_numbers.load(value)
             except yaml.YAMLError as exc:
                 raise ParamError(f"{source}: parameter {name!r}: {value!r} is not YAML") from exc
         out[key] = _check(value, hint, name, source)

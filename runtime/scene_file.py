@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from vibrissa.frames import Transform
+from vibrissa.runtime import yaml_numbers
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
 
 __all__ = ["SceneError", "load_path", "load_robot", "load_scene"]
@@ -66,7 +67,7 @@ def load_robot(path: str | Path) -> tuple[Whisker, ...]:
 
 def _read_yaml(path: Path) -> Any:
     try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
+        return yaml_numbers.load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise SceneError(f"{path}: {exc}") from None
 

@@ -108,3 +108,16 @@ def test_override_type_error_and_missing_required(tmp_path: Path) -> None:
         load_params(Params, write(tmp_path, "count: 3\n"))
     with pytest.raises(ValueError, match=r"params\.yaml: expected a mapping"):
         load_params(Params, write(tmp_path, "- 1\n- 2\n"))
+
+
+def test_an_exponent_without_a_decimal_point_is_a_float_in_every_yaml_file(tmp_path) -> None:
+    # PyYAML's YAML 1.1 reads "1e-5" as a string; people (and YAML 1.2) mean a number.
+    from vibrissa.runtime import yaml_numbers
+    from vibrissa.runtime.scene_file import load_robot
+
+    assert yaml_numbers.load("[1e-5, -2E3, +7e0, 1.5e-3, 1e, e5, 12]") == [
+        1e-5, -2000.0, 7.0, 1.5e-3, "1e", "e5", 12]
+    robot = tmp_path / "robot.yaml"
+    robot.write_text("whiskers:\n  - {name: w0, length_m: 5e-2, ei_nm2: 1e-4, mount: {}}\n")
+    (whisker,) = load_robot(robot)
+    assert (whisker.length_m, whisker.ei_nm2) == (0.05, 1e-4)

@@ -1,4 +1,5 @@
-"""Mapper node: accumulates contact points, fits a surface at end of stream, writes the map.
+"""Mapper node: accumulates contact points, separates objects and fits a surface per object at
+end of stream, writes the map.
 
 Subscribes
 ----------
@@ -11,23 +12,28 @@ Publishes
 ``cloud_topic`` (default ``contact_cloud``) : ContactCloud
     Every point with its contact normal, one message per ``frame_id``, then ``EndOfStream``.
 ``mesh_topic`` (default ``surface_mesh``) : SurfaceMesh
-    The fitted mesh per ``frame_id`` (``method`` names the method and its parameters, the
-    distance fields are filled when ``true_surface`` is given), then ``EndOfStream``.
+    The fitted meshes of a ``frame_id``, all objects in one mesh (``method`` names the method
+    and its parameters, per object when there are several; the distance fields are filled when
+    the truth is known: ``true_surface`` or ``scene``), then ``EndOfStream``.
 
 Files in ``out_dir`` (for frame ``world``; another frame F gets the suffix ``_F``):
-``cloud.ply`` (points + normals), ``mesh.ply``, ``map.png`` (cloud and mesh over the true
-surface), ``report.json`` and ``report.txt``. Then the node exits 0 (the demo launch ends
-on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams ended without a
-single contact point (only the reports are written, and they say so), or ``EXIT_LOST_DATA`` (4)
-when input messages were lost (the report lists every input stream: sent, received, lost),
-unless ``allow_loss``. Stopped (SIGINT,
-SIGTERM) before the streams end, it writes nothing and exits 0; a stop during the fit ends
-the process at once (Open3D does not return to Python until it is done).
+``cloud.ply`` (points + normals), ``mesh.ply`` (every object's mesh), ``mesh_<object>.ply``
+(one per object with a mesh), ``map.png`` (`vibrissa.nodes.map_figure`), ``report.json`` and
+``report.txt``. Then the node exits 0 (the demo launch ends on it with ``on_exit: shutdown``),
+or ``EXIT_EMPTY_MAP`` (3) when the streams ended without a single contact point (only the
+reports are written, and they say so), or ``EXIT_LOST_DATA`` (4) when input messages were lost
+(the report lists every input stream: sent, received, lost), unless ``allow_loss``. Stopped
+(SIGINT, SIGTERM) before the streams end, it writes nothing and exits 0; a stop during the fit
+ends the process at once (Open3D does not return to Python until it is done).
 
-Fitting: screened Poisson on contact normals taken from the contact force with its component
-along the contact line removed, trimmed to the data; see ``vibrissa.nodes.surface_fit`` for
-why. Errors against ``true_surface`` (a ``parse_surface`` spec in units of L, placed in the
-points' frame): cloud -> surface = max/mean |signed distance| of the points (the
+Objects: with ``true_surface`` a frame is that one object; otherwise DBSCAN separates the
+points of a frame into objects (``vibrissa.nodes.surface_fit.cluster_points``), named after
+the nearest object of ``scene`` (frame ``world``) or ``object0``, ``object1``, ... in the
+order of their first point. Fitting: screened Poisson per object on contact normals taken from
+the contact force with its component along the contact line removed, trimmed to the data; see
+``vibrissa.nodes.surface_fit`` for why. Errors against the truth (``true_surface``, a
+``parse_surface`` spec in units of L placed in the points' frame, or the object of ``scene``
+an object was matched to): cloud -> surface = max/mean |signed distance| of the points (the
 reconstruction error), mesh -> surface = max/mean over mesh vertices.
 """
 
@@ -38,6 +44,7 @@ import json
 import logging
 import os
 import time
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -48,20 +55,26 @@ import numpy as np
 import numpy.typing as npt
 
 from vibrissa.msgs import ContactCloud, ContactPoint, ContactPointArray, EndOfStream, SurfaceMesh
+from vibrissa.nodes.map_figure import MapLayers, plot_map, thousands
 from vibrissa.nodes.surface_fit import (
+    MIN_POINTS,
     FitParams,
     SurfaceFit,
+    TrueObject,
+    cluster_points,
     contact_normals,
     fit_surface,
-    split_lines,
     too_little_for_a_surface,
+    whisker_lines,
     write_ply,
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
+from vibrissa.runtime.scene_file import load_scene
 from vibrissa.runtime.signals import default_actions
-from vibrissa.surfaces import Surface, parse_surface
+from vibrissa.scene import Scene
+from vibrissa.surfaces import parse_surface
 from vibrissa.units import RodScale
 from vibrissa.wire.topics import resolve_topic, validate_name
 from vibrissa.wire.transport import StreamEnd
@@ -69,12 +82,16 @@ from vibrissa.wire.transport import StreamEnd
 log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 
 EXIT_EMPTY_MAP = 3
 """Exit status of a mapper whose streams ended without a single contact point."""
 
 MAX_DEPTH = 12
 """Deepest Poisson octree: 4096^3 cells, beyond what a contact cloud can fill."""
+
+SCENE_FRAME = "world"
+"""The frame of a scene file's objects, path and mounts (W)."""
 
 
 @dataclass(frozen=True)
@@ -91,7 +108,17 @@ class MapperParams:
     out_dir
         Folder of the output files (created).
     true_surface
-        Surface spec of the object, units of L, in the points' frame; empty: no error report.
+        Surface spec of the one object, units of L, in the points' frame: the frame is that
+        object (no clustering); empty: see ``scene``.
+    scene
+        Scene file (``vibrissa.runtime.scene_file``): its objects, robot path and whisker
+        mounts in frame ``world``, for the names of the objects, their errors and the figure;
+        empty: the truth is not known. One of ``true_surface`` and ``scene`` at most.
+    cluster_eps_m
+        DBSCAN radius separating the objects, m; 0 = from the data (15 line spacings, at most
+        half the typical extent of a contact line; see ``vibrissa.nodes.surface_fit``).
+    cluster_min_points
+        DBSCAN ``min_points``; smaller groups are noise (counted and reported, not fitted).
     rod_length_m
         L, m (scales ``true_surface``); the mapper converts lengths only, so it needs no EI.
     depth, trim_distance_m, trim_factor
@@ -110,12 +137,17 @@ class MapperParams:
         Nodes that must subscribe to the outputs before they go out (default: nobody).
     rod
         L as ``vibrissa.units.RodScale`` (derived, not a parameter).
+    world
+        The scene read from ``scene``, or None (derived, not a parameter).
     """
 
     topics: tuple[str, ...] = ("contact",)
     expected_sources: int | tuple[str, ...] = 1
     out_dir: str = "out/mapper"
     true_surface: str = ""
+    scene: str = ""
+    cluster_eps_m: float = 0.0
+    cluster_min_points: int = MIN_POINTS
     rod_length_m: float = 1.0
     depth: int = 8
     trim_distance_m: float = 0.0
@@ -127,6 +159,7 @@ class MapperParams:
     mesh_topic: str = "surface_mesh"
     wait_for: tuple[str, ...] = ()
     rod: RodScale = field(init=False, repr=False, compare=False)
+    world: Scene | None = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         require_positive("rod_length_m", self.rod_length_m)
@@ -147,11 +180,33 @@ class MapperParams:
         require(bool(self.out_dir), "out_dir", self.out_dir, "a folder")
         if self.true_surface:
             require_parsed("true_surface", self.true_surface, parse_surface)
+        require(not (self.scene and self.true_surface), "scene", self.scene,
+                "empty when true_surface is given (one or the other)")
+        world = None
+        if self.scene:
+            try:  # read now: a missing or bad file is a parameter error at start
+                world = load_scene(self.scene)
+            except ValueError as exc:
+                raise ValueError(f"parameter 'scene': {exc}") from None
+        object.__setattr__(self, "world", world)
+        require_non_negative("cluster_eps_m", self.cluster_eps_m)
+        require(self.cluster_min_points >= 1, "cluster_min_points", self.cluster_min_points,
+                "a count >= 1")
         require(1 <= self.depth <= MAX_DEPTH, "depth", self.depth,
                 f"an octree depth in [1, {MAX_DEPTH}]")
         require_non_negative("trim_distance_m", self.trim_distance_m)
         require_non_negative("trim_factor", self.trim_factor)
         require_non_negative("timeout_s", self.timeout_s)
+
+    def truth(self, frame_id: str) -> list[TrueObject]:
+        """The known objects of frame ``frame_id``: ``true_surface`` (any frame), the objects of
+        ``scene`` (frame ``world``), or none."""
+        if self.true_surface:
+            return [TrueObject(self.true_surface, parse_surface(self.true_surface),
+                               self.rod_length_m)]
+        if self.world is not None and frame_id == SCENE_FRAME:
+            return [TrueObject(obj.name, obj.surface(1.0)) for obj in self.world.objects]
+        return []
 
 
 PARAMS = MapperParams
@@ -214,8 +269,29 @@ class Accumulator:
 
 
 @dataclass
+class ObjectResult:
+    """One object of a frame: its points, the whiskers that touched it, its fit and errors
+    (distances in m; None without the truth)."""
+
+    name: str
+    n_points: int
+    whiskers: list[dict[str, Any]]
+    method: str
+    n_vertices: int
+    n_triangles: int
+    line_spacing_m: float | None
+    true_object: str | None = None
+    true_object_median_m: float | None = None
+    cloud_to_surface_max: float | None = None
+    cloud_to_surface_mean: float | None = None
+    mesh_to_surface_max: float | None = None
+    mesh_to_surface_mean: float | None = None
+    files: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
 class FrameResult:
-    """Fit and errors of one frame (distances in m)."""
+    """Fit and errors of one frame (distances in m), over all its objects."""
 
     frame_id: str
     n_points: int
@@ -228,88 +304,191 @@ class FrameResult:
     mesh_to_surface_max: float | None = None
     mesh_to_surface_mean: float | None = None
     files: dict[str, str] = field(default_factory=dict)
+    clustering: dict[str, Any] = field(default_factory=dict)
+    noise_points: int = 0
+    noise_whiskers: list[dict[str, Any]] = field(default_factory=list)
+    noise_to_surface_max: float | None = None
+    objects: list[ObjectResult] = field(default_factory=list)
 
 
-def surface_errors(surface: Surface, rod: RodScale, points: FloatArray
-                   ) -> tuple[float | None, float | None]:
-    """Max and mean |signed distance| (m) of ``points`` (m) to ``surface`` (units of L)."""
-    if len(points) == 0:
+@dataclass
+class FrameMap:
+    """A frame mapped: its result and what goes into the files, messages and figure.
+
+    ``points``, ``normals`` (N, 3) and ``whisker_ids`` (N,) in line order; ``labels`` (N,)
+    the object of each point (index into ``result.objects`` and ``fits``, -1: noise);
+    ``vertices`` (V, 3) and ``triangles`` (T, 3) every object's mesh in one.
+    """
+
+    result: FrameResult
+    points: FloatArray
+    normals: FloatArray
+    whisker_ids: list[str]
+    labels: IntArray
+    fits: list[SurfaceFit]
+    vertices: FloatArray
+    triangles: IntArray
+
+
+def _stats(distance: FloatArray) -> tuple[float | None, float | None]:
+    """Max and mean of distances (None, None when there are none)."""
+    if len(distance) == 0:
         return None, None
-    distance = np.abs(surface.signed_distance(points / rod.length_m)) * rod.length_m
     return float(distance.max()), float(distance.mean())
 
 
-def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams,
-              surface: Surface | None) -> tuple[FrameResult, SurfaceFit, FloatArray, FloatArray]:
-    """Normals, fit and errors of one frame; returns (result, fit, points, normals)."""
-    points, forces, _ = cloud.ordered()
-    lines = split_lines(points)
+def _whisker_counts(whisker_ids: Sequence[str]) -> list[dict[str, Any]]:
+    """``[{"whisker_id", "n_points"}]`` sorted by whisker id."""
+    return [{"whisker_id": w, "n_points": n} for w, n in sorted(Counter(whisker_ids).items())]
+
+
+def name_objects(points: FloatArray, labels: IntArray, truth: Sequence[TrueObject]
+                 ) -> list[tuple[str, TrueObject | None, float | None]]:
+    """(name, true object, median |signed distance| to it in m) of each object of ``labels``.
+
+    With ``truth`` an object is named after the true object nearest to its points (median
+    |signed distance|); a second object on the same true object is ``<name>-2``, and so on.
+    Without, ``object0``, ``object1``, ... in the order of the labels.
+    """
+    named: list[tuple[str, TrueObject | None, float | None]] = []
+    taken: set[str] = set()
+    for k in range(int(labels.max()) + 1 if len(labels) else 0):
+        if not truth:
+            named.append((f"object{k}", None, None))
+            continue
+        inside = points[labels == k]
+        medians = [float(np.median(true.distance(inside))) for true in truth]
+        best = int(np.argmin(medians))
+        name, n = truth[best].name, 1
+        while name in taken:
+            n += 1
+            name = f"{truth[best].name}-{n}"
+        taken.add(name)
+        named.append((name, truth[best], medians[best]))
+    return named
+
+
+def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMap:
+    """Objects, normals, fits and errors of one frame."""
+    points, forces, whisker_ids = cloud.ordered()
+    lines = whisker_lines(points, whisker_ids)
     normals = contact_normals(points, forces, lines)
-    fit = fit_surface(points, normals, lines, FitParams(
-        depth=params.depth, trim_distance=params.trim_distance_m,
-        trim_factor=params.trim_factor))
+    truth = params.truth(frame_id)
+    fit_params = FitParams(depth=params.depth, trim_distance=params.trim_distance_m,
+                           trim_factor=params.trim_factor)
+    spacing: float | None = None
+    if params.true_surface:  # the single-object map: the frame is the true surface
+        labels = np.zeros(len(points), dtype=np.int64)
+        named: list[tuple[str, TrueObject | None, float | None]] = [("object0", truth[0], None)]
+        clustering: dict[str, Any] = {"method": "none: true_surface is the one object"}
+    else:
+        clusters = cluster_points(points, lines, params.cluster_eps_m, params.cluster_min_points)
+        labels = clusters.labels
+        named = name_objects(points, labels, truth)
+        spacing = clusters.line_spacing
+        clustering = {"method": "dbscan", "eps_m": clusters.eps, "eps_rule": clusters.eps_rule,
+                      "min_points": clusters.min_points,
+                      "line_spacing_m": spacing if np.isfinite(spacing) else None,
+                      "line_extent_m": clusters.line_extent}
+    objects: list[ObjectResult] = []
+    fits: list[SurfaceFit] = []
+    cloud_distance: list[FloatArray] = []
+    mesh_distance: list[FloatArray] = []
+    for k, (name, true, median) in enumerate(named):
+        inside = np.flatnonzero(labels == k)
+        fit = fit_surface(points[inside], normals[inside], lines[inside], fit_params)
+        obj = ObjectResult(
+            name, len(inside), _whisker_counts([whisker_ids[i] for i in inside]), fit.method,
+            len(fit.vertices), len(fit.triangles),
+            fit.line_spacing if np.isfinite(fit.line_spacing) else None,
+            true.name if true is not None else None, median)
+        if true is not None:
+            cloud_distance.append(true.distance(points[inside]))
+            mesh_distance.append(true.distance(fit.vertices))
+            obj.cloud_to_surface_max, obj.cloud_to_surface_mean = _stats(cloud_distance[-1])
+            obj.mesh_to_surface_max, obj.mesh_to_surface_mean = _stats(mesh_distance[-1])
+        objects.append(obj)
+        fits.append(fit)
+    if spacing is None:  # true_surface: the one object's, as fitted
+        spacing = fits[0].line_spacing
+    noise = np.flatnonzero(labels < 0)
+    if len(objects) == 1:
+        method = objects[0].method
+    elif objects:
+        method = "; ".join(f"{obj.name}: {obj.method}" for obj in objects)
+    else:
+        method = "none: " + (too_little_for_a_surface(points) or (
+            f"no object: all {len(points)} points are noise (DBSCAN eps "
+            f"{clustering['eps_m']:.4g} m, min_points {clustering['min_points']})"))
+    offsets = np.cumsum([0] + [len(fit.vertices) for fit in fits])[:-1]
+    vertices = np.concatenate([fit.vertices for fit in fits] or [np.zeros((0, 3))])
+    triangles = np.concatenate(
+        [fit.triangles + offset for fit, offset in zip(fits, offsets, strict=True)]
+        or [np.zeros((0, 3), dtype=np.int64)])
     result = FrameResult(
-        frame_id, len(points), fit.method, len(fit.vertices), len(fit.triangles),
-        fit.line_spacing if np.isfinite(fit.line_spacing) else None)
-    if surface is not None:
-        result.cloud_to_surface_max, result.cloud_to_surface_mean = surface_errors(
-            surface, params.rod, points)
-        result.mesh_to_surface_max, result.mesh_to_surface_mean = surface_errors(
-            surface, params.rod, fit.vertices)
-    return result, fit, points, normals
+        frame_id, len(points), method, len(vertices), len(triangles),
+        spacing if np.isfinite(spacing) else None,
+        clustering=clustering, noise_points=len(noise),
+        noise_whiskers=_whisker_counts([whisker_ids[i] for i in noise]), objects=objects)
+    if truth:
+        result.cloud_to_surface_max, result.cloud_to_surface_mean = _stats(
+            np.concatenate(cloud_distance or [np.zeros(0)]))
+        result.mesh_to_surface_max, result.mesh_to_surface_mean = _stats(
+            np.concatenate(mesh_distance or [np.zeros(0)]))
+        if len(noise):
+            result.noise_to_surface_max = float(np.max(np.min(
+                [true.distance(points[noise]) for true in truth], axis=0)))
+    return FrameMap(result, points, normals, whisker_ids, labels, fits, vertices, triangles)
 
 
-def plot_map(path: Path, points: FloatArray, fit: SurfaceFit, surface: Surface | None,
-             rod: RodScale, title: str) -> None:
-    """PNG of the cloud (dots) and the mesh (surface) over the true surface (wireframe)."""
-    import matplotlib
+def _plural(n: int, word: str) -> str:
+    """``1 object``, ``2 objects``, ``5 214 contacts``."""
+    return f"{thousands(n)} {word}{'' if n == 1 else 's'}"
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig = plt.figure(figsize=(9, 7))
-    ax: Any = fig.add_subplot(projection="3d")
-    if surface is not None and too_little_for_a_surface(points) is None:
-        # A grid over the cloud's principal plane, projected onto the true surface.
-        center = points.mean(axis=0)
-        _, _, axes = np.linalg.svd(points - center, full_matrices=False)
-        uv = (points - center) @ axes[:2].T
-        lo, hi = uv.min(axis=0), uv.max(axis=0)
-        pad = 0.1 * (hi - lo)
-        gu, gv = np.meshgrid(np.linspace(lo[0] - pad[0], hi[0] + pad[0], 25),
-                             np.linspace(lo[1] - pad[1], hi[1] + pad[1], 25))
-        grid = center + gu.reshape(-1, 1) * axes[0] + gv.reshape(-1, 1) * axes[1]
-        on = surface.closest_point(grid / rod.length_m) * rod.length_m
-        xs, ys, zs = (on[:, k].reshape(gu.shape) for k in range(3))
-        ax.plot_wireframe(xs, ys, zs, color="0.6", linewidth=0.5, label="true surface")
-    if len(fit.triangles):
-        v = fit.vertices
-        ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=fit.triangles, color="tab:orange",
-                        alpha=0.45, linewidth=0, shade=True)
-    if len(points):
-        shown = points[:: max(1, len(points) // 4000)]
-        ax.scatter(shown[:, 0], shown[:, 1], shown[:, 2], s=1.5, c="tab:blue", depthshade=False,
-                   label=f"contacts ({len(points)})")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
-    ax.set_title(title, fontsize=9)
-    ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+def map_layers(frame: FrameMap, params: MapperParams) -> MapLayers:
+    """What the figure of a frame shows: the contacts, the meshes, and the truth when known."""
+    result = frame.result
+    whiskers = sorted(set(frame.whisker_ids))
+    title = (f"{result.frame_id} map: {_plural(len(result.objects), 'object')}, "
+             f"{_plural(result.n_points, 'contact')} from {_plural(len(whiskers), 'whisker')}")
+    notes = []
+    for obj in result.objects[:6]:
+        note = f"{obj.name}: {_plural(obj.n_points, 'point')}, "
+        note += (f"mesh of {_plural(obj.n_triangles, 'triangle')}" if obj.n_triangles
+                 else obj.method)
+        if obj.mesh_to_surface_mean is not None and obj.mesh_to_surface_max is not None:
+            note += (f", mesh to true surface mean {obj.mesh_to_surface_mean * 1e3:.2g} mm, "
+                     f"max {obj.mesh_to_surface_max * 1e3:.2g} mm")
+        notes.append(note)
+    if len(result.objects) > 6:
+        notes.append(f"... and {len(result.objects) - 6} more objects (report.txt)")
+    if result.noise_points:
+        notes.append(f"noise: {_plural(result.noise_points, 'point')} in no object")
+    scene = params.world if result.frame_id == SCENE_FRAME else None
+    return MapLayers(
+        title=title, subtitle="\n".join(notes), points=frame.points,
+        whisker_ids=frame.whisker_ids, labels=frame.labels,
+        meshes=[(obj.name, fit.vertices, fit.triangles)
+                for obj, fit in zip(result.objects, frame.fits, strict=True)],
+        true_objects=params.truth(result.frame_id),
+        path=scene.path if scene is not None else None,
+        whiskers=scene.whiskers if scene is not None else ())
+
+
+def _file_part(text: str) -> str:
+    """``text`` as part of a file name: itself when it is short and only letters, digits,
+    ``-`` and ``_``, else a cut-down form with a hash of the whole text, so that any two texts
+    give distinct names and every name fits the file system."""
+    safe = "".join(c if c.isascii() and (c.isalnum() or c in "-_") else "_" for c in text)
+    if safe == text and len(text) <= 64:
+        return text
+    return f"{safe[:40]}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
 
 
 def _suffix(frame_id: str) -> str:
-    """File name suffix of a frame: ``""`` for ``world``, ``_<frame_id>`` for a short name of
-    letters, digits, ``-`` and ``_``, else a cut-down name with a hash of the whole id, so that
-    any two frames get distinct files and every name fits the file system."""
-    if frame_id == "world":
-        return ""
-    safe = "".join(c if c.isascii() and (c.isalnum() or c in "-_") else "_" for c in frame_id)
-    if safe == frame_id and len(frame_id) <= 64:
-        return f"_{frame_id}"
-    return f"_{safe[:40]}-{hashlib.sha1(frame_id.encode()).hexdigest()[:10]}"
+    """File name suffix of a frame: ``""`` for ``world``, else ``_`` and its file name part."""
+    return "" if frame_id == "world" else f"_{_file_part(frame_id)}"
 
 
 @contextmanager
@@ -327,54 +506,69 @@ def _whole(path: Path) -> Iterator[Path]:
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   streams: Sequence[StreamEnd] = (), lost: int = 0,
                   ) -> tuple[dict[str, Any], list[tuple[ContactCloud, SurfaceMesh]]]:
-    """Fit every frame, write PLYs, PNGs and the reports; returns (report, messages).
+    """Map every frame, write PLYs, PNGs and the reports; returns (report, messages).
 
     ``streams`` are the input streams that ended (what each said was sent, what arrived,
     what was lost) and ``lost`` the input messages lost in all, for the report.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
-    surface = parse_surface(params.true_surface) if params.true_surface else None
     results: list[FrameResult] = []
     messages: list[tuple[ContactCloud, SurfaceMesh]] = []
     for frame_id, cloud in sorted(acc.frames.items()):
         t0 = time.monotonic()
-        result, fit, points, normals = fit_frame(frame_id, cloud, params, surface)
+        frame = fit_frame(frame_id, cloud, params)
+        result = frame.result
         sfx = _suffix(frame_id)
         files = {"cloud": out_dir / f"cloud{sfx}.ply"}
         with _whole(files["cloud"]) as partial:
-            write_ply(str(partial), points, normals=normals)
-        if len(fit.vertices):
+            write_ply(str(partial), frame.points, normals=frame.normals)
+        if len(frame.vertices):
             files["mesh"] = out_dir / f"mesh{sfx}.ply"
             with _whole(files["mesh"]) as partial:
-                write_ply(str(partial), fit.vertices, fit.triangles)
+                write_ply(str(partial), frame.vertices, frame.triangles)
         else:
             log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
-                        fit.method.removeprefix("none: "))
+                        result.method.removeprefix("none: "))
+        for obj, fit in zip(result.objects, frame.fits, strict=True):
+            if not len(fit.vertices):
+                if len(result.objects) > 1:
+                    log.warning("no surface for object %r of frame %r: %s", obj.name, frame_id,
+                                fit.method.removeprefix("none: "))
+                continue
+            target = out_dir / f"mesh_{_file_part(obj.name)}{sfx}.ply"
+            with _whole(target) as partial:
+                write_ply(str(partial), fit.vertices, fit.triangles)
+            files[f"mesh_{obj.name}"] = target
+            obj.files = {"mesh": str(target)}
         if params.plot:
             files["png"] = out_dir / f"map{sfx}.png"
             with _whole(files["png"]) as partial:
-                plot_map(partial, points, fit, surface, params.rod,
-                         f"{frame_id}: {len(points)} contacts, {fit.method}")
+                plot_map(partial, map_layers(frame, params))
         result.files = {k: str(v) for k, v in files.items()}
         results.append(result)
         stamp = time.time()
         messages.append((
-            ContactCloud(stamp=stamp, frame_id=frame_id, points=points, normals=normals,
-                         whisker_ids=cloud.ordered()[2]),
-            SurfaceMesh(stamp=stamp, frame_id=frame_id, vertices=fit.vertices,
-                        triangles=fit.triangles.astype(np.int32), method=fit.method,
-                        n_points=len(points),
+            ContactCloud(stamp=stamp, frame_id=frame_id, points=frame.points,
+                         normals=frame.normals, whisker_ids=frame.whisker_ids),
+            SurfaceMesh(stamp=stamp, frame_id=frame_id, vertices=frame.vertices,
+                        triangles=frame.triangles.astype(np.int32), method=result.method,
+                        n_points=result.n_points,
                         cloud_to_surface_max=result.cloud_to_surface_max,
                         cloud_to_surface_mean=result.cloud_to_surface_mean,
                         mesh_to_surface_max=result.mesh_to_surface_max,
                         mesh_to_surface_mean=result.mesh_to_surface_mean),
         ))
-        log.info("fitted %s: %d points -> %d triangles in %.1f s", frame_id, len(points),
-                 len(fit.triangles), time.monotonic() - t0)
+        log.info("mapped %s: %d points -> %s (%d noise points), %d triangles in %.1f s",
+                 frame_id, result.n_points,
+                 ", ".join(f"{o.name} ({o.n_points})" for o in result.objects) or "no object",
+                 result.noise_points, result.n_triangles, time.monotonic() - t0)
     report: dict[str, Any] = {
         "n_points": acc.n_points,
         "sources_ended": sorted(acc.ended),
         "true_surface": params.true_surface or None,
+        "scene": params.scene or None,
+        "scene_objects": ([obj.name for obj in params.world.objects]
+                          if params.world is not None else None),
         "rod_length_m": params.rod_length_m,
         "max_reconstruction_error_m": max(
             (r.cloud_to_surface_max for r in results if r.cloud_to_surface_max is not None),
@@ -393,33 +587,68 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     return report, messages
 
 
-def format_report(report: dict[str, Any]) -> str:
-    """The human-readable report."""
-    def mm(value: float | None) -> str:
-        return "n/a" if value is None else f"{value * 1e3:.4g} mm"
+def _mm(value: float | None) -> str:
+    return "n/a" if value is None else f"{value * 1e3:.4g} mm"
 
+
+def _counts(whiskers: list[dict[str, Any]]) -> str:
+    return ", ".join(f"{w['whisker_id']} ({w['n_points']})" for w in whiskers)
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """The human-readable report (lengths in mm)."""
     empty = " - THE MAP IS EMPTY" if report["n_points"] == 0 else ""
+    truth = (f"scene {report['scene']} ({', '.join(report['scene_objects']) or 'no objects'})"
+             if report.get("scene") else
+             f"{report['true_surface'] or 'not given'} (L = {report['rod_length_m']} m)")
     lines = [f"contact points: {report['n_points']}{empty} (sources: "
              f"{', '.join(report['sources_ended']) or 'none ended'})",
-             f"true surface: {report['true_surface'] or 'not given'} "
-             f"(L = {report['rod_length_m']} m)",
+             f"true surface: {truth}",
              f"max reconstruction error (cloud -> true surface): "
-             f"{mm(report['max_reconstruction_error_m'])}"]
+             f"{_mm(report['max_reconstruction_error_m'])}"]
     if report["lost"]:
         lines.append(f"LOST: {report['lost']} contact message(s) never arrived")
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
                      f"{stream['received']} received, {stream['lost']} lost")
     for frame in report["frames"]:
+        clustering = frame["clustering"]
+        how = clustering["method"]
+        if how == "dbscan":
+            how = (f"DBSCAN eps {_mm(clustering['eps_m'])} (from the {clustering['eps_rule']}), "
+                   f"min_points {clustering['min_points']}")
         lines += [
-            f"frame {frame['frame_id']}: {frame['n_points']} points",
+            f"frame {frame['frame_id']}: {frame['n_points']} points, "
+            f"{len(frame['objects'])} object(s), {frame['noise_points']} noise point(s)",
+            f"  objects: {how}",
             f"  method: {frame['method']}",
             f"  mesh: {frame['n_vertices']} vertices, {frame['n_triangles']} triangles",
-            f"  cloud -> surface: max {mm(frame['cloud_to_surface_max'])}, "
-            f"mean {mm(frame['cloud_to_surface_mean'])}",
-            f"  mesh -> surface:  max {mm(frame['mesh_to_surface_max'])}, "
-            f"mean {mm(frame['mesh_to_surface_mean'])}",
+            f"  cloud -> surface: max {_mm(frame['cloud_to_surface_max'])}, "
+            f"mean {_mm(frame['cloud_to_surface_mean'])}",
+            f"  mesh -> surface:  max {_mm(frame['mesh_to_surface_max'])}, "
+            f"mean {_mm(frame['mesh_to_surface_mean'])}",
         ]
+        for obj in frame["objects"]:
+            matched = ("" if obj["true_object"] is None else
+                       f"; true object {obj['true_object']}" + (
+                           "" if obj["true_object_median_m"] is None else
+                           f" (median {_mm(obj['true_object_median_m'])} off)"))
+            lines += [
+                f"  object {obj['name']}: {obj['n_points']} points from "
+                f"{_counts(obj['whiskers'])}{matched}",
+                f"    method: {obj['method']}",
+                f"    mesh: {obj['n_vertices']} vertices, {obj['n_triangles']} triangles",
+                f"    cloud -> surface: max {_mm(obj['cloud_to_surface_max'])}, "
+                f"mean {_mm(obj['cloud_to_surface_mean'])}",
+                f"    mesh -> surface:  max {_mm(obj['mesh_to_surface_max'])}, "
+                f"mean {_mm(obj['mesh_to_surface_mean'])}",
+            ]
+            lines += [f"    {name}: {path}" for name, path in obj["files"].items()]
+        if frame["noise_points"]:
+            far = ("" if frame["noise_to_surface_max"] is None else
+                   f", at most {_mm(frame['noise_to_surface_max'])} from a true object")
+            lines.append(f"  noise: {frame['noise_points']} point(s) in no object, from "
+                         f"{_counts(frame['noise_whiskers'])}{far}")
         lines += [f"  {name}: {path}" for name, path in frame["files"].items()]
     return "\n".join(lines) + "\n"
 

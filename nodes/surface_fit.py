@@ -1,4 +1,4 @@
-"""Surface fitting of a whisker contact cloud (Open3D), without sockets: the mapper's logic.
+"""Objects and surfaces of a whisker contact cloud (Open3D), without sockets: the mapper's logic.
 
 Why this method
 ---------------
@@ -30,9 +30,28 @@ density along the lines without losing a line. The reconstruction runs on one th
 more, its parallel sums round differently from run to run and the same cloud gives meshes
 with different triangle counts.
 
-Open3D (2 s and ~180 MB to import) is imported by ``fit_surface`` only, so that a node that is
-stopped before its fit, or a launcher checking the mapper's parameters, never loads it. PLY
-files are written with numpy (``write_ply``): Open3D's writer reports success on a full disk.
+Separating objects
+------------------
+Several whiskers passing several objects give one cloud per frame; ``cluster_points`` splits it
+into objects with Open3D's DBSCAN (``PointCloud.cluster_dbscan``). A contact line never spans
+two objects (a whisker touches one at a time, and leaving one for another is a jump that
+``split_lines`` breaks at), so what decides is which lines join: the lines of neighbouring
+whiskers on one object lie about one *line spacing* apart, the objects farther. The radius
+``eps`` is a length of the geometry, not of the sampling (a faster sampling rate must not
+split an object): ``EPS_LINE_SPACINGS`` line spacings, but at most ``EPS_LINE_EXTENT`` of the
+typical extent of a contact line, because with only one or two lines per object the spacing
+measures the gap between objects instead (docs/NODES.md has the measurements behind both
+numbers). DBSCAN runs on one representative point per cubic cell of ``eps / DBSCAN_CELLS``, and
+each point takes its cell's label: Open3D keeps the neighbour list of every point, which grows
+with the sampling rate; the cells bound it by the geometry. Open3D's labels are deterministic
+for the same input (its labelling pass is sequential) and numbered by their seed points; they
+are renumbered here by their first point, so the order of the objects is the order of the
+points, whatever Open3D's numbering.
+
+Open3D (2 s and ~180 MB to import) is imported by ``fit_surface`` and ``cluster_points`` only,
+so that a node that is stopped before its fit, or a launcher checking the mapper's parameters,
+never loads it. PLY files are written with numpy (``write_ply``): Open3D's writer reports
+success on a full disk.
 """
 
 from __future__ import annotations
@@ -43,8 +62,24 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from vibrissa.surfaces import Surface
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+
+EPS_LINE_SPACINGS = 15.0
+"""DBSCAN radius in line spacings: the simulated scenes of docs/NODES.md need 3.6 to 11 to give
+one cluster per object."""
+
+EPS_LINE_EXTENT = 0.5
+"""Largest DBSCAN radius, as a fraction of the typical extent of a contact line."""
+
+DBSCAN_CELLS = 8
+"""DBSCAN sees one point per cubic cell of ``eps / DBSCAN_CELLS``."""
+
+MIN_POINTS = 4
+"""Default DBSCAN ``min_points``: the fewest points a surface needs
+(``too_little_for_a_surface``), so that every cluster could carry one."""
 
 
 @dataclass(frozen=True)
@@ -109,6 +144,18 @@ def split_lines(points: FloatArray, line_break: float = 20.0) -> IntArray:
     return np.concatenate([[0], np.cumsum(breaks)]).astype(np.int64)
 
 
+def whisker_lines(points: FloatArray, whisker_ids: list[str],
+                  line_break: float = 20.0) -> IntArray:
+    """Line label (N,) of points ordered by (whisker, seq): :func:`split_lines`, and a new line
+    wherever the whisker changes."""
+    lines = split_lines(points, line_break)
+    if len(points) < 2:
+        return lines
+    ids = np.asarray(whisker_ids, dtype=object)
+    breaks = (np.diff(lines) > 0) | (ids[1:] != ids[:-1])
+    return np.concatenate([[0], np.cumsum(breaks)]).astype(np.int64)
+
+
 def contact_normals(points: FloatArray, forces: FloatArray, lines: IntArray) -> FloatArray:
     """Outward surface normals (N, 3) at contact points from the contact forces.
 
@@ -162,6 +209,113 @@ def line_spacing(points: FloatArray, lines: IntArray) -> float:
         tree = cKDTree(points[~inside])
         nearest[inside] = tree.query(points[inside])[0]
     return float(np.median(nearest))
+
+
+def line_extent(points: FloatArray, lines: IntArray) -> float:
+    """Typical extent of a line: the median over points of the diagonal of their line's
+    bounding box (weighted by points, so that stray one-point lines do not pull it down)."""
+    if len(points) == 0:
+        return 0.0
+    order = np.argsort(lines, kind="stable")
+    _, start, count = np.unique(lines[order], return_index=True, return_counts=True)
+    lo = np.minimum.reduceat(points[order], start, axis=0)
+    hi = np.maximum.reduceat(points[order], start, axis=0)
+    return float(np.median(np.repeat(np.linalg.norm(hi - lo, axis=1), count)))
+
+
+@dataclass(frozen=True)
+class Clusters:
+    """Objects of a cloud (:func:`cluster_points`).
+
+    Attributes
+    ----------
+    labels : ndarray of int, shape (N,)
+        Object of each point, numbered 0, 1, ... in the order of their first point; -1 for a
+        noise point (DBSCAN: in no ``eps``-neighbourhood of ``min_points`` or more).
+    eps : float
+        The DBSCAN radius used, cloud units.
+    min_points : int
+        The DBSCAN ``min_points`` used.
+    eps_rule : str
+        Where ``eps`` came from: ``given``, ``line spacing``, ``line extent`` or ``one place``.
+    line_spacing, line_extent : float
+        :func:`line_spacing` (inf with one line) and :func:`line_extent` of the cloud.
+    """
+
+    labels: IntArray
+    eps: float
+    min_points: int
+    eps_rule: str
+    line_spacing: float
+    line_extent: float
+
+    @property
+    def n_clusters(self) -> int:
+        """Number of objects."""
+        return int(self.labels.max()) + 1 if len(self.labels) else 0
+
+
+def cluster_points(points: FloatArray, lines: IntArray, eps: float = 0.0,
+                   min_points: int = MIN_POINTS) -> Clusters:
+    """Objects of a contact cloud by DBSCAN (Open3D), labels deterministic (see module).
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        Contact points, in acquisition order (per whisker, by ``seq``).
+    lines : ndarray of int, shape (N,)
+        Line label of each point (:func:`whisker_lines`).
+    eps : float
+        DBSCAN radius, cloud units; 0 = ``EPS_LINE_SPACINGS`` x :func:`line_spacing`, at most
+        ``EPS_LINE_EXTENT`` x :func:`line_extent`.
+    min_points : int
+        DBSCAN ``min_points`` (>= 1), counted in cells of ``eps / DBSCAN_CELLS``.
+    """
+    if min_points < 1:
+        raise ValueError(f"min_points must be >= 1, got {min_points}")
+    if not (np.isfinite(eps) and eps >= 0):
+        raise ValueError(f"eps must be a finite number >= 0, got {eps}")
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    spacing = line_spacing(points, lines) if len(points) else float("inf")
+    extent = line_extent(points, lines)
+    rule = "given"
+    if eps == 0:
+        candidates = [(EPS_LINE_SPACINGS * spacing, "line spacing"),
+                      (EPS_LINE_EXTENT * extent, "line extent")]
+        eps, rule = min((c for c in candidates if 0 < c[0] < np.inf), default=(0.0, "one place"))
+        if eps == 0:  # one line, all at one place: no length to go by, any radius will do
+            eps = 1.0
+    labels = np.full(len(points), -1, dtype=np.int64)
+    if len(points):
+        import open3d as o3d
+
+        cells = np.floor((points - points.min(axis=0)) / (eps / DBSCAN_CELLS))
+        _, first, cell_of = np.unique(cells, axis=0, return_index=True, return_inverse=True)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[first]))
+        raw = np.asarray(cloud.cluster_dbscan(eps, min_points))[cell_of.ravel()]
+        found, first_point = np.unique(raw, return_index=True)
+        keep = found >= 0
+        rank = np.empty(len(found), dtype=np.int64)
+        rank[keep] = np.argsort(np.argsort(first_point[keep]))
+        rank[~keep] = -1
+        labels = rank[np.searchsorted(found, raw)]
+    return Clusters(labels, float(eps), int(min_points), rule, spacing, extent)
+
+
+@dataclass(frozen=True)
+class TrueObject:
+    """A known object: ``surface`` in units of ``unit_m`` metres, in the cloud's frame."""
+
+    name: str
+    surface: Surface
+    unit_m: float = 1.0
+
+    def distance(self, points_m: FloatArray) -> FloatArray:
+        """|signed distance| (N,) of points (N, 3), m, to the surface, m."""
+        points_m = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+        if len(points_m) == 0:
+            return np.zeros(0)
+        return np.abs(self.surface.signed_distance(points_m / self.unit_m)) * self.unit_m
 
 
 def too_little_for_a_surface(points: FloatArray) -> str | None:

@@ -4,6 +4,7 @@ wrench and pose topics replays to the same points bit for bit."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -90,6 +91,33 @@ def test_the_robot_demo_gives_the_library_points_on_the_true_surfaces(robot_run:
     assert counters["robot_poses"] > 300
     out = robot_run["out"]
     assert (out / "cloud.ply").is_file() and (out / "map.png").stat().st_size > 20_000
+
+
+def test_the_map_has_one_object_per_touched_object_with_its_whiskers(
+        robot_run: dict[str, Any]) -> None:
+    """The mapper's objects against the simulator's record of which object each contact was
+    on: the same names, the same points per object and per whisker, a mesh file each."""
+    assert robot_run["rc"] == 0, robot_run["text"]
+    scene = load_scene(SCENE)
+    touched: dict[str, dict[str, int]] = {}
+    got = {(a.stamp, w) for a in robot_run["arrays"] for w in a.whisker_ids}
+    for result in simulate(scene, workers=1):
+        for stamp, k in zip(scene.path.t, result.object, strict=True):
+            if (float(stamp), result.name) in got:
+                assert k >= 0, (stamp, result.name)
+                per = touched.setdefault(scene.objects[k].name, {})
+                per[result.name] = per.get(result.name, 0) + 1
+    assert set(touched) == {"ball", "egg"}
+    report = json.loads((robot_run["out"] / "report.json").read_text())
+    (frame,) = report["frames"]
+    assert frame["frame_id"] == "world" and frame["noise_points"] == 0
+    objects = {obj["name"]: obj for obj in frame["objects"]}
+    assert objects.keys() == touched.keys()
+    for name, obj in objects.items():
+        assert {w["whisker_id"]: w["n_points"] for w in obj["whiskers"]} == touched[name]
+        assert obj["n_points"] == sum(touched[name].values())
+        assert obj["true_object"] == name and obj["cloud_to_surface_max"] <= 1e-9 * 0.06
+        assert obj["n_triangles"] > 100 and Path(obj["files"]["mesh"]).is_file()
 
 
 def test_a_bag_of_the_wrench_and_pose_topics_replays_to_the_same_points(

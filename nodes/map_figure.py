@@ -1,0 +1,323 @@
+"""The mapper's figure: one PNG of a frame's map that a person reads at a glance (matplotlib).
+
+What it shows, in mm: a 3D view and a top view (x, y) of the true objects (grey wireframes,
+named) when known, the robot path with the whisker mounts at its start, middle and end (a
+clamp origin X_WR X_RC and a short segment along the clamp's +z, the rod's axis at the clamp,
+in the whisker's colour), the contacts coloured by whisker, the noise points (black crosses)
+and each object's fitted mesh (semi-transparent, its own colour); a legend for every layer.
+The 3D view is cut to the objects (contacts, meshes, true objects) with equal scales on its
+axes, so that the shapes are true; the top view shows the whole path.
+
+Drawn on a ``matplotlib.figure.Figure`` with the Agg canvas, not through ``pyplot``: no global
+backend or figure state in the node, and nothing opens a window. matplotlib is imported by
+``plot_map`` only, for the same reason as Open3D in ``vibrissa.nodes.surface_fit``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from vibrissa.nodes.surface_fit import TrueObject
+from vibrissa.scene import RobotPath, Whisker
+from vibrissa.surfaces import Ellipsoid, Paraboloid
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+MAX_POINTS_SHOWN = 20_000
+"""Contacts drawn at most (every k-th point beyond): the figure stays quick to draw."""
+
+MAX_LEGEND_ENTRIES = 12
+"""Whiskers (and meshes) named in the legend at most; the rest are counted in one entry."""
+
+ROD_AXIS_FRACTION = 0.25
+"""Length of a mount's rod-axis segment, as a fraction of its whisker's length."""
+
+MM = 1e3
+"""Figure units per metre."""
+
+
+@dataclass(frozen=True)
+class MapLayers:
+    """What the figure of one frame shows; lengths in m, in that frame.
+
+    Attributes
+    ----------
+    title, subtitle
+        Above the figure; the subtitle may have several lines.
+    points : ndarray, shape (N, 3)
+        Contact points.
+    whisker_ids : sequence of str, length N
+        The whisker of each point.
+    labels : ndarray of int, shape (N,)
+        The object of each point, -1 for noise.
+    meshes : sequence of (name, vertices (V, 3), triangles (T, 3))
+        The fitted mesh of each object (empty arrays: no mesh).
+    true_objects
+        The known objects (wireframes); none when the truth is not known.
+    path
+        The robot path X_WR (frame ``world``), or None.
+    whiskers
+        The whiskers on the robot (their mounts X_RC are drawn along ``path``).
+    """
+
+    title: str
+    points: FloatArray
+    whisker_ids: Sequence[str]
+    labels: IntArray
+    meshes: Sequence[tuple[str, FloatArray, IntArray]] = ()
+    true_objects: Sequence[TrueObject] = ()
+    path: RobotPath | None = None
+    whiskers: Sequence[Whisker] = ()
+    subtitle: str = ""
+
+
+def wireframe(true: TrueObject, near: FloatArray) -> FloatArray:
+    """A grid (3, U, V) on the true object's surface, m: the whole surface of an ellipsoid (or
+    sphere); for a paraboloid, which has no end, the part under the points ``near`` (K, 3), m
+    (in its body frame's x, y, 20 % beyond them), or around its vertex without points."""
+    surface = true.surface
+    if isinstance(surface, Ellipsoid):
+        u, v = np.meshgrid(np.linspace(0.0, 2.0 * np.pi, 25), np.linspace(0.0, np.pi, 13))
+        p_B = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], axis=-1)
+        p_B = p_B * surface.radii
+    elif isinstance(surface, Paraboloid):
+        if len(near):
+            q_B = surface.pose.apply_inverse(near / true.unit_m)
+            lo, hi = q_B[:, :2].min(axis=0), q_B[:, :2].max(axis=0)
+            pad = 0.2 * (hi - lo) + 0.02 * float(np.max(hi - lo)) + 1e-9
+            lo, hi = lo - pad, hi + pad
+        else:
+            half = 0.5 / max(surface.a, surface.b)
+            lo, hi = np.array([-half, -half]), np.array([half, half])
+        x, y = np.meshgrid(np.linspace(lo[0], hi[0], 25), np.linspace(lo[1], hi[1], 25))
+        p_B = np.stack([x, y, surface.a * x**2 + surface.b * y**2 + surface.h], axis=-1)
+    else:
+        raise TypeError(f"no wireframe for a {type(surface).__name__}")
+    shape = p_B.shape[:2]
+    p_W = surface.pose.apply(p_B.reshape(-1, 3)) * true.unit_m
+    return np.asarray(p_W.T.reshape(3, *shape), dtype=np.float64)
+
+
+def mounts(path: RobotPath, whiskers: Sequence[Whisker]
+           ) -> list[tuple[Whisker, FloatArray, FloatArray]]:
+    """Each whisker's clamp at the path's start, middle and end: (whisker, clamp origins
+    p_WC (K, 3), tips of the rod-axis segments (K, 3)), m."""
+    rows = np.unique([0, len(path.t) // 2, len(path.t) - 1])
+    R_WR = path.R_WR[rows]
+    out = []
+    for whisker in whiskers:
+        p_WC = path.p_WR[rows] + R_WR.apply(np.array(whisker.X_RC.translation))
+        z_WC = (R_WR * whisker.X_RC.rotation).apply([0.0, 0.0, 1.0])
+        out.append((whisker, p_WC, p_WC + ROD_AXIS_FRACTION * whisker.length_m * z_WC))
+    return out
+
+
+def _colours(n: int, palette: str) -> list[Any]:
+    """``n`` distinct colours: the qualitative ``palette`` while it lasts, then a sweep of
+    ``turbo``."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps[palette]
+    size = int(getattr(cmap, "N", 256))
+    if n <= size:
+        return [cmap(i) for i in range(n)]
+    turbo = matplotlib.colormaps["turbo"]
+    return [turbo(x) for x in np.linspace(0.05, 0.95, n)]
+
+
+def thousands(n: int) -> str:
+    """``5 214``: digits grouped by spaces."""
+    return f"{n:,}".replace(",", " ")
+
+
+def _capped(entries: list[Any], more: str, handle: Any) -> list[Any]:
+    """At most ``MAX_LEGEND_ENTRIES`` legend handles, the rest counted in one."""
+    if len(entries) <= MAX_LEGEND_ENTRIES:
+        return entries
+    rest = len(entries) - MAX_LEGEND_ENTRIES + 1
+    handle.set_label(f"... {rest} more {more}")
+    return [*entries[: MAX_LEGEND_ENTRIES - 1], handle]
+
+
+def _box(parts: Sequence[FloatArray], margin: float) -> tuple[FloatArray, FloatArray]:
+    """Corners (3,) of the box around the points of ``parts`` (each (K, 3)), grown by
+    ``margin`` of its largest side on every side and to at least 2 % of it along each axis."""
+    every = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in parts])
+    lo, hi = every.min(axis=0), every.max(axis=0)
+    side = float(np.max(hi - lo)) or 1e-3
+    grow = np.maximum(margin * side, 0.5 * (0.02 * side - (hi - lo)))
+    return lo - grow, hi + grow
+
+
+def _densified(p: FloatArray, n: int = 600) -> FloatArray:
+    """The polyline ``p`` (K, 3) resampled at ``n`` points evenly along its length (at least
+    its own points)."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    if s[-1] == 0 or len(p) >= n:
+        return p
+    at = np.linspace(0.0, s[-1], n)
+    return np.stack([np.interp(at, s, p[:, k]) for k in range(3)], axis=1)
+
+
+def _clipped(p: FloatArray, lo: FloatArray, hi: FloatArray) -> FloatArray:
+    """``p`` (K, 3) with the rows outside the box [lo, hi] set to NaN (a gap in a line)."""
+    inside = np.all((p >= lo) & (p <= hi), axis=1)
+    return np.where(inside[:, None], p, np.nan)
+
+
+def plot_map(path: str | Path, layers: MapLayers) -> None:
+    """Write the figure of ``layers`` to ``path`` (PNG)."""
+    from matplotlib.collections import PolyCollection
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 - registers the 3d projection
+
+    fig = Figure(figsize=(16, 9))
+    notes = layers.subtitle.count("\n") + 1 if layers.subtitle else 0
+    grid = fig.add_gridspec(2, 2, width_ratios=[1.35, 1.0], height_ratios=[1.0, 0.8],
+                            left=0.02, right=0.98, bottom=0.06, top=0.91 - 0.016 * notes,
+                            wspace=0.12, hspace=0.15)
+    ax: Any = fig.add_subplot(grid[:, 0], projection="3d")
+    top: Any = fig.add_subplot(grid[0, 1])
+    key: Any = fig.add_subplot(grid[1, 1])
+    key.axis("off")
+    focus: list[FloatArray] = []  # the objects, m: the limits of the 3D view
+    extent: list[FloatArray] = []  # every drawn point, m: the limits of the top view
+    handles: list[Any] = []
+
+    points = np.asarray(layers.points, dtype=np.float64).reshape(-1, 3)
+    ids = np.asarray(layers.whisker_ids, dtype=object)
+    labels = np.asarray(layers.labels)
+    shown = np.arange(0, len(points), max(1, -(-len(points) // MAX_POINTS_SHOWN)))
+    focus.append(points[labels >= 0] if np.any(labels >= 0) else points)  # noise may be far
+    focus += [np.asarray(vertices).reshape(-1, 3) for _, vertices, _ in layers.meshes]
+    near_of = np.zeros(len(shown), dtype=np.int64)
+    if len(shown) and len(layers.true_objects) > 1:
+        near_of = np.argmin([t.distance(points[shown]) for t in layers.true_objects], axis=0)
+    grids = [wireframe(true, points[shown][near_of == i])
+             for i, true in enumerate(layers.true_objects)]
+    focus += [g.reshape(3, -1).T for g in grids]
+    lo, hi = _box(focus, 0.0)
+    clamps = mounts(layers.path, layers.whiskers) if layers.path is not None else []
+    robot = [layers.path.p_WR] if layers.path is not None else []
+    robot += [a for _, p_WC, tip in clamps for a in (p_WC, tip)]
+    # The robot under (or beside) the objects belongs in the 3D view, not all of its path.
+    reach = 0.25 * float(np.max(hi[:2] - lo[:2]))
+    near = [p[np.all((p[:, :2] >= lo[:2] - reach) & (p[:, :2] <= hi[:2] + reach), axis=1)]
+            for p in robot]
+    lo, hi = _box(focus + near, 0.05)
+    extent += [*focus, points, *robot]
+
+    names = sorted({*ids.tolist(), *(w.name for w in layers.whiskers)})
+    colour = dict(zip(names, _colours(len(names), "tab10" if len(names) <= 10 else "tab20"),
+                      strict=True))
+
+    if layers.true_objects:
+        for true, grid_m in zip(layers.true_objects, grids, strict=True):
+            grid_W = grid_m * MM
+            ax.plot_wireframe(*grid_W, color="0.5", linewidth=0.4, alpha=0.7)
+            top.plot(grid_W[0], grid_W[1], color="0.7", linewidth=0.3)
+            top.plot(grid_W[0].T, grid_W[1].T, color="0.7", linewidth=0.3)
+            at = grid_W.reshape(3, -1)
+            ax.text(at[0].mean(), at[1].mean(), at[2].max(), true.name, color="0.3",
+                    fontsize=9, ha="center", va="bottom")
+            top.text(at[0].mean(), at[1].mean(), true.name, color="0.3", fontsize=9,
+                     ha="center", va="center", style="italic")
+        handles.append(Line2D([], [], color="0.5", linewidth=0.8,
+                              label=f"true {'objects' if len(layers.true_objects) > 1 else 'object'}"
+                              f" ({', '.join(t.name for t in layers.true_objects[:6])}"
+                              f"{', ...' if len(layers.true_objects) > 6 else ''})"))
+
+    if layers.path is not None:
+        p = layers.path.p_WR * MM
+        cut = _clipped(_densified(layers.path.p_WR), lo, hi) * MM
+        ax.plot(cut[:, 0], cut[:, 1], cut[:, 2], color="k", linewidth=1.2)
+        if np.all(np.isfinite(_clipped(layers.path.p_WR[:1], lo, hi))):
+            ax.scatter(*p[0], color="k", s=25, marker="o", depthshade=False)
+        top.plot(p[:, 0], p[:, 1], color="k", linewidth=1.2)
+        top.plot(p[0, 0], p[0, 1], "ko", markersize=5)
+        handles.append(Line2D([], [], color="k", linewidth=1.2, marker="o", markersize=4,
+                              markevery=[0], label="robot path (dot: start)"))
+        for whisker, p_WC, tip in clamps:
+            c, t = p_WC * MM, tip * MM
+            in_view = np.all(np.isfinite(_clipped(p_WC, lo, hi)), axis=1)
+            for a, b, seen in zip(c, t, in_view, strict=True):
+                if seen:
+                    ax.plot(*np.stack([a, b]).T, color=colour[whisker.name], linewidth=1.6)
+                top.plot([a[0], b[0]], [a[1], b[1]], color=colour[whisker.name], linewidth=1.6)
+            ax.scatter(c[in_view, 0], c[in_view, 1], c[in_view, 2], color="k", s=8,
+                       depthshade=False)
+            top.plot(c[:, 0], c[:, 1], "k.", markersize=4)
+        if layers.whiskers:
+            handles.append(Line2D([], [], color="0.3", linewidth=1.6, marker=".",
+                                  markerfacecolor="k", markeredgecolor="k",
+                                  label="whisker mounts at start, middle, end\n"
+                                        "(clamp, rod axis +z, whisker colour)"))
+
+    whisker_handles = []
+    for name in names:
+        mine = shown[(ids[shown] == name) & (labels[shown] >= 0)]
+        count = int(np.sum(ids == name))
+        if len(mine):
+            q = points[mine] * MM
+            ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=2.0, color=colour[name], depthshade=False)
+            top.scatter(q[:, 0], q[:, 1], s=2.5, color=colour[name], linewidths=0)
+        whisker_handles.append(Line2D([], [], linestyle="", marker="o", markersize=5,
+                                      color=colour[name],
+                                      label=f"{name}: {thousands(count)} contacts"))
+    handles += _capped(whisker_handles, "whiskers", Line2D([], [], linestyle=""))
+    noise = shown[labels[shown] < 0]
+    if np.any(labels < 0):
+        q = points[noise] * MM
+        cut = _clipped(points[noise], lo, hi) * MM
+        ax.scatter(cut[:, 0], cut[:, 1], cut[:, 2], s=14, color="k", marker="x",
+                   depthshade=False)
+        top.scatter(q[:, 0], q[:, 1], s=14, color="k", marker="x", linewidths=0.8)
+        handles.append(Line2D([], [], linestyle="", marker="x", color="k",
+                              label=f"noise: {thousands(int(np.sum(labels < 0)))} points "
+                                    "in no object"))
+
+    mesh_handles = []
+    palette = _colours(len(layers.meshes), "Set2" if len(layers.meshes) <= 8 else "tab20")
+    for (name, vertices, triangles), c in zip(layers.meshes, palette, strict=True):
+        if len(triangles) == 0:
+            continue
+        v = np.asarray(vertices) * MM
+        ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=triangles, color=c, alpha=0.5,
+                        linewidth=0, shade=True)
+        top.add_collection(PolyCollection(list(v[triangles][:, :, :2]), facecolors=[c],
+                                          alpha=0.3, edgecolors="none"))
+        mesh_handles.append(Patch(facecolor=c, alpha=0.6,
+                                  label=f"mesh {name}: {thousands(len(triangles))} triangles"))
+    handles += _capped(mesh_handles, "meshes", Patch(alpha=0.0))
+
+    ax.set_xlim(lo[0] * MM, hi[0] * MM)
+    ax.set_ylim(lo[1] * MM, hi[1] * MM)
+    ax.set_zlim(lo[2] * MM, hi[2] * MM)
+    ax.set_box_aspect(tuple(hi - lo))  # equal scales: the shapes are the true shapes
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_zlabel("z [mm]")
+    ax.set_title("3D view", fontsize=10)
+    lo, hi = _box(extent, 0.05)
+    top.set_xlim(lo[0] * MM, hi[0] * MM)
+    top.set_ylim(lo[1] * MM, hi[1] * MM)
+    top.set_aspect("equal", adjustable="box")
+    top.set_xlabel("x [mm]")
+    top.set_ylabel("y [mm]")
+    top.grid(True, linewidth=0.3, alpha=0.5)
+    top.set_title("top view (looking down z)", fontsize=10)
+    key.legend(handles=handles, loc="upper center", fontsize=8, frameon=False,
+               borderaxespad=0.0, ncols=2 if len(handles) > 12 else 1)
+    fig.suptitle(layers.title, fontsize=13, y=0.98)
+    if layers.subtitle:
+        fig.text(0.5, 0.925, layers.subtitle, ha="center", va="top", fontsize=8, color="0.25")
+    fig.savefig(path, dpi=100, format="png")

@@ -1,0 +1,386 @@
+"""The mapper with several objects, without sockets: contact lines of several whiskers on a
+sphere and a rotated ellipsoid separated into objects, named after the scene, counted, fitted,
+reported and drawn; the single-object map with ``true_surface`` as before."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vibrissa.frames import Transform
+from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
+from vibrissa.nodes.map_figure import MapLayers, plot_map
+from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
+from vibrissa.nodes.surface_fit import cluster_points, whisker_lines
+from vibrissa.runtime import load_params
+from vibrissa.runtime.params import ParamError
+from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
+
+BALL_CENTRE = np.array([0.03, 0.0, 0.04])
+EGG_CENTRE = [-0.03, 0.01, 0.045]
+EGG_Q = [0.0, 0.0, 0.3826834, 0.9238795]  # 45 deg about z
+BALL = SceneObject("ball", "sphere", {"radius_m": 0.015}, Transform(translation=BALL_CENTRE))
+EGG = SceneObject("egg", "ellipsoid", {"semi_axes_m": [0.012, 0.008, 0.01]},
+                  Transform.from_quaternion(EGG_Q, EGG_CENTRE))
+
+# Contact lines as a whisker draws them: (whisker, object, polar angle, azimuths) in the object's
+# body frame; whisker w1 touches the ball, then the egg.
+LINES = [
+    ("w0", BALL, 1.20, np.linspace(-0.8, 0.8, 60)),
+    ("w1", BALL, 1.35, np.linspace(-0.8, 0.8, 60)),
+    ("w1", EGG, 1.30, np.linspace(2.2, 3.8, 50)),
+    ("w2", BALL, 1.50, np.linspace(-0.8, 0.8, 60)),
+    ("w3", EGG, 1.50, np.linspace(2.2, 3.8, 50)),
+]
+STRAYS = np.array([[0.0, 0.12, 0.30], [0.0, -0.12, 0.30]])  # whisker w4: far from everything
+EXPECTED = {  # built above: 3 lines of 60 on the ball, 2 of 50 on the egg
+    "ball": {"n_points": 180, "whiskers": {"w0": 60, "w1": 60, "w2": 60}},
+    "egg": {"n_points": 100, "whiskers": {"w1": 50, "w3": 50}},
+}
+SCENE = """\
+mu: 0.2
+objects:
+  - {name: ball, shape: sphere, radius_m: 0.015, position_m: [0.03, 0.0, 0.04]}
+  - {name: egg, shape: ellipsoid, semi_axes_m: [0.012, 0.008, 0.01],
+     position_m: [-0.03, 0.01, 0.045], quaternion_xyzw: [0.0, 0.0, 0.3826834, 0.9238795]}
+  - {name: pebble, shape: sphere, radius_m: 0.006, position_m: [0.0, 0.05, 0.03]}
+whiskers:
+  - {name: w0, length_m: 0.06, ei_nm2: 2.0e-5, mount: {position_m: [0.0, -0.01, 0.0]}}
+  - {name: w1, length_m: 0.05, ei_nm2: 2.0e-5,
+     mount: {position_m: [0.0, 0.0, 0.0], quaternion_xyzw: [0.0998334, 0, 0, 0.9950042]}}
+  - {name: w2, length_m: 0.045, ei_nm2: 1.0e-5, mount: {position_m: [0.0, 0.01, 0.0]}}
+  - {name: w3, length_m: 0.04, ei_nm2: 1.0e-5,
+     mount: {position_m: [0.0, 0.02, 0.0], quaternion_xyzw: [-0.0998334, 0, 0, 0.9950042]}}
+  - {name: w4, length_m: 0.035, ei_nm2: 1.0e-5, mount: {position_m: [0.0, 0.03, 0.0]}}
+path: path.csv
+"""
+
+
+def line_points(obj: SceneObject, polar: float, azimuths: np.ndarray) -> np.ndarray:
+    """Points (n, 3) m on the posed object at a polar angle and azimuths of its body frame."""
+    unit = np.column_stack([np.cos(azimuths) * np.sin(polar), np.sin(azimuths) * np.sin(polar),
+                            np.full(len(azimuths), np.cos(polar))])
+    semi = (np.full(3, obj.sizes["radius_m"]) if obj.shape == "sphere"
+            else np.array(obj.sizes["semi_axes_m"]))
+    return obj.X_WO.apply(unit * semi)
+
+
+def messages(frame_id: str = "world") -> list[Any]:
+    """The lines as ticks: a ContactPointArray per tick (each whisker's next point, seq = tick),
+    the strays as ContactPoints, then the end of the stream. Force on the rod: the object
+    pushes it, along its outward normal (the contact force of a frictionless contact)."""
+    per_whisker: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for whisker, obj, polar, azimuths in LINES:
+        points = line_points(obj, polar, azimuths)
+        normals = obj.surface(1.0).normal(points)
+        per_whisker.setdefault(whisker, []).extend(zip(points, 0.02 * normals, strict=True))
+    out: list[Any] = []
+    for seq in range(max(len(rows) for rows in per_whisker.values())):
+        ids = [w for w, rows in per_whisker.items() if seq < len(rows)]
+        rows = [per_whisker[w][seq] for w in ids]
+        out.append(ContactPointArray(
+            stamp=float(seq), seq=seq, frame_id=frame_id, whisker_ids=ids,
+            point=np.array([r[0] for r in rows]), s1=np.full(len(ids), 0.03),
+            phase=np.full(len(ids), 2, dtype=np.int32), force=np.array([r[1] for r in rows]),
+            status=np.zeros(len(ids), dtype=np.int32)))
+    for i, point in enumerate(STRAYS):
+        out.append(ContactPoint(stamp=0.0, seq=i, whisker_id="w4", frame_id=frame_id,
+                                point=point, s1=0.03, phase=1, force=[0.0, 0.0, -0.02],
+                                status=0))
+    out.append(EndOfStream(stamp=0.0, source="/reconstructor", count=len(out)))
+    return out
+
+
+def accumulate(msgs: list[Any]) -> Accumulator:
+    acc = Accumulator(1)
+    for msg in msgs:
+        acc.add(msg)
+    return acc
+
+
+def write_scene(folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "scene.yaml").write_text(SCENE)
+    x = np.linspace(0.10, -0.10, 50)
+    rows = ["t,x,y,z,qx,qy,qz,qw"] + [f"{0.1 * i},{x[i]},-0.03,0.0,0,0,0,1" for i in range(50)]
+    (folder / "path.csv").write_text("\n".join(rows) + "\n")
+    return folder / "scene.yaml"
+
+
+def ply_vertices(path: Path) -> int:
+    """The vertex count in a PLY header."""
+    header = path.read_bytes().split(b"end_header")[0].decode("ascii")
+    return int(next(line.split()[-1] for line in header.splitlines()
+                    if line.startswith("element vertex")))
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """(width, height) from the IHDR chunk; the signature checked."""
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR"
+    width, height = struct.unpack(">II", data[16:24])
+    return width, height
+
+
+@pytest.fixture(scope="module")
+def scene_map(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """The map of the two objects with the scene known (depth 6: a coarse, quick fit)."""
+    tmp = tmp_path_factory.mktemp("scene_map")
+    params = MapperParams(out_dir=str(tmp / "out"), scene=str(write_scene(tmp)), depth=6)
+    report, sent = write_outputs(accumulate(messages()), params, tmp / "out")
+    return {"report": report, "sent": sent, "out": tmp / "out", "params": params, "tmp": tmp}
+
+
+def test_two_objects_are_found_named_counted_and_fitted(scene_map: dict[str, Any]) -> None:
+    report, out = scene_map["report"], scene_map["out"]
+    [frame] = report["frames"]
+    assert [obj["name"] for obj in frame["objects"]] == ["ball", "egg"]  # by first point: w0
+    for obj in frame["objects"]:
+        expected = EXPECTED[obj["name"]]
+        assert obj["n_points"] == expected["n_points"]
+        assert {w["whisker_id"]: w["n_points"] for w in obj["whiskers"]} == expected["whiskers"]
+        assert [w["whisker_id"] for w in obj["whiskers"]] == sorted(expected["whiskers"])
+        assert obj["true_object"] == obj["name"]
+        assert obj["cloud_to_surface_max"] < 1e-12  # exact points: rounding only
+        assert obj["true_object_median_m"] < 1e-12
+        assert obj["method"].startswith("poisson(depth=6") and obj["n_triangles"] > 20
+        assert obj["mesh_to_surface_mean"] < 0.3e-3 and obj["mesh_to_surface_max"] < 2e-3
+        mesh = out / f"mesh_{obj['name']}.ply"
+        assert obj["files"] == {"mesh": str(mesh)} and frame["files"][f"mesh_{obj['name']}"]
+        assert ply_vertices(mesh) == obj["n_vertices"]
+    assert frame["n_points"] == 282 and report["n_points"] == 282
+    assert frame["noise_points"] == 2
+    assert frame["noise_whiskers"] == [{"whisker_id": "w4", "n_points": 2}]
+    # the strays' distance to the nearest true object, computed here from the scene objects
+    pebble = SceneObject("pebble", "sphere", {"radius_m": 0.006},
+                         Transform(translation=np.array([0.0, 0.05, 0.03])))
+    far = np.min([np.abs(o.surface(1.0).signed_distance(STRAYS)) for o in (BALL, EGG, pebble)],
+                 axis=0)
+    assert frame["noise_to_surface_max"] == pytest.approx(float(far.max()), rel=1e-12)
+    # the frame over its objects: the union mesh, the worst object
+    assert frame["n_vertices"] == sum(o["n_vertices"] for o in frame["objects"])
+    assert ply_vertices(out / "mesh.ply") == frame["n_vertices"]
+    assert ply_vertices(out / "cloud.ply") == 282
+    assert frame["cloud_to_surface_max"] == max(o["cloud_to_surface_max"]
+                                                for o in frame["objects"])
+    assert frame["mesh_to_surface_max"] == max(o["mesh_to_surface_max"] for o in frame["objects"])
+    assert report["max_reconstruction_error_m"] == frame["cloud_to_surface_max"]
+    assert frame["method"] == "; ".join(f"{o['name']}: {o['method']}" for o in frame["objects"])
+    assert frame["clustering"]["method"] == "dbscan" and frame["clustering"]["min_points"] == 4
+    assert report["scene_objects"] == ["ball", "egg", "pebble"]
+    # the message carries every object's mesh, and the report.json what write_outputs returned
+    cloud, mesh = scene_map["sent"][0]
+    assert len(cloud.points) == 282 and len(mesh.vertices) == frame["n_vertices"]
+    assert json.loads((out / "report.json").read_text()) == report
+    text = (out / "report.txt").read_text()
+    assert "frame world: 282 points, 2 object(s), 2 noise point(s)" in text
+    assert "object ball: 180 points from w0 (60), w1 (60), w2 (60); true object ball" in text
+    assert "object egg: 100 points from w1 (50), w3 (50); true object egg" in text
+    assert "noise: 2 point(s) in no object, from w4 (2)" in text
+    assert f"at most {frame['noise_to_surface_max'] * 1e3:.4g} mm from a true object" in text
+
+
+def test_the_png_is_an_image_a_person_can_read(scene_map: dict[str, Any]) -> None:
+    import matplotlib.image
+
+    png = scene_map["out"] / "map.png"
+    assert scene_map["report"]["frames"][0]["files"]["png"] == str(png)
+    width, height = png_size(png)
+    assert width >= 1200 and height >= 700
+    assert png.stat().st_size > 50_000
+    pixels = matplotlib.image.imread(png)
+    assert pixels.shape[:2] == (height, width)
+    rgb = (pixels[..., :3] * 255).astype(np.int64)
+    colours = np.unique(rgb[..., 0] << 16 | rgb[..., 1] << 8 | rgb[..., 2])
+    assert len(colours) > 50  # not blank: wireframes, path, contacts in colours, meshes
+
+
+def test_identical_input_gives_identical_labels_and_files(
+    scene_map: dict[str, Any], tmp_path: Path
+) -> None:
+    msgs = messages()
+    points, _, ids = accumulate(msgs).frames["world"].ordered()
+    lines = whisker_lines(points, ids)
+    first, second = cluster_points(points, lines), cluster_points(points, lines)
+    np.testing.assert_array_equal(first.labels, second.labels)
+    assert first.eps == second.eps and first.n_clusters == 2
+    # again from scratch, the messages arriving in the reverse order: the same files
+    params: MapperParams = scene_map["params"]
+    again = tmp_path / "again"
+    report, _ = write_outputs(accumulate(msgs[-2::-1] + msgs[-1:]), params, again)
+    for name in ("cloud.ply", "mesh.ply", "mesh_ball.ply", "mesh_egg.ply", "map.png"):
+        assert (again / name).read_bytes() == (scene_map["out"] / name).read_bytes(), name
+    relocated = json.loads(json.dumps(report).replace(str(again), str(scene_map["out"])))
+    assert relocated == scene_map["report"]
+
+
+def test_without_a_scene_objects_are_numbered_by_their_first_point(tmp_path: Path) -> None:
+    report, _ = write_outputs(accumulate(messages()),
+                              MapperParams(out_dir=str(tmp_path), depth=6, plot=False), tmp_path)
+    [frame] = report["frames"]
+    assert [(o["name"], o["n_points"]) for o in frame["objects"]] == [("object0", 180),
+                                                                      ("object1", 100)]
+    for obj in frame["objects"]:
+        assert obj["true_object"] is None and obj["cloud_to_surface_max"] is None
+        assert (tmp_path / f"mesh_{obj['name']}.ply").is_file()
+    assert frame["noise_points"] == 2 and frame["noise_to_surface_max"] is None
+    assert frame["cloud_to_surface_max"] is None and report["max_reconstruction_error_m"] is None
+
+
+def test_the_scene_is_the_truth_of_frame_world_only(scene_map: dict[str, Any],
+                                                    tmp_path: Path) -> None:
+    report, _ = write_outputs(accumulate(messages("arm")), scene_map["params"], tmp_path)
+    [frame] = report["frames"]
+    assert [o["name"] for o in frame["objects"]] == ["object0", "object1"]
+    assert frame["cloud_to_surface_max"] is None
+    assert (tmp_path / "mesh_object0_arm.ply").is_file()
+
+
+def test_two_clusters_on_one_object_are_told_apart(tmp_path: Path) -> None:
+    """Lines on opposite sides of the ball, 19 mm apart at the closest: with eps 6 mm two
+    clusters, both on the ball."""
+    back = [(w, obj, polar, azimuths + np.pi) for w, obj, polar, azimuths in LINES
+            if obj is BALL and w != "w1"]
+    msgs = [m for m in messages() if not isinstance(m, ContactPoint)]
+    acc = accumulate(msgs)
+    for i, (_, obj, polar, azimuths) in enumerate(back):
+        points = line_points(obj, polar, azimuths)
+        for k, (point, normal) in enumerate(zip(points, obj.surface(1.0).normal(points),
+                                                strict=True)):
+            acc.add(ContactPoint(stamp=0.0, seq=k, whisker_id=f"w{5 + i}", frame_id="world",
+                                 point=point, s1=0.03, phase=2, force=0.02 * normal, status=0))
+    params = MapperParams(out_dir=str(tmp_path), scene=str(write_scene(tmp_path)),
+                          cluster_eps_m=0.006, depth=6, plot=False)
+    report, _ = write_outputs(acc, params, tmp_path)
+    [frame] = report["frames"]
+    assert [(o["name"], o["true_object"], o["n_points"]) for o in frame["objects"]] == [
+        ("ball", "ball", 180), ("egg", "egg", 100), ("ball-2", "ball", 120)]
+    assert frame["clustering"]["eps_m"] == 0.006 and frame["clustering"]["eps_rule"] == "given"
+    assert (tmp_path / "mesh_ball-2.ply").is_file()
+
+
+OLD_REPORT_KEYS = {"n_points", "sources_ended", "true_surface", "rod_length_m",
+                   "max_reconstruction_error_m", "frames", "lost", "streams", "files"}
+OLD_FRAME_KEYS = {"frame_id", "n_points", "method", "n_vertices", "n_triangles",
+                  "line_spacing_m", "cloud_to_surface_max", "cloud_to_surface_mean",
+                  "mesh_to_surface_max", "mesh_to_surface_mean", "files"}
+
+
+def test_a_true_surface_is_one_object_as_before(tmp_path: Path) -> None:
+    """``true_surface``: no clustering, every point (the strays too) is the one object."""
+    ball = "sphere:r=0.3,cx=0.6,cy=0,cz=0.8"  # units of L = 0.05 m: BALL
+    report, sent = write_outputs(
+        accumulate(messages()),
+        MapperParams(out_dir=str(tmp_path), true_surface=ball, rod_length_m=0.05, depth=6),
+        tmp_path)
+    assert OLD_REPORT_KEYS <= set(report)
+    [frame] = report["frames"]
+    assert OLD_FRAME_KEYS <= set(frame)
+    [obj] = frame["objects"]
+    assert obj["name"] == "object0" and obj["n_points"] == frame["n_points"] == 282
+    assert frame["noise_points"] == 0
+    assert frame["clustering"] == {"method": "none: true_surface is the one object"}
+    for key in ("method", "n_vertices", "n_triangles", "line_spacing_m", "cloud_to_surface_max",
+                "cloud_to_surface_mean", "mesh_to_surface_max", "mesh_to_surface_mean"):
+        assert frame[key] == obj[key], key
+    assert (tmp_path / "mesh.ply").read_bytes() == (tmp_path / "mesh_object0.ply").read_bytes()
+    # the ball's points are on it; the egg's and the strays' are not (one object: as before)
+    ball_points = np.concatenate([line_points(BALL, p, a) for _, o, p, a in LINES if o is BALL])
+    on_ball = BALL.surface(1.0).signed_distance(ball_points)
+    assert np.max(np.abs(on_ball)) < 1e-12
+    assert frame["cloud_to_surface_max"] == pytest.approx(
+        float(np.max(np.abs(BALL.surface(1.0).signed_distance(STRAYS)))), rel=1e-9)
+    assert sent[0][1].method == frame["method"] and sent[0][1].n_points == 282
+    assert "true surface: sphere:r=0.3,cx=0.6,cy=0,cz=0.8 (L = 0.05 m)" in (
+        tmp_path / "report.txt").read_text()
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    ({"scene": "missing.yaml"}, "parameter 'scene': missing.yaml: "),
+    ({"scene": "x.yaml", "true_surface": "sphere:r=1"},
+     "parameter 'scene' must be empty when true_surface is given"),
+    ({"cluster_eps_m": "-0.001"}, "parameter 'cluster_eps_m' must be a finite number >= 0"),
+    ({"cluster_min_points": "0"}, "parameter 'cluster_min_points' must be a count >= 1"),
+])
+def test_bad_parameters_are_refused_at_start(overrides: dict[str, str], message: str,
+                                             tmp_path: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ParamError, match=message.replace("(", r"\(")):
+        load_params(MapperParams, overrides=overrides)
+
+
+def test_a_scene_file_that_does_not_load_names_its_problem(tmp_path: Path) -> None:
+    scene = write_scene(tmp_path)
+    scene.write_text(SCENE.replace("radius_m: 0.015", "radius: 0.015"))
+    with pytest.raises(ParamError, match="parameter 'scene': scene.yaml: objects\\[0\\]: "
+                                         "unknown key 'radius'"):
+        load_params(MapperParams, overrides={"scene": str(scene)})
+
+
+def array_scene(samples: int) -> Scene:
+    """8 whiskers (35-60 mm, two rows of four, fanned +-0.3 rad) on a robot driving past a
+    ball, an egg and a pebble 20 mm apart: the scene of docs/NODES.md's DBSCAN table ("B" at
+    600 path samples, "C" at 200)."""
+    objects = (
+        SceneObject("ball", "sphere", {"radius_m": 0.015}, Transform(translation=np.array([0.02, 0, 0.04]))),
+        SceneObject("egg", "ellipsoid", {"semi_axes_m": [0.012, 0.008, 0.01]},
+                    Transform.from_quaternion(EGG_Q, [-0.02, 0.01, 0.045])),
+        SceneObject("pebble", "ellipsoid", {"semi_axes_m": [0.01, 0.006, 0.008]},
+                    Transform.from_xyz_rpy([-0.055, -0.01, 0.035], [0.3, 0.2, 0.4])))
+    whiskers = tuple(
+        Whisker(f"w{i}", length, 2e-5 * (length / 0.05) ** 4,
+                Transform.from_xyz_rpy([0.0, -0.015 + 0.01 * (i % 4), 0.004 * (i // 4)],
+                                       [-0.3 + 0.2 * (i % 4), 0.0, 0.0]))
+        for i, length in enumerate(np.linspace(0.035, 0.06, 8)))
+    yaw = 0.3 * np.arange(samples) / samples
+    path = robot_path(0.01 * np.arange(samples),
+                      np.column_stack([np.linspace(0.10, -0.12, samples), np.zeros((samples, 2))]),
+                      Rotation.from_euler("z", yaw[:, None]).as_quat())
+    return Scene(0.25, objects, whiskers, path)
+
+
+@pytest.mark.parametrize(("samples", "rule"), [(600, "line extent"), (200, "line spacing")])
+def test_the_default_eps_separates_the_objects_a_simulated_robot_touched(
+    samples: int, rule: str
+) -> None:
+    """Step 1 of 8 whiskers along the path (the simulator says which object each contact is
+    on): the default DBSCAN gives one cluster per object, no noise, no mixed cluster, at the
+    fine sampling (eps from the extent of the lines) and at a 3 times coarser one (from the
+    line spacing)."""
+    scene = array_scene(samples)
+    results = simulate(scene, workers=1)
+    points, ids, touched = [], [], []
+    for result in results:
+        rows = np.flatnonzero(np.isin(result.phase, [SamplePhase.TIP, SamplePhase.TANGENTIAL]))
+        points.append(result.p_W_m[rows])
+        ids += [result.name] * len(rows)
+        touched.append(result.object[rows])
+    p, truth = np.concatenate(points), np.concatenate(touched)
+    assert set(truth) == {0, 1, 2}
+    clusters = cluster_points(p, whisker_lines(p, ids))
+    assert clusters.eps_rule == rule
+    assert clusters.n_clusters == 3 and np.all(clusters.labels >= 0)
+    for k in range(3):
+        assert len(set(truth[clusters.labels == k])) == 1
+
+
+def test_a_figure_of_many_whiskers_and_objects_is_drawn(tmp_path: Path) -> None:
+    """25 whiskers and 14 meshes: past the qualitative palettes and the legend's cap."""
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-0.05, 0.05, (500, 3))
+    ids = [f"w{i % 25}" for i in range(500)]
+    labels = np.arange(500) % 15 - 1  # 14 objects and some noise
+    triangle = np.array([[0, 1, 2]])
+    meshes = [(f"object{k}", points[labels == k][:3], triangle) for k in range(14)]
+    target = tmp_path / "many.png"
+    plot_map(target, MapLayers(title="world map: 14 objects", points=points, whisker_ids=ids,
+                               labels=labels, meshes=meshes))
+    width, height = png_size(target)
+    assert width >= 1200 and height >= 700

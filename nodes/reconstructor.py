@@ -365,7 +365,8 @@ class BatchCollector:
     A batch holds at most ``drain_limit`` messages, so the first wrench of a burst (a tick of
     many whiskers) goes out after at most that many decodes, not after the whole burst. A
     batch that reaches its limit means a backlog: the next one drains up to ``max_batch``
-    and the limit drops back once a batch ends below it.
+    and the limit drops back once a batch ends below it. ``drained`` says whether the last
+    batch ended on an empty queue (everything sent before it has been read, poses too).
     """
 
     def __init__(self, receive: Callable[[float], Received | None], drain_limit: int,
@@ -377,13 +378,19 @@ class BatchCollector:
         self.drain_limit = drain_limit
         self.max_batch = max_batch
         self.limit = drain_limit
+        self.drained = True
 
     def collect(self, timeout_s: float) -> tuple[list[Wrenches], EndOfStream | None]:
         """The next batch (see :func:`collect_batch`) and the limit for the one after."""
         batch, eos = collect_batch(self._receive, timeout_s, self.limit, self._on_pose,
                                    self._end_topic)
+        self.drained = eos is None and len(batch) < self.limit
         self.limit = self.max_batch if len(batch) >= self.limit else self.drain_limit
         return batch, eos
+
+
+BACKLOG_TIMEOUTS = 10.0
+"""Under a backlog that never drains, a wrench waits this many ``pose_timeout_s`` for its pose."""
 
 
 class PoseWait:
@@ -391,8 +398,12 @@ class PoseWait:
 
     A wrench is ready when it carries its clamp pose, or when every frame it was measured in
     can be looked up in the map frame at its stamp (the pose stream has passed it); one that
-    has waited ``timeout_s`` is let through too, and its rows then count as ``no_pose``. The
-    order of the wrenches is kept: one that waits holds back those behind it.
+    has waited ``timeout_s`` is let through too, and its rows then count as ``no_pose``, but
+    only once the input queue has been drained since (``take(drained=True)``): under a
+    backlog the pose it waits for may be queued behind other wrenches, and a pose that was
+    sent is not missing. A permanent backlog still ends the wait, after
+    ``BACKLOG_TIMEOUTS`` x ``timeout_s``. The order of the wrenches is kept: one that waits
+    holds back those behind it.
     """
 
     def __init__(self, frames: FrameBuffer | None, map_frame: str, timeout_s: float,
@@ -415,10 +426,11 @@ class PoseWait:
         """A pose arrived: what can be looked up has changed."""
         self._newest.clear()
 
-    def take(self) -> list[Wrenches]:
-        """The wrenches from the front that are ready or have waited ``timeout_s``."""
+    def take(self, drained: bool = True) -> list[Wrenches]:
+        """The wrenches from the front that are ready or have waited long enough: ``timeout_s``
+        when the input queue is ``drained``, ``BACKLOG_TIMEOUTS`` x ``timeout_s`` when not."""
         out: list[Wrenches] = []
-        deadline = self._clock() - self.timeout_s
+        deadline = self._clock() - self.timeout_s * (1.0 if drained else BACKLOG_TIMEOUTS)
         while self._queue:
             arrived, msg = self._queue[0]
             if arrived > deadline and not self._ready(msg):
@@ -536,7 +548,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
         wait.add(batch)
         if eos is not None:
             ends.append(eos)
-        ready = wait.take()
+        ready = wait.take(batches.drained)
         for outcome in reconstruct_messages(ready, rod, frames, params.map_frame) if ready else ():
             if outcome.contacts is not None:
                 publisher.publish(outcome.contacts)

@@ -680,6 +680,67 @@ def test_a_pose_stream_that_stops_makes_wrenches_no_pose_after_the_timeout() -> 
                                rtol=0, atol=1e-15)
 
 
+def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> None:
+    """The node reads its input 0.3 s per message (slow next to pose_timeout_s 0.5 s): the
+    pose that covers the first wrenches is 8 messages behind them in the queue. Every wrench
+    gets its pose; only once the queue is empty and the timeout has passed are the wrenches
+    past the last pose no_pose, and a backlog that never drains ends the wait at 10 timeouts."""
+    from vibrissa.frames import Transform
+    from vibrissa.msgs import RobotPose
+    from vibrissa.nodes.reconstructor import BACKLOG_TIMEOUTS, PoseWait, robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
+                Whisker("b", 0.03, 9e-5, Transform.from_xyz_rpy([0, -0.02, 0.01], [1.5, 0, 0]))]
+    frames = robot_frames(whiskers)
+    now = [100.0]
+
+    def pose(stamp: float) -> RobotPose:
+        return RobotPose(stamp=stamp, frame_id="world", child_frame_id="base_link",
+                         position=[stamp, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0])
+
+    queue: list[Any] = [pose(0.0), *(_robot_wrench(0.001 * k, k) for k in range(1, 9)),
+                            pose(0.1), _robot_wrench(0.2, 9)]
+
+    def receive(timeout_s: float) -> Received | None:
+        if not queue:
+            now[0] += timeout_s
+            return None
+        now[0] += 0.3
+        return Received("/robot/x", queue.pop(0), b"", Header(1, 0), 0.0)
+
+    wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
+
+    def on_pose(msg: RobotPose) -> None:
+        frames.add(msg.frame_id, msg.child_frame_id, msg.stamp,
+                   Transform.from_quaternion(msg.orientation, msg.position))
+        wait.poses_changed()
+
+    rods = {w.name: w.scale for w in whiskers}
+    batches = BatchCollector(receive, drain_limit=2, max_batch=3, on_pose=on_pose)
+    taken: list[tuple[int, int]] = []  # (seq, no_pose rows) as each wrench is let through
+    while queue:
+        batch, _ = batches.collect(0.0)
+        wait.add(batch)
+        ready = wait.take(batches.drained)
+        if ready:
+            taken += [(m.seq, out.no_pose) for m, out in
+                      zip(ready, reconstruct_messages(ready, rods, frames, "world"), strict=True)]
+    # each waited up to 2.4 s for its pose, and it came: none is no_pose
+    assert taken == [(seq, 0) for seq in range(1, 9)]
+    batches.collect(0.0)
+    assert batches.drained and len(wait) == 1  # seq 9 (stamp 0.2) is past the last pose
+    now[0] += 0.5
+    (late,) = wait.take(batches.drained)
+    assert late.seq == 9 and reconstruct_messages([late], rods, frames, "world")[0].no_pose == 2
+    # a backlog that never drains: wait BACKLOG_TIMEOUTS x timeout_s, not forever
+    wait.add([_robot_wrench(0.3, 10)])
+    now[0] += 0.5 * BACKLOG_TIMEOUTS - 0.01
+    assert wait.take(drained=False) == []
+    now[0] += 0.02
+    assert [m.seq for m in wait.take(drained=False)] == [10]
+
+
 def test_rows_of_a_whisker_the_robot_does_not_have_are_counted_and_named() -> None:
     from vibrissa.frames import Transform
     from vibrissa.nodes.reconstructor import robot_frames

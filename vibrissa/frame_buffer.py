@@ -63,7 +63,9 @@ class _Edge:
 
     def at(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Positions (n, 3) and quaternions (n, 4) at stamps ``t`` (n,) within the kept ones:
-        position linear, orientation slerp between the two poses around each stamp."""
+        position linear, orientation slerp between the two poses around each stamp; at a kept
+        stamp, that pose bit for bit (whether newer poses have arrived or not), so that a
+        lookup does not depend on when it is made."""
         if self.static is not None:
             return (np.tile(self.static.translation, (len(t), 1)),
                     np.tile(self.static.quaternion_xyzw, (len(t), 1)))
@@ -72,8 +74,12 @@ class _Edge:
             return np.tile(p[0], (len(t), 1)), np.tile(q[0], (len(t), 1))
         k = np.clip(np.searchsorted(stamps, t, side="right") - 1, 0, len(stamps) - 2)
         frac = (t - stamps[k]) / (stamps[k + 1] - stamps[k])
-        return (p[k] + frac[:, None] * (p[k + 1] - p[k]),
-                quaternion_slerp(q[k], q[k + 1], frac))
+        p_t = p[k] + frac[:, None] * (p[k + 1] - p[k])  # exact at frac 0, not always at 1
+        q_t = quaternion_slerp(q[k], q[k + 1], frac)
+        newest = frac == 1.0  # t is the newest stamp
+        if newest.any():
+            p_t[newest], q_t[newest] = p[-1], q[-1]
+        return p_t, q_t
 
 
 @dataclass

@@ -52,6 +52,23 @@ def test_lookup_interpolates_as_slerp_and_a_straight_line_and_composes_the_mount
         assert (R_many[i] * X_WC.rotation.inv()).magnitude() < 1e-14
 
 
+def test_a_lookup_does_not_depend_on_when_it_is_made() -> None:
+    """At each pose's stamp, looked up as soon as that pose is the newest and again once all
+    have arrived: the same pose bit for bit (a live node and a replay see the poses at
+    different moments and must place a wrench identically)."""
+    live, later = FrameBuffer(100.0), robot_buffer()
+    live.set_static("base_link", "w0/clamp", MOUNT)
+    first: list[tuple[np.ndarray, np.ndarray]] = []
+    for k in range(len(T)):
+        live.add("world", "base_link", float(T[k]), Transform(R[k], P[k]))
+        rows = live.lookup_rows("world", ["w0/clamp"], [T[k]])
+        assert rows.ok.all()
+        first.append((rows.p[0], rows.q_xyzw[0]))
+    rows = later.lookup_rows("world", ["w0/clamp"] * len(T), T)
+    assert all(np.array_equal(rows.p[k], first[k][0]) and np.array_equal(rows.q_xyzw[k], first[k][1])
+               for k in range(len(T)))
+
+
 def test_a_straight_line_robot_moves_linearly_in_time() -> None:
     buffer = FrameBuffer()
     buffer.add("odom", "base_link", 1.0, Transform(translation=[0.0, 0.0, 0.0]))

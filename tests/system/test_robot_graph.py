@@ -5,6 +5,10 @@ wrench and pose topics replays to the same points bit for bit."""
 from __future__ import annotations
 
 import json
+import os
+import re
+import signal
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -14,6 +18,7 @@ import pytest
 
 from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, entries, node, set_param
 from vibrissa.msgs import ContactPointArray, EndOfStream
+from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.scene_file import load_scene
 from vibrissa.scene import SamplePhase, reconstruct_along, simulate
 from vibrissa.status import ContactStatus
@@ -133,3 +138,47 @@ def test_a_bag_of_the_wrench_and_pose_topics_replays_to_the_same_points(
     assert rc == 0, ended.text()
     assert arrays == robot_run["arrays"]  # every field, bit for bit
     assert counters["no_pose"] == 0
+
+
+def test_a_killed_reconstructor_respawns_and_the_loss_is_counted(robot_run: dict[str, Any]) -> None:
+    """kill -9 of the reconstructor a third of the way along the path, with respawn: the
+    respawned one places the rest (the same points as the undisturbed run, bit for bit), the
+    run ends by itself, and what went by while it was down is counted as lost."""
+    assert robot_run["rc"] == 0, robot_run["text"]
+    tmp: Path = robot_run["tmp"]
+    launch_entries = entries("robot.yaml")
+    set_param(node(launch_entries, "reconstructor"), "wait_for", ["/mapper", "/probe"])
+    samples = len(load_scene(SCENE).path.t)
+    launch = Launch(tmp, launch_entries, f"out:={tmp / 'respawn'}", f"scene:={SCENE}",
+                    "rate:=200", "respawn:=true")  # 200 path samples/s: 8 s, room to respawn
+    probe = Probe(launch.endpoints(), [CONTACT])
+    arrays: list[ContactPointArray] = []
+    try:
+        pid = int(launch.wait_line(r"started 'reconstructor' \(pid (\d+)\)").group(1))
+        deadline = time.monotonic() + TIMEOUT_S
+        while (not arrays or arrays[-1].seq < samples // 3) and time.monotonic() < deadline:
+            rx = probe.sub.receive(0.2)
+            if rx is not None and isinstance(rx.msg, ContactPointArray):
+                arrays.append(rx.msg)
+        os.kill(pid, signal.SIGKILL)
+        more, _ = probe._until_end(ContactPointArray, TIMEOUT_S)
+        arrays += more
+        rc = launch.wait()
+    finally:
+        probe.close()
+        launch.kill()
+    text = launch.text()
+    assert rc == EXIT_LOST_DATA, text  # it completed, with loss
+    assert "respawned 'reconstructor'" in text
+    seqs = [a.seq for a in arrays]
+    assert seqs == sorted(seqs) and seqs[-1] == samples - 1  # to the path's end
+    missing = samples - len(set(seqs))
+    assert missing > 0
+    match = re.search(r"data did not arrive in full: 'reconstructor' lost (\d+)", text)
+    assert match and int(match.group(1)) > 0, text
+    # what the respawned node placed is what the undisturbed run placed
+    before = {a.seq: a for a in robot_run["arrays"]}
+    for array in arrays:
+        same = before[array.seq]
+        for w, p in zip(array.whisker_ids, array.point, strict=True):
+            assert np.array_equal(p, same.point[same.whisker_ids.index(w)]), (array.seq, w)

@@ -14,7 +14,8 @@ SCENE.yaml (world frame W, z up)::
     path: path.csv        # columns t,x,y,z,qx,qy,qz,qw: robot poses X_WR; relative to the scene
 
 Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample) and
-``DIR/summary.json`` (per whisker: contact episodes, phase changes, samples per phase).
+``DIR/summary.json`` (per whisker: contact episodes, phase changes, samples per phase), by
+`vibrissa.runtime.scene_results`, which reads them back too (the wrench source's ``simulated``).
 
 Also Step 2 of such a scene offline: ``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o
 POINTS.csv`` (``WRENCH_COLUMNS`` in, ``POINT_COLUMNS`` out, row for row).
@@ -24,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import sys
 from collections import Counter
@@ -35,65 +35,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.cli import tables
-from vibrissa.cli.tables import cell, write_csv
+from vibrissa.runtime.csv_text import cell, write_csv
 from vibrissa.runtime.scene_file import SceneError, load_scene
-from vibrissa.scene import SamplePhase, Scene, WhiskerResult, reconstruct_along, simulate
+from vibrissa.runtime.scene_results import SCENE_COLUMNS, write_results
+from vibrissa.scene import reconstruct_along, simulate
 from vibrissa.status import ContactPhase
 
 FloatArray = NDArray[np.float64]
-
-SCENE_COLUMNS: dict[str, tuple[str, str]] = {
-    "t": ("s", "time of the path sample"),
-    "phase": ("-", "none, tip, tangential or unresolved (the straight rod inside an object "
-                   "after a snap-off, or a sample Step 1 stepped over)"),
-    "s1": ("m", "arc length from the clamp to the contact (empty without one)"),
-    "f0x": ("N", "clamp reaction force on the rod, in the clamp frame C, x"),
-    "f0y": ("N", "clamp reaction force, C's y"),
-    "f0z": ("N", "clamp reaction force, C's z (the rod's axis at the clamp)"),
-    "m0x": ("N m", "clamp reaction moment on the rod about the clamp point, C's x"),
-    "m0y": ("N m", "clamp reaction moment, C's y"),
-    "m0z": ("N m", "clamp reaction moment, C's z (0: no twist)"),
-    "px": ("m", "true contact point in W, x (empty without one)"),
-    "py": ("m", "true contact point in W, y"),
-    "pz": ("m", "true contact point in W, z"),
-    "object": ("-", "name of the object touched (empty: none)"),
-}
-"""The columns of ``DIR/<whisker>.csv``: (unit, meaning)."""
-
-def write_results(out: Path, scene: Scene, results: list[WhiskerResult]) -> list[Path]:
-    """``<whisker>.csv`` per whisker and ``summary.json``; returns the files written."""
-    written = []
-    names = [obj.name for obj in scene.objects]
-    for result in results:
-        rows = (
-            [cell(result.t[i]), SamplePhase(result.phase[i]).label, cell(result.s1_m[i]),
-             *(cell(v) for v in result.f0_n[i]), *(cell(v) for v in result.m0_nm[i]),
-             *(cell(v) for v in result.p_W_m[i]),
-             names[result.object[i]] if result.object[i] >= 0 else ""]
-            for i in range(len(result.t))
-        )
-        target = out / f"{result.name}.csv"
-        write_csv(target, tuple(SCENE_COLUMNS), rows)
-        written.append(target)
-    summary = {
-        "units": {"t": "s", "length": "m", "force": "N", "moment": "N m",
-                  "wrench": "clamp reaction on the rod about the clamp point, in the clamp frame"},
-        "whiskers": {
-            r.name: {
-                "episodes": [{"object": e.object, "t_first_contact": e.t_first_contact,
-                              "end": e.end,
-                              "phase_changes": [{"t": t, "from": a, "to": b}
-                                                for t, a, b in e.phase_changes]}
-                             for e in r.episodes],
-                "samples_per_phase": r.counts(),
-            }
-            for r in results
-        },
-    }
-    target = out / "summary.json"
-    target.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    written.append(target)
-    return written
 
 
 def print_sample_progress(whisker: str, sample: int, samples: int) -> None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.reconstruct import Reconstruction
+from vibrissa.runtime.csv_text import cell, write_csv
 from vibrissa.status import ContactPhase, ContactStatus
 from vibrissa.sweep import STATE_NAMES, Sweep
 
@@ -99,19 +100,6 @@ class WrenchTable:
     f0: NDArray[np.float64]
     m0: NDArray[np.float64]
     has_z0: bool = False
-
-
-def cell(value: float) -> str:
-    value = float(value)
-    return "" if math.isnan(value) else repr(value)
-
-
-def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(columns)
-        writer.writerows(rows)
 
 
 def write_sweep_csv(path: Path, sweep: Sweep) -> None:

@@ -13,12 +13,13 @@ Publishes
     mode ``sim`` with ``array``: the trails are the whiskers of one rigid array moving together;
     one message per clamp step with a row per whisker, then ``EndOfStream``.
 ``topic`` : WhiskerWrenchArray, and ``pose_topic`` (default ``/robot/pose``) : RobotPose
-    mode ``scene``: a robot's whiskers along its path (``vibrissa simulate`` of ``scene``, run
-    on start): one array per path sample with a row per whisker that has a wrench there (an
-    ``unresolved`` sample has none), each row in its clamp frame with no pose, stamped with
-    the path's time; and the robot's pose X_WR (``world`` -> ``robot_frame``) at
-    ``pose_rate_hz`` on the path's clock, each published ``pose_delay_s`` after its stamp in
-    the stream (and a last one at the path's end); then ``EndOfStream`` on both.
+    mode ``scene``: a robot's whiskers along its path (``vibrissa simulate`` of ``scene``: read
+    from its output folder ``simulated``, or run on start when that is empty): one array per
+    path sample with a row per whisker that has a wrench there (an ``unresolved`` sample has
+    none), each row in its clamp frame with no pose, stamped with the path's time; and the
+    robot's pose X_WR (``world`` -> ``robot_frame``) at ``pose_rate_hz`` on the path's clock,
+    each published ``pose_delay_s`` after its stamp in the stream (and a last one at the
+    path's end); then ``EndOfStream`` on both.
 every WhiskerWrench, WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order, each message with its own type (a topic may mix both), followed by the
@@ -54,6 +55,7 @@ from vibrissa.runtime.params import (
 )
 from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.runtime.scene_file import load_scene
+from vibrissa.runtime.scene_results import read_results
 from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate
 from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
@@ -87,6 +89,11 @@ class WrenchSourceParams:
         ``replay`` (play ``bag``).
     scene
         Mode ``scene``: the scene file (objects, whiskers, path; ``vibrissa simulate``).
+    simulated
+        Mode ``scene``: the output folder (``-o DIR``) of ``vibrissa simulate`` of ``scene``,
+        whose ``<whisker>.csv`` files are played (read strictly with
+        `vibrissa.runtime.scene_results.read_results` when the parameters load, and again at
+        start); empty: simulate on start.
     pose_topic, map_frame, robot_frame
         Mode ``scene``: where the robot's poses go, and the frames they join.
     pose_rate_hz
@@ -98,7 +105,8 @@ class WrenchSourceParams:
         Mode ``scene``: standard deviation of Gaussian noise added to each wrench component
         (N, N m), and the seed of the noise.
     workers
-        Mode ``scene``: processes of the simulation on start (0: one per core).
+        Mode ``scene``: processes of the simulation on start (0: one per core; unused with
+        ``simulated``).
     surface
         Object spec for ``vibrissa.surfaces.parse_surface``, units of L (mode ``sim``).
     y0
@@ -156,6 +164,7 @@ class WrenchSourceParams:
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
     scene: str = ""
+    simulated: str = ""
     pose_topic: str = "/robot/pose"
     map_frame: str = WORLD_FRAME
     robot_frame: str = ROBOT_FRAME
@@ -184,6 +193,9 @@ class WrenchSourceParams:
         if self.mode == "scene":
             require(bool(self.scene), "scene", self.scene, "a scene file in mode 'scene'")
             require_parsed("scene", self.scene, load_scene)
+            if self.simulated:
+                require_parsed("simulated", self.simulated,
+                               lambda folder: read_results(folder, load_scene(self.scene)))
             require_parsed("pose_topic", self.pose_topic, validate_name)
             require_positive("pose_rate_hz", self.pose_rate_hz)
             for key in ("pose_delay_s", "noise_force_n", "noise_moment_nm", "workers"):
@@ -348,18 +360,24 @@ def _pose(params: WrenchSourceParams, stamp: float, p: FloatArray, q: FloatArray
 
 
 def run_scene(node: Node, params: WrenchSourceParams) -> int:
-    """Simulate the scene, then play it (paced by ``rate_hz``: path samples per second);
-    returns the number of messages sent, -1 when ``wait_for`` timed out."""
+    """Read the scene's results from ``simulated`` (or simulate it), then play them (paced by
+    ``rate_hz``: path samples per second); returns the number of messages sent, -1 when
+    ``wait_for`` timed out."""
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
                                      hwm=DEFAULT_HWM * 10)
     poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
                                   hwm=DEFAULT_HWM * 10)
     scene = load_scene(params.scene)
-    node.set_state("running", f"simulating {len(scene.whiskers)} whisker(s) along the path")
     t0 = time.monotonic()
-    results = simulate(scene, workers=params.workers or None)
-    log.info("%s: simulated %d whisker(s) x %d path samples in %.1f s: %s", node.fqn,
-             len(results), len(scene.path.t), time.monotonic() - t0,
+    if params.simulated:
+        node.set_state("running", f"reading the results in {params.simulated}")
+        results = read_results(params.simulated, scene)
+    else:
+        node.set_state("running", f"simulating {len(scene.whiskers)} whisker(s) along the path")
+        results = simulate(scene, workers=params.workers or None)
+    size = f"{len(results)} whisker(s) x {len(scene.path.t)} path samples"
+    how = f"read {size} from {params.simulated}" if params.simulated else f"simulated {size}"
+    log.info("%s: %s in %.1f s: %s", node.fqn, how, time.monotonic() - t0,
              "; ".join(f"{r.name} {r.counts()}" for r in results))
     for topic in (params.topic, params.pose_topic):
         if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,

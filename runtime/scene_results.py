@@ -1,0 +1,200 @@
+"""The results of ``vibrissa simulate SCENE.yaml -o DIR``, written and read back exactly:
+``DIR/<whisker>.csv`` (`SCENE_COLUMNS`, one row per path sample) and ``DIR/summary.json``
+(per whisker: contact episodes, phase changes, samples per phase).
+
+Floats are written by `vibrissa.runtime.csv_text` (``repr``, NaN as an empty cell), so
+`read_results` gives back the arrays of `vibrissa.scene.simulate` bit for bit (NaN where they
+were NaN). Reading is strict: every error names the file, and the row and column where there
+is one.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vibrissa.runtime.csv_text import cell, write_csv
+from vibrissa.runtime.scene_file import SceneError
+from vibrissa.scene import Episode, SamplePhase, Scene, WhiskerResult
+
+__all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "read_results", "write_results"]
+
+SCENE_COLUMNS: dict[str, tuple[str, str]] = {
+    "t": ("s", "time of the path sample"),
+    "phase": ("-", "none, tip, tangential or unresolved (the straight rod inside an object "
+                   "after a snap-off, or a sample Step 1 stepped over)"),
+    "s1": ("m", "arc length from the clamp to the contact (empty without one)"),
+    "f0x": ("N", "clamp reaction force on the rod, in the clamp frame C, x"),
+    "f0y": ("N", "clamp reaction force, C's y"),
+    "f0z": ("N", "clamp reaction force, C's z (the rod's axis at the clamp)"),
+    "m0x": ("N m", "clamp reaction moment on the rod about the clamp point, C's x"),
+    "m0y": ("N m", "clamp reaction moment, C's y"),
+    "m0z": ("N m", "clamp reaction moment, C's z (0: no twist)"),
+    "px": ("m", "true contact point in W, x (empty without one)"),
+    "py": ("m", "true contact point in W, y"),
+    "pz": ("m", "true contact point in W, z"),
+    "object": ("-", "name of the object touched (empty: none)"),
+}
+"""The columns of ``DIR/<whisker>.csv``: (unit, meaning)."""
+
+SUMMARY_FILE = "summary.json"
+
+_NUMBERS = ("t", "s1", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z", "px", "py", "pz")
+_WRENCH = _NUMBERS[2:8]
+_PHASES = {phase.label: phase for phase in SamplePhase}
+
+
+def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> list[Path]:
+    """``out/<whisker>.csv`` per result and ``out/summary.json``; returns the files written."""
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    names = [obj.name for obj in scene.objects]
+    for result in results:
+        rows = (
+            [cell(result.t[i]), SamplePhase(result.phase[i]).label, cell(result.s1_m[i]),
+             *map(cell, result.f0_n[i]), *map(cell, result.m0_nm[i]),
+             *map(cell, result.p_W_m[i]),
+             names[result.object[i]] if result.object[i] >= 0 else ""]
+            for i in range(len(result.t))
+        )
+        target = out / f"{result.name}.csv"
+        write_csv(target, tuple(SCENE_COLUMNS), rows)
+        written.append(target)
+    summary = {
+        "units": {"t": "s", "length": "m", "force": "N", "moment": "N m",
+                  "wrench": "clamp reaction on the rod about the clamp point, in the clamp frame"},
+        "whiskers": {
+            r.name: {
+                "episodes": [{"object": e.object, "t_first_contact": e.t_first_contact,
+                              "end": e.end,
+                              "phase_changes": [{"t": t, "from": a, "to": b}
+                                                for t, a, b in e.phase_changes]}
+                             for e in r.episodes],
+                "samples_per_phase": r.counts(),
+            }
+            for r in results
+        },
+    }
+    target = out / SUMMARY_FILE
+    target.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    written.append(target)
+    return written
+
+
+def read_results(folder: str | Path, scene: Scene) -> list[WhiskerResult]:
+    """The results `write_results` wrote to ``folder`` for ``scene``: one per whisker of the
+    scene, in its order (other files in the folder are not read), with the episodes of
+    ``summary.json``.
+
+    Raises
+    ------
+    SceneError
+        Naming the file (and the row and column) of a problem: no folder, a whisker of
+        the scene without its CSV, a missing column, a row of the wrong length, a cell that
+        is not a number, a ``t`` that is not the scene path's time (exactly: the results of
+        another scene or path), an unknown phase or object, a wrench that is not finite in a
+        sample that has one (all but ``unresolved``), or a ``summary.json`` without the
+        whisker's episodes.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise SceneError(f"{folder}: not a folder (expected the -o DIR of vibrissa simulate)")
+    results = [_read_whisker(folder / f"{whisker.name}.csv", whisker.name, scene)
+               for whisker in scene.whiskers]
+    episodes = _read_episodes(folder / SUMMARY_FILE, [r.name for r in results])
+    for result in results:
+        result.episodes = episodes[result.name]
+    return results
+
+
+def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
+    """One ``<whisker>.csv``; its rows count from 1 after the header, as in the scene's path
+    file (`vibrissa.runtime.scene_file.load_path`)."""
+    if not path.is_file():
+        raise SceneError(f"{path}: missing: the scene's whisker {name!r} has no results there")
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.reader(handle))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise SceneError(f"{path}: {exc}") from None
+    header = [c.strip() for c in rows[0]] if rows else []
+    missing = [c for c in SCENE_COLUMNS if c not in header]
+    if missing:
+        raise SceneError(f"{path}: missing column(s) {', '.join(missing)} (the columns are "
+                         f"{','.join(SCENE_COLUMNS)})")
+    t_path = scene.path.t
+    body = rows[1:]
+    if len(body) != len(t_path):
+        raise SceneError(f"{path}: {len(body)} rows, but the scene's path has {len(t_path)} "
+                         f"samples (the results of another scene or path?)")
+    for i, row in enumerate(body):
+        if len(row) != len(header):
+            raise SceneError(f"{path}: row {i + 1}: expected {len(header)} values, got {len(row)}")
+    column = {c: [row[header.index(c)].strip() for row in body] for c in SCENE_COLUMNS}
+    values = np.empty((len(body), len(_NUMBERS)))
+    for j, key in enumerate(_NUMBERS):
+        try:
+            values[:, j] = [float(text) if text else math.nan for text in column[key]]
+        except ValueError:
+            i = next(i for i, text in enumerate(column[key]) if not _is_number(text))
+            raise SceneError(f"{path}: row {i + 1}, column {key}: {column[key][i]!r} is not a "
+                             f"number") from None
+    wrong_t = np.flatnonzero(values[:, 0] != t_path)
+    if len(wrong_t):
+        i = int(wrong_t[0])
+        raise SceneError(f"{path}: row {i + 1}, column t: {column['t'][i]!r} is not the path's "
+                         f"time {float(t_path[i])!r} (the results of another scene or path?)")
+    for i, label in enumerate(column["phase"]):
+        if label not in _PHASES:
+            raise SceneError(f"{path}: row {i + 1}, column phase: {label!r} is not a phase "
+                             f"({', '.join(_PHASES)})")
+    phase = np.array([_PHASES[label] for label in column["phase"]], dtype=np.int64)
+    # What the player sends: every sample but an unresolved one has a wrench, and the wire
+    # takes finite numbers only.
+    no_wrench = np.argwhere((phase != SamplePhase.UNRESOLVED)[:, None] & ~np.isfinite(values[:, 2:8]))
+    if len(no_wrench):
+        i, key = int(no_wrench[0, 0]), _WRENCH[no_wrench[0, 1]]
+        raise SceneError(f"{path}: row {i + 1}, column {key}: a {column['phase'][i]} sample "
+                         f"needs a finite wrench, got {column[key][i]!r}")
+    objects = {obj.name: i for i, obj in enumerate(scene.objects)}
+    for i, obj in enumerate(column["object"]):
+        if obj and obj not in objects:
+            raise SceneError(f"{path}: row {i + 1}, column object: {obj!r} is not an object of "
+                             f"the scene ({', '.join(objects) or 'it has none'})")
+    touched = np.array([objects[obj] if obj else -1 for obj in column["object"]], dtype=np.int64)
+    s1, f0, m0, p_W = (values[:, cols].copy() for cols in (1, slice(2, 5), slice(5, 8), slice(8, 11)))
+    return WhiskerResult(name, t_path, phase, s1, f0, m0, p_W, touched, [])
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text or "nan")
+    except ValueError:
+        return False
+    return True
+
+
+def _read_episodes(path: Path, names: Sequence[str]) -> dict[str, list[Episode]]:
+    """Each whisker's episodes from ``summary.json``."""
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise SceneError(f"{path}: {exc}") from None
+    episodes: dict[str, list[Episode]] = {}
+    for name in names:
+        try:
+            items: Any = doc["whiskers"][name]["episodes"]
+            episodes[name] = [
+                Episode(str(e["object"]), float(e["t_first_contact"]), str(e["end"]),
+                        [(float(c["t"]), str(c["from"]), str(c["to"])) for c in e["phase_changes"]])
+                for e in items]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SceneError(f"{path}: whiskers.{name}.episodes: not as vibrissa simulate writes "
+                             f"them ({type(exc).__name__}: {exc})") from None
+    return episodes

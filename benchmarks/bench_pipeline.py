@@ -32,8 +32,28 @@ and ``pooled p99 x`` is the ratio of the p99 of all repeats' latencies together:
 set by the few stalls of a few ms that happen to fall in it (on a shared VM they hit the floor
 as much as the pipeline), and pooling the repeats counts more of them.
 
-Run: ``python benchmarks/bench_pipeline.py [--duration 2] [--rates 1000,...] [--repeat 1]``.
-Not a test.
+The robot graph (``robot``): the pipeline of ``vibrissa``, but every row is in its clamp frame
+(``w00/clamp``, ..., no pose fields) and the reconstructor places it through a robot description
+(32 whiskers, each its own mount, L and EI, in a temporary file: ``robot``) and the robot's pose
+X_WR (RobotPose ``world`` -> ``base_link``, 100 Hz on /bench/pose, sent by the load),
+interpolated at the wrench's stamp::
+
+    load --/bench/wrench, /bench/pose--> reconstructor (robot, pose_topic) --/bench/contact--> sink
+
+Tick k carries the stamp k x the tick period and pose j the stamp j x 10 ms (one timeline). The
+frame buffer never extrapolates, so a wrench stamped t waits for a pose stamped >= t: sent in real time, poses at
+100 Hz would hold a wrench up to 10 ms, which is the pose stream's period, not the graph's cost.
+``robot`` sends each pose one pose period ahead of its stamp (the pose stamped t + 10 ms with the
+tick stamped t, as a predicting localisation would), so no wrench waits and the latency, from the
+wrench's send, is the graph's. ``robot-rt`` (only with ``--modes``) sends each pose at its stamp:
+its latency includes that wait. After every run of a node the bench reads the reconstructor's row
+counters from its status: ``no pose`` counts rows placed without a pose, and a run where a row got
+no point (``contacts`` < rows) is not sustained. ``vs vib`` is the overhead over the pipeline
+(``vibrissa``, same unit, rate and repeat): mode / vibrissa - 1 of p50 and p99, the median over
+the repeats.
+
+Run: ``python benchmarks/bench_pipeline.py [--duration 2] [--rates 1000,...] [--repeat 1]
+[--units wrench,tick] [--modes bare,...,robot]``. Not a test.
 """
 
 from __future__ import annotations
@@ -44,54 +64,137 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import numpy as np
 import zmq
 
-from vibrissa.msgs import Ping, peek_type
+from vibrissa.msgs import NodeStatus, Ping, peek_type
 from vibrissa.wire import Endpoints
 from vibrissa.wire.security import Keys, create_keys
+
+if TYPE_CHECKING:
+    from vibrissa.scene import Whisker
 
 WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
 UNITS = ("wrench", "tick")  # one WhiskerWrench per whisker, or one WhiskerWrenchArray per tick
-MODES = ("bare", "proxied", "vibrissa", "curve")
-# the floor, the floor through the proxy, the pipeline, the pipeline encrypted and authenticated
+MODES = ("bare", "proxied", "vibrissa", "curve", "robot", "robot-rt")
+# the floor, the floor through the proxy, the pipeline, the pipeline encrypted and authenticated,
+# the robot graph (poses one period ahead), the robot graph with poses in real time
+DEFAULT_MODES = MODES[:5]
+FLOORS = ("bare", "proxied")
+ROBOT_MODES = ("robot", "robot-rt")
+POSE_TOPIC = "/bench/pose"
+POSE_PERIOD_S = 0.01  # the robot's poses at 100 Hz
+ROW_COUNTERS = ("contacts", "no_contact", "bad_pose", "no_pose", "unknown_whisker")
+# the reconstructor's counters of rows: each row lands in one
 
 
 # -- helper processes (python bench_pipeline.py _proxy | _load | _echo ...) ----------------------
 
 
-def _payloads(n: int, unit: str) -> list[bytes]:
-    """``n`` encoded messages, seq 0..n-1, cycling over valid wrenches and whiskers: a
-    WhiskerWrench each (``unit`` wrench) or a WhiskerWrenchArray of WHISKERS rows (tick)."""
+def _robot() -> tuple[Whisker, ...]:
+    """The robot of the ``robot`` modes: WHISKERS whiskers ``w00``.., each its own rod (L 30-61 mm,
+    EI 1.0-2.55e-4 N m^2) and mount X_RC: 4 columns x 8 rows on the robot's right, pointing right
+    (C's +z along R's -y), each tilted its own way."""
+    from vibrissa.frames import Transform
+    from vibrissa.scene import Whisker
+
+    return tuple(Whisker(f"w{j:02d}", 0.03 + 0.001 * j, 1e-4 * (1 + 0.05 * j),
+                         Transform.from_xyz_rpy([-0.01 * (j // 8), -0.02, 0.005 * (j % 8)],
+                                                [np.pi / 2 + 0.02 * j, 0.01 * j, -0.015 * j]))
+                 for j in range(WHISKERS))
+
+
+def _write_robot(path: Path) -> None:
+    """``_robot()`` as a robot description (a file of ``whiskers``, `load_robot`'s format)."""
+    import yaml
+
+    path.write_text(yaml.safe_dump({"whiskers": [
+        {"name": w.name, "length_m": w.length_m, "ei_nm2": w.ei_nm2,
+         "mount": {"position_m": w.X_RC.translation.tolist(),
+                   "quaternion_xyzw": w.X_RC.quaternion_xyzw.tolist()}}
+        for w in _robot()]}, sort_keys=False), encoding="utf-8")
+
+
+def _stamp(k: int, period_s: float) -> float:
+    """The stamp of sample ``k`` of a stream at ``period_s``, s, rounded to the ns so that a tick
+    and a pose meant at the same time carry the same float."""
+    return round(k * period_s, 9)
+
+
+def _payloads(n: int, unit: str, robot: bool, tick_s: float) -> list[bytes]:
+    """``n`` encoded messages, seq 0..n-1, tick k stamped k x ``tick_s``: a WhiskerWrench each
+    (``unit`` wrench, WHISKERS per tick) or a WhiskerWrenchArray of WHISKERS rows (tick). Row j of
+    a tick is whisker j's, cycling over the wrenches that have a contact on its rod: ``whisker{j}``
+    (the unit rod) with its clamp pose in world, or (``robot``) the robot's ``w{j}`` in its clamp
+    frame, without pose."""
+    from vibrissa.frames import WORLD_FRAME, clamp_frame
     from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray, encode
-    from vibrissa.reconstruct import reconstruct
+    from vibrissa.reconstruct import reconstruct_si
+    from vibrissa.units import RodScale
 
     rng = np.random.default_rng(1)
     p0, f0, m0 = rng.uniform(-1, 1, (512, 3)), rng.normal(size=(512, 3)), rng.normal(size=(512, 3))
-    valid = np.flatnonzero(reconstruct(p0, f0, m0).valid)
+    whiskers = _robot() if robot else ()
+    names = [w.name for w in whiskers] or [f"whisker{j}" for j in range(WHISKERS)]
+    rods = [w.scale for w in whiskers] or [RodScale()] * WHISKERS
+    frames = [clamp_frame(name) for name in names]
+    # each whisker's candidate wrenches in SI (W, 512, 3), and those with a contact on its rod
+    f_si = np.stack([f0 * rod.force_n for rod in rods])
+    m_si = np.stack([m0 * rod.moment_nm for rod in rods])
+    valid = reconstruct_si(np.tile([0.0, 0.0, 0.0, 1.0], (WHISKERS * 512, 1)),
+                           np.tile(p0, (WHISKERS, 1)), f_si.reshape(-1, 3), m_si.reshape(-1, 3),
+                           [rod for rod in rods for _ in range(512)]).valid.reshape(WHISKERS, 512)
+    choices = [np.flatnonzero(v) for v in valid]
+    counts = np.array([len(c) for c in choices])
+    # row r (tick r // W, whisker j = r % W) takes whisker j's valid wrench number r mod its count
+    r = np.arange(n * WHISKERS // _per_tick(unit))
+    j = r % WHISKERS
+    k = np.concatenate(choices)[np.cumsum(counts)[j] - counts[j] + r % counts[j]]
+    p_rows, f_rows, m_rows = p0[k], f_si[j, k], m_si[j, k]
+    q_rows = np.tile([0.0, 0.0, 0.0, 1.0], (len(r), 1))
+
+    def pose(rows: slice | int) -> dict[str, Any]:
+        """The clamp poses of ``rows`` in world (none for the robot's)."""
+        return {} if robot else {"pose_frame_id": WORLD_FRAME, "clamp_position": p_rows[rows],
+                                 "clamp_orientation": q_rows[rows]}
+
     out = []
     for i in range(n):
         if unit == "tick":
-            k = valid[np.arange(i * WHISKERS, (i + 1) * WHISKERS) % len(valid)]
+            s = slice(i * WHISKERS, (i + 1) * WHISKERS)
             out.append(encode(WhiskerWrenchArray(
-                stamp=0.0, seq=i, pose_frame_id="world", frame_ids=[f"whisker{j}/clamp" for j in range(WHISKERS)],
-                whisker_ids=[f"whisker{j}" for j in range(WHISKERS)], clamp_position=p0[k],
-                clamp_orientation=np.tile([0.0, 0.0, 0.0, 1.0], (WHISKERS, 1)), f0=f0[k],
-                m0=m0[k])))
-            continue
-        k = valid[i % len(valid)]
-        out.append(encode(WhiskerWrench(
-            stamp=0.0, seq=i, whisker_id=f"whisker{i % WHISKERS}",
-            frame_id=f"whisker{i % WHISKERS}/clamp", pose_frame_id="world",
-            clamp_position=p0[k], clamp_orientation=[0.0, 0.0, 0.0, 1.0], f0=f0[k], m0=m0[k])))
+                stamp=_stamp(i, tick_s), seq=i, whisker_ids=names, frame_ids=frames,
+                f0=f_rows[s], m0=m_rows[s], **pose(s))))
+        else:
+            out.append(encode(WhiskerWrench(
+                stamp=_stamp(i // WHISKERS, tick_s), seq=i, whisker_id=names[i % WHISKERS],
+                frame_id=frames[i % WHISKERS], f0=f_rows[i], m0=m_rows[i], **pose(i))))
     return out
+
+
+def _poses(ticks: int, tick_s: float, lead_s: float) -> tuple[list[bytes], np.ndarray]:
+    """The robot's poses X_WR (RobotPose, world -> base_link) every POSE_PERIOD_S from stamp 0 to
+    the first after the last of ``ticks`` ticks stamped k x ``tick_s``, encoded, and when each is
+    due, s on the ticks' clock: ``lead_s`` before its stamp. The robot drives an arc (0.1 m/s,
+    0.3 rad/s) and sways, so every lookup interpolates."""
+    from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
+    from vibrissa.msgs import RobotPose, encode
+
+    stamps = np.array([_stamp(j, POSE_PERIOD_S)
+                       for j in range(int((ticks - 1) * tick_s / POSE_PERIOD_S) + 2)])
+    payloads = [encode(RobotPose(
+        stamp=float(t), frame_id=WORLD_FRAME, child_frame_id=ROBOT_FRAME,
+        position=[0.1 * t, 0.02 * np.sin(2.0 * t), 0.0],
+        orientation=[0.0, 0.0, np.sin(0.15 * t), np.cos(0.15 * t)])) for t in stamps]
+    return payloads, stamps - lead_s
 
 
 def _per_tick(unit: str) -> int:
@@ -99,25 +202,41 @@ def _per_tick(unit: str) -> int:
     return WHISKERS if unit == "wrench" else 1
 
 
-def _pace(send: Any, n: int, rate: float, per_tick: int, t_send: np.ndarray) -> None:
+def _pace(send: Callable[[int], None], n: int, rate: float, per_tick: int, t_send: np.ndarray,
+          side: tuple[Callable[[int], None], np.ndarray] | None = None) -> None:
     """Call ``send(i)`` for i < n, ``per_tick`` messages per tick, ticks of WHISKERS wrenches
-    at ``rate`` wrenches/s."""
+    at ``rate`` wrenches/s (tick k due k x WHISKERS / ``rate`` s after the start). ``side`` =
+    (``send_side``, ``due_s``): a second stream, ``send_side(j)`` at ``due_s[j]`` s after the
+    start (before a tick due at the same time), what is left of it after the last tick."""
     tick = WHISKERS / rate
     t0 = time.perf_counter() + 0.05
     clock_offset = time.time() - time.perf_counter()
-    for start in range(0, n, per_tick):
-        due = t0 + (start // per_tick) * tick
-        delay = due - time.perf_counter()
+    send_side, side_due = side if side is not None else (send, np.zeros(0))
+    j = 0
+
+    def until(due: float) -> None:
+        delay = t0 + due - time.perf_counter()
         if delay > 0:
             time.sleep(delay)
+
+    for start in range(0, n, per_tick):
+        due = (start // per_tick) * tick
+        while j < len(side_due) and side_due[j] <= due + 1e-9:
+            until(side_due[j])
+            send_side(j)
+            j += 1
+        until(due)
         for i in range(start, min(n, start + per_tick)):
             t_send[i] = time.perf_counter() + clock_offset
             send(i)
+    for k in range(j, len(side_due)):
+        until(side_due[k])
+        send_side(k)
 
 
 def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) -> None:
-    payloads = _payloads(n, unit)
     per_tick = _per_tick(unit)
+    payloads = _payloads(n, unit, mode in ROBOT_MODES, WHISKERS / rate)
     t_send = np.zeros(n)
     if mode in ("bare", "proxied"):
         context: zmq.Context[Any] = zmq.Context()
@@ -139,18 +258,28 @@ def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) ->
         sock.close()
         context.term()
     else:
-        from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray
+        from vibrissa.msgs import RobotPose, WhiskerWrench, WhiskerWrenchArray
         from vibrissa.runtime import Node
 
         msg_type = WhiskerWrench if unit == "wrench" else WhiskerWrenchArray
         with Node("load", "/bench", handle_signals=False) as node:
             pub = node.create_publisher("wrench", msg_type, wait_for=["reconstructor"],
                                         hwm=n + 10)
-            if not node.wait_for_subscribers("wrench", ["reconstructor"], 60.0):
-                raise SystemExit("reconstructor not ready")
+            topics = ["wrench"]
+            side = None
+            if mode in ROBOT_MODES:
+                poses, due = _poses(n // per_tick, WHISKERS / rate,
+                                    POSE_PERIOD_S if mode == "robot" else 0.0)
+                pose_pub = node.create_publisher(POSE_TOPIC, RobotPose, wait_for=["reconstructor"],
+                                                 hwm=len(poses) + 10)
+                topics.append(POSE_TOPIC)
+                side = (lambda j: pose_pub.publish_raw(poses[j]), due)
+            for topic in topics:
+                if not node.wait_for_subscribers(topic, ["reconstructor"], 60.0):
+                    raise SystemExit("reconstructor not ready")
             print("ready", flush=True)
             sys.stdin.readline()
-            _pace(lambda i: pub.publish_raw(payloads[i]), n, rate, per_tick, t_send)
+            _pace(lambda i: pub.publish_raw(payloads[i]), n, rate, per_tick, t_send, side)
             pub.publish_end_of_stream(node.fqn)
     np.save(out, t_send)
 
@@ -170,6 +299,7 @@ def _echo(source: str, endpoint: str, via_proxy: bool) -> None:
     else:
         pub.bind(endpoint)
     sub.connect(source)
+    print("ready", flush=True)  # on a loaded machine our imports can outlast the bench's 1.5 s sleep
     out_topic = CONTACT.encode() + b"\0"
     try:
         while True:
@@ -216,14 +346,22 @@ class Run:
     first_latency_s: np.ndarray
     send_s: float
     backlog_s: float
+    rows: int  # wrenches sent
+    counters: dict[str, int] = field(default_factory=dict)  # the reconstructor's, at the end
 
     @property
     def lost(self) -> int:
         return self.sent - self.received
 
     @property
+    def no_point(self) -> int:
+        """Rows the reconstructor published no point for (0 for the floors)."""
+        return self.rows - self.counters["contacts"] if self.counters else 0
+
+    @property
     def sustained(self) -> bool:
-        return self.lost == 0 and self.backlog_s <= max(0.05, 0.05 * self.send_s)
+        return (self.lost == 0 and self.no_point == 0
+                and self.backlog_s <= max(0.05, 0.05 * self.send_s))
 
     def pct(self, q: float, first: bool = False) -> float:
         """Percentile ``q`` of the latency, us (``first``: of the first message of each tick)."""
@@ -257,28 +395,42 @@ def _sink(sock: zmq.Socket[Any], n: int, header_seq: bool, timeout_s: float) -> 
     return t_recv
 
 
-def _announced(endpoints: Endpoints, node: str, topic: str, timeout_s: float = 30.0) -> str:
-    """The direct endpoint ``node`` announces for ``topic`` in its status (a subscriber that
-    reads nothing else connects there, as ``Subscriber`` does)."""
-    from vibrissa.msgs import NodeStatus
+def _node_status(endpoints: Endpoints, node: str, accept: Callable[[NodeStatus], bool],
+                 timeout_s: float) -> NodeStatus:
+    """The first status of ``node`` that ``accept`` takes, else its last one in ``timeout_s``."""
     from vibrissa.wire import STATUS_TOPIC, Subscriber
 
+    last = None
     with Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             rx = statuses.receive(0.1)
-            if rx is not None and isinstance(rx.msg, NodeStatus) and rx.msg.node == node \
-                    and topic in rx.msg.endpoints:
-                return rx.msg.endpoints[topic]
-    raise SystemExit(f"{node} announced no endpoint for {topic} within {timeout_s} s")
+            if rx is not None and isinstance(rx.msg, NodeStatus) and rx.msg.node == node:
+                last = rx.msg
+                if accept(last):
+                    break
+    if last is None:
+        raise SystemExit(f"no status from {node} within {timeout_s} s")
+    return last
+
+
+def _announced(endpoints: Endpoints, node: str, topic: str, timeout_s: float = 30.0) -> str:
+    """The direct endpoint ``node`` announces for ``topic`` in its status (a subscriber that
+    reads nothing else connects there, as ``Subscriber`` does)."""
+    status = _node_status(endpoints, node, lambda s: topic in s.endpoints, timeout_s)
+    if topic not in status.endpoints:
+        raise SystemExit(f"{node} announced no endpoint for {topic} within {timeout_s} s")
+    return status.endpoints[topic]
 
 
 def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> Run:
-    """One run of the pipeline (``mode`` = ``vibrissa``), the floor (``bare``) or the floor
-    through the proxy (``proxied``), sending a message per wrench or per tick (``unit``) at
-    ``rate`` wrenches/s."""
+    """One run of the pipeline (``mode`` = ``vibrissa``, ``curve``, ``robot``, ``robot-rt``),
+    the floor (``bare``) or the floor through the proxy (``proxied``), sending a message per
+    wrench or per tick (``unit``) at ``rate`` wrenches/s."""
     per_tick = _per_tick(unit)
     n = int(rate * duration_s) // WHISKERS * per_tick
+    rows = n * WHISKERS // per_tick
+    counters: dict[str, int] = {}
     out = tmp / f"send-{mode}-{unit}-{int(rate)}.npy"
     context: zmq.Context[Any] = zmq.Context()
     sink = context.socket(zmq.SUB)
@@ -296,7 +448,9 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             helpers.append(load)
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
-            helpers.append(_python(me, "_echo", load_ep, echo_ep, "direct"))
+            echo = _python(me, "_echo", load_ep, echo_ep, "direct", stdout=subprocess.PIPE)
+            helpers.append(echo)
+            assert echo.stdout is not None and echo.stdout.readline().strip() == "ready"
             sink.setsockopt(zmq.SUBSCRIBE, b"")
             sink.connect(echo_ep)
             time.sleep(1.5)  # slow joiners: both subscriptions reach their publishers
@@ -308,7 +462,9 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
             pub_ep, sub_ep = proxy.stdout.readline().split()
             sink.setsockopt(zmq.SUBSCRIBE, CONTACT.encode() + b"\0")
             sink.connect(sub_ep)
-            helpers.append(_python(me, "_echo", sub_ep, pub_ep, "proxy"))
+            echo = _python(me, "_echo", sub_ep, pub_ep, "proxy", stdout=subprocess.PIPE)
+            helpers.append(echo)
+            assert echo.stdout is not None and echo.stdout.readline().strip() == "ready"
             load = _python(me, "_load", "proxied", unit, pub_ep, str(n), str(rate), str(out),
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             helpers.append(load)
@@ -331,10 +487,15 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
             env.update({"VIBRISSA_PUB_ENDPOINT": pub_ep, "VIBRISSA_SUB_ENDPOINT": sub_ep})
             sink.setsockopt(zmq.SUBSCRIBE, CONTACT.encode() + b"\0")
             sink.connect(sub_ep)
+            params: list[str] = []
+            if mode in ROBOT_MODES:
+                _write_robot(tmp / "robot.yaml")
+                params = ["--param", f"robot:={tmp / 'robot.yaml'}",
+                          "--param", f"pose_topic:={POSE_TOPIC}"]
             helpers.append(_python("-m", "vibrissa.nodes.reconstructor", "--name",
-                                   "reconstructor", "--namespace", "/bench", env=env))
-            sink.connect(_announced(Endpoints(pub_ep, sub_ep, keys), "/bench/reconstructor",
-                                    CONTACT))
+                                   "reconstructor", "--namespace", "/bench", *params, env=env))
+            endpoints = Endpoints(pub_ep, sub_ep, keys)
+            sink.connect(_announced(endpoints, "/bench/reconstructor", CONTACT))
             load = _python(me, "_load", mode, unit, "", str(n), str(rate), str(out),
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
             helpers.append(load)
@@ -344,6 +505,11 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
         load.stdin.write("go\n")
         load.stdin.flush()
         t_recv = _sink(sink, n, header_seq, timeout_s=30.0 + 2 * duration_s)
+        if header_seq:  # a node: where every row went, once it has counted them all
+            counters = _node_status(
+                endpoints, "/bench/reconstructor",
+                lambda s: sum(s.counters.get(key, 0) for key in ROW_COUNTERS) >= rows, 5.0
+            ).counters
         load.wait(60)
         t_send = np.load(out)
     finally:
@@ -368,40 +534,57 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
     send_s = float(t_send[-1] - t_send[0]) if n > 1 else 0.0
     backlog = float(np.nanmax(t_recv) - t_send[-1]) if ok.any() else np.inf
     return Run(mode, unit, rate, n, int(ok.sum()), latency[ok], first[np.isfinite(first)],
-               send_s, backlog)
+               send_s, backlog, rows, counters)
 
 
 def _pooled_p99(runs: list[Run]) -> float:
-    """p99 of the latencies of all ``runs`` together, us."""
-    return float(np.percentile(np.concatenate([r.latency_s for r in runs]), 99)) * 1e6
+    """p99 of the latencies of all ``runs`` together, us (NaN without any)."""
+    latency = np.concatenate([r.latency_s for r in runs]) if runs else np.zeros(0)
+    return float(np.percentile(latency, 99)) * 1e6 if len(latency) else np.nan
 
 
-def _table(runs: list[Run], unit: str, rates: list[float], repeats: int) -> None:
+def _ratio(runs: list[Run], base: list[Run], q: float) -> float:
+    """Median over the repeats of ``runs``' percentile ``q`` over ``base``'s of the same repeat
+    (NaN without a base)."""
+    if not base:
+        return np.nan
+    return float(np.median([a.pct(q) / b.pct(q) for a, b in zip(runs, base, strict=True)]))
+
+
+def _table(runs: list[Run], unit: str, rates: list[float], repeats: int,
+           modes: list[str]) -> None:
     """Medians over the repeats per rate and mode; ratios are medians of per-repeat ratios."""
     what = "wrench published -> its ContactPoint" if unit == "wrench" else (
         "WhiskerWrenchArray of a tick published -> its ContactPointArray")
-    print(f"\nper {unit} ({what}); {repeats} run(s) each, medians")
-    header = (f"{'rate/s':>8} {'mode':>9} {'sent':>7} {'lost':>6} {'p50 us':>9} {'p99 us':>9} "
-              f"{'max us':>9} {'first p50':>9} {'backlog ms':>10} {'sustained':>9} {'p50 x':>7} "
-              f"{'p99 x':>7} {'pooled p99 x':>12}")
+    print(f"\nper {unit} ({what}); {repeats} run(s) each, medians; x: over bare; vs vib: "
+          "over vibrissa - 1")
+    header = (f"{'rate/s':>8} {'mode':>9} {'sent':>7} {'lost':>6} {'no pose':>7} {'p50 us':>9} "
+              f"{'p99 us':>9} {'max us':>9} {'first p50':>9} {'backlog ms':>10} {'sustained':>9} "
+              f"{'p50 x':>7} {'p99 x':>7} {'pooled p99 x':>12} {'vs vib p50':>10} "
+              f"{'vs vib p99':>10}")
     print(header)
     print("-" * len(header))
     for rate in rates:
         by_mode = {mode: [r for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode)]
-                   for mode in MODES}
+                   for mode in modes}
+        bare, vibrissa = by_mode.get("bare", []), by_mode.get("vibrissa", [])
         for mode, mine in by_mode.items():
-            pairs = list(zip(mine, by_mode["bare"], strict=True))
+            no_pose = (f"{max(r.counters.get('no_pose', 0) for r in mine):7d}"
+                       if mine[0].counters else f"{'-':>7}")
+            vs_vib = (f"{(_ratio(mine, vibrissa, 50) - 1) * 100:+9.0f}% "
+                      f"{(_ratio(mine, vibrissa, 99) - 1) * 100:+9.0f}%"
+                      if mode not in (*FLOORS, "vibrissa") else f"{'-':>10} {'-':>10}")
             print(f"{rate:8.0f} {mode:>9} {mine[0].sent:7d} {max(r.lost for r in mine):6d} "
+                  f"{no_pose} "
                   f"{np.median([r.pct(50) for r in mine]):9.0f} "
                   f"{np.median([r.pct(99) for r in mine]):9.0f} "
                   f"{np.median([r.pct(100) for r in mine]):9.0f} "
                   f"{np.median([r.pct(50, first=True) for r in mine]):9.0f} "
                   f"{np.median([r.backlog_s for r in mine]) * 1e3:10.1f} "
                   f"{sum(r.sustained for r in mine):>7d}/{len(mine)} "
-                  f"{np.median([a.pct(50) / b.pct(50) for a, b in pairs]):7.1f} "
-                  f"{np.median([a.pct(99) / b.pct(99) for a, b in pairs]):7.1f} "
-                  f"{_pooled_p99(mine) / _pooled_p99(by_mode['bare']):12.1f}")
-    for mode in MODES:
+                  f"{_ratio(mine, bare, 50):7.1f} {_ratio(mine, bare, 99):7.1f} "
+                  f"{_pooled_p99(mine) / _pooled_p99(bare):12.1f} {vs_vib}")
+    for mode in modes:
         ok = [rate for rate in rates if all(
             r.sustained for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode))]
         best = f"{max(ok):.0f} wrenches/s" if ok else "none of the rates tried"
@@ -426,11 +609,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=1, help="runs per rate, mode and unit")
     parser.add_argument("--units", default=",".join(UNITS),
                         help="what one message carries: wrench, tick or both")
+    parser.add_argument("--modes", default=",".join(DEFAULT_MODES),
+                        help=f"chains to run, of {', '.join(MODES)} (ratios need bare and vibrissa)")
     args = parser.parse_args(argv)
     rates = [float(r) for r in args.rates.split(",")]
     units = [u for u in args.units.split(",") if u]
     if not units or set(units) - set(UNITS):
         parser.error(f"--units: choose from {', '.join(UNITS)}")
+    modes = [m for m in MODES if m in args.modes.split(",")]  # in MODES' order
+    if not modes or set(args.modes.split(",")) - set(MODES):
+        parser.error(f"--modes: choose from {', '.join(MODES)}")
     print(f"{os.cpu_count()} CPUs; {WHISKERS} whiskers per tick; {args.duration:g} s per run",
           flush=True)
     runs: list[Run] = []
@@ -438,31 +626,45 @@ def main(argv: list[str] | None = None) -> int:
         for repeat in range(args.repeat):
             for rate in rates:
                 for unit in units:
-                    for mode in MODES:
+                    for mode in modes:
                         run = measure(mode, unit, rate, args.duration, Path(tmp))
                         runs.append(run)
+                        rows = (f"  no point {run.no_point}  no_pose {run.counters['no_pose']}"
+                                if run.counters else "")
                         print(f"  {repeat} {unit:6s} {mode:8s} {rate:8.0f}/s  p50 "
                               f"{run.pct(50):9.0f} us  p99 {run.pct(99):9.0f} us  first p50 "
                               f"{run.pct(50, first=True):9.0f} us  lost {run.lost}  backlog "
-                              f"{run.backlog_s * 1e3:.1f} ms", flush=True)
+                              f"{run.backlog_s * 1e3:.1f} ms{rows}", flush=True)
     for unit in units:
-        _table(runs, unit, rates, args.repeat)
+        _table(runs, unit, rates, args.repeat, modes)
+    nodes = [mode for mode in modes if mode not in FLOORS]
     for unit in units:
-        for mode in ("vibrissa", "curve"):
+        for mode in nodes:
             target = [r for r in runs if (r.unit, r.rate, r.mode) == (unit, 32000, mode)]
-            if target:
-                lost = max(r.lost for r in target)
-                sustained = sum(r.sustained for r in target)
-                print(f"32 whiskers x 1 kHz, per {unit} ({mode}): "
-                      f"{'zero loss' if lost == 0 else f'LOST {lost}'}, sustained in "
-                      f"{sustained}/{len(target)} runs, pooled p99 {_pooled_p99(target):.0f} us")
+            if not target:
+                continue
+            lost = max(r.lost for r in target)
+            no_point, no_pose = (max(r.no_point for r in target),
+                                 max(r.counters["no_pose"] for r in target))
+            plain = [r for r in runs if (r.unit, r.rate, r.mode) == (unit, 32000, "vibrissa")]
+            overhead = (f"; over per-{unit} vibrissa (same run): p50 "
+                        f"{(_ratio(target, plain, 50) - 1) * 100:+.0f} %, p99 "
+                        f"{(_ratio(target, plain, 99) - 1) * 100:+.0f} %, pooled p99 "
+                        f"{(_pooled_p99(target) / _pooled_p99(plain) - 1) * 100:+.0f} %"
+                        if plain and mode != "vibrissa" else "")
+            print(f"32 whiskers x 1 kHz, per {unit} ({mode}): "
+                  f"{'zero loss' if lost == 0 else f'LOST {lost}'}, rows without a point "
+                  f"{no_point}, no_pose {no_pose}, sustained in "
+                  f"{sum(r.sustained for r in target)}/{len(target)} runs, p99 "
+                  f"{np.median([r.pct(99) for r in target]):.0f} us (median), pooled "
+                  f"{_pooled_p99(target):.0f} us{overhead}")
         plain = [r for r in runs if (r.unit, r.mode) == (unit, "vibrissa")]
-        curve = [r for r in runs if (r.unit, r.mode) == (unit, "curve")]
-        if plain and curve:
-            pairs = list(zip(curve, plain, strict=True))
-            print(f"CURVE overhead per {unit}: p50 x{np.median([a.pct(50) / b.pct(50) for a, b in pairs]):.2f}, "
-                  f"p99 x{np.median([a.pct(99) / b.pct(99) for a, b in pairs]):.2f} "
-                  "(median over rates and repeats of curve / vibrissa)")
+        for mode in nodes:
+            other = [r for r in runs if (r.unit, r.mode) == (unit, mode)]
+            if plain and other and mode != "vibrissa":
+                print(f"{mode} over vibrissa per {unit}: p50 x{_ratio(other, plain, 50):.2f}, "
+                      f"p99 x{_ratio(other, plain, 99):.2f} "
+                      f"(median over rates and repeats of {mode} / vibrissa)")
     return 0
 
 

@@ -43,9 +43,9 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TypeAlias
+from typing import TypeAlias, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -71,7 +71,7 @@ from vibrissa.runtime.params import require, require_non_negative, require_parse
 from vibrissa.runtime.scene_file import load_robot
 from vibrissa.scene import Whisker
 from vibrissa.status import NO_CONTACT
-from vibrissa.units import RodScale
+from vibrissa.units import RodScale, rod_units
 from vibrissa.wire.topics import resolve_topic, validate_name
 from vibrissa.wire.transport import Received
 
@@ -177,6 +177,39 @@ Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
 Rods: TypeAlias = RodScale | Mapping[str, RodScale]
 """One rod for every whisker, or each whisker's by name (the robot description)."""
 
+_MAX_ROW_LISTS = 64
+
+
+class RodTable(Mapping[str, RodScale]):
+    """Each whisker's rod by name, and the rods of a message's rows as Step 2 takes them: an
+    array sends the same whiskers tick after tick, so their units are made once."""
+
+    def __init__(self, rods: Mapping[str, RodScale]) -> None:
+        self._rods = dict(rods)
+        self._rows: dict[tuple[str, ...], tuple[FloatArray, list[int]]] = {}
+
+    def __getitem__(self, name: str) -> RodScale:
+        return self._rods[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._rods)
+
+    def __len__(self) -> int:
+        return len(self._rods)
+
+    def rows(self, whiskers: Sequence[str]) -> tuple[FloatArray, list[int]]:
+        """The units (N, 3) of the rows' rods (`vibrissa.units.rod_units`; an unknown
+        whisker's are L = EI = 1), and the rows of whiskers not in the table."""
+        key = tuple(whiskers)
+        found = self._rows.get(key)
+        if found is None:
+            if len(self._rows) >= _MAX_ROW_LISTS:
+                self._rows.clear()
+            units = rod_units([self._rods.get(w, _UNIT_ROD) for w in key])
+            units.flags.writeable = False
+            found = self._rows[key] = (units, [i for i, w in enumerate(key) if w not in self._rods])
+        return found
+
 
 @dataclass
 class Reconstructed:
@@ -218,7 +251,7 @@ class _Rows:
     f0: FloatArray
     m0: FloatArray
     placed: npt.NDArray[np.bool_]
-    rods: list[RodScale] | None  # per row (None: the one rod of every row)
+    units: FloatArray | None  # of each row's rod (N, 3) (None: the one rod of every row)
     frame_id: str
     no_pose: int = 0
     unknown_whisker: int = 0
@@ -232,11 +265,10 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str) 
     n = len(whiskers)
     placed = np.ones(n, bool)
     errors: list[str] = []
-    rods: list[RodScale] | None = None
+    units: FloatArray | None = None
     missing: list[int] = []
     if not isinstance(rod, RodScale):
-        rods = [rod.get(w, _UNIT_ROD) for w in whiskers]
-        missing = [i for i, w in enumerate(whiskers) if w not in rod]
+        units, missing = (rod if isinstance(rod, RodTable) else RodTable(rod)).rows(whiskers)
         if missing:
             errors.append(f"whisker {whiskers[missing[0]]!r} is not in the robot description "
                           f"({', '.join(rod)})")
@@ -260,7 +292,7 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str) 
         placed[missing] = True  # counted as unknown whiskers, not as rows without a pose
         no_pose = n - int(placed.sum())
     placed[missing] = False
-    return _Rows(q, p, f0, m0, placed, rods, frame_id, no_pose, len(missing), errors)
+    return _Rows(q, p, f0, m0, placed, units, frame_id, no_pose, len(missing), errors)
 
 
 def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
@@ -278,16 +310,21 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
     bit, and a wrench gives the same bits as the same row of an array.
     """
     parts = [_rows(msg, rod, frames, map_frame) for msg in msgs]
-    if len(parts) == 1 and parts[0].placed.all():  # the rows as they are
+    whole = len(parts) == 1 and parts[0].placed.all()  # the rows as they are
+    if whole:
         part = parts[0]
         q, p0, f0, m0 = part.q, part.p, part.f0, part.m0
-        rods: Rods | list[RodScale] = part.rods if part.rods is not None else rod
     else:
         q, p0, f0, m0 = (np.vstack([getattr(part, name)[part.placed] for part in parts])
                          for name in ("q", "p", "f0", "m0"))
-        rods = rod if isinstance(rod, RodScale) else [
-            r for part in parts for r, ok in zip(part.rods or (), part.placed, strict=True) if ok]
-    result = reconstruct_si(q, p0, f0, m0, rods)  # type: ignore[arg-type]
+    rods: RodScale | FloatArray
+    if isinstance(rod, RodScale):
+        rods = rod
+    elif whole:
+        rods = cast(FloatArray, parts[0].units)
+    else:
+        rods = np.vstack([cast(FloatArray, part.units)[part.placed] for part in parts])
+    result = reconstruct_si(q, p0, f0, m0, rods)
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
     pose_ok, flags = result.pose_ok.tolist(), status.tolist()
@@ -413,7 +450,6 @@ class PoseWait:
         self.timeout_s = timeout_s
         self._clock = clock
         self._queue: deque[tuple[float, Wrenches]] = deque()
-        self._newest: dict[str, float] = {}  # frame -> newest stamp it can be looked up at
 
     def __len__(self) -> int:
         return len(self._queue)
@@ -421,10 +457,6 @@ class PoseWait:
     def add(self, msgs: Sequence[Wrenches]) -> None:
         now = self._clock()
         self._queue.extend((now, msg) for msg in msgs)
-
-    def poses_changed(self) -> None:
-        """A pose arrived: what can be looked up has changed."""
-        self._newest.clear()
 
     def take(self, drained: bool = True) -> list[Wrenches]:
         """The wrenches from the front that are ready or have waited long enough: ``timeout_s``
@@ -448,16 +480,8 @@ class PoseWait:
         if msg.has_pose or self.frames is None:
             return True
         sources = [msg.frame_id] if isinstance(msg, WhiskerWrench) else msg.frame_ids
-        for source in dict.fromkeys(sources):
-            newest = self._newest.get(source)
-            if newest is None:
-                newest = self.frames.newest(self.map_frame, source)
-                if newest is None:
-                    return False
-                self._newest[source] = newest
-            if newest < msg.stamp:
-                return False
-        return True
+        newest = self.frames.newest_rows(self.map_frame, sources)
+        return newest is not None and newest >= msg.stamp
 
 
 def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
@@ -503,12 +527,12 @@ def _compile_kernels(rod: Rods) -> None:
     frames.lookup_rows("world", ["warm-up/clamp"] * 2, [0.5, 0.5])
 
 
-def _on_pose(frames: FrameBuffer, wait: PoseWait, counters: dict[str, int], fqn: str
+def _on_pose(frames: FrameBuffer, counters: dict[str, int], fqn: str
              ) -> Callable[[RobotPose], None]:
     def on_pose(pose: RobotPose) -> None:
         try:
-            frames.add(pose.frame_id, pose.child_frame_id, pose.stamp,
-                       Transform.from_quaternion(pose.orientation, pose.position))
+            frames.add_pose(pose.frame_id, pose.child_frame_id, pose.stamp, pose.position,
+                            pose.orientation)
         except ValueError as exc:  # a zero quaternion, a frame that would close a loop, ...
             counters["bad_robot_pose"] += 1
             if counters["bad_robot_pose"] == 1 or counters["bad_robot_pose"] % 1000 == 0:
@@ -516,7 +540,6 @@ def _on_pose(frames: FrameBuffer, wait: PoseWait, counters: dict[str, int], fqn:
                             counters["bad_robot_pose"], exc)
             return
         counters["robot_poses"] += 1
-        wait.poses_changed()
     return on_pose
 
 
@@ -526,7 +549,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
     counters.update(contacts=0, no_contact=0, bad_pose=0, no_pose=0, unknown_whisker=0,
                     robot_poses=0, bad_robot_pose=0, batches=0, max_batch=0)
     whiskers = load_robot(params.robot) if params.robot else ()
-    rod: Rods = {w.name: w.scale for w in whiskers} if whiskers else params.rod
+    rod: Rods = RodTable({w.name: w.scale for w in whiskers}) if whiskers else params.rod
     frames = robot_frames(whiskers, params.robot_frame, params.history_s) if whiskers else None
     topics: dict[str, object] = {params.input_topic: (WhiskerWrench, WhiskerWrenchArray)}
     if frames is not None:
@@ -535,7 +558,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
     publisher = node.create_publisher(params.output_topic, (ContactPoint, ContactPointArray),
                                       wait_for=params.wait_for)
     wait = PoseWait(frames, params.map_frame, params.pose_timeout_s)
-    on_pose = _on_pose(frames, wait, counters, node.fqn) if frames is not None else (
+    on_pose = _on_pose(frames, counters, node.fqn) if frames is not None else (
         lambda pose: None)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, on_pose,
                              resolve_topic(params.input_topic, node.namespace))

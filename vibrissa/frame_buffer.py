@@ -22,7 +22,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from vibrissa.frames import Transform, quaternion_products, quaternion_rotate, quaternion_slerp
+from vibrissa.frames import (
+    Transform,
+    mounted_poses,
+    quaternion_products,
+    quaternion_rotate,
+    quaternion_slerp,
+)
 
 __all__ = ["ConnectivityError", "ExtrapolationError", "FrameBuffer", "FrameError", "RowPoses"]
 
@@ -69,6 +75,14 @@ class _Edge:
         if self.static is not None:
             return (np.tile(self.static.translation, (len(t), 1)),
                     np.tile(self.static.quaternion_xyzw, (len(t), 1)))
+        if len(t) == 1:  # a tick: the two poses around it, without the arrays of all kept
+            i = bisect.bisect_right(self.stamps, float(t[0])) - 1
+            if i == len(self.stamps) - 1:  # the newest stamp (or the only pose): that pose
+                return self.poses[i][None, :3].copy(), self.poses[i][None, 3:].copy()
+            pose0, pose1 = self.poses[i], self.poses[i + 1]
+            frac = (t - self.stamps[i]) / (self.stamps[i + 1] - self.stamps[i])
+            return (pose0[None, :3] + frac[:, None] * (pose1[:3] - pose0[:3]),
+                    quaternion_slerp(pose0[None, 3:], pose1[None, 3:], frac))
         stamps, p, q = self.kept()
         if len(stamps) == 1:  # one pose, and every stamp is its stamp
             return np.tile(p[0], (len(t), 1)), np.tile(q[0], (len(t), 1))
@@ -111,14 +125,16 @@ class FrameBuffer:
             raise ValueError(f"history_s must be > 0, got {history_s}")
         self.history_s = history_s
         self._edges: dict[str, _Edge] = {}  # by child frame
+        self._frames: set[str] = set()
         self._anchors: dict[str, tuple[str, FloatArray, FloatArray]] = {}  # lookup_rows'
         self._plans: dict[tuple[str, ...], _RowPlan] = {}  # lookup_rows' of frame lists
-
+        self._newest: dict[tuple[str, str], float | None] = {}  # newest's, by (target, anchor)
+        self._splits: dict[tuple[str, str], tuple[list[str], list[str]]] = {}  # _lookup's
 
     @property
     def frames(self) -> set[str]:
         """Every frame named so far."""
-        return set(self._edges) | {edge.parent for edge in self._edges.values()}
+        return set(self._frames)
 
     def set_static(self, parent: str, child: str, X_parent_child: Transform) -> None:
         """A transform that does not change (a mount); replaces an earlier static one."""
@@ -126,17 +142,34 @@ class FrameBuffer:
         edge.static = X_parent_child
         self._anchors.clear()
         self._plans.clear()
+        self._newest.clear()
 
     def add(self, parent: str, child: str, stamp: float, X_parent_child: Transform) -> None:
         """The pose of ``child`` in ``parent`` at ``stamp`` (s); a pose at a stamp already kept
         replaces it, one older than the kept history is ignored."""
+        self.add_pose(parent, child, stamp, X_parent_child.translation,
+                      X_parent_child.quaternion_xyzw)
+
+    def add_pose(self, parent: str, child: str, stamp: float, position: ArrayLike,
+                 quaternion_xyzw: ArrayLike) -> None:
+        """`add` from a position (3,) and a quaternion (x, y, z, w) (normalised here) as a pose
+        message has them, without building a `Transform`; ValueError names what is wrong (a
+        stamp, position or quaternion that is not finite, a zero quaternion)."""
         if not math.isfinite(stamp):
             raise ValueError(f"stamp of {child} in {parent} must be finite, got {stamp}")
+        p = np.asarray(position, dtype=float).reshape(3)
+        q = np.asarray(quaternion_xyzw, dtype=float).reshape(4)
+        norm = math.sqrt(float(q @ q))
+        if not (np.isfinite(p).all() and 0.0 < norm < math.inf):
+            raise ValueError(f"pose of {child} in {parent} at t={stamp!r}: position {p.tolist()} "
+                             f"and quaternion {q.tolist()} must be finite, the quaternion "
+                             "non-zero")
         edge = self._edge(parent, child, static=False)
         if edge.stamps and stamp < edge.stamps[-1] - self.history_s:
             return
         edge.arrays = None
-        pose = np.concatenate([X_parent_child.translation, X_parent_child.quaternion_xyzw])
+        self._newest.clear()
+        pose = np.concatenate([p, q / norm])
         k = bisect.bisect_left(edge.stamps, stamp)
         if k < len(edge.stamps) and edge.stamps[k] == stamp:
             edge.poses[k] = pose
@@ -157,19 +190,47 @@ class FrameBuffer:
     def newest(self, target: str, source: str) -> float | None:
         """The newest stamp at which ``source`` can be looked up in ``target``: the oldest of
         the newest poses of the stamped edges between them (inf when all are static); None
-        when a frame is unknown or the two are not joined (yet)."""
+        when a frame is unknown or the two are not joined (yet). Kept until the next change:
+        the clamps of a robot share one answer (their anchor's)."""
+        anchored = self._anchor(source)
+        return None if anchored is None else self._newest_at(target, anchored[0])
+
+    def newest_rows(self, target: str, sources: Sequence[str]) -> float | None:
+        """`newest` of the known ``sources`` (the rows of a sensor array): the oldest of
+        theirs (inf with none known), None when a known one is not joined to ``target``. An
+        unknown frame is left out: waiting for poses does not make it known."""
+        plan = self._plans.get(tuple(sources))
+        if plan is None:
+            plan = self._plan(tuple(sources))
+        newest = math.inf
+        for anchor in plan[0]:
+            at_anchor = self._newest_at(target, anchor)
+            if at_anchor is None:
+                return None
+            newest = min(newest, at_anchor)
+        return newest
+
+    def _newest_at(self, target: str, anchor: str) -> float | None:
+        """`newest` of a frame whose edge to its parent is stamped (the static edges below an
+        anchor limit nothing), kept until the next change."""
+        key = (target, anchor)
+        if key in self._newest:
+            return self._newest[key]
         try:
-            up_source, root_source = self._chain(source)
+            up_source, root_source = self._chain(anchor)
             up_target, root_target = self._chain(target)
         except ConnectivityError:
             return None
         if root_source != root_target:
-            return None
-        while up_source and up_target and up_source[-1] == up_target[-1]:  # the common part
-            up_source.pop()
-            up_target.pop()
-        return min((self._edges[f].stamps[-1] for f in up_source + up_target
-                    if self._edges[f].stamps), default=math.inf)
+            newest = None
+        else:
+            while up_source and up_target and up_source[-1] == up_target[-1]:  # the common part
+                up_source.pop()
+                up_target.pop()
+            newest = min((self._edges[f].stamps[-1] for f in up_source + up_target
+                          if self._edges[f].stamps), default=math.inf)
+        self._newest[key] = newest
+        return newest
 
     def lookup_rows(self, target: str, sources: Sequence[str], stamps: ArrayLike) -> RowPoses:
         """X_target_source of each row (n): frame ``sources[i]`` at ``stamps[i]``, for the
@@ -184,12 +245,24 @@ class FrameBuffer:
         n = len(t)
         if len(sources) != n:
             raise ValueError(f"{len(sources)} sources for {n} stamps")
-        out = RowPoses(np.zeros(n, bool), np.full((n, 3), np.nan), np.tile([0.0, 0, 0, 1], (n, 1)),
-                       [])
+        identity = np.zeros((n, 4))
+        identity[:, 3] = 1.0
+        out = RowPoses(np.zeros(n, bool), np.full((n, 3), np.nan), identity, [])
         plan = self._plans.get(tuple(sources))
         if plan is None:
             plan = self._plan(tuple(sources))
         by_anchor, mount_p, mount_q, unknown = plan
+        if not unknown and len(by_anchor) == 1 and n and (t == t[0]).all():
+            # a tick of frames under one moving frame: one pose, composed with every mount
+            (anchor,) = by_anchor
+            try:
+                p_TA, q_TA = self._lookup(target, anchor, t[:1])
+            except FrameError as exc:
+                out.note(str(exc))
+                return out
+            out.p, out.q_xyzw = mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q)
+            out.ok[:] = True
+            return out
         for error in unknown:
             out.note(error)
         for anchor, rows in by_anchor.items():
@@ -252,7 +325,7 @@ class FrameBuffer:
         cached = self._anchors.get(frame)
         if cached is not None:
             return cached
-        if frame not in self.frames:
+        if frame not in self._frames:
             return None
         X = Transform()
         anchor = frame
@@ -285,6 +358,20 @@ class FrameBuffer:
 
     def _lookup(self, target: str, source: str, t: FloatArray) -> tuple[FloatArray, FloatArray]:
         """`lookup_many` as positions (n, 3) and quaternions (n, 4)."""
+        split = self._splits.get((target, source))
+        if split is None:
+            split = self._splits[(target, source)] = self._split(target, source)
+        up_source, up_target = split
+        p_s, q_s = self._compose(up_source, t, target, source)
+        if not up_target:
+            return p_s, q_s
+        p_t, q_t = self._compose(up_target, t, target, source)
+        q_t_inv = q_t * np.array([-1.0, -1.0, -1.0, 1.0])  # the conjugate: R_top_target^-1
+        return quaternion_rotate(q_t_inv, p_s - p_t), quaternion_products(q_t_inv, q_s)
+
+    def _split(self, target: str, source: str) -> tuple[list[str], list[str]]:
+        """The frames from ``source`` and from ``target`` up to (not including) the frame where
+        their chains meet."""
         up_source, root_source = self._chain(source)
         up_target, root_target = self._chain(target)
         if root_source != root_target:
@@ -295,17 +382,17 @@ class FrameBuffer:
         while up_source and up_target and up_source[-1] == up_target[-1]:
             up_source.pop()
             up_target.pop()
-        p_s, q_s = self._compose(up_source, t, target, source)
-        if not up_target:
-            return p_s, q_s
-        p_t, q_t = self._compose(up_target, t, target, source)
-        q_t_inv = q_t * np.array([-1.0, -1.0, -1.0, 1.0])  # the conjugate: R_top_target^-1
-        return quaternion_rotate(q_t_inv, p_s - p_t), quaternion_products(q_t_inv, q_s)
+        if len(self._splits) >= _MAX_PLANS:
+            self._splits.clear()
+        return up_source, up_target
 
     def _compose(self, chain: list[str], t: FloatArray, target: str, source: str
                  ) -> tuple[FloatArray, FloatArray]:
         """X_top_first at each of ``t`` for ``chain`` (child first): positions, quaternions."""
-        p, q = np.zeros((len(t), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+        if not chain:
+            q = np.zeros((len(t), 4))
+            q[:, 3] = 1.0
+            return np.zeros((len(t), 3)), q
         for k, child in enumerate(chain):
             edge = self._edges[child]
             self._check_covered(edge, child, t, target, source)
@@ -319,7 +406,7 @@ class FrameBuffer:
     @staticmethod
     def _check_covered(edge: _Edge, child: str, t: FloatArray, target: str, source: str) -> None:
         stamps = edge.stamps
-        if edge.static is not None:
+        if edge.static is not None or (len(t) == 1 and stamps[0] <= t[0] <= stamps[-1]):
             return
         outside = ~((t >= stamps[0]) & (t <= stamps[-1]))
         if outside.any():
@@ -344,8 +431,11 @@ class FrameBuffer:
                 raise ValueError(f"{child} in {parent} would close a loop: {parent} is already "
                                  f"under {child}")
             edge = self._edges[child] = _Edge(parent)
+            self._frames.update((parent, child))
+            self._splits.clear()
             self._anchors.clear()
             self._plans.clear()
+            self._newest.clear()
         elif edge.parent != parent:
             raise ValueError(f"frame {child} already has the parent {edge.parent}; a frame has "
                              f"one parent (got {parent})")
@@ -363,8 +453,8 @@ class FrameBuffer:
 
     def _chain(self, frame: str) -> tuple[list[str], str]:
         """The frames from ``frame`` up to (not including) its root, and the root."""
-        if frame not in self.frames:
-            known = ", ".join(sorted(self.frames)) or "none yet"
+        if frame not in self._frames:
+            known = ", ".join(sorted(self._frames)) or "none yet"
             raise ConnectivityError(f"unknown frame {frame!r} (known: {known})")
         chain = []
         while frame in self._edges:

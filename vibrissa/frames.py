@@ -253,6 +253,28 @@ def quaternion_rotate(q_xyzw: FloatArray, v: FloatArray) -> FloatArray:
 
 
 @compiled
+def mounted_poses(p_TA: FloatArray, q_TA_xyzw: FloatArray, p_AC: FloatArray, q_AC_xyzw: FloatArray
+                  ) -> tuple[FloatArray, FloatArray]:
+    """Frames C_i mounted at (p_AC (N, 3), q_AC (N, 4)) on a frame A at p_TA (3,), q_TA (4,)
+    (unit) in T: p_TC = p_TA + R_TA p_AC and q_TC = q_TA q_AC, rows (N, 3) and (N, 4); the
+    same bits as `quaternion_rotate` and `quaternion_products` row by row."""
+    n = p_AC.shape[0]
+    p_out, q_out = np.empty((n, 3)), np.empty((n, 4))
+    R = np.empty((3, 3))
+    quaternion_matrix(q_TA_xyzw, R)
+    ax, ay, az, aw = q_TA_xyzw[0], q_TA_xyzw[1], q_TA_xyzw[2], q_TA_xyzw[3]
+    for i in range(n):
+        x, y, z = rotate_vector(R, p_AC[i, 0], p_AC[i, 1], p_AC[i, 2])
+        p_out[i, 0], p_out[i, 1], p_out[i, 2] = p_TA[0] + x, p_TA[1] + y, p_TA[2] + z
+        bx, by, bz, bw = q_AC_xyzw[i, 0], q_AC_xyzw[i, 1], q_AC_xyzw[i, 2], q_AC_xyzw[i, 3]
+        q_out[i, 0] = aw * bx + bw * ax + ay * bz - az * by
+        q_out[i, 1] = aw * by + bw * ay + az * bx - ax * bz
+        q_out[i, 2] = aw * bz + bw * az + ax * by - ay * bx
+        q_out[i, 3] = aw * bw - ax * bx - ay * by - az * bz
+    return p_out, q_out
+
+
+@compiled
 def quaternion_slerp(q0_xyzw: FloatArray, q1_xyzw: FloatArray, fraction: FloatArray) -> FloatArray:
     """Rows (N, 4) a ``fraction`` (N,) of the way from unit q0 to unit q1 on the shortest arc:
     q0 (q0^-1 q1)^f, as scipy's Slerp."""

@@ -29,7 +29,7 @@ from vibrissa.compiled import compiled
 from vibrissa.elastica import S1_TOLERANCE, planar_contact_scalar
 from vibrissa.frames import quaternion_matrix, rotate_vector
 from vibrissa.status import NO_CONTACT, ContactPhase, ContactStatus
-from vibrissa.units import RodScale
+from vibrissa.units import RodScale, rod_units
 
 # ContactPhase as the plain ints compiled code uses.
 PHASE_NONE, PHASE_TIP, PHASE_TANGENTIAL = (int(p) for p in ContactPhase)
@@ -243,7 +243,7 @@ class ReconstructionSI(NamedTuple):
 
 def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
                    f0_C_n: NDArray[np.float64], m0_C_nm: NDArray[np.float64],
-                   rod: RodScale | Sequence[RodScale]) -> ReconstructionSI:
+                   rod: RodScale | Sequence[RodScale] | NDArray[np.float64]) -> ReconstructionSI:
     """Step 2 in SI: contact points from clamp poses and wrenches as a sensor graph has them.
 
     Each row is converted to the paper's units with its rod (``vibrissa.units.RodScale``),
@@ -260,19 +260,20 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         Clamp reaction on the rod in C, N and N m (moment about the clamp point).
     rod
         L and EI of the rod: one for every row, or one per row (N) for whiskers of
-        different rods.
+        different rods, or the units of one per row (N, 3) as `vibrissa.units.rod_units`
+        gives them (a caller that sees the same rows again keeps them).
     """
     # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
     q, p, f0, m0 = (np.require(a, dtype=float, requirements=["C", "W"])
                     for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
     if isinstance(rod, RodScale):
-        units = [np.full(len(q), value) for value in (rod.length_m, rod.force_n, rod.moment_nm)]
+        units = np.tile([rod.length_m, rod.force_n, rod.moment_nm], (len(q), 1))
     else:
-        if len(rod) != len(q):
-            raise ValueError(f"rod: {len(rod)} rods for {len(q)} rows")
-        units = [np.array([(r.length_m, r.force_n, r.moment_nm) for r in rod]).reshape(-1, 3)[:, j]
-                 for j in range(3)]
-    length_m, force_n, moment_nm = (np.ascontiguousarray(u) for u in units)
+        units = rod if isinstance(rod, np.ndarray) else rod_units(rod)
+        if units.shape != (len(q), 3):
+            raise ValueError(f"rod: {len(units)} rods for {len(q)} rows")
+    length_m, force_n, moment_nm = (np.ascontiguousarray(units[:, j], dtype=float)
+                                    for j in range(3))
     pose_ok, point, s1, phase, force, status = _rows_si(q, p, f0, m0, length_m, force_n, moment_nm)
     return ReconstructionSI(pose_ok, point, s1, phase, force, status)
 

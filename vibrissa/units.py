@@ -6,6 +6,7 @@ any length and stiffness has the same dimensionless mechanics.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,3 +41,9 @@ class RodScale:
     def wrench_from_si(self, f0_n: ArrayLike, m0_nm: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(f0, m0) in N and N m to the paper's units."""
         return np.asarray(f0_n, dtype=float) / self.force_n, np.asarray(m0_nm, dtype=float) / self.moment_nm
+
+
+def rod_units(rods: Sequence[RodScale]) -> NDArray[np.float64]:
+    """The units of each rod (N, 3): L (m), EI/L^2 (N) and EI/L (N m), one row per rod."""
+    return np.array([(r.length_m, r.force_n, r.moment_nm) for r in rods],
+                    dtype=float).reshape(-1, 3)

@@ -142,3 +142,26 @@ def test_lookup_rows_equals_lookup_per_row_and_flags_rows_it_cannot_place() -> N
     assert buffer.newest("world", "w1/sensor") == T[-1]
     assert buffer.newest("base_link", "w1/sensor") == np.inf
     assert buffer.newest("world", "w9/clamp") is None
+
+
+def test_a_tick_is_one_pose_composed_with_each_mount_bit_for_bit() -> None:
+    """The tick's fast path (`mounted_poses`) gives the bits of the row-by-row kernels."""
+    from vibrissa.frames import mounted_poses, quaternion_products, quaternion_rotate
+
+    q_TA = Rotation.random(random_state=3).as_quat()
+    p_TA = RNG.normal(size=3)
+    q_AC, p_AC = Rotation.random(32, random_state=4).as_quat(), RNG.normal(size=(32, 3))
+    p, q = mounted_poses(p_TA, q_TA, p_AC, q_AC)
+    q_rows = np.tile(q_TA, (32, 1))
+    assert np.array_equal(p, p_TA + quaternion_rotate(q_rows, p_AC))
+    assert np.array_equal(q, quaternion_products(q_rows, q_AC))
+
+
+def test_newest_rows_is_the_oldest_of_the_known_frames() -> None:
+    buffer = robot_buffer()
+    buffer.set_static("base_link", "w1/clamp", MOUNT)
+    assert buffer.newest_rows("world", ["w0/clamp", "w1/clamp"]) == T[-1]
+    # a frame it does not know holds nothing back: waiting for poses will not make it known
+    assert buffer.newest_rows("world", ["w0/clamp", "ghost/clamp"]) == T[-1]
+    buffer.add("odom", "other", 1.0, Transform())
+    assert buffer.newest_rows("world", ["w0/clamp", "other"]) is None  # not joined to world

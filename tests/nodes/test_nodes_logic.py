@@ -655,7 +655,6 @@ def test_a_pose_stream_that_stops_makes_wrenches_no_pose_after_the_timeout() -> 
     wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
     for stamp in (0.0, 0.01):
         frames.add("world", "base_link", stamp, Transform.from_xyz_rpy([stamp, 0, 0]))
-    wait.poses_changed()
     wait.add([_robot_wrench(0.005, 0), _robot_wrench(0.02, 1), _robot_wrench(0.008, 2)])
     ready = wait.take()
     assert [m.seq for m in ready] == [0]  # seq 1 is newer than the last pose: it waits (and 2 behind it)
@@ -687,7 +686,7 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
     past the last pose no_pose, and a backlog that never drains ends the wait at 10 timeouts."""
     from vibrissa.frames import Transform
     from vibrissa.msgs import RobotPose
-    from vibrissa.nodes.reconstructor import BACKLOG_TIMEOUTS, PoseWait, robot_frames
+    from vibrissa.nodes.reconstructor import BACKLOG_TIMEOUTS, PoseWait, _on_pose, robot_frames
     from vibrissa.scene import Whisker
 
     whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
@@ -711,11 +710,8 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
 
     wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
 
-    def on_pose(msg: RobotPose) -> None:
-        frames.add(msg.frame_id, msg.child_frame_id, msg.stamp,
-                   Transform.from_quaternion(msg.orientation, msg.position))
-        wait.poses_changed()
-
+    counters = {"robot_poses": 0, "bad_robot_pose": 0}
+    on_pose = _on_pose(frames, counters, "/robot/reconstructor")
     rods = {w.name: w.scale for w in whiskers}
     batches = BatchCollector(receive, drain_limit=2, max_batch=3, on_pose=on_pose)
     taken: list[tuple[int, int]] = []  # (seq, no_pose rows) as each wrench is let through

@@ -24,7 +24,6 @@ POINTS.csv`` (``WRENCH_COLUMNS`` in, ``POINT_COLUMNS`` out, row for row).
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import sys
 from collections import Counter
@@ -35,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.cli import tables
-from vibrissa.runtime.csv_text import cell, write_csv
+from vibrissa.runtime.csv_text import cell, read_csv, write_csv
 from vibrissa.runtime.scene_file import SceneError, load_scene
 from vibrissa.runtime.scene_results import SCENE_COLUMNS, write_results
 from vibrissa.scene import reconstruct_along, simulate
@@ -88,20 +87,11 @@ def read_wrenches(path: Path) -> tuple[list[str], FloatArray, list[str], FloatAr
     """WRENCHES.csv: the t texts, t (s), whisker names, f0 (N) and m0 (N m) in clamp frames;
     `SceneError` names the file and the column or row. An empty wrench cell is a missing value
     (Step 2 flags it ``non_finite_input``)."""
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{path}: {exc}") from None
-    header = [c.strip() for c in rows[0]] if rows else []
-    missing = [name for name in WRENCH_COLUMNS if name not in header]
-    if missing:
-        raise SceneError(f"{path.name}: missing column(s) {', '.join(missing)} (the columns are "
-                         f"{','.join(WRENCH_COLUMNS)})")
+    header, body = read_csv(path, WRENCH_COLUMNS)
     at = {name: header.index(name) for name in WRENCH_COLUMNS}
     t_text, names = [], []
-    values = np.empty((len(rows) - 1, 7))
-    for i, row in enumerate(rows[1:]):
+    values = np.empty((len(body), 7))
+    for i, row in enumerate(body):
         if len(row) != len(header):
             raise SceneError(f"{path.name}: row {i + 1}: expected {len(header)} values, "
                              f"got {len(row)}")

@@ -1,5 +1,6 @@
 """CSV files of floats that read back exactly: a float is written as its ``repr`` (the shortest
-text that parses back to the same float64), a missing value (NaN) as an empty cell."""
+text that parses back to the same float64), a missing value (NaN) as an empty cell; read with
+the columns they must have."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import csv
 import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+
+from vibrissa.runtime.scene_file import SceneError
 
 
 def cell(value: float) -> str:
@@ -22,3 +25,19 @@ def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]])
         writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(columns)
         writer.writerows(rows)
+
+
+def read_csv(path: Path, columns: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+    """The header (stripped) and the rows of a CSV that must have ``columns`` (more are
+    allowed); `SceneError` names the file and what is wrong."""
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.reader(handle))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise SceneError(f"{path}: {exc}") from None
+    header = [c.strip() for c in rows[0]] if rows else []
+    missing = [name for name in columns if name not in header]
+    if missing:
+        raise SceneError(f"{path}: missing column(s) {', '.join(missing)} (the columns are "
+                         f"{','.join(columns)})")
+    return header, rows[1:]

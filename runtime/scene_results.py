@@ -10,7 +10,6 @@ is one.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from collections.abc import Sequence
@@ -19,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from vibrissa.runtime.csv_text import cell, write_csv
+from vibrissa.runtime.csv_text import cell, read_csv, write_csv
 from vibrissa.runtime.scene_file import SceneError
 from vibrissa.scene import Episode, SamplePhase, Scene, WhiskerResult
 
@@ -118,18 +117,8 @@ def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
     file (`vibrissa.runtime.scene_file.load_path`)."""
     if not path.is_file():
         raise SceneError(f"{path}: missing: the scene's whisker {name!r} has no results there")
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise SceneError(f"{path}: {exc}") from None
-    header = [c.strip() for c in rows[0]] if rows else []
-    missing = [c for c in SCENE_COLUMNS if c not in header]
-    if missing:
-        raise SceneError(f"{path}: missing column(s) {', '.join(missing)} (the columns are "
-                         f"{','.join(SCENE_COLUMNS)})")
+    header, body = read_csv(path, tuple(SCENE_COLUMNS))
     t_path = scene.path.t
-    body = rows[1:]
     if len(body) != len(t_path):
         raise SceneError(f"{path}: {len(body)} rows, but the scene's path has {len(t_path)} "
                          f"samples (the results of another scene or path?)")

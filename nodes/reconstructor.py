@@ -434,7 +434,8 @@ class PoseWait:
     """Wrenches waiting for the robot pose at their stamp, in arrival order.
 
     A wrench is ready when it carries its clamp pose, or when every frame it was measured in
-    can be looked up in the map frame at its stamp (the pose stream has passed it); one that
+    can be looked up in the map frame at its stamp (the pose stream has passed it; a frame the
+    robot description does not have is left out: its rows count as ``unknown_whisker``); one that
     has waited ``timeout_s`` is let through too, and its rows then count as ``no_pose``, but
     only once the input queue has been drained since (``take(drained=True)``): under a
     backlog the pose it waits for may be queued behind other wrenches, and a pose that was

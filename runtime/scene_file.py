@@ -162,8 +162,9 @@ def _object(value: Any, where: str) -> SceneObject:
     for key in sizes:
         values[key] = (_vector(body[key], f"{where}.{key}", 3) if key == "semi_axes_m"
                        else _number(body[key], f"{where}.{key}"))
+    pose = _pose(body, where)  # its errors name the field already
     try:
-        return SceneObject(str(body["name"]), shape, values, _pose(body, where))
+        return SceneObject(str(body["name"]), shape, values, pose)
     except ValueError as exc:
         raise SceneError(f"{where}: {exc}") from None
 

@@ -9,7 +9,9 @@ environment
 (``Endpoints.to_env()``) and its parameters in a temporary YAML file. Each line a child writes is
 echoed with a ``[name] `` prefix. Nodes that fail are respawned per their policy; a failed
 ``required`` node, a node with ``on_exit: shutdown`` finishing, Ctrl-C or SIGTERM shut the graph
-down in reverse start order (SIGINT, grace period, SIGTERM, grace period, SIGKILL).
+down: SIGINT to every running node at once (in reverse start order, consumers first), as ROS 2's
+launch does, so the graph stops in the time of its slowest node, not in the sum of them; then
+each, in reverse start order, has its grace period, SIGTERM, a grace period, SIGKILL.
 
 Nodes die with their launcher: each child asks the kernel for a SIGTERM when the launcher
 dies (``PR_SET_PDEATHSIG``), so a SIGKILLed launcher leaves no node behind; the temporary
@@ -465,9 +467,14 @@ class Launcher:
     # -- shutdown ------------------------------------------------------------------------------
 
     def _shutdown(self) -> None:
-        """Stop every node still running, in reverse start order."""
+        """Stop every node still running: SIGINT to all, then each in reverse start order."""
         self._shutting_down = True
         self._signals_at_shutdown = len(self._signals)
+        for node in reversed(self.nodes):
+            if node.state == "running" and node.proc is not None and not _has_exited(node.proc):
+                node.outcome.stopped_by_launcher = True
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(node.proc.pid, signal.SIGINT)
         for node in reversed(self.nodes):
             if node.state == "pending":
                 node.outcome.note = "not started"
@@ -486,8 +493,9 @@ class Launcher:
             for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
                 if len(self._signals) > self._signals_at_shutdown:
                     sig = signal.SIGKILL  # a second Ctrl-C: no more waiting
-                with contextlib.suppress(ProcessLookupError, PermissionError):
-                    os.killpg(proc.pid, sig)
+                if sig != signal.SIGINT:  # SIGINT went to every node at once (_shutdown)
+                    with contextlib.suppress(ProcessLookupError, PermissionError):
+                        os.killpg(proc.pid, sig)
                 if sig == signal.SIGKILL or self._wait(proc, self.grace_s):
                     break
                 self.out.log(f"'{node.spec.name}' still running {self.grace_s:g} s after "

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import special
 
 from vibrissa.compiled import compiled
 from vibrissa.elliptic import incomplete_f_e
@@ -205,6 +204,8 @@ def planar_line(
     theta0 = math.atan2(b0, c0)
     c, e0 = incomplete_f_e(theta0, m)
     arg = sqrt_f * s_bent + c
+    from scipy import special  # for drawing only: not imported with the solvers (start-up time)
+
     _sn, cn, _dn, amplitude = special.ellipj(arg, m)
     along = (2.0 * (special.ellipeinc(amplitude, m) - e0) - sqrt_f * s_bent) / sqrt_f
     across = 2.0 * (c0 - k * cn) / sqrt_f  # k (cos(theta0) - cn)

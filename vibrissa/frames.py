@@ -6,18 +6,25 @@ columns are B's axes in A, and translation ``p_AB``, B's origin in A); ``X_AB @ 
 last, as in ROS and scipy. Rotations are scipy's ``Rotation`` and ``Slerp``; the one
 hand-written rotation is the compiled quaternion kernel of the hot path (Step 2 on the wire's
 quaternions), checked against scipy in the tests.
+
+``scipy.spatial.transform`` is imported where it is first used, not with this module: importing
+it costs 0.4 s (``scipy.spatial`` pulls in ``scipy.sparse``), which a process that never
+rotates, such as a sweep on the paper's trail, need not pay. The identity pose needs no scipy.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation, Slerp
 
 from vibrissa.compiled import compiled
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation, Slerp
 
 FloatArray = NDArray[np.float64]
 
@@ -34,43 +41,76 @@ def clamp_frame(whisker: str) -> str:
     return f"{whisker}/clamp"
 
 
-@dataclass(frozen=True)
 class Transform:
-    """Pose X_AB of a frame B in a frame A.
+    """Pose X_AB of a frame B in a frame A (immutable).
+
+    Parameters
+    ----------
+    rotation : scipy.spatial.transform.Rotation, optional
+        R_AB; the identity if omitted.
+    translation : array_like, shape (3,)
+        p_AB, B's origin in A (the caller's length unit: m at the boundary, L in the core).
 
     Attributes
     ----------
     rotation : scipy.spatial.transform.Rotation
         R_AB.
     translation : ndarray, shape (3,)
-        p_AB, B's origin in A (the caller's length unit: m at the boundary, L in the core).
+        p_AB.
     R : ndarray, shape (3, 3)
         R_AB as a matrix (derived, kept for repeated point transforms).
     """
 
-    rotation: Rotation = field(default_factory=Rotation.identity)
-    translation: FloatArray = field(default_factory=lambda: np.zeros(3))
-    R: FloatArray = field(init=False, repr=False, compare=False)
+    __slots__ = ("_rotation", "translation", "R")
+    _rotation: Rotation | None
+    translation: FloatArray
+    R: FloatArray
 
-    def __post_init__(self) -> None:
-        p = np.array(self.translation, dtype=float).reshape(3)
+    def __init__(self, rotation: Rotation | None = None, translation: ArrayLike = (0.0, 0.0, 0.0)
+                 ) -> None:
+        p = np.array(translation, dtype=float).reshape(3)
         p.flags.writeable = False
-        R = self.rotation.as_matrix()
+        R = np.eye(3) if rotation is None else rotation.as_matrix()
         R.flags.writeable = False
-        object.__setattr__(self, "translation", p)
-        object.__setattr__(self, "R", R)
+        for name, value in (("_rotation", rotation), ("translation", p), ("R", R)):
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"Transform is immutable: cannot set {name!r}")
+
+    def __reduce__(self) -> tuple[type[Transform], tuple[Rotation | None, FloatArray]]:
+        return Transform, (self._rotation, self.translation)
+
+    def __repr__(self) -> str:
+        return f"Transform({self.rotation!r}, {self.translation!r})"
+
+    @property
+    def rotation(self) -> Rotation:
+        """R_AB (the identity's is built on first use: scipy is imported then)."""
+        if self._rotation is None:
+            from scipy.spatial.transform import Rotation
+
+            object.__setattr__(self, "_rotation", Rotation.identity())
+        return self._rotation
 
     @classmethod
     def from_quaternion(cls, q_xyzw: ArrayLike, translation: ArrayLike = (0.0, 0.0, 0.0)
                         ) -> Transform:
         """From a quaternion (x, y, z, w) (normalised here; ValueError if zero) and a translation."""
+        from scipy.spatial.transform import Rotation
+
         return cls(Rotation.from_quat(np.asarray(q_xyzw, dtype=float)), np.asarray(translation))
 
     @classmethod
     def from_xyz_rpy(cls, xyz: ArrayLike = (0.0, 0.0, 0.0), rpy: ArrayLike = (0.0, 0.0, 0.0)
                      ) -> Transform:
         """From a position and roll, pitch, yaw in rad: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-        return cls(Rotation.from_euler("xyz", np.asarray(rpy, dtype=float)), np.asarray(xyz))
+        rpy = np.asarray(rpy, dtype=float)
+        if not np.any(rpy):
+            return cls(None, xyz)  # scipy's matrix of zero angles is the identity exactly
+        from scipy.spatial.transform import Rotation
+
+        return cls(Rotation.from_euler("xyz", rpy), xyz)
 
     @property
     def quaternion_xyzw(self) -> FloatArray:
@@ -152,6 +192,8 @@ class PoseSamples:
             raise ValueError(f"{len(t)} times, positions {p.shape}, {len(self.rotations)} rotations")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "p_AB", p)
+        from scipy.spatial.transform import Slerp
+
         object.__setattr__(self, "_slerp", Slerp(t, self.rotations))
 
     def at(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -176,6 +218,8 @@ def interpolate(X_a: Transform, X_b: Transform, t: float) -> Transform:
     rule: position linear, orientation slerp)."""
     if not 0.0 <= t <= 1.0:
         raise ValueError(f"t must be in [0, 1] (no extrapolation), got {t}")
+    from scipy.spatial.transform import Rotation
+
     samples = PoseSamples(np.array([0.0, 1.0]), np.array([X_a.translation, X_b.translation]),
                           Rotation.concatenate([X_a.rotation, X_b.rotation]))
     p, rotations = samples.poses_at([t])

@@ -27,11 +27,10 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import PoseSamples, Transform
 from vibrissa.paths import SampledPath, rod_motion
@@ -40,6 +39,9 @@ from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
 from vibrissa.sweep import SweepRun
 from vibrissa.units import RodScale
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 FloatArray = NDArray[np.float64]
 
@@ -149,6 +151,8 @@ class RobotPath:
         position (n, 3) and R_WR, interpolated between the samples around it (position linear,
         orientation slerp; `vibrissa.frames.PoseSamples`). A stamp outside [t_0, t_N-1] is not
         covered (never extrapolated): NaN position and identity rotation."""
+        from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
+
         t = np.asarray(t, dtype=float).reshape(-1)
         covered = (t >= self.t[0]) & (t <= self.t[-1])
         p = np.full((len(t), 3), np.nan)
@@ -364,6 +368,8 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
         raise ValueError(f"whisker[{unknown[0]}] = {names[unknown[0]]!r} is not in the scene "
                          f"({', '.join(index)})")
     rows_of = np.array([index[name] for name in names], dtype=np.int64)
+    from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
+
     covered, p_WR, R_WR = scene.path.at(t)
     out = ReconstructionSI(np.zeros(len(t), bool), np.full((len(t), 3), np.nan),
                            np.full(len(t), np.nan), np.zeros(len(t), np.int32),
@@ -389,5 +395,7 @@ def robot_path(t: ArrayLike, p_WR: ArrayLike, q_WR_xyzw: ArrayLike) -> RobotPath
     if len(bad):
         raise ValueError(f"row {int(bad[0]) + 1}: quaternion {q[bad[0]].tolist()} is not a unit "
                          f"quaternion (norm {norms[bad[0]]:.9g})")
+    from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
+
     return RobotPath(np.asarray(t, dtype=float), np.asarray(p_WR, dtype=float),
                      Rotation.from_quat(q))

@@ -9,8 +9,6 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from vibrissa.runtime.node import DEBUG_ENV
-
 # Each module registers its subcommands with `register(subparsers)`; every subparser
 # sets `func(args) -> int`. A command imports only its own module (start-up time).
 _COMMAND_MODULES = ("mechanics", "scenes", "launch", "bag", "topic", "keys")
@@ -65,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 128 + signal.SIGINT
     except Exception as exc:  # noqa: BLE001 - one line for the user, the traceback on demand
+        from vibrissa.runtime.node import DEBUG_ENV  # the node runtime (ZeroMQ) only here
+
         if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
             raise
         if isinstance(exc, (OSError, ValueError)):  # a missing file, a file of the wrong kind

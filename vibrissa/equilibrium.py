@@ -24,10 +24,14 @@ FloatArray = NDArray[np.float64]
 
 MODE_TIP, MODE_TANGENTIAL, MODE_STICK = 0, 1, 2
 NEWTON_TOL = 1e-12
+DIRECTION_TOL = 1e-8
+"""Tolerance of the two friction-direction residuals of a sliding row: the chord of eq. 7 can
+be as short as 1e-6 (first step, nearly stuck contacts), and round-off in P1 then limits the
+direction equations to about 1e-16 / |chord|."""
 NEWTON_MAX_ITER = 40
-STATE_WIDTH = 22
+STATE_WIDTH = 23
 """A row's state: residual 0:4, p1 4:7, s1 7, tangent 8:11, normal 11:14, force 14:17,
-kappa0 17, e_w 18:21, status 21."""
+kappa0 17, e_w 18:21, status 21, converged 22 (1 or 0)."""
 
 
 @compiled
@@ -106,6 +110,11 @@ def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
     out[7] = s1
     out[17] = kappa0
     out[21] = status
+    # converged: strict geometry; a sliding row's friction direction to DIRECTION_TOL only
+    direction_tol = NEWTON_TOL if mode == MODE_STICK else DIRECTION_TOL
+    converged = (abs(out[0]) < NEWTON_TOL and abs(out[1]) < NEWTON_TOL
+                 and abs(out[2]) < direction_tol and abs(out[3]) < direction_tol)
+    out[22] = 1.0 if converged else 0.0
 
 
 @compiled
@@ -218,3 +227,29 @@ def newton_rows(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArr
         newton_row(q0[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q, lin, c,
                    R_WB, p_WB, q[r], out[r])
     return q, out
+
+
+@compiled
+def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
+                    previous: FloatArray, jump: float) -> NDArray[np.bool_]:
+    """Which states (n, ``STATE_WIDTH``) are physically acceptable (n,): the contact pushes
+    (F . n > 0), it is at most ``jump`` from the previous contact point (n, 3), the rod stays
+    outside the object (at the tip its tangent does not point out of the object; a tangential
+    contact lies on the rod, 0 < s1 <= 1) and a sticking contact's force is inside the friction
+    cone |F_t| <= mu F_n."""
+    n = state.shape[0]
+    ok = np.empty(n, dtype=np.bool_)
+    for r in range(n):
+        row = state[r]
+        fn = row[14] * row[11] + row[15] * row[12] + row[16] * row[13]
+        dx, dy, dz = row[4] - previous[r, 0], row[5] - previous[r, 1], row[6] - previous[r, 2]
+        good = row[21] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump
+        if mode[r] == MODE_TANGENTIAL:
+            good = good and row[7] <= 1.0 and row[7] > 0.0
+        else:
+            good = good and row[8] * row[11] + row[9] * row[12] + row[10] * row[13] <= 1e-9
+        if mode[r] == MODE_STICK:
+            tx, ty, tz = row[14] - fn * row[11], row[15] - fn * row[12], row[16] - fn * row[13]
+            good = good and math.sqrt(tx * tx + ty * ty + tz * tz) <= mu[r] * fn * (1.0 + 1e-9)
+        ok[r] = good
+    return ok

@@ -71,7 +71,7 @@ from vibrissa.equilibrium import (
     MODE_STICK,
     MODE_TANGENTIAL,
     MODE_TIP,
-    NEWTON_TOL,
+    admissible_rows,
     evaluate_rows,
     newton_rows,
 )
@@ -84,7 +84,6 @@ SLIDE, STICK = 0, 1
 STATE_NAMES = {SLIDE: "slide", STICK: "stick"}
 
 _E_Z = np.array([0.0, 0.0, 1.0])
-_DIRECTION_TOL = 1e-8
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 _EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step tries longer ones
@@ -267,17 +266,32 @@ _BATCH_FIELDS = ("p_WC", "R_WC", "mu", "anchor", "mode", "locked")
 
 @dataclass
 class _State:
-    """Geometry and forces of an evaluated q."""
+    """Geometry and forces of evaluated q's: the kernels' states (n, ``STATE_WIDTH``) by name
+    (``vibrissa.equilibrium``)."""
 
-    residual: FloatArray
-    p1: FloatArray
-    s1: FloatArray
-    tangent: FloatArray
-    normal: FloatArray
-    force: FloatArray
-    kappa0: FloatArray
-    e_w: FloatArray
-    status: NDArray[np.int64]
+    rows: FloatArray
+
+    @property
+    def p1(self) -> FloatArray:
+        return self.rows[:, 4:7]
+
+    @property
+    def tangent(self) -> FloatArray:
+        return self.rows[:, 8:11]
+
+    @property
+    def normal(self) -> FloatArray:
+        return self.rows[:, 11:14]
+
+    @property
+    def force(self) -> FloatArray:
+        return self.rows[:, 14:17]
+
+    @property
+    def converged(self) -> NDArray[np.bool_]:
+        """Whether Newton's method converged (strict geometry; friction direction only as well
+        as the chord of eq. 7 resolves it)."""
+        return self.rows[:, 22] != 0.0
 
 
 def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -291,16 +305,16 @@ def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
 def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
     """The residuals of q = (psi, Fu, Fv, kappa0) in the clamp frames C of the rows; geometry
     and forces of the state in W, where the object is (``vibrissa.equilibrium``)."""
-    return _as_state(evaluate_rows(np.ascontiguousarray(q[:, :4], dtype=float),
-                                   *_row_arrays(batch), *_object_arrays(surface)))
+    return _State(evaluate_rows(np.ascontiguousarray(q[:, :4], dtype=float),
+                                *_row_arrays(batch), *_object_arrays(surface)))
 
 
 def _newton(surface: Surface, q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
     """Solve the four conditions for every row, starting from q0; returns q, state, converged."""
     q, out = newton_rows(np.ascontiguousarray(q0, dtype=float), *_row_arrays(batch),
                          *_object_arrays(surface))
-    state = _as_state(out)
-    return q, state, _converged(state, batch)
+    state = _State(out)
+    return q, state, state.converged
 
 
 def _row_arrays(batch: _Batch) -> tuple[Any, ...]:
@@ -318,32 +332,20 @@ def _object_arrays(surface: Surface) -> tuple[Any, ...]:
             float(c), np.ascontiguousarray(surface.pose.R), np.ascontiguousarray(surface.pose.translation))
 
 
-def _as_state(out: FloatArray) -> _State:
-    return _State(residual=out[:, 0:4], p1=out[:, 4:7], s1=out[:, 7], tangent=out[:, 8:11],
-                  normal=out[:, 11:14], force=out[:, 14:17], kappa0=out[:, 17],
-                  e_w=out[:, 18:21], status=out[:, 21].astype(np.int64))
-
-
-def _converged(state: _State, batch: _Batch) -> NDArray[np.bool_]:
-    """Strict geometry; friction direction only as well as the chord of eq. 7 resolves it.
-
-    The chord can be as short as 1e-6 (first step, nearly stuck contacts); round-off in P1
-    then limits the direction equations to about 1e-16 / |chord|.
-    """
-    residual = np.abs(state.residual)
-    sliding = batch.mode != _MODE_STICK
-    geometry = np.where(sliding[:, None], residual * [1.0, 1.0, 0.0, 0.0], residual)
-    direction_ok = np.where(sliding, np.max(residual[:, 2:], axis=1) < _DIRECTION_TOL, True)
-    return (np.max(geometry, axis=1) < NEWTON_TOL) & direction_ok
-
-
 def _tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Two unit vectors (N, 3) spanning the tangent planes of the unit normals (N, 3)."""
-    e1 = np.cross(normal, _E_Z)
+    e1 = _cross(normal, _E_Z)
     flat = np.linalg.norm(e1, axis=1) < 1e-12
-    e1[flat] = np.cross(normal[flat], [1.0, 0.0, 0.0])
+    e1[flat] = _cross(normal[flat], np.array([1.0, 0.0, 0.0]))
     e1 /= np.linalg.norm(e1, axis=1)[:, None]
-    return e1, np.cross(normal, e1)
+    return e1, _cross(normal, e1)
+
+
+def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Rows a x b (N, 3) of a (N, 3) and b (N, 3) or (3,): np.cross's arithmetic, without its
+    25 us of overhead a call on a few rows."""
+    a0, a1, a2, b0, b1, b2 = a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2]
+    return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def _held_at_slip(
@@ -401,27 +403,7 @@ def _small_slip(
     as_slide = _Batch(batch.p_WC, batch.R_WC, batch.mu, batch.anchor, np.full(len(z), _MODE_TIP),
                       batch.locked)
     final = _evaluate(surface, q, as_slide)
-    return q, final, _converged(final, as_slide)
-
-
-_STATE_FIELDS = ("residual", "p1", "s1", "tangent", "normal", "force", "kappa0", "e_w", "status")
-
-
-def _admissible(state: _State, batch: _Batch, previous_p1: FloatArray, jump: float) -> NDArray[np.bool_]:
-    """Physically acceptable solutions: contact pushes, rod outside the object, near the last one."""
-    fn = np.einsum("ni,ni->n", state.force, state.normal)
-    ok = (state.status == 0) & (fn > 0)
-    ok &= np.linalg.norm(state.p1 - previous_p1, axis=1) <= jump
-    tip_like = batch.mode != _MODE_TANGENTIAL
-    # At the tip the rod must arrive from outside: its tangent may not point out of the object.
-    outward = np.einsum("ni,ni->n", state.tangent, state.normal)
-    ok &= np.where(tip_like, outward <= 1e-9, (state.s1 <= 1.0) & (state.s1 > 0.0))
-    stick = batch.mode == _MODE_STICK
-    if stick.any():
-        friction = state.force - fn[:, None] * state.normal
-        inside_cone = np.linalg.norm(friction, axis=1) <= batch.mu * fn * (1.0 + 1e-9)
-        ok &= ~stick | inside_cone
-    return ok
+    return q, final, final.converged
 
 
 # ---------------------------------------------------------------------------------------------
@@ -785,9 +767,7 @@ def _attempt(
         )
         if kind == "anchored":
             q_stuck = np.array([stuck[i][0] for i in rows])
-            stuck_state = _State(
-                *(np.concatenate([getattr(stuck[i][1], name) for i in rows]) for name in _STATE_FIELDS)
-            )
+            stuck_state = _State(np.concatenate([stuck[i][1].rows for i in rows]))
             q, state, converged = _small_slip(surface, q_stuck, stuck_state, batch)
         elif kind == "continuation":
             q, state, converged = _newton_friction_continuation(surface, predictors[rows], batch)
@@ -796,7 +776,7 @@ def _attempt(
         else:
             q, state, converged = _newton(surface, predictors[rows], batch)
         previous = np.array([tracks[i].p1 for i in rows])
-        ok = converged & _admissible(state, batch, previous, jump)
+        ok = converged & admissible_rows(state.rows, batch.mode, batch.mu, previous, jump)
         for k in np.flatnonzero(ok):
             i = int(rows[k])
             chord = float(np.linalg.norm(state.p1[k] - tracks[i].p1))
@@ -835,7 +815,7 @@ def _attempt(
 
 
 def _take_state(state: _State, k: int) -> _State:
-    return _State(*(getattr(state, name)[[k]] for name in _STATE_FIELDS))
+    return _State(state.rows[[k]])
 
 
 def _newton_friction_continuation(

@@ -66,7 +66,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from vibrissa.elastica import planar_contact, planar_line
+from vibrissa.elastica import planar_line
 from vibrissa.equilibrium import (
     MODE_STICK,
     MODE_TANGENTIAL,
@@ -84,6 +84,8 @@ SLIDE, STICK = 0, 1
 STATE_NAMES = {SLIDE: "slide", STICK: "stick"}
 
 _E_Z = np.array([0.0, 0.0, 1.0])
+_IDENTITY = np.eye(3)
+_IDENTITY.flags.writeable = False
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 _EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step tries longer ones
@@ -151,8 +153,9 @@ class Trail:
         """The clamp poses X_WC at positions ``x0`` (n,) of the trail: origins p_WC (n, 3) =
         (x0, y0, 0) and rotations R_WC (n, 3, 3) = identity (the rod leaves along W's e_z)."""
         x0 = np.asarray(x0, dtype=float).reshape(-1)
-        p_WC = np.column_stack([x0, np.full_like(x0, self.y0), np.zeros_like(x0)])
-        return p_WC, np.broadcast_to(np.eye(3), (len(x0), 3, 3))
+        p_WC = np.zeros((len(x0), 3))
+        p_WC[:, 0], p_WC[:, 1] = x0, self.y0
+        return p_WC, np.broadcast_to(_IDENTITY, (len(x0), 3, 3))
 
 
 @dataclass
@@ -286,6 +289,10 @@ class _State:
     @property
     def force(self) -> FloatArray:
         return self.rows[:, 14:17]
+
+    @property
+    def s1(self) -> FloatArray:
+        return self.rows[:, 7]
 
     @property
     def converged(self) -> NDArray[np.bool_]:
@@ -455,13 +462,14 @@ class _Track:
     mode: int
     p1: FloatArray
     anchor: FloatArray
-    rows: list[tuple[float, int, int, FloatArray, FloatArray, FloatArray, FloatArray]] = field(default_factory=list)
+    rows: list[tuple[float, int, int, FloatArray, FloatArray, FloatArray, FloatArray, float]] = field(
+        default_factory=list)
     phase_changes: list[tuple[float, str, str]] = field(default_factory=list)
     end: SweepEnd | None = None
     x0_end: float = float("nan")
     smooth: bool = True  # the last two steps were alike plain slides (the predictor may extrapolate)
     chord: float = 0.0  # length of the last step's contact displacement, units of L
-    pending: tuple[FloatArray, FloatArray, FloatArray] = ()  # type: ignore[assignment]  # p1, normal, force of the last accepted state
+    pending: tuple[FloatArray, FloatArray, FloatArray, float] = ()  # type: ignore[assignment]  # p1, normal, force, s1 of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
@@ -859,7 +867,7 @@ def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode
     track.p1 = state.p1[k].copy()
     if mode != _MODE_STICK:
         track.anchor = track.p1
-    track.pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy())
+    track.pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy(), float(state.s1[k]))
 
 
 def _phase_of(mode: int) -> ContactPhase:
@@ -867,8 +875,8 @@ def _phase_of(mode: int) -> ContactPhase:
 
 
 def _record(track: _Track, refined: bool) -> None:
-    p1, normal, force = track.pending
-    track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force))
+    p1, normal, force, s1 = track.pending
+    track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force, s1))
 
 
 def _clamp_reactions(q: FloatArray, force_W: FloatArray, R_WC: FloatArray
@@ -893,12 +901,11 @@ def _finish(track: _Track, step: float) -> Sweep:
     contact = np.array([r[4] for r in rows]).reshape(n, 3)
     normal = np.array([r[5] for r in rows]).reshape(n, 3)
     force = np.array([r[6] for r in rows]).reshape(n, 3)
-    _, fu, fv, kappa0 = q.T
     f0, m0 = _clamp_reactions(q, force, track.trail.clamp_pose(x0)[1])
     psi = -np.arctan2(m0[:, 0], m0[:, 1])
     fn = np.einsum("ni,ni->n", force, normal)
     ft = np.linalg.norm(force - fn[:, None] * normal, axis=1)
-    s1 = np.minimum(planar_contact(fu, fv, kappa0).s1, 1.0)
+    s1 = np.minimum(np.array([r[7] for r in rows], dtype=float), 1.0)
     end = track.end or SweepEnd.MAX_STEPS
     return Sweep(
         trail=track.trail,

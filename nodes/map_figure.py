@@ -3,8 +3,10 @@
 What it shows, in mm: a 3D view and a top view (x, y) of the true objects (grey wireframes,
 named) when known, the robot path with the whisker mounts at its start, middle and end (a
 clamp origin X_WR X_RC and a short segment along the clamp's +z, the rod's axis at the clamp,
-in the whisker's colour), the contacts coloured by whisker, the noise points (black crosses)
-and each object's fitted mesh (semi-transparent, its own colour); a legend for every layer.
+in the whisker's colour), the contacts coloured by whisker, the noise points (black crosses),
+each object's known mesh coloured by its distance to the true surface when that is known and
+by its predicted std otherwise (one colour bar in mm), and the unknown part of the meshes in
+faint grey; a legend for every layer.
 The 3D view is cut to the objects (contacts, meshes, true objects) with equal scales on its
 axes, so that the shapes are true; the top view shows the whole path.
 
@@ -44,6 +46,20 @@ MM = 1e3
 
 
 @dataclass(frozen=True)
+class MeshLayer:
+    """One object's mesh, m: the known part with a value per vertex (the colour, m), the
+    unknown part, and the largest std of a known triangle."""
+
+    name: str
+    vertices: FloatArray
+    triangles: IntArray
+    values: FloatArray
+    unknown_vertices: FloatArray
+    unknown_triangles: IntArray
+    max_std_m: float = 0.0
+
+
+@dataclass(frozen=True)
 class MapLayers:
     """What the figure of one frame shows; lengths in m, in that frame.
 
@@ -57,8 +73,10 @@ class MapLayers:
         The whisker of each point.
     labels : ndarray of int, shape (N,)
         The object of each point, -1 for noise.
-    meshes : sequence of (name, vertices (V, 3), triangles (T, 3))
-        The fitted mesh of each object (empty arrays: no mesh).
+    meshes : sequence of MeshLayer
+        The mesh of each object (empty arrays: no mesh).
+    colour_by
+        What the meshes' values are, for the colour bar.
     true_objects
         The known objects (wireframes); none when the truth is not known.
     path
@@ -71,7 +89,8 @@ class MapLayers:
     points: FloatArray
     whisker_ids: Sequence[str]
     labels: IntArray
-    meshes: Sequence[tuple[str, FloatArray, IntArray]] = ()
+    meshes: Sequence[MeshLayer] = ()
+    colour_by: str = "predicted std of the surface"
     true_objects: Sequence[TrueObject] = ()
     path: RobotPath | None = None
     whiskers: Sequence[Whisker] = ()
@@ -174,11 +193,15 @@ def _clipped(p: FloatArray, lo: FloatArray, hi: FloatArray) -> FloatArray:
 
 def plot_map(path: str | Path, layers: MapLayers) -> None:
     """Write the figure of ``layers`` to ``path`` (PNG)."""
+    import matplotlib
+    from matplotlib.cm import ScalarMappable
     from matplotlib.collections import PolyCollection
+    from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
     from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 - registers the 3d projection
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     fig = Figure(figsize=(16, 9))
     notes = layers.subtitle.count("\n") + 1 if layers.subtitle else 0
@@ -198,7 +221,7 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
     labels = np.asarray(layers.labels)
     shown = np.arange(0, len(points), max(1, -(-len(points) // MAX_POINTS_SHOWN)))
     focus.append(points[labels >= 0] if np.any(labels >= 0) else points)  # noise may be far
-    focus += [np.asarray(vertices).reshape(-1, 3) for _, vertices, _ in layers.meshes]
+    focus += [np.asarray(mesh.vertices).reshape(-1, 3) for mesh in layers.meshes]
     near_of = np.zeros(len(shown), dtype=np.int64)
     if len(shown) and len(layers.true_objects) > 1:
         near_of = np.argmin([t.distance(points[shown]) for t in layers.true_objects], axis=0)
@@ -285,19 +308,41 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
                               label=f"noise: {thousands(int(np.sum(labels < 0)))} points "
                                     "in no object"))
 
-    mesh_handles = []
-    palette = _colours(len(layers.meshes), "Set2" if len(layers.meshes) <= 8 else "tab20")
-    for (name, vertices, triangles), c in zip(layers.meshes, palette, strict=True):
-        if len(triangles) == 0:
+    values = [np.asarray(mesh.values)[mesh.triangles].mean(axis=1) * MM
+              for mesh in layers.meshes]  # per triangle, mm
+    every = np.concatenate(values or [np.zeros(0)])
+    norm = Normalize(0.0, float(np.percentile(every, 99)) if len(every) else 1.0, clip=True)
+    cmap = matplotlib.colormaps["viridis"]
+    unknown = 0
+    for mesh, face in zip(layers.meshes, values, strict=True):
+        if len(mesh.unknown_triangles):
+            u = np.asarray(mesh.unknown_vertices) * MM
+            ax.add_collection3d(Poly3DCollection(u[mesh.unknown_triangles], facecolors="0.85",
+                                                 edgecolors="none", alpha=0.15))
+            unknown += len(mesh.unknown_triangles)
+        if len(mesh.triangles) == 0:
             continue
-        v = np.asarray(vertices) * MM
-        ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=triangles, color=c, alpha=0.5,
-                        linewidth=0, shade=True)
-        top.add_collection(PolyCollection(list(v[triangles][:, :, :2]), facecolors=[c],
-                                          alpha=0.3, edgecolors="none"))
-        mesh_handles.append(Patch(facecolor=c, alpha=0.6,
-                                  label=f"mesh {name}: {thousands(len(triangles))} triangles"))
-    handles += _capped(mesh_handles, "meshes", Patch(alpha=0.0))
+        v = np.asarray(mesh.vertices) * MM
+        ax.add_collection3d(Poly3DCollection(v[mesh.triangles], facecolors=cmap(norm(face)),
+                                             edgecolors="none", alpha=0.8))
+        top.add_collection(PolyCollection(list(v[mesh.triangles][:, :, :2]),
+                                          facecolors=cmap(norm(face)), alpha=0.5,
+                                          edgecolors="none"))
+    known = sum(len(mesh.triangles) for mesh in layers.meshes)
+    if known:
+        handles.append(Patch(facecolor=cmap(0.6), alpha=0.8,
+                             label=f"surface estimate, known: {thousands(known)} triangles\n"
+                                   f"(colour: {layers.colour_by}, bar)"))
+    if unknown:
+        limits = sorted({f"{mesh.max_std_m * MM:.2g}" for mesh in layers.meshes
+                         if mesh.max_std_m > 0})
+        handles.append(Patch(facecolor="0.85", alpha=0.5,
+                             label=f"unknown: std above {' / '.join(limits)} mm, "
+                                   "not on the map"))
+    if known:
+        bar = fig.colorbar(ScalarMappable(norm, cmap), ax=[ax], shrink=0.5, pad=0.02,
+                           location="left")
+        bar.set_label(f"{layers.colour_by} [mm]")
 
     ax.set_xlim(lo[0] * MM, hi[0] * MM)
     ax.set_ylim(lo[1] * MM, hi[1] * MM)

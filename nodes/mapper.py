@@ -12,29 +12,35 @@ Publishes
 ``cloud_topic`` (default ``contact_cloud``) : ContactCloud
     Every point with its contact normal, one message per ``frame_id``, then ``EndOfStream``.
 ``mesh_topic`` (default ``surface_mesh``) : SurfaceMesh
-    The fitted meshes of a ``frame_id``, all objects in one mesh (``method`` names the method
-    and its parameters, per object when there are several; the distance fields are filled when
-    the truth is known: ``true_surface`` or ``scene``), then ``EndOfStream``.
+    The known part of the meshes of a ``frame_id``, all objects in one mesh (``method`` names
+    the method and its fitted parameters, per object when there are several; the distance
+    fields are filled when the truth is known: ``true_surface`` or ``scene``), then
+    ``EndOfStream``.
 
 Files in ``out_dir`` (for frame ``world``; another frame F gets the suffix ``_F``):
-``cloud.ply`` (points + normals), ``mesh.ply`` (every object's mesh), ``mesh_<object>.ply``
-(one per object with a mesh), ``map.png`` (`vibrissa.nodes.map_figure`), ``report.json`` and
-``report.txt``. Then the node exits 0 (the demo launch ends on it with ``on_exit: shutdown``),
-or ``EXIT_EMPTY_MAP`` (3) when the streams ended without a single contact point (only the
-reports are written, and they say so), or ``EXIT_LOST_DATA`` (4) when input messages were lost
-(the report lists every input stream: sent, received, lost), unless ``allow_loss``. Stopped
-(SIGINT, SIGTERM) before the streams end, it writes nothing and exits 0; a stop during the fit
-ends the process at once (Open3D does not return to Python until it is done).
+``cloud.ply`` (points + normals), ``mesh.ply`` (every object's known mesh, with each vertex's
+position std ``std_m``), ``mesh_<object>.ply`` (one per object with a known mesh), ``map.png``
+(`vibrissa.nodes.map_figure`), ``report.json`` and ``report.txt``. Then the node exits 0 (the
+demo launch ends on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams
+ended without a single contact point (only the reports are written, and they say so), or
+``EXIT_LOST_DATA`` (4) when input messages were lost (the report lists every input stream: sent,
+received, lost), unless ``allow_loss``. Stopped (SIGINT, SIGTERM) before the streams end, it
+writes nothing and exits 0; a stop during the fit ends the process at once (Open3D and LAPACK do
+not return to Python until they are done).
 
-Objects: with ``true_surface`` a frame is that one object; otherwise DBSCAN separates the
-points of a frame into objects (``vibrissa.nodes.surface_fit.cluster_points``), named after
-the nearest object of ``scene`` (frame ``world``) or ``object0``, ``object1``, ... in the
-order of their first point. Fitting: screened Poisson per object on contact normals taken from
-the contact force with its component along the contact line removed, trimmed to the data; see
-``vibrissa.nodes.surface_fit`` for why. Errors against the truth (``true_surface``, a
-``parse_surface`` spec in units of L placed in the points' frame, or the object of ``scene``
-an object was matched to): cloud -> surface = max/mean |signed distance| of the points (the
-reconstruction error), mesh -> surface = max/mean over mesh vertices.
+Objects: with ``true_surface`` a frame is that one object; otherwise DBSCAN separates the points
+of a frame into objects (``vibrissa.nodes.surface_fit.cluster_points``), named after the nearest
+object of ``scene`` (frame ``world``) or ``object0``, ``object1``, ... in the order of their
+first point. Surfaces: a Gaussian-process implicit surface per object (``vibrissa.gp_surface``)
+on the points and their contact normals (the contact force with its component along the contact
+line removed, ``vibrissa.nodes.surface_fit.contact_normals``), meshed by marching cubes; a
+triangle is *known* where the surface's predicted position std is at most ``max_std_m``, and
+only the known part is on the map (files, message, errors); the figure shows the rest as
+unknown. docs/MAPPING.md has the choice of the method. Errors against the truth
+(``true_surface``, a ``parse_surface`` spec in units of L placed in the points' frame, or the
+object of ``scene`` an object was matched to): cloud -> surface = max/mean |signed distance| of
+the points (the reconstruction error), mesh -> surface = max/mean over the known mesh's
+vertices.
 """
 
 from __future__ import annotations
@@ -55,15 +61,16 @@ import numpy as np
 import numpy.typing as npt
 
 from vibrissa.msgs import ContactCloud, ContactPoint, ContactPointArray, EndOfStream, SurfaceMesh
-from vibrissa.nodes.map_figure import MapLayers, plot_map, thousands
+from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map, thousands
 from vibrissa.nodes.surface_fit import (
     MIN_POINTS,
-    FitParams,
-    SurfaceFit,
+    MapParams,
+    ObjectSurface,
     TrueObject,
     cluster_points,
     contact_normals,
-    fit_surface,
+    estimate_surface,
+    line_spacing,
     too_little_for_a_surface,
     whisker_lines,
     write_ply,
@@ -87,8 +94,8 @@ IntArray = npt.NDArray[np.int64]
 EXIT_EMPTY_MAP = 3
 """Exit status of a mapper whose streams ended without a single contact point."""
 
-MAX_DEPTH = 12
-"""Deepest Poisson octree: 4096^3 cells, beyond what a contact cloud can fill."""
+MAX_CELLS = 512
+"""Finest marching-cubes grid: 512 cells along an object's box."""
 
 SCENE_FRAME = "world"
 """The frame of a scene file's objects, path and mounts (W)."""
@@ -121,9 +128,11 @@ class MapperParams:
         DBSCAN ``min_points``; smaller groups are noise (counted and reported, not fitted).
     rod_length_m
         L, m (scales ``true_surface``); the mapper converts lengths only, so it needs no EI.
-    depth, trim_distance_m, trim_factor
-        Poisson octree depth; mesh trimming distance, m (0 = ``trim_factor`` x the spacing
-        between contact lines); see ``vibrissa.nodes.surface_fit.FitParams``.
+    cells, margin, max_std_m, point_std_m
+        The surface estimate and its mesh: grid cells along an object's box, the box's margin
+        (a fraction of the points' box diagonal), the largest std of a known triangle (m; 0:
+        a fifth of the prior std), the std of a contact point (m); see
+        ``vibrissa.nodes.surface_fit.MapParams``.
     timeout_s
         Fit what has arrived after this long without a message, s (0 = wait for the ends).
     plot
@@ -149,9 +158,10 @@ class MapperParams:
     cluster_eps_m: float = 0.0
     cluster_min_points: int = MIN_POINTS
     rod_length_m: float = 1.0
-    depth: int = 8
-    trim_distance_m: float = 0.0
-    trim_factor: float = 0.6
+    cells: int = 64
+    margin: float = 0.2
+    max_std_m: float = 0.0
+    point_std_m: float = 1e-9
     timeout_s: float = 0.0
     plot: bool = True
     allow_loss: bool = False
@@ -192,11 +202,17 @@ class MapperParams:
         require_non_negative("cluster_eps_m", self.cluster_eps_m)
         require(self.cluster_min_points >= 1, "cluster_min_points", self.cluster_min_points,
                 "a count >= 1")
-        require(1 <= self.depth <= MAX_DEPTH, "depth", self.depth,
-                f"an octree depth in [1, {MAX_DEPTH}]")
-        require_non_negative("trim_distance_m", self.trim_distance_m)
-        require_non_negative("trim_factor", self.trim_factor)
+        require(8 <= self.cells <= MAX_CELLS, "cells", self.cells,
+                f"a grid size in [8, {MAX_CELLS}]")
+        require_non_negative("margin", self.margin)
+        require_non_negative("max_std_m", self.max_std_m)
+        require_positive("point_std_m", self.point_std_m)
         require_non_negative("timeout_s", self.timeout_s)
+
+    @property
+    def map_params(self) -> MapParams:
+        """The surface estimate's parameters."""
+        return MapParams(self.cells, self.margin, self.max_std_m, self.point_std_m)
 
     def truth(self, frame_id: str) -> list[TrueObject]:
         """The known objects of frame ``frame_id``: ``true_surface`` (any frame), the objects of
@@ -270,8 +286,10 @@ class Accumulator:
 
 @dataclass
 class ObjectResult:
-    """One object of a frame: its points, the whiskers that touched it, its fit and errors
-    (distances in m; None without the truth)."""
+    """One object of a frame: its points, the whiskers that touched it, its surface estimate
+    and errors (distances in m; None without the truth). The mesh counts and distances are
+    those of the known part (position std <= ``max_std_m``); ``unknown_triangles`` were
+    meshed but are not on the map."""
 
     name: str
     n_points: int
@@ -280,6 +298,10 @@ class ObjectResult:
     n_vertices: int
     n_triangles: int
     line_spacing_m: float | None
+    unknown_triangles: int = 0
+    max_std_m: float | None = None
+    std_median_m: float | None = None
+    std_max_m: float | None = None
     true_object: str | None = None
     true_object_median_m: float | None = None
     cloud_to_surface_max: float | None = None
@@ -316,8 +338,9 @@ class FrameMap:
     """A frame mapped: its result and what goes into the files, messages and figure.
 
     ``points``, ``normals`` (N, 3) and ``whisker_ids`` (N,) in line order; ``labels`` (N,)
-    the object of each point (index into ``result.objects`` and ``fits``, -1: noise);
-    ``vertices`` (V, 3) and ``triangles`` (T, 3) every object's mesh in one.
+    the object of each point (index into ``result.objects`` and ``surfaces``, -1: noise);
+    ``surfaces`` the estimate of each object; ``vertices`` (V, 3), ``triangles`` (T, 3) and
+    ``std`` (V,) the known part of every object's mesh in one.
     """
 
     result: FrameResult
@@ -325,9 +348,10 @@ class FrameMap:
     normals: FloatArray
     whisker_ids: list[str]
     labels: IntArray
-    fits: list[SurfaceFit]
+    surfaces: list[ObjectSurface]
     vertices: FloatArray
     triangles: IntArray
+    std: FloatArray
 
 
 def _stats(distance: FloatArray) -> tuple[float | None, float | None]:
@@ -369,14 +393,12 @@ def name_objects(points: FloatArray, labels: IntArray, truth: Sequence[TrueObjec
 
 
 def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMap:
-    """Objects, normals, fits and errors of one frame."""
+    """Objects, normals, surface estimates and errors of one frame."""
     points, forces, whisker_ids = cloud.ordered()
     lines = whisker_lines(points, whisker_ids)
     normals = contact_normals(points, forces, lines)
     truth = params.truth(frame_id)
-    fit_params = FitParams(depth=params.depth, trim_distance=params.trim_distance_m,
-                           trim_factor=params.trim_factor)
-    spacing: float | None = None
+    spacing = line_spacing(points, lines) if len(points) else float("inf")
     if params.true_surface:  # the single-object map: the frame is the true surface
         labels = np.zeros(len(points), dtype=np.int64)
         named: list[tuple[str, TrueObject | None, float | None]] = [("object0", truth[0], None)]
@@ -385,32 +407,35 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
         clusters = cluster_points(points, lines, params.cluster_eps_m, params.cluster_min_points)
         labels = clusters.labels
         named = name_objects(points, labels, truth)
-        spacing = clusters.line_spacing
         clustering = {"method": "dbscan", "eps_m": clusters.eps, "eps_rule": clusters.eps_rule,
                       "min_points": clusters.min_points,
                       "line_spacing_m": spacing if np.isfinite(spacing) else None,
                       "line_extent_m": clusters.line_extent}
     objects: list[ObjectResult] = []
-    fits: list[SurfaceFit] = []
+    surfaces: list[ObjectSurface] = []
     cloud_distance: list[FloatArray] = []
     mesh_distance: list[FloatArray] = []
     for k, (name, true, median) in enumerate(named):
         inside = np.flatnonzero(labels == k)
-        fit = fit_surface(points[inside], normals[inside], lines[inside], fit_params)
+        surface = estimate_surface(points[inside], normals[inside], params.map_params)
+        vertices, triangles, std = surface.part(known=True)
+        own_spacing = line_spacing(points[inside], lines[inside])
         obj = ObjectResult(
-            name, len(inside), _whisker_counts([whisker_ids[i] for i in inside]), fit.method,
-            len(fit.vertices), len(fit.triangles),
-            fit.line_spacing if np.isfinite(fit.line_spacing) else None,
-            true.name if true is not None else None, median)
+            name, len(inside), _whisker_counts([whisker_ids[i] for i in inside]),
+            surface.method, len(vertices), len(triangles),
+            own_spacing if np.isfinite(own_spacing) else None,
+            unknown_triangles=len(surface.part(known=False)[1]),
+            max_std_m=surface.mesh.max_std if surface.mesh is not None else None,
+            std_median_m=float(np.median(std)) if len(std) else None,
+            std_max_m=float(std.max()) if len(std) else None,
+            true_object=true.name if true is not None else None, true_object_median_m=median)
         if true is not None:
             cloud_distance.append(true.distance(points[inside]))
-            mesh_distance.append(true.distance(fit.vertices))
+            mesh_distance.append(true.distance(vertices))
             obj.cloud_to_surface_max, obj.cloud_to_surface_mean = _stats(cloud_distance[-1])
             obj.mesh_to_surface_max, obj.mesh_to_surface_mean = _stats(mesh_distance[-1])
         objects.append(obj)
-        fits.append(fit)
-    if spacing is None:  # true_surface: the one object's, as fitted
-        spacing = fits[0].line_spacing
+        surfaces.append(surface)
     noise = np.flatnonzero(labels < 0)
     if len(objects) == 1:
         method = objects[0].method
@@ -420,10 +445,11 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
         method = "none: " + (too_little_for_a_surface(points) or (
             f"no object: all {len(points)} points are noise (DBSCAN eps "
             f"{clustering['eps_m']:.4g} m, min_points {clustering['min_points']})"))
-    offsets = np.cumsum([0] + [len(fit.vertices) for fit in fits])[:-1]
-    vertices = np.concatenate([fit.vertices for fit in fits] or [np.zeros((0, 3))])
+    parts = [surface.part(known=True) for surface in surfaces]
+    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts])[:-1]
+    vertices = np.concatenate([v for v, _, _ in parts] or [np.zeros((0, 3))])
     triangles = np.concatenate(
-        [fit.triangles + offset for fit, offset in zip(fits, offsets, strict=True)]
+        [t + offset for (_, t, _), offset in zip(parts, offsets, strict=True)]
         or [np.zeros((0, 3), dtype=np.int64)])
     result = FrameResult(
         frame_id, len(points), method, len(vertices), len(triangles),
@@ -438,7 +464,9 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
         if len(noise):
             result.noise_to_surface_max = float(np.max(np.min(
                 [true.distance(points[noise]) for true in truth], axis=0)))
-    return FrameMap(result, points, normals, whisker_ids, labels, fits, vertices, triangles)
+    std = np.concatenate([s for _, _, s in parts] or [np.zeros(0)])
+    return FrameMap(result, points, normals, whisker_ids, labels, surfaces, vertices, triangles,
+                    std)
 
 
 def _plural(n: int, word: str) -> str:
@@ -447,32 +475,45 @@ def _plural(n: int, word: str) -> str:
 
 
 def map_layers(frame: FrameMap, params: MapperParams) -> MapLayers:
-    """What the figure of a frame shows: the contacts, the meshes, and the truth when known."""
+    """What the figure of a frame shows: the contacts, the meshes (coloured by their distance
+    to the true surface when it is known, else by their std), and the truth when known."""
     result = frame.result
     whiskers = sorted(set(frame.whisker_ids))
     title = (f"{result.frame_id} map: {_plural(len(result.objects), 'object')}, "
              f"{_plural(result.n_points, 'contact')} from {_plural(len(whiskers), 'whisker')}")
+    truth = params.truth(result.frame_id)
     notes = []
     for obj in result.objects[:6]:
         note = f"{obj.name}: {_plural(obj.n_points, 'point')}, "
-        note += (f"mesh of {_plural(obj.n_triangles, 'triangle')}" if obj.n_triangles
-                 else obj.method)
+        note += (f"surface known over {_plural(obj.n_triangles, 'triangle')}"
+                 f" ({obj.n_triangles / (obj.n_triangles + obj.unknown_triangles):.0%})"
+                 if obj.n_triangles else obj.method.removeprefix("none: "))
         if obj.mesh_to_surface_mean is not None and obj.mesh_to_surface_max is not None:
-            note += (f", mesh to true surface mean {obj.mesh_to_surface_mean * 1e3:.2g} mm, "
-                     f"max {obj.mesh_to_surface_max * 1e3:.2g} mm")
+            note += (f", {obj.mesh_to_surface_mean * 1e3:.2g} mm from the true surface on "
+                     f"average, {obj.mesh_to_surface_max * 1e3:.2g} mm at most")
+        elif obj.std_max_m is not None:
+            note += f", std at most {obj.std_max_m * 1e3:.2g} mm"
         notes.append(note)
     if len(result.objects) > 6:
         notes.append(f"... and {len(result.objects) - 6} more objects (report.txt)")
     if result.noise_points:
         notes.append(f"noise: {_plural(result.noise_points, 'point')} in no object")
+    meshes = []
+    true_of = {t.name: t for t in truth}
+    for obj, surface in zip(result.objects, frame.surfaces, strict=True):
+        vertices, triangles, std = surface.part(known=True)
+        true = true_of.get(obj.true_object or "") if truth else None
+        meshes.append(MeshLayer(
+            obj.name, vertices, triangles,
+            true.distance(vertices) if true is not None else std,
+            *surface.part(known=False)[:2],
+            max_std_m=surface.mesh.max_std if surface.mesh is not None else 0.0))
     scene = params.world if result.frame_id == SCENE_FRAME else None
     return MapLayers(
         title=title, subtitle="\n".join(notes), points=frame.points,
-        whisker_ids=frame.whisker_ids, labels=frame.labels,
-        meshes=[(obj.name, fit.vertices, fit.triangles)
-                for obj, fit in zip(result.objects, frame.fits, strict=True)],
-        true_objects=params.truth(result.frame_id),
-        path=scene.path if scene is not None else None,
+        whisker_ids=frame.whisker_ids, labels=frame.labels, meshes=meshes,
+        colour_by="distance to the true surface" if truth else "predicted std of the surface",
+        true_objects=truth, path=scene.path if scene is not None else None,
         whiskers=scene.whiskers if scene is not None else ())
 
 
@@ -525,19 +566,22 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         if len(frame.vertices):
             files["mesh"] = out_dir / f"mesh{sfx}.ply"
             with _whole(files["mesh"]) as partial:
-                write_ply(str(partial), frame.vertices, frame.triangles)
+                write_ply(str(partial), frame.vertices, frame.triangles,
+                          scalars={"std_m": frame.std})
         else:
             log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
                         result.method.removeprefix("none: "))
-        for obj, fit in zip(result.objects, frame.fits, strict=True):
-            if not len(fit.vertices):
+        for obj, surface in zip(result.objects, frame.surfaces, strict=True):
+            vertices, triangles, std = surface.part(known=True)
+            if not len(triangles):
                 if len(result.objects) > 1:
                     log.warning("no surface for object %r of frame %r: %s", obj.name, frame_id,
-                                fit.method.removeprefix("none: "))
+                                obj.method.removeprefix("none: ") if surface.mesh is None
+                                else "nowhere known")
                 continue
             target = out_dir / f"mesh_{_file_part(obj.name)}{sfx}.ply"
             with _whole(target) as partial:
-                write_ply(str(partial), fit.vertices, fit.triangles)
+                write_ply(str(partial), vertices, triangles, scalars={"std_m": std})
             files[f"mesh_{obj.name}"] = target
             obj.files = {"mesh": str(target)}
         if params.plot:
@@ -637,7 +681,10 @@ def format_report(report: dict[str, Any]) -> str:
                 f"  object {obj['name']}: {obj['n_points']} points from "
                 f"{_counts(obj['whiskers'])}{matched}",
                 f"    method: {obj['method']}",
-                f"    mesh: {obj['n_vertices']} vertices, {obj['n_triangles']} triangles",
+                f"    mesh: {obj['n_vertices']} vertices, {obj['n_triangles']} triangles known, "
+                f"{obj['unknown_triangles']} unknown (std above {_mm(obj['max_std_m'])})",
+                f"    std of the known surface: median {_mm(obj['std_median_m'])}, "
+                f"max {_mm(obj['std_max_m'])}",
                 f"    cloud -> surface: max {_mm(obj['cloud_to_surface_max'])}, "
                 f"mean {_mm(obj['cloud_to_surface_mean'])}",
                 f"    mesh -> surface:  max {_mm(obj['mesh_to_surface_max'])}, "

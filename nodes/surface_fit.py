@@ -62,6 +62,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from vibrissa import gp_surface
+from vibrissa.gp_surface import GPParams, GPSurface, SurfaceMeshStd
 from vibrissa.surfaces import Surface
 
 FloatArray = npt.NDArray[np.float64]
@@ -385,20 +387,97 @@ def fit_surface(
                       np.asarray(mesh.triangles).astype(np.int64), method, trim, spacing)
 
 
+@dataclass(frozen=True)
+class MapParams:
+    """Parameters of :func:`estimate_surface` (SI).
+
+    Attributes
+    ----------
+    cells
+        Marching-cubes grid cells along the longest side of an object's box.
+    margin
+        The box: the object's points' box grown by this fraction of its diagonal on every side.
+    max_std_m
+        Largest position std of a known triangle, m; 0: ``vibrissa.gp_surface.KNOWN_FRACTION``
+        of the prior std.
+    point_std_m
+        Std of a contact point's position, m.
+    """
+
+    cells: int = 64
+    margin: float = 0.2
+    max_std_m: float = 0.0
+    point_std_m: float = 1e-9
+
+
+@dataclass(frozen=True)
+class ObjectSurface:
+    """The surface estimate of one object (:func:`estimate_surface`).
+
+    ``method`` names the method and its fitted parameters, or says why there is no surface
+    (``none: ...``; then ``gp`` and ``mesh`` are None).
+    """
+
+    method: str
+    gp: GPSurface | None = None
+    mesh: SurfaceMeshStd | None = None
+
+    def part(self, known: bool = True) -> tuple[FloatArray, IntArray, FloatArray]:
+        """(vertices (V, 3) m, triangles (T, 3), position std (V,) m) of the known (or
+        unknown) triangles; empty without a mesh."""
+        if self.mesh is None:
+            return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0)
+        return self.mesh.part(known)
+
+
+def estimate_surface(points: FloatArray, normals: FloatArray,
+                     params: MapParams | None = None) -> ObjectSurface:
+    """The Gaussian-process implicit surface of one object's contacts (``vibrissa.gp_surface``)
+    meshed over its box, or why there is none (``too_little_for_a_surface``).
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+        Contact points (m) in line order and outward unit normals (:func:`contact_normals`).
+    params
+        Meshing and noise parameters.
+    """
+    params = params or MapParams()
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    too_little = too_little_for_a_surface(points)
+    if too_little is not None:
+        return ObjectSurface(f"none: {too_little}")
+    gp = gp_surface.fit(points, normals, GPParams(point_std_m=params.point_std_m))
+    pad = params.margin * float(np.linalg.norm(np.ptp(points, axis=0)))
+    mesh = gp_surface.mesh(gp, points.min(axis=0) - pad, points.max(axis=0) + pad,
+                           params.cells, params.max_std_m)
+    method = (f"gp implicit surface (quadric trend + SE: ell {gp.length_scale * gp.scale:.3g} m, "
+              f"sigma {gp.sigma * gp.scale:.3g} m; normal std {gp.normal_std:.3g} rad; "
+              f"{len(gp.active)} of {len(points)} points; known where std <= "
+              f"{mesh.max_std:.3g} m)")
+    return ObjectSurface(method, gp, mesh)
+
+
 def write_ply(path: str, points: FloatArray, triangles: IntArray | None = None,
-              normals: FloatArray | None = None) -> None:
+              normals: FloatArray | None = None,
+              scalars: dict[str, FloatArray] | None = None) -> None:
     """Write a point cloud (``triangles`` None, optionally with normals) or a triangle mesh as
-    binary little-endian PLY, the layout Open3D writes and reads.
+    binary little-endian PLY, the layout Open3D writes and reads; ``scalars`` are extra vertex
+    properties (name -> (V,) values, e.g. ``std_m``), which readers that do not know them skip.
 
     Written with numpy rather than Open3D, whose writer reports success when the disk is full:
     here a failed write raises ``OSError``.
     """
     points = np.asarray(points, dtype="<f8").reshape(-1, 3)
     properties = ["x", "y", "z"]
-    vertices = points
+    columns = [points]
     if triangles is None and normals is not None:
         properties += ["nx", "ny", "nz"]
-        vertices = np.hstack([points, np.asarray(normals, dtype="<f8").reshape(-1, 3)])
+        columns.append(np.asarray(normals, dtype="<f8").reshape(-1, 3))
+    for name, values in (scalars or {}).items():
+        properties.append(name)
+        columns.append(np.asarray(values, dtype="<f8").reshape(-1, 1))
+    vertices = np.hstack(columns)
     header = ["ply", "format binary_little_endian 1.0", "comment Created by vibrissa",
               f"element vertex {len(vertices)}", *(f"property double {p}" for p in properties)]
     faces = None

@@ -430,11 +430,13 @@ class SurfaceMeshStd:
     max_std: float
     cell: float
 
-    def part(self, known: bool) -> tuple[FloatArray, IntArray]:
-        """(vertices, triangles) of the known (or unknown) triangles, unused vertices dropped."""
+    def part(self, known: bool) -> tuple[FloatArray, IntArray, FloatArray]:
+        """(vertices, triangles, std) of the known (or unknown) triangles, unused vertices
+        dropped."""
         triangles = self.triangles[self.known == known]
         used, inverse = np.unique(triangles, return_inverse=True)
-        return self.vertices[used], inverse.reshape(-1, 3).astype(np.int64)
+        return (self.vertices[used], inverse.reshape(-1, 3).astype(np.int64),
+                self.std[used])
 
 
 COARSE = 4

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import Transform
 from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
-from vibrissa.nodes.map_figure import MapLayers, plot_map
+from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map
 from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
 from vibrissa.nodes.surface_fit import cluster_points, whisker_lines
 from vibrissa.runtime import load_params
@@ -130,9 +130,9 @@ def png_size(path: Path) -> tuple[int, int]:
 
 @pytest.fixture(scope="module")
 def scene_map(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """The map of the two objects with the scene known (depth 6: a coarse, quick fit)."""
+    """The map of the two objects with the scene known."""
     tmp = tmp_path_factory.mktemp("scene_map")
-    params = MapperParams(out_dir=str(tmp / "out"), scene=str(write_scene(tmp)), depth=6)
+    params = MapperParams(out_dir=str(tmp / "out"), scene=str(write_scene(tmp)))
     report, sent = write_outputs(accumulate(messages()), params, tmp / "out")
     return {"report": report, "sent": sent, "out": tmp / "out", "params": params, "tmp": tmp}
 
@@ -149,8 +149,10 @@ def test_two_objects_are_found_named_counted_and_fitted(scene_map: dict[str, Any
         assert obj["true_object"] == obj["name"]
         assert obj["cloud_to_surface_max"] < 1e-12  # exact points: rounding only
         assert obj["true_object_median_m"] < 1e-12
-        assert obj["method"].startswith("poisson(depth=6") and obj["n_triangles"] > 20
+        assert obj["method"].startswith("gp implicit surface") and obj["n_triangles"] > 20
+        assert obj["unknown_triangles"] > 0  # the boxes reach beyond what was touched
         assert obj["mesh_to_surface_mean"] < 0.3e-3 and obj["mesh_to_surface_max"] < 2e-3
+        assert obj["std_max_m"] <= obj["max_std_m"]
         mesh = out / f"mesh_{obj['name']}.ply"
         assert obj["files"] == {"mesh": str(mesh)} and frame["files"][f"mesh_{obj['name']}"]
         assert ply_vertices(mesh) == obj["n_vertices"]
@@ -222,7 +224,7 @@ def test_identical_input_gives_identical_labels_and_files(
 
 def test_without_a_scene_objects_are_numbered_by_their_first_point(tmp_path: Path) -> None:
     report, _ = write_outputs(accumulate(messages()),
-                              MapperParams(out_dir=str(tmp_path), depth=6, plot=False), tmp_path)
+                              MapperParams(out_dir=str(tmp_path), plot=False), tmp_path)
     [frame] = report["frames"]
     assert [(o["name"], o["n_points"]) for o in frame["objects"]] == [("object0", 180),
                                                                       ("object1", 100)]
@@ -256,7 +258,7 @@ def test_two_clusters_on_one_object_are_told_apart(tmp_path: Path) -> None:
             acc.add(ContactPoint(stamp=0.0, seq=k, whisker_id=f"w{5 + i}", frame_id="world",
                                  point=point, s1=0.03, phase=2, force=0.02 * normal, status=0))
     params = MapperParams(out_dir=str(tmp_path), scene=str(write_scene(tmp_path)),
-                          cluster_eps_m=0.006, depth=6, plot=False)
+                          cluster_eps_m=0.006, plot=False)
     report, _ = write_outputs(acc, params, tmp_path)
     [frame] = report["frames"]
     assert [(o["name"], o["true_object"], o["n_points"]) for o in frame["objects"]] == [
@@ -277,7 +279,7 @@ def test_a_true_surface_is_one_object_as_before(tmp_path: Path) -> None:
     ball = "sphere:r=0.3,cx=0.6,cy=0,cz=0.8"  # units of L = 0.05 m: BALL
     report, sent = write_outputs(
         accumulate(messages()),
-        MapperParams(out_dir=str(tmp_path), true_surface=ball, rod_length_m=0.05, depth=6),
+        MapperParams(out_dir=str(tmp_path), true_surface=ball, rod_length_m=0.05),
         tmp_path)
     assert OLD_REPORT_KEYS <= set(report)
     [frame] = report["frames"]
@@ -378,7 +380,8 @@ def test_a_figure_of_many_whiskers_and_objects_is_drawn(tmp_path: Path) -> None:
     ids = [f"w{i % 25}" for i in range(500)]
     labels = np.arange(500) % 15 - 1  # 14 objects and some noise
     triangle = np.array([[0, 1, 2]])
-    meshes = [(f"object{k}", points[labels == k][:3], triangle) for k in range(14)]
+    meshes = [MeshLayer(f"object{k}", points[labels == k][:3], triangle, np.full(3, 1e-3 * k),
+                        points[labels == k][3:6], triangle, 5e-3) for k in range(14)]
     target = tmp_path / "many.png"
     plot_map(target, MapLayers(title="world map: 14 objects", points=points, whisker_ids=ids,
                                labels=labels, meshes=meshes))

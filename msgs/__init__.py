@@ -33,6 +33,7 @@ from vibrissa.msgs.messages import (
     Ping,
     RobotPose,
     SurfaceMesh,
+    SweepProposal,
     WhiskerWrench,
     WhiskerWrenchArray,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "Ping",
     "RobotPose",
     "SurfaceMesh",
+    "SweepProposal",
     "UnexpectedTypeError",
     "UnknownFieldError",
     "UnknownTypeError",

@@ -461,6 +461,28 @@ class SurfaceMesh(Message):
 
 
 @dataclass(frozen=True, eq=False)
+class SweepProposal(Message):
+    """Where to sweep next: a section of an object's estimated surface whose touch would cut
+    its uncertainty most (``vibrissa.next_sweep``)."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/SweepProposal"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    frame_id: str = _frame_id()
+    object: str = _text("the object's name in the mapper's report")
+    rank: int = _count("1 for the first proposal, 2 for the next (given the first), ...")
+    axis: FloatArray = _array((3,), "", "unit normal of the section's plane, in frame_id")
+    offset: float = _number("m", "the plane's offset along axis (a paper trail's y0)")
+    line: FloatArray = _array(("N", 3), "m", "the section of the estimated surface, in order")
+    std_on_line: float = _number("m", "largest predicted position std on the section")
+    std_max_before: float = _number(
+        "m", "largest predicted position std of the reachable surface before this proposal")
+    std_max_after: float = _number(
+        "m", "the same after this proposal (and the ones before it) were touched")
+
+
+@dataclass(frozen=True, eq=False)
 class RobotPose(Message):
     """Pose X_PC of frame child_frame_id (C) in frame_id (P)."""
 
@@ -534,6 +556,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         ContactPointArray,
         ContactCloud,
         SurfaceMesh,
+        SweepProposal,
         RobotPose,
         NodeStatus,
         EndOfStream,

@@ -11,6 +11,9 @@ Publishes
 ---------
 ``cloud_topic`` (default ``contact_cloud``) : ContactCloud
     Every point with its contact normal, one message per ``frame_id``, then ``EndOfStream``.
+``proposal_topic`` (default ``next_sweep``) : SweepProposal
+    Where to sweep next: ``proposals`` sections per object, best first
+    (``vibrissa.next_sweep``), then ``EndOfStream``; also in the report.
 ``mesh_topic`` (default ``surface_mesh``) : SurfaceMesh
     The known part of the meshes of a ``frame_id``, all objects in one mesh (``method`` names
     the method and its fitted parameters, per object when there are several; the distance
@@ -48,6 +51,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import time
 from collections import Counter
@@ -60,7 +64,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from vibrissa.msgs import ContactCloud, ContactPoint, ContactPointArray, EndOfStream, SurfaceMesh
+from vibrissa.msgs import (
+    ContactCloud,
+    ContactPoint,
+    ContactPointArray,
+    EndOfStream,
+    SurfaceMesh,
+    SweepProposal,
+)
+from vibrissa.next_sweep import Proposal, propose_sections
 from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map, thousands
 from vibrissa.nodes.surface_fit import (
     MIN_POINTS,
@@ -140,7 +152,11 @@ class MapperParams:
     allow_loss
         Exit 0 even when input messages were lost (the report says so either way); by
         default a lossy map exits ``EXIT_LOST_DATA`` (4).
-    cloud_topic, mesh_topic
+    proposals, proposal_axis
+        How many next sweeps to propose per object (0: none) and the normal of their section
+        planes in the points' frame (the paper's trails: y, the lateral offset); see
+        ``vibrissa.next_sweep``.
+    cloud_topic, mesh_topic, proposal_topic
         Output topics.
     wait_for
         Nodes that must subscribe to the outputs before they go out (default: nobody).
@@ -165,8 +181,11 @@ class MapperParams:
     timeout_s: float = 0.0
     plot: bool = True
     allow_loss: bool = False
+    proposals: int = 3
+    proposal_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
     cloud_topic: str = "contact_cloud"
     mesh_topic: str = "surface_mesh"
+    proposal_topic: str = "next_sweep"
     wait_for: tuple[str, ...] = ()
     rod: RodScale = field(init=False, repr=False, compare=False)
     world: Scene | None = field(init=False, repr=False, compare=False)
@@ -177,8 +196,12 @@ class MapperParams:
         require(len(self.topics) > 0, "topics", self.topics, "one or more topic names")
         for topic in self.topics:
             require_parsed("topics", topic, validate_name)
-        for name in (self.cloud_topic, self.mesh_topic):
-            require_parsed("cloud_topic/mesh_topic", name, validate_name)
+        for name in (self.cloud_topic, self.mesh_topic, self.proposal_topic):
+            require_parsed("cloud_topic/mesh_topic/proposal_topic", name, validate_name)
+        require(self.proposals >= 0, "proposals", self.proposals, "a count >= 0")
+        require(len(self.proposal_axis) == 3 and all(map(math.isfinite, self.proposal_axis))
+                and any(self.proposal_axis), "proposal_axis", self.proposal_axis,
+                "a nonzero vector [x, y, z]")
         for name in self.wait_for:
             require_parsed("wait_for", name, validate_name)
         if isinstance(self.expected_sources, int):
@@ -308,6 +331,7 @@ class ObjectResult:
     cloud_to_surface_mean: float | None = None
     mesh_to_surface_max: float | None = None
     mesh_to_surface_mean: float | None = None
+    next_sweeps: list[dict[str, Any]] = field(default_factory=list)
     files: dict[str, str] = field(default_factory=dict)
 
 
@@ -339,8 +363,8 @@ class FrameMap:
 
     ``points``, ``normals`` (N, 3) and ``whisker_ids`` (N,) in line order; ``labels`` (N,)
     the object of each point (index into ``result.objects`` and ``surfaces``, -1: noise);
-    ``surfaces`` the estimate of each object; ``vertices`` (V, 3), ``triangles`` (T, 3) and
-    ``std`` (V,) the known part of every object's mesh in one.
+    ``surfaces`` the estimate of each object and ``proposals`` its next sweeps; ``vertices``
+    (V, 3), ``triangles`` (T, 3) and ``std`` (V,) the known part of every object's mesh in one.
     """
 
     result: FrameResult
@@ -352,6 +376,7 @@ class FrameMap:
     vertices: FloatArray
     triangles: IntArray
     std: FloatArray
+    proposals: list[list[Proposal]]
 
 
 def _stats(distance: FloatArray) -> tuple[float | None, float | None]:
@@ -413,6 +438,7 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
                       "line_extent_m": clusters.line_extent}
     objects: list[ObjectResult] = []
     surfaces: list[ObjectSurface] = []
+    proposals: list[list[Proposal]] = []
     cloud_distance: list[FloatArray] = []
     mesh_distance: list[FloatArray] = []
     for k, (name, true, median) in enumerate(named):
@@ -434,6 +460,14 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
             mesh_distance.append(true.distance(vertices))
             obj.cloud_to_surface_max, obj.cloud_to_surface_mean = _stats(cloud_distance[-1])
             obj.mesh_to_surface_max, obj.mesh_to_surface_mean = _stats(mesh_distance[-1])
+        proposals.append([] if surface.gp is None or surface.mesh is None or not params.proposals
+                         else propose_sections(surface.gp, surface.mesh.vertices,
+                                               points[inside], np.array(params.proposal_axis),
+                                               params.proposals))
+        obj.next_sweeps = [
+            {"offset_m": p.offset_m, "axis": p.axis.tolist(), "line_points": len(p.line),
+             "std_on_line_m": p.std_on_line_m, "std_max_before_m": p.std_max_before_m,
+             "std_max_after_m": p.std_max_after_m} for p in proposals[-1]]
         objects.append(obj)
         surfaces.append(surface)
     noise = np.flatnonzero(labels < 0)
@@ -466,7 +500,7 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
                 [true.distance(points[noise]) for true in truth], axis=0)))
     std = np.concatenate([s for _, _, s in parts] or [np.zeros(0)])
     return FrameMap(result, points, normals, whisker_ids, labels, surfaces, vertices, triangles,
-                    std)
+                    std, proposals)
 
 
 def _plural(n: int, word: str) -> str:
@@ -546,7 +580,8 @@ def _whole(path: Path) -> Iterator[Path]:
 
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   streams: Sequence[StreamEnd] = (), lost: int = 0,
-                  ) -> tuple[dict[str, Any], list[tuple[ContactCloud, SurfaceMesh]]]:
+                  ) -> tuple[dict[str, Any],
+                             list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
     """Map every frame, write PLYs, PNGs and the reports; returns (report, messages).
 
     ``streams`` are the input streams that ended (what each said was sent, what arrived,
@@ -554,7 +589,7 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     results: list[FrameResult] = []
-    messages: list[tuple[ContactCloud, SurfaceMesh]] = []
+    messages: list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]] = []
     for frame_id, cloud in sorted(acc.frames.items()):
         t0 = time.monotonic()
         frame = fit_frame(frame_id, cloud, params)
@@ -601,6 +636,12 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                         cloud_to_surface_mean=result.cloud_to_surface_mean,
                         mesh_to_surface_max=result.mesh_to_surface_max,
                         mesh_to_surface_mean=result.mesh_to_surface_mean),
+            [SweepProposal(stamp=stamp, frame_id=frame_id, object=obj.name, rank=rank,
+                           axis=p.axis, offset=p.offset_m, line=p.line,
+                           std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
+                           std_max_after=p.std_max_after_m)
+             for obj, proposals in zip(result.objects, frame.proposals, strict=True)
+             for rank, p in enumerate(proposals, start=1)],
         ))
         log.info("mapped %s: %d points -> %s (%d noise points), %d triangles in %.1f s",
                  frame_id, result.n_points,
@@ -690,6 +731,11 @@ def format_report(report: dict[str, Any]) -> str:
                 f"    mesh -> surface:  max {_mm(obj['mesh_to_surface_max'])}, "
                 f"mean {_mm(obj['mesh_to_surface_mean'])}",
             ]
+            lines += [
+                f"    next sweep {rank}: section at {_mm(p['offset_m'])} along "
+                f"{p['axis']} (std on it {_mm(p['std_on_line_m'])}; largest std "
+                f"{_mm(p['std_max_before_m'])} -> {_mm(p['std_max_after_m'])})"
+                for rank, p in enumerate(obj["next_sweeps"], start=1)]
             lines += [f"    {name}: {path}" for name, path in obj["files"].items()]
         if frame["noise_points"]:
             far = ("" if frame["noise_to_surface_max"] is None else
@@ -711,6 +757,8 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
         {t: (ContactPoint, ContactPointArray) for t in params.topics}, hwm=200_000)
     cloud_pub = node.create_publisher(params.cloud_topic, ContactCloud, wait_for=params.wait_for)
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
+    proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,
+                                         wait_for=params.wait_for)
     node.set_state("running", f"waiting for {expected} source(s) to end")
     last = time.monotonic()
     while not node.stop_requested and not acc.done:
@@ -735,11 +783,13 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
     if report["lost"]:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report["lost"], " (allowed: allow_loss)" if params.allow_loss else "")
-    for cloud, mesh in messages:
+    for cloud, mesh, proposals in messages:
         cloud_pub.publish(cloud)
         mesh_pub.publish(mesh)
-    cloud_pub.publish_end_of_stream(node.fqn)
-    mesh_pub.publish_end_of_stream(node.fqn)
+        for proposal in proposals:
+            proposal_pub.publish(proposal)
+    for publisher in (cloud_pub, mesh_pub, proposal_pub):
+        publisher.publish_end_of_stream(node.fqn)
     if report["n_points"] == 0:
         log.error("%s: the map is empty: no contact point arrived (sources ended: %s); a "
                   "trail whose straight rod clears the object never touches it, see the "

@@ -276,7 +276,9 @@ class GPSurface:
     quadric_std: float
     log_likelihood: float
     residual_std: float
+    point_std: float  # std of f at a contact point, units of s
     _u: FloatArray
+    _n: FloatArray  # the active points' unit normals
     _solution: _Solution
     _alpha_se: FloatArray  # sigma^2 alpha: the weights of the SE covariances in the mean
 
@@ -401,13 +403,31 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None)
     u, n = np.ascontiguousarray(u_all[active]), n_all[active]
     solution = solve(u, n, _prior(u, ell), sigma, tau)
     surface = GPSurface(center, scale, active, ell, sigma, tau, params.quadric_std,
-                        solution.loglik, 0.0, u, solution, sigma * sigma * solution.alpha)
+                        solution.loglik, 0.0, point_std, u, n, solution,
+                        sigma * sigma * solution.alpha)
     unused = np.setdiff1d(np.arange(len(points)), active)
     unused = unused[::max(1, len(unused) // HELD_OUT)]
     if not len(unused):
         return surface
     f, _ = surface.evaluate(points[unused])
     return replace(surface, residual_std=float(np.sqrt(np.mean(f * f))))
+
+
+def conditioned(surface: GPSurface, points: FloatArray, normals: FloatArray) -> GPSurface:
+    """The surface had it also observed ``points`` (K, 3), m, with outward ``normals``
+    (K, 3), its hyperparameters kept: what touching there would leave of its uncertainty
+    (the std of a GP does not depend on the values observed, only on where)."""
+    u_new = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - surface.center) / surface.scale
+    n_new = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    n_new = n_new / np.linalg.norm(n_new, axis=1, keepdims=True)
+    u = np.ascontiguousarray(np.concatenate([surface._u, u_new]))
+    n = np.concatenate([surface._n, n_new])
+    sigma = surface.sigma
+    solution = _solve(sigma * sigma * _prior(u, surface.length_scale)
+                      + _noise(n, surface.point_std, surface.normal_std), _design(u),
+                      surface.quadric_std, _targets(n))
+    return replace(surface, log_likelihood=solution.loglik, _u=u, _n=n, _solution=solution,
+                   _alpha_se=sigma * sigma * solution.alpha)
 
 
 def _targets(normals: FloatArray) -> FloatArray:

@@ -177,7 +177,7 @@ def test_two_objects_are_found_named_counted_and_fitted(scene_map: dict[str, Any
     assert frame["clustering"]["method"] == "dbscan" and frame["clustering"]["min_points"] == 4
     assert report["scene_objects"] == ["ball", "egg", "pebble"]
     # the message carries every object's mesh, and the report.json what write_outputs returned
-    cloud, mesh = scene_map["sent"][0]
+    cloud, mesh, _ = scene_map["sent"][0]
     assert len(cloud.points) == 282 and len(mesh.vertices) == frame["n_vertices"]
     assert json.loads((out / "report.json").read_text()) == report
     text = (out / "report.txt").read_text()
@@ -186,6 +186,27 @@ def test_two_objects_are_found_named_counted_and_fitted(scene_map: dict[str, Any
     assert "object egg: 100 points from w1 (50), w3 (50); true object egg" in text
     assert "noise: 2 point(s) in no object, from w4 (2)" in text
     assert f"at most {frame['noise_to_surface_max'] * 1e3:.4g} mm from a true object" in text
+
+
+def test_each_object_gets_next_sweeps_in_the_report_and_as_messages(
+        scene_map: dict[str, Any]) -> None:
+    [frame] = scene_map["report"]["frames"]
+    _, _, proposals = scene_map["sent"][0]
+    assert [(p.object, p.rank) for p in proposals] == [
+        (obj["name"], rank) for obj in frame["objects"] for rank in (1, 2, 3)]
+    text = (scene_map["out"] / "report.txt").read_text()
+    for obj in frame["objects"]:
+        mine = [p for p in proposals if p.object == obj["name"]]
+        assert [p.offset for p in mine] == [s["offset_m"] for s in obj["next_sweeps"]]
+        for before, after in zip(mine, mine[1:], strict=False):
+            assert after.std_max_before == before.std_max_after
+        assert all(p.std_max_after < p.std_max_before for p in mine)
+        # in the range the object's contacts span along y, the default axis
+        points = [row for row in scene_map["sent"][0][0].points]
+        assert all(np.allclose(p.axis, [0.0, 1.0, 0.0]) for p in mine)
+        assert all(min(q[1] for q in points) <= p.offset <= max(q[1] for q in points)
+                   for p in mine)
+    assert "next sweep 1: section at" in text
 
 
 def test_the_png_is_an_image_a_person_can_read(scene_map: dict[str, Any]) -> None:

@@ -550,7 +550,7 @@ def test_too_little_for_a_surface_is_a_report_line_and_the_cloud_is_written(
     assert not (tmp_path / "mesh.ply").exists()
     assert (tmp_path / "cloud.ply").stat().st_size > 0
     assert f"method: none: {why}" in (tmp_path / "report.txt").read_text()
-    cloud, mesh = messages[0]
+    cloud, mesh, _ = messages[0]
     assert len(cloud.points) == len(points) and len(mesh.vertices) == 0
 
 

@@ -33,6 +33,7 @@ from vibrissa.msgs import (
     Ping,
     RobotPose,
     SurfaceMesh,
+    SweepProposal,
     UnexpectedTypeError,
     UnknownFieldError,
     UnknownTypeError,
@@ -111,6 +112,9 @@ def samples() -> list[Message]:
                           point=np.zeros((0, 3)), s1=[], phase=np.zeros(0, np.int32),
                           force=np.zeros((0, 3)), status=np.zeros(0, np.int32)),
         Ping(stamp=7.0, sender="/w0/sensor"),
+        SweepProposal(stamp=3.5, frame_id="world", object="ball", rank=2, axis=[0.0, 1.0, 0.0],
+                      offset=0.1, line=points, std_on_line=2e-3, std_max_before=3e-3,
+                      std_max_after=1e-3),
     ]
 
 

@@ -1,0 +1,63 @@
+"""Where to sweep next: proposals cut the predicted uncertainty, conditioning never adds any,
+and a proposal is where the map is unsure, not on the lines already swept."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from tests.core.test_gp_surface import contact_cloud
+from vibrissa import gp_surface
+from vibrissa.next_sweep import propose_sections
+
+
+@pytest.fixture(scope="module")
+def two_lines():
+    points, normals, lines, truth = contact_cloud("paraboloid:a=0.5,b=1,h=0.4", [-0.4, 0.2])
+    surface = gp_surface.fit(points, normals)
+    pad = 0.2 * np.linalg.norm(np.ptp(points, axis=0))
+    mesh = gp_surface.mesh(surface, points.min(axis=0) - pad, points.max(axis=0) + pad)
+    return points, surface, mesh
+
+
+def test_conditioning_never_adds_uncertainty(two_lines):
+    points, surface, mesh = two_lines
+    rng = np.random.default_rng(7)
+    taken = mesh.vertices[rng.choice(len(mesh.vertices), 30, replace=False)]
+    _, normals = surface.evaluate(taken)
+    after = gp_surface.conditioned(surface, taken, normals)
+    queries = mesh.vertices[::7]
+    before_std, after_std = surface.std(queries), after.std(queries)
+    assert np.all(after_std <= before_std * (1 + 1e-9))
+    # and it is sure where it was told: at the new points the std drops to the points' noise
+    noise_m = surface.point_std * surface.scale
+    assert np.all(after.std(taken) < 1.1 * np.hypot(noise_m, surface.residual_std))
+    assert np.median(surface.std(taken)) > 20 * noise_m
+
+
+def test_proposals_cut_the_predicted_std_and_lie_between_or_beyond_the_lines(two_lines):
+    points, surface, mesh = two_lines
+    proposals = propose_sections(surface, mesh.vertices, points, [0.0, 1.0, 0.0], 3)
+    assert len(proposals) == 3
+    lo, hi = points[:, 1].min(), points[:, 1].max()
+    previous = proposals[0].std_max_before_m
+    for p in proposals:
+        assert lo <= p.offset_m <= hi
+        assert p.std_max_after_m < p.std_max_before_m == pytest.approx(previous)
+        previous = p.std_max_after_m
+        assert np.allclose(p.line[:, 1], p.offset_m, atol=(hi - lo) / 40)
+    # the first proposal is not on a line already swept: its section is far from the contacts
+    distance = cKDTree(points).query(proposals[0].line)[0]
+    assert np.median(distance) > 0.05
+    # and what it proposes is less sure than what was touched
+    assert proposals[0].std_on_line_m > 10 * np.median(surface.position_std(points[::50]))
+
+
+def test_no_proposal_without_a_range_along_the_axis(two_lines):
+    points, surface, mesh = two_lines
+    flat = points.copy()
+    flat[:, 2] = 0.5  # contacts all at one height: no range along z
+    assert propose_sections(surface, mesh.vertices, flat, [0.0, 0.0, 1.0], 2) == []
+    with pytest.raises(ValueError, match="count must be >= 1"):
+        propose_sections(surface, mesh.vertices, points, [0.0, 1.0, 0.0], 0)
+    with pytest.raises(ValueError, match="axis must be a nonzero vector"):
+        propose_sections(surface, mesh.vertices, points, [0.0, 0.0, 0.0], 1)

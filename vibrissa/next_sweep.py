@@ -11,9 +11,10 @@ line to touch, in the map frame). Candidates are offsets over the range the cont
 Greedy uncertainty sampling (active learning with a GP): the proposal is the candidate whose
 section has the largest predicted position std; then the surface is conditioned on points along
 that section (on its mean, with the mean's normals: the std of a GP depends only on where it
-observes, not on what), and the next proposal is chosen on what remains. Each proposal reports
-the largest std over the reachable surface (the mesh vertices within the contacts' range along
-``axis``) before and after.
+observes, not on what), and the next proposal is chosen on what remains. The std is scored on
+the reachable surface: the mesh vertices inside the contacts' box (beyond it the rod is not
+known to reach, and chasing the uncertainty there proposes trails that touch nothing); each
+proposal reports the largest std there before and after.
 """
 
 from __future__ import annotations
@@ -88,9 +89,12 @@ def propose_sections(surface: GPSurface, vertices: FloatArray, contacts: FloatAr
         raise ValueError(f"axis must be a nonzero vector, got {axis}")
     axis = axis / np.linalg.norm(axis)
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    along = np.asarray(contacts, dtype=np.float64).reshape(-1, 3) @ axis
+    contacts = np.asarray(contacts, dtype=np.float64).reshape(-1, 3)
+    along = contacts @ axis
     lo, hi = float(along.min()), float(along.max())
-    reach = vertices[(vertices @ axis >= lo) & (vertices @ axis <= hi)]
+    inside = np.all((vertices >= contacts.min(axis=0)) & (vertices <= contacts.max(axis=0)),
+                    axis=1)
+    reach = vertices[inside & (vertices @ axis >= lo) & (vertices @ axis <= hi)]
     reach = reach[::max(1, -(-len(reach) // SCORED_POINTS))]
     if not len(reach) or hi <= lo:
         return []

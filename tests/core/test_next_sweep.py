@@ -61,3 +61,29 @@ def test_no_proposal_without_a_range_along_the_axis(two_lines):
         propose_sections(surface, mesh.vertices, points, [0.0, 1.0, 0.0], 0)
     with pytest.raises(ValueError, match="axis must be a nonzero vector"):
         propose_sections(surface, mesh.vertices, points, [0.0, 0.0, 0.0], 1)
+
+
+def test_on_the_demo_object_three_proposals_beat_three_evenly_spaced_trails():
+    # the demo's 5 trails (launch/demo.yaml), then 3 more: proposed, or evenly spaced over
+    # the same range; the error of each map over the reachable surface (true points in the
+    # contacts' y range up to the highest contact), against the true paraboloid
+    spec, demo = "paraboloid:a=0.5,b=1,h=0.4", [-0.4, -0.2, 0.0, 0.2, 0.4]
+    points, normals, _, truth = contact_cloud(spec, demo)
+    surface = gp_surface.fit(points, normals)
+    pad = 0.2 * np.linalg.norm(np.ptp(points, axis=0))
+    mesh = gp_surface.mesh(surface, points.min(axis=0) - pad, points.max(axis=0) + pad)
+    proposed = [p.offset_m for p in propose_sections(surface, mesh.vertices, points,
+                                                     [0.0, 1.0, 0.0], 3)]
+    lo, hi = points[:, 1].min(), points[:, 1].max()
+    even = list(np.linspace(lo, hi, 5)[1:-1])
+    x, y = np.meshgrid(np.linspace(-1.2, 1.2, 121), np.linspace(lo, hi, 61))
+    z = 0.5 * x**2 + y**2 + 0.4
+    reachable = np.stack([x, y, z], axis=-1)[z <= points[:, 2].max()]
+    assert np.max(np.abs(truth.value(reachable))) < 1e-12  # on the true surface
+
+    def max_error(y0s):
+        p, n, _, _ = contact_cloud(spec, y0s)
+        f, g = gp_surface.fit(p, n).evaluate(reachable)
+        return np.max(np.abs(f) / np.linalg.norm(g, axis=1))
+
+    assert max_error(demo + proposed) < 0.7 * max_error(demo + even)

@@ -30,7 +30,8 @@ RANK = {
 # Third-party libraries each layer may import besides those of the layers below it (the
 # standard library is always allowed).
 LIBRARIES = {
-    "vibrissa": {"numpy", "scipy", "numba", "skimage"},  # skimage: marching cubes (gp_surface)
+    # skimage: marching cubes, threadpoolctl: one BLAS thread (vibrissa.gp_surface)
+    "vibrissa": {"numpy", "scipy", "numba", "skimage", "threadpoolctl"},
     "vibrissa.msgs": {"msgpack", "msgspec"},
     "vibrissa.wire": {"zmq", "mcap", "zstandard"},
     "vibrissa.runtime": {"yaml", "msgspec"},

@@ -36,19 +36,40 @@ Prediction: the mean f(x) and its gradient (compiled loop over the active points
 standard deviation sd_f(x) (triangular solves); the surface's position uncertainty is
 sd_d = sd_f / |grad f|, in m. ``mesh`` runs marching cubes (scikit-image) on the mean over a
 box and splits the triangles into *known* (every vertex within ``max_std``) and *unknown*. The
-same points give the same bits: no randomness, and the same linear algebra on the same inputs.
+same points give the same bits: no randomness, and the same linear algebra on the same inputs,
+on one BLAS thread whatever the machine's setting.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import wraps
+from typing import ParamSpec, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from threadpoolctl import threadpool_limits
 
 from vibrissa.compiled import compiled
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def _one_blas_thread(function: Callable[P, R]) -> Callable[P, R]:
+    """Run ``function`` with BLAS on one thread (threadpoolctl): a factorisation split over
+    threads sums in another order, and the same points would give other bits with another
+    thread count (measured: the mapper's mesh.ply changed between 1 and 2 threads)."""
+
+    @wraps(function)
+    def serial(*args: P.args, **kwargs: P.kwargs) -> R:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return function(*args, **kwargs)
+
+    return serial
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -290,6 +311,7 @@ class GPSurface:
                             self.length_scale, self._solution.beta)
         return f * self.scale, g
 
+    @_one_blas_thread
     def std(self, points: FloatArray, chunk: int = 2048) -> FloatArray:
         """Std (N,) of f at points (N, 3), m: the posterior's and ``residual_std``."""
         q = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.center) / self.scale
@@ -350,6 +372,7 @@ def _solve(K_y: FloatArray, G: FloatArray, q: float, y: FloatArray) -> _Solution
     return _Solution(chol, A, np.tril(chol_beta), alpha, beta, loglik)
 
 
+@_one_blas_thread
 def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None) -> GPSurface:
     """Fit the implicit surface of a contact cloud (see module).
 
@@ -413,6 +436,7 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None)
     return replace(surface, residual_std=float(np.sqrt(np.mean(f * f))))
 
 
+@_one_blas_thread
 def conditioned(surface: GPSurface, points: FloatArray, normals: FloatArray) -> GPSurface:
     """The surface had it also observed ``points`` (K, 3), m, with outward ``normals``
     (K, 3), its hyperparameters kept: what touching there would leave of its uncertainty

@@ -5,7 +5,10 @@ reported and drawn; the single-object map with ``true_surface`` as before."""
 from __future__ import annotations
 
 import json
+import os
 import struct
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +24,8 @@ from vibrissa.nodes.surface_fit import cluster_points, whisker_lines
 from vibrissa.runtime import load_params
 from vibrissa.runtime.params import ParamError
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
+
+ROOT = Path(__file__).resolve().parents[2]
 
 BALL_CENTRE = np.array([0.03, 0.0, 0.04])
 EGG_CENTRE = [-0.03, 0.01, 0.045]
@@ -241,6 +246,25 @@ def test_identical_input_gives_identical_labels_and_files(
         assert (again / name).read_bytes() == (scene_map["out"] / name).read_bytes(), name
     relocated = json.loads(json.dumps(report).replace(str(again), str(scene_map["out"])))
     assert relocated == scene_map["report"]
+
+
+def test_another_process_with_one_blas_thread_writes_the_same_files(
+        scene_map: dict[str, Any]) -> None:
+    # the fit's linear algebra is LAPACK: another process, and one thread instead of the
+    # machine's, must not change a bit of the map
+    other = scene_map["tmp"] / "other"
+    script = ("import sys; from pathlib import Path; "
+              "from tests.nodes.test_mapper_objects import accumulate, messages; "
+              "from vibrissa.nodes.mapper import MapperParams, write_outputs; "
+              "out = Path(sys.argv[1]); "
+              "write_outputs(accumulate(messages()), MapperParams(out_dir=str(out), "
+              "scene=sys.argv[2]), out)")
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+           "MKL_NUM_THREADS": "1"}
+    subprocess.run([sys.executable, "-c", script, str(other), scene_map["params"].scene],
+                   cwd=ROOT, env=env, check=True, timeout=300)
+    for name in ("cloud.ply", "mesh.ply", "mesh_ball.ply", "mesh_egg.ply", "map.png"):
+        assert (other / name).read_bytes() == (scene_map["out"] / name).read_bytes(), name
 
 
 def test_without_a_scene_objects_are_numbered_by_their_first_point(tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ Lengths are in units of the rod length L.
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 
 import numpy as np
@@ -44,6 +45,16 @@ class Surface(ABC):
     def quadric(self) -> tuple[FloatArray, FloatArray, float]:
         """Body-frame (Q (3, 3), l (3,), c): g_B(p) = p' Q p + l . p + c."""
         return self._quadric()
+
+    @functools.cached_property
+    def kernel_arrays(self) -> tuple[FloatArray, FloatArray, float, FloatArray, FloatArray]:
+        """The object as the compiled kernels of Step 1 take it (``vibrissa.equilibrium``):
+        Q (3, 3), l (3,), c, R_WB (3, 3), p_WB (3,), contiguous float64; computed once (an
+        object does not change)."""
+        Q, linear, c = self._quadric()
+        return (np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(linear, dtype=float),
+                float(c), np.ascontiguousarray(self.pose.R),
+                np.ascontiguousarray(self.pose.translation))
 
     @abstractmethod
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:

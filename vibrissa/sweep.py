@@ -61,7 +61,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -155,7 +155,7 @@ class Trail:
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         p_WC = np.zeros((len(x0), 3))
         p_WC[:, 0], p_WC[:, 1] = x0, self.y0
-        return p_WC, np.broadcast_to(_IDENTITY, (len(x0), 3, 3))
+        return p_WC, _IDENTITY[None].repeat(len(x0), axis=0)
 
 
 @dataclass
@@ -313,30 +313,25 @@ def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
     """The residuals of q = (psi, Fu, Fv, kappa0) in the clamp frames C of the rows; geometry
     and forces of the state in W, where the object is (``vibrissa.equilibrium``)."""
     return _State(evaluate_rows(np.ascontiguousarray(q[:, :4], dtype=float),
-                                *_row_arrays(batch), *_object_arrays(surface)))
+                                *_row_arrays(batch), *surface.kernel_arrays))
 
 
 def _newton(surface: Surface, q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
     """Solve the four conditions for every row, starting from q0; returns q, state, converged."""
     q, out = newton_rows(np.ascontiguousarray(q0, dtype=float), *_row_arrays(batch),
-                         *_object_arrays(surface))
+                         *surface.kernel_arrays)
     state = _State(out)
     return q, state, state.converged
 
 
-def _row_arrays(batch: _Batch) -> tuple[Any, ...]:
+def _row_arrays(batch: _Batch) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray,
+                                        NDArray[np.int64], NDArray[np.bool_]]:
     return (np.ascontiguousarray(batch.p_WC, dtype=float),
             np.ascontiguousarray(batch.R_WC, dtype=float),
             np.ascontiguousarray(batch.mu, dtype=float),
             np.ascontiguousarray(batch.anchor, dtype=float),
             np.ascontiguousarray(batch.mode, dtype=np.int64),
             np.ascontiguousarray(batch.locked, dtype=np.bool_))
-
-
-def _object_arrays(surface: Surface) -> tuple[Any, ...]:
-    Q, linear, c = surface.quadric
-    return (np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(linear, dtype=float),
-            float(c), np.ascontiguousarray(surface.pose.R), np.ascontiguousarray(surface.pose.translation))
 
 
 def _tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -356,14 +351,16 @@ def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def _held_at_slip(
-    surface: Surface, z: FloatArray, q: FloatArray, batch: _Batch
+    surface: Surface, z: FloatArray, q: FloatArray, batch: _Batch,
+    basis: tuple[FloatArray, FloatArray]
 ) -> tuple[FloatArray, FloatArray, _State, NDArray[np.bool_]]:
     """Hold the tip at the slip z = (log r, theta) from the anchor; return the Coulomb mismatch.
 
-    The mismatch F_t / F_n - mu t (t per eq. 7) in two tangent components is zero for a sliding
+    ``basis`` spans the tangent plane at the anchor, (N, 3) each (``_tangent_basis``). The
+    mismatch F_t / F_n - mu t (t per eq. 7) in two tangent components is zero for a sliding
     equilibrium. Also returns the held q, its state and whether holding converged.
     """
-    e1, e2 = _tangent_basis(surface.normal(batch.anchor))
+    e1, e2 = basis
     r, theta = np.exp(z[:, 0:1]), z[:, 1:2]
     held = surface.closest_point(batch.anchor + r * (np.cos(theta) * e1 + np.sin(theta) * e2))
     hold = _Batch(batch.p_WC, batch.R_WC, batch.mu, held, np.full(len(z), _MODE_STICK),
@@ -388,7 +385,7 @@ def _small_slip(
     short to resolve through the chord of eq. 7 with the plain unknowns. Here the slip itself is
     the unknown, in polar coordinates around the anchor, and every trial holds the tip there.
     """
-    e1, e2 = _tangent_basis(surface.normal(batch.anchor))
+    e1, e2 = basis = _tangent_basis(surface.normal(batch.anchor))
     fn = np.einsum("ni,ni->n", stuck.force, stuck.normal)
     slip = -(stuck.force - fn[:, None] * stuck.normal)  # the friction on the rod opposes the slip
     theta = np.arctan2(np.einsum("ni,ni->n", slip, e2), np.einsum("ni,ni->n", slip, e1))
@@ -397,14 +394,14 @@ def _small_slip(
     # Coarse probes: the held states are only solved to 1e-12, and the slip may be ~1e-8.
     steps = np.array([0.05, 0.01])
     for _ in range(15):
-        mismatch, q, state, converged = _held_at_slip(surface, z, q, batch)
+        mismatch, q, state, converged = _held_at_slip(surface, z, q, batch, basis)
         if np.all(np.max(np.abs(mismatch), axis=1) < 1e-11) or not converged.all():
             break
         jac = np.empty((len(z), 2, 2))
         for j in range(2):
             probe = z.copy()
             probe[:, j] += steps[j]
-            jac[:, :, j] = (_held_at_slip(surface, probe, q, batch)[0] - mismatch) / steps[j]
+            jac[:, :, j] = (_held_at_slip(surface, probe, q, batch, basis)[0] - mismatch) / steps[j]
         delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch, strict=False)])
         z += np.clip(delta, -1.0, 1.0)
     as_slide = _Batch(batch.p_WC, batch.R_WC, batch.mu, batch.anchor, np.full(len(z), _MODE_TIP),
@@ -740,54 +737,56 @@ def _attempt(
 ) -> NDArray[np.bool_]:
     """Try to move each track to its target x0: slide in its phase, the other phase, then stick.
 
-    ``fallbacks`` adds the slower searches for far or barely slipping states.
+    ``fallbacks`` adds the slower searches for far or barely slipping states. What every stage
+    needs of the tracks (clamp poses at the targets, friction, contact points, predictors) is
+    gathered once: most steps are one stage of one row, whose cost is these calls.
     """
     n = len(tracks)
     success = np.zeros(n, dtype=bool)
-    todo = np.arange(n)
     jump = max(20.0 * step, 0.01)
+    if n == 1:
+        p_WC, R_WC = tracks[0].trail.clamp_pose(targets)
+    else:
+        poses = [t.trail.clamp_pose(targets[i : i + 1]) for i, t in enumerate(tracks)]
+        p_WC, R_WC = np.concatenate([p for p, _ in poses]), np.concatenate([R for _, R in poses])
+    mu = np.array([t.trail.mu for t in tracks])
+    locked = np.array([t.locked for t in tracks])
+    p1 = np.array([t.p1 for t in tracks])
+    anchor = np.array([t.anchor for t in tracks])
     predictors = np.array([_predict(t) for t in tracks])
-    alternates = np.array([_predict_alternating(t) for t in tracks])
     sliding_mode = np.array([t.mode if t.mode != _MODE_STICK else _MODE_TIP for t in tracks])
-    other_mode = np.where(sliding_mode == _MODE_TIP, _MODE_TANGENTIAL, _MODE_TIP)
-    stick_mode = np.full(n, _MODE_STICK)
-    frictional = np.array([t.trail.mu > 0 for t in tracks])
     stuck: dict[int, tuple[FloatArray, _State, int]] = {}
 
     def solve_stage(modes: NDArray[np.int64], kind: str) -> None:
-        rows = todo[~success[todo]]
+        rows = np.flatnonzero(~success)
         if kind != "slide":
-            rows = rows[frictional[rows]]
+            rows = rows[mu[rows] > 0]
         if kind == "alternating":
-            rows = rows[np.isfinite(alternates[rows, 0])]
+            alternates = np.array([_predict_alternating(tracks[i]) for i in rows]).reshape(-1, 4)
+            finite = np.isfinite(alternates[:, 0])
+            rows, alternates = rows[finite], alternates[finite]
         if kind == "anchored":
             rows = np.array([i for i in rows if i in stuck], dtype=np.int64)
         if len(rows) == 0:
             return
-        poses = [tracks[i].trail.clamp_pose(targets[i : i + 1]) for i in rows]
-        batch = _Batch(
-            p_WC=np.concatenate([p for p, _ in poses]),
-            R_WC=np.concatenate([R for _, R in poses]),
-            mu=np.array([tracks[i].trail.mu for i in rows]),
-            anchor=np.array([tracks[i].anchor if modes[i] == _MODE_STICK else tracks[i].p1 for i in rows]),
-            mode=modes[rows],
-            locked=np.array([tracks[i].locked for i in rows]),
-        )
+        batch = _Batch(p_WC=p_WC[rows], R_WC=R_WC[rows], mu=mu[rows],
+                       anchor=np.where((modes[rows] == _MODE_STICK)[:, None], anchor[rows], p1[rows]),
+                       mode=modes[rows], locked=locked[rows])
         if kind == "anchored":
-            q_stuck = np.array([stuck[i][0] for i in rows])
-            stuck_state = _State(np.concatenate([stuck[i][1].rows for i in rows]))
+            q_stuck = np.array([stuck[int(i)][0] for i in rows])
+            stuck_state = _State(np.concatenate([stuck[int(i)][1].rows for i in rows]))
             q, state, converged = _small_slip(surface, q_stuck, stuck_state, batch)
         elif kind == "continuation":
             q, state, converged = _newton_friction_continuation(surface, predictors[rows], batch)
         elif kind == "alternating":
-            q, state, converged = _newton(surface, alternates[rows], batch)
+            q, state, converged = _newton(surface, alternates, batch)
         else:
             q, state, converged = _newton(surface, predictors[rows], batch)
-        previous = np.array([tracks[i].p1 for i in rows])
-        ok = converged & admissible_rows(state.rows, batch.mode, batch.mu, previous, jump)
+        ok = converged & admissible_rows(state.rows, batch.mode, batch.mu, p1[rows], jump)
         for k in np.flatnonzero(ok):
             i = int(rows[k])
-            chord = float(np.linalg.norm(state.p1[k] - tracks[i].p1))
+            moved = state.rows[k, 4:7] - p1[i]
+            chord = math.sqrt(moved.dot(moved))  # np.linalg.norm's arithmetic, without its calls
             _accept(tracks[i], float(targets[i]), q[k], state, int(k), int(modes[i]))
             # Extrapolate only along an even stretch: in stick-slip the slides alternate in length.
             tracks[i].smooth = kind == "slide" and 0.5 * tracks[i].chord <= chord <= 2.0 * tracks[i].chord
@@ -797,13 +796,14 @@ def _attempt(
             for k in np.flatnonzero(converged & ~ok):
                 stuck[int(rows[k])] = (q[k], _take_state(state, int(k)), int(k))
 
+    other_mode = np.where(sliding_mode == _MODE_TIP, _MODE_TANGENTIAL, _MODE_TIP)
     stages = [
         (sliding_mode, "slide"),
         # In stick-slip the slides alternate between creeps and jumps: predict from two back.
         (sliding_mode, "alternating"),
         (other_mode, "slide"),
         # Where no sliding state is near, the contact may stick (inside the friction cone) ...
-        (stick_mode, "stick"),
+        (np.full(n, _MODE_STICK), "stick"),
     ]
     if fallbacks:
         stages += [

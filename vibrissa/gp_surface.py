@@ -32,8 +32,9 @@ lines at a fixed path length (``select_active``): the lines are far denser than 
 curvature needs. A 10^5-point cloud costs what a 10^4-point cloud does but for the selection.
 The trend is solved for apart from the Cholesky factor of the rest (``_Solution``).
 
-Prediction: the mean f(x) and its gradient (compiled loop over the active points) and the
-standard deviation sd_f(x) (triangular solves); the surface's position uncertainty is
+Prediction: the mean f(x) and its gradient (a compiled loop over the active points, the query
+points shared out over the cores) and the standard deviation sd_f(x) (triangular solves, chunks
+of points on the cores side by side); the surface's position uncertainty is
 sd_d = sd_f / |grad f|, in m. ``mesh`` runs marching cubes (scikit-image) on the mean over a
 box and splits the triangles into *known* (every vertex within ``max_std``) and *unknown*. The
 same points give the same bits: no randomness, and the same linear algebra on the same inputs,
@@ -43,17 +44,25 @@ on one BLAS thread whatever the machine's setting.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import wraps
 from typing import ParamSpec, TypeVar
 
+import numba
 import numpy as np
 import numpy.typing as npt
+from numba import njit, prange
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from threadpoolctl import threadpool_limits
 
-from vibrissa.compiled import compiled
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    # numba's own thread pool for the mean's parallel loop: its default probe tries TBB
+    # first, and in a process that has imported Open3D (which bundles an older TBB) it warns
+    # and falls back anyway
+    numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]  # made at run time
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -232,7 +241,7 @@ def _along(path: FloatArray, step: float) -> IntArray:
     return np.asarray(kept, dtype=np.int64)
 
 
-@compiled
+@njit(cache=True, error_model="numpy", parallel=True)
 def _mean_kernel(q: FloatArray, a: FloatArray, alpha: FloatArray, ell: float,
                  beta: FloatArray) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - numba
     """Posterior mean f (Q,) and its gradient (Q, 3) at q (Q, 3), normalised units: the SE
@@ -243,7 +252,7 @@ def _mean_kernel(q: FloatArray, a: FloatArray, alpha: FloatArray, ell: float,
     g = np.empty((nq, 3))
     il2 = 1.0 / (ell * ell)
     r2 = math.sqrt(2.0)
-    for i in range(nq):
+    for i in prange(nq):  # each point on its own: the same bits on any number of threads
         x, y, z = q[i, 0], q[i, 1], q[i, 2]
         bxy, bxz, byz = r2 * beta[7], r2 * beta[8], r2 * beta[9]  # phi's mixed terms
         fi = (beta[0] + beta[1] * x + beta[2] * y + beta[3] * z + beta[4] * x * x
@@ -312,23 +321,27 @@ class GPSurface:
         return f * self.scale, g
 
     @_one_blas_thread
-    def std(self, points: FloatArray, chunk: int = 2048) -> FloatArray:
-        """Std (N,) of f at points (N, 3), m: the posterior's and ``residual_std``."""
+    def std(self, points: FloatArray, chunk: int = 1024) -> FloatArray:
+        """Std (N,) of f at points (N, 3), m: the posterior's and ``residual_std``. Chunks of
+        points are solved on the cores side by side (the triangular solves release the GIL);
+        each point's std is computed alone, whatever the chunks."""
         q = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.center) / self.scale
-        solution, s2 = self._solution, self.sigma**2
-        out = np.empty(len(q))
-        for start in range(0, len(q), chunk):
-            part = q[start:start + chunk]
-            phi, _ = _quadric(part)
-            v = solve_triangular(solution.chol, s2 * _cross_se(part, self._u,
-                                                               self.length_scale).T,
-                                 lower=True, check_finite=False)
-            # the trend's share: R^T M^-1 R with R = phi - A^T v (eq. 2.42)
-            r = solve_triangular(solution.chol_beta, phi.T - solution.basis.T @ v, lower=True,
-                                 check_finite=False)
-            variance = s2 - np.einsum("ij,ij->j", v, v) + np.einsum("ij,ij->j", r, r)
-            out[start:start + chunk] = np.sqrt(np.maximum(variance, 0.0))
+        parts = [q[start:start + chunk] for start in range(0, len(q), chunk)]
+        with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+            out = np.concatenate(list(pool.map(self._std_unit, parts)) or [np.zeros(0)])
         return np.hypot(out * self.scale, self.residual_std)
+
+    def _std_unit(self, q: FloatArray) -> FloatArray:
+        """Posterior std (Q,) of f at normalised points q (Q, 3), units of s."""
+        solution, s2 = self._solution, self.sigma**2
+        phi, _ = _quadric(q)
+        v = solve_triangular(solution.chol, s2 * _cross_se(q, self._u, self.length_scale).T,
+                             lower=True, check_finite=False)
+        # the trend's share: R^T M^-1 R with R = phi - A^T v (eq. 2.42)
+        r = solve_triangular(solution.chol_beta, phi.T - solution.basis.T @ v, lower=True,
+                             check_finite=False)
+        variance = s2 - np.einsum("ij,ij->j", v, v) + np.einsum("ij,ij->j", r, r)
+        return np.sqrt(np.maximum(variance, 0.0))
 
     def position_std(self, points: FloatArray) -> FloatArray:
         """Std (N,) of the surface's position near points (N, 3) on it, m: sd_f / |grad f|."""
@@ -486,9 +499,10 @@ class SurfaceMeshStd:
 COARSE = 4
 """Fine grid cells per coarse cell in :func:`mesh`."""
 
-BAND = 2.0
-"""A coarse cell is meshed exactly when a corner's |f| is below BAND x its diagonal x the
-largest |grad f| at its corners (and so are its neighbours)."""
+BAND = 0.5
+"""A coarse cell is meshed exactly when its corners' f change sign or one's |f| is below
+BAND x its side x the largest |grad f| at its corners (and so are its neighbours): the mean
+is smooth on the scale of ell, many coarse cells."""
 
 
 KNOWN_FRACTION = 0.2
@@ -538,10 +552,13 @@ def mesh(surface: GPSurface, box_lo: FloatArray, box_hi: FloatArray, cells: int 
     g_c = np.linalg.norm(g_c, axis=1).reshape(*shape_c)
     nx, ny, nz = (int(v) - 1 for v in shape_c)  # coarse cells
     corners = [(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)]
-    f_min = np.min([np.abs(f_c[i:i + nx, j:j + ny, k:k + nz]) for i, j, k in corners], axis=0)
+    f_min = np.min([f_c[i:i + nx, j:j + ny, k:k + nz] for i, j, k in corners], axis=0)
+    f_max = np.max([f_c[i:i + nx, j:j + ny, k:k + nz] for i, j, k in corners], axis=0)
     g_max = np.max([g_c[i:i + nx, j:j + ny, k:k + nz] for i, j, k in corners], axis=0)
-    near = binary_dilation(f_min < BAND * math.sqrt(3) * coarse * g_max,
-                           structure=np.ones((3, 3, 3), dtype=bool))
+    # the zero set crosses the cell (a sign change), or could pass through it between corners
+    closest = np.minimum(np.abs(f_min), np.abs(f_max))
+    crossed = (f_min <= 0) & (f_max >= 0) | (closest < BAND * coarse * g_max)
+    near = binary_dilation(crossed, structure=np.ones((3, 3, 3), dtype=bool))
     empty = SurfaceMeshStd(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0),
                            np.zeros(0, dtype=bool), max_std, cell)
     if not near.any():

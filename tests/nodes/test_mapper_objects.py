@@ -248,10 +248,10 @@ def test_identical_input_gives_identical_labels_and_files(
     assert relocated == scene_map["report"]
 
 
-def test_another_process_with_one_blas_thread_writes_the_same_files(
+def test_another_process_on_one_thread_writes_the_same_files(
         scene_map: dict[str, Any]) -> None:
-    # the fit's linear algebra is LAPACK: another process, and one thread instead of the
-    # machine's, must not change a bit of the map
+    # the fit's linear algebra is LAPACK, its mean a parallel numba loop: another process,
+    # and one thread for both instead of the machine's, must not change a bit of the map
     other = scene_map["tmp"] / "other"
     script = ("import sys; from pathlib import Path; "
               "from tests.nodes.test_mapper_objects import accumulate, messages; "
@@ -260,7 +260,7 @@ def test_another_process_with_one_blas_thread_writes_the_same_files(
               "write_outputs(accumulate(messages()), MapperParams(out_dir=str(out), "
               "scene=sys.argv[2]), out)")
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
-           "MKL_NUM_THREADS": "1"}
+           "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
     subprocess.run([sys.executable, "-c", script, str(other), scene_map["params"].scene],
                    cwd=ROOT, env=env, check=True, timeout=300)
     for name in ("cloud.ply", "mesh.ply", "mesh_ball.ply", "mesh_egg.ply", "map.png"):

@@ -3,7 +3,7 @@
 Methods, each on the same cloud (points in line order, normals from the contact forces as the
 mapper takes them: ``vibrissa.nodes.surface_fit.contact_normals``):
 
-* ``poisson``: the mapper's former mesh, ``surface_fit.fit_surface`` (Open3D screened Poisson,
+* ``poisson``: the mapper's former mesh, ``fit_surface`` here (Open3D screened Poisson,
   depth 8, one thread, trimmed to 0.6 line spacings of the data). The baseline of every ratio.
 * ``gp``: the Gaussian-process implicit surface, ``vibrissa.gp_surface.fit`` and ``mesh`` on the
   mapper's box and grid (``MapParams``: the points' box grown by 0.2 of its diagonal, 64 cells
@@ -68,7 +68,12 @@ from numpy.typing import NDArray  # noqa: E402
 from scipy.spatial import Delaunay, cKDTree  # noqa: E402
 
 from vibrissa import gp_surface  # noqa: E402
-from vibrissa.nodes.surface_fit import MapParams, contact_normals, fit_surface  # noqa: E402
+from vibrissa.nodes.surface_fit import (  # noqa: E402
+    MapParams,
+    contact_normals,
+    line_spacing,
+    too_little_for_a_surface,
+)
 from vibrissa.surfaces import Surface, parse_surface  # noqa: E402
 from vibrissa.sweep import Trail, simulate_sweeps  # noqa: E402
 
@@ -140,6 +145,115 @@ def box(points: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 # --- the methods ----------------------------------------------------------------------------
+
+
+# The mapper's former mesh, kept here as the baseline: screened Poisson on the oriented cloud,
+# one thread (with more its parallel sums round differently from run to run), voxel-downsampled
+# to a quarter of a Poisson cell, trimmed to trim_factor x the line spacing from the data.
+
+@dataclass(frozen=True)
+class FitParams:
+    """Parameters of :func:`fit_surface`.
+
+    Attributes
+    ----------
+    depth
+        Octree depth of the Poisson reconstruction (cell = bounding box / 2**depth).
+    trim_distance
+        Drop mesh vertices farther than this from the cloud, units of the cloud (m); 0 = auto
+        (``trim_factor`` x the typical spacing between lines).
+    trim_factor
+        Multiple of the line spacing kept around the data when ``trim_distance`` is 0.
+    line_break
+        Consecutive points farther apart than this many times the median spacing along the
+        lines start a new line.
+    """
+
+    depth: int = 8
+    trim_distance: float = 0.0
+    trim_factor: float = 0.6
+    line_break: float = 20.0
+
+
+@dataclass(frozen=True)
+class SurfaceFit:
+    """A fitted mesh.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (V, 3)
+        In the cloud's frame and units.
+    triangles : ndarray of int, shape (T, 3)
+        Vertex indices.
+    method : str
+        Method and parameters, for ``SurfaceMesh.method`` and the report.
+    trim_distance : float
+        The trimming distance used, cloud units.
+    line_spacing : float
+        Estimated spacing between neighbouring lines, cloud units (inf with one line).
+    """
+
+    vertices: FloatArray
+    triangles: IntArray
+    method: str
+    trim_distance: float
+    line_spacing: float
+
+
+
+def fit_surface(
+    points: FloatArray,
+    normals: FloatArray,
+    lines: IntArray | None = None,
+    params: FitParams | None = None,
+) -> SurfaceFit:
+    """Screened Poisson mesh of an oriented contact cloud, trimmed to the data (see module).
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+        Contact points and outward unit normals (:func:`contact_normals`).
+    lines : ndarray of int, shape (N,), optional
+        Line labels, for the automatic trimming distance; one line when omitted.
+    params
+        Fitting parameters.
+
+    Returns
+    -------
+    SurfaceFit
+        Empty (no vertices, ``method`` says why) for points that cannot carry a surface
+        (``too_little_for_a_surface``).
+    """
+    params = params or FitParams()
+    points = np.asarray(points, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    lines = np.zeros(len(points), dtype=np.int64) if lines is None else lines
+    spacing = line_spacing(points, lines) if len(points) else float("inf")
+    extent = float(np.linalg.norm(np.ptp(points, axis=0))) if len(points) else 0.0
+    trim = params.trim_distance or (
+        params.trim_factor * spacing if np.isfinite(spacing) else 0.05 * extent
+    )
+    method = (f"poisson(depth={params.depth}, normals=contact force minus line tangent, "
+              f"trim={trim:.4g})")
+    too_little = too_little_for_a_surface(points)
+    if too_little is not None:
+        return SurfaceFit(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
+                          f"none: {too_little}", trim, spacing)
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.normals = o3d.utility.Vector3dVector(normals)
+    cloud = cloud.voxel_down_sample(extent / 2**params.depth / 4)
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+        cloud, depth=params.depth, linear_fit=True, n_threads=1)
+    vertices = np.asarray(mesh.vertices)
+    distance = cKDTree(points).query(vertices)[0]
+    mesh.remove_vertices_by_mask(distance > trim)
+    mesh.remove_unreferenced_vertices()
+    mesh.remove_degenerate_triangles()
+    return SurfaceFit(np.asarray(mesh.vertices).copy(),
+                      np.asarray(mesh.triangles).astype(np.int64), method, trim, spacing)
+
 
 
 def run_poisson(cloud: Cloud) -> Estimate:

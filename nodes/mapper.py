@@ -174,10 +174,10 @@ class MapperParams:
     cluster_eps_m: float = 0.0
     cluster_min_points: int = MIN_POINTS
     rod_length_m: float = 1.0
-    cells: int = 64
-    margin: float = 0.2
-    max_std_m: float = 0.0
-    point_std_m: float = 1e-9
+    cells: int = MapParams.cells
+    margin: float = MapParams.margin
+    max_std_m: float = MapParams.max_std_m
+    point_std_m: float = MapParams.point_std_m
     timeout_s: float = 0.0
     plot: bool = True
     allow_loss: bool = False

@@ -14,21 +14,9 @@ A whisker's contact cloud is a handful of dense *lines* on the object (one per s
   along the line's local tangent therefore gives n exactly while sliding (for any mu), and
   F itself is n for mu = 0 or at an isolated point. The orientation is free: the object
   pushes the rod, so F . n > 0 and n points out of the object.
-* **Screened Poisson reconstruction** (``create_from_point_cloud_poisson``) then interpolates
-  smoothly between the lines using the oriented normals and is insensitive to the strong
-  anisotropy of the sampling, where ball pivoting needs a radius that is both smaller than
-  the point spacing along a line and larger than the gap between lines (it leaves holes or
-  slivers) and alpha shapes give non-manifold, normal-free facets. Poisson closes the
-  surface far from the data, so the mesh is **trimmed by distance**: vertices farther than
-  ``trim`` from every cloud point are dropped, with ``trim`` = ``trim_factor`` x the typical
-  spacing between neighbouring lines (auto) unless given; this keeps the band between the
-  lines and removes the invented back side (density trimming alone keeps low-density bridges
-  there).
-
-Points are voxel-downsampled first (``voxel`` = 1/4 of the Poisson cell), which evens out the
-density along the lines without losing a line. The reconstruction runs on one thread: with
-more, its parallel sums round differently from run to run and the same cloud gives meshes
-with different triangle counts.
+* **The surface** is a Gaussian-process implicit surface on the points and these normals
+  (``vibrissa.gp_surface``; ``estimate_surface`` fits and meshes one object): docs/MAPPING.md
+  measures it against screened Poisson (the mapper's former mesh) and an RBF implicit surface.
 
 Separating objects
 ------------------
@@ -48,7 +36,7 @@ for the same input (its labelling pass is sequential) and numbered by their seed
 are renumbered here by their first point, so the order of the objects is the order of the
 points, whatever Open3D's numbering.
 
-Open3D (2 s and ~180 MB to import) is imported by ``fit_surface`` and ``cluster_points`` only,
+Open3D (2 s and ~180 MB to import) is imported by ``cluster_points`` only,
 so that a node that is stopped before its fit, or a launcher checking the mapper's parameters,
 never loads it. PLY files are written with numpy (``write_ply``): Open3D's writer reports
 success on a full disk.
@@ -82,55 +70,6 @@ DBSCAN_CELLS = 8
 MIN_POINTS = 4
 """Default DBSCAN ``min_points``: the fewest points a surface needs
 (``too_little_for_a_surface``), so that every cluster could carry one."""
-
-
-@dataclass(frozen=True)
-class FitParams:
-    """Parameters of :func:`fit_surface`.
-
-    Attributes
-    ----------
-    depth
-        Octree depth of the Poisson reconstruction (cell = bounding box / 2**depth).
-    trim_distance
-        Drop mesh vertices farther than this from the cloud, units of the cloud (m); 0 = auto
-        (``trim_factor`` x the typical spacing between lines).
-    trim_factor
-        Multiple of the line spacing kept around the data when ``trim_distance`` is 0.
-    line_break
-        Consecutive points farther apart than this many times the median spacing along the
-        lines start a new line.
-    """
-
-    depth: int = 8
-    trim_distance: float = 0.0
-    trim_factor: float = 0.6
-    line_break: float = 20.0
-
-
-@dataclass(frozen=True)
-class SurfaceFit:
-    """A fitted mesh.
-
-    Attributes
-    ----------
-    vertices : ndarray, shape (V, 3)
-        In the cloud's frame and units.
-    triangles : ndarray of int, shape (T, 3)
-        Vertex indices.
-    method : str
-        Method and parameters, for ``SurfaceMesh.method`` and the report.
-    trim_distance : float
-        The trimming distance used, cloud units.
-    line_spacing : float
-        Estimated spacing between neighbouring lines, cloud units (inf with one line).
-    """
-
-    vertices: FloatArray
-    triangles: IntArray
-    method: str
-    trim_distance: float
-    line_spacing: float
 
 
 def split_lines(points: FloatArray, line_break: float = 20.0) -> IntArray:
@@ -333,60 +272,6 @@ def too_little_for_a_surface(points: FloatArray) -> str | None:
     return None
 
 
-def fit_surface(
-    points: FloatArray,
-    normals: FloatArray,
-    lines: IntArray | None = None,
-    params: FitParams | None = None,
-) -> SurfaceFit:
-    """Screened Poisson mesh of an oriented contact cloud, trimmed to the data (see module).
-
-    Parameters
-    ----------
-    points, normals : ndarray, shape (N, 3)
-        Contact points and outward unit normals (:func:`contact_normals`).
-    lines : ndarray of int, shape (N,), optional
-        Line labels, for the automatic trimming distance; one line when omitted.
-    params
-        Fitting parameters.
-
-    Returns
-    -------
-    SurfaceFit
-        Empty (no vertices, ``method`` says why) for points that cannot carry a surface
-        (``too_little_for_a_surface``).
-    """
-    params = params or FitParams()
-    points = np.asarray(points, dtype=np.float64)
-    normals = np.asarray(normals, dtype=np.float64)
-    lines = np.zeros(len(points), dtype=np.int64) if lines is None else lines
-    spacing = line_spacing(points, lines) if len(points) else float("inf")
-    extent = float(np.linalg.norm(np.ptp(points, axis=0))) if len(points) else 0.0
-    trim = params.trim_distance or (
-        params.trim_factor * spacing if np.isfinite(spacing) else 0.05 * extent
-    )
-    method = (f"poisson(depth={params.depth}, normals=contact force minus line tangent, "
-              f"trim={trim:.4g})")
-    too_little = too_little_for_a_surface(points)
-    if too_little is not None:
-        return SurfaceFit(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
-                          f"none: {too_little}", trim, spacing)
-    import open3d as o3d
-
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    cloud.normals = o3d.utility.Vector3dVector(normals)
-    cloud = cloud.voxel_down_sample(extent / 2**params.depth / 4)
-    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-        cloud, depth=params.depth, linear_fit=True, n_threads=1)
-    vertices = np.asarray(mesh.vertices)
-    distance = cKDTree(points).query(vertices)[0]
-    mesh.remove_vertices_by_mask(distance > trim)
-    mesh.remove_unreferenced_vertices()
-    mesh.remove_degenerate_triangles()
-    return SurfaceFit(np.asarray(mesh.vertices).copy(),
-                      np.asarray(mesh.triangles).astype(np.int64), method, trim, spacing)
-
-
 @dataclass(frozen=True)
 class MapParams:
     """Parameters of :func:`estimate_surface` (SI).
@@ -407,7 +292,7 @@ class MapParams:
     cells: int = 64
     margin: float = 0.2
     max_std_m: float = 0.0
-    point_std_m: float = 1e-9
+    point_std_m: float = GPParams.point_std_m
 
 
 @dataclass(frozen=True)

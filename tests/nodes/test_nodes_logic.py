@@ -35,7 +35,7 @@ from vibrissa.nodes.reconstructor import (
     collect_batch,
     reconstruct_messages,
 )
-from vibrissa.nodes.surface_fit import FitParams, contact_normals, fit_surface, split_lines
+from vibrissa.nodes.surface_fit import contact_normals, split_lines
 from vibrissa.nodes.wrench_source import WrenchSourceParams, tick_messages
 from vibrissa.reconstruct import reconstruct, reconstruct_si
 from vibrissa.surfaces import parse_surface
@@ -445,20 +445,6 @@ def test_contact_normals_recover_the_surface_normal_with_friction() -> None:
     assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.5  # F itself is 16.7 deg off
 
 
-def test_fit_surface_stays_close_to_the_true_surface() -> None:
-    points, forces, _ = _paraboloid_lines(mu=0.2)
-    lines = split_lines(points)
-    fit = fit_surface(points, contact_normals(points, forces, lines), lines, FitParams(depth=7))
-    assert len(fit.triangles) > 1000
-    assert fit.line_spacing == pytest.approx(0.2, rel=0.05)
-    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
-    distance = np.abs(surface.signed_distance(fit.vertices))
-    assert distance.mean() < 0.005 and distance.max() < 0.05
-    assert fit.method.startswith("poisson(depth=7")
-    empty = fit_surface(points[:3], forces[:3])
-    assert len(empty.triangles) == 0
-
-
 def test_accumulator_ends_on_count_or_names() -> None:
     point = ContactPoint(stamp=0.0, seq=0, whisker_id="w", frame_id="world", point=[0, 0, 1],
                          s1=0.5, phase=1, force=[0, 0, 1], status=0)
@@ -485,21 +471,6 @@ def test_accumulator_ends_on_count_or_names() -> None:
     assert not named.done
     named.add(EndOfStream(stamp=0.0, source="/b", count=1))
     assert named.done
-
-
-def test_the_same_cloud_gives_the_same_mesh_bit_for_bit() -> None:
-    """Open3D's Poisson sums in parallel and rounds differently from run to run unless it runs
-    on one thread; the map of identical input must be identical."""
-    surface = parse_surface("paraboloid:a=0.5,b=1,h=0.4")
-    sweeps = simulate_sweeps(surface, [Trail(y, 0.2) for y in (-0.4, -0.2, 0.0, 0.2, 0.4)], 0.004)
-    points = np.concatenate([s.contact for s in sweeps])
-    lines = split_lines(points)
-    normals = contact_normals(points, np.concatenate([s.force for s in sweeps]), lines)
-    fits = [fit_surface(points, normals, lines) for _ in range(3)]
-    assert len(fits[0].triangles) > 1000
-    for fit in fits[1:]:
-        np.testing.assert_array_equal(fit.vertices, fits[0].vertices)
-        np.testing.assert_array_equal(fit.triangles, fits[0].triangles)
 
 
 def test_a_result_that_overflows_is_counted_as_no_contact_not_published() -> None:

@@ -33,6 +33,8 @@ test: setup
 bench: setup
 	$(PY) benchmarks/bench_mechanics.py
 	$(PY) benchmarks/bench_pipeline.py
+	$(PY) benchmarks/bench_map.py
+	$(PY) benchmarks/bench_next_sweep.py
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info

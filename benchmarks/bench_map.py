@@ -75,7 +75,7 @@ from vibrissa.nodes.surface_fit import (  # noqa: E402
     too_little_for_a_surface,
 )
 from vibrissa.surfaces import Surface, parse_surface  # noqa: E402
-from vibrissa.sweep import Trail, simulate_sweeps  # noqa: E402
+from vibrissa.sweep import Trail, contact_lines, simulate_sweeps  # noqa: E402
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -127,14 +127,7 @@ def make_cloud(name: str) -> Cloud:
     """The cloud ``name`` of ``CLOUDS`` from Step 1."""
     spec, y0s = CLOUDS[name]
     truth = parse_surface(spec)
-    sweeps = simulate_sweeps(truth, [Trail(y0, MU) for y0 in y0s], STEP)
-    points, forces, lines = [], [], []
-    for k, sweep in enumerate(sweeps):
-        touching = sweep.phase > 0
-        points.append(sweep.contact[touching])
-        forces.append(sweep.force[touching])
-        lines.append(np.full(int(touching.sum()), k, dtype=np.int64))
-    p, f, ln = np.concatenate(points), np.concatenate(forces), np.concatenate(lines)
+    p, f, ln = contact_lines(simulate_sweeps(truth, [Trail(y0, MU) for y0 in y0s], STEP))
     return Cloud(name, p, contact_normals(p, f, ln), ln, truth)
 
 

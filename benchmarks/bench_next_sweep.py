@@ -21,6 +21,7 @@ import numpy as np
 from vibrissa import Trail, gp_surface, parse_surface, simulate_sweeps
 from vibrissa.next_sweep import propose_sections
 from vibrissa.nodes.surface_fit import contact_normals
+from vibrissa.sweep import contact_lines
 
 SPEC = "paraboloid:a=0.5,b=1,h=0.4"
 STARTS = {
@@ -35,14 +36,8 @@ STARTS = {
 
 def cloud(y0s: list[float]) -> tuple[np.ndarray, np.ndarray]:
     """Contact points and contact normals of trails at y0s."""
-    sweeps = simulate_sweeps(parse_surface(SPEC), [Trail(y0, 0.2) for y0 in y0s], 0.001)
-    points, forces, lines = [], [], []
-    for k, sweep in enumerate(sweeps):
-        touching = sweep.phase > 0
-        points.append(sweep.contact[touching])
-        forces.append(sweep.force[touching])
-        lines.append(np.full(int(touching.sum()), k))
-    p, f, line = np.concatenate(points), np.concatenate(forces), np.concatenate(lines)
+    p, f, line = contact_lines(simulate_sweeps(parse_surface(SPEC),
+                                               [Trail(y0, 0.2) for y0 in y0s], 0.001))
     return p, contact_normals(p, f, line)
 
 

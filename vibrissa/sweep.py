@@ -602,6 +602,19 @@ def simulate_sweep(surface: Surface, y0: float, mu: float, step: float = 0.001) 
     return simulate_sweeps(surface, [Trail(y0, mu)], step)[0]
 
 
+def contact_lines(sweeps: Sequence[Sweep]) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+    """The contact cloud of sweeps: the contact point (N, 3) and the contact force on the rod
+    (N, 3), in W, and the sweep (N,) of every step in contact, in sweep then step order (each
+    sweep's contacts are one line on the object)."""
+    touching = [sweep.phase > 0 for sweep in sweeps]
+    empty = [np.zeros((0, 3))]
+    return (np.concatenate([s.contact[t] for s, t in zip(sweeps, touching, strict=True)]
+                           or empty),
+            np.concatenate([s.force[t] for s, t in zip(sweeps, touching, strict=True)] or empty),
+            np.concatenate([np.full(int(t.sum()), k, dtype=np.int64)
+                            for k, t in enumerate(touching)] or [np.zeros(0, dtype=np.int64)]))
+
+
 def _start(surface: Surface, trail: ClampPath, step: float, x_grid: float | None) -> _Track:
     locked = trail.symmetric(surface)
     touch = trail.first_contact(surface)

@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from vibrissa import Trail, gp_surface, parse_surface, simulate_sweeps
 from vibrissa.nodes.surface_fit import contact_normals
+from vibrissa.sweep import contact_lines
 
 DEMO_TRAILS = (-0.4, -0.2, 0.0, 0.2, 0.4)  # launch/demo.yaml
 
@@ -16,14 +17,8 @@ def contact_cloud(spec: str, y0s, mu: float = 0.2, step: float = 0.001):
     """Contact points (L = 1 m, so m) in line order, normals from the contact forces as the
     mapper takes them, the line of each point, the true surface."""
     surface = parse_surface(spec)
-    sweeps = simulate_sweeps(surface, [Trail(y0, mu) for y0 in y0s], step)
-    points, forces, lines = [], [], []
-    for k, sweep in enumerate(sweeps):
-        touching = sweep.phase > 0
-        points.append(sweep.contact[touching])
-        forces.append(sweep.force[touching])
-        lines.append(np.full(int(touching.sum()), k))
-    points, forces, lines = np.concatenate(points), np.concatenate(forces), np.concatenate(lines)
+    points, forces, lines = contact_lines(simulate_sweeps(surface, [Trail(y0, mu) for y0 in y0s],
+                                                          step))
     return points, contact_normals(points, forces, lines), lines, surface
 
 

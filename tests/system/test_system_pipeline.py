@@ -273,9 +273,10 @@ def test_demo_matches_the_library(demo_run: dict[str, Any]) -> None:
     report = json.loads((out / "report.json").read_text())
     assert report["n_points"] == len(points)
     frame = report["frames"][0]
-    assert frame["n_triangles"] > 100 and frame["method"].startswith("poisson")
+    assert frame["n_triangles"] > 100 and frame["method"].startswith("gp implicit surface")
     assert report["max_reconstruction_error_m"] < 1e-9
-    assert frame["mesh_to_surface_mean"] < 0.05  # two lines 0.6 L apart: a coarse map
+    assert frame["mesh_to_surface_max"] < 0.005  # two lines 0.6 L apart, the known part
+    assert len(frame["objects"][0]["next_sweeps"]) == 3
 
 
 def _replay(tmp: Path, bag: Path) -> tuple[int, list[ContactPoint], EndOfStream, str]:

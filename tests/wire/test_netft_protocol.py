@@ -1,0 +1,224 @@
+"""The RDT protocol without sockets: requests, records, and the stream's bookkeeping (loss,
+reordering, 32-bit rollover, stalls, status words), fuzzed with malformed datagrams."""
+
+from __future__ import annotations
+
+import http.server
+import threading
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from vibrissa.wire.netft import (
+    RECORD,
+    Command,
+    StreamTracker,
+    pack_records,
+    pack_request,
+    parse_config,
+    parse_datagram,
+    parse_request,
+    read_config,
+    to_si,
+)
+
+FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def records(first: int, n: int, *, ft_step: int = 1, status: int = 0, per: int = 1) -> list[bytes]:
+    """Datagrams of ``per`` records each, rdt_sequence from ``first`` (wrapping at 2^32)."""
+    seq = np.arange(first, first + n)
+    counts = np.column_stack([seq % 1000 + k for k in range(6)])
+    return [pack_records(seq[i:i + per], seq[i:i + per] * ft_step, np.full(len(seq[i:i + per]), status),
+                         counts[i:i + per]) for i in range(0, n, per)]
+
+
+def invariant(tracker: StreamTracker, span: int) -> None:
+    c = tracker.counters
+    assert c["received"] + c["status_faults"] + c["lost"] + c["reordered"] == span
+
+
+def test_request_layout_is_atis() -> None:
+    assert pack_request(Command.REALTIME, 0) == bytes.fromhex("1234 0002 00000000")
+    assert pack_request(Command.BIAS) == bytes.fromhex("1234 0042 00000000")
+    assert parse_request(pack_request(Command.BUFFERED, 7)) == (Command.BUFFERED, 7)
+    assert parse_request(bytes.fromhex("4321 0002 00000000")) is None  # wrong header
+    assert parse_request(bytes.fromhex("1234 0009 00000000")) is None  # unknown command
+    assert parse_request(b"\x12\x34\x00\x02") is None  # short
+
+
+def test_record_layout_and_units() -> None:
+    data = pack_records([1], [2], [0], [[1_000_000, -2_000_000, 3, 4_000, -5, 6]])
+    assert len(data) == RECORD.size == 36
+    assert RECORD.unpack(data) == (1, 2, 0, 1_000_000, -2_000_000, 3, 4_000, -5, 6)
+    rec = parse_datagram(data)
+    assert rec is not None
+    f, m = to_si(rec["counts"], counts_per_force=1e6, counts_per_torque=1e3)
+    np.testing.assert_array_equal(f, [[1.0, -2.0, 3e-6]])
+    np.testing.assert_array_equal(m, [[4.0, -5e-3, 6e-3]])
+
+
+@pytest.mark.parametrize("per", [1, 5])
+def test_in_order_stream_counts_nothing_but_records(per: int) -> None:
+    tracker = StreamTracker()
+    out = [tracker.feed(d, 0.1 * i) for i, d in enumerate(records(1, 50, per=per))]
+    rdt = np.concatenate([r.rdt for r in out])
+    np.testing.assert_array_equal(rdt, np.arange(1, 51))
+    assert tracker.counters["received"] == 50
+    assert sum(tracker.counters[k] for k in ("lost", "reordered", "duplicates", "malformed")) == 0
+
+
+def test_loss_reordering_and_duplicates_across_the_rollover() -> None:
+    first = (1 << 32) - 5
+    data = records(first, 12)  # rdt wraps from 2^32 - 1 to 0 in the middle
+    order = [0, 1, 3, 2, 4, 6, 7, 7, 9, 10, 11]  # 2 late, 5 and 8 lost, 7 twice
+    tracker = StreamTracker()
+    got = []
+    for k in order:
+        got += tracker.feed(data[k], 0.0).rdt.tolist()
+    assert got == [(first + k) % (1 << 32) for k in (0, 1, 3, 4, 6, 7, 9, 10, 11)]
+    c = tracker.counters
+    assert (c["lost"], c["reordered"], c["duplicates"], c["malformed"]) == (2, 1, 1, 0)
+    invariant(tracker, 12)
+
+
+def test_status_words_warnings_are_published_faults_not() -> None:
+    tracker = StreamTracker(fault_mask=0x80000000)
+    assert len(tracker.feed(records(1, 1, status=0x00010000)[0], 0.0)) == 1
+    assert len(tracker.feed(records(2, 1, status=0x80000001)[0], 0.0)) == 0
+    assert len(tracker.feed(records(3, 1)[0], 0.0)) == 1
+    c = tracker.counters
+    assert (c["status_warnings"], c["status_faults"], c["received"]) == (1, 1, 2)
+    invariant(tracker, 3)
+
+
+def test_stall_from_frozen_ft_sequence_and_from_silence() -> None:
+    tracker = StreamTracker(stall_s=0.2)
+    tracker.restart(0.0)
+    assert not tracker.check_stall(0.19)
+    assert tracker.check_stall(0.2)  # nothing ever came
+    assert tracker.counters["stalls"] == 1
+    tracker.feed(records(1, 1)[0], 0.3)
+    assert not tracker.check_stall(0.31)  # a moving record ends the stall
+    frozen = pack_records(np.arange(2, 10), np.full(8, 1), np.zeros(8), np.zeros((8, 6)))
+    for i in range(8):  # records keep coming, ft_sequence does not move
+        tracker.feed(frozen[36 * i:36 * i + 36], 0.3 + 0.05 * (i + 1))
+        tracker.check_stall(0.3 + 0.05 * (i + 1))
+    assert tracker.stalled and tracker.counters["stalls"] == 2
+
+
+def test_sensor_time_follows_ft_sequence_on_the_host_clock() -> None:
+    tracker = StreamTracker(ft_rate_hz=1000.0)
+    delays = [0.001, 0.003, 0.002, 0.004, 0.0005]  # network jitter: the least sets the offset
+    t, received = [], []
+    for i, d in enumerate(records(1, 5, ft_step=10)):
+        received.append(0.01 * (i + 1) + 100.0 + delays[i])
+        t += tracker.feed(d, received[-1]).t_sensor.tolist()
+    # ft = 10, 20, 30, ... at 1 kHz: 10 ms apart while the least delay holds, never after
+    # the receive time; a lower delay (the last) moves the offset down
+    assert np.diff(t[:4]) == pytest.approx([0.01] * 3, abs=1e-9)
+    assert all(ts <= tr for ts, tr in zip(t, received, strict=True))
+    assert t[4] == pytest.approx(received[4], abs=1e-9)
+
+
+def test_malformed_datagrams_are_counted() -> None:
+    tracker = StreamTracker()
+    good = records(1, 3)
+    assert len(tracker.feed(good[0], 0.0)) == 1
+    for bad in (b"", good[1][:35], good[1] + b"\0", b"\x12\x34" * 100, bytes(36 * 41)):
+        assert len(tracker.feed(bad, 0.0)) == 0
+    far = records(1 + (1 << 21), 1)[0]  # a plausible size, an implausible sequence
+    assert len(tracker.feed(far, 0.0)) == 0
+    assert tracker.counters["malformed"] == 6
+    assert tracker.feed(good[1], 0.0).rdt.tolist() == [2]  # the stream goes on
+
+
+@FUZZ
+@given(st.lists(st.one_of(
+    st.binary(max_size=2000),  # garbage of any length
+    st.integers(1, 200).map(lambda n: records(n, 1)[0]),  # records, any order
+    st.integers(0, 35).map(lambda k: records(7, 1)[0][:k]),  # short
+    st.binary(min_size=36, max_size=36),  # a record's size, random content
+), max_size=60), st.integers(0, 5))
+def test_any_datagrams_never_raise_and_keep_the_books(datagrams: list[bytes], _: int) -> None:
+    tracker = StreamTracker()
+    published: list[int] = []
+    for i, data in enumerate(datagrams):
+        published += tracker.feed(data, float(i)).rdt.tolist()
+        tracker.check_stall(float(i))
+    c = tracker.counters
+    assert c["datagrams"] == len(datagrams)
+    assert all(v >= 0 for v in c.values())
+    # what is published is strictly increasing (modulo 2^32 near the start)
+    assert all(0 < (b - a) % (1 << 32) < (1 << 31) for a, b in zip(published, published[1:], strict=False))
+    assert len(published) == c["received"]
+
+
+@FUZZ
+@given(st.integers(0, (1 << 32) - 1), st.permutations(list(range(30))), st.sets(st.integers(0, 29)))
+def test_counts_are_exact_for_any_order_and_loss(first: int, order: list[int], dropped: set[int]) -> None:
+    data = records(first, 30)
+    tracker = StreamTracker()
+    sent = [k for k in order if k not in dropped]
+    published = []
+    for k in sent:
+        published += tracker.feed(data[k], 0.0).rdt.tolist()
+    if not sent:
+        return
+    # what the driver must find: a record that came after a newer one is reordered (one
+    # older than the stream's first a duplicate: it is outside the stream's books), a gap
+    # between the first and the newest never filled is lost
+    start, newest, late, early = sent[0], sent[0], 0, 0
+    for k in sent[1:]:
+        if k < start:
+            early += 1
+        elif k < newest:
+            late += 1
+        newest = max(newest, k)
+    c = tracker.counters
+    assert (c["reordered"], c["duplicates"]) == (late, early)
+    assert c["lost"] == (newest - start + 1) - len([k for k in sent if k >= start])
+    assert c["received"] == len(published) == len(sent) - late - early
+    invariant(tracker, newest - start + 1)
+
+
+XML = """<?xml version="1.0" encoding="utf-8"?>
+<netft><setuserfilter>0</setuserfilter><comrdtrate>7000</comrdtrate>
+<scfgfu>N</scfgfu><scfgtu>Nmm</scfgtu><cfgcpf>1000000</cfgcpf><cfgcpt>1000</cfgcpt></netft>"""
+
+
+def test_config_from_netftapi2_xml() -> None:
+    config = parse_config(XML)
+    assert config.counts_per_force == 1e6
+    assert config.counts_per_torque == 1e6  # 1000 counts per N mm
+    assert config.rdt_rate_hz == 7000
+    for bad in ("<netft>", "<netft><cfgcpf>0</cfgcpf><cfgcpt>1</cfgcpt></netft>",
+                "<netft><cfgcpf>1</cfgcpf></netft>",
+                "<netft><cfgcpf>1</cfgcpf><cfgcpt>1</cfgcpt><scfgfu>lbf</scfgfu></netft>"):
+        with pytest.raises(ValueError, match="netftapi2.xml"):
+            parse_config(bad)
+
+
+def test_config_read_over_http() -> None:
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 - the http.server API
+            body = XML.encode() if self.path == "/netftapi2.xml" else b""
+            self.send_response(200 if body else 404)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        config = read_config("127.0.0.1", timeout_s=5.0, port=server.server_address[1])
+        assert (config.counts_per_force, config.counts_per_torque) == (1e6, 1e6)
+    finally:
+        server.shutdown()
+        server.server_close()

@@ -10,7 +10,8 @@ SCENE.yaml (world frame W, z up)::
       # ellipsoid: semi_axes_m: [a, b, c]; paraboloid: a_per_m, b_per_m, h_m
     whiskers:
       - {name: w0, length_m: 0.05, ei_nm2: 2.0e-5,
-         mount: {position_m: [0.01, -0.02, 0.0], quaternion_xyzw: [0.17, 0, 0, 0.98]}}
+         mount: {position_m: [0.01, -0.02, 0.0], quaternion_xyzw: [0.17, 0, 0, 0.98]},
+         sensor: {position_m: [0, 0, -0.012]}}   # optional: X_CS of its F/T sensor (identity)
     path: path.csv        # columns t,x,y,z,qx,qy,qz,qw: robot poses X_WR; relative to the scene
 
 Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample) and

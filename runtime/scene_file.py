@@ -3,7 +3,8 @@ error names the file and the key or row.
 
 A scene file (SI, world frame W, z up) holds ``mu``, ``objects`` (name, shape sphere |
 ellipsoid | paraboloid, sizes, ``position_m``, ``quaternion_xyzw``), ``whiskers`` (name,
-``length_m``, ``ei_nm2``, ``mount`` X_RC) and ``path`` (a CSV ``t,x,y,z,qx,qy,qz,qw`` of robot
+``length_m``, ``ei_nm2``, ``mount`` X_RC, optionally ``sensor`` X_CS: the force/torque
+sensor's frame in the clamp frame, identity when left out) and ``path`` (a CSV ``t,x,y,z,qx,qy,qz,qw`` of robot
 poses X_WR, relative to the scene file). Its ``whiskers`` are also the robot description the
 nodes load (`load_robot`): one file, one truth.
 """
@@ -56,7 +57,7 @@ def load_scene(path: str | Path) -> Scene:
 
 def load_robot(path: str | Path) -> tuple[Whisker, ...]:
     """The robot description: the ``whiskers`` of a scene file (or of a file holding only
-    them), each with its name, ``length_m``, ``ei_nm2`` and ``mount``; the rest of a scene
+    them), each with its name, ``length_m``, ``ei_nm2``, ``mount`` and ``sensor``; the rest of a scene
     file is not read."""
     path = Path(path)
     doc = _read_yaml(path)
@@ -170,10 +171,12 @@ def _object(value: Any, where: str) -> SceneObject:
 
 
 def _whisker(value: Any, where: str) -> Whisker:
-    body = _mapping(value, where, ("name", "length_m", "ei_nm2", "mount"),
+    body = _mapping(value, where, ("name", "length_m", "ei_nm2", "mount", "sensor"),
                     ("name", "length_m", "ei_nm2", "mount"))
     length, ei = _number(body["length_m"], f"{where}.length_m"), _number(body["ei_nm2"], f"{where}.ei_nm2")
     if not (length > 0 and ei > 0):
         raise SceneError(f"{where}: length_m and ei_nm2 must be > 0, got {length}, {ei}")
     mount = _mapping(body["mount"], f"{where}.mount", ("position_m", "quaternion_xyzw"), ())
-    return Whisker(str(body["name"]), length, ei, _pose(mount, f"{where}.mount"))
+    sensor = _mapping(body.get("sensor", {}), f"{where}.sensor", ("position_m", "quaternion_xyzw"), ())
+    return Whisker(str(body["name"]), length, ei, _pose(mount, f"{where}.mount"),
+                   _pose(sensor, f"{where}.sensor"))

@@ -111,12 +111,14 @@ class SceneObject:
 @dataclass(frozen=True)
 class Whisker:
     """A rod of length ``length_m`` and bending stiffness ``ei_nm2``, clamped at X_RC on the
-    robot; it leaves the clamp along C's +z."""
+    robot; it leaves the clamp along C's +z. Its force/torque sensor measures in the frame S
+    at X_CS in the clamp frame (``vibrissa.calibration``; identity: S = C)."""
 
     name: str
     length_m: float
     ei_nm2: float
     X_RC: Transform = field(default_factory=Transform)
+    X_CS: Transform = field(default_factory=Transform)
 
     @property
     def scale(self) -> RodScale:

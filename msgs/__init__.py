@@ -20,6 +20,7 @@ from vibrissa.msgs.codec import (
     peek_type,
     to_jsonable,
 )
+from vibrissa.msgs.commands import SensorCommand  # registers itself in MESSAGE_TYPES
 from vibrissa.msgs.messages import (
     MESSAGE_TYPES,
     ContactCloud,
@@ -58,6 +59,7 @@ __all__ = [
     "OversizeError",
     "Ping",
     "RobotPose",
+    "SensorCommand",
     "SurfaceMesh",
     "SweepProposal",
     "UnexpectedTypeError",

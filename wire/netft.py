@@ -172,7 +172,8 @@ class StreamTracker:
     Sensor time. ``t_sensor = ft_sequence / ft_rate_hz + offset``, where ``offset`` keeps
     the sensor time at or below every receive time (the lower envelope of ``t_receive -
     ft/ft_rate``: a datagram is never received before it was measured): the stamps are as
-    regular as the sensor's clock, on the host's time axis, and never in the future.
+    regular as the sensor's clock, on the host's time axis, and never in the future. When the
+    offset moves down, the stamps wait (repeat) rather than go back before those given out.
 
     Counters: ``received`` (records accepted, in order, to publish), ``lost`` (gaps in
     ``rdt_sequence`` not filled since), ``reordered`` (records that came after a newer one:
@@ -198,8 +199,9 @@ class StreamTracker:
     _missing: OrderedDict[int, None] = field(default_factory=OrderedDict)
     _ft_last: int | None = None      # unwrapped ft_sequence of the newest record
     _ft_moved_at: float | None = None
-    _heard_at: float | None = None
+    heard_at: float | None = None    # receive time of the newest accepted record
     _offset: float | None = None
+    _last_stamp: float = -np.inf
     stalled: bool = False
 
     COUNTERS = ("datagrams", "received", "lost", "reordered", "duplicates", "malformed",
@@ -217,7 +219,7 @@ class StreamTracker:
         self._missing.clear()
         self._ft_last = None
         self._offset = None
-        self._heard_at = None
+        self.heard_at = None
         self._ft_moved_at = now
 
     def feed(self, data: bytes, t_receive: float) -> Records:
@@ -253,7 +255,7 @@ class StreamTracker:
                     self._missing.popitem(last=False)  # too old to come: lost for good
                 c["lost"] += d - 1
                 self._newest += d
-            self._heard_at = t_receive
+            self.heard_at = t_receive
             ft_u = ft if self._ft_last is None else self._ft_last + _delta(ft, self._ft_last % _MOD)
             if ft_u != self._ft_last:
                 self._ft_moved_at = t_receive
@@ -276,11 +278,14 @@ class StreamTracker:
         offset = float(t_receive - t_ft.max())
         if self._offset is None or offset < self._offset:
             self._offset = offset
+        # a lower offset must not send the stamps back before those already given out
+        t_sensor = np.maximum(t_ft + self._offset, self._last_stamp)
+        self._last_stamp = float(t_sensor[-1])
         return Records(
             rdt=records["rdt"][keep].astype(np.int64), ft=records["ft"][keep].astype(np.int64),
             status=records["status"][keep].astype(np.int64),
             counts=records["counts"][keep].astype(np.int64),
-            t_receive=np.full(n, t_receive), t_sensor=t_ft + self._offset)
+            t_receive=np.full(n, t_receive), t_sensor=t_sensor)
 
     def check_stall(self, now: float) -> bool:
         """Whether the stream is stalled at ``now`` (no record, or ``ft_sequence`` frozen, for

@@ -1,0 +1,351 @@
+"""ATI Net F/T driver node: one sensor's RDT stream over UDP as WhiskerWrench in its whisker's clamp frame.
+
+Subscribes
+----------
+``command_topic`` (default ``sensor_command``) : SensorCommand
+    ``bias``: tare the sensor (its own software bias, RDT command 0x0042), only while the rod
+    is free (below); otherwise refused, with the reason in the log.
+
+Publishes
+---------
+``topic`` (default ``wrench``) : WhiskerWrench
+    One per record of the sensor, in order, never one older than a record already sent:
+    ``whisker_id`` = ``whisker``, ``frame_id`` = its clamp frame (``<whisker>/clamp``), no
+    pose (the robot graph places it, as its other wrenches); ``f0`` N, ``m0`` N m the clamp's
+    reaction on the rod about the clamp point (``vibrissa.calibration.sensor_to_clamp`` with
+    the whisker's X_CS from ``robot``); ``stamp`` the record's sensor time on the host clock
+    (``stamp: sensor``, from ``ft_sequence``; see ``vibrissa.wire.netft.StreamTracker``) or
+    its receive time (``stamp: receive``); ``seq`` counts the published samples.
+
+The protocol and its books are ``vibrissa.wire.netft``; here are the socket, the stream's
+restarts, the free-rod check and the publishing. Counters in the node's status: the
+tracker's (``datagrams``, ``records`` and ``records_lost`` (its ``received`` and ``lost``:
+records, not the graph's messages), ``reordered``, ``duplicates``,
+``malformed``, ``stalls``, ``status_warnings``, ``status_faults``) and ``foreign`` (datagrams
+from another address), ``stale`` (records older than ``max_latency_s`` behind the newest of
+their drain: not published), ``restarts`` (stream requests after the first), ``biases`` and
+``bias_refused``.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import select
+import socket
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from vibrissa.calibration import sensor_to_clamp
+from vibrissa.frames import Transform, clamp_frame
+from vibrissa.msgs import WhiskerWrench
+from vibrissa.msgs.commands import SensorCommand
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
+from vibrissa.runtime.scene_file import load_robot
+from vibrissa.wire.netft import (
+    RDT_PORT,
+    Command,
+    NetFTConfig,
+    Records,
+    StreamTracker,
+    pack_request,
+    read_config,
+    to_si,
+)
+from vibrissa.wire.topics import validate_name
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class NetFTParams:
+    """Parameters of the Net F/T driver.
+
+    Attributes
+    ----------
+    whisker
+        The whisker on this sensor: its name in ``robot`` and the messages' ``whisker_id``.
+    robot
+        The robot description (a scene file or a file of its ``whiskers``): the whisker's
+        ``sensor`` pose X_CS; empty: the sensor frame is the clamp frame.
+    address, port
+        The sensor (IPv4 address or host name; its RDT port, 49152).
+    local_port
+        UDP port this node receives on (0: any free one).
+    counts_per_force, counts_per_torque
+        Counts per N and per N m (the sensor's ``cfgcpf``/``cfgcpt`` in N and N m).
+    read_config, http_port
+        Read the counts from the sensor's ``netftapi2.xml`` over HTTP at start instead.
+    mode
+        ``realtime`` (RDT 0x0002, a record per datagram) or ``buffered`` (0x0003).
+    ft_rate_hz
+        Rate of the sensor's ``ft_sequence`` (its internal sample rate), Hz.
+    stall_s
+        A stream without records, or with ``ft_sequence`` frozen, this long is stalled, s.
+    restart_s
+        While stalled, the stream is requested again this often, s.
+    fault_mask
+        Status bits that mean a fault (record not published); other bits are warnings.
+    max_latency_s
+        Records this far (sensor time) behind the newest of a drain are stale: not published.
+    stamp
+        ``sensor`` (sequence-derived sensor time on the host clock) or ``receive``.
+    topic, command_topic
+        The wrench topic and the command topic.
+    bias_at_start
+        Tare once at start, when the rod is free (default off: never forced on the user).
+    free_samples, free_force_n, free_moment_nm
+        The rod is free when the last ``free_samples`` samples all have |f0| and |m0| below
+        these (N, N m; after the sensor's current bias).
+    receive_buffer_bytes
+        The socket's receive buffer (SO_RCVBUF).
+    wait_for
+        Nodes that must subscribe to ``topic`` first (buffered until then).
+    """
+
+    whisker: str = "whisker0"
+    robot: str = ""
+    address: str = "192.168.1.1"
+    port: int = RDT_PORT
+    local_port: int = 0
+    counts_per_force: float = 1_000_000.0
+    counts_per_torque: float = 1_000_000.0
+    read_config: bool = False
+    http_port: int = 80
+    mode: Literal["realtime", "buffered"] = "realtime"
+    ft_rate_hz: float = 7000.0
+    stall_s: float = 0.2
+    restart_s: float = 0.5
+    fault_mask: int = 0x80000000
+    max_latency_s: float = 0.05
+    stamp: Literal["sensor", "receive"] = "sensor"
+    topic: str = "wrench"
+    command_topic: str = "sensor_command"
+    bias_at_start: bool = False
+    free_samples: int = 100
+    free_force_n: float = 0.05
+    free_moment_nm: float = 0.005
+    receive_buffer_bytes: int = 1 << 20
+    wait_for: tuple[str, ...] = ()
+    X_CS: Transform = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        require(bool(self.whisker), "whisker", self.whisker, "a whisker name")
+        require(bool(self.address), "address", self.address, "the sensor's address")
+        for key in ("port", "http_port"):
+            require(1 <= getattr(self, key) <= 65535, key, getattr(self, key), "a port 1-65535")
+        require(0 <= self.local_port <= 65535, "local_port", self.local_port, "a port 0-65535")
+        for key in ("counts_per_force", "counts_per_torque", "ft_rate_hz", "stall_s", "restart_s",
+                    "free_force_n", "free_moment_nm"):
+            require_positive(key, getattr(self, key))
+        require_non_negative("max_latency_s", self.max_latency_s)
+        require(0 <= self.fault_mask < 1 << 32, "fault_mask", self.fault_mask, "a 32-bit mask")
+        require(self.free_samples >= 1, "free_samples", self.free_samples, "an integer >= 1")
+        require(self.receive_buffer_bytes >= 4096, "receive_buffer_bytes", self.receive_buffer_bytes,
+                "at least 4096")
+        for name in (self.topic, self.command_topic, *self.wait_for):
+            require_parsed("topic/command_topic/wait_for", name, validate_name)
+        X_CS = Transform()
+        if self.robot:
+            require_parsed("robot", self.robot, load_robot)
+            whiskers = {w.name: w for w in load_robot(self.robot)}
+            require(self.whisker in whiskers, "whisker", self.whisker,
+                    f"a whisker of {self.robot} ({', '.join(whiskers)})")
+            X_CS = whiskers[self.whisker].X_CS
+        object.__setattr__(self, "X_CS", X_CS)
+
+
+PARAMS = NetFTParams
+"""The node's parameter dataclass: the launcher checks a launch file's values with it."""
+
+
+class NetFTReader:
+    """The driver without sockets: datagrams in, clamp-frame wrenches out, and the free-rod
+    check of the last ``free_samples`` samples.
+
+    ``read(data, t_receive)`` feeds one datagram; ``take()`` returns what a drain gave
+    (stale records left out) as ``(stamp (N,), f0_C (N, 3) N, m0_C (N, 3) N m)``.
+    """
+
+    def __init__(self, params: NetFTParams, config: NetFTConfig) -> None:
+        self.params = params
+        self.config = config
+        self.tracker = StreamTracker(ft_rate_hz=params.ft_rate_hz, stall_s=params.stall_s,
+                                     fault_mask=params.fault_mask)
+        self.counters = self.tracker.counters
+        self.counters.update(stale=0)
+        self._pending: list[Records] = []
+        self._free: collections.deque[bool] = collections.deque(maxlen=params.free_samples)
+
+    def read(self, data: bytes, t_receive: float) -> None:
+        records = self.tracker.feed(data, t_receive)
+        if len(records):
+            self._pending.append(records)
+
+    def take(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        pending, self._pending = self._pending, []
+        if not pending:
+            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+        t_sensor = np.concatenate([r.t_sensor for r in pending])
+        t_receive = np.concatenate([r.t_receive for r in pending])
+        counts = np.concatenate([r.counts for r in pending])
+        fresh = t_sensor >= t_sensor.max() - self.params.max_latency_s
+        self.counters["stale"] += int(np.count_nonzero(~fresh))
+        f_S, m_S = to_si(counts[fresh], self.config.counts_per_force, self.config.counts_per_torque)
+        f0, m0 = sensor_to_clamp(f_S, m_S, self.params.X_CS)
+        self._free.extend(((np.linalg.norm(f0, axis=1) < self.params.free_force_n)
+                           & (np.linalg.norm(m0, axis=1) < self.params.free_moment_nm)).tolist())
+        stamp = t_sensor[fresh] if self.params.stamp == "sensor" else t_receive[fresh]
+        return stamp, f0, m0
+
+    def why_not_free(self) -> str | None:
+        """``None`` when the rod is free (every one of the last ``free_samples`` samples below
+        the thresholds), else why not."""
+        n, need = len(self._free), self.params.free_samples
+        if n < need:
+            return f"only {n} of the {need} samples the free-rod check needs have arrived"
+        loaded = need - sum(self._free)
+        if loaded:
+            return (f"the rod is not free: {loaded} of the last {need} samples reach |f0| >= "
+                    f"{self.params.free_force_n} N or |m0| >= {self.params.free_moment_nm} N m")
+        return None
+
+    @property
+    def checked(self) -> bool:
+        """Whether enough samples arrived for the free-rod check."""
+        return len(self._free) >= self.params.free_samples
+
+    def biased(self) -> None:
+        """The sensor was tared: the samples before say nothing about the next ones."""
+        self._free.clear()
+
+
+def sensor_config(params: NetFTParams) -> NetFTConfig:
+    """The counts per N and N m: the parameters, or the sensor's netftapi2.xml."""
+    if params.read_config:
+        config = read_config(params.address, port=params.http_port)
+        log.info("counts from http://%s:%d/netftapi2.xml: %g per N, %g per N m (%s, %s)",
+                 params.address, params.http_port, config.counts_per_force,
+                 config.counts_per_torque, config.force_unit, config.torque_unit)
+        return config
+    return NetFTConfig(params.counts_per_force, params.counts_per_torque)
+
+
+def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time) -> int:
+    """Stream from the sensor until the node is asked to stop."""
+    reader = NetFTReader(params, sensor_config(params))
+    counters = reader.counters
+    counters.update(foreign=0, restarts=0, biases=0, bias_refused=0)
+    # The tracker's books in the node's status; records are not the transport's messages, so
+    # its received and lost get names of their own (a launch reads "lost" as lost messages).
+    renamed = {"received": "records", "lost": "records_lost"}
+
+    def report() -> None:
+        node.counters.update({renamed.get(k, k): v for k, v in counters.items()})
+
+    report()
+    wrenches = node.create_publisher(params.topic, WhiskerWrench, wait_for=params.wait_for)
+    commands = node.create_subscriber({params.command_topic: SensorCommand})
+    frame_id = clamp_frame(params.whisker)
+    sensor = (socket.gethostbyname(params.address), params.port)
+    stream = pack_request(Command.BUFFERED if params.mode == "buffered" else Command.REALTIME, 0)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, params.receive_buffer_bytes)
+        sock.bind(("", params.local_port))
+        sock.setblocking(False)
+        sock.sendto(stream, sensor)
+        reader.tracker.restart(clock())  # the tracker's times are all on ``clock``
+        log.info("%s: streaming from %s:%d (%s) as %s", node.fqn, *sensor, params.mode, frame_id)
+        node.set_state("running", f"streaming from {sensor[0]}:{sensor[1]}")
+        seq = 0
+        bias_wanted = params.bias_at_start
+        next_restart = 0.0
+        next_command = 0.0
+        was_stalled = False
+        while not node.stop_requested:
+            ready, _, _ = select.select([sock], [], [], 0.005)
+            if ready:
+                t = clock()
+                while True:  # drain: everything queued now, so nothing waits behind stale data
+                    try:
+                        data, sender = sock.recvfrom(65536)
+                    except (BlockingIOError, InterruptedError):
+                        break
+                    except OSError as exc:  # e.g. ICMP port unreachable: the sensor is not there yet
+                        log.debug("%s: receive: %s", node.fqn, exc)
+                        break
+                    if sender != sensor:
+                        counters["foreign"] += 1
+                        continue
+                    reader.read(data, t)
+                stamps, f0, m0 = reader.take()
+                for i in range(len(stamps)):
+                    wrenches.publish(WhiskerWrench(stamp=float(stamps[i]), seq=seq,
+                                                   whisker_id=params.whisker, frame_id=frame_id,
+                                                   f0=f0[i], m0=m0[i]))
+                    seq += 1
+            now = clock()
+            stalled = reader.tracker.check_stall(now)
+            if stalled and not was_stalled:
+                log.warning("%s: the sensor stalled: %s for %.2f s; requesting the stream again",
+                            node.fqn, "ft_sequence frozen" if reader.tracker.heard_at is not None
+                            and now - reader.tracker.heard_at < params.stall_s else "no records",
+                            params.stall_s)
+                report()  # the stall in this status, which goes out at once
+                node.set_state("running", f"stalled ({counters['stalls']} so far)")
+            elif was_stalled and not stalled:
+                log.info("%s: the stream is back", node.fqn)
+                node.set_state("running", f"streaming from {sensor[0]}:{sensor[1]}")
+            was_stalled = stalled
+            if stalled and now >= next_restart:
+                sock.sendto(pack_request(Command.STOP), sensor)
+                sock.sendto(stream, sensor)
+                reader.tracker.restart(now)
+                counters["restarts"] += 1
+                next_restart = now + params.restart_s
+            if now >= next_command:
+                next_command = now + 0.02
+                rx = commands.receive(0)
+                if rx is not None and isinstance(rx.msg, SensorCommand) and rx.msg.command == "bias":
+                    log.info("%s: bias requested by %s", node.fqn, rx.msg.sender or "?")
+                    bias_wanted = True
+            if bias_wanted:
+                reason = reader.why_not_free()
+                if reason is None:
+                    sock.sendto(pack_request(Command.BIAS), sensor)
+                    reader.biased()
+                    counters["biases"] += 1
+                    log.info("%s: sensor biased (tared) with the rod free", node.fqn)
+                    bias_wanted = False
+                elif reader.checked or stalled:
+                    counters["bias_refused"] += 1
+                    log.warning("%s: bias refused: %s", node.fqn, reason)
+                    bias_wanted = False
+            report()
+        sock.sendto(pack_request(Command.STOP), sensor)
+        report()
+    finally:
+        sock.close()
+    log.info("%s: %s", node.fqn, ", ".join(f"{k} {v}" for k, v in counters.items()))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = NodeArgs.parse(argv, prog="netft")
+    configure_logging()
+    params = load_params(NetFTParams, args.params_file, args.params)
+    with Node.from_args(args) as node:
+        return run(node, params)
+
+
+if __name__ == "__main__":
+    run_main(main)

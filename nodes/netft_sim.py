@@ -1,0 +1,158 @@
+"""Simulated ATI Net F/T node: a UDP device speaking RDT on loopback, reading a whisker's Step 1 wrenches.
+
+Subscribes
+----------
+nothing (besides the runtime's ``/vibrissa/status``).
+
+Publishes
+---------
+nothing on the graph: it answers RDT requests on UDP ``host:port`` (stream, stop, bias) with
+records of what the whisker's sensor reads: the clamp-frame wrenches of Step 1 (a ``vibrissa
+simulate`` folder, or one sweep of the paper's trail) turned into the load on a sensor at the
+whisker's X_CS (``vibrissa.calibration.clamp_to_sensor``), plus noise, bias and drift, with
+loss and reordering (``vibrissa.wire.netft_device``). Counters in its status: ``made``,
+``dropped``, ``late`` (records), ``biases``.
+
+Run next to a driver: ``vibrissa launch launch/netft.yaml`` (both), or by hand
+``python -m vibrissa.nodes.netft_sim --name sensor --param port:=49152``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from vibrissa.calibration import clamp_to_sensor
+from vibrissa.frames import Transform
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
+from vibrissa.runtime.scene_file import load_scene
+from vibrissa.runtime.scene_results import read_results
+from vibrissa.surfaces import parse_surface
+from vibrissa.sweep import simulate_sweep
+from vibrissa.units import RodScale
+from vibrissa.wire.netft_device import NetFTDevice, SignalSpec
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class NetFTSimParams:
+    """Parameters of the simulated Net F/T.
+
+    Attributes
+    ----------
+    host, port
+        Where the device listens (UDP; 0: a free port, logged).
+    scene, simulated, whisker
+        A scene file, its ``vibrissa simulate`` output folder and the whisker whose wrenches
+        the sensor reads (its X_CS from the scene); without ``scene``: one sweep below.
+    surface, y0, mu, step, rod_length_m, rod_ei_nm2
+        The sweep (units of L) and the rod that makes it SI.
+    rate_hz, loop
+        Records per second (up to 7000); replay from the start after the end (else the last
+        sample is held, a rod at rest).
+    counts_per_force, counts_per_torque, per_datagram, ft_step
+        As the device (``vibrissa.wire.netft_device.NetFTDevice``).
+    noise_force_n, noise_moment_nm, bias, drift, loss, reorder, seed
+        What the device adds (``SignalSpec``): noise std, a constant offset (6 values, N and
+        N m), an offset growing per second (6 values), the probability of losing or
+        reordering a datagram, the seed.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 49152
+    scene: str = ""
+    simulated: str = ""
+    whisker: str = ""
+    surface: str = "paraboloid:a=0.5,b=1,h=0.4"
+    y0: float = 0.2
+    mu: float = 0.2
+    step: float = 0.001
+    rod_length_m: float = 0.05
+    rod_ei_nm2: float = 2.3e-4
+    rate_hz: float = 1000.0
+    loop: bool = True
+    counts_per_force: float = 1_000_000.0
+    counts_per_torque: float = 1_000_000.0
+    per_datagram: int = 10
+    ft_step: int = 1
+    noise_force_n: float = 0.0
+    noise_moment_nm: float = 0.0
+    bias: tuple[float, ...] = (0.0,) * 6
+    drift: tuple[float, ...] = (0.0,) * 6
+    loss: float = 0.0
+    reorder: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        require(0 <= self.port <= 65535, "port", self.port, "a port 0-65535")
+        for key in ("rate_hz", "counts_per_force", "counts_per_torque", "step", "rod_length_m",
+                    "rod_ei_nm2"):
+            require_positive(key, getattr(self, key))
+        require(self.rate_hz <= 20000, "rate_hz", self.rate_hz, "at most 20000")
+        for key in ("noise_force_n", "noise_moment_nm"):
+            require_non_negative(key, getattr(self, key))
+        for key in ("loss", "reorder"):
+            require(0 <= getattr(self, key) < 1, key, getattr(self, key), "a probability in [0, 1)")
+        for key in ("bias", "drift"):
+            require(len(getattr(self, key)) == 6, key, getattr(self, key), "6 numbers")
+        require(1 <= self.per_datagram <= 40, "per_datagram", self.per_datagram, "1 to 40")
+        if self.scene:
+            require(bool(self.simulated and self.whisker), "simulated/whisker",
+                    (self.simulated, self.whisker), "a results folder and a whisker with 'scene'")
+            require_parsed("scene", self.scene, load_scene)
+        else:
+            require_parsed("surface", self.surface, parse_surface)
+
+
+PARAMS = NetFTSimParams
+
+
+def sensor_signal(params: NetFTSimParams) -> np.ndarray:
+    """(N, 6) what the sensor reads along the run, N and N m in S (free samples: zero)."""
+    if params.scene:
+        scene = load_scene(params.scene)
+        whiskers = {w.name: w for w in scene.whiskers}
+        if params.whisker not in whiskers:
+            raise ValueError(f"whisker {params.whisker!r} is not in {params.scene} "
+                             f"({', '.join(whiskers)})")
+        result = next(r for r in read_results(params.simulated, scene) if r.name == params.whisker)
+        f0, m0 = np.nan_to_num(result.f0_n), np.nan_to_num(result.m0_nm)  # unresolved: as free
+        X_CS = whiskers[params.whisker].X_CS
+    else:
+        sweep = simulate_sweep(parse_surface(params.surface), params.y0, params.mu, params.step)
+        f0, m0 = RodScale(params.rod_length_m, params.rod_ei_nm2).wrench_to_si(sweep.f0, sweep.m0)
+        f0 = np.vstack([np.zeros((50, 3)), f0, np.zeros((50, 3))])  # free before and after
+        m0 = np.vstack([np.zeros((50, 3)), m0, np.zeros((50, 3))])
+        X_CS = Transform()
+    f_S, m_S = clamp_to_sensor(f0, m0, X_CS)
+    return np.hstack([f_S, m_S])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = NodeArgs.parse(argv, prog="netft_sim")
+    configure_logging()
+    params = load_params(NetFTSimParams, args.params_file, args.params)
+    signal = sensor_signal(params)
+    spec = SignalSpec(noise=(params.noise_force_n, params.noise_moment_nm), bias=params.bias,
+                      drift=params.drift, loss=params.loss, reorder=params.reorder, seed=params.seed)
+    with Node.from_args(args) as node, NetFTDevice(
+            signal, params.rate_hz, counts_per_force=params.counts_per_force,
+            counts_per_torque=params.counts_per_torque, spec=spec, per_datagram=params.per_datagram,
+            ft_step=params.ft_step, loop=params.loop, host=params.host, port=params.port) as device:
+        log.info("%s: Net F/T on udp://%s:%d, %d samples at %g Hz", node.fqn, *device.address,
+                 len(signal), params.rate_hz)
+        node.set_state("running", f"udp://{device.address[0]}:{device.address[1]}")
+        while node.sleep(0.1):
+            stats = device.stats
+            node.counters.update(made=stats.made, dropped=stats.dropped, late=stats.late,
+                                 biases=stats.biases)
+    return 0
+
+
+if __name__ == "__main__":
+    run_main(main)

@@ -1,0 +1,223 @@
+"""The Net F/T driver node (a real process) against the simulated device, through real UDP
+sockets on loopback: order, exact loss and reordering counts, stalls, bias, a rebooted
+device, malformed datagrams. Every receive has a timeout."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from vibrissa.msgs import NodeStatus, SensorCommand, WhiskerWrench
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
+from vibrissa.wire.netft_device import NetFTDevice, SignalSpec
+
+TIMEOUT_S = 10.0
+FQN = "/s/netft"
+CPF = 1e6
+
+
+def ramp(n: int) -> np.ndarray:
+    """Row k: Fx = k mN (k * 1000 counts), the rest zero: a record tells its row."""
+    rows = np.zeros((n, 6))
+    rows[:, 0] = np.arange(n) * 1e-3
+    return rows
+
+
+@contextmanager
+def driver(tmp_path: Path, endpoints: Endpoints, device: NetFTDevice, **params: Any
+           ) -> Iterator[subprocess.Popen[str]]:
+    values = {"whisker": "w0", "address": "127.0.0.1", "port": device.address[1],
+              "counts_per_force": CPF, "counts_per_torque": CPF, "ft_rate_hz": device.rate_hz,
+              "stall_s": 0.2, "restart_s": 0.3, "free_samples": 20, **params}
+    file = tmp_path / "netft.yaml"
+    file.write_text(yaml.safe_dump(values))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vibrissa.nodes.netft", "--name", "netft", "--namespace", "/s",
+         "--params-file", str(file)], env={**os.environ, **endpoints.to_env()},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            _, err = proc.communicate(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+        print(err)
+
+
+class Watch:
+    """The driver's wrenches and its latest status counters."""
+
+    def __init__(self, endpoints: Endpoints, context: Any) -> None:
+        self.wrenches = Subscriber({"/s/wrench": WhiskerWrench}, endpoints, context)
+        self.status = Subscriber({STATUS_TOPIC: NodeStatus}, endpoints, context)
+        self.counters: dict[str, int] = {}
+        self.message = ""
+
+    def take(self, n: int) -> list[WhiskerWrench]:
+        got: list[WhiskerWrench] = []
+        deadline = time.monotonic() + TIMEOUT_S
+        while len(got) < n:
+            assert time.monotonic() < deadline, f"only {len(got)} of {n} wrenches arrived"
+            rx = self.wrenches.receive(0.2)
+            if rx is not None and isinstance(rx.msg, WhiskerWrench):
+                got.append(rx.msg)
+        return got
+
+    def until(self, check: Any, timeout_s: float = TIMEOUT_S) -> dict[str, int]:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            rx = self.status.receive(0.05)
+            if rx is not None and isinstance(rx.msg, NodeStatus) and rx.msg.node == FQN:
+                self.counters, self.message = dict(rx.msg.counters), rx.msg.message
+                if check(self.counters):
+                    return self.counters
+            while self.wrenches.receive(0) is not None:  # keep the wrench queue short
+                pass
+            assert time.monotonic() < deadline, f"status never matched: {self.counters}"
+
+    def close(self) -> None:
+        self.wrenches.close()
+        self.status.close()
+
+
+@pytest.fixture
+def watch(endpoints: Endpoints, context: Any) -> Iterator[Watch]:
+    w = Watch(endpoints, context)
+    yield w
+    w.close()
+
+
+def rows_of(wrenches: list[WhiskerWrench]) -> np.ndarray:
+    # f0 = -f_S (the sensor frame is the clamp frame): row k has f0x = -k mN
+    return np.rint(-np.array([w.f0[0] for w in wrenches]) * 1e3).astype(int)
+
+
+def test_every_record_once_and_in_order(tmp_path: Path, endpoints: Endpoints, watch: Watch) -> None:
+    with NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF) as device, \
+            driver(tmp_path, endpoints, device):
+        got = watch.take(500)
+        rows = rows_of(got)
+        assert np.all(np.diff(rows) == 1), "records skipped, repeated or out of order"
+        assert [w.seq for w in got] == list(range(got[0].seq, got[0].seq + 500))
+        assert all(w.frame_id == "w0/clamp" and w.whisker_id == "w0" and not w.has_pose for w in got)
+        stamps = np.array([w.stamp for w in got])
+        steps = np.diff(stamps)  # sensor time: the sensor's 1 ms, except where the offset to the
+        assert np.all(steps >= 0) and np.all(steps < 1e-3 + 1e-6)  # host clock moves down
+        assert np.median(steps) == pytest.approx(1e-3, abs=1e-6)
+        assert abs(stamps[-1] - time.time()) < 1.0
+        counters = watch.until(lambda c: c.get("records", 0) > 600)
+        assert counters["records_lost"] == counters["reordered"] == counters["malformed"] == 0
+
+
+def test_loss_and_reordering_are_counted_exactly(tmp_path: Path, endpoints: Endpoints,
+                                                 watch: Watch) -> None:
+    with NetFTDevice(ramp(100_000), rate_hz=2000, counts_per_force=CPF,
+                     spec=SignalSpec(seed=3)) as device, driver(tmp_path, endpoints, device):
+        watch.until(lambda c: c.get("records", 0) > 100)
+        device.loss, device.reorder = 0.05, 0.05
+        time.sleep(1.5)
+        device.loss, device.reorder = 0.0, 0.0
+        time.sleep(0.2)  # a clean tail: every gap is closed, every held datagram sent
+        dropped, late, made = device.stats.dropped, device.stats.late, device.stats.made
+        assert dropped > 50 and late > 50
+        counters = watch.until(lambda c: c["records"] + c["records_lost"] + c["reordered"] >= made)
+        assert (counters["records_lost"], counters["reordered"]) == (dropped, late)
+
+
+@pytest.mark.parametrize("fault", ["freeze_ft", "mute"])
+def test_a_stalled_device_is_reported_within_half_a_second(tmp_path: Path, endpoints: Endpoints,
+                                                           watch: Watch, fault: str) -> None:
+    with NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF) as device, \
+            driver(tmp_path, endpoints, device):
+        watch.until(lambda c: c.get("records", 0) > 100)
+        start = time.monotonic()
+        setattr(device, fault, True)
+        watch.until(lambda c: c.get("stalls", 0) >= 1, timeout_s=2.0)
+        assert time.monotonic() - start < 0.5
+        setattr(device, fault, False)
+        watch.until(lambda c: c.get("restarts", 0) >= 1)
+        before = watch.counters["records"]
+        watch.until(lambda c: c["records"] > before + 200)  # the stream is back
+
+
+def test_bias_removes_a_constant_offset_exactly(tmp_path: Path, endpoints: Endpoints, watch: Watch,
+                                                context: Any) -> None:
+    offset = (0.012, -0.021, 0.0053, 0.0011, -0.0004, 0.0021)
+    with NetFTDevice(np.zeros((1, 6)), rate_hz=1000, counts_per_force=CPF, counts_per_torque=CPF,
+                     spec=SignalSpec(bias=offset)) as device, driver(tmp_path, endpoints, device), \
+            Publisher("/s/sensor_command", SensorCommand, endpoints, context) as commands:
+        before = watch.take(5)[-1]
+        np.testing.assert_array_equal(before.f0, -np.array(offset[:3]))  # counts are exact here
+        np.testing.assert_array_equal(before.m0, -np.array(offset[3:]))
+        deadline = time.monotonic() + TIMEOUT_S
+        while watch.counters.get("biases", 0) < 1:
+            assert time.monotonic() < deadline
+            commands.publish(SensorCommand(stamp=time.time(), command="bias", sender="/test"))
+            watch.until(lambda c: True, timeout_s=1.0)
+        time.sleep(0.1)
+        after = watch.take(200)[-1]
+        np.testing.assert_array_equal(after.f0, np.zeros(3))
+        np.testing.assert_array_equal(after.m0, np.zeros(3))
+        assert device.stats.biases >= 1
+
+
+def test_bias_is_refused_while_the_rod_is_loaded(tmp_path: Path, endpoints: Endpoints,
+                                                 watch: Watch, context: Any) -> None:
+    load = np.array([[0.2, 0.0, 0.0, 0.0, 0.0, 0.0]])  # 0.2 N: above free_force_n
+    with NetFTDevice(load, rate_hz=1000, counts_per_force=CPF) as device, \
+            driver(tmp_path, endpoints, device) as proc, \
+            Publisher("/s/sensor_command", SensorCommand, endpoints, context) as commands:
+        watch.take(50)
+        deadline = time.monotonic() + TIMEOUT_S
+        while watch.counters.get("bias_refused", 0) < 1:
+            assert time.monotonic() < deadline
+            commands.publish(SensorCommand(stamp=time.time(), command="bias", sender="/test"))
+            watch.until(lambda c: True, timeout_s=1.0)
+        assert device.stats.biases == 0
+        proc.terminate()
+        _, err = proc.communicate(timeout=5)
+        assert "bias refused: the rod is not free" in err
+
+
+def test_a_restarted_device_resumes_the_stream(tmp_path: Path, endpoints: Endpoints,
+                                               watch: Watch) -> None:
+    device = NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF)
+    port = device.address[1]
+    with driver(tmp_path, endpoints, device):
+        watch.take(100)
+        device.close()  # the sensor reboots: its rdt_sequence starts again
+        time.sleep(0.3)
+        with NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF, port=port) as again:
+            watch.until(lambda c: c.get("stalls", 0) >= 1)
+            got = watch.take(300)[-200:]
+            assert np.all(np.diff(rows_of(got)) == 1)
+            assert again.stats.requests.get("REALTIME", 0) >= 1
+
+
+def test_malformed_datagrams_are_counted_and_dropped(tmp_path: Path, endpoints: Endpoints,
+                                                     watch: Watch) -> None:
+    with NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF) as device, \
+            driver(tmp_path, endpoints, device) as proc:
+        watch.take(50)
+        bad = [b"", b"\x00" * 35, b"\x00" * 37, b"\x12\x34\x00\x02\x00\x00\x00\x00", os.urandom(500),
+               (0xFFFFFF).to_bytes(4, "big") * 9]  # a record's size, a wild rdt_sequence
+        for data in bad:
+            device.send_raw(data)
+        counters = watch.until(lambda c: c.get("malformed", 0) >= len(bad))
+        assert counters["malformed"] == len(bad)
+        got = watch.take(200)[-100:]
+        assert np.all(np.diff(rows_of(got)) == 1)
+        assert proc.poll() is None

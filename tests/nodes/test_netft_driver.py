@@ -221,3 +221,16 @@ def test_malformed_datagrams_are_counted_and_dropped(tmp_path: Path, endpoints: 
         got = watch.take(200)[-100:]
         assert np.all(np.diff(rows_of(got)) == 1)
         assert proc.poll() is None
+
+
+def test_vibrissa_sensor_bias_tares_a_free_rod(tmp_path: Path, endpoints: Endpoints, watch: Watch) -> None:
+    with NetFTDevice(np.zeros((1, 6)), rate_hz=1000, counts_per_force=CPF,
+                     spec=SignalSpec(bias=(0.01, 0, 0, 0, 0, 0))) as device, \
+            driver(tmp_path, endpoints, device):
+        watch.take(50)
+        done = subprocess.run(
+            [sys.executable, "-m", "vibrissa.cli.main", "sensor", "bias", "/s", "--timeout", "8"],
+            env={**os.environ, **endpoints.to_env()}, capture_output=True, text=True, timeout=30)
+        assert done.returncode == 0, done.stderr
+        assert "/s/netft: sensor biased" in done.stdout
+        assert device.stats.biases >= 1

@@ -20,7 +20,6 @@ from vibrissa.msgs.codec import (
     peek_type,
     to_jsonable,
 )
-from vibrissa.msgs.commands import SensorCommand  # registers itself in MESSAGE_TYPES
 from vibrissa.msgs.messages import (
     MESSAGE_TYPES,
     ContactCloud,
@@ -33,6 +32,7 @@ from vibrissa.msgs.messages import (
     NodeStatus,
     Ping,
     RobotPose,
+    SensorCommand,
     SurfaceMesh,
     SweepProposal,
     WhiskerWrench,

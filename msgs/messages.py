@@ -482,6 +482,21 @@ class SweepProposal(Message):
         "m", "the same after this proposal (and the ones before it) were touched")
 
 
+SENSOR_COMMANDS = ("bias",)
+
+
+@dataclass(frozen=True, eq=False)
+class SensorCommand(Message):
+    """A request to a sensor driver on its command topic (``vibrissa sensor bias NAME``)."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/SensorCommand"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    command: str = _text("'bias': tare the sensor, if its rod is free", choices=SENSOR_COMMANDS)
+    sender: str = _text("who asks (a node or a tool), for the driver's log")
+
+
 @dataclass(frozen=True, eq=False)
 class RobotPose(Message):
     """Pose X_PC of frame child_frame_id (C) in frame_id (P)."""
@@ -557,6 +572,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         ContactCloud,
         SurfaceMesh,
         SweepProposal,
+        SensorCommand,
         RobotPose,
         NodeStatus,
         EndOfStream,

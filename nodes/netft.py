@@ -43,8 +43,7 @@ import numpy.typing as npt
 
 from vibrissa.calibration import sensor_to_clamp
 from vibrissa.frames import Transform, clamp_frame
-from vibrissa.msgs import WhiskerWrench
-from vibrissa.msgs.commands import SensorCommand
+from vibrissa.msgs import SensorCommand, WhiskerWrench
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.runtime.scene_file import load_robot

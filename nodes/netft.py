@@ -162,6 +162,9 @@ class NetFTParams:
         object.__setattr__(self, "X_CS", X_CS)
 
 
+PUBLISH_SLICE = 64
+"""Records published between two drains of the socket (a few ms of Python)."""
+
 PARAMS = NetFTParams
 """The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
@@ -170,8 +173,12 @@ class NetFTReader:
     """The driver without sockets: datagrams in, clamp-frame wrenches out, and the free-rod
     check of the last ``free_samples`` samples.
 
-    ``read(data, t_receive)`` feeds one datagram; ``take()`` returns what a drain gave
-    (stale records left out) as ``(stamp (N,), f0_C (N, 3) N, m0_C (N, 3) N m)``.
+    ``read_many(datagrams, t_receive)`` feeds what one drain of the socket gave (``read``: one
+    datagram); ``take(limit)`` returns the oldest ``limit`` records not yet taken as ``(stamp
+    (N,), f0_C (N, 3) N, m0_C (N, 3) N m)``. Records more than ``max_latency_s`` (sensor time)
+    behind the newest received are left out and counted ``stale``, whether they arrived
+    behind newer ones in one drain or waited too long to be taken: the backlog stays short,
+    and every record received is either taken or stale.
     """
 
     def __init__(self, params: NetFTParams, config: NetFTConfig) -> None:
@@ -182,28 +189,54 @@ class NetFTReader:
         self.counters = self.tracker.counters
         self.counters.update(stale=0)
         self._pending: list[Records] = []
+        # calibrated, not yet taken: sensor time (N,), stamp (N,), f0 (N, 3), m0 (N, 3)
+        self._t_sensor = np.zeros(0)
+        self._stamp = np.zeros(0)
+        self._f0 = np.zeros((0, 3))
+        self._m0 = np.zeros((0, 3))
         self._free: collections.deque[bool] = collections.deque(maxlen=params.free_samples)
 
     def read(self, data: bytes, t_receive: float) -> None:
-        records = self.tracker.feed(data, t_receive)
+        self.read_many((data,), t_receive)
+
+    def read_many(self, datagrams: Sequence[bytes], t_receive: float) -> None:
+        records = self.tracker.feed_many(datagrams, t_receive)
         if len(records):
             self._pending.append(records)
 
-    def take(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def __len__(self) -> int:
+        """Records received and not yet taken (stale ones included until ``take``)."""
+        return len(self._t_sensor) + sum(len(r) for r in self._pending)
+
+    def take(self, limit: int | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
         pending, self._pending = self._pending, []
-        if not pending:
+        if pending:
+            t_sensor = np.concatenate([r.t_sensor for r in pending])
+            t_receive = np.concatenate([r.t_receive for r in pending])
+            counts = np.concatenate([r.counts for r in pending])
+            fresh = t_sensor >= t_sensor.max() - self.params.max_latency_s
+            self.counters["stale"] += int(np.count_nonzero(~fresh))
+            f_S, m_S = to_si(counts[fresh], self.config.counts_per_force,
+                             self.config.counts_per_torque)
+            f0, m0 = sensor_to_clamp(f_S, m_S, self.params.X_CS)
+            self._free.extend(((np.linalg.norm(f0, axis=1) < self.params.free_force_n)
+                               & (np.linalg.norm(m0, axis=1) < self.params.free_moment_nm)).tolist())
+            stamp = t_sensor[fresh] if self.params.stamp == "sensor" else t_receive[fresh]
+            self._t_sensor = np.concatenate([self._t_sensor, t_sensor[fresh]])
+            self._stamp = np.concatenate([self._stamp, stamp])
+            self._f0 = np.concatenate([self._f0, f0])
+            self._m0 = np.concatenate([self._m0, m0])
+        if not len(self._t_sensor):
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
-        t_sensor = np.concatenate([r.t_sensor for r in pending])
-        t_receive = np.concatenate([r.t_receive for r in pending])
-        counts = np.concatenate([r.counts for r in pending])
-        fresh = t_sensor >= t_sensor.max() - self.params.max_latency_s
-        self.counters["stale"] += int(np.count_nonzero(~fresh))
-        f_S, m_S = to_si(counts[fresh], self.config.counts_per_force, self.config.counts_per_torque)
-        f0, m0 = sensor_to_clamp(f_S, m_S, self.params.X_CS)
-        self._free.extend(((np.linalg.norm(f0, axis=1) < self.params.free_force_n)
-                           & (np.linalg.norm(m0, axis=1) < self.params.free_moment_nm)).tolist())
-        stamp = t_sensor[fresh] if self.params.stamp == "sensor" else t_receive[fresh]
-        return stamp, f0, m0
+        # the backlog's oldest may have waited too long behind the newest: stale as well
+        first = int(np.searchsorted(self._t_sensor,
+                                    self._t_sensor[-1] - self.params.max_latency_s))
+        self.counters["stale"] += first
+        end = len(self._t_sensor) if limit is None else min(len(self._t_sensor), first + limit)
+        out = self._stamp[first:end], self._f0[first:end], self._m0[first:end]
+        self._t_sensor, self._stamp = self._t_sensor[end:], self._stamp[end:]
+        self._f0, self._m0 = self._f0[end:], self._m0[end:]
+        return out
 
     def why_not_free(self) -> str | None:
         """``None`` when the rod is free (every one of the last ``free_samples`` samples below
@@ -270,28 +303,39 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
         next_restart = 0.0
         next_command = 0.0
         was_stalled = False
+        def drain() -> None:
+            """Everything queued now into the reader, so nothing waits behind stale data."""
+            datagrams = []
+            while True:
+                try:
+                    data, sender = sock.recvfrom(65536)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError as exc:  # e.g. ICMP port unreachable: the sensor is not there yet
+                    log.debug("%s: receive: %s", node.fqn, exc)
+                    break
+                if sender != sensor:
+                    counters["foreign"] += 1
+                    continue
+                datagrams.append(data)
+            if datagrams:
+                reader.read_many(datagrams, clock())
+
+        def publish(limit: int | None) -> None:
+            nonlocal seq
+            stamps, f0, m0 = reader.take(limit)
+            for stamp, f, m in zip(stamps.tolist(), f0, m0, strict=True):
+                wrenches.publish(WhiskerWrench(stamp=stamp, seq=seq, whisker_id=params.whisker,
+                                               frame_id=frame_id, f0=f, m0=m))
+                seq += 1
+
         while not node.stop_requested:
-            ready, _, _ = select.select([sock], [], [], 0.005)
+            # The socket first: publishing goes in slices of PUBLISH_SLICE between drains, so
+            # a burst of records never leaves the kernel's buffer to overflow meanwhile.
+            ready, _, _ = select.select([sock], [], [], 0.0 if len(reader) else 0.005)
             if ready:
-                t = clock()
-                while True:  # drain: everything queued now, so nothing waits behind stale data
-                    try:
-                        data, sender = sock.recvfrom(65536)
-                    except (BlockingIOError, InterruptedError):
-                        break
-                    except OSError as exc:  # e.g. ICMP port unreachable: the sensor is not there yet
-                        log.debug("%s: receive: %s", node.fqn, exc)
-                        break
-                    if sender != sensor:
-                        counters["foreign"] += 1
-                        continue
-                    reader.read(data, t)
-                stamps, f0, m0 = reader.take()
-                for i in range(len(stamps)):
-                    wrenches.publish(WhiskerWrench(stamp=float(stamps[i]), seq=seq,
-                                                   whisker_id=params.whisker, frame_id=frame_id,
-                                                   f0=f0[i], m0=m0[i]))
-                    seq += 1
+                drain()
+            publish(PUBLISH_SLICE)
             now = clock()
             stalled = reader.tracker.check_stall(now)
             if stalled and not was_stalled:
@@ -331,6 +375,13 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
                     bias_wanted = False
             report()
         sock.sendto(pack_request(Command.STOP), sensor)
+        # The records sent before the stop arrived: taken and published, not left unread.
+        quiet_until, deadline = time.monotonic() + 0.05, time.monotonic() + 0.5
+        while time.monotonic() < min(quiet_until, deadline):
+            if select.select([sock], [], [], 0.01)[0]:
+                drain()
+                quiet_until = time.monotonic() + 0.05
+        publish(None)
         report()
     finally:
         sock.close()

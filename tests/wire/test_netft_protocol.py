@@ -222,3 +222,29 @@ def test_config_read_over_http() -> None:
     finally:
         server.shutdown()
         server.server_close()
+
+
+@FUZZ
+@given(st.permutations(list(range(40))), st.sets(st.integers(0, 39)), st.integers(1, 5),
+       st.lists(st.integers(1, 12), min_size=1, max_size=20))
+def test_a_drain_fed_at_once_is_the_datagrams_fed_in_turn(order: list[int], dropped: set[int],
+                                                           per: int, cuts: list[int]) -> None:
+    data = records(3, 40 * per, per=per, ft_step=3)
+    sent = [data[k] for k in order if k not in dropped] + [b"\x00" * 35]  # and a malformed one
+    one, many = StreamTracker(ft_rate_hz=1000.0), StreamTracker(ft_rate_hz=1000.0)
+    singly: list[tuple[int, float]] = []
+    batched: list[tuple[int, float]] = []
+    i = 0
+    for n, t in zip(cuts * 40, np.arange(1.0, 100.0, 0.01), strict=False):  # drains of n at t
+        if i >= len(sent):
+            break
+        for d in sent[i:i + n]:
+            r = one.feed(d, t)
+            singly += zip(r.rdt.tolist(), r.t_sensor.tolist(), strict=True)
+        r = many.feed_many(sent[i:i + n], t)
+        batched += zip(r.rdt.tolist(), r.t_sensor.tolist(), strict=True)
+        i += n
+    assert one.counters == many.counters
+    assert [k for k, _ in batched] == [k for k, _ in singly]
+    # and the same stamps: each datagram of a drain moves the offset as it would alone
+    np.testing.assert_allclose([t for _, t in batched], [t for _, t in singly], atol=1e-12)

@@ -22,9 +22,9 @@ restarts, the free-rod check and the publishing. Counters in the node's status: 
 tracker's (``datagrams``, ``records`` and ``records_lost`` (its ``received`` and ``lost``:
 records, not the graph's messages), ``reordered``, ``duplicates``,
 ``malformed``, ``stalls``, ``status_warnings``, ``status_faults``) and ``foreign`` (datagrams
-from another address), ``stale`` (records older than ``max_latency_s`` behind the newest of
-their drain: not published), ``restarts`` (stream requests after the first), ``biases`` and
-``bias_refused``.
+from another address), ``stale`` (records received but more than ``max_latency_s`` behind the
+newest received when their turn to be published came: not published), ``restarts`` (stream
+requests after the first), ``biases`` and ``bias_refused``.
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ class NetFTParams:
     fault_mask
         Status bits that mean a fault (record not published); other bits are warnings.
     max_latency_s
-        Records this far (sensor time) behind the newest of a drain are stale: not published.
+        Records this far (sensor time) behind the newest received are stale: not published.
     stamp
         ``sensor`` (sequence-derived sensor time on the host clock) or ``receive``.
     topic, command_topic

@@ -65,7 +65,7 @@ def bare_loop(rate: float, seconds: float) -> dict[str, float]:
     while time.monotonic() - start < seconds:
         tracker.feed(sock.recv(65536), time.time())
     sock.sendto(pack_request(Command.STOP), ("127.0.0.1", port))
-    sock.settimeout(0.1)
+    sock.settimeout(0.2)
     try:  # what was sent before the stop arrived, as the driver takes it too
         while True:
             tracker.feed(sock.recv(65536), time.time())

@@ -375,12 +375,13 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
                     bias_wanted = False
             report()
         sock.sendto(pack_request(Command.STOP), sensor)
-        # The records sent before the stop arrived: taken and published, not left unread.
-        quiet_until, deadline = time.monotonic() + 0.05, time.monotonic() + 0.5
+        # The records sent before the stop arrived: taken and published, not left unread, until
+        # the stream has been quiet for stall_s (by the driver's own measure, it has ended).
+        quiet_until, deadline = time.monotonic() + params.stall_s, time.monotonic() + 1.0
         while time.monotonic() < min(quiet_until, deadline):
             if select.select([sock], [], [], 0.01)[0]:
                 drain()
-                quiet_until = time.monotonic() + 0.05
+                quiet_until = time.monotonic() + params.stall_s
         publish(None)
         report()
     finally:

@@ -234,6 +234,8 @@ class NetFTReader:
         self.counters["stale"] += first
         end = len(self._t_sensor) if limit is None else min(len(self._t_sensor), first + limit)
         out = self._stamp[first:end], self._f0[first:end], self._m0[first:end]
+        for array in out:  # read-only: a message takes its rows as they are, without a copy
+            array.flags.writeable = False
         self._t_sensor, self._stamp = self._t_sensor[end:], self._stamp[end:]
         self._f0, self._m0 = self._f0[end:], self._m0[end:]
         return out

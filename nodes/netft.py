@@ -352,6 +352,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
                 node.set_state("running", f"streaming from {sensor[0]}:{sensor[1]}")
             was_stalled = stalled
             if stalled and now >= next_restart:
+                drain()  # what the old stream queued goes in its own books, not the new one's
                 sock.sendto(pack_request(Command.STOP), sensor)
                 sock.sendto(stream, sensor)
                 reader.tracker.restart(now)

@@ -617,11 +617,13 @@ def to_jsonable(msg: Message) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, spec in field_specs(type(msg)):
         value = getattr(msg, name)
-        if spec.kind == ARRAY:
+        if value is None:  # an optional field left out (a wrench without a clamp pose)
+            out[name] = None
+        elif spec.kind == ARRAY:
             out[name] = value.tolist()
         elif spec.kind == ENUM:
             out[name] = int(value)
-        elif spec.kind in (STR_LIST, STR_INT_MAP, STR_STR_MAP) and value is not None:
+        elif spec.kind in (STR_LIST, STR_INT_MAP, STR_STR_MAP):
             out[name] = type(value)(value)
         else:
             out[name] = value

@@ -393,6 +393,17 @@ def test_jsonable_matches_schema_shape(msg: Message) -> None:
         assert prop["description"], name
 
 
+def test_jsonable_of_a_wrench_without_a_pose_leaves_the_pose_out() -> None:
+    # a sensor driver's wrench (clamp frame, no world pose): `vibrissa topic echo` and the
+    # JSON export once failed on its missing arrays
+    msg = WhiskerWrench(stamp=1.0, seq=2, whisker_id="w0", frame_id="w0/clamp",
+                        f0=[0.0, 1.0, 0.0], m0=[0.0, 0.0, 0.5])
+    data = to_jsonable(msg)
+    assert data["clamp_position"] is None and data["clamp_orientation"] is None
+    assert data["f0"] == [0.0, 1.0, 0.0]
+    json.dumps(data)
+
+
 def test_schema_states_units_and_shapes() -> None:
     schema = json_schema(WhiskerWrench)
     f0 = schema["properties"]["f0"]

@@ -113,7 +113,9 @@ def test_samples_stream_while_the_sweeps_are_solved(tmp_path: Path) -> None:
             launch.proc.kill()
     done = launch.wait_line(r"wrench_source\] .*done: 10474 messages")
     progress = [t for t, line in launch.lines if "sweeps ended" in line and "done:" not in line]
-    assert len(progress) >= 2, launch.text()  # progress is logged while it works
+    # progress is logged while it works (every 2 s: once or more, the demo's sweeps now
+    # take 3-4 s on this machine)
+    assert len(progress) >= 1, launch.text()
     span = arrivals[-1] - arrivals[0]
     assert len(arrivals) > 10_000 - 500  # the subscriber may join a moment late
     assert span > 0.5 * (done - progress[0] + 2.0)  # spread out, not a burst at the end

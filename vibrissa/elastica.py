@@ -115,24 +115,112 @@ def planar_contact_scalar(fu: float, fv: float, kappa0: float) -> tuple[float, f
         u1, v1, s1, phi1, status = 0.0, 1.0, 1.0, 0.5 * math.pi, _AXIAL
     else:
         m = k * k
-        # chi = am(K - c) = atan2(cos theta0, k' sin theta0): the amplitude still to go from
-        # the clamp to the zero of kappa (k > 0 cancels from both arguments).
-        chi = math.atan2(c0, math.sqrt(1.0 - m) * b0)
+        chi = _amplitude_to_zero(b0, c0, m)
         f_chi, e_chi = incomplete_f_e(chi, m)
-        s1 = f_chi / sqrt_f
-        # E(am K) - E(am c) = e_chi - m sin(theta0) sin(chi) by the addition theorem, free of
-        # cancellation for small loads; m sin(theta0) = k b0. ``along`` is the reach along
-        # -F/f and ``across`` the reach along (fv, -fu)/f, each divided by f once more.
-        # (Divided one factor at a time: sqrt_f * f underflows to 0 for tiny loads.)
-        along = (2.0 * (e_chi - k * b0 * math.sin(chi)) - f_chi) / sqrt_f / f
-        across = kappa0 / f / f
-        u1 = across * fv - along * fu
-        v1 = -(along * fv + across * fu)
+        u1, v1, s1 = _reach(fu, fv, kappa0, f, sqrt_f, b0, k, chi, f_chi, e_chi)
         phi1 = 2.0 * math.asin(k) + alpha + 0.5 * math.pi
         status = 0
     if mirrored:
         u1, phi1 = -u1, math.pi - phi1
     return u1, v1, s1, phi1, status
+
+
+@compiled
+def _amplitude_to_zero(b0: float, c0: float, m: float) -> float:
+    """chi = am(K - c) = atan2(cos theta0, k' sin theta0): the amplitude still to go from the
+    clamp to the zero of kappa (k > 0 cancels from both arguments)."""
+    return math.atan2(c0, math.sqrt(1.0 - m) * b0)
+
+
+@compiled
+def _reach(fu: float, fv: float, kappa0: float, f: float, sqrt_f: float, b0: float, k: float,
+           chi: float, f_chi: float, e_chi: float) -> tuple[float, float, float]:
+    """u1, v1, s1 of the pendulum (kappa0 >= 0 half) from F(chi), E(chi)."""
+    # E(am K) - E(am c) = e_chi - m sin(theta0) sin(chi) by the addition theorem, free of
+    # cancellation for small loads; m sin(theta0) = k b0. ``along`` is the reach along
+    # -F/f and ``across`` the reach along (fv, -fu)/f, each divided by f once more.
+    # (Divided one factor at a time: sqrt_f * f underflows to 0 for tiny loads.)
+    along = (2.0 * (e_chi - k * b0 * math.sin(chi)) - f_chi) / sqrt_f / f
+    across = kappa0 / f / f
+    return across * fv - along * fu, -(along * fv + across * fu), f_chi / sqrt_f
+
+
+SMALL_M = 1e-4
+"""Below this elliptic parameter the m-derivatives of F and E are taken from their series (the
+closed forms divide by m)."""
+
+
+@compiled
+def planar_contact_tangent(fu: float, fv: float, kappa0: float, d: NDArray[np.float64]
+                           ) -> tuple[float, float, float, int]:
+    """:func:`planar_contact_scalar` with its derivatives, in closed form.
+
+    Returns u1, v1, s1 and the status as :func:`planar_contact_scalar` (the same bits) and
+    writes d(u1, v1, s1) / d(fu, fv, kappa0) into ``d`` (3, 3) where the status is 0 (an
+    axial load, the one contact without them, leaves ``d`` as it was). Forward mode through
+    the pendulum constants, with dF/dchi = 1/Delta, dE/dchi = Delta (Delta^2 = 1 - m sin^2
+    chi), dF/dm = E / (2 m (1 - m)) - F / (2 m) - sin chi cos chi / (2 (1 - m) Delta) and
+    dE/dm = (E - F) / (2 m) (DLMF 19.4.1-2; series below ``SMALL_M``).
+    """
+    nan = math.nan
+    if not (math.isfinite(fu) and math.isfinite(fv) and math.isfinite(kappa0)):
+        return nan, nan, nan, _NON_FINITE
+    f, sqrt_f, fu_h, kappa_h, alpha, b0, c0, k, mirrored = _pendulum(fu, fv, kappa0)
+    if f == 0:
+        return nan, nan, nan, _NO_FORCE
+    if k >= 1.0:
+        return nan, nan, nan, _NEVER_VANISHES
+    if k == 0.0:
+        return 0.0, 1.0, 1.0, _AXIAL
+    m = k * k
+    chi = _amplitude_to_zero(b0, c0, m)
+    f_chi, e_chi = incomplete_f_e(chi, m)
+    u1, v1, s1 = _reach(fu_h, fv, kappa_h, f, sqrt_f, b0, k, chi, f_chi, e_chi)
+    sin_chi, cos_chi = math.sin(chi), math.cos(chi)
+    delta = math.sqrt(1.0 - m * sin_chi * sin_chi)
+    if m < SMALL_M:  # F = int 1 + m s^2 / 2 + ..., E = int 1 - m s^2 / 2 - m^2 s^4 / 8 + ...
+        i2 = 0.5 * chi - 0.25 * math.sin(2.0 * chi)
+        i4 = 0.375 * chi - 0.25 * math.sin(2.0 * chi) + math.sin(4.0 * chi) / 32.0
+        f_m, e_m = 0.5 * i2 + 0.75 * m * i4, -0.5 * i2 - 0.25 * m * i4
+    else:
+        f_m = (e_chi / (2.0 * m * (1.0 - m)) - f_chi / (2.0 * m)
+               - sin_chi * cos_chi / (2.0 * (1.0 - m) * delta))
+        e_m = (e_chi - f_chi) / (2.0 * m)
+    k_prime = math.sqrt(1.0 - m)
+    along = (2.0 * (e_chi - k * b0 * sin_chi) - f_chi) / sqrt_f / f
+    across = kappa_h / f / f
+    half = 0.5 * alpha
+    for j in range(3):  # the tangent along fu_h, fv, kappa_h
+        d_fu, d_fv, d_kappa = (1.0 if j == 0 else 0.0), (1.0 if j == 1 else 0.0), (
+            1.0 if j == 2 else 0.0)
+        d_f = (fu_h * d_fu + fv * d_fv) / f
+        d_sqrt_f = 0.5 * d_f / sqrt_f
+        d_alpha = (-fv * d_fu + fu_h * d_fv) / (f * f)
+        d_b0 = -0.5 * math.cos(half) * d_alpha
+        d_c0 = d_kappa / (2.0 * sqrt_f) - c0 * d_f / (2.0 * f)
+        d_m = 2.0 * (b0 * d_b0 + c0 * d_c0)
+        d_k = 0.5 * d_m / k
+        d_k_prime = -0.5 * d_m / k_prime
+        x = k_prime * b0
+        d_x = k_prime * d_b0 + b0 * d_k_prime
+        d_chi = (x * d_c0 - c0 * d_x) / (x * x + c0 * c0)
+        d_f_chi = d_chi / delta + f_m * d_m
+        d_e_chi = delta * d_chi + e_m * d_m
+        d_num = (2.0 * (d_e_chi - (d_k * b0 * sin_chi + k * d_b0 * sin_chi
+                                   + k * b0 * cos_chi * d_chi)) - d_f_chi)
+        d_along = d_num / sqrt_f / f - 1.5 * along * d_f / f
+        d_across = d_kappa / (f * f) - 2.0 * across * d_f / f
+        d_u = d_across * fv + across * d_fv - d_along * fu_h - along * d_fu
+        d_v = -(d_along * fv + along * d_fv + d_across * fu_h + across * d_fu)
+        d_s = d_f_chi / sqrt_f - s1 * d_sqrt_f / sqrt_f
+        # back to the caller's (fu, fv, kappa0): mirrored, u1 = -u1(-fu, fv, -kappa0)
+        sign = -1.0 if mirrored and j != 1 else 1.0
+        d[0, j] = (-sign if mirrored else sign) * d_u
+        d[1, j] = sign * d_v
+        d[2, j] = sign * d_s
+    if mirrored:
+        u1 = -u1
+    return u1, v1, s1, 0
 
 
 @compiled

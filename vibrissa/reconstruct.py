@@ -29,6 +29,7 @@ from vibrissa.compiled import compiled
 from vibrissa.elastica import S1_TOLERANCE, planar_contact_scalar
 from vibrissa.frames import quaternion_matrix, rotate_vector
 from vibrissa.status import NO_CONTACT, ContactPhase, ContactStatus
+from vibrissa.uncertainty import point_jacobian, propagate_row
 from vibrissa.units import RodScale, rod_units
 
 # ContactPhase as the plain ints compiled code uses.
@@ -134,6 +135,7 @@ def reconstruct_rows(
 _NO_CONTACT = int(NO_CONTACT)
 _NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
 _BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
+_TIP_WITHIN_NOISE = int(ContactStatus.TIP_WITHIN_NOISE)
 _NO_ROTATION = np.empty((0, 3, 3))  # the kernel's "C parallel to W"
 
 
@@ -164,6 +166,7 @@ def _reconstruct_kernel(
 def reconstruct_row(
     p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
     rotate: bool, R_WC: NDArray[np.float64], point: NDArray[np.float64], force: NDArray[np.float64],
+    tip_band: float = 0.0,
 ) -> tuple[float, int, float, int]:
     """Step 2 of one sample, for compiled callers (numba): :func:`reconstruct` of one row.
 
@@ -171,7 +174,11 @@ def reconstruct_row(
     :func:`reconstruct`; writes the contact point and the contact force (W) into ``point`` and
     ``force`` (3,) and returns s1, phase, psi and status. The one implementation of Step 2:
     every path computes each sample through it, on its own, so a sample gives the same bits
-    alone or in any batch.
+    alone or in any batch. ``tip_band`` (L, from the wrench noise: ``reconstruct_si``) is the
+    tip within the noise: a first zero of the curvature past the tip by more than round-off
+    but at most ``tip_band`` is a tip contact at the elastica's point there, flagged
+    TIP_WITHIN_NOISE; one farther out is no contact on the rod (CONTACT_BEYOND_ROD); one
+    within ``tip_band`` before the tip is a tip contact too.
     """
     fx, fy, fz = -f0_C[0], -f0_C[1], -f0_C[2]  # the contact force on the rod, in C
     m_horizontal = math.hypot(m0_C[0], m0_C[1])
@@ -193,7 +200,7 @@ def reconstruct_row(
     if not finite:
         status |= _NON_FINITE
     if status & _NO_CONTACT == 0 and s1 > 1.0 + S1_TOLERANCE:
-        status |= _BEYOND
+        status |= _BEYOND if s1 > 1.0 + tip_band else _TIP_WITHIN_NOISE
     p1x, p1y, p1z = u1 * e_ux, u1 * e_uy, v1  # P1 - P0 in C
     if rotate:
         p1x, p1y, p1z = rotate_vector(R_WC, p1x, p1y, p1z)
@@ -204,7 +211,7 @@ def reconstruct_row(
         return math.nan, PHASE_NONE, math.nan, status
     point[0], point[1], point[2] = p0_W[0] + p1x, p0_W[1] + p1y, p0_W[2] + p1z
     s1 = min(s1, 1.0)
-    phase = PHASE_TIP if s1 >= 1.0 - TIP_TOLERANCE else PHASE_TANGENTIAL
+    phase = PHASE_TIP if s1 >= 1.0 - max(TIP_TOLERANCE, tip_band) else PHASE_TANGENTIAL
     return s1, phase, math.atan2(e_uy, e_ux), status
 
 
@@ -226,6 +233,10 @@ class ReconstructionSI(NamedTuple):
         Contact force on the rod, -f0, in W, N.
     status : ndarray of int32, shape (N,)
         :class:`ContactStatus` flags.
+    covariance_m2 : ndarray, shape (N, 3, 3), or None
+        With a wrench covariance: the point's covariance in W, m^2 (first order, see
+        ``vibrissa.uncertainty``); NaN where it is not defined (no contact, an axial load,
+        no bending moment).
     """
 
     pose_ok: NDArray[np.bool_]
@@ -234,6 +245,7 @@ class ReconstructionSI(NamedTuple):
     phase: NDArray[np.int32]
     force_n: NDArray[np.float64]
     status: NDArray[np.int32]
+    covariance_m2: NDArray[np.float64] | None = None
 
     @property
     def valid(self) -> NDArray[np.bool_]:
@@ -241,9 +253,16 @@ class ReconstructionSI(NamedTuple):
         return self.pose_ok & ((self.status & _NO_CONTACT) == 0)
 
 
+TIP_SIGMAS = 3.0
+"""With a wrench covariance, a first zero of the curvature within this many std of s1 from
+the tip is a tip contact (past the tip: ContactStatus.TIP_WITHIN_NOISE)."""
+
+
 def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
                    f0_C_n: NDArray[np.float64], m0_C_nm: NDArray[np.float64],
-                   rod: RodScale | Sequence[RodScale] | NDArray[np.float64]) -> ReconstructionSI:
+                   rod: RodScale | Sequence[RodScale] | NDArray[np.float64],
+                   wrench_cov: NDArray[np.float64] | None = None,
+                   tip_sigmas: float = TIP_SIGMAS) -> ReconstructionSI:
     """Step 2 in SI: contact points from clamp poses and wrenches as a sensor graph has them.
 
     Each row is converted to the paper's units with its rod (``vibrissa.units.RodScale``),
@@ -262,6 +281,13 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         L and EI of the rod: one for every row, or one per row (N) for whiskers of
         different rods, or the units of one per row (N, 3) as `vibrissa.units.rod_units`
         gives them (a caller that sees the same rows again keeps them).
+    wrench_cov : ndarray, shape (6, 6) or (N, 6, 6), optional
+        Covariance of the wrench noise (f0, m0) in C, N^2, N^2 m, N^2 m^2. With it, each
+        row's point gets its covariance (``covariance_m2``), and a contact found within
+        ``tip_sigmas`` std of s1 from the tip is a tip contact: past the tip, flagged
+        TIP_WITHIN_NOISE (instead of none on the rod), before it, at the s1 found.
+    tip_sigmas
+        See ``wrench_cov``.
     """
     # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
     q, p, f0, m0 = (np.require(a, dtype=float, requirements=["C", "W"])
@@ -274,16 +300,34 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
             raise ValueError(f"rod: {len(units)} rods for {len(q)} rows")
     length_m, force_n, moment_nm = (np.ascontiguousarray(units[:, j], dtype=float)
                                     for j in range(3))
-    pose_ok, point, s1, phase, force, status = _rows_si(q, p, f0, m0, length_m, force_n, moment_nm)
-    return ReconstructionSI(pose_ok, point, s1, phase, force, status)
+    if wrench_cov is None:
+        cov = _NO_COVARIANCE
+    else:
+        cov = np.asarray(wrench_cov, dtype=float)
+        if cov.shape not in ((6, 6), (len(q), 6, 6)):
+            raise ValueError(f"wrench_cov must have shape (6, 6) or ({len(q)}, 6, 6), got "
+                             f"{cov.shape}")
+        cov = np.ascontiguousarray(cov.reshape(-1, 6, 6))
+        if not (tip_sigmas >= 0.0 and math.isfinite(tip_sigmas)):
+            raise ValueError(f"tip_sigmas must be a finite number >= 0, got {tip_sigmas}")
+    pose_ok, point, s1, phase, force, status, covariance = _rows_si(
+        q, p, f0, m0, length_m, force_n, moment_nm, cov, float(tip_sigmas))
+    return ReconstructionSI(pose_ok, point, s1, phase, force, status,
+                            None if wrench_cov is None else covariance)
+
+
+_NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
 
 
 @compiled
 def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
             m0: NDArray[np.float64], length_m: float, force_n: float, moment_nm: float,
-            point: NDArray[np.float64], force: NDArray[np.float64]) -> tuple[bool, float, int, int]:
+            cov: NDArray[np.float64], tip_sigmas: float, point: NDArray[np.float64],
+            force: NDArray[np.float64], covariance: NDArray[np.float64]
+            ) -> tuple[bool, float, int, int]:
     """:func:`reconstruct_si` of one row: whether the pose is usable, then s1 (m), phase and
-    status, with the point (m) and force (N) written into ``point`` and ``force``."""
+    status, with the point (m) and force (N) written into ``point`` and ``force``, and with a
+    wrench covariance ``cov`` (6, 6; else 0 rows) the point's into ``covariance`` (3, 3)."""
     rotation = np.empty((3, 3))
     norm2 = quaternion_matrix(q_xyzw, rotation)
     if not (norm2 > 0.0 and norm2 < math.inf):
@@ -291,7 +335,19 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
     p0_L, f0_L, m0_L = np.empty(3), np.empty(3), np.empty(3)
     for j in range(3):
         p0_L[j], f0_L[j], m0_L[j] = p0[j] / length_m, f0[j] / force_n, m0[j] / moment_nm
-    s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force)
+    tip_band = 0.0
+    known = False
+    if cov.shape[0] > 0:
+        jacobian = np.empty((4, 6))
+        known = point_jacobian(f0_L, m0_L, jacobian)
+        if known:
+            s1_var = propagate_row(jacobian, rotation, length_m, force_n, moment_nm, cov,
+                                   covariance)
+            tip_band = tip_sigmas * math.sqrt(max(s1_var, 0.0))
+    s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force,
+                                              tip_band)
+    if cov.shape[0] > 0 and not (known and status & _NO_CONTACT == 0):
+        covariance[:, :] = math.nan
     for j in range(3):
         point[j] *= length_m
         force[j] *= force_n
@@ -301,16 +357,23 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
 @compiled
 def _rows_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
              m0: NDArray[np.float64], length_m: NDArray[np.float64], force_n: NDArray[np.float64],
-             moment_nm: NDArray[np.float64]
+             moment_nm: NDArray[np.float64], cov: NDArray[np.float64], tip_sigmas: float
              ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64],
-                        NDArray[np.int32], NDArray[np.float64], NDArray[np.int32]]:
-    """:func:`_row_si` of every row (N, ...), each with its rod's units (N,)."""
+                        NDArray[np.int32], NDArray[np.float64], NDArray[np.int32],
+                        NDArray[np.float64]]:
+    """:func:`_row_si` of every row (N, ...), each with its rod's units (N,) and the wrench
+    covariance ``cov`` (0 rows: none; 1: every row's; N)."""
     n = q_xyzw.shape[0]
     pose_ok = np.empty(n, dtype=np.bool_)
     point, force, s1 = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     phase, status = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
+    covariance = np.full((n if cov.shape[0] > 0 else 0, 3, 3), math.nan)
+    per_row = cov.shape[0] > 1
+    row_cov, row_out = np.empty((0, 6)), np.empty((0, 3))
     for i in range(n):
+        if cov.shape[0] > 0:
+            row_cov, row_out = cov[i if per_row else 0], covariance[i]
         pose_ok[i], s1[i], phase[i], status[i] = _row_si(
-            q_xyzw[i], p0[i], f0[i], m0[i], length_m[i], force_n[i], moment_nm[i], point[i],
-            force[i])
-    return pose_ok, point, s1, phase, force, status
+            q_xyzw[i], p0[i], f0[i], m0[i], length_m[i], force_n[i], moment_nm[i], row_cov,
+            tip_sigmas, point[i], force[i], row_out)
+    return pose_ok, point, s1, phase, force, status, covariance

@@ -22,7 +22,8 @@ class ContactPhase(enum.IntEnum):
 class ContactStatus(enum.IntFlag):
     """Why a wrench has, or has no, consistent single contact.
 
-    ``OK`` and ``AXIAL_LOAD`` carry a usable contact point; every other flag means none.
+    ``OK``, ``AXIAL_LOAD`` and ``TIP_WITHIN_NOISE`` carry a usable contact point; every other
+    flag means none.
     """
 
     OK = 0
@@ -31,6 +32,7 @@ class ContactStatus(enum.IntFlag):
     CONTACT_BEYOND_ROD = 4  # first zero of kappa lies past the rod's tip (s1 > 1)
     NON_FINITE_INPUT = 8  # NaN or inf in p0, f0 or m0
     AXIAL_LOAD = 16  # force along the straight rod: taken as tip contact of the straight rod
+    TIP_WITHIN_NOISE = 32  # first zero of kappa past the tip, within the noise: taken as the tip
 
 
 #: Flags that leave no usable contact point.

@@ -2,14 +2,14 @@
 
 Step 2 (``vibrissa.reconstruct.reconstruct_row``) puts the contact at P1 - P0 = (u1 e_u, v1)
 in the clamp frame C, with the bending plane's direction e_u = (m0y, -m0x) / kappa0 and the
-planar solution (u1, v1) = g(fu, fv, kappa0) of fu = -(f0x e_ux + f0y e_uy), fv = -f0z,
-kappa0 = |(m0x, m0y)| (eqs. 20-23). Its Jacobian J (3 x 6) with respect to (f0, m0) is the
-chain of these: the derivatives of e_u, fu and kappa0 in closed form, those of g by central
-differences of the compiled planar solver (it is closed form in elliptic integrals, smooth
-away from the no-contact boundaries; the step, 1e-5 of the load, keeps the truncation error
-near 1e-10 and the rounding error near 1e-11 of the derivative). A wrench-noise covariance
+planar solution (u1, v1, s1) = g(fu, fv, kappa0) of fu = -(f0x e_ux + f0y e_uy), fv = -f0z,
+kappa0 = |(m0x, m0y)| (eqs. 20-23). Its Jacobian J with respect to (f0, m0) is the chain of
+these, all in closed form: the derivatives of e_u, fu and kappa0, and those of g through the
+elliptic integrals (``vibrissa.elastica.planar_contact_tangent``). A wrench-noise covariance
 Sigma_w (6 x 6) then gives the point's covariance J Sigma_w J^T (first order: the noise small
-against the load), rotated into W and scaled to SI. m0z does not enter Step 2.
+against the load), rotated into W and scaled to SI, and the std of s1, with which Step 2
+decides whether a contact found past the tip is the tip within the noise
+(``vibrissa.reconstruct.reconstruct_si``). m0z does not enter Step 2.
 """
 
 from __future__ import annotations
@@ -20,20 +20,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.compiled import compiled
-from vibrissa.elastica import planar_contact_scalar
+from vibrissa.elastica import planar_contact_tangent
 from vibrissa.frames import quaternion_matrix
 
 FloatArray = NDArray[np.float64]
 
-STEP = 1e-5
-"""Central-difference step of the planar solver's derivatives, relative to the load."""
-
 
 @compiled
 def point_jacobian(f0: FloatArray, m0: FloatArray, jacobian: FloatArray) -> bool:
-    """d(P1 - P0)/d(f0, m0) (3, 6) in C, paper units, written into ``jacobian``; False where
-    it is not defined (no bending moment, or the planar solver finds no contact within a
-    step of the load)."""
+    """d(P1 - P0, s1)/d(f0, m0) (4, 6) in C, paper units, written into ``jacobian`` (rows x,
+    y, z of the point, then s1); False where it is not defined (no bending moment, an axial
+    load, or no contact at all: see ``vibrissa.elastica.planar_contact_tangent``)."""
     a, b = m0[0], m0[1]
     kappa = math.hypot(a, b)
     if not (kappa > 0.0 and math.isfinite(kappa)):
@@ -46,24 +43,10 @@ def point_jacobian(f0: FloatArray, m0: FloatArray, jacobian: FloatArray) -> bool
     dk = (a / kappa, b / kappa)
     fu = -(f0[0] * e_x + f0[1] * e_y)
     fv = -f0[2]
-    u1, _v1, _s1, _phi, _status = planar_contact_scalar(fu, fv, kappa)
-    if not math.isfinite(u1):
+    dg = np.empty((3, 3))
+    u1, _v1, _s1, status = planar_contact_tangent(fu, fv, kappa, dg)
+    if status != 0:
         return False
-    h = STEP * (abs(fu) + abs(fv) + kappa)
-    q = (fu, fv, kappa)
-    du = np.empty(3)
-    dv = np.empty(3)
-    for k in range(3):
-        plus = [q[0], q[1], q[2]]
-        minus = [q[0], q[1], q[2]]
-        plus[k] += h
-        minus[k] -= h
-        up, vp, _, _, _ = planar_contact_scalar(plus[0], plus[1], plus[2])
-        um, vm, _, _, _ = planar_contact_scalar(minus[0], minus[1], minus[2])
-        if not (math.isfinite(up) and math.isfinite(um)):
-            return False
-        du[k] = (up - um) / (2.0 * h)
-        dv[k] = (vp - vm) / (2.0 * h)
     # d(fu, fv, kappa0) / d(f0x, f0y, f0z, m0x, m0y, m0z)
     dq = np.zeros((3, 6))
     dq[0, 0], dq[0, 1] = -e_x, -e_y
@@ -72,14 +55,35 @@ def point_jacobian(f0: FloatArray, m0: FloatArray, jacobian: FloatArray) -> bool
         dq[0, 3 + j] = -(f0[0] * de_x[j] + f0[1] * de_y[j])
         dq[2, 3 + j] = dk[j]
     for j in range(6):
-        d_u = du[0] * dq[0, j] + du[1] * dq[1, j] + du[2] * dq[2, j]
-        d_v = dv[0] * dq[0, j] + dv[1] * dq[1, j] + dv[2] * dq[2, j]
+        d_u = dg[0, 0] * dq[0, j] + dg[0, 1] * dq[1, j] + dg[0, 2] * dq[2, j]
         dex = de_x[j - 3] if 3 <= j <= 4 else 0.0
         dey = de_y[j - 3] if 3 <= j <= 4 else 0.0
         jacobian[0, j] = d_u * e_x + u1 * dex
         jacobian[1, j] = d_u * e_y + u1 * dey
-        jacobian[2, j] = d_v
+        for r in (1, 2):  # v1 -> z, s1
+            jacobian[r + 1, j] = dg[r, 0] * dq[0, j] + dg[r, 1] * dq[1, j] + dg[r, 2] * dq[2, j]
     return True
+
+
+@compiled
+def propagate_row(jacobian: FloatArray, rotation: FloatArray, length_m: float, force_n: float,
+                  moment_nm: float, cov: FloatArray, out: FloatArray) -> float:
+    """The point's covariance in W, m^2, into ``out`` (3, 3), and the variance of s1 in
+    units of L^2 (returned), from ``jacobian`` (:func:`point_jacobian`, paper units, C) and
+    the SI wrench covariance ``cov`` (6, 6) in C."""
+    j_si = np.empty((4, 6))  # m (rows 0-2, rotated into W) and L (row 3) per N or N m
+    for j in range(6):
+        scale = 1.0 / (force_n if j < 3 else moment_nm)
+        for r in range(3):
+            j_si[r, j] = length_m * scale * (rotation[r, 0] * jacobian[0, j]
+                                             + rotation[r, 1] * jacobian[1, j]
+                                             + rotation[r, 2] * jacobian[2, j])
+        j_si[3, j] = scale * jacobian[3, j]
+    full = j_si @ cov @ j_si.T
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = full[r, c]
+    return full[3, 3]
 
 
 def point_covariance_si(q_WC_xyzw: FloatArray, f0_C_n: FloatArray, m0_C_nm: FloatArray,
@@ -124,7 +128,7 @@ def _covariances(q: FloatArray, f0: FloatArray, m0: FloatArray, units: FloatArra
     """:func:`point_covariance_si` of every row."""
     n = q.shape[0]
     out = np.full((n, 3, 3), np.nan)
-    jacobian = np.empty((3, 6))
+    jacobian = np.empty((4, 6))
     rotation = np.empty((3, 3))
     f0_L, m0_L = np.empty(3), np.empty(3)
     for i in range(n):
@@ -134,13 +138,6 @@ def _covariances(q: FloatArray, f0: FloatArray, m0: FloatArray, units: FloatArra
         norm2 = quaternion_matrix(q[i], rotation)
         if not (norm2 > 0.0 and norm2 < math.inf):
             continue
-        if not point_jacobian(f0_L, m0_L, jacobian):
-            continue
-        # J in SI: m per N for the f0 columns, m per N m for the m0 columns, rotated into W
-        j_si = rotation @ jacobian
-        for j in range(6):
-            scale = length_m / (force_n if j < 3 else moment_nm)
-            for r in range(3):
-                j_si[r, j] *= scale
-        out[i] = j_si @ cov[i] @ j_si.T
+        if point_jacobian(f0_L, m0_L, jacobian):
+            propagate_row(jacobian, rotation, length_m, force_n, moment_nm, cov[i], out[i])
     return out

@@ -13,10 +13,10 @@ from collections.abc import Sequence
 
 # Each module registers its subcommands with `register(subparsers)`; every subparser
 # sets `func(args) -> int`. A command imports only its own module (start-up time).
-_COMMAND_MODULES = ("mechanics", "scenes", "launch", "bag", "topic", "keys", "sensor")
+_COMMAND_MODULES = ("mechanics", "scenes", "launch", "bag", "topic", "keys", "sensor", "sim")
 _MODULE_OF = {"sweep": "mechanics", "reconstruct": "mechanics", "study": "mechanics",
               "simulate": "scenes", "launch": "launch", "bag": "bag", "topic": "topic",
-              "keys": "keys", "sensor": "sensor"}
+              "keys": "keys", "sensor": "sensor", "sim": "sim"}
 
 
 def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:

@@ -133,19 +133,33 @@ def sensor_signal(params: NetFTSimParams) -> np.ndarray:
     return np.hstack([f_S, m_S])
 
 
+def open_device(params: NetFTSimParams) -> NetFTDevice:
+    """The simulated sensor of ``params``, listening on ``device.address`` and streaming on
+    request until closed (a context manager). The node and ``vibrissa sim netft`` both run it.
+
+    Raises
+    ------
+    ValueError
+        A whisker that is not in the scene, or a results folder that does not fit it.
+    OSError
+        ``host:port`` cannot be bound.
+    """
+    signal = sensor_signal(params)
+    spec = SignalSpec(noise=(params.noise_force_n, params.noise_moment_nm), bias=params.bias,
+                      drift=params.drift, loss=params.loss, reorder=params.reorder, seed=params.seed)
+    return NetFTDevice(signal, params.rate_hz, counts_per_force=params.counts_per_force,
+                       counts_per_torque=params.counts_per_torque, spec=spec,
+                       per_datagram=params.per_datagram, ft_step=params.ft_step, loop=params.loop,
+                       host=params.host, port=params.port)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = NodeArgs.parse(argv, prog="netft_sim")
     configure_logging()
     params = load_params(NetFTSimParams, args.params_file, args.params)
-    signal = sensor_signal(params)
-    spec = SignalSpec(noise=(params.noise_force_n, params.noise_moment_nm), bias=params.bias,
-                      drift=params.drift, loss=params.loss, reorder=params.reorder, seed=params.seed)
-    with Node.from_args(args) as node, NetFTDevice(
-            signal, params.rate_hz, counts_per_force=params.counts_per_force,
-            counts_per_torque=params.counts_per_torque, spec=spec, per_datagram=params.per_datagram,
-            ft_step=params.ft_step, loop=params.loop, host=params.host, port=params.port) as device:
+    with Node.from_args(args) as node, open_device(params) as device:
         log.info("%s: Net F/T on udp://%s:%d, %d samples at %g Hz", node.fqn, *device.address,
-                 len(signal), params.rate_hz)
+                 len(device.wrench_S), params.rate_hz)
         node.set_state("running", f"udp://{device.address[0]}:{device.address[1]}")
         while node.sleep(0.1):
             stats = device.stats

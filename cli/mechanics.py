@@ -14,12 +14,14 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from vibrissa import noise_study
 from vibrissa.cli import tables
 from vibrissa.reconstruct import reconstruct
 from vibrissa.status import SweepEnd
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
 from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.sweep import simulate_sweep
+from vibrissa.units import RodScale
 
 EXIT_USAGE = 2
 EXIT_NO_CONTACT = 3
@@ -104,15 +106,35 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_reconstruct)
 
     p = subparsers.add_parser(
-        "study", help="run a study of the paper (Step 1, Step 2, figures)",
-        description="paper: the 25 sweeps of Sec. III (y0 = -0.4:0.2:0.4, mu = 0:0.1:0.4 past "
-        f"{PAPER_SURFACE}), their reconstruction and Figs. 6-10.",
+        "study", help="run a study of the paper (Step 1, Step 2, figures) or the noise study",
+        description="paper: the 25 sweeps of Sec. III (y0 = -0.4:0.2:0.4, mu = 0:0.1:0.4 past\n"
+        f"{PAPER_SURFACE}), their reconstruction and Figs. 6-10.\n\n"
+        "noise: Step 2's error in mm for a stated rod (--rod-length-m, --rod-ei-nm2), per\n"
+        "contact phase (tip, tangential), on the trails y0 = "
+        f"{', '.join(map(str, noise_study.NOISE_Y0))} with mu = {noise_study.NOISE_MU}\n"
+        "past the same object:\n"
+        "  - against wrench noise: Gaussian, std per component = fraction x the peak |f0| (forces)\n"
+        "    and x the peak |m0| (moments) of the sweeps, fractions 1e-5..1e-1, "
+        f"{noise_study.DRAWS} seeded draws\n"
+        "    per sample; predicted: |z|, z ~ N(0, first-order covariance of each point);\n"
+        "  - against an error of L or of EI (-5..+5 %, no noise); predicted: first order,\n"
+        "    |e| |dP/de| from the Jacobian of Step 2 (zero for L: the elastica from the clamp to\n"
+        "    the contact does not involve L; a wrong L only loses contacts past the assumed tip).\n"
+        "Error: median and 95th percentile of |reconstructed - true point| over the points found.\n"
+        "Writes DIR/noise.csv, DIR/rod_errors.csv, DIR/summary.json, DIR/noise.png and\n"
+        "DIR/rod_errors.png.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=["paper"], help="which study")
+    p.add_argument("study", choices=["paper", "noise"], help="which study")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR")
     p.add_argument("--step", type=_positive, default=PAPER_STEP, metavar="DX",
                    help=f"clamp step along -x, units of L (default {PAPER_STEP})")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--rod-length-m", type=_positive, metavar="M",
+                   help=f"noise study: rod length L, m (default {noise_study.ROD_LENGTH_M})")
+    p.add_argument("--rod-ei-nm2", type=_positive, metavar="EI",
+                   help="noise study: bending stiffness EI, N m^2 "
+                   f"(default {noise_study.ROD_EI_NM2})")
     p.set_defaults(func=_study)
 
 
@@ -185,6 +207,10 @@ def sweep_stem(y0: float, mu: float) -> str:
 
 def _study(args: argparse.Namespace) -> int:
     out: Path = args.output
+    if args.study == "noise":
+        return _noise_study(args)
+    if args.rod_length_m is not None or args.rod_ei_nm2 is not None:
+        return _fail("study", "--rod-length-m and --rod-ei-nm2 are for the noise study")
     result = run_study(step=args.step, progress=_Progress())
     write_study(out, result)
     worst = "n/a" if result.max_error is None else f"{result.max_error:.3g} L"
@@ -195,6 +221,28 @@ def _study(args: argparse.Namespace) -> int:
 
         start = time.perf_counter()
         paths = figures.paper_figures(result, out)
+        print(f"study: {len(paths)} figures in {time.perf_counter() - start:.1f} s -> {out}",
+              file=sys.stderr)
+    return 0
+
+
+def _noise_study(args: argparse.Namespace) -> int:
+    from vibrissa.cli import noise_figures  # matplotlib only when drawing
+
+    out: Path = args.output
+    rod = RodScale(args.rod_length_m or noise_study.ROD_LENGTH_M,
+                   args.rod_ei_nm2 or noise_study.ROD_EI_NM2)
+    result = noise_study.run_noise_study(rod, step=args.step, progress=_Progress())
+    noise_figures.write_noise_study(out, result)
+    tangential = [row.stats for row in result.noise if row.stats.phase == "tangential"]
+    print(f"study: noise: Step 1 + Step 2 in {result.elapsed_s:.1f} s, {len(result.samples)} "
+          f"contact samples, rod {noise_figures.rod_label(result)}; tangential median error "
+          f"{tangential[0].error_median_mm:.3g} mm at noise {result.noise[0].noise_fraction:g} "
+          f"to {tangential[-1].error_median_mm:.3g} mm at {result.noise[-1].noise_fraction:g} "
+          f"-> {out / 'summary.json'}", file=sys.stderr)
+    if not args.no_figures:
+        start = time.perf_counter()
+        paths = noise_figures.noise_figures(result, out)
         print(f"study: {len(paths)} figures in {time.perf_counter() - start:.1f} s -> {out}",
               file=sys.stderr)
     return 0

@@ -37,6 +37,8 @@ from vibrissa.msgs.messages import (
     STR_INT_MAP,
     STR_LIST,
     STR_STR_MAP,
+    ContactPoint,
+    ContactPointArray,
     FieldSpec,
     Message,
     WhiskerWrench,
@@ -335,9 +337,19 @@ def _wrench_array_v1(obj: dict[str, Any]) -> dict[str, Any]:
     return obj
 
 
+def _without_covariance(obj: dict[str, Any]) -> dict[str, Any]:
+    """ContactPoint / ContactPointArray 1 -> 2: version 2 adds the optional ``covariance``;
+    version 1 has none (a field of that name in a version 1 payload is refused)."""
+    if "covariance" in obj:
+        obj["covariance"] = "not in version 1"
+    return obj
+
+
 _UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
     (WhiskerWrench.TYPE_NAME, 1): _wrench_v1,
     (WhiskerWrenchArray.TYPE_NAME, 1): _wrench_array_v1,
+    (ContactPoint.TYPE_NAME, 1): _without_covariance,
+    (ContactPointArray.TYPE_NAME, 1): _without_covariance,
 }
 """(type name, older version) -> its upgrade to the type's current version."""
 

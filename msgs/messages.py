@@ -325,7 +325,7 @@ class ContactPoint(Message):
     """Contact reconstructed from one WhiskerWrench."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/ContactPoint"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
 
     stamp: float = _stamp()
     seq: int = _count("seq of the WhiskerWrench this contact was reconstructed from")
@@ -338,6 +338,10 @@ class ContactPoint(Message):
     status: ContactStatus = _spec(
         kind=ENUM, enum=ContactStatus, doc="ContactStatus bit flags; 0 = OK"
     )
+    covariance: FloatArray | None = _optional(
+        kind=ARRAY, shape=(3, 3), unit="m^2", dtype=FLOAT64,
+        doc="covariance of point from the wrench noise, in frame_id; omitted without a noise "
+        "model (version 1 has none)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -397,8 +401,8 @@ class ContactPointArray(Message):
     """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/ContactPointArray"
-    MAX_BYTES: ClassVar[int] = 1 << 20  # some 9 000 whiskers
-    VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = 1 << 20  # some 6 000 whiskers with covariances
+    VERSION: ClassVar[int] = 2
 
     stamp: float = _stamp()
     seq: int = _count("seq of the WhiskerWrenchArray these contacts were reconstructed from")
@@ -411,6 +415,10 @@ class ContactPointArray(Message):
     force: FloatArray = _array(("N", 3), "N", "contact force on the rod, in frame_id")
     status: IntArray = _array(("N",), "", "ContactStatus bit flags; 0 = OK", dtype=INT32,
                               enum=ContactStatus)
+    covariance: FloatArray | None = _optional(
+        kind=ARRAY, shape=("N", 3, 3), unit="m^2", dtype=FLOAT64,
+        doc="covariance of each point from the wrench noise, in frame_id; omitted without a "
+        "noise model (version 1 has none)")
 
 
 @dataclass(frozen=True, eq=False)

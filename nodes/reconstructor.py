@@ -19,10 +19,22 @@ Publishes
     interpolated at the wrench's stamp); then an ``EndOfStream`` of its own for every
     ``EndOfStream`` on ``input_topic`` (after the points of the wrenches before it).
 
+Noisy sensors: with the free-rod noise (``noise_force_n``, ``noise_moment_nm``: std per axis)
+a whisker is in contact only between a wrench threshold and its release, with hysteresis
+(``vibrissa.contact_detection``: enter at ``contact_on_sigmas``, leave below
+``contact_off_sigmas``, in units of the noise), so that a free rod's noise never becomes points
+on the map; every point then carries its covariance (m^2, from the noise through Step 2,
+``vibrissa.uncertainty``), and a contact found past the tip within ``tip_sigmas`` std of s1 is
+the tip (status TIP_WITHIN_NOISE). Without a noise model (the default, for simulated
+wrenches) every wrench with a force is a contact and points carry no covariance.
+
 Samples without a consistent contact are **counted, not sent**: the codec refuses the NaN a
 point-less reconstruction carries, and a point with finite placeholder zeros would be a point
 on the map. Counters in this node's ``NodeStatus`` (besides the runtime's received, published,
-rejected, lost, anomalies), in rows: ``contacts`` (points published), ``no_contact`` (valid
+rejected, lost, anomalies), in rows: ``contacts`` (points published), ``free`` (below the
+contact threshold: the rod is free), ``tip_within_noise`` (points published as the tip within
+the noise), ``no_covariance`` (points whose covariance is not defined, an axial load: they carry
+L^2 I, the rod's reach), ``no_contact`` (valid
 wrench, no consistent contact, or a result that overflows to inf near the float limit),
 ``bad_pose`` (clamp quaternion of zero or non-finite length), ``no_pose`` (no clamp pose at
 the wrench's stamp within ``pose_timeout_s``), ``unknown_whisker`` (not in the robot
@@ -50,6 +62,12 @@ from typing import TypeAlias, cast
 import numpy as np
 import numpy.typing as npt
 
+from vibrissa.contact_detection import (
+    OFF_SIGMAS,
+    ON_SIGMAS,
+    ContactDetector,
+    wrench_covariance,
+)
 from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform, clamp_frame
 from vibrissa.msgs import (
@@ -65,7 +83,7 @@ from vibrissa.msgs import (
     decode,
     encode,
 )
-from vibrissa.reconstruct import reconstruct_si
+from vibrissa.reconstruct import TIP_SIGMAS, reconstruct_si
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.runtime.scene_file import load_robot
@@ -129,6 +147,16 @@ class ReconstructorParams:
     history_s
         Robot poses kept for interpolation, s: a wrench older than the newest pose by more
         than this counts as ``no_pose``.
+    noise_force_n, noise_moment_nm
+        Std of the free-rod wrench noise on each force axis (N) and moment axis (N m) of every
+        whisker's sensor: both > 0 turns on contact detection and the points' covariances,
+        both 0 (the default) means noise-free wrenches.
+    contact_on_sigmas, contact_off_sigmas
+        Contact starts when the wrench's Mahalanobis norm against the noise reaches the first,
+        ends when it falls below the second (default 7 and 5: a free sample starts a contact
+        with probability 1.5e-8).
+    tip_sigmas
+        A contact found past the tip by at most this many std of s1 is the tip.
     rod
         L and EI as ``vibrissa.units.RodScale`` (derived, not a parameter).
     """
@@ -148,6 +176,11 @@ class ReconstructorParams:
     robot_frame: str = ROBOT_FRAME
     pose_timeout_s: float = 0.5
     history_s: float = DEFAULT_HISTORY_S
+    noise_force_n: float = 0.0
+    noise_moment_nm: float = 0.0
+    contact_on_sigmas: float = ON_SIGMAS
+    contact_off_sigmas: float = OFF_SIGMAS
+    tip_sigmas: float = TIP_SIGMAS
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -158,6 +191,15 @@ class ReconstructorParams:
             require(bool(getattr(self, key)), key, getattr(self, key), "a frame name")
         require_non_negative("pose_timeout_s", self.pose_timeout_s)
         require_positive("history_s", self.history_s)
+        require_non_negative("noise_force_n", self.noise_force_n)
+        require_non_negative("noise_moment_nm", self.noise_moment_nm)
+        require((self.noise_force_n > 0) == (self.noise_moment_nm > 0), "noise_moment_nm",
+                self.noise_moment_nm, "> 0 together with noise_force_n (or both 0)")
+        require_positive("contact_off_sigmas", self.contact_off_sigmas)
+        require(math.isfinite(self.contact_on_sigmas)
+                and self.contact_on_sigmas >= self.contact_off_sigmas, "contact_on_sigmas",
+                self.contact_on_sigmas, f">= contact_off_sigmas ({self.contact_off_sigmas})")
+        require_non_negative("tip_sigmas", self.tip_sigmas)
         require_positive("rod_length_m", self.rod_length_m)
         require_positive("rod_ei_nm2", self.rod_ei_nm2)
         object.__setattr__(self, "rod", RodScale(self.rod_length_m, self.rod_ei_nm2))
@@ -231,6 +273,12 @@ class Reconstructed:
         stamp (``errors`` says why).
     unknown_whisker
         Rows of a whisker the robot description does not list (``errors`` names it).
+    free
+        Rows below the contact threshold (with a noise model): the rod is free.
+    tip_within_noise
+        Points in ``contacts`` that are the tip within the noise.
+    no_covariance
+        Points in ``contacts`` whose covariance is not defined (they carry L^2 I).
     """
 
     contacts: ContactPoint | ContactPointArray | None
@@ -239,6 +287,9 @@ class Reconstructed:
     no_pose: int = 0
     unknown_whisker: int = 0
     errors: list[str] = field(default_factory=list)
+    free: int = 0
+    tip_within_noise: int = 0
+    no_covariance: int = 0
 
 
 @dataclass
@@ -256,9 +307,11 @@ class _Rows:
     no_pose: int = 0
     unknown_whisker: int = 0
     errors: list[str] = field(default_factory=list)
+    free: int = 0
 
 
-def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str) -> _Rows:
+def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
+          detector: ContactDetector | None) -> _Rows:
     single = isinstance(msg, WhiskerWrench)
     whiskers = [msg.whisker_id] if single else msg.whisker_ids
     f0, m0 = (msg.f0[None], msg.m0[None]) if single else (msg.f0, msg.m0)
@@ -292,12 +345,18 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str) 
         placed[missing] = True  # counted as unknown whiskers, not as rows without a pose
         no_pose = n - int(placed.sum())
     placed[missing] = False
-    return _Rows(q, p, f0, m0, placed, units, frame_id, no_pose, len(missing), errors)
+    free = 0
+    if detector is not None:  # every row moves its whisker's state, placed or not
+        free_rows = placed & ~detector.update(whiskers, f0, m0)[0]
+        free = int(free_rows.sum())
+        placed &= ~free_rows
+    return _Rows(q, p, f0, m0, placed, units, frame_id, no_pose, len(missing), errors, free)
 
 
 def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
-                         frames: FrameBuffer | None = None, map_frame: str = WORLD_FRAME
-                         ) -> list[Reconstructed]:
+                         frames: FrameBuffer | None = None, map_frame: str = WORLD_FRAME,
+                         detector: ContactDetector | None = None,
+                         tip_sigmas: float = TIP_SIGMAS) -> list[Reconstructed]:
     """Reconstruct a batch of messages in one Step 2 call (``vibrissa.reconstruct.reconstruct_si``).
 
     A row's clamp pose is the one its message carries, else its clamp frame in ``map_frame``
@@ -307,9 +366,11 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
     instead of one per message (on a few dozen rows the cost is the calls, not the rows).
     Step 2 works row by row: a row's point does not depend on the batch it arrived in
     (batches follow arrival timing), so a replayed bag gives the live run's points bit for
-    bit, and a wrench gives the same bits as the same row of an array.
+    bit, and a wrench gives the same bits as the same row of an array. With a ``detector``
+    (the sensors' noise), rows of a free rod are left out (``free``) and points carry their
+    covariance; the detector's state moves on with the rows, in order.
     """
-    parts = [_rows(msg, rod, frames, map_frame) for msg in msgs]
+    parts = [_rows(msg, rod, frames, map_frame, detector) for msg in msgs]
     whole = len(parts) == 1 and parts[0].placed.all()  # the rows as they are
     if whole:
         part = parts[0]
@@ -324,7 +385,10 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         rods = cast(FloatArray, parts[0].units)
     else:
         rods = np.vstack([cast(FloatArray, part.units)[part.placed] for part in parts])
-    result = reconstruct_si(q, p0, f0, m0, rods)
+    if detector is None:
+        result = reconstruct_si(q, p0, f0, m0, rods)
+    else:
+        result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas)
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
     pose_ok, flags = result.pose_ok.tolist(), status.tolist()
@@ -334,6 +398,17 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
               & np.isfinite(s1)).tolist()
     valid = [ok and fin and not flag & _NO_CONTACT
              for ok, fin, flag in zip(pose_ok, finite, flags, strict=True)]
+    covariance = result.covariance_m2
+    no_covariance = [False] * len(valid)
+    if covariance is not None:  # a point without one (axial load) gets the rod's reach, L^2 I
+        undefined = ~np.isfinite(covariance).all(axis=(1, 2)) & np.array(valid, bool)
+        if undefined.any():
+            length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
+                        else rods[:, 0])
+            covariance[undefined] = np.eye(3) * length_m[undefined, None, None] ** 2
+            no_covariance = undefined.tolist()
+        covariance.flags.writeable = False
+    tip_within_noise = ((status & int(ContactStatus.TIP_WITHIN_NOISE)) != 0).tolist()
     for value in (point, s1, phase, force, status):
         value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
     s1s, phases = s1.tolist(), phase.tolist()
@@ -343,6 +418,7 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         n = int(part.placed.sum())
         last = first + n
         good, kept = sum(pose_ok[first:last]), sum(valid[first:last])
+        flagged = [i for i in range(first, last) if valid[i]]
         contacts: ContactPoint | ContactPointArray | None = None
         if isinstance(msg, WhiskerWrench):
             if kept:
@@ -350,7 +426,8 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
                     stamp=msg.stamp, seq=msg.seq, whisker_id=msg.whisker_id,
                     frame_id=part.frame_id, point=point[first], s1=s1s[first],
                     phase=ContactPhase(phases[first]), force=force[first],
-                    status=ContactStatus(flags[first]))
+                    status=ContactStatus(flags[first]),
+                    covariance=None if covariance is None else covariance[first])
         else:
             whisker_ids = [w for w, ok in zip(msg.whisker_ids, part.placed, strict=True) if ok]
             if kept == len(msg.whisker_ids):
@@ -361,10 +438,13 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
             contacts = ContactPointArray(
                 stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
                 point=point[rows_kept], s1=s1[rows_kept], phase=phase[rows_kept],
-                force=force[rows_kept], status=status[rows_kept])
-        outcomes.append(Reconstructed(contacts, no_contact=good - kept, bad_pose=n - good,
-                                      no_pose=part.no_pose, unknown_whisker=part.unknown_whisker,
-                                      errors=part.errors))
+                force=force[rows_kept], status=status[rows_kept],
+                covariance=None if covariance is None else covariance[rows_kept])
+        outcomes.append(Reconstructed(
+            contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
+            unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,
+            tip_within_noise=sum(tip_within_noise[i] for i in flagged),
+            no_covariance=sum(no_covariance[i] for i in flagged)))
         first = last
     return outcomes
 
@@ -493,6 +573,9 @@ def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
     counters["bad_pose"] += outcome.bad_pose
     counters["no_pose"] += outcome.no_pose
     counters["unknown_whisker"] += outcome.unknown_whisker
+    counters["free"] += outcome.free
+    counters["tip_within_noise"] += outcome.tip_within_noise
+    counters["no_covariance"] += outcome.no_covariance
 
 
 def robot_frames(whiskers: Sequence[Whisker], robot_frame: str = ROBOT_FRAME,
@@ -505,11 +588,11 @@ def robot_frames(whiskers: Sequence[Whisker], robot_frame: str = ROBOT_FRAME,
     return frames
 
 
-def _compile_kernels(rod: Rods) -> None:
+def _compile_kernels(rod: Rods, detector: ContactDetector | None) -> None:
     """Compile Step 2 and the frame kernels for the arrays the node will see (or load them
     from numba's cache) now, so that the first wrench is not late by the compile time (~3 s
     on a fresh install): decoded messages hold read-only arrays, a backlog of ticks is
-    concatenated into writable ones."""
+    concatenated into writable ones. A detector's warm-up state is dropped after."""
     one = rod if isinstance(rod, RodScale) else next(iter(rod.values()), _UNIT_ROD)
     tick = decode(encode(WhiskerWrenchArray(
         stamp=0.0, seq=0, whisker_ids=["warm-up"], frame_ids=["warm-up/clamp"],
@@ -522,6 +605,10 @@ def _compile_kernels(rod: Rods) -> None:
         clamp_orientation=[0.0, 0.0, 0.0, 1.0])), WhiskerWrench)
     for batch in ([tick], [tick, tick], [wrench]):
         reconstruct_messages(batch, one)
+        if detector is not None:
+            warm_up = ContactDetector(detector.covariance, detector.on_sigmas,
+                                      detector.off_sigmas)
+            reconstruct_messages(batch, one, detector=warm_up)
     frames = robot_frames([Whisker("warm-up", 1.0, 1.0)])
     for stamp in (0.0, 1.0):
         frames.add("world", ROBOT_FRAME, stamp, Transform())
@@ -547,8 +634,9 @@ def _on_pose(frames: FrameBuffer, counters: dict[str, int], fqn: str
 def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     counters = node.counters
-    counters.update(contacts=0, no_contact=0, bad_pose=0, no_pose=0, unknown_whisker=0,
-                    robot_poses=0, bad_robot_pose=0, batches=0, max_batch=0)
+    counters.update(contacts=0, free=0, tip_within_noise=0, no_covariance=0, no_contact=0,
+                    bad_pose=0, no_pose=0, unknown_whisker=0, robot_poses=0, bad_robot_pose=0,
+                    batches=0, max_batch=0)
     whiskers = load_robot(params.robot) if params.robot else ()
     rod: Rods = RodTable({w.name: w.scale for w in whiskers}) if whiskers else params.rod
     frames = robot_frames(whiskers, params.robot_frame, params.history_s) if whiskers else None
@@ -563,7 +651,12 @@ def run(node: Node, params: ReconstructorParams) -> None:
         lambda pose: None)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, on_pose,
                              resolve_topic(params.input_topic, node.namespace))
-    _compile_kernels(rod)
+    detector = None
+    if params.noise_force_n > 0:
+        detector = ContactDetector(wrench_covariance(params.noise_force_n,
+                                                     params.noise_moment_nm),
+                                   params.contact_on_sigmas, params.contact_off_sigmas)
+    _compile_kernels(rod, detector)
     node.set_state("running")
     ends: list[EndOfStream] = []  # held until the wrenches before them are out
     reported: set[str] = set()
@@ -573,7 +666,9 @@ def run(node: Node, params: ReconstructorParams) -> None:
         if eos is not None:
             ends.append(eos)
         ready = wait.take(batches.drained)
-        for outcome in reconstruct_messages(ready, rod, frames, params.map_frame) if ready else ():
+        outcomes = reconstruct_messages(ready, rod, frames, params.map_frame, detector,
+                                        params.tip_sigmas) if ready else ()
+        for outcome in outcomes:
             if outcome.contacts is not None:
                 publisher.publish(outcome.contacts)
             _count(counters, outcome)

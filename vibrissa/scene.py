@@ -383,8 +383,8 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
     p_WC = p_WR[rows] + R_WR[rows].apply(mount_p)
     q_WC = (R_WR[rows] * mount_R).as_quat()
     part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], [scene.whiskers[k].scale for k in which])
-    for mine, theirs in zip(out, part, strict=True):
-        np.asarray(mine)[rows] = theirs
+    for name in ("pose_ok", "point_m", "s1_m", "phase", "force_n", "status"):
+        getattr(out, name)[rows] = getattr(part, name)
     return out
 
 

@@ -737,3 +737,42 @@ def test_a_bad_robot_description_is_a_parameter_error_naming_it(tmp_path: Path) 
         with pytest.raises(ValueError, match="parameter 'robot'") as info:
             ReconstructorParams(robot=str(robot))
         assert words in str(info.value) and "robot.yaml" in str(info.value)
+
+
+def test_with_a_noise_model_free_rows_are_counted_and_points_carry_covariances() -> None:
+    from vibrissa.contact_detection import ContactDetector, wrench_covariance
+    from vibrissa.units import RodScale
+
+    rod = RodScale(0.05, 2e-5)
+    sigma_f, sigma_m = 1e-6, 1e-8
+    detector = ContactDetector(wrench_covariance(sigma_f, sigma_m))
+    rng = np.random.default_rng(2)
+    loaded_f0 = np.array([0.1, 0.0, 0.0]) * rod.force_n
+    loaded_m0 = np.array([0.0, 0.05, 0.0]) * rod.moment_nm
+    axial_f0 = np.array([0.0, 0.0, 0.1]) * rod.force_n  # the tip pushed home: no covariance
+
+    def tick(seq: int, f0: np.ndarray, m0: np.ndarray) -> WhiskerWrenchArray:
+        return WhiskerWrenchArray(
+            stamp=float(seq), seq=seq, whisker_ids=["a", "b"], frame_ids=["a/clamp", "b/clamp"],
+            f0=f0, m0=m0, pose_frame_id="world", clamp_position=np.zeros((2, 3)),
+            clamp_orientation=np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)))
+
+    noise = [rng.normal(size=(2, 6)) * np.r_[[sigma_f] * 3, [sigma_m] * 3] for _ in range(3)]
+    ticks = [tick(0, noise[0][:, :3], noise[0][:, 3:]),  # both free
+             tick(1, np.vstack([loaded_f0, axial_f0]) + noise[1][:, :3] * [[1], [0]],
+                  np.vstack([loaded_m0, np.zeros(3)]) + noise[1][:, 3:] * [[1], [0]]),
+             tick(2, noise[2][:, :3], noise[2][:, 3:])]  # both free again
+    out = reconstruct_messages(ticks, rod, detector=detector)
+    assert [o.free for o in out] == [2, 0, 2]
+    contacts = out[1].contacts
+    assert isinstance(contacts, ContactPointArray) and contacts.whisker_ids == ["a", "b"]
+    assert out[0].contacts.whisker_ids == [] and out[2].contacts.whisker_ids == []
+    cov = contacts.covariance
+    assert cov is not None and cov.shape == (2, 3, 3)
+    assert np.all(np.linalg.eigvalsh(cov[0]) >= 0) and np.trace(cov[0]) < 1e-6 * rod.length_m**2
+    # the axial load has no derivative: it carries the rod's reach, and is counted
+    np.testing.assert_array_equal(cov[1], np.eye(3) * rod.length_m**2)
+    assert out[1].no_covariance == 1
+    # without a noise model: no covariance, no free rows, noise rows are contacts
+    plain = reconstruct_messages(ticks[:1], rod)
+    assert plain[0].free == 0 and plain[0].contacts.covariance is None

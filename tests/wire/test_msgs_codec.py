@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import tracemalloc
 from typing import Any
@@ -159,7 +160,7 @@ def test_enums_come_back_as_enums() -> None:
     assert isinstance(back, ContactPoint)
     assert back.phase is ContactPhase.TANGENTIAL
     assert back.status == ContactStatus.AXIAL_LOAD | ContactStatus.NO_FORCE
-    assert [int(f) for f in ContactStatus] == [1, 2, 4, 8, 16]  # OK=0 is not iterated
+    assert [int(f) for f in ContactStatus] == [1, 2, 4, 8, 16, 32]  # OK=0 is not iterated
 
 
 def test_constructed_arrays_are_read_only_copies() -> None:
@@ -228,8 +229,32 @@ def test_wrong_version() -> None:
         assert error.type_name == WhiskerWrench.TYPE_NAME
     obj = raw(ContactPoint(stamp=0.0, seq=0, whisker_id="w", frame_id="world", point=[0, 0, 0],
                            s1=0.5, phase=1, force=[0, 0, 0], status=0))
-    obj["_v"] = 2
-    refuse(pack(obj), VersionMismatchError, "ContactPoint", "reads version 1")
+    obj["_v"] = 3
+    refuse(pack(obj), VersionMismatchError, "ContactPoint", "reads version 1, 2")
+
+
+def test_version_1_contacts_decode_without_covariance() -> None:
+    point = ContactPoint(stamp=0.0, seq=0, whisker_id="w", frame_id="world", point=[0, 0, 1],
+                         s1=0.5, phase=1, force=[0, 0, 0], status=0)
+    obj = raw(point)
+    obj["_v"] = 1
+    back = decode(pack(obj), ContactPoint)
+    assert back.covariance is None and back.point.tolist() == [0.0, 0.0, 1.0]
+    # version 1 had no covariance: a payload that claims one is refused
+    obj["covariance"] = raw(wrench())["f0"]
+    refuse(pack(obj), FieldTypeError, "covariance")
+    cov = np.diag([1e-8, 2e-8, 3e-8])
+    back = decode(encode(dataclasses.replace(point, covariance=cov)), ContactPoint)
+    assert back.covariance.tolist() == cov.tolist()
+    array = contact_array()
+    obj = raw(array)
+    obj["_v"] = 1
+    assert decode(pack(obj), ContactPointArray).covariance is None
+    n = len(array.whisker_ids)
+    with_cov = dataclasses.replace(array, covariance=np.tile(cov, (n, 1, 1)))
+    assert decode(encode(with_cov), ContactPointArray).covariance.shape == (n, 3, 3)
+    with pytest.raises(ValueError, match="covariance"):  # one row short
+        encode(dataclasses.replace(array, covariance=np.tile(cov, (n - 1, 1, 1))))
 
 
 def _v1_wrench(whisker: str = "w7") -> dict[str, Any]:

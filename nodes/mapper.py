@@ -260,6 +260,7 @@ class FrameCloud:
     seqs: list[int] = field(default_factory=list)
     points: list[FloatArray] = field(default_factory=list)
     forces: list[FloatArray] = field(default_factory=list)
+    covariances: list[FloatArray] = field(default_factory=list)  # NaN: none came
 
     def add(self, msg: ContactPoint | ContactPointArray) -> None:
         """Append every row of a message (a ContactPoint is one row), each with its whisker
@@ -269,13 +270,18 @@ class FrameCloud:
         self.seqs += [msg.seq] * len(whisker_ids)
         self.points += list(np.reshape(msg.point, (-1, 3)))
         self.forces += list(np.reshape(msg.force, (-1, 3)))
+        covariance = (np.full((len(whisker_ids), 3, 3), np.nan) if msg.covariance is None
+                      else np.reshape(msg.covariance, (-1, 3, 3)))
+        self.covariances += list(covariance)
 
-    def ordered(self) -> tuple[FloatArray, FloatArray, list[str]]:
-        """Points (N, 3), forces (N, 3), whisker ids, sorted by (whisker, seq): line order."""
+    def ordered(self) -> tuple[FloatArray, FloatArray, list[str], FloatArray]:
+        """Points (N, 3), forces (N, 3), whisker ids and covariances (N, 3, 3; NaN where
+        none came), sorted by (whisker, seq): line order."""
         order = sorted(range(len(self.seqs)), key=lambda i: (self.whisker_ids[i], self.seqs[i]))
         points = np.array([self.points[i] for i in order]).reshape(-1, 3)
         forces = np.array([self.forces[i] for i in order]).reshape(-1, 3)
-        return points, forces, [self.whisker_ids[i] for i in order]
+        covariances = np.array([self.covariances[i] for i in order]).reshape(-1, 3, 3)
+        return points, forces, [self.whisker_ids[i] for i in order], covariances
 
 
 class Accumulator:
@@ -419,9 +425,15 @@ def name_objects(points: FloatArray, labels: IntArray, truth: Sequence[TrueObjec
 
 def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMap:
     """Objects, normals, surface estimates and errors of one frame."""
-    points, forces, whisker_ids = cloud.ordered()
+    points, forces, whisker_ids, covariances = cloud.ordered()
     lines = whisker_lines(points, whisker_ids)
     normals = contact_normals(points, forces, lines)
+    # each point's variance along its normal (NaN without a covariance: the floor point_std_m;
+    # one too large for floats: the ceiling)
+    given = np.isfinite(covariances).all(axis=(1, 2))
+    with np.errstate(over="ignore", invalid="ignore"):
+        normal_var = np.einsum("ni,nij,nj->n", normals, covariances, normals)
+    normal_var[given & ~np.isfinite(normal_var)] = np.inf
     truth = params.truth(frame_id)
     spacing = line_spacing(points, lines) if len(points) else float("inf")
     if params.true_surface:  # the single-object map: the frame is the true surface
@@ -443,7 +455,8 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
     mesh_distance: list[FloatArray] = []
     for k, (name, true, median) in enumerate(named):
         inside = np.flatnonzero(labels == k)
-        surface = estimate_surface(points[inside], normals[inside], params.map_params)
+        surface = estimate_surface(points[inside], normals[inside], params.map_params,
+                                   normal_var[inside])
         vertices, triangles, std = surface.part(known=True)
         own_spacing = line_spacing(points[inside], lines[inside])
         obj = ObjectResult(

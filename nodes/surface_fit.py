@@ -316,7 +316,8 @@ class ObjectSurface:
 
 
 def estimate_surface(points: FloatArray, normals: FloatArray,
-                     params: MapParams | None = None) -> ObjectSurface:
+                     params: MapParams | None = None,
+                     point_var_m2: FloatArray | None = None) -> ObjectSurface:
     """The Gaussian-process implicit surface of one object's contacts (``vibrissa.gp_surface``)
     meshed over its box, or why there is none (``too_little_for_a_surface``).
 
@@ -326,13 +327,16 @@ def estimate_surface(points: FloatArray, normals: FloatArray,
         Contact points (m) in line order and outward unit normals (:func:`contact_normals`).
     params
         Meshing and noise parameters.
+    point_var_m2 : ndarray, shape (N,), optional
+        Each point's position variance along its normal, m^2 (from its covariance): the fit
+        weights the points by it (``vibrissa.gp_surface.fit``).
     """
     params = params or MapParams()
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     too_little = too_little_for_a_surface(points)
     if too_little is not None:
         return ObjectSurface(f"none: {too_little}")
-    gp = gp_surface.fit(points, normals, GPParams(point_std_m=params.point_std_m))
+    gp = gp_surface.fit(points, normals, GPParams(point_std_m=params.point_std_m), point_var_m2)
     pad = params.margin * float(np.linalg.norm(np.ptp(points, axis=0)))
     mesh = gp_surface.mesh(gp, points.min(axis=0) - pad, points.max(axis=0) + pad,
                            params.cells, params.max_std_m)

@@ -194,9 +194,9 @@ def _prior(a: FloatArray, ell: float) -> FloatArray:
     return K
 
 
-def _noise(normals: FloatArray, point_std: float, tau: float) -> FloatArray:
+def _noise(normals: FloatArray, point_std: FloatArray, tau: float) -> FloatArray:
     """Observation noise covariance (4M, 4M) of active points with unit normals (M, 3): f
-    ``point_std`` (units of s), gradients tau across n and NORMAL_SCALE_STD along it."""
+    ``point_std`` (M,) (units of s), gradients tau across n and NORMAL_SCALE_STD along it."""
     m = len(normals)
     nn = normals[:, :, None] * normals[:, None, :]
     block = tau * tau * (np.eye(3) - nn) + NORMAL_SCALE_STD**2 * nn
@@ -306,7 +306,8 @@ class GPSurface:
     quadric_std: float
     log_likelihood: float
     residual_std: float
-    point_std: float  # std of f at a contact point, units of s
+    point_std: float  # least std of f at a contact point, units of s (``GPParams.point_std_m``)
+    _point_std: FloatArray  # each active point's (and conditioned point's) std of f, units of s
     _u: FloatArray
     _n: FloatArray  # the active points' unit normals
     _solution: _Solution
@@ -386,7 +387,8 @@ def _solve(K_y: FloatArray, G: FloatArray, q: float, y: FloatArray) -> _Solution
 
 
 @_one_blas_thread
-def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None) -> GPSurface:
+def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None,
+        point_var_m2: FloatArray | None = None) -> GPSurface:
     """Fit the implicit surface of a contact cloud (see module).
 
     Parameters
@@ -398,6 +400,11 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None)
         Outward unit surface normals at the points.
     params
         Fit parameters.
+    point_var_m2 : ndarray, shape (N,), optional
+        Each point's position variance along its normal, m^2 (n^T Sigma n of its covariance
+        from the wrench noise): its f = 0 observation is weighted by it, with
+        ``params.point_std_m`` as the floor and the cloud's radius as the ceiling (NaN:
+        the floor).
     """
     params = params or GPParams()
     points = np.asarray(points, dtype=np.float64)
@@ -416,10 +423,17 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None)
     u_all = (points - center) / scale
     n_all = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     point_std = max(params.point_std_m / scale, MIN_POINT_STD)
+    stds = np.full(len(points), point_std)
+    if point_var_m2 is not None:
+        var = np.asarray(point_var_m2, dtype=np.float64).reshape(-1)
+        if var.shape != (len(points),):
+            raise ValueError(f"point_var_m2 must have shape ({len(points)},), got {var.shape}")
+        var = np.nan_to_num(var, nan=0.0, posinf=scale * scale, neginf=0.0)
+        stds = np.maximum(np.sqrt(np.clip(var, 0.0, scale * scale)) / scale, point_std)
 
-    def solve(u: FloatArray, n: FloatArray, K_se: FloatArray, sigma: float,
+    def solve(u: FloatArray, n: FloatArray, stds: FloatArray, K_se: FloatArray, sigma: float,
               tau: float) -> _Solution:
-        return _solve(sigma * sigma * K_se + _noise(n, point_std, tau), _design(u),
+        return _solve(sigma * sigma * K_se + _noise(n, stds, tau), _design(u),
                       params.quadric_std, _targets(n))
 
     best: tuple[float, float, float] | None = None
@@ -430,16 +444,16 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None)
         K_se = _prior(u, ell)
         for sigma in params.sigmas:
             for tau in params.normal_stds:
-                trial = solve(u, n, K_se, sigma, tau)
+                trial = solve(u, n, stds[chosen], K_se, sigma, tau)
                 if trial.loglik > likelihood:
                     best, likelihood = (ell, sigma, tau), trial.loglik
     assert best is not None  # the candidates are not empty
     ell, sigma, tau = best
     active = select_active(u_all, params.max_active)
     u, n = np.ascontiguousarray(u_all[active]), n_all[active]
-    solution = solve(u, n, _prior(u, ell), sigma, tau)
+    solution = solve(u, n, stds[active], _prior(u, ell), sigma, tau)
     surface = GPSurface(center, scale, active, ell, sigma, tau, params.quadric_std,
-                        solution.loglik, 0.0, point_std, u, n, solution,
+                        solution.loglik, 0.0, point_std, stds[active], u, n, solution,
                         sigma * sigma * solution.alpha)
     unused = np.setdiff1d(np.arange(len(points)), active)
     unused = unused[::max(1, len(unused) // HELD_OUT)]
@@ -453,18 +467,20 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None)
 def conditioned(surface: GPSurface, points: FloatArray, normals: FloatArray) -> GPSurface:
     """The surface had it also observed ``points`` (K, 3), m, with outward ``normals``
     (K, 3), its hyperparameters kept: what touching there would leave of its uncertainty
-    (the std of a GP does not depend on the values observed, only on where)."""
+    (the std of a GP does not depend on the values observed, only on where); the new points
+    with the least point std."""
     u_new = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - surface.center) / surface.scale
     n_new = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     n_new = n_new / np.linalg.norm(n_new, axis=1, keepdims=True)
     u = np.ascontiguousarray(np.concatenate([surface._u, u_new]))
     n = np.concatenate([surface._n, n_new])
+    stds = np.concatenate([surface._point_std, np.full(len(n_new), surface.point_std)])
     sigma = surface.sigma
     solution = _solve(sigma * sigma * _prior(u, surface.length_scale)
-                      + _noise(n, surface.point_std, surface.normal_std), _design(u),
+                      + _noise(n, stds, surface.normal_std), _design(u),
                       surface.quadric_std, _targets(n))
-    return replace(surface, log_likelihood=solution.loglik, _u=u, _n=n, _solution=solution,
-                   _alpha_se=sigma * sigma * solution.alpha)
+    return replace(surface, log_likelihood=solution.loglik, _point_std=stds, _u=u, _n=n,
+                   _solution=solution, _alpha_se=sigma * sigma * solution.alpha)
 
 
 def _targets(normals: FloatArray) -> FloatArray:

@@ -177,3 +177,25 @@ def test_bad_parameters_are_clear_errors():
         gp_surface.GPParams(max_active=2)
     with pytest.raises(ValueError, match="point_std_m must be > 0"):
         gp_surface.GPParams(point_std_m=-1.0)
+
+
+def test_points_are_weighted_by_their_variance(paraboloid):
+    # one of the five lines comes from a noisy whisker: its points lie 3 mm out along the
+    # normal. Told their variance (3 mm)^2 against 1 um^2 for the rest, the fit leans on the
+    # good lines 0.2 m to either side; told nothing, it goes through the bad one.
+    points, normals, lines, truth = paraboloid
+    bad = lines == np.unique(lines)[2]  # the middle trail, y0 = 0
+    moved = points.copy()
+    moved[bad] += 3e-3 * normals[bad]
+    var = np.where(bad, 3e-3**2, 1e-12)
+    weighted = gp_surface.fit(moved, normals, point_var_m2=var)
+    unweighted = gp_surface.fit(moved, normals)
+    on_truth = points[bad]  # where the bad line should have been
+    error_weighted = np.abs(weighted.evaluate(on_truth)[0])
+    error_unweighted = np.abs(unweighted.evaluate(on_truth)[0])
+    assert np.median(error_unweighted) > 2e-3
+    assert np.median(error_weighted) < 0.5 * np.median(error_unweighted)  # 0.83 vs 2.27 mm
+    # the variances change the std where the bad line was: it is less sure there
+    assert np.median(weighted.std(on_truth)) > np.median(unweighted.std(on_truth))
+    with pytest.raises(ValueError, match=r"point_var_m2 must have shape"):
+        gp_surface.fit(points, normals, point_var_m2=var[:-1])

@@ -4,6 +4,7 @@ reported and drawn; the single-object map with ``true_surface`` as before."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import struct
@@ -17,7 +18,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import Transform
-from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
+from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream, decode, encode
 from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map
 from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
 from vibrissa.nodes.surface_fit import cluster_points, whisker_lines
@@ -233,7 +234,7 @@ def test_identical_input_gives_identical_labels_and_files(
     scene_map: dict[str, Any], tmp_path: Path
 ) -> None:
     msgs = messages()
-    points, _, ids = accumulate(msgs).frames["world"].ordered()
+    points, _, ids, _ = accumulate(msgs).frames["world"].ordered()
     lines = whisker_lines(points, ids)
     first, second = cluster_points(points, lines), cluster_points(points, lines)
     np.testing.assert_array_equal(first.labels, second.labels)
@@ -432,3 +433,25 @@ def test_a_figure_of_many_whiskers_and_objects_is_drawn(tmp_path: Path) -> None:
                                labels=labels, meshes=meshes))
     width, height = png_size(target)
     assert width >= 1200 and height >= 700
+
+
+def test_hostile_covariances_do_not_break_the_map(scene_map: dict[str, Any], tmp_path: Path
+                                                  ) -> None:
+    # the same points with covariances as an adversary might send them (finite, so the codec
+    # takes them): negative, enormous, zero, asymmetric; the map is made and the objects are
+    # the same two, within the mesh's cells of the clean map
+    rng = np.random.default_rng(4)
+    hostile = [np.diag([-1.0, -1.0, -1.0]), np.full((3, 3), 1e300), np.zeros((3, 3)),
+               np.array([[0.0, 1e10, 0.0], [-1e10, 0.0, 0.0], [0.0, 0.0, 1e-30]])]
+    msgs = []
+    for msg in messages():
+        if isinstance(msg, ContactPointArray):
+            n = len(msg.whisker_ids)
+            cov = np.array([hostile[k] for k in rng.integers(0, len(hostile), n)])
+            msg = dataclasses.replace(msg, covariance=cov)
+        msgs.append(decode(encode(msg)))
+    report, _ = write_outputs(accumulate(msgs), scene_map["params"], tmp_path / "out")
+    [frame] = report["frames"]
+    assert [obj["name"] for obj in frame["objects"]] == ["ball", "egg"]
+    for obj in frame["objects"]:
+        assert obj["n_triangles"] > 0 and obj["mesh_to_surface_max"] < 5e-3

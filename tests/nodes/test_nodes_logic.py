@@ -463,7 +463,7 @@ def test_accumulator_ends_on_count_or_names() -> None:
                               point=[[0, 0, 2], [0, 0, 3]], s1=[0.5, 0.6], phase=[1, 2],
                               force=[[0, 0, 1], [0, 1, 0]], status=[0, 0]))
     assert acc.n_points == 3
-    points, forces, ids = acc.frames["world"].ordered()
+    points, forces, ids, _ = acc.frames["world"].ordered()
     assert ids == ["u", "v", "w"] and points[:, 2].tolist() == [2, 3, 1]
     np.testing.assert_array_equal(forces[1], [0, 1, 0])
     named = Accumulator(["/b"])

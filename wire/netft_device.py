@@ -107,7 +107,6 @@ class NetFTDevice:
         self._made_in_stream = 0
         self._held: bytes | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind((host, port))
         self.sock.settimeout(0.0005)
         self.address: tuple[str, int] = self.sock.getsockname()

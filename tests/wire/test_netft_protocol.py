@@ -248,3 +248,15 @@ def test_a_drain_fed_at_once_is_the_datagrams_fed_in_turn(order: list[int], drop
     assert [k for k, _ in batched] == [k for k, _ in singly]
     # and the same stamps: each datagram of a drain moves the offset as it would alone
     np.testing.assert_allclose([t for _, t in batched], [t for _, t in singly], atol=1e-12)
+
+
+def test_a_second_device_on_a_taken_port_is_refused() -> None:
+    # two simulated sensors on one port would split the driver's stream between them
+    from vibrissa.wire.netft_device import NetFTDevice
+
+    first = NetFTDevice(np.zeros((1, 6)))
+    try:
+        with pytest.raises(OSError):
+            NetFTDevice(np.zeros((1, 6)), port=first.address[1])
+    finally:
+        first.close()

@@ -4,6 +4,8 @@ Prints one table. Baselines, in the same run and on the same inputs:
 
 * Step 2: the paper's IVP (eq. 11 with the initial values of eq. 23) integrated by
   ``scipy.integrate.solve_ivp`` with a terminal event at kappa = 0, one sample at a time.
+* Step 2 with covariance: the point's covariance J Sigma J^T with J by central differences
+  of the library's Step 2 in SI (12 more calls over the batch), against the closed-form J.
 * Step 1: shooting for one tip-contact equilibrium at mu = 0 (BCs eq. 14): ``solve_ivp`` of
   eq. 11 inside ``scipy.optimize.root`` over (psi, fn, kappa0, contact x, contact y), warm-started
   from the library's previous step, as a sweep would.
@@ -32,11 +34,12 @@ from scipy.optimize import root  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from vibrissa.frames import Transform  # noqa: E402
-from vibrissa.reconstruct import reconstruct  # noqa: E402
+from vibrissa.reconstruct import reconstruct, reconstruct_si  # noqa: E402
 from vibrissa.scene import Scene, SceneObject, Whisker, robot_path, simulate  # noqa: E402
 from vibrissa.study import PAPER_SURFACE, run_study  # noqa: E402
 from vibrissa.surfaces import Surface, parse_surface  # noqa: E402
 from vibrissa.sweep import Sweep, Trail, simulate_sweeps  # noqa: E402
+from vibrissa.units import RodScale  # noqa: E402
 
 FloatArray = NDArray[np.float64]
 IVP_TOL = {"rtol": 1e-11, "atol": 1e-13}
@@ -235,6 +238,47 @@ def main() -> None:
                  f"{np.nanmax(np.abs(points - library_points)):.1e}", "L"))
     rows.append(("Step 2 agreement: max |P1 library - Step 1 contact|",
                  f"{np.nanmax(np.abs(library_points - sweep.contact[picks])):.1e}", "L"))
+
+    # Step 2 with covariance, SI, a tilted clamp: library against central differences.
+    rod = RodScale(0.05, 2e-5)
+    q = np.tile(Rotation.from_rotvec([0.3, -0.2, 0.5]).as_quat(), (len(p0), 1))
+    f0_n, m0_nm, p0_m = f0 * rod.force_n, m0 * rod.moment_nm, p0 * rod.length_m
+    sigma = 1e-4 * np.repeat([np.linalg.norm(sweep.f0, axis=1).max() * rod.force_n,
+                              np.linalg.norm(sweep.m0, axis=1).max() * rod.moment_nm], 3)
+    cov_w = np.diag(sigma**2)
+    plain_si = _median_of(lambda: reconstruct_si(q, p0_m, f0_n, m0_nm, rod), 3)
+    with_cov = _median_of(lambda: reconstruct_si(q, p0_m, f0_n, m0_nm, rod, cov_w), 3)
+    rows.append((f"Step 2 library: reconstruct_si() on {args.samples:.0e} samples, one core",
+                 f"{args.samples / plain_si:.3g} samples/s", f"{plain_si:.2f} s"))
+    rows.append(("Step 2 library: reconstruct_si() + covariance, one core",
+                 f"{args.samples / with_cov:.3g} samples/s", f"{with_cov:.2f} s"))
+
+    def central_differences() -> FloatArray:
+        wrench = np.c_[f0_n, m0_nm]
+        jacobian = np.empty((len(wrench), 3, 6))
+        for j in range(6):
+            h = 1e-6 * (np.abs(wrench[:, j]) + sigma[j])
+            plus, minus = wrench.copy(), wrench.copy()
+            plus[:, j] += h
+            minus[:, j] -= h
+            up = reconstruct_si(q, p0_m, plus[:, :3], plus[:, 3:], rod).point_m
+            down = reconstruct_si(q, p0_m, minus[:, :3], minus[:, 3:], rod).point_m
+            jacobian[:, :, j] = (up - down) / (2 * h[:, None])
+        return np.einsum("nij,jk,nlk->nil", jacobian, cov_w, jacobian)
+
+    start = time.perf_counter()
+    cov_fd = central_differences()
+    baseline_cov = time.perf_counter() - start + plain_si
+    cov_lib = reconstruct_si(q, p0_m, f0_n, m0_nm, rod, cov_w).covariance_m2
+    rows.append(("Step 2 baseline: + covariance by central differences (12 more calls)",
+                 f"{args.samples / baseline_cov:.3g} samples/s", f"{baseline_cov:.2f} s"))
+    rows.append(("Step 2 ratio baseline / library with covariance",
+                 f"{baseline_cov / with_cov:.1f}x", ""))
+    both = np.isfinite(cov_fd).all(axis=(1, 2)) & np.isfinite(cov_lib).all(axis=(1, 2))
+    scale = np.abs(cov_lib[both]).max(axis=(1, 2))
+    rows.append(("Step 2 agreement: max |cov central diff. - library| / max |cov|",
+                 f"{np.max(np.abs(cov_fd[both] - cov_lib[both]).max(axis=(1, 2)) / scale):.1e}",
+                 f"{both.sum()} samples with both"))
 
     width = max(len(r[0]) for r in rows)
     print(f"\n{'quantity':<{width}}  {'value':>22}  note")

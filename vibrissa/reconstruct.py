@@ -29,7 +29,7 @@ from vibrissa.compiled import compiled
 from vibrissa.elastica import S1_TOLERANCE, planar_contact_scalar
 from vibrissa.frames import quaternion_matrix, rotate_vector
 from vibrissa.status import NO_CONTACT, ContactPhase, ContactStatus
-from vibrissa.uncertainty import point_jacobian, propagate_row
+from vibrissa.uncertainty import jacobian_into, propagate_row
 from vibrissa.units import RodScale, rod_units
 
 # ContactPhase as the plain ints compiled code uses.
@@ -323,26 +323,27 @@ _NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
 def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
             m0: NDArray[np.float64], length_m: float, force_n: float, moment_nm: float,
             cov: NDArray[np.float64], tip_sigmas: float, point: NDArray[np.float64],
-            force: NDArray[np.float64], covariance: NDArray[np.float64]
-            ) -> tuple[bool, float, int, int]:
+            force: NDArray[np.float64], covariance: NDArray[np.float64],
+            work: NDArray[np.float64]) -> tuple[bool, float, int, int]:
     """:func:`reconstruct_si` of one row: whether the pose is usable, then s1 (m), phase and
     status, with the point (m) and force (N) written into ``point`` and ``force``, and with a
-    wrench covariance ``cov`` (6, 6; else 0 rows) the point's into ``covariance`` (3, 3)."""
-    rotation = np.empty((3, 3))
+    wrench covariance ``cov`` (6, 6; else 0 rows) the point's into ``covariance`` (3, 3);
+    ``work`` (19, 6) is scratch space."""
+    rotation = work[15:18, 0:3]
     norm2 = quaternion_matrix(q_xyzw, rotation)
     if not (norm2 > 0.0 and norm2 < math.inf):
         return False, math.nan, 0, 0
-    p0_L, f0_L, m0_L = np.empty(3), np.empty(3), np.empty(3)
+    p0_L, f0_L, m0_L = work[18, 0:3], work[18, 3:6], work[17, 3:6]
     for j in range(3):
         p0_L[j], f0_L[j], m0_L[j] = p0[j] / length_m, f0[j] / force_n, m0[j] / moment_nm
     tip_band = 0.0
     known = False
     if cov.shape[0] > 0:
-        jacobian = np.empty((4, 6))
-        known = point_jacobian(f0_L, m0_L, jacobian)
+        jacobian = work[0:4]
+        known = jacobian_into(f0_L, m0_L, jacobian, work[4:7, 0:3])
         if known:
             s1_var = propagate_row(jacobian, rotation, length_m, force_n, moment_nm, cov,
-                                   covariance)
+                                   covariance, work[7:15])
             tip_band = tip_sigmas * math.sqrt(max(s1_var, 0.0))
     s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force,
                                               tip_band)
@@ -370,10 +371,11 @@ def _rows_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[n
     covariance = np.full((n if cov.shape[0] > 0 else 0, 3, 3), math.nan)
     per_row = cov.shape[0] > 1
     row_cov, row_out = np.empty((0, 6)), np.empty((0, 3))
+    work = np.empty((19, 6))
     for i in range(n):
         if cov.shape[0] > 0:
             row_cov, row_out = cov[i if per_row else 0], covariance[i]
         pose_ok[i], s1[i], phase[i], status[i] = _row_si(
             q_xyzw[i], p0[i], f0[i], m0[i], length_m[i], force_n[i], moment_nm[i], row_cov,
-            tip_sigmas, point[i], force[i], row_out)
+            tip_sigmas, point[i], force[i], row_out, work)
     return pose_ok, point, s1, phase, force, status, covariance

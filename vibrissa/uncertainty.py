@@ -31,59 +31,78 @@ def point_jacobian(f0: FloatArray, m0: FloatArray, jacobian: FloatArray) -> bool
     """d(P1 - P0, s1)/d(f0, m0) (4, 6) in C, paper units, written into ``jacobian`` (rows x,
     y, z of the point, then s1); False where it is not defined (no bending moment, an axial
     load, or no contact at all: see ``vibrissa.elastica.planar_contact_tangent``)."""
+    return jacobian_into(f0, m0, jacobian, np.empty((3, 3)))
+
+
+@compiled
+def jacobian_into(f0: FloatArray, m0: FloatArray, jacobian: FloatArray, dg: FloatArray) -> bool:
+    """:func:`point_jacobian` with the planar derivatives' space ``dg`` (3, 3) given: a
+    per-row kernel allocates nothing."""
     a, b = m0[0], m0[1]
     kappa = math.hypot(a, b)
     if not (kappa > 0.0 and math.isfinite(kappa)):
         return False
     e_x, e_y = b / kappa, -a / kappa
     k3 = kappa * kappa * kappa
-    # d e_u / d(m0x, m0y), d kappa0 / d(m0x, m0y)
-    de_x = (-b * a / k3, a * a / k3)
-    de_y = (-b * b / k3, a * b / k3)
-    dk = (a / kappa, b / kappa)
     fu = -(f0[0] * e_x + f0[1] * e_y)
     fv = -f0[2]
-    dg = np.empty((3, 3))
     u1, _v1, _s1, status = planar_contact_tangent(fu, fv, kappa, dg)
     if status != 0:
         return False
-    # d(fu, fv, kappa0) / d(f0x, f0y, f0z, m0x, m0y, m0z)
-    dq = np.zeros((3, 6))
-    dq[0, 0], dq[0, 1] = -e_x, -e_y
-    dq[1, 2] = -1.0
-    for j in range(2):
-        dq[0, 3 + j] = -(f0[0] * de_x[j] + f0[1] * de_y[j])
-        dq[2, 3 + j] = dk[j]
     for j in range(6):
-        d_u = dg[0, 0] * dq[0, j] + dg[0, 1] * dq[1, j] + dg[0, 2] * dq[2, j]
-        dex = de_x[j - 3] if 3 <= j <= 4 else 0.0
-        dey = de_y[j - 3] if 3 <= j <= 4 else 0.0
+        # d(e_u, fu, fv, kappa0) / d(f0x, f0y, f0z, m0x, m0y, m0z)_j
+        dex = dey = d_fu = d_fv = d_kappa = 0.0
+        if j == 0:
+            d_fu = -e_x
+        elif j == 1:
+            d_fu = -e_y
+        elif j == 2:
+            d_fv = -1.0
+        elif j == 3:
+            dex, dey, d_kappa = -b * a / k3, -b * b / k3, a / kappa
+        elif j == 4:
+            dex, dey, d_kappa = a * a / k3, a * b / k3, b / kappa
+        if j >= 3:
+            d_fu = -(f0[0] * dex + f0[1] * dey)
+        d_u = dg[0, 0] * d_fu + dg[0, 1] * d_fv + dg[0, 2] * d_kappa
         jacobian[0, j] = d_u * e_x + u1 * dex
         jacobian[1, j] = d_u * e_y + u1 * dey
         for r in (1, 2):  # v1 -> z, s1
-            jacobian[r + 1, j] = dg[r, 0] * dq[0, j] + dg[r, 1] * dq[1, j] + dg[r, 2] * dq[2, j]
+            jacobian[r + 1, j] = dg[r, 0] * d_fu + dg[r, 1] * d_fv + dg[r, 2] * d_kappa
     return True
 
 
 @compiled
 def propagate_row(jacobian: FloatArray, rotation: FloatArray, length_m: float, force_n: float,
-                  moment_nm: float, cov: FloatArray, out: FloatArray) -> float:
+                  moment_nm: float, cov: FloatArray, out: FloatArray, work: FloatArray) -> float:
     """The point's covariance in W, m^2, into ``out`` (3, 3), and the variance of s1 in
     units of L^2 (returned), from ``jacobian`` (:func:`point_jacobian`, paper units, C) and
-    the SI wrench covariance ``cov`` (6, 6) in C."""
-    j_si = np.empty((4, 6))  # m (rows 0-2, rotated into W) and L (row 3) per N or N m
+    the SI wrench covariance ``cov`` (6, 6) in C; ``work`` (8, 6) is scratch space."""
+    # J in SI: m (rows 0-2, rotated into W) and L (row 3) per N or N m; then J cov J^T, in
+    # loops (a matrix product per row would cost more than the row's Step 2)
     for j in range(6):
         scale = 1.0 / (force_n if j < 3 else moment_nm)
         for r in range(3):
-            j_si[r, j] = length_m * scale * (rotation[r, 0] * jacobian[0, j]
+            work[r, j] = length_m * scale * (rotation[r, 0] * jacobian[0, j]
                                              + rotation[r, 1] * jacobian[1, j]
                                              + rotation[r, 2] * jacobian[2, j])
-        j_si[3, j] = scale * jacobian[3, j]
-    full = j_si @ cov @ j_si.T
+        work[3, j] = scale * jacobian[3, j]
+    for r in range(4):  # rows 4-7: J cov
+        for c in range(6):
+            total = 0.0
+            for k in range(6):
+                total += work[r, k] * cov[k, c]
+            work[4 + r, c] = total
     for r in range(3):
-        for c in range(3):
-            out[r, c] = full[r, c]
-    return full[3, 3]
+        for c in range(r, 3):
+            total = 0.0
+            for k in range(6):
+                total += work[4 + r, k] * work[c, k]
+            out[r, c] = out[c, r] = total
+    s1_var = 0.0
+    for k in range(6):
+        s1_var += work[7, k] * work[3, k]
+    return s1_var
 
 
 def point_covariance_si(q_WC_xyzw: FloatArray, f0_C_n: FloatArray, m0_C_nm: FloatArray,
@@ -128,7 +147,7 @@ def _covariances(q: FloatArray, f0: FloatArray, m0: FloatArray, units: FloatArra
     """:func:`point_covariance_si` of every row."""
     n = q.shape[0]
     out = np.full((n, 3, 3), np.nan)
-    jacobian = np.empty((4, 6))
+    jacobian, dg, work = np.empty((4, 6)), np.empty((3, 3)), np.empty((8, 6))
     rotation = np.empty((3, 3))
     f0_L, m0_L = np.empty(3), np.empty(3)
     for i in range(n):
@@ -138,6 +157,6 @@ def _covariances(q: FloatArray, f0: FloatArray, m0: FloatArray, units: FloatArra
         norm2 = quaternion_matrix(q[i], rotation)
         if not (norm2 > 0.0 and norm2 < math.inf):
             continue
-        if point_jacobian(f0_L, m0_L, jacobian):
-            propagate_row(jacobian, rotation, length_m, force_n, moment_nm, cov[i], out[i])
+        if jacobian_into(f0_L, m0_L, jacobian, dg):
+            propagate_row(jacobian, rotation, length_m, force_n, moment_nm, cov[i], out[i], work)
     return out

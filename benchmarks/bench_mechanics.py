@@ -278,7 +278,8 @@ def main() -> None:
     scale = np.abs(cov_lib[both]).max(axis=(1, 2))
     rows.append(("Step 2 agreement: max |cov central diff. - library| / max |cov|",
                  f"{np.max(np.abs(cov_fd[both] - cov_lib[both]).max(axis=(1, 2)) / scale):.1e}",
-                 f"{both.sum()} samples with both"))
+                 f"{both.sum()} samples with both (at tip contacts the differences cross "
+                 "the rod's end)"))
 
     width = max(len(r[0]) for r in rows)
     print(f"\n{'quantity':<{width}}  {'value':>22}  note")

@@ -103,7 +103,10 @@ class NetFTParams:
         Tare once at start, when the rod is free (default off: never forced on the user).
     free_samples, free_force_n, free_moment_nm
         The rod is free when the last ``free_samples`` samples all have |f0| and |m0| below
-        these (N, N m; after the sensor's current bias).
+        these (N, N m), once this driver has tared the sensor. Before that the level is the
+        sensor's offset, not the load: the rod counts as free when the samples stay within
+        these of their mean (at rest; a rod resting on an object passes too, so tare the first
+        time with the rod free).
     receive_buffer_bytes
         The socket's receive buffer (SO_RCVBUF).
     wait_for
@@ -194,7 +197,9 @@ class NetFTReader:
         self._stamp = np.zeros(0)
         self._f0 = np.zeros((0, 3))
         self._m0 = np.zeros((0, 3))
-        self._free: collections.deque[bool] = collections.deque(maxlen=params.free_samples)
+        self._window: collections.deque[FloatArray] = collections.deque(
+            maxlen=params.free_samples)  # the last samples' (f0, m0), N and N m
+        self.tared = False
 
     def read(self, data: bytes, t_receive: float) -> None:
         self.read_many((data,), t_receive)
@@ -219,8 +224,7 @@ class NetFTReader:
             f_S, m_S = to_si(counts[fresh], self.config.counts_per_force,
                              self.config.counts_per_torque)
             f0, m0 = sensor_to_clamp(f_S, m_S, self.params.X_CS)
-            self._free.extend(((np.linalg.norm(f0, axis=1) < self.params.free_force_n)
-                               & (np.linalg.norm(m0, axis=1) < self.params.free_moment_nm)).tolist())
+            self._window.extend(np.hstack([f0, m0])[-self.params.free_samples:])
             stamp = t_sensor[fresh] if self.params.stamp == "sensor" else t_receive[fresh]
             self._t_sensor = np.concatenate([self._t_sensor, t_sensor[fresh]])
             self._stamp = np.concatenate([self._stamp, stamp])
@@ -241,25 +245,42 @@ class NetFTReader:
         return out
 
     def why_not_free(self) -> str | None:
-        """``None`` when the rod is free (every one of the last ``free_samples`` samples below
-        the thresholds), else why not."""
-        n, need = len(self._free), self.params.free_samples
+        """``None`` when the rod is free, else why not: every one of the last
+        ``free_samples`` samples below the thresholds after a tare, within them of their mean
+        before the first (see ``NetFTParams``)."""
+        n, need = len(self._window), self.params.free_samples
         if n < need:
             return f"only {n} of the {need} samples the free-rod check needs have arrived"
-        loaded = need - sum(self._free)
-        if loaded:
-            return (f"the rod is not free: {loaded} of the last {need} samples reach |f0| >= "
-                    f"{self.params.free_force_n} N or |m0| >= {self.params.free_moment_nm} N m")
-        return None
+        window = np.array(self._window)
+        if not self.tared:
+            window = window - window.mean(axis=0)
+        force = float(np.linalg.norm(window[:, :3], axis=1).max())
+        moment = float(np.linalg.norm(window[:, 3:], axis=1).max())
+        if force < self.params.free_force_n and moment < self.params.free_moment_nm:
+            return None
+        what = ("the rod is not free: over the last {need} samples |f0| reaches {f:.3g} N, "
+                "|m0| {m:.3g} N m" if self.tared else
+                "the rod is not free or not still (before the first tare the level is the "
+                "sensor's offset, so a free rod is one at rest): over the last {need} samples "
+                "f0 moves {f:.3g} N, m0 {m:.3g} N m from their mean")
+        return (what.format(need=need, f=force, m=moment)
+                + f" (limits {self.params.free_force_n} N, {self.params.free_moment_nm} N m)")
+
+    def free_noise(self) -> tuple[float, float]:
+        """Std of the last samples per force axis (N) and moment axis (N m), the mean of the
+        three of each: the free-rod noise when the rod is free."""
+        std = np.array(self._window).std(axis=0)
+        return float(std[:3].mean()), float(std[3:].mean())
 
     @property
     def checked(self) -> bool:
         """Whether enough samples arrived for the free-rod check."""
-        return len(self._free) >= self.params.free_samples
+        return len(self._window) >= self.params.free_samples
 
     def biased(self) -> None:
         """The sensor was tared: the samples before say nothing about the next ones."""
-        self._free.clear()
+        self._window.clear()
+        self.tared = True
 
 
 def sensor_config(params: NetFTParams) -> NetFTConfig:
@@ -367,10 +388,14 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
             if bias_wanted:
                 reason = reader.why_not_free()
                 if reason is None:
+                    noise_f, noise_m = reader.free_noise()
                     sock.sendto(pack_request(Command.BIAS), sensor)
                     reader.biased()
                     counters["biases"] += 1
-                    log.info("%s: sensor biased (tared) with the rod free", node.fqn)
+                    log.info("%s: sensor biased (tared) with the rod free; free-rod noise over "
+                             "the last %d samples: %.3g N, %.3g N m std per axis (the "
+                             "reconstructor's noise_force_n, noise_moment_nm)", node.fqn,
+                             params.free_samples, noise_f, noise_m)
                     bias_wanted = False
                 elif reader.checked or stalled:
                     counters["bias_refused"] += 1

@@ -5,6 +5,7 @@ device, malformed datagrams. Every receive has a timeout."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -174,22 +175,64 @@ def test_bias_removes_a_constant_offset_exactly(tmp_path: Path, endpoints: Endpo
         assert device.stats.biases >= 1
 
 
+def _bias(commands: Publisher, watch: Watch, counter: str) -> None:
+    """Ask for a bias until ``counter`` (``biases`` or ``bias_refused``) counts one more."""
+    before = watch.counters.get(counter, 0)
+    deadline = time.monotonic() + TIMEOUT_S
+    while watch.counters.get(counter, 0) <= before:
+        assert time.monotonic() < deadline
+        commands.publish(SensorCommand(stamp=time.time(), command="bias", sender="/test"))
+        watch.until(lambda c: True, timeout_s=1.0)
+
+
 def test_bias_is_refused_while_the_rod_is_loaded(tmp_path: Path, endpoints: Endpoints,
                                                  watch: Watch, context: Any) -> None:
-    load = np.array([[0.2, 0.0, 0.0, 0.0, 0.0, 0.0]])  # 0.2 N: above free_force_n
-    with NetFTDevice(load, rate_hz=1000, counts_per_force=CPF) as device, \
+    # tared with the rod free (3 s at rest), then loaded with 0.2 N (above free_force_n) and
+    # held: a second tare is refused, the level being known after the first
+    signal = np.zeros((4000, 6))
+    signal[3000:, 0] = np.linspace(0.0, 0.2, 1000)
+    with NetFTDevice(signal, rate_hz=1000, counts_per_force=CPF) as device, \
             driver(tmp_path, endpoints, device) as proc, \
             Publisher("/s/sensor_command", SensorCommand, endpoints, context) as commands:
         watch.take(50)
-        deadline = time.monotonic() + TIMEOUT_S
-        while watch.counters.get("bias_refused", 0) < 1:
-            assert time.monotonic() < deadline
-            commands.publish(SensorCommand(stamp=time.time(), command="bias", sender="/test"))
-            watch.until(lambda c: True, timeout_s=1.0)
-        assert device.stats.biases == 0
+        _bias(commands, watch, "biases")
+        assert watch.counters["records"] < 3000  # tared while at rest
+        watch.until(lambda c: c["records"] > 4200)  # loaded and held
+        tared = device.stats.biases  # (a request still queued may have tared again at rest)
+        _bias(commands, watch, "bias_refused")
+        time.sleep(0.2)
+        assert device.stats.biases == tared >= 1
         proc.terminate()
         _, err = proc.communicate(timeout=5)
-        assert "bias refused: the rod is not free" in err
+        assert "bias refused: the rod is not free: over the last 20 samples |f0| reaches 0.2 N" in err
+
+
+def test_the_first_bias_takes_a_large_offset_of_a_still_rod_and_refuses_a_moving_one(
+        tmp_path: Path, endpoints: Endpoints, watch: Watch, context: Any) -> None:
+    # an untared sensor reads its offset (here 10x free_force_n): a still rod is tared, a
+    # rod that moves (0.1 N up and down at 50 Hz) is not
+    offset = (0.5, -0.3, 0.2, 0.02, -0.01, 0.03)
+    moving = np.zeros((2000, 6))
+    moving[:, 1] = 0.1 * np.sin(np.linspace(0.0, 200 * np.pi, 2000))  # 50 Hz
+    moving[1000:, 1] = 0.0  # still after 1 s
+    with NetFTDevice(moving, rate_hz=1000, counts_per_force=CPF, counts_per_torque=CPF,
+                     spec=SignalSpec(bias=offset)) as device, \
+            driver(tmp_path, endpoints, device) as proc, \
+            Publisher("/s/sensor_command", SensorCommand, endpoints, context) as commands:
+        watch.take(150)
+        _bias(commands, watch, "bias_refused")
+        assert watch.counters["records"] < 1000 and device.stats.biases == 0
+        watch.until(lambda c: c["records"] > 1300)
+        _bias(commands, watch, "biases")
+        time.sleep(0.1)
+        after = watch.take(200)[-1]
+        np.testing.assert_array_equal(after.f0, np.zeros(3))
+        np.testing.assert_array_equal(after.m0, np.zeros(3))
+        proc.terminate()
+        _, err = proc.communicate(timeout=5)
+        assert "bias refused: the rod is not free or not still" in err
+        noise = re.search(r"free-rod noise over the last 20 samples: (\S+) N, (\S+) N m std", err)
+        assert noise is not None and max(map(float, noise.groups())) < 1e-12  # a still signal
 
 
 def test_a_restarted_device_resumes_the_stream(tmp_path: Path, endpoints: Endpoints,

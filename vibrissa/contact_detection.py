@@ -25,6 +25,9 @@ ON_SIGMAS = 7.0
 """Default Mahalanobis norm of the wrench at which a free whisker enters contact."""
 OFF_SIGMAS = 5.0
 """Default Mahalanobis norm below which a whisker in contact leaves it."""
+MAX_WHISKERS = 4096
+"""Whiskers whose state is kept; rows of any further name (a sender inventing names) are
+judged alone, in contact only at ``on_sigmas``."""
 
 
 def wrench_covariance(force_std_n: float, moment_std_nm: float) -> FloatArray:
@@ -79,7 +82,10 @@ class ContactDetector:
         for i, name in enumerate(whiskers):
             index = self._index.get(name)
             if index is None:
-                index = self._index[name] = len(self._index)
+                if len(self._index) >= MAX_WHISKERS:
+                    index = -1
+                else:
+                    index = self._index[name] = len(self._index)
             rows[i] = index
         if len(self._index) > len(self._state):
             self._state = np.concatenate(
@@ -110,6 +116,9 @@ def _hysteresis(rows: NDArray[np.int64], wrench: FloatArray, whitening: FloatArr
         if not math.isfinite(d):
             continue
         k = rows[i]
+        if k < 0:  # a whisker past MAX_WHISKERS: no state
+            touching[i] = d >= on
+            continue
         state[k] = d >= on or (state[k] and d >= off)
         touching[i] = state[k]
     return touching, norm

@@ -51,6 +51,18 @@ def test_each_whisker_has_its_own_state_and_it_lasts_between_calls():
     assert detector.in_contact(["a", "b"]) == [True, False]
 
 
+def test_invented_names_do_not_grow_the_state_without_bound():
+    from vibrissa.contact_detection import MAX_WHISKERS
+
+    detector = ContactDetector(wrench_covariance(SIGMA_F, SIGMA_M))
+    names = [f"w{i}" for i in range(MAX_WHISKERS + 10)]
+    touching, _ = detector.update(names, *_rows(np.full(len(names), 8.0)))
+    assert touching.all() and len(detector._index) == MAX_WHISKERS
+    # past the limit a name has no state: in the band it is not in contact
+    touching, _ = detector.update(["w0", names[-1]], *_rows(np.array([6.0, 6.0])))
+    assert touching.tolist() == [True, False]
+
+
 def test_bad_settings_are_clear_errors():
     with pytest.raises(ValueError, match="force_std_n"):
         wrench_covariance(0.0, 1.0)

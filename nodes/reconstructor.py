@@ -399,16 +399,18 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
     valid = [ok and fin and not flag & _NO_CONTACT
              for ok, fin, flag in zip(pose_ok, finite, flags, strict=True)]
     covariance = result.covariance_m2
-    no_covariance = [False] * len(valid)
-    if covariance is not None:  # a point without one (axial load) gets the rod's reach, L^2 I
-        undefined = ~np.isfinite(covariance).all(axis=(1, 2)) & np.array(valid, bool)
-        if undefined.any():
+    # with a noise model: per row, a point that is the tip within the noise, or that has no
+    # covariance (an axial load: it gets the rod's reach, L^2 I)
+    tip_within_noise = no_covariance = None
+    if covariance is not None:
+        kept_rows = np.array(valid, bool)
+        tip_within_noise = kept_rows & ((status & int(ContactStatus.TIP_WITHIN_NOISE)) != 0)
+        no_covariance = kept_rows & ~np.isfinite(covariance).all(axis=(1, 2))
+        if no_covariance.any():
             length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
                         else rods[:, 0])
-            covariance[undefined] = np.eye(3) * length_m[undefined, None, None] ** 2
-            no_covariance = undefined.tolist()
+            covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
         covariance.flags.writeable = False
-    tip_within_noise = ((status & int(ContactStatus.TIP_WITHIN_NOISE)) != 0).tolist()
     for value in (point, s1, phase, force, status):
         value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
     s1s, phases = s1.tolist(), phase.tolist()
@@ -418,7 +420,6 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         n = int(part.placed.sum())
         last = first + n
         good, kept = sum(pose_ok[first:last]), sum(valid[first:last])
-        flagged = [i for i in range(first, last) if valid[i]]
         contacts: ContactPoint | ContactPointArray | None = None
         if isinstance(msg, WhiskerWrench):
             if kept:
@@ -443,8 +444,10 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         outcomes.append(Reconstructed(
             contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
             unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,
-            tip_within_noise=sum(tip_within_noise[i] for i in flagged),
-            no_covariance=sum(no_covariance[i] for i in flagged)))
+            tip_within_noise=(0 if tip_within_noise is None
+                              else int(np.count_nonzero(tip_within_noise[first:last]))),
+            no_covariance=(0 if no_covariance is None
+                           else int(np.count_nonzero(no_covariance[first:last])))))
         first = last
     return outcomes
 

@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	bash scripts/ensure_system_deps.sh
 	test -x $(PY) || python3 -m venv $(VENV)
 	PYTHONWARNINGS=ignore $(PY) -m pip install -qq --upgrade pip
-	PYTHONWARNINGS=ignore $(PY) -m pip install -qq -e '.[dev]'
+	PYTHONWARNINGS=ignore $(PY) -m pip install -qq -e '.[dev,view]'
 	touch $(STAMP)
 
 demo: setup
@@ -26,6 +26,7 @@ study: setup
 	$(VENV)/bin/vibrissa study paper -o $(OUT)/study
 
 test: setup
+	bash scripts/ensure_test_deps.sh
 	$(PY) -m ruff check vibrissa msgs wire runtime launch nodes cli tests benchmarks docs/examples
 	$(PY) -m mypy vibrissa msgs wire runtime launch nodes cli docs/examples
 	$(PY) -m pytest -p no:dash -n auto

@@ -33,10 +33,12 @@ LIBRARIES = {
     # skimage: marching cubes, threadpoolctl: one BLAS thread (vibrissa.gp_surface)
     "vibrissa": {"numpy", "scipy", "numba", "skimage", "threadpoolctl"},
     "vibrissa.msgs": {"msgpack", "msgspec"},
-    "vibrissa.wire": {"zmq", "mcap", "zstandard"},
+    # rosbags, mcap_ros2: ROS 2 bags without ROS (vibrissa.wire.ros2_bag)
+    "vibrissa.wire": {"zmq", "mcap", "zstandard", "rosbags", "mcap_ros2"},
     "vibrissa.runtime": {"yaml", "msgspec"},
     "vibrissa.launch": {"yaml", "msgspec"},
-    "vibrissa.nodes": {"open3d", "matplotlib", "mpl_toolkits"},
+    # foxglove: the live view (nodes/foxglove_bridge.py, the optional extra `view`)
+    "vibrissa.nodes": {"open3d", "matplotlib", "mpl_toolkits", "foxglove"},
     "vibrissa.cli": {"matplotlib", "mpl_toolkits"},
 }
 

@@ -76,8 +76,8 @@ class ContactDetector:
     def update(self, whiskers: Sequence[str], f0_C_n: FloatArray, m0_C_nm: FloatArray
                ) -> tuple[NDArray[np.bool_], FloatArray]:
         """Take the samples (rows, in arrival order; a whisker may come more than once) and
-        return whether each row is in contact and its Mahalanobis norm d. A row with a
-        non-finite wrench leaves its whisker's state as it was and is not in contact."""
+        return whether each row is in contact and its Mahalanobis norm d. A row with NaN in its
+        wrench leaves its whisker's state as it was and is not in contact."""
         rows = np.empty(len(whiskers), dtype=np.int64)
         for i, name in enumerate(whiskers):
             index = self._index.get(name)
@@ -113,7 +113,7 @@ def _hysteresis(rows: NDArray[np.int64], wrench: FloatArray, whitening: FloatArr
             d2 += z * z
         d = math.sqrt(d2)
         norm[i] = d
-        if not math.isfinite(d):
+        if math.isnan(d):  # NaN in the wrench; one too large for d^2 is inf: in contact
             continue
         k = rows[i]
         if k < 0:  # a whisker past MAX_WHISKERS: no state

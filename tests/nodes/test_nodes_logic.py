@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import quaternion_matrices
@@ -776,3 +778,32 @@ def test_with_a_noise_model_free_rows_are_counted_and_points_carry_covariances()
     # without a noise model: no covariance, no free rows, noise rows are contacts
     plain = reconstruct_messages(ticks[:1], rod)
     assert plain[0].free == 0 and plain[0].contacts.covariance is None
+
+
+_FINITE = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.sampled_from(["a", "b", "c"]),
+                          st.lists(_FINITE, min_size=6, max_size=6),
+                          st.lists(_FINITE, min_size=4, max_size=4),
+                          st.lists(_FINITE, min_size=3, max_size=3)), min_size=1, max_size=8))
+def test_the_noise_path_takes_any_finite_wrench_and_publishes_only_encodable_points(rows) -> None:
+    # any finite wrench, quaternion and position a sender can put on the wire (the codec
+    # refuses NaN and inf): no exception, every row accounted for once, every message the
+    # node would publish encodes (finite points and covariances)
+    from vibrissa.contact_detection import ContactDetector, wrench_covariance
+    from vibrissa.units import RodScale
+
+    detector = ContactDetector(wrench_covariance(1e-4, 1e-6))
+    tick = WhiskerWrenchArray(
+        stamp=0.0, seq=0, whisker_ids=[r[0] for r in rows], frame_ids=[f"{r[0]}/clamp" for r in rows],
+        f0=[r[1][:3] for r in rows], m0=[r[1][3:] for r in rows], pose_frame_id="world",
+        clamp_position=[r[3] for r in rows], clamp_orientation=[r[2] for r in rows])
+    [out] = reconstruct_messages([tick], RodScale(0.05, 2e-5), detector=detector)
+    contacts = out.contacts
+    assert isinstance(contacts, ContactPointArray)
+    assert (len(contacts.whisker_ids) + out.free + out.no_contact + out.bad_pose == len(rows))
+    assert decode(encode(contacts)) is not None
+    if len(contacts.whisker_ids):
+        assert contacts.covariance is not None and np.isfinite(contacts.covariance).all()

@@ -74,6 +74,7 @@ from vibrissa.msgs import (
 )
 from vibrissa.next_sweep import Proposal, propose_sections
 from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map, thousands
+from vibrissa.nodes.map_page import write_page
 from vibrissa.nodes.surface_fit import (
     MIN_POINTS,
     MapParams,
@@ -595,7 +596,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   streams: Sequence[StreamEnd] = (), lost: int = 0,
                   ) -> tuple[dict[str, Any],
                              list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
-    """Map every frame, write PLYs, PNGs and the reports; returns (report, messages).
+    """Map every frame, write PLYs, the pictures (PNG, HTML page) and the reports; returns
+    (report, messages).
 
     ``streams`` are the input streams that ended (what each said was sent, what arrived,
     what was lost) and ``lost`` the input messages lost in all, for the report.
@@ -633,9 +635,13 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
             files[f"mesh_{obj.name}"] = target
             obj.files = {"mesh": str(target)}
         if params.plot:
+            layers = map_layers(frame, params)  # one source for both pictures
             files["png"] = out_dir / f"map{sfx}.png"
             with _whole(files["png"]) as partial:
-                plot_map(partial, map_layers(frame, params))
+                plot_map(partial, layers)
+            files["html"] = out_dir / f"map{sfx}.html"
+            with _whole(files["html"]) as partial:
+                write_page(partial, layers)
         result.files = {k: str(v) for k, v in files.items()}
         results.append(result)
         stamp = time.time()

@@ -1,0 +1,423 @@
+"""Foxglove bridge node: serves the running graph to the Foxglove app over its WebSocket protocol.
+
+Needs the optional extra ``view`` (``pip install 'vibrissa[view]'``, the ``foxglove-sdk``
+package); without it the node exits at start with one line naming the extra. It serves
+``ws://host:port`` (default ``ws://127.0.0.1:8765``, loopback unless ``host`` says otherwise;
+``port`` 0 takes a free port) and logs the address; ``launch/foxglove_layout.json`` is a layout
+for it.
+
+Subscribes
+----------
+``wrench_topics`` (default ``[/robot/wrench]``) : WhiskerWrench or WhiskerWrenchArray
+``contact_topics`` (default ``[/robot/contact]``) : ContactPoint or ContactPointArray
+``pose_topic`` (default ``/robot/pose``) : RobotPose
+``cloud_topic`` (default ``/contact_cloud``) : ContactCloud, the mapper's
+``mesh_topic`` (default ``/surface_mesh``) : SurfaceMesh, the mapper's; its ``EndOfStream``
+    starts the ``hold_s`` countdown
+``/vibrissa/status`` : NodeStatus of every node
+
+Serves (Foxglove channels)
+--------------------------
+``/whiskers/<whisker>/wrench`` : JSON ``{stamp, seq, frame_id, f0: {x, y, z}, m0: {x, y, z}}``
+    Every wrench row as it arrives (N, N m, in the whisker's clamp frame), one channel per
+    whisker, advertised when the whisker first appears.
+``/contacts`` : foxglove.PointCloud
+    Every contact point so far in ``map_frame`` (fields x, y, z float32 m; ``whisker``
+    float32, the whisker's index in order of appearance, for the colour), growing every
+    ``period_s``.
+``/tf`` : foxglove.FrameTransforms
+    Each RobotPose (``world`` -> ``base_link``), and every ``REPUBLISH_S`` the mounts of the
+    robot description ``robot`` (``base_link`` -> ``<whisker>/clamp``, X_RC).
+``/map/cloud`` : foxglove.PointCloud
+    The mapper's cloud (x, y, z, nx, ny, nz float32: points and contact normals).
+``/meshes`` : foxglove.SceneUpdate
+    One entity per mesh frame (``mesh/<frame_id>``) with a TriangleListPrimitive.
+``/health`` : JSON ``{stamp, nodes: [{node, state, received, published, lost, rejected,
+    received_hz, published_hz, message}]}``
+    Every node's last status, the rates from its last two statuses.
+
+Clients that connect late see the state: the cloud, the mounts, the map cloud and the meshes
+go out again every ``REPUBLISH_S``. Every Foxglove message is stamped with the bridge's wall
+clock at arrival (one clock for the 3D panel's frame lookups and the plots); the graph's own
+stamp is the JSON's ``stamp``. Contacts in a frame other than ``map_frame`` are counted
+(``other_frame``), not shown. Counters in the node's status: ``wrenches`` (rows),
+``contacts`` (points), ``other_frame``, ``poses``, ``meshes``, ``bad_meshes`` (a triangle
+indexing past the vertices: counted, not shown), ``clouds``, ``statuses``. Undecodable input is
+rejected by the transport (``rejected``); input the bridge misses (it is a viewer, a launch
+gives it ``allow_loss``) is counted as ``lost``.
+
+With ``hold_s`` >= 0 the node ends (exit 0) ``hold_s`` seconds after the mapper's
+``EndOfStream`` on ``mesh_topic``, so a launch that ends on it (``on_exit: shutdown``,
+``launch/view.yaml``) shows the final map for that long; otherwise it serves until stopped.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform, clamp_frame
+from vibrissa.msgs import (
+    ContactCloud,
+    ContactPoint,
+    ContactPointArray,
+    EndOfStream,
+    Message,
+    NodeStatus,
+    RobotPose,
+    SurfaceMesh,
+    WhiskerWrench,
+    WhiskerWrenchArray,
+)
+from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.params import require, require_parsed, require_positive
+from vibrissa.runtime.scene_file import load_robot
+from vibrissa.wire.topics import STATUS_TOPIC, validate_name
+
+if TYPE_CHECKING:
+    from foxglove import Channel
+    from foxglove.channels import FrameTransformsChannel, PointCloudChannel, SceneUpdateChannel
+    from foxglove.messages import FrameTransform, PointCloud, SceneUpdate
+
+log = logging.getLogger(__name__)
+
+EXTRA = "view"
+"""The optional extra that installs what the node needs (``pip install 'vibrissa[view]'``)."""
+
+REPUBLISH_S = 1.0
+"""Period of the state sent again for clients that connect late (mounts, cloud, map), s."""
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FoxgloveBridgeParams:
+    """Parameters of the Foxglove bridge (``--param KEY:=VALUE`` or the launch file).
+
+    host, port
+        Where the WebSocket server listens; port 0: a free port (logged).
+    wrench_topics, contact_topics, pose_topic, cloud_topic, mesh_topic
+        The graph's topics to show (see the module docstring).
+    robot
+        Robot description (a scene file) for the mount frames; empty: no mounts.
+    map_frame, robot_frame
+        The frame of the contact cloud, and the robot's body frame (parent of the mounts).
+    period_s
+        How often the growing cloud and the health table go out, s.
+    hold_s
+        Seconds to serve on after the mapper's end of stream, then exit 0; negative: serve
+        until stopped.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 8765
+    wrench_topics: tuple[str, ...] = ("/robot/wrench",)
+    contact_topics: tuple[str, ...] = ("/robot/contact",)
+    pose_topic: str = "/robot/pose"
+    cloud_topic: str = "/contact_cloud"
+    mesh_topic: str = "/surface_mesh"
+    robot: str = ""
+    map_frame: str = WORLD_FRAME
+    robot_frame: str = ROBOT_FRAME
+    period_s: float = 0.2
+    hold_s: float = -1.0
+
+    def __post_init__(self) -> None:
+        require(bool(self.host), "host", self.host, "a host name or address")
+        require(0 <= self.port <= 65535, "port", self.port, "a port in [0, 65535] (0: any free)")
+        for topic in (*self.wrench_topics, *self.contact_topics, self.pose_topic,
+                      self.cloud_topic, self.mesh_topic):
+            require_parsed("topics", topic, validate_name)
+        if self.robot:
+            require_parsed("robot", self.robot, load_robot)
+        for key in ("map_frame", "robot_frame"):
+            require(bool(getattr(self, key)), key, getattr(self, key), "a frame name")
+        require_positive("period_s", self.period_s)
+
+
+PARAMS = FoxgloveBridgeParams
+"""The node's parameter dataclass: the launcher checks a launch file's values with it."""
+
+
+def import_foxglove() -> ModuleType:
+    """The ``foxglove`` package (foxglove-sdk), or an ImportError that names the extra."""
+    try:
+        import foxglove
+        import foxglove.channels
+        import foxglove.messages
+    except ImportError as exc:
+        raise ImportError(f"the Foxglove bridge needs the optional extra '{EXTRA}': "
+                          f"pip install 'vibrissa[{EXTRA}]' ({exc})") from None
+    return foxglove
+
+
+_VEC3_SCHEMA = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
+WRENCH_SCHEMA: dict[str, Any] = {
+    "title": "vibrissa.WhiskerWrenchRow",
+    "description": "One whisker's base wrench: f0 (N) and m0 (N m) in its clamp frame",
+    "type": "object",
+    "properties": {"stamp": {"type": "number"}, "seq": {"type": "integer"},
+                   "frame_id": {"type": "string"}, "f0": _VEC3_SCHEMA, "m0": _VEC3_SCHEMA},
+}
+HEALTH_SCHEMA: dict[str, Any] = {
+    "title": "vibrissa.GraphHealth",
+    "description": "Every node's last status: counters and rates (messages per second)",
+    "type": "object",
+    "properties": {"stamp": {"type": "number"}, "nodes": {"type": "array", "items": {
+        "type": "object", "properties": {
+            "node": {"type": "string"}, "state": {"type": "string"},
+            "message": {"type": "string"},
+            **{k: {"type": "integer"} for k in ("received", "published", "lost", "rejected")},
+            **{k: {"type": "number"} for k in ("received_hz", "published_hz")}}}}},
+}
+
+
+def _vec3(v: FloatArray) -> dict[str, float]:
+    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+
+
+class LiveView:
+    """The graph's messages as Foxglove messages on Foxglove channels (no sockets of the graph:
+    ``handle`` takes decoded messages, ``tick`` sends what goes out periodically).
+
+    Parameters
+    ----------
+    fg : module
+        The ``foxglove`` package; its channels log to every sink of its context (the server).
+    params : FoxgloveBridgeParams
+    mounts : sequence of (whisker name, X_RC)
+        The robot description's mounts in ``params.robot_frame``.
+    counters : dict
+        Where the counts go (the node's status counters).
+    """
+
+    def __init__(self, fg: ModuleType, params: FoxgloveBridgeParams,
+                 mounts: Sequence[tuple[str, Transform]], counters: dict[str, int]) -> None:
+        self.fg, self.params, self.counters = fg, params, counters
+        for key in ("wrenches", "contacts", "other_frame", "poses", "meshes", "bad_meshes",
+                    "clouds", "statuses"):
+            counters.setdefault(key, 0)
+        self._wrench: dict[str, Channel] = {}
+        self._contacts: PointCloudChannel = fg.channels.PointCloudChannel("/contacts")
+        self._tf: FrameTransformsChannel = fg.channels.FrameTransformsChannel("/tf")
+        self._map_cloud: PointCloudChannel = fg.channels.PointCloudChannel("/map/cloud")
+        self._meshes: SceneUpdateChannel = fg.channels.SceneUpdateChannel("/meshes")
+        self._health: Channel = fg.Channel("/health", schema=HEALTH_SCHEMA)
+        self._mounts = [(params.robot_frame, clamp_frame(name), X_RC) for name, X_RC in mounts]
+        self._whisker_index: dict[str, int] = {}
+        self._points: list[npt.NDArray[np.float32]] = []  # (n, 4) rows: x, y, z, whisker
+        self._cloud_rows = 0
+        self._cloud_sent_rows = 0  # an empty cloud does not go out
+        self._cloud_msg: PointCloud | None = None
+        self._map_cloud_msgs: dict[str, PointCloud] = {}
+        self._mesh_msgs: dict[str, SceneUpdate] = {}
+        self._nodes: dict[str, dict[str, Any]] = {}
+        self._health_dirty = False
+        self._next_republish = 0.0
+
+    # -- input ---------------------------------------------------------------------------------
+
+    def handle(self, topic: str, msg: Message, now: float) -> None:
+        """Turn one message of the graph, received at ``now`` (s, wall clock), into output."""
+        if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
+            self._on_wrench(msg)
+        elif isinstance(msg, ContactPointArray):
+            self._on_contacts(msg.frame_id, msg.whisker_ids, msg.point)
+        elif isinstance(msg, ContactPoint):
+            self._on_contacts(msg.frame_id, [msg.whisker_id], msg.point[None, :])
+        elif isinstance(msg, RobotPose):
+            self.counters["poses"] += 1
+            self._tf.log(self.fg.messages.FrameTransforms(transforms=[self._transform(
+                msg.frame_id, msg.child_frame_id, msg.position, msg.orientation, now)]))
+        elif isinstance(msg, ContactCloud):
+            self.counters["clouds"] += 1
+            self._map_cloud_msgs[msg.frame_id] = self._map_cloud_msg(msg, now)
+            self._map_cloud.log(self._map_cloud_msgs[msg.frame_id])
+        elif isinstance(msg, SurfaceMesh):
+            self._on_mesh(msg, now)
+        elif isinstance(msg, NodeStatus) and topic == STATUS_TOPIC:
+            self._on_status(msg)
+
+    def _on_wrench(self, msg: WhiskerWrench | WhiskerWrenchArray) -> None:
+        if isinstance(msg, WhiskerWrench):
+            rows = [(msg.whisker_id, msg.frame_id, msg.f0, msg.m0)]
+        else:
+            rows = list(zip(msg.whisker_ids, msg.frame_ids, msg.f0, msg.m0, strict=True))
+        for whisker, frame_id, f0, m0 in rows:
+            channel = self._wrench.get(whisker)
+            if channel is None:
+                channel = self._wrench[whisker] = self.fg.Channel(
+                    f"/whiskers/{whisker}/wrench", schema=WRENCH_SCHEMA)
+            channel.log({"stamp": msg.stamp, "seq": msg.seq, "frame_id": frame_id,
+                         "f0": _vec3(f0), "m0": _vec3(m0)})
+        self.counters["wrenches"] += len(rows)
+
+    def _on_contacts(self, frame_id: str, whiskers: Sequence[str], points: FloatArray) -> None:
+        if frame_id != self.params.map_frame:
+            self.counters["other_frame"] += len(whiskers)
+            return
+        rows = np.empty((len(whiskers), 4), dtype=np.float32)
+        rows[:, :3] = points
+        rows[:, 3] = [self._whisker_index.setdefault(w, len(self._whisker_index))
+                      for w in whiskers]
+        self._points.append(rows)
+        self._cloud_rows += len(rows)
+        self.counters["contacts"] += len(rows)
+
+    def _on_mesh(self, msg: SurfaceMesh, now: float) -> None:
+        if len(msg.triangles) and (msg.triangles.min() < 0
+                                   or msg.triangles.max() >= len(msg.vertices)):
+            self.counters["bad_meshes"] += 1
+            return
+        self.counters["meshes"] += 1
+        m = self.fg.messages
+        triangles = m.TriangleListPrimitive(
+            points=[m.Point3(x=float(x), y=float(y), z=float(z)) for x, y, z in msg.vertices],
+            indices=msg.triangles.reshape(-1).tolist(),
+            color=m.Color(r=0.35, g=0.6, b=0.9, a=0.8))
+        entity = m.SceneEntity(
+            timestamp=m.Timestamp.from_epoch_secs(now), frame_id=msg.frame_id,
+            id=f"mesh/{msg.frame_id}", triangles=[triangles],
+            metadata=[m.KeyValuePair(key="method", value=msg.method),
+                      m.KeyValuePair(key="n_points", value=str(msg.n_points))])
+        self._mesh_msgs[msg.frame_id] = m.SceneUpdate(entities=[entity])
+        self._meshes.log(self._mesh_msgs[msg.frame_id])
+
+    def _on_status(self, msg: NodeStatus) -> None:
+        self.counters["statuses"] += 1
+        counts = {k: int(msg.counters.get(k, 0))
+                  for k in ("received", "published", "lost", "rejected")}
+        before = self._nodes.get(msg.node)
+        rates = {"received_hz": 0.0, "published_hz": 0.0}
+        if before is not None and msg.stamp > before["_stamp"]:
+            dt = msg.stamp - before["_stamp"]
+            rates = {f"{k}_hz": max(0.0, counts[k] - before[k]) / dt
+                     for k in ("received", "published")}
+        self._nodes[msg.node] = {"node": msg.node, "state": msg.state, "message": msg.message,
+                                 **counts, **rates, "_stamp": msg.stamp}
+        self._health_dirty = True
+
+    # -- output --------------------------------------------------------------------------------
+
+    def tick(self, now: float) -> None:
+        """Send the grown cloud and the health table; every REPUBLISH_S, the state again."""
+        republish = now >= self._next_republish
+        if republish:
+            self._next_republish = now + REPUBLISH_S
+        if self._cloud_rows != self._cloud_sent_rows:
+            self._cloud_msg = self._contact_cloud_msg(now)
+            self._cloud_sent_rows = self._cloud_rows
+            self._contacts.log(self._cloud_msg)
+        elif republish and self._cloud_msg is not None:
+            self._contacts.log(self._cloud_msg)
+        if self._health_dirty or republish:
+            self._health_dirty = False
+            nodes = [{k: v for k, v in entry.items() if not k.startswith("_")}
+                     for _, entry in sorted(self._nodes.items())]
+            self._health.log({"stamp": now, "nodes": nodes})
+        if not republish:
+            return
+        if self._mounts:
+            self._tf.log(self.fg.messages.FrameTransforms(transforms=[
+                self._transform(parent, child, X.translation, X.quaternion_xyzw, now)
+                for parent, child, X in self._mounts]))
+        for cloud in self._map_cloud_msgs.values():
+            self._map_cloud.log(cloud)
+        for update in self._mesh_msgs.values():
+            self._meshes.log(update)
+
+    def _transform(self, parent: str, child: str, p: FloatArray, q_xyzw: FloatArray,
+                   now: float) -> FrameTransform:
+        m = self.fg.messages
+        return m.FrameTransform(
+            timestamp=m.Timestamp.from_epoch_secs(now), parent_frame_id=parent,
+            child_frame_id=child, translation=m.Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            rotation=m.Quaternion(x=float(q_xyzw[0]), y=float(q_xyzw[1]), z=float(q_xyzw[2]),
+                                  w=float(q_xyzw[3])))
+
+    def _contact_cloud_msg(self, now: float) -> PointCloud:
+        if len(self._points) > 1:
+            self._points = [np.concatenate(self._points)]
+        data = self._points[0] if self._points else np.empty((0, 4), dtype=np.float32)
+        return self._point_cloud(self.params.map_frame, ("x", "y", "z", "whisker"), data, now)
+
+    def _map_cloud_msg(self, msg: ContactCloud, now: float) -> PointCloud:
+        data = np.hstack([msg.points, msg.normals]).astype(np.float32)
+        return self._point_cloud(msg.frame_id, ("x", "y", "z", "nx", "ny", "nz"), data, now)
+
+    def _point_cloud(self, frame_id: str, names: Sequence[str], data: npt.NDArray[np.float32],
+                     now: float) -> PointCloud:
+        """A foxglove.PointCloud of float32 rows (n, len(names)), fields in that order."""
+        m = self.fg.messages
+        float32 = m.PackedElementFieldNumericType.Float32
+        fields = [m.PackedElementField(name=name, offset=4 * i, type=float32)
+                  for i, name in enumerate(names)]
+        return m.PointCloud(
+            timestamp=m.Timestamp.from_epoch_secs(now), frame_id=frame_id,
+            pose=m.Pose(position=m.Vector3(x=0.0, y=0.0, z=0.0),
+                        orientation=m.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+            point_stride=4 * len(names), fields=fields,
+            data=np.ascontiguousarray(data, dtype="<f4").tobytes())
+
+
+def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
+    """Serve until stopped, or ``hold_s`` after the mapper's end of stream."""
+    mounts = ([(w.name, w.X_RC) for w in load_robot(params.robot)] if params.robot else [])
+    types: dict[str, Any] = {topic: (WhiskerWrench, WhiskerWrenchArray)
+                             for topic in params.wrench_topics}
+    types.update({topic: (ContactPoint, ContactPointArray) for topic in params.contact_topics})
+    types.update({params.pose_topic: RobotPose, params.cloud_topic: ContactCloud,
+                  params.mesh_topic: SurfaceMesh, STATUS_TOPIC: NodeStatus})
+    inputs = node.create_subscriber(types)
+    mesh_topic = node.resolve(params.mesh_topic)
+    server = fg.start_server(name=f"vibrissa {node.fqn}", host=params.host, port=params.port)
+    try:
+        view = LiveView(fg, params, mounts, node.counters)
+        url = f"ws://{params.host}:{server.port}"
+        log.info("%s: serving the graph to Foxglove on %s (Foxglove app: Open connection -> "
+                 "Foxglove WebSocket -> %s; layout: launch/foxglove_layout.json)",
+                 node.fqn, url, url)
+        node.set_state("running", f"serving {url}")
+        end_at = float("inf")
+        next_tick = 0.0
+        while not node.stop_requested and time.monotonic() < end_at:
+            rx = inputs.receive(min(0.1, params.period_s))
+            now = time.time()
+            if rx is not None:
+                if isinstance(rx.msg, EndOfStream):
+                    if rx.topic == mesh_topic and params.hold_s >= 0 and end_at == float("inf"):
+                        log.info("%s: the map is complete; serving %g s more", node.fqn,
+                                 params.hold_s)
+                        end_at = time.monotonic() + params.hold_s
+                else:
+                    view.handle(rx.topic, rx.msg, now)
+            if time.monotonic() >= next_tick:
+                next_tick = time.monotonic() + params.period_s
+                view.tick(now)
+    finally:
+        server.stop()
+    log.info("%s: served %d wrench rows, %d contacts, %d poses, %d meshes", node.fqn,
+             node.counters["wrenches"], node.counters["contacts"], node.counters["poses"],
+             node.counters["meshes"])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the Foxglove bridge node (see ARCHITECTURE.md for the command line)."""
+    args = NodeArgs.parse(argv, prog="python -m vibrissa.nodes.foxglove_bridge")
+    configure_logging()
+    params = load_params(FoxgloveBridgeParams, args.params_file, args.params)
+    fg = import_foxglove()
+    with Node.from_args(args) as node:
+        run(node, params, fg)
+    return 0
+
+
+if __name__ == "__main__":
+    run_main(main)

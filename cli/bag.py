@@ -1,4 +1,4 @@
-"""``vibrissa bag``: record, play, inspect and export MCAP bags of the node graph."""
+"""``vibrissa bag``: record, play, inspect, export MCAP bags of the node graph; import ROS 2 bags."""
 
 from __future__ import annotations
 
@@ -11,15 +11,18 @@ from typing import Any
 import zmq
 
 from vibrissa.cli.graph import add_endpoint_flags, endpoints_from, stop_on_signals
+from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
 from vibrissa.nodes import recorder
 from vibrissa.runtime import Node
 from vibrissa.runtime.playback import play_bag_gated
+from vibrissa.runtime.scene_file import SceneError, load_robot
 from vibrissa.wire.bag import BagReader, PlayResult, export_json, play_bag
+from vibrissa.wire.ros2_bag import WHISKERS_TOPIC, export_ros2, import_ros2
 from vibrissa.wire.transport import Endpoints
 
 
 def register(subparsers: Any) -> None:
-    """Add ``bag`` with its subcommands ``record``, ``play``, ``info``, ``export``."""
+    """Add ``bag`` with its subcommands ``record``, ``play``, ``info``, ``export``, ``import``."""
     bag = subparsers.add_parser("bag", help="record, play, inspect and export MCAP bags")
     sub = bag.add_subparsers(dest="bag_command", required=True, metavar="SUBCOMMAND")
 
@@ -59,11 +62,50 @@ def register(subparsers: Any) -> None:
     p.add_argument("bag", metavar="FILE.mcap")
     p.set_defaults(func=_info)
 
-    p = sub.add_parser("export", help="convert to a JSON-encoded MCAP that Foxglove opens")
-    p.add_argument("bag", metavar="FILE.mcap")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap")
+    p = sub.add_parser(
+        "export", help="convert to a JSON-encoded MCAP that Foxglove opens, or a ROS 2 bag",
+        description="--format json (default): a JSON-encoded MCAP file that Foxglove opens. "
+        "--format ros2: a rosbag2 folder (metadata.yaml + MCAP, CDR) for `ros2 bag play` and "
+        "Foxglove: WhiskerWrench -> geometry_msgs/WrenchStamped (an array: one topic "
+        "<topic>/<whisker> per whisker) holding what the sensor reads, the rod's load on the "
+        "clamp: force = -f0, torque = -m0 in the clamp frame; contact points -> "
+        "sensor_msgs/PointCloud2 (x, y, z, whisker, phase, s1; whisker indexes the JSON list "
+        f"of names on {WHISKERS_TOPIC}); RobotPose -> /tf; the --robot mounts -> /tf_static; "
+        "SurfaceMesh -> visualization_msgs/Marker; other types are skipped and counted.")
+    p.add_argument("bag", metavar="BAG.mcap")
+    p.add_argument("outdir", nargs="?", metavar="OUT",
+                   help="output: OUT.mcap for json, a new folder for ros2 (or -o)")
+    p.add_argument("-o", "--output", metavar="OUT", help="output (instead of OUT)")
+    p.add_argument("--format", choices=("json", "ros2"), default="json",
+                   help="json: JSON-encoded MCAP (default); ros2: rosbag2 folder")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
+    p.add_argument("--robot", metavar="SCENE.yaml",
+                   help="ros2: the robot description (a scene file's whiskers) whose mounts go "
+                   "to /tf_static")
+    p.add_argument("--robot-frame", default=ROBOT_FRAME, metavar="FRAME",
+                   help=f"ros2: parent frame of the mounts (default {ROBOT_FRAME})")
     p.set_defaults(func=_export)
+
+    p = sub.add_parser(
+        "import", help="convert a ROS 2 bag (WrenchStamped per whisker, /tf) to a vibrissa bag",
+        description="Each --wrench-topic (geometry_msgs/WrenchStamped, the sensor's reading: "
+        "f0 = -force, m0 = -torque, in the clamp frame header.frame_id) becomes WhiskerWrench "
+        "on --topic; the /tf transform PARENT -> CHILD of --tf-frame becomes RobotPose on "
+        "--pose-topic. Play the result with wrench_source mode replay.")
+    p.add_argument("ros2_bag", metavar="ROS2_BAG", help="a rosbag2 folder")
+    p.add_argument("output", metavar="OUT.mcap")
+    p.add_argument("--wrench-topic", action="append", required=True, metavar="T",
+                   help="a WrenchStamped topic, one whisker each (repeat for more)")
+    p.add_argument("--whisker", action="append", default=[], metavar="NAME",
+                   help="whisker name of each --wrench-topic, in order, or T=NAME (default: "
+                   "the topic's last name, /robot/wrench/w00 -> w00)")
+    p.add_argument("--tf-frame", nargs=2, default=(WORLD_FRAME, ROBOT_FRAME),
+                   metavar=("PARENT", "CHILD"),
+                   help=f"the robot pose on /tf (default {WORLD_FRAME} {ROBOT_FRAME}: the "
+                   "reconstructor's map_frame and robot_frame)")
+    p.add_argument("--topic", default="/robot/wrench", help="vibrissa wrench topic")
+    p.add_argument("--pose-topic", default="/robot/pose", help="vibrissa pose topic")
+    p.set_defaults(func=_import)
 
 
 def _record(args: argparse.Namespace) -> int:
@@ -122,6 +164,48 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    info = export_json(args.bag, args.output, topics=args.topics)
-    print(f"wrote {info.message_count} JSON messages to {args.output}", file=sys.stderr)
+    output = args.output or args.outdir
+    if output is None or (args.output and args.outdir):
+        print("vibrissa bag export: error: name the output once (OUT or -o OUT)", file=sys.stderr)
+        return 2
+    if args.format == "json":
+        info = export_json(args.bag, output, topics=args.topics)
+        print(f"wrote {info.message_count} JSON messages to {output}", file=sys.stderr)
+        return 0
+    try:
+        whiskers = load_robot(args.robot) if args.robot else ()
+        result = export_ros2(args.bag, output, whiskers=whiskers, robot_frame=args.robot_frame,
+                             topics=args.topics)
+    except (SceneError, ValueError, FileNotFoundError) as exc:
+        print(f"vibrissa bag export: error: {exc}", file=sys.stderr)
+        return 2
+    print(result.summary(), file=sys.stderr)
+    return 0
+
+
+def _import(args: argparse.Namespace) -> int:
+    topics: list[str] = args.wrench_topic
+    mapping = {t: t.rstrip("/").rsplit("/", 1)[-1] for t in topics}
+    positional = [w for w in args.whisker if "=" not in w]
+    if positional and len(positional) != len(topics):
+        print(f"vibrissa bag import: error: {len(positional)} --whisker name(s) for "
+              f"{len(topics)} --wrench-topic(s)", file=sys.stderr)
+        return 2
+    mapping.update(zip(topics, positional, strict=False))
+    for item in args.whisker:
+        if "=" in item:
+            topic, name = item.split("=", 1)
+            if topic not in mapping:
+                print(f"vibrissa bag import: error: --whisker {item}: {topic} is no "
+                      "--wrench-topic", file=sys.stderr)
+                return 2
+            mapping[topic] = name
+    try:
+        result = import_ros2(args.ros2_bag, args.output, mapping, topic=args.topic,
+                             pose_topic=args.pose_topic, map_frame=args.tf_frame[0],
+                             robot_frame=args.tf_frame[1])
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"vibrissa bag import: error: {exc}", file=sys.stderr)
+        return 2
+    print(result.summary(), file=sys.stderr)
     return 0

@@ -1,0 +1,342 @@
+"""`vibrissa bag export --format ros2` and `vibrissa bag import`: the robot demo's wrenches and
+poses read back from the ROS 2 bag by two independent decoders (rosbags, mcap_ros2) hold the
+same values, with the sensor's sign; a ROS 2 bag imported and replayed through the real nodes
+gives the library's contact points; bad input is one line and exit 2."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap_ros2.reader import read_ros2_messages
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys.stores import ros2_jazzy as ros
+
+from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, entries, node, set_param
+from vibrissa.cli.main import main as vibrissa_main
+from vibrissa.msgs import (
+    ContactPoint,
+    ContactPointArray,
+    EndOfStream,
+    NodeStatus,
+    RobotPose,
+    WhiskerWrench,
+    WhiskerWrenchArray,
+    codec,
+    encode,
+)
+from vibrissa.nodes.wrench_source import WrenchSourceParams, scene_stream
+from vibrissa.runtime.scene_file import load_robot, load_scene
+from vibrissa.scene import SamplePhase, reconstruct_along, simulate
+from vibrissa.status import ContactStatus
+from vibrissa.wire.bag import BagReader, BagWriter
+from vibrissa.wire.ros2_bag import TYPESTORE, stamp_from_ros, stamp_to_ros
+
+SCENE = LAUNCH / "robot" / "scene.yaml"
+WRENCH, POSE = "/robot/wrench", "/robot/pose"
+
+
+def _ns(stamp: float) -> int:
+    sec, nanosec = stamp_to_ros(stamp)
+    return sec * 1_000_000_000 + nanosec
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """The robot demo's wrench and pose topics as `bag record` writes them, plus a contact
+    point array and statuses, exported with `vibrissa bag export --format ros2`."""
+    tmp = tmp_path_factory.mktemp("ros2")
+    scene = load_scene(SCENE)
+    results = simulate(scene, workers=1)
+    bag = tmp / "robot.mcap"
+    msgs: list[tuple[str, Any]] = []
+    with BagWriter(bag) as writer:
+        for stamp, msg in scene_stream(scene, results, WrenchSourceParams(mode="scene", scene=str(SCENE))):
+            topic = POSE if isinstance(msg, RobotPose) else WRENCH
+            writer.write(topic, encode(msg), _ns(stamp) + 1000)
+            msgs.append((topic, msg))
+        contacts = ContactPointArray(
+            stamp=0.1234567891, seq=3, frame_id="world", whisker_ids=["w11", "w00"],
+            point=np.array([[0.1, -0.2, 0.3], [1 / 3, 2 / 3, 0.05]]), s1=np.array([0.02, 0.031]),
+            phase=np.array([1, 2], np.int32), force=np.zeros((2, 3)), status=np.zeros(2, np.int32))
+        writer.write("/robot/contact", encode(contacts), 5_000_000_000)
+        writer.write("/robot/contact", encode(EndOfStream(stamp=5.0, source="/r", count=1)),
+                     5_000_000_001)
+        writer.write("/vibrissa/status", encode(NodeStatus(stamp=5.0, node="/r", state="running",
+                                                           counters={}, publishes={},
+                                                           subscribes={}, seen_topics=[])),
+                     5_000_000_002)
+    out = tmp / "robot_ros2"
+    yield {"tmp": tmp, "scene": scene, "results": results, "bag": bag, "msgs": msgs,
+           "contacts": contacts, "out": out}
+
+
+def test_export_writes_a_rosbag2_folder_and_counts_what_it_skips(
+        demo: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(demo["bag"]), str(demo["out"]),
+                          "--robot", str(SCENE)]) == 0
+    err = capsys.readouterr().err
+    assert "skipped 2 (1 vibrissa/EndOfStream, 1 vibrissa/NodeStatus)" in err, err
+    meta = (demo["out"] / "metadata.yaml").read_text()
+    assert "storage_identifier: mcap" in meta and "serialization_format: cdr" in meta
+    assert len(list(demo["out"].glob("*.mcap"))) == 1
+
+
+def _rosbags_messages(out: Path) -> list[tuple[str, int, Any]]:
+    with AnyReader([out]) as reader:
+        qos = {c.topic: getattr(c.ext, "offered_qos_profiles", []) for c in reader.connections}
+        assert [q.durability.name for q in qos["/tf_static"]] == ["TRANSIENT_LOCAL"]
+        return [(c.topic, t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages()]
+
+
+def _mcap_ros2_messages(out: Path) -> list[tuple[str, int, Any]]:
+    (file,) = out.glob("*.mcap")
+    return [(m.channel.topic, m.log_time_ns, m.ros_msg) for m in read_ros2_messages(str(file))]
+
+
+@pytest.mark.parametrize("decode", [_rosbags_messages, _mcap_ros2_messages])
+def test_both_decoders_read_the_wrenches_poses_mounts_and_points_back(
+        demo: dict[str, Any], decode: Any) -> None:
+    if not demo["out"].exists():
+        assert vibrissa_main(["bag", "export", "--format", "ros2", str(demo["bag"]),
+                              str(demo["out"]), "--robot", str(SCENE)]) == 0
+    got = decode(demo["out"])
+    by_topic: dict[str, list[tuple[int, Any]]] = {}
+    for topic, t, msg in got:
+        by_topic.setdefault(topic, []).append((t, msg))
+    (names,) = by_topic["/vibrissa/whiskers"]
+    whiskers = json.loads(names[1].data)
+    assert whiskers == sorted(w.name for w in demo["scene"].whiskers)
+    # the wrench: one topic per whisker, the sensor's reading -f0, -m0, exactly, ns stamps
+    expected_wrenches: dict[str, list[tuple[int, str, np.ndarray, np.ndarray]]] = {}
+    poses: list[RobotPose] = []
+    for _, msg in demo["msgs"]:
+        if isinstance(msg, WhiskerWrenchArray):
+            for w, frame, f0, m0 in zip(msg.whisker_ids, msg.frame_ids, msg.f0, msg.m0, strict=True):
+                expected_wrenches.setdefault(w, []).append((_ns(msg.stamp), frame, f0, m0))
+        else:
+            poses.append(msg)
+    assert len(expected_wrenches) == 8
+    for w, rows in expected_wrenches.items():
+        msgs = [m for _, m in by_topic[f"{WRENCH}/{w}"]]
+        assert len(msgs) == len(rows)
+        for (stamp_ns, frame, f0, m0), m in zip(rows, msgs, strict=True):
+            assert m.header.frame_id == frame == f"{w}/clamp"
+            assert m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec == stamp_ns
+            force = np.array([m.wrench.force.x, m.wrench.force.y, m.wrench.force.z])
+            torque = np.array([m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z])
+            assert np.array_equal(force, -f0) and np.array_equal(torque, -m0)
+    # the sign, once more on a touching sample: the rod pushes the sensor against f0
+    k = next(i for i, r in enumerate(expected_wrenches["w00"]) if r[2][0] != 0)
+    m = by_topic[f"{WRENCH}/w00"][k][1]
+    assert m.wrench.force.x == -expected_wrenches["w00"][k][2][0] != 0.0
+    # the robot's poses on /tf, the mounts on /tf_static
+    tf = [m.transforms[0] for _, m in by_topic["/tf"]]
+    assert len(tf) == len(poses)
+    for pose, t in zip(poses, tf, strict=True):
+        assert (t.header.frame_id, t.child_frame_id) == ("world", "base_link")
+        assert t.header.stamp.sec * 1_000_000_000 + t.header.stamp.nanosec == _ns(pose.stamp)
+        r = t.transform
+        assert [r.translation.x, r.translation.y, r.translation.z] == pose.position.tolist()
+        assert [r.rotation.x, r.rotation.y, r.rotation.z, r.rotation.w] == pose.orientation.tolist()
+    ((_, static),) = by_topic["/tf_static"]
+    mounts = {t.child_frame_id: t for t in static.transforms}
+    for whisker in load_robot(SCENE):
+        t = mounts[f"{whisker.name}/clamp"]
+        assert t.header.frame_id == "base_link"
+        p = [t.transform.translation.x, t.transform.translation.y, t.transform.translation.z]
+        assert p == whisker.X_RC.translation.tolist()
+    # the contact points: float32 x, y, z, the whisker's index, phase, s1
+    ((t_ns, cloud),) = by_topic["/robot/contact"]
+    contacts: ContactPointArray = demo["contacts"]
+    assert t_ns == 5_000_000_000 and cloud.header.frame_id == "world"
+    assert (cloud.header.stamp.sec, cloud.header.stamp.nanosec) == (0, 123456789)
+    names_dtype = {f.name: f.offset for f in cloud.fields}
+    assert list(names_dtype) == ["x", "y", "z", "whisker", "phase", "s1"]
+    dtype = np.dtype({"names": list(names_dtype), "offsets": list(names_dtype.values()),
+                      "formats": ["<f4", "<f4", "<f4", "<u2", "u1", "<f4"],
+                      "itemsize": cloud.point_step})
+    cloud_rows: Any = np.frombuffer(bytes(cloud.data), dtype)
+    assert cloud.width == len(cloud_rows) == 2
+    xyz = np.stack([cloud_rows["x"], cloud_rows["y"], cloud_rows["z"]], axis=1)
+    assert np.array_equal(xyz, contacts.point.astype(np.float32))
+    assert [whiskers[i] for i in cloud_rows["whisker"]] == contacts.whisker_ids
+    assert cloud_rows["phase"].tolist() == [1, 2]
+    assert np.array_equal(cloud_rows["s1"], contacts.s1.astype(np.float32))
+
+
+def test_stamps_go_to_the_nanosecond_and_back_exactly() -> None:
+    for stamp in (0.0, 0.002, 3.398, 1.5e9 + 0.25, 1_700_000_000.123456, -0.5):
+        sec, nanosec = stamp_to_ros(stamp)
+        assert 0 <= nanosec < 1_000_000_000
+        assert stamp_from_ros(sec, nanosec) == stamp
+    assert stamp_to_ros(-0.5) == (-1, 500_000_000)
+
+
+def _ros2_bag(path: Path, wrenches: dict[str, list[tuple[float, tuple[float, ...]]]],
+              tf: list[tuple[float, str, str, tuple[float, ...]]]) -> None:
+    """A ROS 2 bag as a robot records it: WrenchStamped per whisker, TFMessage on /tf."""
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    conns = {t: writer.add_connection(t, "geometry_msgs/msg/WrenchStamped", typestore=TYPESTORE)
+             for t in wrenches}
+    tf_conn = writer.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=TYPESTORE)
+    rows: list[tuple[int, Any, Any, str]] = []
+    for topic, samples in wrenches.items():
+        for stamp, w in samples:
+            sec, nanosec = stamp_to_ros(stamp)
+            msg = ros.geometry_msgs__msg__WrenchStamped(
+                header=ros.std_msgs__msg__Header(
+                    stamp=ros.builtin_interfaces__msg__Time(sec=sec, nanosec=nanosec),
+                    frame_id=f"{topic.rsplit('/', 2)[-2]}/clamp"),
+                wrench=ros.geometry_msgs__msg__Wrench(
+                    force=ros.geometry_msgs__msg__Vector3(x=w[0], y=w[1], z=w[2]),
+                    torque=ros.geometry_msgs__msg__Vector3(x=w[3], y=w[4], z=w[5])))
+            rows.append((_ns(stamp) + 7, conns[topic], msg, "geometry_msgs/msg/WrenchStamped"))
+    for stamp, parent, child, pq in tf:
+        sec, nanosec = stamp_to_ros(stamp)
+        t = ros.geometry_msgs__msg__TransformStamped(
+            header=ros.std_msgs__msg__Header(
+                stamp=ros.builtin_interfaces__msg__Time(sec=sec, nanosec=nanosec), frame_id=parent),
+            child_frame_id=child, transform=ros.geometry_msgs__msg__Transform(
+                translation=ros.geometry_msgs__msg__Vector3(x=pq[0], y=pq[1], z=pq[2]),
+                rotation=ros.geometry_msgs__msg__Quaternion(x=pq[3], y=pq[4], z=pq[5], w=pq[6])))
+        rows.append((_ns(stamp), tf_conn, ros.tf2_msgs__msg__TFMessage(transforms=[t]),
+                     "tf2_msgs/msg/TFMessage"))
+    for t_ns, conn, msg, msgtype in sorted(rows, key=lambda r: r[0]):
+        writer.write(conn, t_ns, TYPESTORE.serialize_cdr(msg, msgtype))
+    writer.close()
+
+
+def test_import_of_a_robot_bag_gives_wrenches_in_clamp_frames_and_poses(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "robot_ros2"
+    _ros2_bag(src, {"/left/wrench": [(1.0, (1.0, 2.0, -3.0, 0.1, 0.2, 0.3)),
+                                     (1.01, (0.5, 0.0, 0.0, 0.0, -0.25, 0.0))],
+                    "/right/wrench": [(1.005, (0.0, -1.5, 0.0, 0.125, 0.0, 0.0))]},
+              [(0.999, "odom", "base_link", (0, 0, 0, 0, 0, 0, 1)),
+               (1.0, "world", "base_link", (0.1, 0.2, 0.3, 0.0, 0.0, 0.6, 0.8))])
+    out = tmp_path / "imported.mcap"
+    assert vibrissa_main(["bag", "import", str(src), str(out), "--wrench-topic", "/left/wrench",
+                          "--wrench-topic", "/right/wrench", "--whisker", "wl",
+                          "--whisker", "wr"]) == 0
+    err = capsys.readouterr().err
+    assert "wrote 3 WhiskerWrench (wl 2, wr 1) and 1 RobotPose" in err
+    assert "1 other /tf transform(s) left out" in err
+    got = [(r.topic, r.log_time_ns, codec.decode(r.payload)) for r in BagReader(out)]
+    wrenches = [(t, m) for topic, t, m in got if topic == WRENCH]
+    assert [m.whisker_id for _, m in wrenches] == ["wl", "wr", "wl"]
+    assert [m.seq for _, m in wrenches] == [0, 0, 1]
+    assert [m.stamp for _, m in wrenches] == [1.0, 1.005, 1.01]
+    assert [t for t, _ in wrenches] == [_ns(1.0) + 7, _ns(1.005) + 7, _ns(1.01) + 7]
+    first: WhiskerWrench = wrenches[0][1]
+    assert first.frame_id == "left/clamp" and not first.has_pose
+    # the sign back: f0 is the clamp's reaction on the rod, minus the sensor's reading
+    assert first.f0.tolist() == [-1.0, -2.0, 3.0] and first.m0.tolist() == [-0.1, -0.2, -0.3]
+    (pose,) = [m for topic, _, m in got if topic == POSE]
+    assert (pose.frame_id, pose.child_frame_id, pose.stamp) == ("world", "base_link", 1.0)
+    assert pose.position.tolist() == [0.1, 0.2, 0.3]
+    assert pose.orientation.tolist() == [0.0, 0.0, 0.6, 0.8]
+
+
+def test_an_exported_bag_imports_and_replays_through_the_nodes_to_the_library_points(
+        demo: dict[str, Any]) -> None:
+    """ROS 2 bag of the robot demo -> `vibrissa bag import` -> wrench_source (replay) ->
+    reconstructor with the robot description: the library's Step 2 of the same wrenches."""
+    if not demo["out"].exists():
+        assert vibrissa_main(["bag", "export", "--format", "ros2", str(demo["bag"]),
+                              str(demo["out"]), "--robot", str(SCENE)]) == 0
+    scene, results, tmp = demo["scene"], demo["results"], demo["tmp"]
+    imported = tmp / "imported.mcap"
+    topics = [a for w in scene.whiskers for a in ("--wrench-topic", f"{WRENCH}/{w.name}")]
+    assert vibrissa_main(["bag", "import", str(demo["out"]), str(imported), *topics]) == 0
+    launch_entries = entries("robot.yaml")
+    source = node(launch_entries, "wrench_source")
+    source["param"] = [{"name": "mode", "value": "replay"}, {"name": "bag", "value": str(imported)},
+                       {"name": "replay_rate", "value": 0},
+                       {"name": "wait_for", "value": ["reconstructor"]}]
+    set_param(node(launch_entries, "reconstructor"), "wait_for", ["/mapper", "/probe"])
+    launch = Launch(tmp, launch_entries, f"out:={tmp / 'replay'}", f"scene:={SCENE}")
+    probe = Probe(launch.endpoints(), ["/robot/contact"])
+    try:
+        points, _ = probe.collect(TIMEOUT_S)
+        rc = launch.wait()
+    finally:
+        probe.close()
+        launch.kill()
+    assert rc == 0, launch.text()
+    # the library: Step 2 of the simulated wrenches through the path's poses
+    t = np.repeat(scene.path.t, len(results))
+    names = np.array([r.name for r in results] * len(scene.path.t))
+    f0 = np.stack([r.f0_n for r in results], axis=1).reshape(-1, 3)
+    m0 = np.stack([r.m0_nm for r in results], axis=1).reshape(-1, 3)
+    ok = np.stack([r.phase != SamplePhase.UNRESOLVED for r in results], axis=1).reshape(-1)
+    rec = reconstruct_along(scene, t[ok], list(names[ok]), f0[ok], m0[ok])
+    valid = rec.pose_ok & np.isin(rec.status, [ContactStatus.OK, ContactStatus.AXIAL_LOAD])
+    # keys to the ns: a path time such as 2.5500000000000003 s comes back as the ns it rounds to
+    expected = {(_ns(float(s)), str(n)): p for s, n, p, v in zip(t[ok], names[ok], rec.point_m, valid,
+                                                             strict=True) if v}
+    got = {(_ns(p.stamp), p.whisker_id): p.point for p in points if isinstance(p, ContactPoint)}
+    assert got.keys() == expected.keys() and len(got) > 1000
+    lengths = {w.name: w.length_m for w in scene.whiskers}
+    for key, point in got.items():
+        # the stamps came back rounded to the ns (up to 0.5 ns off the path's times), and the
+        # poses are interpolated there: up to ~0.3 um off the library's point at the exact time
+        assert np.abs(point - expected[key]).max() <= 1e-5 * lengths[key[1]], key
+    assert all(p.frame_id == "world" for p in points)
+
+
+@pytest.mark.parametrize("case", ["missing_topic", "wrong_type", "not_a_bag", "no_bag",
+                                  "no_such_transform"])
+def test_import_refuses_bad_input_in_one_line_with_exit_2(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str) -> None:
+    src = tmp_path / "ros2"
+    _ros2_bag(src, {"/w0/wrench": [(1.0, (1.0, 0, 0, 0, 0, 0))]},
+              [(1.0, "odom", "base_link", (0, 0, 0, 0, 0, 0, 1))])
+    not_a_bag = tmp_path / "notes"
+    not_a_bag.mkdir()
+    (not_a_bag / "metadata.yaml").write_text("hello: [")
+    words, expected = {
+        "missing_topic": ([str(src), "--wrench-topic", "/w1/wrench"],
+                          f"{src} has no topic /w1/wrench (it has: /tf, /w0/wrench)"),
+        "wrong_type": ([str(src), "--wrench-topic", "/tf"],
+                       f"{src}: topic /tf is tf2_msgs/msg/TFMessage, expected "
+                       "geometry_msgs/msg/WrenchStamped"),
+        "not_a_bag": ([str(not_a_bag), "--wrench-topic", "/w0/wrench"],
+                      f"{not_a_bag} is not a readable ROS 2 bag"),
+        "no_bag": ([str(tmp_path / "nowhere"), "--wrench-topic", "/w0/wrench"],
+                   f"no ROS 2 bag at {tmp_path / 'nowhere'}"),
+        "no_such_transform": ([str(src), "--wrench-topic", "/w0/wrench"],
+                              f"{src}: no transform world -> base_link on /tf "
+                              "(it has: odom -> base_link)"),
+    }[case]
+    out = tmp_path / "out.mcap"
+    assert vibrissa_main(["bag", "import", words[0], str(out), *words[1:]]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"vibrissa bag import: error: {expected}"), err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_export_refuses_an_existing_folder_and_a_bad_robot(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = tmp_path / "b.mcap"
+    with BagWriter(bag) as writer:
+        writer.write("/w/wrench", encode(WhiskerWrench(stamp=0.0, seq=0, whisker_id="w",
+                                                       frame_id="w/clamp", f0=[1, 2, 3],
+                                                       m0=[0, 0, 0])), 0)
+    (tmp_path / "taken").mkdir()
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), str(tmp_path / "taken")]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), str(tmp_path / "o"),
+                          "--robot", str(bag)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("vibrissa bag export: error:") and len(err.strip().splitlines()) == 1
+    # and the single WhiskerWrench keeps its topic, with the sensor's sign
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), "-o", str(tmp_path / "ok")]) == 0
+    ((topic, _, msg),) = [m for m in _mcap_ros2_messages(tmp_path / "ok") if m[0] != "/vibrissa/whiskers"]
+    assert topic == "/w/wrench" and (msg.wrench.force.x, msg.wrench.force.y) == (-1.0, -2.0)

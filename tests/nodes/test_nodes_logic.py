@@ -519,7 +519,7 @@ def test_too_little_for_a_surface_is_a_report_line_and_the_cloud_is_written(
     frame = report["frames"][0]
     assert frame["method"] == f"none: {why}"
     assert (frame["n_vertices"], frame["n_triangles"]) == (0, 0)
-    assert sorted(frame["files"]) == ["cloud", "png"]
+    assert sorted(frame["files"]) == ["cloud", "html", "png"]
     assert not (tmp_path / "mesh.ply").exists()
     assert (tmp_path / "cloud.ply").stat().st_size > 0
     assert f"method: none: {why}" in (tmp_path / "report.txt").read_text()

@@ -17,7 +17,7 @@ from vibrissa.runtime import Node
 from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.runtime.scene_file import SceneError, load_robot
 from vibrissa.wire.bag import BagReader, PlayResult, export_json, play_bag
-from vibrissa.wire.ros2_bag import WHISKERS_TOPIC, export_ros2, import_ros2
+from vibrissa.wire.ros2_bag import WHISKERS_TOPIC, export_ros2, import_ros2, wrench_topics_of
 from vibrissa.wire.transport import Endpoints
 
 
@@ -94,8 +94,9 @@ def register(subparsers: Any) -> None:
         "--pose-topic. Play the result with wrench_source mode replay.")
     p.add_argument("ros2_bag", metavar="ROS2_BAG", help="a rosbag2 folder")
     p.add_argument("output", metavar="OUT.mcap")
-    p.add_argument("--wrench-topic", action="append", required=True, metavar="T",
-                   help="a WrenchStamped topic, one whisker each (repeat for more)")
+    p.add_argument("--wrench-topic", action="append", default=[], metavar="T",
+                   help="a WrenchStamped topic, one whisker each (repeat for more; default: "
+                   "every WrenchStamped topic of the bag)")
     p.add_argument("--whisker", action="append", default=[], metavar="NAME",
                    help="whisker name of each --wrench-topic, in order, or T=NAME (default: "
                    "the topic's last name, /robot/wrench/w00 -> w00)")
@@ -185,6 +186,16 @@ def _export(args: argparse.Namespace) -> int:
 
 def _import(args: argparse.Namespace) -> int:
     topics: list[str] = args.wrench_topic
+    if not topics:
+        try:
+            topics = wrench_topics_of(args.ros2_bag)
+        except (ValueError, FileNotFoundError) as exc:
+            print(f"vibrissa bag import: error: {exc}", file=sys.stderr)
+            return 2
+        if not topics:
+            print(f"vibrissa bag import: error: {args.ros2_bag} has no "
+                  "geometry_msgs/msg/WrenchStamped topic", file=sys.stderr)
+            return 2
     mapping = {t: t.rstrip("/").rsplit("/", 1)[-1] for t in topics}
     positional = [w for w in args.whisker if "=" not in w]
     if positional and len(positional) != len(topics):

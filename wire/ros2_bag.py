@@ -374,6 +374,22 @@ class ImportResult:
                 f"RobotPose to {self.path}; {other} other /tf transform(s) left out")
 
 
+def wrench_topics_of(src: str | os.PathLike[str]) -> list[str]:
+    """The geometry_msgs/msg/WrenchStamped topics of the ROS 2 bag ``src``, sorted.
+
+    Raises ``FileNotFoundError`` (nothing at ``src``) or ``ValueError`` (not a readable bag).
+    """
+    path = Path(src)
+    if not path.exists():
+        raise FileNotFoundError(f"no ROS 2 bag at {path}")
+    try:
+        with AnyReader([path], default_typestore=TYPESTORE) as reader:
+            return sorted({c.topic for c in reader.connections if c.msgtype == WRENCH_STAMPED})
+    except (AnyReaderError, OSError, KeyError) as exc:
+        raise ValueError(f"{path} is not a readable ROS 2 bag: "
+                         f"{(str(exc).splitlines() or [''])[0]}") from None
+
+
 def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
                 wrench_topics: Mapping[str, str], *, topic: str = "/robot/wrench",
                 pose_topic: str = "/robot/pose", map_frame: str = WORLD_FRAME,

@@ -256,15 +256,12 @@ def test_an_exported_bag_imports_and_replays_through_the_nodes_to_the_library_po
                               str(demo["out"]), "--robot", str(SCENE)]) == 0
     scene, results, tmp = demo["scene"], demo["results"], demo["tmp"]
     imported = tmp / "imported.mcap"
-    topics = [a for w in scene.whiskers for a in ("--wrench-topic", f"{WRENCH}/{w.name}")]
-    assert vibrissa_main(["bag", "import", str(demo["out"]), str(imported), *topics]) == 0
+    # without --wrench-topic: every WrenchStamped topic, each whisker named by its topic
+    assert vibrissa_main(["bag", "import", str(demo["out"]), str(imported)]) == 0
     launch_entries = entries("robot.yaml")
-    source = node(launch_entries, "wrench_source")
-    source["param"] = [{"name": "mode", "value": "replay"}, {"name": "bag", "value": str(imported)},
-                       {"name": "replay_rate", "value": 0},
-                       {"name": "wait_for", "value": ["reconstructor"]}]
     set_param(node(launch_entries, "reconstructor"), "wait_for", ["/mapper", "/probe"])
-    launch = Launch(tmp, launch_entries, f"out:={tmp / 'replay'}", f"scene:={SCENE}")
+    launch = Launch(tmp, launch_entries, f"out:={tmp / 'replay'}", f"scene:={SCENE}",
+                    "mode:=replay", f"bag:={imported}", "replay_rate:=0")
     probe = Probe(launch.endpoints(), ["/robot/contact"])
     try:
         points, _ = probe.collect(TIMEOUT_S)

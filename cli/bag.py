@@ -76,12 +76,15 @@ def register(subparsers: Any) -> None:
     p.add_argument("outdir", nargs="?", metavar="OUT",
                    help="output: OUT.mcap for json, a new folder for ros2 (or -o)")
     p.add_argument("-o", "--output", metavar="OUT", help="output (instead of OUT)")
-    p.add_argument("--format", choices=("json", "ros2"), default="json",
-                   help="json: JSON-encoded MCAP (default); ros2: rosbag2 folder")
+    p.add_argument("--format", choices=("json", "ros2", "foxglove"), default="json",
+                   help="json: JSON-encoded MCAP of vibrissa's messages (default); ros2: rosbag2 "
+                   "folder; foxglove: MCAP of the live view's channels in Foxglove's own "
+                   "schemas (the 3D panel draws the points, frames and meshes; needs the extra "
+                   "view)")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
     p.add_argument("--robot", metavar="SCENE.yaml",
-                   help="ros2: the robot description (a scene file's whiskers) whose mounts go "
-                   "to /tf_static")
+                   help="ros2, foxglove: the robot description (a scene file's whiskers) whose "
+                   "mounts go to /tf_static (ros2) or /tf (foxglove)")
     p.add_argument("--robot-frame", default=ROBOT_FRAME, metavar="FRAME",
                    help=f"ros2: parent frame of the mounts (default {ROBOT_FRAME})")
     p.set_defaults(func=_export)
@@ -172,6 +175,18 @@ def _export(args: argparse.Namespace) -> int:
     if args.format == "json":
         info = export_json(args.bag, output, topics=args.topics)
         print(f"wrote {info.message_count} JSON messages to {output}", file=sys.stderr)
+        return 0
+    if args.format == "foxglove":
+        from vibrissa.nodes import foxglove_bridge  # the optional extra, on first use
+
+        try:
+            params = foxglove_bridge.FoxgloveBridgeParams(robot=args.robot or "")
+            counts = foxglove_bridge.export_bag(args.bag, output, params)
+        except (SceneError, ValueError, FileNotFoundError) as exc:
+            print(f"vibrissa bag export: error: {exc}", file=sys.stderr)
+            return 2
+        print(f"wrote the live view of {args.bag} to {output}: " + ", ".join(
+            f"{k} {v}" for k, v in counts.items() if v), file=sys.stderr)
         return 0
     try:
         whiskers = load_robot(args.robot) if args.robot else ()

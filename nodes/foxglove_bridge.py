@@ -54,6 +54,8 @@ With ``hold_s`` >= 0 the node ends (exit 0) ``hold_s`` seconds after the mapper'
 from __future__ import annotations
 
 import logging
+import math
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -75,10 +77,12 @@ from vibrissa.msgs import (
     SurfaceMesh,
     WhiskerWrench,
     WhiskerWrenchArray,
+    codec,
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_parsed, require_positive
 from vibrissa.runtime.scene_file import load_robot
+from vibrissa.wire.bag import BagReader
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 if TYPE_CHECKING:
@@ -196,20 +200,27 @@ class LiveView:
         The robot description's mounts in ``params.robot_frame``.
     counters : dict
         Where the counts go (the node's status counters).
+    context : foxglove.Context, optional
+        The channels' context (its sinks); the SDK's global one by default.
     """
 
     def __init__(self, fg: ModuleType, params: FoxgloveBridgeParams,
-                 mounts: Sequence[tuple[str, Transform]], counters: dict[str, int]) -> None:
-        self.fg, self.params, self.counters = fg, params, counters
+                 mounts: Sequence[tuple[str, Transform]], counters: dict[str, int],
+                 context: Any = None) -> None:
+        self.fg, self.params, self.counters, self._context = fg, params, counters, context
         for key in ("wrenches", "contacts", "other_frame", "poses", "meshes", "bad_meshes",
                     "clouds", "statuses"):
             counters.setdefault(key, 0)
         self._wrench: dict[str, Channel] = {}
-        self._contacts: PointCloudChannel = fg.channels.PointCloudChannel("/contacts")
-        self._tf: FrameTransformsChannel = fg.channels.FrameTransformsChannel("/tf")
-        self._map_cloud: PointCloudChannel = fg.channels.PointCloudChannel("/map/cloud")
-        self._meshes: SceneUpdateChannel = fg.channels.SceneUpdateChannel("/meshes")
-        self._health: Channel = fg.Channel("/health", schema=HEALTH_SCHEMA)
+        self._contacts: PointCloudChannel = fg.channels.PointCloudChannel("/contacts",
+                                                                          context=context)
+        self._tf: FrameTransformsChannel = fg.channels.FrameTransformsChannel("/tf",
+                                                                              context=context)
+        self._map_cloud: PointCloudChannel = fg.channels.PointCloudChannel("/map/cloud",
+                                                                           context=context)
+        self._meshes: SceneUpdateChannel = fg.channels.SceneUpdateChannel("/meshes",
+                                                                          context=context)
+        self._health: Channel = fg.Channel("/health", schema=HEALTH_SCHEMA, context=context)
         self._mounts = [(params.robot_frame, clamp_frame(name), X_RC) for name, X_RC in mounts]
         self._whisker_index: dict[str, int] = {}
         self._points: list[npt.NDArray[np.float32]] = []  # (n, 4) rows: x, y, z, whisker
@@ -227,25 +238,25 @@ class LiveView:
     def handle(self, topic: str, msg: Message, now: float) -> None:
         """Turn one message of the graph, received at ``now`` (s, wall clock), into output."""
         if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
-            self._on_wrench(msg)
+            self._on_wrench(msg, now)
         elif isinstance(msg, ContactPointArray):
             self._on_contacts(msg.frame_id, msg.whisker_ids, msg.point)
         elif isinstance(msg, ContactPoint):
             self._on_contacts(msg.frame_id, [msg.whisker_id], msg.point[None, :])
         elif isinstance(msg, RobotPose):
             self.counters["poses"] += 1
-            self._tf.log(self.fg.messages.FrameTransforms(transforms=[self._transform(
-                msg.frame_id, msg.child_frame_id, msg.position, msg.orientation, now)]))
+            self._log(self._tf, self.fg.messages.FrameTransforms(transforms=[self._transform(
+                msg.frame_id, msg.child_frame_id, msg.position, msg.orientation, now)]), now)
         elif isinstance(msg, ContactCloud):
             self.counters["clouds"] += 1
             self._map_cloud_msgs[msg.frame_id] = self._map_cloud_msg(msg, now)
-            self._map_cloud.log(self._map_cloud_msgs[msg.frame_id])
+            self._log(self._map_cloud, self._map_cloud_msgs[msg.frame_id], now)
         elif isinstance(msg, SurfaceMesh):
             self._on_mesh(msg, now)
         elif isinstance(msg, NodeStatus) and topic == STATUS_TOPIC:
             self._on_status(msg)
 
-    def _on_wrench(self, msg: WhiskerWrench | WhiskerWrenchArray) -> None:
+    def _on_wrench(self, msg: WhiskerWrench | WhiskerWrenchArray, now: float) -> None:
         if isinstance(msg, WhiskerWrench):
             rows = [(msg.whisker_id, msg.frame_id, msg.f0, msg.m0)]
         else:
@@ -254,10 +265,14 @@ class LiveView:
             channel = self._wrench.get(whisker)
             if channel is None:
                 channel = self._wrench[whisker] = self.fg.Channel(
-                    f"/whiskers/{whisker}/wrench", schema=WRENCH_SCHEMA)
-            channel.log({"stamp": msg.stamp, "seq": msg.seq, "frame_id": frame_id,
-                         "f0": _vec3(f0), "m0": _vec3(m0)})
+                    f"/whiskers/{whisker}/wrench", schema=WRENCH_SCHEMA, context=self._context)
+            self._log(channel, {"stamp": msg.stamp, "seq": msg.seq, "frame_id": frame_id,
+                                "f0": _vec3(f0), "m0": _vec3(m0)}, now)
         self.counters["wrenches"] += len(rows)
+
+    def _log(self, channel: Any, msg: Any, now: float) -> None:
+        """Log on ``channel`` at ``now`` (s): the wall clock live, the bag's time offline."""
+        channel.log(msg, log_time=int(round(now * 1e9)))
 
     def _on_contacts(self, frame_id: str, whiskers: Sequence[str], points: FloatArray) -> None:
         if frame_id != self.params.map_frame:
@@ -288,7 +303,7 @@ class LiveView:
             metadata=[m.KeyValuePair(key="method", value=msg.method),
                       m.KeyValuePair(key="n_points", value=str(msg.n_points))])
         self._mesh_msgs[msg.frame_id] = m.SceneUpdate(entities=[entity])
-        self._meshes.log(self._mesh_msgs[msg.frame_id])
+        self._log(self._meshes, self._mesh_msgs[msg.frame_id], now)
 
     def _on_status(self, msg: NodeStatus) -> None:
         self.counters["statuses"] += 1
@@ -314,24 +329,24 @@ class LiveView:
         if self._cloud_rows != self._cloud_sent_rows:
             self._cloud_msg = self._contact_cloud_msg(now)
             self._cloud_sent_rows = self._cloud_rows
-            self._contacts.log(self._cloud_msg)
+            self._log(self._contacts, self._cloud_msg, now)
         elif republish and self._cloud_msg is not None:
-            self._contacts.log(self._cloud_msg)
+            self._log(self._contacts, self._cloud_msg, now)
         if self._health_dirty or republish:
             self._health_dirty = False
             nodes = [{k: v for k, v in entry.items() if not k.startswith("_")}
                      for _, entry in sorted(self._nodes.items())]
-            self._health.log({"stamp": now, "nodes": nodes})
+            self._log(self._health, {"stamp": now, "nodes": nodes}, now)
         if not republish:
             return
         if self._mounts:
-            self._tf.log(self.fg.messages.FrameTransforms(transforms=[
+            self._log(self._tf, self.fg.messages.FrameTransforms(transforms=[
                 self._transform(parent, child, X.translation, X.quaternion_xyzw, now)
-                for parent, child, X in self._mounts]))
+                for parent, child, X in self._mounts]), now)
         for cloud in self._map_cloud_msgs.values():
-            self._map_cloud.log(cloud)
+            self._log(self._map_cloud, cloud, now)
         for update in self._mesh_msgs.values():
-            self._meshes.log(update)
+            self._log(self._meshes, update, now)
 
     def _transform(self, parent: str, child: str, p: FloatArray, q_xyzw: FloatArray,
                    now: float) -> FrameTransform:
@@ -406,6 +421,36 @@ def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
     log.info("%s: served %d wrench rows, %d contacts, %d poses, %d meshes", node.fqn,
              node.counters["wrenches"], node.counters["contacts"], node.counters["poses"],
              node.counters["meshes"])
+
+
+def export_bag(bag: str | os.PathLike[str], output: str | os.PathLike[str],
+               params: FoxgloveBridgeParams | None = None) -> dict[str, int]:
+    """The live view of a recorded bag, as a file: an MCAP of the same Foxglove channels and
+    schemas (PointCloud, FrameTransforms, SceneUpdate, the wrench series), each message at its
+    bag log time; the cloud and the health table every ``params.period_s`` of bag time. Needs
+    the extra ``view``. Returns the view's counters."""
+    fg = import_foxglove()
+    params = params or FoxgloveBridgeParams()
+    mounts = ([(w.name, w.X_RC) for w in load_robot(params.robot)] if params.robot else [])
+    counters: dict[str, int] = {}
+    context = fg.Context()
+    writer = fg.open_mcap(os.fspath(output), allow_overwrite=True, context=context)
+    try:
+        view = LiveView(fg, params, mounts, counters, context)
+        next_tick = -math.inf
+        now = 0.0
+        for record in BagReader(bag):
+            msg = codec.decode(record.payload)
+            now = record.log_time_ns * 1e-9
+            if not isinstance(msg, EndOfStream):
+                view.handle(record.topic, msg, now)
+            if now >= next_tick:
+                next_tick = now + params.period_s
+                view.tick(now)
+        view.tick(now + params.period_s)  # the last of the cloud and the health table
+    finally:
+        writer.close()
+    return counters
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -6,6 +6,7 @@ gives the library's contact points; bad input is one line and exit 2."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -340,3 +341,40 @@ def test_export_refuses_an_existing_folder_and_a_bad_robot(
     assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), "-o", str(tmp_path / "ok")]) == 0
     ((topic, _, msg),) = [m for m in _mcap_ros2_messages(tmp_path / "ok") if m[0] != "/vibrissa/whiskers"]
     assert topic == "/w/wrench" and (msg.wrench.force.x, msg.wrench.force.y) == (-1.0, -2.0)
+
+
+def test_the_foxglove_export_has_the_live_views_channels_at_the_bags_times(
+        demo: dict[str, Any]) -> None:
+    """`vibrissa bag export --format foxglove`: the bridge's channels in Foxglove's schemas,
+    read back with the plain mcap reader: wrench series equal to the bag's f0 and m0 at the
+    bag's log times, the robot poses and mounts on /tf, the contacts as a foxglove.PointCloud."""
+    from mcap.reader import make_reader
+
+    out = demo["tmp"] / "fox.mcap"
+    assert vibrissa_main(["bag", "export", "--format", "foxglove", str(demo["bag"]), str(out),
+                          "--robot", str(SCENE)]) == 0
+    schemas: dict[str, tuple[str, str]] = {}
+    rows: dict[str, list[tuple[int, dict[str, Any]]]] = {}
+    counts: Counter[str] = Counter()
+    with open(out, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            schemas[channel.topic] = (schema.name, schema.encoding)
+            counts[channel.topic] += 1
+            if channel.topic.startswith("/whiskers/"):
+                rows.setdefault(channel.topic, []).append((message.log_time,
+                                                           json.loads(message.data)))
+    assert schemas["/tf"] == ("foxglove.FrameTransforms", "protobuf")
+    assert schemas["/contacts"] == ("foxglove.PointCloud", "protobuf")
+    names = [w.name for w in demo["scene"].whiskers]
+    assert set(rows) == {f"/whiskers/{w}/wrench" for w in names}
+    poses = [m for t, m in demo["msgs"] if t == POSE]
+    assert counts["/tf"] >= len(poses) + 1  # every pose, and the mounts
+    arrays = [m for t, m in demo["msgs"] if t == WRENCH]
+    for k, w in enumerate(names):
+        got = rows[f"/whiskers/{w}/wrench"]
+        assert len(got) == len(arrays)
+        for (log_time, row), array in zip(got, arrays, strict=True):
+            assert log_time == _ns(array.stamp) + 1000  # the bag's log time
+            assert row["frame_id"] == f"{w}/clamp" and row["seq"] == array.seq
+            assert [row["f0"][a] for a in "xyz"] == array.f0[k].tolist()
+            assert [row["m0"][a] for a in "xyz"] == array.m0[k].tolist()

@@ -365,13 +365,18 @@ class ImportResult:
     wrenches: Counter[str] = field(default_factory=Counter)
     poses: int = 0
     other_transforms: Counter[str] = field(default_factory=Counter)
+    refused: Counter[str] = field(default_factory=Counter)  # topic -> messages left out
 
     def summary(self) -> str:
-        """One line: wrenches per whisker, poses, transforms left out."""
+        """One line: wrenches per whisker, poses, transforms and messages left out."""
         per = ", ".join(f"{w} {n}" for w, n in sorted(self.wrenches.items()))
         other = sum(self.other_transforms.values())
-        return (f"wrote {sum(self.wrenches.values())} WhiskerWrench ({per}) and {self.poses} "
+        line = (f"wrote {sum(self.wrenches.values())} WhiskerWrench ({per}) and {self.poses} "
                 f"RobotPose to {self.path}; {other} other /tf transform(s) left out")
+        if self.refused:
+            line += "; refused (NaN or inf): " + ", ".join(
+                f"{t} {n}" for t, n in sorted(self.refused.items()))
+        return line
 
 
 def wrench_topics_of(src: str | os.PathLike[str]) -> list[str]:
@@ -450,13 +455,21 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
                                 result.other_transforms[f"{tf.header.frame_id} -> "
                                                         f"{tf.child_frame_id}"] += 1
                                 continue
-                            pose = _robot_pose(tf)
-                            out.write(pose_topic, codec.encode(pose), t_ns, sequence=result.poses)
+                            try:
+                                data = codec.encode(_robot_pose(tf))
+                            except ValueError:  # NaN or inf: the codec refuses it
+                                result.refused[TF_TOPIC] += 1
+                                continue
+                            out.write(pose_topic, data, t_ns, sequence=result.poses)
                             result.poses += 1
                         continue
                     name = wrench_topics[connection.topic]
-                    wrench = _whisker_wrench(msg, name, seq[name])
-                    out.write(topic, codec.encode(wrench), t_ns, sequence=seq[name])
+                    try:
+                        data = codec.encode(_whisker_wrench(msg, name, seq[name]))
+                    except ValueError:  # NaN or inf: the codec refuses it, and so does this
+                        result.refused[connection.topic] += 1
+                        continue
+                    out.write(topic, data, t_ns, sequence=seq[name])
                     seq[name] += 1
                     result.wrenches[name] += 1
     except (AnyReaderError, OSError, KeyError) as exc:

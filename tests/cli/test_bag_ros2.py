@@ -378,3 +378,22 @@ def test_the_foxglove_export_has_the_live_views_channels_at_the_bags_times(
             assert row["frame_id"] == f"{w}/clamp" and row["seq"] == array.seq
             assert [row["f0"][a] for a in "xyz"] == array.f0[k].tolist()
             assert [row["m0"][a] for a in "xyz"] == array.m0[k].tolist()
+
+
+def test_import_counts_and_leaves_out_non_finite_samples(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # a ROS bag may hold NaN (a sensor's dropout) or inf: such samples are left out and
+    # counted, the others imported
+    nan, inf = float("nan"), float("inf")
+    src = tmp_path / "nan_ros2"
+    _ros2_bag(src, {"/robot/wrench/w0": [(1.0, (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+                                         (1.01, (nan, 0.0, 0.0, 0.0, 0.0, 0.0)),
+                                         (1.02, (0.0, 0.0, 0.0, 0.0, inf, 0.0))]},
+              [(1.0, "world", "base_link", (0, 0, 0, 0, 0, 0, 1)),
+               (1.01, "world", "base_link", (nan, 0, 0, 0, 0, 0, 1))])
+    out = tmp_path / "imported.mcap"
+    assert vibrissa_main(["bag", "import", str(src), str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "wrote 1 WhiskerWrench (w0 1) and 1 RobotPose" in err
+    assert "refused (NaN or inf): /robot/wrench/w0 2, /tf 1" in err
+    assert len(list(BagReader(out))) == 2

@@ -151,6 +151,15 @@ def _colours(n: int, palette: str) -> list[Any]:
     return [turbo(x) for x in np.linspace(0.05, 0.95, n)]
 
 
+def whisker_colours(layers: MapLayers) -> dict[str, Any]:
+    """Each whisker's colour (RGBA), by name over the contacts and the robot description:
+    ``tab10`` up to 10 whiskers, ``tab20`` up to 20, then a sweep of ``turbo``."""
+    names = sorted({*np.asarray(layers.whisker_ids, dtype=object).tolist(),
+                    *(w.name for w in layers.whiskers)})
+    return dict(zip(names, _colours(len(names), "tab10" if len(names) <= 10 else "tab20"),
+                    strict=True))
+
+
 def thousands(n: int) -> str:
     """``5 214``: digits grouped by spaces."""
     return f"{n:,}".replace(",", " ")
@@ -165,7 +174,7 @@ def _capped(entries: list[Any], more: str, handle: Any) -> list[Any]:
     return [*entries[: MAX_LEGEND_ENTRIES - 1], handle]
 
 
-def _box(parts: Sequence[FloatArray], margin: float) -> tuple[FloatArray, FloatArray]:
+def bounding_box(parts: Sequence[FloatArray], margin: float) -> tuple[FloatArray, FloatArray]:
     """Corners (3,) of the box around the points of ``parts`` (each (K, 3)), grown by
     ``margin`` of its largest side on every side and to at least 2 % of it along each axis."""
     every = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in parts])
@@ -228,7 +237,7 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
     grids = [wireframe(true, points[shown][near_of == i])
              for i, true in enumerate(layers.true_objects)]
     focus += [g.reshape(3, -1).T for g in grids]
-    lo, hi = _box(focus, 0.0)
+    lo, hi = bounding_box(focus, 0.0)
     clamps = mounts(layers.path, layers.whiskers) if layers.path is not None else []
     robot = [layers.path.p_WR] if layers.path is not None else []
     robot += [a for _, p_WC, tip in clamps for a in (p_WC, tip)]
@@ -236,12 +245,10 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
     reach = 0.25 * float(np.max(hi[:2] - lo[:2]))
     near = [p[np.all((p[:, :2] >= lo[:2] - reach) & (p[:, :2] <= hi[:2] + reach), axis=1)]
             for p in robot]
-    lo, hi = _box(focus + near, 0.05)
+    lo, hi = bounding_box(focus + near, 0.05)
     extent += [*focus, points, *robot]
 
-    names = sorted({*ids.tolist(), *(w.name for w in layers.whiskers)})
-    colour = dict(zip(names, _colours(len(names), "tab10" if len(names) <= 10 else "tab20"),
-                      strict=True))
+    colour = whisker_colours(layers)
 
     if layers.true_objects:
         for true, grid_m in zip(layers.true_objects, grids, strict=True):
@@ -286,7 +293,7 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
                                         "(clamp, rod axis +z, whisker colour)"))
 
     whisker_handles = []
-    for name in names:
+    for name in colour:
         mine = shown[(ids[shown] == name) & (labels[shown] >= 0)]
         count = int(np.sum(ids == name))
         if len(mine):
@@ -352,7 +359,7 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
     ax.set_ylabel("y [mm]")
     ax.set_zlabel("z [mm]")
     ax.set_title("3D view", fontsize=10)
-    lo, hi = _box(extent, 0.05)
+    lo, hi = bounding_box(extent, 0.05)
     top.set_xlim(lo[0] * MM, hi[0] * MM)
     top.set_ylim(lo[1] * MM, hi[1] * MM)
     top.set_aspect("equal", adjustable="box")

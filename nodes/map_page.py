@@ -28,10 +28,10 @@ from vibrissa.nodes.map_figure import (
     MM,
     FloatArray,
     MapLayers,
-    _box,
-    _colours,
+    bounding_box,
     mounts,
     thousands,
+    whisker_colours,
     wireframe,
 )
 
@@ -62,8 +62,8 @@ def page_data(layers: MapLayers) -> dict[str, Any]:
     ids = np.asarray(layers.whisker_ids, dtype=object)
     labels = np.asarray(layers.labels)
     shown = np.arange(0, len(points), max(1, -(-len(points) // MAX_POINTS_SHOWN)))
-    names = sorted({*ids.tolist(), *(w.name for w in layers.whiskers)})
-    colours = _colours(len(names), "tab10" if len(names) <= 10 else "tab20")
+    colour = whisker_colours(layers)
+    names, colours = list(colour), list(colour.values())
     index = {name: i for i, name in enumerate(names)}
     contact = shown[labels[shown] >= 0]
     noise = shown[labels[shown] < 0]
@@ -102,7 +102,7 @@ def page_data(layers: MapLayers) -> dict[str, Any]:
     focus += [np.asarray(mesh.vertices).reshape(-1, 3) for mesh in layers.meshes]
     focus += [g.reshape(3, -1).T for g in grids]
     focus = [f for f in focus if len(f)]
-    lo, hi = _box(focus, 0.05) if focus else (np.full(3, -0.05), np.full(3, 0.05))
+    lo, hi = bounding_box(focus, 0.05) if focus else (np.full(3, -0.05), np.full(3, 0.05))
 
     path: dict[str, Any] | None = None
     if layers.path is not None:

@@ -292,6 +292,10 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
     # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
     q, p, f0, m0 = (np.require(a, dtype=float, requirements=["C", "W"])
                     for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
+    if not (q.shape[1:] == (4,) and p.shape[1:] == f0.shape[1:] == m0.shape[1:] == (3,)
+            and len(q) == len(p) == len(f0) == len(m0)):
+        raise ValueError(f"q_WC_xyzw (N, 4), p_WC_m, f0_C_n, m0_C_nm (N, 3) must have the same "
+                         f"number of rows, got {q.shape}, {p.shape}, {f0.shape}, {m0.shape}")
     if isinstance(rod, RodScale):
         units = np.tile([rod.length_m, rod.force_n, rod.moment_nm], (len(q), 1))
     else:

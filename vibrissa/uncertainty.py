@@ -21,7 +21,6 @@ from numpy.typing import NDArray
 
 from vibrissa.compiled import compiled
 from vibrissa.elastica import planar_contact_tangent
-from vibrissa.frames import quaternion_matrix
 
 FloatArray = NDArray[np.float64]
 
@@ -103,60 +102,3 @@ def propagate_row(jacobian: FloatArray, rotation: FloatArray, length_m: float, f
     for k in range(6):
         s1_var += work[7, k] * work[3, k]
     return s1_var
-
-
-def point_covariance_si(q_WC_xyzw: FloatArray, f0_C_n: FloatArray, m0_C_nm: FloatArray,
-                        units: FloatArray, wrench_cov: FloatArray) -> FloatArray:
-    """Covariance (N, 3, 3) of the contact points, m^2 in W, from the wrench noise.
-
-    Parameters
-    ----------
-    q_WC_xyzw : ndarray, shape (N, 4)
-        Clamp orientation in W (x, y, z, w).
-    f0_C_n, m0_C_nm : ndarray, shape (N, 3)
-        Clamp reaction on the rod in C, N and N m (the README's convention).
-    units : ndarray, shape (N, 3)
-        L (m), EI/L^2 (N) and EI/L (N m) of each row's rod (``vibrissa.units.rod_units``).
-    wrench_cov : ndarray, shape (6, 6) or (N, 6, 6)
-        Covariance of (f0, m0) in C, N^2, N^2 m and N^2 m^2.
-
-    Returns
-    -------
-    ndarray, shape (N, 3, 3)
-        NaN where the Jacobian is not defined (see :func:`point_jacobian`).
-    """
-    q = np.require(q_WC_xyzw, dtype=float, requirements=["C", "W"]).reshape(-1, 4)
-    f0, m0 = (np.require(a, dtype=float, requirements=["C", "W"]).reshape(-1, 3)
-              for a in (f0_C_n, m0_C_nm))
-    units = np.require(units, dtype=float, requirements=["C"]).reshape(-1, 3)
-    cov = np.asarray(wrench_cov, dtype=float)
-    if cov.shape == (6, 6):
-        cov = np.broadcast_to(cov, (len(q), 6, 6))
-    if cov.shape != (len(q), 6, 6):
-        raise ValueError(f"wrench_cov must have shape (6, 6) or ({len(q)}, 6, 6), got "
-                         f"{cov.shape}")
-    if not (len(f0) == len(m0) == len(units) == len(q)):
-        raise ValueError(f"q_WC_xyzw, f0, m0 and units must have the same number of rows, got "
-                         f"{len(q)}, {len(f0)}, {len(m0)}, {len(units)}")
-    return _covariances(q, f0, m0, units, np.ascontiguousarray(cov))
-
-
-@compiled
-def _covariances(q: FloatArray, f0: FloatArray, m0: FloatArray, units: FloatArray,
-                 cov: FloatArray) -> FloatArray:  # pragma: no cover - numba
-    """:func:`point_covariance_si` of every row."""
-    n = q.shape[0]
-    out = np.full((n, 3, 3), np.nan)
-    jacobian, dg, work = np.empty((4, 6)), np.empty((3, 3)), np.empty((8, 6))
-    rotation = np.empty((3, 3))
-    f0_L, m0_L = np.empty(3), np.empty(3)
-    for i in range(n):
-        length_m, force_n, moment_nm = units[i, 0], units[i, 1], units[i, 2]
-        for j in range(3):
-            f0_L[j], m0_L[j] = f0[i, j] / force_n, m0[i, j] / moment_nm
-        norm2 = quaternion_matrix(q[i], rotation)
-        if not (norm2 > 0.0 and norm2 < math.inf):
-            continue
-        if jacobian_into(f0_L, m0_L, jacobian, dg):
-            propagate_row(jacobian, rotation, length_m, force_n, moment_nm, cov[i], out[i], work)
-    return out

@@ -8,7 +8,6 @@ from vibrissa import RodScale, parse_surface, simulate_sweep
 from vibrissa.elastica import planar_contact_scalar, planar_contact_tangent
 from vibrissa.reconstruct import reconstruct_si
 from vibrissa.status import ContactPhase, ContactStatus
-from vibrissa.uncertainty import point_covariance_si
 
 L_M, EI_NM2 = 0.05, 2e-5
 
@@ -75,9 +74,9 @@ def test_contacts_scatter_as_predicted(sweep_si, phase):
     rows = np.flatnonzero(sweep.phase == phase)
     rows = rows[(rows > rows[0] + 20) & (rows < rows[-1] - 20)][::120]  # away from the ends
     assert len(rows) >= 5
-    predicted = point_covariance_si(np.tile(R, (len(rows), 1)), f0[rows], m0[rows],
-                                    np.tile([rod.length_m, rod.force_n, rod.moment_nm],
-                                            (len(rows), 1)), cov_w)
+    # the prediction: the covariance Step 2 gives the noise-free wrench
+    predicted = reconstruct_si(np.tile(R, (len(rows), 1)), np.zeros((len(rows), 3)), f0[rows],
+                               m0[rows], rod, cov_w).covariance_m2
     for k, cov in zip(rows, predicted, strict=True):
         draws = rng.normal(size=(1000, 6)) * sigma
         out = reconstruct_si(np.tile(R, (1000, 1)), np.zeros((1000, 3)), f0[k] + draws[:, :3],
@@ -142,12 +141,9 @@ def test_without_noise_model_nothing_changes(sweep_si):
 
 def test_bad_shapes_are_clear_errors(sweep_si):
     _, rod, f0, m0 = sweep_si
-    units = np.tile([rod.length_m, rod.force_n, rod.moment_nm], (3, 1))
     q = np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
-    with pytest.raises(ValueError, match=r"wrench_cov must have shape \(6, 6\) or \(3, 6, 6\)"):
-        point_covariance_si(q, f0[:3], m0[:3], units, np.eye(3))
     with pytest.raises(ValueError, match="the same number of rows"):
-        point_covariance_si(q, f0[:2], m0[:3], units, np.eye(6))
+        reconstruct_si(q, np.zeros((3, 3)), f0[:2], m0[:3], rod, np.eye(6))
     with pytest.raises(ValueError, match=r"wrench_cov must have shape \(6, 6\) or \(3, 6, 6\)"):
         reconstruct_si(q, np.zeros((3, 3)), f0[:3], m0[:3], rod, np.eye(5))
     with pytest.raises(ValueError, match="tip_sigmas"):
@@ -156,6 +152,6 @@ def test_bad_shapes_are_clear_errors(sweep_si):
 
 def test_no_bending_moment_gives_nan_not_an_error(sweep_si):
     _, rod, f0, _ = sweep_si
-    cov = point_covariance_si(np.array([[0.0, 0.0, 0.0, 1.0]]), f0[:1], np.zeros((1, 3)),
-                              np.array([[rod.length_m, rod.force_n, rod.moment_nm]]), np.eye(6))
-    assert np.isnan(cov).all()
+    out = reconstruct_si(np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), f0[:1],
+                         np.zeros((1, 3)), rod, np.eye(6))
+    assert out.covariance_m2 is not None and np.isnan(out.covariance_m2).all()

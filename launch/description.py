@@ -21,11 +21,15 @@ The format follows ROS 2's YAML launch files where it fits::
           finite: false                   # true: its work ends by itself (exit 0 is success)
           allow_loss: false               # true: input lost or refused is not a failure
           on_exit: shutdown
+          if: "$(equals $(var mode) live)" # or unless: ...; a node whose condition fails is
+                                          # left out (its entry is still checked)
 
-Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)`` and
-``$(dirname)`` (the launch file's directory) and ``$(python)`` (the interpreter running the
-launch, for ``cmd`` nodes written in Python). Every error is a `LaunchFileError` whose message
-names the file and the key path, e.g. ``demo.yaml: launch[2].node.respawn: expected bool``.
+Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)``,
+``$(equals A B)`` and ``$(not-equals A B)`` (``true`` or ``false``), ``$(dirname)`` (the launch
+file's directory) and ``$(python)`` (the interpreter running the launch, for ``cmd`` nodes
+written in Python); they nest, innermost first, and a value is never read again as one. Every
+error is a `LaunchFileError` whose message names the file and the key path, e.g.
+``demo.yaml: launch[2].node.respawn: expected bool``.
 """
 
 from __future__ import annotations
@@ -66,8 +70,6 @@ __all__ = [
 ]
 
 ON_EXIT_ACTIONS = ("shutdown",)
-
-_SUBST = re.compile(r"\$\(([^()]*)\)")
 
 
 class LaunchFileError(ValueError):
@@ -318,41 +320,62 @@ class _Parser:
     # -- substitutions -------------------------------------------------------------------------
 
     def substitute(self, text: str, path: str) -> str:
-        """Resolve ``$(var ...)``, ``$(env ...)``, ``$(dirname)`` and ``$(python)``."""
-
-        def one(match: re.Match[str]) -> str:
-            words = match.group(1).split()
-            kind, rest = (words[0], words[1:]) if words else ("", [])
-            if kind == "var" and len(rest) == 1:
-                if rest[0] not in self.args:
-                    known = ", ".join(sorted(self.args)) or "none"
-                    raise self.error(
-                        path, f"unknown launch argument in $(var {rest[0]}) (known: {known})"
-                    )
-                return self.args[rest[0]]
-            if kind == "env" and len(rest) >= 1:
-                value = self.env.get(rest[0])
-                if value is not None:
-                    return value
-                if len(rest) > 1:
-                    return " ".join(rest[1:])
-                raise self.error(
-                    path, f"environment variable {rest[0]!r} is not set and has no default"
-                )
-            if kind == "dirname" and not rest:
-                return self.dirname
-            if kind == "python" and not rest:
-                return sys.executable
-            raise self.error(
-                path,
-                f"bad substitution {match.group(0)!r}; expected $(var NAME), $(env NAME), "
-                "$(env NAME default), $(dirname) or $(python)",
-            )
-
-        result = _SUBST.sub(one, text)
-        if "$(" in _SUBST.sub("", text):
-            raise self.error(path, f"unterminated substitution in {_show(text)}")
+        """Resolve the substitutions of ``text``, innermost first; a value is not re-read."""
+        result, end = self._resolve(text, 0, path, inside=False)
+        assert end == len(text)
         return result
+
+    def _resolve(self, text: str, start: int, path: str, inside: bool) -> tuple[str, int]:
+        """``text`` from ``start`` resolved up to the end, or (``inside`` a substitution) up
+        to its closing parenthesis; returns the text and the index after what was read."""
+        out: list[str] = []
+        i = start
+        while i < len(text):
+            if text.startswith("$(", i):
+                body, i = self._resolve(text, i + 2, path, inside=True)
+                out.append(self._evaluate(body, path))
+            elif inside and text[i] == ")":
+                return "".join(out), i + 1
+            elif inside and text[i] == "(":
+                break
+            else:
+                out.append(text[i])
+                i += 1
+        if inside:
+            raise self.error(path, f"unterminated substitution in {_show(text)}")
+        return "".join(out), i
+
+    def _evaluate(self, body: str, path: str) -> str:
+        """The value of one substitution ``$(body)``, its inner ones already resolved."""
+        words = body.split()
+        kind, rest = (words[0], words[1:]) if words else ("", [])
+        if kind == "var" and len(rest) == 1:
+            if rest[0] not in self.args:
+                known = ", ".join(sorted(self.args)) or "none"
+                raise self.error(
+                    path, f"unknown launch argument in $(var {rest[0]}) (known: {known})"
+                )
+            return self.args[rest[0]]
+        if kind == "env" and len(rest) >= 1:
+            value = self.env.get(rest[0])
+            if value is not None:
+                return value
+            if len(rest) > 1:
+                return " ".join(rest[1:])
+            raise self.error(
+                path, f"environment variable {rest[0]!r} is not set and has no default"
+            )
+        if kind in ("equals", "not-equals") and len(rest) == 2:
+            return "true" if (rest[0] == rest[1]) == (kind == "equals") else "false"
+        if kind == "dirname" and not rest:
+            return self.dirname
+        if kind == "python" and not rest:
+            return sys.executable
+        raise self.error(
+            path,
+            f"bad substitution {_show('$(' + body + ')')}; expected $(var NAME), $(env NAME), "
+            "$(env NAME default), $(equals A B), $(not-equals A B), $(dirname) or $(python)",
+        )
 
     def retyped(self, value: Any, path: str) -> Any:
         """Substitute inside a string and re-read the result as a YAML scalar.
@@ -487,10 +510,22 @@ class _Parser:
             return replace(common, pub_endpoint=pub, sub_endpoint=sub)
         return common
 
+    def included(self, value: Any, path: str) -> bool:
+        """Whether a node entry takes part: its ``if`` is true, or its ``unless`` false."""
+        if not isinstance(value, dict):
+            return True
+        if "if" in value and "unless" in value:
+            raise self.error(path, "give 'if' or 'unless', not both")
+        if "if" in value:
+            return self.boolean(value["if"], f"{path}.if")
+        if "unless" in value:
+            return not self.boolean(value["unless"], f"{path}.unless")
+        return True
+
     def node(self, value: Any, path: str) -> NodeSpec:
         keys = ("pkg", "exec", "cmd", "args", "name", "namespace", "param", "remap", "env",
                 "respawn", "respawn_delay", "respawn_max", "required", "finite", "allow_loss",
-                "on_exit")
+                "on_exit", "if", "unless")
         body = self.mapping(value, path, (), keys)
         has_exec, has_cmd = "exec" in body, "cmd" in body
         if has_exec == has_cmd:
@@ -709,7 +744,9 @@ def parse_launch(
                 raise p.error(path, "only one transport entry is allowed")
             transport = p.transport(value, path)
         elif kind == "node":
-            node = p.node(value, path)
+            node = p.node(value, path)  # checked even when left out
+            if not p.included(value, path):
+                continue
             if any(n.name == node.name for n in nodes):
                 raise p.error(f"{path}.name", f"duplicate node name {node.name!r} (node names "
                               "label the output and must be unique in a launch)")

@@ -182,6 +182,8 @@ def _check(value: object, hint: Any, name: str, source: str) -> Any:
     elif isinstance(hint, type) and origin is None and isinstance(value, hint):
         return value
     expected = getattr(hint, "__name__", None) if origin is None else None
+    if origin is typing.Literal:
+        expected = "one of " + ", ".join(map(repr, args))
     raise ParamError(
         f"{source}: parameter {name!r} expects {expected or hint}, "
         f"got {type(value).__name__} ({value!r})"

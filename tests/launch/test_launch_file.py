@@ -326,3 +326,41 @@ def test_a_file_that_is_not_utf8_names_the_place(tmp_path: Path) -> None:
     with pytest.raises(LaunchFileError, match=r"latin1.yaml: line 2, column 33: not UTF-8 text "
                                               r"\(byte 0xe9\)"):
         load_launch_file(path)
+
+
+def test_conditions_leave_nodes_out_and_substitutions_nest(tmp_path: Path) -> None:
+    text = """\
+    launch:
+      - arg: {name: mode, default: scene}
+      - node: {cmd: [rec], name: recorder, unless: "$(equals $(var mode) replay)"}
+      - node: {cmd: [sim, "$(var mode)"], name: source, if: "$(not-equals $(var mode) replay)"}
+      - node: {cmd: [play, "$(env VIBRISSA_TEST_UNSET $(var mode))"], name: source,
+               if: "$(equals replay $(var mode))"}
+    """
+    path = write(tmp_path, text)
+    scene = load_launch_file(path)
+    assert [(n.name, n.cmd) for n in scene.nodes] == [("recorder", ("rec",)),
+                                                      ("source", ("sim", "scene"))]
+    replay = load_launch_file(path, {"mode": "replay"})
+    assert [(n.name, n.cmd) for n in replay.nodes] == [("source", ("play", "replay"))]
+    # a value is not read again as a substitution
+    again = load_launch_file(path, {"mode": "$(dirname)"})
+    assert [n.cmd for n in again.nodes] == [("rec",), ("sim", "$(dirname)")]
+
+
+@pytest.mark.parametrize(
+    ("node", "expected"),
+    [
+        ("{cmd: [x], name: n, if: maybe}", "launch[0].node.if: expected bool, got 'maybe'"),
+        ("{cmd: [x], name: n, if: true, unless: false}",
+         "launch[0].node: give 'if' or 'unless', not both"),
+        ("{cmd: [x], name: n, if: '$(equals a)'}", "bad substitution '$(equals a)'"),
+        ("{cmd: [x], name: n, if: '$(equals $(dirname) b'}", "unterminated substitution"),
+        # a node left out is still checked
+        ("{cmd: [x], name: n, if: false, respawn: 3}",
+         "launch[0].node.respawn: expected bool, got 3"),
+    ],
+)
+def test_bad_conditions_are_named(tmp_path: Path, node: str, expected: str) -> None:
+    with pytest.raises(LaunchFileError, match=re.escape(expected)):
+        load_launch_file(write(tmp_path, f"launch:\n  - node: {node}\n"))

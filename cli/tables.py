@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.reconstruct import Reconstruction
-from vibrissa.runtime.csv_text import cell, write_csv
+from vibrissa.runtime.csv_text import cell, cells, write_csv
 from vibrissa.status import ContactPhase, ContactStatus
 from vibrissa.sweep import STATE_NAMES, Sweep
 
@@ -104,17 +104,16 @@ class WrenchTable:
 
 def write_sweep_csv(path: Path, sweep: Sweep) -> None:
     """One row per equilibrium of ``sweep`` with :data:`SWEEP_COLUMNS`."""
-    y0 = sweep.y0
+    n = sweep.n_steps
+    numbers = cells(np.column_stack([
+        sweep.x0[:n], np.full(n, sweep.y0), sweep.s1[:n], sweep.psi[:n], sweep.f0[:n],
+        sweep.m0[:n], sweep.contact[:n], sweep.fn[:n], sweep.ft[:n], sweep.normal[:n]]))
     rows = (
-        [
-            cell(sweep.x0[i]), cell(y0), ContactPhase(sweep.phase[i]).label,
-            cell(sweep.s1[i]), cell(sweep.psi[i]),
-            *map(cell, sweep.f0[i]), *map(cell, sweep.m0[i]), *map(cell, sweep.contact[i]),
-            cell(sweep.fn[i]), cell(sweep.ft[i]),
-            STATE_NAMES[int(sweep.state[i])], *map(cell, sweep.normal[i]),
-            "1" if sweep.refined[i] else "0",
-        ]
-        for i in range(sweep.n_steps)
+        [*r[:2], ContactPhase(phase).label, *r[2:15], STATE_NAMES[state], *r[15:18],
+         "1" if refined else "0"]
+        for r, phase, state, refined in zip(numbers, sweep.phase[:n].tolist(),
+                                            sweep.state[:n].tolist(),
+                                            sweep.refined[:n].tolist(), strict=True)
     )
     write_csv(path, SWEEP_COLUMNS, rows)
 

@@ -9,6 +9,9 @@ import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+import numpy as np
+from numpy.typing import ArrayLike
+
 from vibrissa.runtime.scene_file import SceneError
 
 
@@ -16,6 +19,12 @@ def cell(value: float) -> str:
     """The CSV cell of a float: its ``repr``, empty for NaN."""
     value = float(value)
     return "" if math.isnan(value) else repr(value)
+
+
+def cells(values: ArrayLike) -> list[list[str]]:
+    """The cells of a (rows, columns) array of floats, each as :func:`cell` gives it."""
+    return [["" if v != v else repr(v) for v in row]
+            for row in np.asarray(values, dtype=np.float64).tolist()]
 
 
 def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]]) -> None:

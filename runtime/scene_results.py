@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from vibrissa.runtime.csv_text import cell, read_csv, write_csv
+from vibrissa.runtime.csv_text import cells, read_csv, write_csv
 from vibrissa.runtime.scene_file import SceneError
 from vibrissa.scene import Episode, SamplePhase, Scene, WhiskerResult
 
@@ -55,12 +55,12 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
     written = []
     names = [obj.name for obj in scene.objects]
     for result in results:
+        numbers = cells(np.column_stack([result.t, result.s1_m, result.f0_n, result.m0_nm,
+                                         result.p_W_m]))
         rows = (
-            [cell(result.t[i]), SamplePhase(result.phase[i]).label, cell(result.s1_m[i]),
-             *map(cell, result.f0_n[i]), *map(cell, result.m0_nm[i]),
-             *map(cell, result.p_W_m[i]),
-             names[result.object[i]] if result.object[i] >= 0 else ""]
-            for i in range(len(result.t))
+            [r[0], SamplePhase(phase).label, *r[1:], names[obj] if obj >= 0 else ""]
+            for r, phase, obj in zip(numbers, result.phase.tolist(), result.object.tolist(),
+                                     strict=True)
         )
         target = out / f"{result.name}.csv"
         write_csv(target, tuple(SCENE_COLUMNS), rows)

@@ -14,6 +14,7 @@ from vibrissa.cli.graph import add_endpoint_flags, endpoints_from, stop_on_signa
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
 from vibrissa.nodes import recorder
 from vibrissa.runtime import Node
+from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.runtime.scene_file import SceneError, load_robot
 from vibrissa.wire.bag import BagReader, PlayResult, export_json, play_bag
@@ -94,7 +95,9 @@ def register(subparsers: Any) -> None:
         description="Each --wrench-topic (geometry_msgs/WrenchStamped, the sensor's reading: "
         "f0 = -force, m0 = -torque, in the clamp frame header.frame_id) becomes WhiskerWrench "
         "on --topic; the /tf transform PARENT -> CHILD of --tf-frame becomes RobotPose on "
-        "--pose-topic. Play the result with wrench_source mode replay.")
+        "--pose-topic. Play the result with wrench_source mode replay. Exit status: 0 done, 2 "
+        "not a readable bag or a bad argument (nothing written), 4 written, but messages the "
+        "bag lists were damaged and are lost (counted per topic).")
     p.add_argument("ros2_bag", metavar="ROS2_BAG", help="a rosbag2 folder")
     p.add_argument("output", metavar="OUT.mcap")
     p.add_argument("--wrench-topic", action="append", default=[], metavar="T",
@@ -234,4 +237,4 @@ def _import(args: argparse.Namespace) -> int:
         print(f"vibrissa bag import: error: {exc}", file=sys.stderr)
         return 2
     print(result.summary(), file=sys.stderr)
-    return 0
+    return EXIT_LOST_DATA if result.lost else 0

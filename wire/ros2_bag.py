@@ -47,6 +47,7 @@ import math
 import os
 from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -54,7 +55,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
-from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
@@ -366,6 +367,14 @@ class ImportResult:
     poses: int = 0
     other_transforms: Counter[str] = field(default_factory=Counter)
     refused: Counter[str] = field(default_factory=Counter)  # topic -> messages left out
+    undecodable: Counter[str] = field(default_factory=Counter)  # topic -> bad payloads
+    unread: Counter[str] = field(default_factory=Counter)  # topic -> listed, never read
+
+    @property
+    def lost(self) -> int:
+        """Messages of the wanted topics that the bag lists but that did not come through
+        (damaged records or payloads); NaN or inf samples, refused on purpose, are not."""
+        return sum(self.undecodable.values()) + sum(self.unread.values())
 
     def summary(self) -> str:
         """One line: wrenches per whisker, poses, transforms and messages left out."""
@@ -374,8 +383,14 @@ class ImportResult:
         line = (f"wrote {sum(self.wrenches.values())} WhiskerWrench ({per}) and {self.poses} "
                 f"RobotPose to {self.path}; {other} other /tf transform(s) left out")
         if self.refused:
-            line += "; refused (NaN or inf): " + ", ".join(
+            line += "; refused by the codec (NaN, inf or a bad name): " + ", ".join(
                 f"{t} {n}" for t, n in sorted(self.refused.items()))
+        if self.undecodable:
+            line += "; LOST, payload that does not decode: " + ", ".join(
+                f"{t} {n}" for t, n in sorted(self.undecodable.items()))
+        if self.unread:
+            line += "; LOST, listed in the bag's metadata but not readable: " + ", ".join(
+                f"{t} {n}" for t, n in sorted(self.unread.items()))
         return line
 
 
@@ -384,15 +399,28 @@ def wrench_topics_of(src: str | os.PathLike[str]) -> list[str]:
 
     Raises ``FileNotFoundError`` (nothing at ``src``) or ``ValueError`` (not a readable bag).
     """
+    with _open_reader(src) as reader:
+        return sorted({c.topic for c in reader.connections if c.msgtype == WRENCH_STAMPED})
+
+
+@contextmanager
+def _open_reader(src: str | os.PathLike[str]) -> Iterator[AnyReader]:
+    """The ROS 2 bag ``src`` open; `FileNotFoundError` when nothing is there, `ValueError`
+    naming it when its files do not read (any error of the reader on their bytes: a damaged
+    or hostile file can make it raise anything from ``KeyError`` to ``MemoryError``)."""
     path = Path(src)
     if not path.exists():
         raise FileNotFoundError(f"no ROS 2 bag at {path}")
+    reader = AnyReader([path], default_typestore=TYPESTORE)
     try:
-        with AnyReader([path], default_typestore=TYPESTORE) as reader:
-            return sorted({c.topic for c in reader.connections if c.msgtype == WRENCH_STAMPED})
-    except (AnyReaderError, OSError, KeyError) as exc:
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - see above
         raise ValueError(f"{path} is not a readable ROS 2 bag: "
-                         f"{(str(exc).splitlines() or [''])[0]}") from None
+                         f"{(str(exc).splitlines() or [type(exc).__name__])[0]}") from None
+    try:
+        yield reader
+    finally:
+        reader.close()
 
 
 def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
@@ -426,13 +454,11 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
         /tf is of another type, or it has transforms but none ``map_frame -> robot_frame``.
     """
     path = Path(src)
-    if not path.exists():
-        raise FileNotFoundError(f"no ROS 2 bag at {path}")
     if not wrench_topics:
         raise ValueError("name at least one wrench topic")
     result = ImportResult(path=Path(dst))
     try:
-        with AnyReader([path], default_typestore=TYPESTORE) as reader:
+        with _open_reader(path) as reader:
             found = {c.topic: c.msgtype for c in reader.connections}
             for ros_topic in wrench_topics:
                 if ros_topic not in found:
@@ -445,10 +471,19 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
                 raise ValueError(f"{path}: topic {TF_TOPIC} is {found[TF_TOPIC]}, "
                                  f"expected {TF_MESSAGE}")
             wanted = [c for c in reader.connections if c.topic in wrench_topics or c.topic == TF_TOPIC]
+            listed: Counter[str] = Counter()
+            for c in wanted:
+                listed[c.topic] += c.msgcount
+            read: Counter[str] = Counter()
             seq: Counter[str] = Counter()
             with BagWriter(dst, flush_interval_s=math.inf) as out:
-                for connection, t_ns, raw in reader.messages(connections=wanted):
-                    msg: Any = reader.deserialize(raw, connection.msgtype)
+                for connection, t_ns, raw in _records(reader, wanted, path, read):
+                    read[connection.topic] += 1
+                    try:
+                        msg: Any = reader.deserialize(raw, connection.msgtype)
+                    except Exception:  # noqa: BLE001 - damaged bytes: any error of the decoder
+                        result.undecodable[connection.topic] += 1
+                        continue
                     if connection.topic == TF_TOPIC:
                         for tf in msg.transforms:
                             if tf.header.frame_id != map_frame or tf.child_frame_id != robot_frame:
@@ -466,20 +501,43 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
                     name = wrench_topics[connection.topic]
                     try:
                         data = codec.encode(_whisker_wrench(msg, name, seq[name]))
-                    except ValueError:  # NaN or inf: the codec refuses it, and so does this
+                    except ValueError:  # NaN, inf or a bad frame name: the codec refuses it
                         result.refused[connection.topic] += 1
                         continue
                     out.write(topic, data, t_ns, sequence=seq[name])
                     seq[name] += 1
                     result.wrenches[name] += 1
-    except (AnyReaderError, OSError, KeyError) as exc:
-        raise ValueError(f"{path} is not a readable ROS 2 bag: {(str(exc).splitlines() or [''])[0]}") from None
+            result.unread = +(listed - read)
+    except _Damaged as exc:
+        Path(dst).unlink(missing_ok=True)
+        raise ValueError(str(exc)) from None
     if TF_TOPIC in found and result.other_transforms and not result.poses:
         Path(dst).unlink(missing_ok=True)
         raise ValueError(f"{path}: no transform {map_frame} -> {robot_frame} on {TF_TOPIC} "
                          f"(it has: {', '.join(sorted(result.other_transforms))})")
     check_bag_file(dst)
     return result
+
+
+class _Damaged(Exception):
+    """The bag's records cannot be read on from some point."""
+
+
+def _records(reader: AnyReader, connections: list[Any], path: Path, read: Counter[str]
+             ) -> Iterator[tuple[Any, int, bytes]]:
+    """``reader.messages(connections)``; a damaged record (any error of the reader on the
+    file's bytes) ends it with `_Damaged`, naming how far it got."""
+    records = reader.messages(connections=connections)
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except Exception as exc:  # noqa: BLE001 - damaged bytes: any error of the reader
+            raise _Damaged(f"{path} is not a readable ROS 2 bag: a damaged record after "
+                           f"{sum(read.values())} message(s): {type(exc).__name__}: "
+                           f"{(str(exc).splitlines() or [''])[0]}") from None
+        yield record
 
 
 def _whisker_wrench(msg: Any, name: str, seq: int) -> WhiskerWrench:

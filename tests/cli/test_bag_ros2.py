@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from mcap_ros2.reader import read_ros2_messages
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -36,7 +38,7 @@ from vibrissa.runtime.scene_file import load_robot, load_scene
 from vibrissa.scene import SamplePhase, reconstruct_along, simulate
 from vibrissa.status import ContactStatus
 from vibrissa.wire.bag import BagReader, BagWriter
-from vibrissa.wire.ros2_bag import TYPESTORE, stamp_from_ros, stamp_to_ros
+from vibrissa.wire.ros2_bag import TYPESTORE, import_ros2, stamp_from_ros, stamp_to_ros
 
 SCENE = LAUNCH / "robot" / "scene.yaml"
 WRENCH, POSE = "/robot/wrench", "/robot/pose"
@@ -395,5 +397,54 @@ def test_import_counts_and_leaves_out_non_finite_samples(
     assert vibrissa_main(["bag", "import", str(src), str(out)]) == 0
     err = capsys.readouterr().err
     assert "wrote 1 WhiskerWrench (w0 1) and 1 RobotPose" in err
-    assert "refused (NaN or inf): /robot/wrench/w0 2, /tf 1" in err
+    assert "refused by the codec (NaN, inf or a bad name): /robot/wrench/w0 2, /tf 1" in err
     assert len(list(BagReader(out))) == 2
+
+
+@pytest.fixture(scope="module")
+def small_ros2_bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, bytes]:
+    """A ROS 2 bag of 2 whiskers x 12 wrenches and 12 poses, and its mcap file's bytes."""
+    src = tmp_path_factory.mktemp("fuzz") / "ros2"
+    rng = np.random.default_rng(5)
+    _ros2_bag(src, {f"/w{j}/wrench": [(1.0 + 0.01 * k, tuple(rng.normal(size=6)))
+                                      for k in range(12)] for j in range(2)},
+              [(1.0 + 0.01 * k, "world", "base_link", (0.1 * k, 0, 0, 0, 0, 0, 1))
+               for k in range(12)])
+    (mcap,) = src.glob("*.mcap")
+    return src, mcap.read_bytes()
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cut=st.one_of(st.none(), st.integers(0, 94)),
+       edits=st.lists(st.tuples(st.integers(0, 10**9), st.binary(min_size=1, max_size=40)),
+                      max_size=4))
+def test_a_damaged_ros2_bag_is_refused_or_its_losses_are_counted(
+        tmp_path: Path, small_ros2_bag: tuple[Path, bytes], cut: int | None,
+        edits: list[tuple[int, bytes]]) -> None:
+    """Bytes of the bag's file overwritten, the file cut short, or both: the import either refuses
+    the bag in a clear ValueError and writes nothing, or accounts for every message the bag
+    lists on a wanted topic (written, refused, undecodable or unread)."""
+    src, data = small_ros2_bag
+    damaged = bytearray(data if cut is None else data[:len(data) * cut // 95])
+    for at, chunk in edits:
+        if damaged:
+            i = at % len(damaged)
+            damaged[i:i + len(chunk)] = chunk
+    case = tmp_path / f"case{len(list(tmp_path.iterdir()))}"
+    case.mkdir()
+    (case / "metadata.yaml").write_bytes((src / "metadata.yaml").read_bytes())
+    (case / next(src.glob("*.mcap")).name).write_bytes(bytes(damaged))
+    out = case / "out.mcap"
+    topics = {"/w0/wrench": "w0", "/w1/wrench": "w1"}
+    try:
+        result = import_ros2(case, out, topics)
+    except ValueError as exc:
+        assert str(exc).startswith(f"{case} is not a readable ROS 2 bag: ")
+        assert not out.exists()
+        return
+    for topic, name in topics.items():
+        accounted = (result.wrenches[name] + result.refused[topic] + result.undecodable[topic]
+                     + result.unread[topic])
+        assert accounted >= 12, (topic, result)
+    assert result.lost == sum(result.undecodable.values()) + sum(result.unread.values())
+    assert sum(1 for r in BagReader(out)) == sum(result.wrenches.values()) + result.poses

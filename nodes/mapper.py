@@ -28,7 +28,8 @@ position std ``std_m``), ``mesh_<object>.ply`` (one per object with a known mesh
 demo launch ends on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams
 ended without a single contact point (only the reports are written, and they say so), or
 ``EXIT_LOST_DATA`` (4) when input messages were lost (the report lists every input stream: sent,
-received, lost), unless ``allow_loss``. Stopped (SIGINT, SIGTERM) before the streams end, it
+received, lost) or points were dropped beyond ``max_points`` / ``max_frames``, unless
+``allow_loss``. Stopped (SIGINT, SIGTERM) before the streams end, it
 writes nothing and exits 0; a stop during the fit ends the process at once (Open3D and LAPACK do
 not return to Python until they are done).
 
@@ -149,6 +150,10 @@ class MapperParams:
         ``vibrissa.nodes.surface_fit.MapParams``.
     timeout_s
         Fit what has arrived after this long without a message, s (0 = wait for the ends).
+    max_points, max_frames
+        The most points (all frames) and frames kept: the memory's bound (a point takes about
+        200 bytes). A message beyond either is dropped, counted in the report and logged, and
+        the map is then lossy (``allow_loss``).
     plot
         Write ``map.png``.
     allow_loss
@@ -181,6 +186,8 @@ class MapperParams:
     max_std_m: float = MapParams.max_std_m
     point_std_m: float = MapParams.point_std_m
     timeout_s: float = 0.0
+    max_points: int = 10_000_000
+    max_frames: int = 64
     plot: bool = True
     allow_loss: bool = False
     proposals: int = 3
@@ -233,6 +240,8 @@ class MapperParams:
         require_non_negative("max_std_m", self.max_std_m)
         require_positive("point_std_m", self.point_std_m)
         require_non_negative("timeout_s", self.timeout_s)
+        require(self.max_points >= 1, "max_points", self.max_points, "a count >= 1")
+        require(self.max_frames >= 1, "max_frames", self.max_frames, "a count >= 1")
 
     @property
     def map_params(self) -> MapParams:
@@ -256,13 +265,13 @@ PARAMS = MapperParams
 
 @dataclass
 class FrameCloud:
-    """Contact points of one frame, in arrival order."""
+    """Contact points of one frame, in arrival order, one block of arrays per message."""
 
     whisker_ids: list[str] = field(default_factory=list)
     seqs: list[int] = field(default_factory=list)
-    points: list[FloatArray] = field(default_factory=list)
+    points: list[FloatArray] = field(default_factory=list)  # (k, 3) per message
     forces: list[FloatArray] = field(default_factory=list)
-    covariances: list[FloatArray] = field(default_factory=list)  # NaN: none came
+    covariances: list[FloatArray] = field(default_factory=list)  # (k, 3, 3); NaN: none came
 
     def add(self, msg: ContactPoint | ContactPointArray) -> None:
         """Append every row of a message (a ContactPoint is one row), each with its whisker
@@ -270,35 +279,52 @@ class FrameCloud:
         whisker_ids = [msg.whisker_id] if isinstance(msg, ContactPoint) else msg.whisker_ids
         self.whisker_ids += whisker_ids
         self.seqs += [msg.seq] * len(whisker_ids)
-        self.points += list(np.reshape(msg.point, (-1, 3)))
-        self.forces += list(np.reshape(msg.force, (-1, 3)))
-        covariance = (np.full((len(whisker_ids), 3, 3), np.nan) if msg.covariance is None
-                      else np.reshape(msg.covariance, (-1, 3, 3)))
-        self.covariances += list(covariance)
+        self.points.append(np.reshape(msg.point, (-1, 3)))
+        self.forces.append(np.reshape(msg.force, (-1, 3)))
+        self.covariances.append(np.full((len(whisker_ids), 3, 3), np.nan)
+                                if msg.covariance is None
+                                else np.reshape(msg.covariance, (-1, 3, 3)))
 
     def ordered(self) -> tuple[FloatArray, FloatArray, list[str], FloatArray]:
         """Points (N, 3), forces (N, 3), whisker ids and covariances (N, 3, 3; NaN where
         none came), sorted by (whisker, seq): line order."""
         order = sorted(range(len(self.seqs)), key=lambda i: (self.whisker_ids[i], self.seqs[i]))
-        points = np.array([self.points[i] for i in order]).reshape(-1, 3)
-        forces = np.array([self.forces[i] for i in order]).reshape(-1, 3)
-        covariances = np.array([self.covariances[i] for i in order]).reshape(-1, 3, 3)
-        return points, forces, [self.whisker_ids[i] for i in order], covariances
+        return (np.concatenate([np.empty((0, 3)), *self.points])[order],
+                np.concatenate([np.empty((0, 3)), *self.forces])[order],
+                [self.whisker_ids[i] for i in order],
+                np.concatenate([np.empty((0, 3, 3)), *self.covariances])[order])
 
 
 class Accumulator:
-    """The mapper's state without sockets: points per frame and ended sources."""
+    """The mapper's state without sockets: points per frame and ended sources.
 
-    def __init__(self, expected: int | Sequence[str]) -> None:
+    It keeps at most ``max_points`` points in at most ``max_frames`` frames, so that a long run
+    or a flood cannot exhaust the memory: a message beyond either bound is dropped whole and
+    its rows are counted in ``dropped`` (by reason).
+    """
+
+    def __init__(self, expected: int | Sequence[str], max_points: int = 10_000_000,
+                 max_frames: int = 64) -> None:
         self.expected = expected
+        self.max_points = max_points
+        self.max_frames = max_frames
         self.frames: dict[str, FrameCloud] = {}
         self.ended: set[str] = set()
+        self.n_points = 0
+        self.dropped: Counter[str] = Counter()
 
     def add(self, msg: object) -> None:
         """Take a ContactPoint, a ContactPointArray or an EndOfStream."""
         if isinstance(msg, ContactPoint) or (isinstance(msg, ContactPointArray)
                                              and msg.whisker_ids):  # not a tick without contact
-            self.frames.setdefault(msg.frame_id, FrameCloud()).add(msg)
+            rows = 1 if isinstance(msg, ContactPoint) else len(msg.whisker_ids)
+            if msg.frame_id not in self.frames and len(self.frames) >= self.max_frames:
+                self.dropped["max_frames"] += rows
+            elif self.n_points + rows > self.max_points:
+                self.dropped["max_points"] += rows
+            else:
+                self.frames.setdefault(msg.frame_id, FrameCloud()).add(msg)
+                self.n_points += rows
         elif isinstance(msg, EndOfStream):
             self.ended.add(msg.source)
 
@@ -308,11 +334,6 @@ class Accumulator:
         if isinstance(self.expected, int):
             return len(self.ended) >= self.expected
         return set(self.expected) <= self.ended
-
-    @property
-    def n_points(self) -> int:
-        """Points so far, all frames."""
-        return sum(len(f.seqs) for f in self.frames.values())
 
 
 @dataclass
@@ -680,6 +701,7 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
             default=None),
         "frames": [asdict(r) for r in results],
         "lost": lost,
+        "dropped_points": dict(acc.dropped),
         "streams": [asdict(stream) for stream in streams],
     }
     report_json = out_dir / "report.json"
@@ -713,6 +735,8 @@ def format_report(report: dict[str, Any]) -> str:
              f"{_mm(report['max_reconstruction_error_m'])}"]
     if report["lost"]:
         lines.append(f"LOST: {report['lost']} contact message(s) never arrived")
+    for bound, n in report.get("dropped_points", {}).items():
+        lines.append(f"DROPPED: {n} contact point(s) beyond {bound}")
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
                      f"{stream['received']} received, {stream['lost']} lost")
@@ -772,7 +796,7 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
     expected: int | list[str] = (
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
-    acc = Accumulator(expected)
+    acc = Accumulator(expected, params.max_points, params.max_frames)
     subscriber = node.create_subscriber(
         {t: (ContactPoint, ContactPointArray) for t in params.topics}, hwm=200_000)
     cloud_pub = node.create_publisher(params.cloud_topic, ContactCloud, wait_for=params.wait_for)
@@ -784,7 +808,13 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
     while not node.stop_requested and not acc.done:
         rx = subscriber.receive(0.1)
         if rx is not None:
+            dropped = acc.dropped.total()
             acc.add(rx.msg)
+            if acc.dropped.total() > dropped and _power_of_ten(acc.dropped.total(), dropped):
+                log.warning("%s: %d contact point(s) dropped so far, beyond the map's bounds "
+                            "(max_points %d, max_frames %d): %s", node.fqn,
+                            acc.dropped.total(), params.max_points, params.max_frames,
+                            dict(acc.dropped))
             last = time.monotonic()
         elif params.timeout_s > 0 and time.monotonic() - last > params.timeout_s:
             log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)", node.fqn,
@@ -803,6 +833,10 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
     if report["lost"]:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report["lost"], " (allowed: allow_loss)" if params.allow_loss else "")
+    if report["dropped_points"]:
+        log.error("%s: %d contact point(s) were dropped beyond the map's bounds: %s%s",
+                  node.fqn, sum(report["dropped_points"].values()), report["dropped_points"],
+                  " (allowed: allow_loss)" if params.allow_loss else "")
     for cloud, mesh, proposals in messages:
         cloud_pub.publish(cloud)
         mesh_pub.publish(mesh)
@@ -825,6 +859,11 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
     return report
 
 
+def _power_of_ten(now: int, before: int) -> bool:
+    """Whether a count went from ``before`` past 1, 10, 100, ... (when to log it again)."""
+    return before == 0 or len(str(now)) > len(str(before))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the mapper node (see ARCHITECTURE.md for the command line)."""
     args = NodeArgs.parse(argv, prog="python -m vibrissa.nodes.mapper")
@@ -835,7 +874,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         report = run(node, params)
     if report is not None and report["n_points"] == 0:
         return EXIT_EMPTY_MAP
-    if report is not None and report["lost"] and not params.allow_loss:
+    if (report is not None and (report["lost"] or report["dropped_points"])
+            and not params.allow_loss):
         return EXIT_LOST_DATA
     return 0
 

@@ -33,6 +33,12 @@ from vibrissa.frames import (
 __all__ = ["ConnectivityError", "ExtrapolationError", "FrameBuffer", "FrameError", "RowPoses"]
 
 DEFAULT_HISTORY_S = 10.0
+MAX_FRAMES = 1024
+"""The most frames a buffer holds: a pose naming a new frame beyond it is refused (ValueError),
+so that a stream of invented frame names cannot grow it without end."""
+MAX_POSES = 100_000
+"""The most stamped poses kept per edge (10 s at 10 kHz); beyond it the oldest are forgotten,
+so that a flood of poses shortens the history instead of growing the memory."""
 
 FloatArray = NDArray[np.float64]
 
@@ -118,7 +124,8 @@ _MAX_PLANS = 64
 
 class FrameBuffer:
     """Static and stamped transforms between named frames; `lookup` at any stamp the kept
-    poses cover. Poses older than ``history_s`` behind the newest of their edge are forgotten."""
+    poses cover. Poses older than ``history_s`` behind the newest of their edge are forgotten,
+    and so are the oldest beyond `MAX_POSES` an edge; at most `MAX_FRAMES` frames."""
 
     def __init__(self, history_s: float = DEFAULT_HISTORY_S) -> None:
         if not history_s > 0:
@@ -176,7 +183,8 @@ class FrameBuffer:
         else:
             edge.stamps.insert(k, stamp)
             edge.poses.insert(k, pose)
-        old = bisect.bisect_left(edge.stamps, edge.stamps[-1] - self.history_s)
+        old = max(bisect.bisect_left(edge.stamps, edge.stamps[-1] - self.history_s),
+                  len(edge.stamps) - MAX_POSES)
         if old:
             del edge.stamps[:old], edge.poses[:old]
 
@@ -427,6 +435,10 @@ class FrameBuffer:
             raise ValueError(f"frame {child} cannot be its own parent")
         edge = self._edges.get(child)
         if edge is None:
+            new = {parent, child} - self._frames
+            if len(self._frames) + len(new) > MAX_FRAMES:
+                raise ValueError(f"{child} in {parent}: the buffer holds {MAX_FRAMES} frames "
+                                 "already, the most it takes")
             if self._chain_has(parent, child):
                 raise ValueError(f"{child} in {parent} would close a loop: {parent} is already "
                                  f"under {child}")

@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from vibrissa.frame_buffer import ConnectivityError, ExtrapolationError, FrameBuffer
+from vibrissa.frame_buffer import (
+    MAX_FRAMES,
+    MAX_POSES,
+    ConnectivityError,
+    ExtrapolationError,
+    FrameBuffer,
+)
 from vibrissa.frames import Transform
 
 RNG = np.random.default_rng(7)
@@ -165,3 +171,21 @@ def test_newest_rows_is_the_oldest_of_the_known_frames() -> None:
     assert buffer.newest_rows("world", ["w0/clamp", "ghost/clamp"]) == T[-1]
     buffer.add("odom", "other", 1.0, Transform())
     assert buffer.newest_rows("world", ["w0/clamp", "other"]) is None  # not joined to world
+
+
+def test_a_flood_of_poses_or_of_frame_names_keeps_the_buffer_bounded() -> None:
+    buffer = FrameBuffer(history_s=1e9)
+    stamps = np.arange(MAX_POSES + 500) * 1e-6
+    for t in stamps:
+        buffer.add_pose("world", "base_link", float(t), [t, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+    # the oldest beyond MAX_POSES are forgotten: the newest still look up, the oldest do not
+    assert buffer.lookup("world", "base_link", float(stamps[-2])).translation[0] == stamps[-2]
+    with pytest.raises(ExtrapolationError):
+        buffer.lookup("world", "base_link", float(stamps[499]))
+    buffer.lookup("world", "base_link", float(stamps[500]))
+    names = FrameBuffer()
+    for k in range(MAX_FRAMES - 1):  # world + 1023 children
+        names.add_pose("world", f"f{k}", 0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match=f"holds {MAX_FRAMES} frames already"):
+        names.add_pose("world", "one_more", 0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+    names.add_pose("world", "f3", 1.0, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])  # known: fine

@@ -57,7 +57,7 @@ import logging
 import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -98,6 +98,10 @@ EXTRA = "view"
 REPUBLISH_S = 1.0
 """Period of the state sent again for clients that connect late (mounts, cloud, map), s."""
 
+MAX_NAMES = 4096
+"""The most frames, nodes and whiskers the bridge keeps state for; more are counted
+(``refused_names``) and not shown."""
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -118,6 +122,10 @@ class FoxgloveBridgeParams:
     hold_s
         Seconds to serve on after the mapper's end of stream, then exit 0; negative: serve
         until stopped.
+    max_cloud_points
+        The live contact cloud shows the newest this many points; the older ones leave the
+        view (counted: ``cloud_aged_out``), so that a long run keeps the memory and each
+        cloud message bounded.
     """
 
     host: str = "127.0.0.1"
@@ -132,6 +140,7 @@ class FoxgloveBridgeParams:
     robot_frame: str = ROBOT_FRAME
     period_s: float = 0.2
     hold_s: float = -1.0
+    max_cloud_points: int = 1_000_000
 
     def __post_init__(self) -> None:
         require(bool(self.host), "host", self.host, "a host name or address")
@@ -144,6 +153,8 @@ class FoxgloveBridgeParams:
         for key in ("map_frame", "robot_frame"):
             require(bool(getattr(self, key)), key, getattr(self, key), "a frame name")
         require_positive("period_s", self.period_s)
+        require(self.max_cloud_points >= 1, "max_cloud_points", self.max_cloud_points,
+                "a count >= 1")
 
 
 PARAMS = FoxgloveBridgeParams
@@ -209,7 +220,7 @@ class LiveView:
                  context: Any = None) -> None:
         self.fg, self.params, self.counters, self._context = fg, params, counters, context
         for key in ("wrenches", "contacts", "other_frame", "poses", "meshes", "bad_meshes",
-                    "clouds", "statuses"):
+                    "clouds", "statuses", "refused_names", "cloud_aged_out"):
             counters.setdefault(key, 0)
         self._wrench: dict[str, Channel] = {}
         self._contacts: PointCloudChannel = fg.channels.PointCloudChannel("/contacts",
@@ -249,6 +260,8 @@ class LiveView:
                 msg.frame_id, msg.child_frame_id, msg.position, msg.orientation, now)]), now)
         elif isinstance(msg, ContactCloud):
             self.counters["clouds"] += 1
+            if not self._room(self._map_cloud_msgs, msg.frame_id):
+                return
             self._map_cloud_msgs[msg.frame_id] = self._map_cloud_msg(msg, now)
             self._log(self._map_cloud, self._map_cloud_msgs[msg.frame_id], now)
         elif isinstance(msg, SurfaceMesh):
@@ -264,6 +277,8 @@ class LiveView:
         for whisker, frame_id, f0, m0 in rows:
             channel = self._wrench.get(whisker)
             if channel is None:
+                if not self._room(self._wrench, whisker):
+                    continue
                 channel = self._wrench[whisker] = self.fg.Channel(
                     f"/whiskers/{whisker}/wrench", schema=WRENCH_SCHEMA, context=self._context)
             self._log(channel, {"stamp": msg.stamp, "seq": msg.seq, "frame_id": frame_id,
@@ -281,7 +296,7 @@ class LiveView:
         rows = np.empty((len(whiskers), 4), dtype=np.float32)
         rows[:, :3] = points
         rows[:, 3] = [self._whisker_index.setdefault(w, len(self._whisker_index))
-                      for w in whiskers]
+                      if self._room(self._whisker_index, w) else -1 for w in whiskers]
         self._points.append(rows)
         self._cloud_rows += len(rows)
         self.counters["contacts"] += len(rows)
@@ -292,6 +307,8 @@ class LiveView:
             self.counters["bad_meshes"] += 1
             return
         self.counters["meshes"] += 1
+        if not self._room(self._mesh_msgs, msg.frame_id):
+            return
         m = self.fg.messages
         triangles = m.TriangleListPrimitive(
             points=[m.Point3(x=float(x), y=float(y), z=float(z)) for x, y, z in msg.vertices],
@@ -307,6 +324,8 @@ class LiveView:
 
     def _on_status(self, msg: NodeStatus) -> None:
         self.counters["statuses"] += 1
+        if not self._room(self._nodes, msg.node):
+            return
         counts = {k: int(msg.counters.get(k, 0))
                   for k in ("received", "published", "lost", "rejected")}
         before = self._nodes.get(msg.node)
@@ -318,6 +337,15 @@ class LiveView:
         self._nodes[msg.node] = {"node": msg.node, "state": msg.state, "message": msg.message,
                                  **counts, **rates, "_stamp": msg.stamp}
         self._health_dirty = True
+
+    def _room(self, table: Mapping[str, Any], name: str) -> bool:
+        """Whether ``table`` (per frame, node or whisker name) has ``name`` or room for it: it
+        holds at most MAX_NAMES, so that invented names cannot grow it (counted:
+        ``refused_names``)."""
+        if name in table or len(table) < MAX_NAMES:
+            return True
+        self.counters["refused_names"] += 1
+        return False
 
     # -- output --------------------------------------------------------------------------------
 
@@ -360,6 +388,9 @@ class LiveView:
     def _contact_cloud_msg(self, now: float) -> PointCloud:
         if len(self._points) > 1:
             self._points = [np.concatenate(self._points)]
+        if self._points and len(self._points[0]) > self.params.max_cloud_points:
+            self.counters["cloud_aged_out"] += len(self._points[0]) - self.params.max_cloud_points
+            self._points = [self._points[0][-self.params.max_cloud_points:]]
         data = self._points[0] if self._points else np.empty((0, 4), dtype=np.float32)
         return self._point_cloud(self.params.map_frame, ("x", "y", "z", "whisker"), data, now)
 

@@ -1,0 +1,50 @@
+"""The live view's state stays bounded: invented names and a long run's cloud (LiveView, the
+Foxglove bridge's logic, logging to an MCAP file that the test reads back)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vibrissa.msgs import ContactPointArray, NodeStatus, WhiskerWrench
+from vibrissa.nodes import foxglove_bridge
+from vibrissa.nodes.foxglove_bridge import FoxgloveBridgeParams, LiveView
+from vibrissa.wire import STATUS_TOPIC
+
+fg = pytest.importorskip("foxglove")
+mcap_reader = pytest.importorskip("mcap.reader")
+
+
+def test_invented_names_and_a_long_cloud_keep_the_view_bounded(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(foxglove_bridge, "MAX_NAMES", 8)
+    counters: dict[str, int] = {}
+    context = fg.Context()
+    writer = fg.open_mcap(str(tmp_path / "view.mcap"), allow_overwrite=True, context=context)
+    try:
+        view = LiveView(fg, FoxgloveBridgeParams(max_cloud_points=50), [], counters, context)
+        for k in range(20):  # 20 whiskers: 8 get a wrench channel, 12 are refused
+            view.handle("/robot/wrench", WhiskerWrench(
+                stamp=0.0, seq=0, whisker_id=f"w{k}", frame_id=f"w{k}/clamp",
+                f0=[1.0, 0.0, 0.0], m0=[0.0, 0.0, 0.0]), 0.0)
+        for k in range(20):  # 20 nodes' statuses: 8 kept
+            view.handle(STATUS_TOPIC, NodeStatus(stamp=0.0, node=f"/n{k}", state="running", counters={}, publishes={},
+                subscribes={}, seen_topics=[]), 0.0)
+        for k in range(30):  # 30 ticks of 3 points: the cloud shows the newest 50
+            view.handle("/robot/contact", ContactPointArray(
+                stamp=0.0, seq=k, frame_id="world", whisker_ids=["w0", "w1", "w2"],
+                point=np.full((3, 3), float(k)), s1=[0.5] * 3, phase=[1] * 3,
+                force=[[0.0, 0.0, 1.0]] * 3, status=[0] * 3), 0.0)
+        view.tick(1.0)
+    finally:
+        writer.close()
+    assert counters["wrenches"] == 20 and counters["statuses"] == 20
+    assert counters["refused_names"] == 12 + 12
+    assert counters["contacts"] == 90 and counters["cloud_aged_out"] == 40
+    with (tmp_path / "view.mcap").open("rb") as handle:
+        reader = mcap_reader.make_reader(handle)
+        topics = {channel.topic for channel in reader.get_summary().channels.values()}
+    assert {t for t in topics if t.startswith("/whiskers/")} == {
+        f"/whiskers/w{k}/wrench" for k in range(8)}

@@ -57,6 +57,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import compress
 from typing import TypeAlias, cast
 
 import numpy as np
@@ -88,14 +89,11 @@ from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.runtime.scene_file import load_robot
 from vibrissa.scene import Whisker
-from vibrissa.status import NO_CONTACT
 from vibrissa.units import RodScale, rod_units
 from vibrissa.wire.topics import resolve_topic, validate_name
 from vibrissa.wire.transport import Received
 
 log = logging.getLogger(__name__)
-
-_NO_CONTACT = int(NO_CONTACT)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -343,12 +341,13 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
             q, p, placed = poses.q_xyzw, poses.p, poses.ok
             errors += poses.errors
         placed[missing] = True  # counted as unknown whiskers, not as rows without a pose
-        no_pose = n - int(placed.sum())
-    placed[missing] = False
+        no_pose = n - int(np.count_nonzero(placed))
+    if missing:
+        placed[missing] = False
     free = 0
     if detector is not None:  # every row moves its whisker's state, placed or not
         free_rows = placed & ~detector.update(whiskers, f0, m0)[0]
-        free = int(free_rows.sum())
+        free = int(np.count_nonzero(free_rows))
         placed &= ~free_rows
     return _Rows(q, p, f0, m0, placed, units, frame_id, no_pose, len(missing), errors, free)
 
@@ -391,21 +390,16 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas)
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
-    pose_ok, flags = result.pose_ok.tolist(), status.tolist()
     # A row whose result overflows (finite inputs near the float limit, rotated) has no
     # contact that can be published: it counts as no consistent contact.
-    finite = (np.isfinite(point).all(axis=1) & np.isfinite(force).all(axis=1)
-              & np.isfinite(s1)).tolist()
-    valid = [ok and fin and not flag & _NO_CONTACT
-             for ok, fin, flag in zip(pose_ok, finite, flags, strict=True)]
+    valid = result.valid & np.isfinite(np.column_stack((point, force, s1))).all(axis=1)
     covariance = result.covariance_m2
     # with a noise model: per row, a point that is the tip within the noise, or that has no
     # covariance (an axial load: it gets the rod's reach, L^2 I)
     tip_within_noise = no_covariance = None
     if covariance is not None:
-        kept_rows = np.array(valid, bool)
-        tip_within_noise = kept_rows & ((status & int(ContactStatus.TIP_WITHIN_NOISE)) != 0)
-        no_covariance = kept_rows & ~np.isfinite(covariance).all(axis=(1, 2))
+        tip_within_noise = valid & ((status & int(ContactStatus.TIP_WITHIN_NOISE)) != 0)
+        no_covariance = valid & ~np.isfinite(covariance).all(axis=(1, 2))
         if no_covariance.any():
             length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
                         else rods[:, 0])
@@ -413,29 +407,31 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         covariance.flags.writeable = False
     for value in (point, s1, phase, force, status):
         value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
-    s1s, phases = s1.tolist(), phase.tolist()
     outcomes = []
     first = 0
     for msg, part in zip(msgs, parts, strict=True):
-        n = int(part.placed.sum())
-        last = first + n
-        good, kept = sum(pose_ok[first:last]), sum(valid[first:last])
+        n = int(np.count_nonzero(part.placed))
+        rows = slice(first, first + n)
+        good = int(np.count_nonzero(result.pose_ok[rows]))
+        kept = int(np.count_nonzero(valid[rows]))
         contacts: ContactPoint | ContactPointArray | None = None
         if isinstance(msg, WhiskerWrench):
             if kept:
                 contacts = ContactPoint(
                     stamp=msg.stamp, seq=msg.seq, whisker_id=msg.whisker_id,
-                    frame_id=part.frame_id, point=point[first], s1=s1s[first],
-                    phase=ContactPhase(phases[first]), force=force[first],
-                    status=ContactStatus(flags[first]),
+                    frame_id=part.frame_id, point=point[first], s1=float(s1[first]),
+                    phase=ContactPhase(int(phase[first])), force=force[first],
+                    status=ContactStatus(int(status[first])),
                     covariance=None if covariance is None else covariance[first])
         else:
-            whisker_ids = [w for w, ok in zip(msg.whisker_ids, part.placed, strict=True) if ok]
-            if kept == len(msg.whisker_ids):
-                rows_kept: slice | list[int] = slice(first, last)
-            else:
-                rows_kept = [i for i in range(first, last) if valid[i]]
-                whisker_ids = [whisker_ids[i - first] for i in rows_kept]
+            whisker_ids = msg.whisker_ids
+            rows_kept: slice | npt.NDArray[np.intp] = rows
+            if kept < len(whisker_ids):
+                valid_rows = valid[rows]
+                in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
+                in_message[part.placed] = valid_rows
+                whisker_ids = list(compress(whisker_ids, in_message.tolist()))
+                rows_kept = first + np.flatnonzero(valid_rows)
             contacts = ContactPointArray(
                 stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
                 point=point[rows_kept], s1=s1[rows_kept], phase=phase[rows_kept],
@@ -445,10 +441,10 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
             contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
             unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,
             tip_within_noise=(0 if tip_within_noise is None
-                              else int(np.count_nonzero(tip_within_noise[first:last]))),
+                              else int(np.count_nonzero(tip_within_noise[rows]))),
             no_covariance=(0 if no_covariance is None
-                           else int(np.count_nonzero(no_covariance[first:last])))))
-        first = last
+                           else int(np.count_nonzero(no_covariance[rows])))))
+        first += n
     return outcomes
 
 

@@ -4,8 +4,9 @@ on them, one row (one sweep attempt) at a time (``vibrissa.compiled``).
 ``vibrissa.sweep`` states the conditions and drives the sweeps; these kernels evaluate them.
 A row is q = (psi, Fu, Fv, kappa0) in the clamp frame C of its step, the clamp pose X_WC, the
 friction mu, the anchor (previous or held contact point, W), the mode (tip, tangential, stick)
-and whether psi is locked; the object is the quadric g(p_B) = p_B' Q p_B + l' p_B + c in its
-body frame B, placed at X_WB. Per row the arithmetic is that of the conditions in
+and whether psi is locked, and its object: the quadric g(p_B) = p_B' Q p_B + l' p_B + c in its
+body frame B, placed at X_WB (the rows of one call may touch different objects: the whiskers of
+a scene are solved together). Per row the arithmetic is that of the conditions in
 ``vibrissa.sweep``'s module docstring, written out for scalars: a sweep's step costs a few
 microseconds of arithmetic instead of the calls of numpy array code on one row.
 """
@@ -203,47 +204,49 @@ def _solve(jac: FloatArray, rhs: FloatArray) -> FloatArray:
 @compiled
 def evaluate_rows(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArray,
                   anchor: FloatArray, mode: NDArray[np.int64], locked: NDArray[np.bool_],
-                  Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray, p_WB: FloatArray
-                  ) -> FloatArray:
-    """``evaluate_row`` of every row: states (n, ``STATE_WIDTH``)."""
+                  Q: FloatArray, lin: FloatArray, c: FloatArray, R_WB: FloatArray,
+                  p_WB: FloatArray) -> FloatArray:
+    """``evaluate_row`` of every row, each with its object (Q (n, 3, 3), lin (n, 3), c (n,),
+    R_WB (n, 3, 3), p_WB (n, 3)): states (n, ``STATE_WIDTH``)."""
     n = q.shape[0]
     out = np.empty((n, STATE_WIDTH))
     for r in range(n):
-        evaluate_row(q[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q, lin, c,
-                     R_WB, p_WB, out[r])
+        evaluate_row(q[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q[r], lin[r],
+                     c[r], R_WB[r], p_WB[r], out[r])
     return out
 
 
 @compiled
 def newton_rows(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArray,
                 anchor: FloatArray, mode: NDArray[np.int64], locked: NDArray[np.bool_],
-                Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray, p_WB: FloatArray
+                Q: FloatArray, lin: FloatArray, c: FloatArray, R_WB: FloatArray, p_WB: FloatArray
                 ) -> tuple[FloatArray, FloatArray]:
-    """``newton_row`` of every row: solutions q (n, 4) and their states."""
+    """``newton_row`` of every row, each with its object (as ``evaluate_rows``): solutions
+    q (n, 4) and their states."""
     n = q0.shape[0]
     q = np.empty((n, 4))
     out = np.empty((n, STATE_WIDTH))
     for r in range(n):
-        newton_row(q0[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q, lin, c,
-                   R_WB, p_WB, q[r], out[r])
+        newton_row(q0[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q[r], lin[r],
+                   c[r], R_WB[r], p_WB[r], q[r], out[r])
     return q, out
 
 
 @compiled
 def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
-                    previous: FloatArray, jump: float) -> NDArray[np.bool_]:
+                    previous: FloatArray, jump: FloatArray) -> NDArray[np.bool_]:
     """Which states (n, ``STATE_WIDTH``) are physically acceptable (n,): the contact pushes
-    (F . n > 0), it is at most ``jump`` from the previous contact point (n, 3), the rod stays
-    outside the object (at the tip its tangent does not point out of the object; a tangential
-    contact lies on the rod, 0 < s1 <= 1) and a sticking contact's force is inside the friction
-    cone |F_t| <= mu F_n."""
+    (F . n > 0), it is at most its row's ``jump`` (n,) from the previous contact point (n, 3),
+    the rod stays outside the object (at the tip its tangent does not point out of the object; a
+    tangential contact lies on the rod, 0 < s1 <= 1) and a sticking contact's force is inside
+    the friction cone |F_t| <= mu F_n."""
     n = state.shape[0]
     ok = np.empty(n, dtype=np.bool_)
     for r in range(n):
         row = state[r]
         fn = row[14] * row[11] + row[15] * row[12] + row[16] * row[13]
         dx, dy, dz = row[4] - previous[r, 0], row[5] - previous[r, 1], row[6] - previous[r, 2]
-        good = row[21] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump
+        good = row[21] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump[r]
         if mode[r] == MODE_TANGENTIAL:
             good = good and row[7] <= 1.0 and row[7] > 0.0
         else:

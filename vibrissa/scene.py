@@ -17,6 +17,11 @@ Several objects: a whisker touches one at a time. An episode follows the object 
 first; another object that the rod would meet meanwhile is ignored until the episode ends (the
 rod is taken to pass it), and is then found by the next search if the straight rod touches it
 from outside (one the straight rod is inside of keeps the samples ``unresolved``).
+
+Whiskers are solved together: a group of them advances step by step, the equilibria of all
+those in an episode found by one batched attempt each step (each row its own object, scaled to
+its whisker's L, and its own step), with the same bits as each whisker alone
+(`simulate_group`); `simulate` spreads the whiskers over processes in such groups.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import enum
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -37,7 +42,7 @@ from vibrissa.paths import SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
-from vibrissa.sweep import SweepRun
+from vibrissa.sweep import SweepRun, advance_together
 from vibrissa.units import RodScale
 
 if TYPE_CHECKING:
@@ -234,118 +239,179 @@ sample before is a pause: it repeats that sample."""
 def simulate(scene: Scene, workers: int | None = None,
              progress: Callable[[int, int], None] | None = None,
              sample_progress: SampleProgress | None = None) -> list[WhiskerResult]:
-    """Step 1 of every whisker of ``scene`` along its path, whiskers spread over ``workers``
-    processes (default: all cores; 1: in this process). ``progress(done, total)`` after each
-    whisker; ``sample_progress`` (picklable, for the worker processes) every 2 s of a whisker's
-    work."""
+    """Step 1 of every whisker of ``scene`` along its path. The whiskers are dealt round robin
+    into ``workers`` groups (default: all cores), one process each (1: in this process); a
+    group's whiskers are solved together, one step of all those in contact per batched attempt
+    (`simulate_group`). ``progress(done, total)`` as whiskers finish (from worker processes:
+    as groups finish); ``sample_progress`` (picklable, for the worker processes) every 2 s of a
+    group's work, for each of its whiskers in contact."""
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     total = len(scene.whiskers)
     if progress:
         progress(0, total)
-    if workers == 1 or total == 1:
-        results = []
-        for whisker in scene.whiskers:
-            results.append(simulate_whisker(scene, whisker, sample_progress))
+    groups = [scene.whiskers[g::workers] for g in range(min(workers, total))]
+    if len(groups) == 1:
+        done = 0
+
+        def finished(_result: WhiskerResult) -> None:
+            nonlocal done
+            done += 1
             if progress:
-                progress(len(results), total)
-        return results
-    with ProcessPoolExecutor(min(workers, total)) as pool:
-        futures = [pool.submit(simulate_whisker, scene, whisker, sample_progress)
-                   for whisker in scene.whiskers]
-        results = []
-        for future in futures:
-            results.append(future.result())
+                progress(done, total)
+        return simulate_group(scene, groups[0], sample_progress, finished)
+    by_name: dict[str, WhiskerResult] = {}
+    with ProcessPoolExecutor(len(groups)) as pool:
+        futures = [pool.submit(simulate_group, scene, group, sample_progress) for group in groups]
+        for future in as_completed(futures):
+            by_name.update((result.name, result) for result in future.result())
             if progress:
-                progress(len(results), total)
-    return results
+                progress(len(by_name), total)
+    return [by_name[whisker.name] for whisker in scene.whiskers]
 
 
 def simulate_whisker(scene: Scene, whisker: Whisker,
                      progress: SampleProgress | None = None) -> WhiskerResult:
-    """Step 1 of one whisker of ``scene`` along the path (its contact episodes);
-    ``progress(name, sample, samples)`` every 2 s of work."""
-    length = whisker.length_m
-    surfaces = [obj.surface(length) for obj in scene.objects]
-    mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
-    p_WR = scene.path.p_WR / length
-    # Where the robot pauses nothing changes (Coulomb friction does not depend on rate): Step 1
-    # runs on the samples where the clamp moved, and each pause repeats the sample before it.
-    moved = np.concatenate([[True], rod_motion(p_WR, scene.path.R_WR, mount) > PAUSE_L])
-    moved[-1] |= not moved[1:].any()  # a robot that never moves: its first and last sample
-    kept = np.flatnonzero(moved)
-    path = SampledPath(p_WR[kept], scene.path.R_WR[kept], scene.mu, mount)
-    result = _simulate_moving(scene, whisker, path, surfaces, scene.path.t, kept, progress)
-    of_sample = np.cumsum(moved) - 1  # the moving sample each sample repeats
-    for name in ("phase", "s1_m", "f0_n", "m0_nm", "p_W_m", "object"):
-        setattr(result, name, getattr(result, name)[of_sample])
-    result.t = scene.path.t
-    return result
+    """Step 1 of one whisker of ``scene`` along the path (its contact episodes): a group of
+    one (`simulate_group`)."""
+    return simulate_group(scene, [whisker], progress)[0]
 
 
-def _simulate_moving(scene: Scene, whisker: Whisker, path: SampledPath, surfaces: list[Surface],
-                     t_all: FloatArray, kept: NDArray[np.int64],
-                     progress: SampleProgress | None) -> WhiskerResult:
-    """Step 1 on the samples ``kept`` (of ``t_all``) where the clamp moves, ``path``."""
-    length = whisker.length_m
-    n = path.n_samples
-    t = t_all[kept]
+def simulate_group(scene: Scene, whiskers: Sequence[Whisker],
+                   progress: SampleProgress | None = None,
+                   finished: Callable[[WhiskerResult], None] | None = None
+                   ) -> list[WhiskerResult]:
+    """Step 1 of ``whiskers`` of ``scene`` along the path, solved together: every iteration
+    advances each whisker in an episode by one step, all in one batched attempt
+    (`vibrissa.sweep.advance_together`), and moves the others on (past unresolved samples, to
+    their next touch, or to their end). A whisker's results are the same bits as alone.
+    ``progress(name, sample, samples)`` every 2 s of work, for each whisker in an episode;
+    ``finished(result)`` as each whisker ends."""
+    pending = [_WhiskerSteps(scene, whisker) for whisker in whiskers]
+    results: dict[str, WhiskerResult] = {}
+    next_report = time.monotonic() + PROGRESS_PERIOD_S
+    while pending:
+        for steps in pending:
+            if steps.run is None:
+                steps.start_episode()
+        advance_together([steps.run for steps in pending if steps.run is not None])
+        report = progress if progress and time.monotonic() >= next_report else None
+        for steps in pending:
+            if steps.run is not None and steps.run.done:
+                steps.end_episode()
+            elif steps.run is not None and report:
+                report(steps.whisker.name, *steps.where())
+            if steps.ended:
+                results[steps.whisker.name] = result = steps.result()
+                if finished:
+                    finished(result)
+        if report:
+            next_report = time.monotonic() + PROGRESS_PERIOD_S
+        pending = [steps for steps in pending if not steps.ended]
+    return [results[whisker.name] for whisker in whiskers]
 
-    def time_at(lam: float) -> float:
-        """The time at the fractional moving sample ``lam``: the clamp moves from the sample
-        before kept[j] (where a pause ends) to kept[j]."""
-        j = min(int(np.ceil(lam)), n - 1)
-        if j == 0:
-            return float(t[0])
-        start = t_all[kept[j] - 1]
-        return float(start + (lam - (j - 1)) * (t_all[kept[j]] - start))
-    phase = np.full(n, SamplePhase.NONE, dtype=np.int64)
-    s1, f0, m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
-    contact, touched = np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
-    episodes: list[Episode] = []
 
-    def skip_unresolved(k: int) -> int:
+class _WhiskerSteps:
+    """One whisker's Step 1 along the path, a state machine that `simulate_group` steps: past
+    unresolved samples, searching the next touch, in an episode (``run``, a `SweepRun` of one
+    sweep), ``ended``.
+
+    Step 1 runs on the samples where the clamp moves (``kept``): where the robot pauses
+    nothing changes (Coulomb friction does not depend on rate), and each pause repeats the
+    sample before it (``result``).
+    """
+
+    def __init__(self, scene: Scene, whisker: Whisker) -> None:
+        length = whisker.length_m
+        self.scene, self.whisker = scene, whisker
+        self.surfaces = [obj.surface(length) for obj in scene.objects]
+        mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
+        p_WR = scene.path.p_WR / length
+        moved = np.concatenate([[True], rod_motion(p_WR, scene.path.R_WR, mount) > PAUSE_L])
+        moved[-1] |= not moved[1:].any()  # a robot that never moves: its first and last sample
+        self.moved = moved
+        self.kept = np.flatnonzero(moved)
+        self.path = SampledPath(p_WR[self.kept], scene.path.R_WR[self.kept], scene.mu, mount)
+        n = self.path.n_samples
+        self.phase = np.full(n, SamplePhase.NONE, dtype=np.int64)
+        self.s1, self.f0, self.m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
+        self.contact, self.touched = np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
+        self.episodes: list[Episode] = []
+        self.run: SweepRun | None = None
+        self.ended = False
+        self.k = self._skip_unresolved(0)  # the moving sample from which the next touch is searched
+        self._object = -1  # the episode's object
+
+    def start_episode(self) -> None:
+        """Search the first touch from sample ``k`` on and start its episode, or end."""
+        if self.k >= self.path.n_samples - 1:
+            self.ended = True
+            return
+        rest = self.path.tail(self.k)
+        touches = [(touch, i) for i, surface in enumerate(self.surfaces)
+                   if (touch := rest.first_contact(surface)) is not None]
+        if not touches:
+            self.ended = True
+            return
+        (_x_touch, _p), self._object = max(touches, key=lambda item: item[0][0])  # the first
+        self.run = SweepRun(self.surfaces[self._object], [rest], rest.h)
+
+    def where(self) -> tuple[int, int]:
+        """The moving sample the episode has reached, and the moving samples."""
+        assert self.run is not None
+        return self.k + int(-self.run.progress(0).x0 / self.path.h), self.path.n_samples
+
+    def end_episode(self) -> None:
+        """Record the ended episode's samples; go on from the sample after it (or end)."""
+        assert self.run is not None
+        sweep, k, h, i = self.run.sweeps()[0], self.k, self.path.h, self._object
+        self.run = None
+        rows = k + np.rint(-sweep.x0 / h).astype(np.int64)
+        if len(rows):
+            span = slice(rows[0], rows[-1] + 1)
+            self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
+            self.f0[span], self.m0[span] = np.nan, np.nan
+            self.phase[rows] = sweep.phase
+            self.s1[rows] = sweep.s1 * self.whisker.length_m
+            self.f0[rows], self.m0[rows] = self.whisker.scale.wrench_to_si(sweep.f0, sweep.m0)
+            self.contact[rows] = sweep.contact * self.whisker.length_m
+            self.touched[span] = i
+        changes = [(self._time_at(-x0 / h + k), old, new) for x0, old, new in sweep.phase_changes]
+        self.episodes.append(Episode(self.scene.objects[i].name,
+                                     self._time_at(-sweep.x_touch / h + k), str(sweep.end),
+                                     changes))
+        if sweep.end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
+            self.ended = True
+            return
+        self.k = self._skip_unresolved(int(rows[-1]) + 1 if len(rows)
+                                       else int(np.floor(-sweep.x_touch / h)) + k + 1)
+
+    def result(self) -> WhiskerResult:
+        """The results at every sample of the path, a pause repeating the sample before it."""
+        of_sample = np.cumsum(self.moved) - 1  # the moving sample each sample repeats
+        return WhiskerResult(self.whisker.name, self.scene.path.t, self.phase[of_sample],
+                             self.s1[of_sample], self.f0[of_sample], self.m0[of_sample],
+                             self.contact[of_sample], self.touched[of_sample], self.episodes)
+
+    def _skip_unresolved(self, k: int) -> int:
         """The first sample from ``k`` on where the straight rod is outside every object."""
-        while k < n and any(path.penetrates(s, path.x0_of(np.array([k])))[0] for s in surfaces):
-            phase[k], f0[k], m0[k] = SamplePhase.UNRESOLVED, np.nan, np.nan
+        path, n = self.path, self.path.n_samples
+        while k < n and any(path.penetrates(s, path.x0_of(np.array([k])))[0]
+                            for s in self.surfaces):
+            self.phase[k], self.f0[k], self.m0[k] = SamplePhase.UNRESOLVED, np.nan, np.nan
             k += 1
         return k
 
-    next_report = time.monotonic() + PROGRESS_PERIOD_S
-    k = skip_unresolved(0)
-    while k < n - 1:
-        rest = path.tail(k)
-        touches = [(touch, i) for i, surface in enumerate(surfaces)
-                   if (touch := rest.first_contact(surface)) is not None]
-        if not touches:
-            break
-        (_x_touch, _p), i = max(touches, key=lambda item: item[0][0])  # the first on the path
-        run = SweepRun(surfaces[i], [rest], rest.h)
-        while not run.done:
-            run.advance()
-            if progress is not None and time.monotonic() >= next_report:
-                progress(whisker.name, k + int(-run.progress(0).x0 / rest.h), n)
-                next_report = time.monotonic() + PROGRESS_PERIOD_S
-        sweep = run.sweeps()[0]
-        rows = k + np.rint(-sweep.x0 / rest.h).astype(np.int64)
-        if len(rows):
-            span = slice(rows[0], rows[-1] + 1)
-            phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
-            f0[span], m0[span] = np.nan, np.nan
-            phase[rows] = sweep.phase
-            s1[rows] = sweep.s1 * length
-            f0[rows], m0[rows] = whisker.scale.wrench_to_si(sweep.f0, sweep.m0)
-            contact[rows] = sweep.contact * length
-            touched[span] = i
-        t_touch = time_at(-sweep.x_touch / rest.h + k)
-        changes = [(time_at(-x0 / rest.h + k), old, new) for x0, old, new in sweep.phase_changes]
-        episodes.append(Episode(scene.objects[i].name, t_touch, str(sweep.end), changes))
-        if sweep.end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
-            break
-        k = skip_unresolved(int(rows[-1]) + 1 if len(rows)
-                            else int(np.floor(-sweep.x_touch / rest.h)) + k + 1)
-    return WhiskerResult(whisker.name, t, phase, s1, f0, m0, contact, touched, episodes)
+    def _time_at(self, lam: float) -> float:
+        """The time at the fractional moving sample ``lam``: the clamp moves from the sample
+        before kept[j] (where a pause ends) to kept[j]."""
+        t_all, kept = self.scene.path.t, self.kept
+        j = min(int(np.ceil(lam)), len(kept) - 1)
+        if j == 0:
+            return float(t_all[kept[0]])
+        start = t_all[kept[j] - 1]
+        return float(start + (lam - (j - 1)) * (t_all[kept[j]] - start))
 
 
 def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],

@@ -47,14 +47,15 @@ class Surface(ABC):
         return self._quadric()
 
     @functools.cached_property
-    def kernel_arrays(self) -> tuple[FloatArray, FloatArray, float, FloatArray, FloatArray]:
-        """The object as the compiled kernels of Step 1 take it (``vibrissa.equilibrium``):
-        Q (3, 3), l (3,), c, R_WB (3, 3), p_WB (3,), contiguous float64; computed once (an
-        object does not change)."""
+    def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The object as one row of the compiled kernels of Step 1 (``vibrissa.equilibrium``):
+        Q (1, 3, 3), l (1, 3), c (1,), R_WB (1, 3, 3), p_WB (1, 3), contiguous float64, which
+        rows of several objects stack along the first axis; computed once (an object does not
+        change)."""
         Q, linear, c = self._quadric()
-        return (np.ascontiguousarray(Q, dtype=float), np.ascontiguousarray(linear, dtype=float),
-                float(c), np.ascontiguousarray(self.pose.R),
-                np.ascontiguousarray(self.pose.translation))
+        return (np.array([Q], dtype=float), np.array([linear], dtype=float),
+                np.array([c], dtype=float), np.array([self.pose.R], dtype=float),
+                np.array([self.pose.translation], dtype=float))
 
     @abstractmethod
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:

@@ -12,7 +12,8 @@ Every equation is evaluated with the step's clamp pose X_WC (``Trail.clamp_pose`
 paper's trail the identity rotation at (x0, y0, 0)), so that the friction chord of eq. 7
 joins two contact points on the object whatever the clamp does between them.
 Conditions (four equations, solved by Newton's method with a finite-difference Jacobian,
-batched over all sweeps of a study):
+batched over all sweeps solved together: a study's, or a scene's whiskers, each past its own
+object with its own step):
 
 * tip contact (eq. 14): s1 = 1; tangential contact (eq. 15): rod tangent _|_ surface normal;
 * P1 on the surface;
@@ -60,7 +61,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -251,7 +252,8 @@ _MODE_TIP, _MODE_TANGENTIAL, _MODE_STICK = MODE_TIP, MODE_TANGENTIAL, MODE_STICK
 @dataclass
 class _Batch:
     """Fixed data of the rows solved together (one row per sweep attempt): the clamp pose
-    (origin p_WC (n, 3), rotation R_WC (n, 3, 3)), friction, where the contact was, the mode."""
+    (origin p_WC (n, 3), rotation R_WC (n, 3, 3)), friction, where the contact was, the mode,
+    and the row's object (its ``Surface.kernel_arrays``, stacked)."""
 
     p_WC: FloatArray
     R_WC: FloatArray
@@ -259,12 +261,17 @@ class _Batch:
     anchor: FloatArray  # previous contact point (sliding) or the held point (sticking), (n, 3)
     mode: NDArray[np.int64]
     locked: NDArray[np.bool_]
+    Q: FloatArray  # (n, 3, 3)
+    lin: FloatArray  # (n, 3)
+    c: FloatArray  # (n,)
+    R_WB: FloatArray  # (n, 3, 3)
+    p_WB: FloatArray  # (n, 3)
 
     def take(self, rows: NDArray[np.int64]) -> _Batch:
         return _Batch(*(getattr(self, name)[rows] for name in _BATCH_FIELDS))
 
 
-_BATCH_FIELDS = ("p_WC", "R_WC", "mu", "anchor", "mode", "locked")
+_BATCH_FIELDS = ("p_WC", "R_WC", "mu", "anchor", "mode", "locked", "Q", "lin", "c", "R_WB", "p_WB")
 
 
 @dataclass
@@ -309,29 +316,31 @@ def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.column_stack([cos_psi, sin_psi, zeros]), np.column_stack([sin_psi, -cos_psi, zeros])
 
 
-def _evaluate(surface: Surface, q: FloatArray, batch: _Batch) -> _State:
+def _evaluate(q: FloatArray, batch: _Batch) -> _State:
     """The residuals of q = (psi, Fu, Fv, kappa0) in the clamp frames C of the rows; geometry
-    and forces of the state in W, where the object is (``vibrissa.equilibrium``)."""
-    return _State(evaluate_rows(np.ascontiguousarray(q[:, :4], dtype=float),
-                                *_row_arrays(batch), *surface.kernel_arrays))
+    and forces of the state in W, where the objects are (``vibrissa.equilibrium``)."""
+    return _State(evaluate_rows(np.ascontiguousarray(q[:, :4], dtype=float), *_row_arrays(batch)))
 
 
-def _newton(surface: Surface, q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
+def _newton(q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
     """Solve the four conditions for every row, starting from q0; returns q, state, converged."""
-    q, out = newton_rows(np.ascontiguousarray(q0, dtype=float), *_row_arrays(batch),
-                         *surface.kernel_arrays)
+    q, out = newton_rows(np.ascontiguousarray(q0, dtype=float), *_row_arrays(batch))
     state = _State(out)
     return q, state, state.converged
 
 
 def _row_arrays(batch: _Batch) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray,
-                                        NDArray[np.int64], NDArray[np.bool_]]:
+                                        NDArray[np.int64], NDArray[np.bool_], FloatArray,
+                                        FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The batch as the kernels take it; the object arrays are contiguous float64 already
+    (``Surface.kernel_arrays``, stacked or indexed)."""
     return (np.ascontiguousarray(batch.p_WC, dtype=float),
             np.ascontiguousarray(batch.R_WC, dtype=float),
             np.ascontiguousarray(batch.mu, dtype=float),
             np.ascontiguousarray(batch.anchor, dtype=float),
             np.ascontiguousarray(batch.mode, dtype=np.int64),
-            np.ascontiguousarray(batch.locked, dtype=np.bool_))
+            np.ascontiguousarray(batch.locked, dtype=np.bool_),
+            batch.Q, batch.lin, batch.c, batch.R_WB, batch.p_WB)
 
 
 def _tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -363,9 +372,8 @@ def _held_at_slip(
     e1, e2 = basis
     r, theta = np.exp(z[:, 0:1]), z[:, 1:2]
     held = surface.closest_point(batch.anchor + r * (np.cos(theta) * e1 + np.sin(theta) * e2))
-    hold = _Batch(batch.p_WC, batch.R_WC, batch.mu, held, np.full(len(z), _MODE_STICK),
-                  batch.locked)
-    q_held, state, converged = _newton(surface, q, hold)
+    q_held, state, converged = _newton(q, replace(batch, anchor=held,
+                                                  mode=np.full(len(z), _MODE_STICK)))
     fn = np.einsum("ni,ni->n", state.force, state.normal)
     chord = batch.anchor - state.p1
     chord -= np.einsum("ni,ni->n", chord, state.normal)[:, None] * state.normal
@@ -404,10 +412,29 @@ def _small_slip(
             jac[:, :, j] = (_held_at_slip(surface, probe, q, batch, basis)[0] - mismatch) / steps[j]
         delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch, strict=False)])
         z += np.clip(delta, -1.0, 1.0)
-    as_slide = _Batch(batch.p_WC, batch.R_WC, batch.mu, batch.anchor, np.full(len(z), _MODE_TIP),
-                      batch.locked)
-    final = _evaluate(surface, q, as_slide)
+    final = _evaluate(q, replace(batch, mode=np.full(len(z), _MODE_TIP)))
     return q, final, final.converged
+
+
+def _small_slip_by_object(
+    surfaces: Sequence[Surface], q_stuck: FloatArray, stuck: _State, batch: _Batch
+) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
+    """``_small_slip`` of the rows of each object (``surfaces``, one per row) apart, results in
+    row order: its closest-point searches and its slip iteration run over one object's rows
+    together, so that a scene's whisker slips as it would alone."""
+    groups: dict[int, list[int]] = {}
+    for k, surface in enumerate(surfaces):
+        groups.setdefault(id(surface), []).append(k)
+    if len(groups) == 1:
+        return _small_slip(surfaces[0], q_stuck, stuck, batch)
+    q, rows = np.empty_like(q_stuck), np.empty_like(stuck.rows)
+    for members in groups.values():
+        group = np.array(members, dtype=np.int64)
+        q[group], part, _ = _small_slip(surfaces[members[0]], q_stuck[group],
+                                        _State(stuck.rows[group]), batch.take(group))
+        rows[group] = part.rows
+    state = _State(rows)
+    return q, state, state.converged
 
 
 # ---------------------------------------------------------------------------------------------
@@ -450,9 +477,12 @@ def _slice_x_max(surface: Surface, y0: float, z: FloatArray) -> FloatArray:
 
 @dataclass
 class _Track:
-    """Mutable progress of one sweep."""
+    """Mutable progress of one sweep: past ``surface`` along ``trail`` in steps of ``step``."""
 
+    surface: Surface
     trail: ClampPath
+    step: float
+    max_steps: int
     locked: bool
     x0: float
     q: FloatArray
@@ -502,7 +532,8 @@ class SweepRun:
     """Several sweeps past one object, solved together one step at a time.
 
     ``simulate_sweeps`` runs it to the end; a consumer that wants equilibria as they are
-    solved (a live sensor stream) calls ``advance`` itself and reads ``reactions``.
+    solved (a live sensor stream) calls ``advance`` itself and reads ``reactions``;
+    `advance_together` steps several runs (each its own object and step) as one batch.
 
     Parameters
     ----------
@@ -533,7 +564,7 @@ class SweepRun:
         self.step = step
         self.max_steps = max_steps
         self.x_grid = x_grid
-        self._tracks = [_start(surface, trail, step, x_grid) for trail in trails]
+        self._tracks = [_start(surface, trail, step, max_steps, x_grid) for trail in trails]
 
     @property
     def done(self) -> bool:
@@ -542,9 +573,7 @@ class SweepRun:
 
     def advance(self) -> None:
         """Move every sweep that goes on by one step (no-op once ``done``)."""
-        active = [t for t in self._tracks if t.end is None]
-        if active:
-            _advance(self.surface, active, self.step, self.max_steps)
+        advance_together([self])
 
     def progress(self, index: int) -> SweepProgress:
         """Where sweep ``index`` stands."""
@@ -567,7 +596,16 @@ class SweepRun:
 
     def sweeps(self) -> list[Sweep]:
         """Every sweep as it stands (complete once ``done``)."""
-        return [_finish(track, self.step) for track in self._tracks]
+        return [_finish(track) for track in self._tracks]
+
+
+def advance_together(runs: Sequence[SweepRun]) -> None:
+    """Move every sweep of ``runs`` that goes on by one step, all in one batched attempt (the
+    runs may differ in object, path and step: the whiskers of a scene). Every sweep takes the
+    same steps as it would alone, to the bit."""
+    active = [t for run in runs for t in run._tracks if t.end is None]
+    if active:
+        _advance(active)
 
 
 def simulate_sweeps(
@@ -615,11 +653,13 @@ def contact_lines(sweeps: Sequence[Sweep]) -> tuple[FloatArray, FloatArray, NDAr
                             for k, t in enumerate(touching)] or [np.zeros(0, dtype=np.int64)]))
 
 
-def _start(surface: Surface, trail: ClampPath, step: float, x_grid: float | None) -> _Track:
+def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
+           x_grid: float | None) -> _Track:
     locked = trail.symmetric(surface)
     touch = trail.first_contact(surface)
     if touch is None:
-        track = _Track(trail, locked, np.nan, np.zeros(4), _MODE_TIP, np.zeros(3), np.zeros(3))
+        track = _Track(surface, trail, step, max_steps, locked, np.nan, np.zeros(4), _MODE_TIP,
+                       np.zeros(3), np.zeros(3))
         track.end = SweepEnd.NO_CONTACT
         return track
     x_start, p_touch = touch
@@ -639,8 +679,8 @@ def _start(surface: Surface, trail: ClampPath, step: float, x_grid: float | None
     fu, fv = magnitude * n_u, magnitude * normal[2]
     q = np.array([psi, fu, fv, -s_touch * fu])
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
-    return _Track(trail, locked, x_start, q, mode, p_touch, p_touch.copy(), x_touch=x_start,
-                  x_grid=x_grid)
+    return _Track(surface, trail, step, max_steps, locked, x_start, q, mode, p_touch,
+                  p_touch.copy(), x_touch=x_start, x_grid=x_grid)
 
 
 def _next_grid_point(x0: float, x_grid: float, step: float) -> float:
@@ -649,26 +689,27 @@ def _next_grid_point(x0: float, x_grid: float, step: float) -> float:
     return x_grid - k * step
 
 
-def _advance(surface: Surface, tracks: list[_Track], step: float, max_steps: int) -> None:
-    """Move every track one step; failures are retried with refined sub-steps."""
+def _advance(tracks: list[_Track]) -> None:
+    """Move every track one step of its own, in one batched attempt; a track that fails is
+    retried on its own, with longer steps or refined sub-steps."""
     for track in tracks:
-        if _next_grid_point(track.x0, track.x_grid, step) < track.trail.x_end - 1e-9 * step:
+        if _next_grid_point(track.x0, track.x_grid, track.step) < track.trail.x_end - 1e-9 * track.step:
             track.end, track.x0_end = SweepEnd.PATH_END, track.x0
     tracks = [t for t in tracks if t.end is None]
     if not tracks:
         return
-    targets = np.array([_next_grid_point(t.x0, t.x_grid, step) for t in tracks])
-    reached = _attempt(surface, tracks, targets, step)
+    targets = np.array([_next_grid_point(t.x0, t.x_grid, t.step) for t in tracks])
+    reached = _attempt(tracks, targets, np.array([t.step for t in tracks]))
     for track, target, ok in zip(tracks, targets, reached, strict=False):
         if ok:
             _record(track, refined=False)
-        elif not (track.x_touch - track.x0 < _EARLY_TRAVEL and _longer_step(surface, track, step)):
-            _refine(surface, track, target, step)
-        if track.end is None and len(track.rows) >= max_steps:
+        elif not (track.x_touch - track.x0 < _EARLY_TRAVEL and _longer_step(track)):
+            _refine(track, target)
+        if track.end is None and len(track.rows) >= track.max_steps:
             track.end, track.x0_end = SweepEnd.MAX_STEPS, track.x0
 
 
-def _longer_step(surface: Surface, track: _Track, step: float) -> bool:
+def _longer_step(track: _Track) -> bool:
     """Take a failed early step as 2, 4, 8 or 16 steps; whether one succeeded.
 
     Just after a tip touch the tip slips only by the rod's axial shortening (the tip cannot stay
@@ -677,13 +718,14 @@ def _longer_step(surface: Surface, track: _Track, step: float) -> bool:
     eq. 7, hence the friction, to be resolved. A longer step has a resolvable chord; the sweep
     stays on its grid and skips the positions in between (marked ``refined``).
     """
+    step = track.step
     before = track.history[-1] if track.history else None
     next_point = _next_grid_point(track.x0, track.x_grid, step)
     for multiple in (2, 4, 8, 16):
         target = next_point - (multiple - 1) * step
         if target < track.trail.x_end - 1e-9 * step:
             break
-        if _attempt(surface, [track], np.array([target]), multiple * step)[0]:
+        if _attempt([track], np.array([target]), np.array([multiple * step]))[0]:
             _record(track, refined=True)
             # The loads grow about linearly here: the state one step back on the line from
             # the state before (zero load at the touch) lets the predictor take the next step.
@@ -696,13 +738,15 @@ def _longer_step(surface: Surface, track: _Track, step: float) -> bool:
     return False
 
 
-def _refine(surface: Surface, track: _Track, target: float, step: float) -> None:
+def _refine(track: _Track, target: float) -> None:
     """Reach ``target`` in ever smaller sub-steps; if impossible the sweep has ended.
 
     A smooth detachment needs no refinement: once the reactions have faded and the straight
     rod at ``target`` clears the object, the unloaded rod is the equilibrium there.
     """
-    if _ending(track) is SweepEnd.DETACHMENT and _straight_rod_clears(surface, track.trail, target):
+    step = track.step
+    if (_ending(track) is SweepEnd.DETACHMENT
+            and _straight_rod_clears(track.surface, track.trail, target)):
         track.end, track.x0_end = SweepEnd.DETACHMENT, track.x0
         return
     span = track.x0 - target  # one step, or less for the partial first step onto a shared grid
@@ -711,7 +755,8 @@ def _refine(surface: Surface, track: _Track, target: float, step: float) -> None
         while track.x0 - sub >= target - 1e-12 * step:
             # Deeper sub-steps start close to any branch that goes on: plain Newton suffices, and
             # a failure there is the fold itself.
-            if not _attempt(surface, [track], np.array([track.x0 - sub]), sub, fallbacks=level == 1)[0]:
+            if not _attempt([track], np.array([track.x0 - sub]), np.array([sub]),
+                            fallbacks=level == 1)[0]:
                 break
         if abs(track.x0 - target) <= 1e-12 * step:
             track.x0 = target
@@ -746,22 +791,27 @@ def _ending(track: _Track) -> SweepEnd:
 
 
 def _attempt(
-    surface: Surface, tracks: list[_Track], targets: FloatArray, step: float, fallbacks: bool = True
+    tracks: list[_Track], targets: FloatArray, steps: FloatArray, fallbacks: bool = True
 ) -> NDArray[np.bool_]:
-    """Try to move each track to its target x0: slide in its phase, the other phase, then stick.
+    """Try to move each track by ``steps`` (n,) to its target x0 (n,): slide in its phase, the
+    other phase, then stick.
 
     ``fallbacks`` adds the slower searches for far or barely slipping states. What every stage
-    needs of the tracks (clamp poses at the targets, friction, contact points, predictors) is
-    gathered once: most steps are one stage of one row, whose cost is these calls.
+    needs of the tracks (clamp poses at the targets, friction, contact points, predictors,
+    objects) is gathered once: most steps are one stage of one row, whose cost is these calls.
     """
     n = len(tracks)
     success = np.zeros(n, dtype=bool)
-    jump = max(20.0 * step, 0.01)
+    jump = np.maximum(20.0 * steps, 0.01)
+    objects: tuple[FloatArray, ...]
     if n == 1:
         p_WC, R_WC = tracks[0].trail.clamp_pose(targets)
+        objects = tracks[0].surface.kernel_arrays
     else:
         poses = [t.trail.clamp_pose(targets[i : i + 1]) for i, t in enumerate(tracks)]
         p_WC, R_WC = np.concatenate([p for p, _ in poses]), np.concatenate([R for _, R in poses])
+        objects = tuple(np.concatenate(rows) for rows in zip(*(t.surface.kernel_arrays
+                                                               for t in tracks), strict=True))
     mu = np.array([t.trail.mu for t in tracks])
     locked = np.array([t.locked for t in tracks])
     p1 = np.array([t.p1 for t in tracks])
@@ -782,20 +832,22 @@ def _attempt(
             rows = np.array([i for i in rows if i in stuck], dtype=np.int64)
         if len(rows) == 0:
             return
-        batch = _Batch(p_WC=p_WC[rows], R_WC=R_WC[rows], mu=mu[rows],
-                       anchor=np.where((modes[rows] == _MODE_STICK)[:, None], anchor[rows], p1[rows]),
-                       mode=modes[rows], locked=locked[rows])
+        batch = _Batch(p_WC[rows], R_WC[rows], mu[rows],
+                       np.where((modes[rows] == _MODE_STICK)[:, None], anchor[rows], p1[rows]),
+                       modes[rows], locked[rows],
+                       *(objects if len(rows) == n else (a[rows] for a in objects)))
         if kind == "anchored":
             q_stuck = np.array([stuck[int(i)][0] for i in rows])
             stuck_state = _State(np.concatenate([stuck[int(i)][1].rows for i in rows]))
-            q, state, converged = _small_slip(surface, q_stuck, stuck_state, batch)
+            q, state, converged = _small_slip_by_object([tracks[i].surface for i in rows],
+                                                        q_stuck, stuck_state, batch)
         elif kind == "continuation":
-            q, state, converged = _newton_friction_continuation(surface, predictors[rows], batch)
+            q, state, converged = _newton_friction_continuation(predictors[rows], batch)
         elif kind == "alternating":
-            q, state, converged = _newton(surface, alternates, batch)
+            q, state, converged = _newton(alternates, batch)
         else:
-            q, state, converged = _newton(surface, predictors[rows], batch)
-        ok = converged & admissible_rows(state.rows, batch.mode, batch.mu, p1[rows], jump)
+            q, state, converged = _newton(predictors[rows], batch)
+        ok = converged & admissible_rows(state.rows, batch.mode, batch.mu, p1[rows], jump[rows])
         for k in np.flatnonzero(ok):
             i = int(rows[k])
             moved = state.rows[k, 4:7] - p1[i]
@@ -840,7 +892,7 @@ def _take_state(state: _State, k: int) -> _State:
 
 
 def _newton_friction_continuation(
-    surface: Surface, q0: FloatArray, batch: _Batch, stages: int = 16
+    q0: FloatArray, batch: _Batch, stages: int = 16
 ) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
     """Newton's method along mu = 0 -> mu in ``stages`` steps, each from the previous solution."""
     full_mu = batch.mu
@@ -848,7 +900,7 @@ def _newton_friction_continuation(
     alive = np.ones(len(q), dtype=bool)
     for fraction in np.linspace(0.0, 1.0, stages + 1):
         batch.mu = fraction * full_mu
-        q_next, state, converged = _newton(surface, q, batch)
+        q_next, state, converged = _newton(q, batch)
         alive &= converged
         q = np.where(alive[:, None], q_next, q)
     batch.mu = full_mu
@@ -904,7 +956,7 @@ def _clamp_reactions(q: FloatArray, force_W: FloatArray, R_WC: FloatArray
     return -np.matmul(force_W[:, None, :], R_WC)[:, 0, :], -q[:, 3:4] * e_w_C
 
 
-def _finish(track: _Track, step: float) -> Sweep:
+def _finish(track: _Track) -> Sweep:
     rows = track.rows
     n = len(rows)
     q = np.array([r[3] for r in rows]).reshape(n, 4)
@@ -922,7 +974,7 @@ def _finish(track: _Track, step: float) -> Sweep:
     end = track.end or SweepEnd.MAX_STEPS
     return Sweep(
         trail=track.trail,
-        step=step,
+        step=track.step,
         x0=x0,
         phase=np.array([_phase_of(m) for m in modes], dtype=np.int64),
         state=np.where(modes == _MODE_STICK, STICK, SLIDE).astype(np.int64),

@@ -17,6 +17,10 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
 	PYTHONWARNINGS=ignore $(PY) -m pip install -qq --upgrade pip
 	PYTHONWARNINGS=ignore $(PY) -m pip install -qq -e '.[dev,view]'
+	# The package's bytecode, once, as pip compiles a regular install's: an editable install's
+	# sources are otherwise compiled at every start where PYTHONDONTWRITEBYTECODE is set
+	# (0.2-0.3 s of each command on a 2-core machine; a changed file is recompiled as usual).
+	$(PY) -m compileall -q vibrissa msgs wire runtime launch nodes cli
 	touch $(STAMP)
 
 demo: setup

@@ -24,6 +24,17 @@ def contact(i: int, frame_id: str = "world") -> ContactPoint:
                         phase=ContactPhase.TIP, force=[0.0, 0.0, 1.0], status=ContactStatus.OK)
 
 
+def until_heard(pub: Publisher, statuses: Subscriber) -> None:
+    """Ping on TOPIC until the mapper's status says it hears it."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        pub.ping("/test")
+        rx = statuses.receive(0.1)
+        if rx is not None and rx.msg.node == "/mapper" and TOPIC in rx.msg.seen_topics:
+            return
+    pytest.fail("the mapper never heard the topic")
+
+
 @pytest.mark.parametrize("allow_loss", [False, True])
 def test_a_lost_contact_is_reported_and_fails_the_mapper(
     tmp_path: Path, endpoints: Endpoints, allow_loss: bool
@@ -37,14 +48,7 @@ def test_a_lost_contact_is_reported_and_fails_the_mapper(
     try:
         with Publisher(TOPIC, ContactPoint, endpoints) as pub, \
                 Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:  # ping until the mapper hears the topic
-                pub.ping("/test")
-                rx = statuses.receive(0.1)
-                if rx is not None and rx.msg.node == "/mapper" and TOPIC in rx.msg.seen_topics:
-                    break
-            else:
-                pytest.fail("the mapper never heard the topic")
+            until_heard(pub, statuses)
             for i in range(12):
                 if i == 5:  # sent, and lost on the way: its seq is used, it never arrives
                     pub.sent += 1
@@ -83,14 +87,7 @@ def test_points_beyond_the_maps_bounds_are_dropped_counted_and_fail_the_mapper(
     try:
         with Publisher(TOPIC, ContactPoint, endpoints) as pub, \
                 Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                pub.ping("/test")
-                rx = statuses.receive(0.1)
-                if rx is not None and rx.msg.node == "/mapper" and TOPIC in rx.msg.seen_topics:
-                    break
-            else:
-                pytest.fail("the mapper never heard the topic")
+            until_heard(pub, statuses)
             for i in range(6):  # frames world and a: 6 points
                 pub.publish(contact(i, "world" if i < 4 else "a"))
             for i in range(6, 9):  # a third frame: dropped (max_frames)

@@ -445,13 +445,20 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
         The /tf transform ``map_frame -> robot_frame`` (header.frame_id -> child_frame_id)
         becomes a RobotPose on ``pose_topic``; other transforms are counted and left out.
 
+    Returns
+    -------
+    ImportResult
+        What was written, and per topic what was not: refused by the codec, and ``lost``
+        (payloads that do not decode, messages the bag's metadata lists but that were not read).
+
     Raises
     ------
     FileNotFoundError
         Nothing at ``src``.
     ValueError
-        ``src`` is not a readable ROS 2 bag, a wrench topic is missing or of another type,
-        /tf is of another type, or it has transforms but none ``map_frame -> robot_frame``.
+        ``src`` is not a readable ROS 2 bag (nor are its records from some point on: nothing is
+        written then), a wrench topic is missing or of another type, /tf is of another type,
+        or it has transforms but none ``map_frame -> robot_frame``.
     """
     path = Path(src)
     if not wrench_topics:

@@ -303,8 +303,8 @@ class Accumulator:
     its rows are counted in ``dropped`` (by reason).
     """
 
-    def __init__(self, expected: int | Sequence[str], max_points: int = 10_000_000,
-                 max_frames: int = 64) -> None:
+    def __init__(self, expected: int | Sequence[str], max_points: int = MapperParams.max_points,
+                 max_frames: int = MapperParams.max_frames) -> None:
         self.expected = expected
         self.max_points = max_points
         self.max_frames = max_frames

@@ -321,9 +321,7 @@ class _Parser:
 
     def substitute(self, text: str, path: str) -> str:
         """Resolve the substitutions of ``text``, innermost first; a value is not re-read."""
-        result, end = self._resolve(text, 0, path, inside=False)
-        assert end == len(text)
-        return result
+        return self._resolve(text, 0, path, inside=False)[0]
 
     def _resolve(self, text: str, start: int, path: str, inside: bool) -> tuple[str, int]:
         """``text`` from ``start`` resolved up to the end, or (``inside`` a substitution) up

@@ -4,21 +4,25 @@ clamp's wrench alone (Kirchhoff's rod, scipy's solve_ivp; nothing of vibrissa's 
 
 - it reaches the reported contact point at the reported arc length;
 - at a tangential contact its tangent there lies in the surface's tangent plane;
-- no point of it is inside the object (beyond the contact the unloaded rod is straight);
+- no point of it is inside an object (beyond the contact the unloaded rod is straight), nor
+  of the straight rod at a sample without contact;
 - the contact force F = -f0 is in Coulomb's cone about the outward normal: F . n > 0 and
   |F_t| <= mu F . n.
 
-Over seeds 101-120 (16 with contact, 1 875 samples) the worst were: reach 1.5e-13 L, tangent
+Over seeds 101-120 (16 with contact, 1 876 samples) the worst were: reach 1.5e-13 L, tangent
 9.5e-13, inside 1.5e-13 L, cone 9.7e-13 of |F|.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
 from tests.core.test_random_scenes import random_scene
+from vibrissa.runtime.scene_file import load_scene
 from vibrissa.scene import SamplePhase, Scene, simulate_whisker
 
 
@@ -42,15 +46,18 @@ def rod_in_clamp_frame(f0_L: np.ndarray, m0_L: np.ndarray, s1_L: float) -> tuple
     return sol.sol(s)[:3].T, sol.y[3:, -1]
 
 
-def check_against_the_rod(scene: Scene) -> dict[str, float]:
-    """The worst of each check over the contact samples, units of L (cone: of |F|)."""
-    w = scene.whiskers[0]
+def check_against_the_rod(scene: Scene, whisker: int = 0, every: int = 1) -> dict[str, float]:
+    """The worst of each check over every ``every``-th contact sample of a whisker, units of
+    its L (cone: of |F|)."""
+    w = scene.whiskers[whisker]
     L, EI = w.length_m, w.ei_nm2
     result = simulate_whisker(scene, w)
-    rows = np.flatnonzero((result.phase == SamplePhase.TIP) | (result.phase == SamplePhase.TANGENTIAL))
+    rows = np.flatnonzero((result.phase == SamplePhase.TIP)
+                          | (result.phase == SamplePhase.TANGENTIAL))[::every]
     R_WC = scene.path.R_WR[rows] * w.X_RC.rotation
     p_WC = scene.path.p_WR[rows] + scene.path.R_WR[rows].apply(np.array(w.X_RC.translation))
-    worst = {"reach": 0.0, "tangent": 0.0, "inside": 0.0, "cone": 0.0, "samples": len(rows)}
+    worst = {"reach": 0.0, "tangent": 0.0, "inside": 0.0, "cone": 0.0, "free inside": -np.inf,
+             "samples": len(rows)}
     for k, i in enumerate(rows):
         surface = scene.objects[result.object[i]].surface(L)
         f0_L = result.f0_n[i] * L**2 / EI
@@ -64,12 +71,21 @@ def check_against_the_rod(scene: Scene) -> dict[str, float]:
         n_W = surface.normal(contact_W)[0]
         if result.phase[i] == SamplePhase.TANGENTIAL:
             worst["tangent"] = max(worst["tangent"], abs(float(R_WC[k].apply(tangent_C) @ n_W)))
-        worst["inside"] = max(worst["inside"], float(-surface.value(rod_W).min()))
+        worst["inside"] = max(worst["inside"], *(float(-o.surface(L).value(rod_W).min())
+                                                 for o in scene.objects))
         F_W = -R_WC[k].apply(result.f0_n[i])
         F_n = float(F_W @ n_W)
         F_t = float(np.linalg.norm(F_W - F_n * n_W))
         assert F_n > 0.0, f"sample {i}: the object pulls the rod (F . n = {F_n})"
         worst["cone"] = max(worst["cone"], (F_t - scene.mu * F_n) / np.linalg.norm(F_W))
+    free = np.flatnonzero(result.phase == SamplePhase.NONE)
+    rod_C = np.outer(np.linspace(0.0, 1.0, 50), [0.0, 0.0, 1.0])  # a free rod is straight
+    R_WC = scene.path.R_WR[free] * w.X_RC.rotation
+    p_WC = scene.path.p_WR[free] + scene.path.R_WR[free].apply(np.array(w.X_RC.translation))
+    for k in range(len(free)):
+        rod_W = R_WC[k].apply(rod_C) + p_WC[k] / L
+        worst["free inside"] = max(worst["free inside"], *(
+            float(-o.surface(L).value(rod_W).min()) for o in scene.objects))
     return worst
 
 
@@ -82,3 +98,18 @@ def test_an_independent_rod_from_the_clamp_wrench_touches_where_step_1_says(seed
     assert worst["tangent"] <= 1e-10
     assert worst["inside"] <= 1e-10
     assert worst["cone"] <= 1e-10
+    assert worst["free inside"] <= 0.0
+
+
+@pytest.mark.parametrize("whisker", [0, 1, 2, 4, 5, 6])  # w03 and w13 (30 mm) touch nothing
+def test_the_robot_demos_whiskers_against_an_independent_rod(whisker: int) -> None:
+    """The robot demo: 8 rods of their own L and EI on an arc past a sphere and a rotated
+    ellipsoid (every 5th contact sample)."""
+    scene = load_scene(Path(__file__).parents[2] / "launch" / "robot" / "scene.yaml")
+    worst = check_against_the_rod(scene, whisker, every=5)
+    assert worst["samples"] > 0
+    assert worst["reach"] <= 1e-10
+    assert worst["tangent"] <= 1e-10
+    assert worst["inside"] <= 1e-10
+    assert worst["cone"] <= 1e-10
+    assert worst["free inside"] <= 0.0

@@ -11,7 +11,11 @@ Floor, in the same run, with the same payload and the same pacing::
 
     load (bare PUB) --> echo (SUB -> PUB, forwards the bytes) --> sink (bare SUB)
 
-the pipeline with CURVE on every socket (``curve``: keys of ``vibrissa keys``, the ZAP guards;
+and, below every pipeline, the machine's own wake-up latency (``timer``): one process that
+sleeps until each tick is due, as the load does, and sends nothing; its "latency" is how late
+it woke. A message through any chain here wakes two processes (the middle one and the sink),
+each at the mercy of the same scheduler: the timer's p99 is the tail of one wake-up in that
+minute. Further, the pipeline with CURVE on every socket (``curve``: keys of ``vibrissa keys``, the ZAP guards;
 the sink connects with the graph's key), and the floor through the broker (``proxied``): the
 same bare processes connected through the proxy, as tools and raw publishers are (what the
 broker costs without any work)::
@@ -84,11 +88,12 @@ WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
 UNITS = ("wrench", "tick")  # one WhiskerWrench per whisker, or one WhiskerWrenchArray per tick
-MODES = ("bare", "proxied", "vibrissa", "curve", "robot", "robot-rt")
-# the floor, the floor through the proxy, the pipeline, the pipeline encrypted and authenticated,
-# the robot graph (poses one period ahead), the robot graph with poses in real time
-DEFAULT_MODES = MODES[:5]
-FLOORS = ("bare", "proxied")
+MODES = ("timer", "bare", "proxied", "vibrissa", "curve", "robot", "robot-rt")
+# one process waking at each tick (no message), the floor, the floor through the proxy, the
+# pipeline, the pipeline encrypted and authenticated, the robot graph (poses one period ahead),
+# the robot graph with poses in real time
+DEFAULT_MODES = MODES[:6]
+FLOORS = ("timer", "bare", "proxied")
 ROBOT_MODES = ("robot", "robot-rt")
 POSE_TOPIC = "/bench/pose"
 POSE_PERIOD_S = 0.01  # the robot's poses at 100 Hz
@@ -203,11 +208,12 @@ def _per_tick(unit: str) -> int:
 
 
 def _pace(send: Callable[[int], None], n: int, rate: float, per_tick: int, t_send: np.ndarray,
-          side: tuple[Callable[[int], None], np.ndarray] | None = None) -> None:
+          side: tuple[Callable[[int], None], np.ndarray] | None = None) -> float:
     """Call ``send(i)`` for i < n, ``per_tick`` messages per tick, ticks of WHISKERS wrenches
     at ``rate`` wrenches/s (tick k due k x WHISKERS / ``rate`` s after the start). ``side`` =
     (``send_side``, ``due_s``): a second stream, ``send_side(j)`` at ``due_s[j]`` s after the
-    start (before a tick due at the same time), what is left of it after the last tick."""
+    start (before a tick due at the same time), what is left of it after the last tick.
+    Returns the start (time.time(), s): tick k is due then + k x WHISKERS / ``rate``."""
     tick = WHISKERS / rate
     t0 = time.perf_counter() + 0.05
     clock_offset = time.time() - time.perf_counter()
@@ -232,6 +238,7 @@ def _pace(send: Callable[[int], None], n: int, rate: float, per_tick: int, t_sen
     for k in range(j, len(side_due)):
         until(side_due[k])
         send_side(k)
+    return t0 + clock_offset
 
 
 def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) -> None:
@@ -282,6 +289,14 @@ def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) ->
             _pace(lambda i: pub.publish_raw(payloads[i]), n, rate, per_tick, t_send, side)
             pub.publish_end_of_stream(node.fqn)
     np.save(out, t_send)
+
+
+def _timer(n: int, rate: float, out: str) -> None:
+    """Wake at each of ``n`` ticks as the load does, sending nothing; save how late each wake-up
+    was, s: the machine's floor under any pipeline, whose every message wakes two processes."""
+    t_wake = np.zeros(n)
+    start = _pace(lambda i: None, n, rate, 1, t_wake)
+    np.save(out, t_wake - (start + np.arange(n) * WHISKERS / rate))
 
 
 def _echo(source: str, endpoint: str, via_proxy: bool) -> None:
@@ -439,6 +454,11 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
     helpers: list[subprocess.Popen[str]] = []
     me = str(Path(__file__).resolve())
     try:
+        if mode == "timer":
+            ticks = n // per_tick
+            _python(me, "_timer", str(ticks), str(rate), str(out)).wait(60 + 2 * duration_s)
+            late = np.load(out)
+            return Run(mode, unit, rate, ticks, ticks, late, late, duration_s, 0.0, 0)
         if mode == "bare":
             probe = context.socket(zmq.PUB)  # find two free ports
             load_ep = f"tcp://127.0.0.1:{probe.bind_to_random_port('tcp://127.0.0.1')}"
@@ -598,6 +618,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if argv and argv[0] == "_load":
         _load(argv[1], argv[2], argv[3], int(argv[4]), float(argv[5]), argv[6])
+        return 0
+    if argv and argv[0] == "_timer":
+        _timer(int(argv[1]), float(argv[2]), argv[3])
         return 0
     if argv and argv[0] == "_echo":
         _echo(argv[1], argv[2], argv[3] == "proxy")

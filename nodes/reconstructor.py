@@ -618,8 +618,8 @@ def _on_pose(frames: FrameBuffer, counters: dict[str, int], fqn: str
              ) -> Callable[[RobotPose], None]:
     def on_pose(pose: RobotPose) -> None:
         try:
-            frames.add_pose(pose.frame_id, pose.child_frame_id, pose.stamp, pose.position,
-                            pose.orientation)
+            forgotten = frames.add_pose(pose.frame_id, pose.child_frame_id, pose.stamp,
+                                        pose.position, pose.orientation)
         except ValueError as exc:  # a zero quaternion, a frame that would close a loop, ...
             counters["bad_robot_pose"] += 1
             if counters["bad_robot_pose"] == 1 or counters["bad_robot_pose"] % 1000 == 0:
@@ -627,6 +627,12 @@ def _on_pose(frames: FrameBuffer, counters: dict[str, int], fqn: str
                             counters["bad_robot_pose"], exc)
             return
         counters["robot_poses"] += 1
+        if forgotten is not None:
+            counters["pose_time_jumps"] += 1
+            log.warning("%s: the poses of %s in %s start again at t=%r, behind the kept history "
+                        "(newest t=%r): that history is dropped (%d time jump(s) so far)", fqn,
+                        pose.child_frame_id, pose.frame_id, pose.stamp, forgotten,
+                        counters["pose_time_jumps"])
     return on_pose
 
 
@@ -635,7 +641,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
     counters = node.counters
     counters.update(contacts=0, free=0, tip_within_noise=0, no_covariance=0, no_contact=0,
                     bad_pose=0, no_pose=0, unknown_whisker=0, robot_poses=0, bad_robot_pose=0,
-                    batches=0, max_batch=0)
+                    pose_time_jumps=0, batches=0, max_batch=0)
     whiskers = load_robot(params.robot) if params.robot else ()
     rod: Rods = RodTable({w.name: w.scale for w in whiskers}) if whiskers else params.rod
     frames = robot_frames(whiskers, params.robot_frame, params.history_s) if whiskers else None

@@ -39,6 +39,11 @@ so that a stream of invented frame names cannot grow it without end."""
 MAX_POSES = 100_000
 """The most stamped poses kept per edge (10 s at 10 kHz); beyond it the oldest are forgotten,
 so that a flood of poses shortens the history instead of growing the memory."""
+TIME_JUMP_POSES = 3
+"""A pose older than its edge's kept history is refused; this many in a row, each newer than the
+one before, are a new timeline (a simulation or a bag started again, a clock set back, or one
+stray pose stamped far ahead of the stream): the edge forgets its history and keeps the last
+of them. So one bad stamp costs a few poses, not the stream."""
 
 FloatArray = NDArray[np.float64]
 
@@ -64,6 +69,7 @@ class _Edge:
     stamps: list[float] = field(default_factory=list)
     poses: list[FloatArray] = field(default_factory=list)  # (x, y, z, qx, qy, qz, qw) each
     arrays: tuple[FloatArray, FloatArray, FloatArray] | None = None  # of stamps and poses
+    refused: list[float] = field(default_factory=list)  # stamps of the too old poses in a row
 
     def kept(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Stamps (n,), positions (n, 3) and quaternions (n, 4) of the kept poses (made at
@@ -151,17 +157,21 @@ class FrameBuffer:
         self._plans.clear()
         self._newest.clear()
 
-    def add(self, parent: str, child: str, stamp: float, X_parent_child: Transform) -> None:
+    def add(self, parent: str, child: str, stamp: float, X_parent_child: Transform
+            ) -> float | None:
         """The pose of ``child`` in ``parent`` at ``stamp`` (s); a pose at a stamp already kept
-        replaces it, one older than the kept history is ignored."""
-        self.add_pose(parent, child, stamp, X_parent_child.translation,
-                      X_parent_child.quaternion_xyzw)
+        replaces it. One older than the kept history is refused (ValueError), unless it is the
+        `TIME_JUMP_POSES`-th such in a row: then the edge starts again from it, and the newest
+        stamp of the history it forgot is returned (else None)."""
+        return self.add_pose(parent, child, stamp, X_parent_child.translation,
+                             X_parent_child.quaternion_xyzw)
 
     def add_pose(self, parent: str, child: str, stamp: float, position: ArrayLike,
-                 quaternion_xyzw: ArrayLike) -> None:
+                 quaternion_xyzw: ArrayLike) -> float | None:
         """`add` from a position (3,) and a quaternion (x, y, z, w) (normalised here) as a pose
         message has them, without building a `Transform`; ValueError names what is wrong (a
-        stamp, position or quaternion that is not finite, a zero quaternion)."""
+        stamp, position or quaternion that is not finite, a zero quaternion, a stamp older
+        than the kept history)."""
         if not math.isfinite(stamp):
             raise ValueError(f"stamp of {child} in {parent} must be finite, got {stamp}")
         p = np.asarray(position, dtype=float).reshape(3)
@@ -172,8 +182,21 @@ class FrameBuffer:
                              f"and quaternion {q.tolist()} must be finite, the quaternion "
                              "non-zero")
         edge = self._edge(parent, child, static=False)
+        forgotten = None
         if edge.stamps and stamp < edge.stamps[-1] - self.history_s:
-            return
+            if edge.refused and stamp <= edge.refused[-1]:
+                edge.refused.clear()
+            edge.refused.append(stamp)
+            if len(edge.refused) < TIME_JUMP_POSES:
+                raise ValueError(
+                    f"pose of {child} in {parent} at t={stamp!r}: older than the kept history "
+                    f"(the newest pose is at t={edge.stamps[-1]!r}, {self.history_s:g} s are "
+                    f"kept); {TIME_JUMP_POSES - len(edge.refused)} more such, each newer, "
+                    "start the history again")
+            forgotten = edge.stamps[-1]
+            edge.stamps.clear()
+            edge.poses.clear()
+        edge.refused.clear()
         edge.arrays = None
         self._newest.clear()
         pose = np.concatenate([p, q / norm])
@@ -187,6 +210,7 @@ class FrameBuffer:
                   len(edge.stamps) - MAX_POSES)
         if old:
             del edge.stamps[:old], edge.poses[:old]
+        return forgotten
 
     def latest(self, parent: str, child: str) -> float | None:
         """The newest stamp of ``child`` in ``parent`` (None: none yet, or a static one)."""

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from vibrissa.frame_buffer import (
     MAX_FRAMES,
     MAX_POSES,
+    TIME_JUMP_POSES,
     ConnectivityError,
     ExtrapolationError,
     FrameBuffer,
@@ -100,8 +101,44 @@ def test_history_is_bounded() -> None:
     buffer.lookup("world", "base_link", 2.5)
     with pytest.raises(ExtrapolationError, match="older than the kept history"):
         buffer.lookup("world", "base_link", 1.5)
-    buffer.add("world", "base_link", 0.5, Transform())  # too old to keep: ignored
+    with pytest.raises(ValueError, match=r"at t=0.5: older than the kept history \(the newest "
+                       r"pose is at t=2.99, 1 s are kept\); 2 more such"):
+        buffer.add("world", "base_link", 0.5, Transform())
     assert buffer.latest("world", "base_link") == pytest.approx(2.99)
+
+
+def test_a_stray_future_stamp_costs_a_few_poses_not_the_stream() -> None:
+    """One pose stamped far ahead pushes the history past the stream; the stream's next poses
+    are refused until TIME_JUMP_POSES of them in a row, each newer, start it again."""
+    buffer = FrameBuffer(history_s=1.0)
+    for k in range(10):
+        assert buffer.add("world", "base_link", 0.01 * k, Transform(translation=[k, 0, 0])) is None
+    assert buffer.add("world", "base_link", 1e300, Transform()) is None
+    for k in range(10, 10 + TIME_JUMP_POSES - 1):
+        with pytest.raises(ValueError, match="older than the kept history"):
+            buffer.add("world", "base_link", 0.01 * k, Transform(translation=[k, 0, 0]))
+    k = 10 + TIME_JUMP_POSES - 1
+    assert buffer.add("world", "base_link", 0.01 * k, Transform(translation=[k, 0, 0])) == 1e300
+    assert buffer.latest("world", "base_link") == 0.01 * k
+    buffer.add("world", "base_link", 0.01 * (k + 1), Transform(translation=[k + 1, 0, 0]))
+    p, _q = buffer.lookup_many("world", "base_link", [0.01 * k + 0.005])
+    assert p[0] == pytest.approx([k + 0.5, 0.0, 0.0], abs=1e-9)
+    with pytest.raises(ExtrapolationError):  # the poses before the jump are gone
+        buffer.lookup_many("world", "base_link", [0.05])
+
+
+def test_a_timeline_restarts_only_on_poses_in_a_row_each_newer() -> None:
+    buffer = FrameBuffer(history_s=1.0)
+    buffer.add("world", "base_link", 100.0, Transform())
+    for stamp in (5.0, 4.0, 5.0, 3.0):  # old, but not moving forward: never a timeline
+        with pytest.raises(ValueError, match="older than the kept history"):
+            buffer.add("world", "base_link", stamp, Transform())
+    buffer.add("world", "base_link", 100.5, Transform())  # a pose in the history breaks a run
+    for stamp in (6.0, 7.0):
+        with pytest.raises(ValueError, match="older than the kept history"):
+            buffer.add("world", "base_link", stamp, Transform())
+    assert buffer.add("world", "base_link", 8.0, Transform()) == 100.5
+    assert buffer.latest("world", "base_link") == 8.0
 
 
 def test_unknown_frames_and_a_second_tree_are_named() -> None:

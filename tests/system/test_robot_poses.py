@@ -1,6 +1,7 @@
 """The reconstructor as a process on a robot, fed by the test over loopback: a pose stream that
 stops makes wrenches count as ``no_pose`` after ``pose_timeout_s`` while the node keeps
-running, and a bad robot description stops the launch naming the problem."""
+running, a pose stamped far ahead costs the stream a few poses, and a bad robot description
+stops the launch naming the problem."""
 
 from __future__ import annotations
 
@@ -124,6 +125,21 @@ def test_a_pose_stream_that_stops_gives_no_pose_and_the_node_goes_on(tmp_path: P
         status = probe.status_of(FQN, lambda s: s.counters.get("unknown_whisker", 0) >= 1)
         assert status.counters["unknown_whisker"] == 1
         launch.wait_line(r"whisker 'ghost' is not in the robot description")
+        # one pose stamped far ahead pushes the history past the stream: the next two poses
+        # are refused, the third starts the history again, and the wrenches are placed again
+        taken = status.counters["robot_poses"]
+        poses.publish(_pose(1e300))
+        for k in range(121, 131):
+            poses.publish(_pose(0.01 * k))
+        status = probe.status_of(FQN, lambda s: s.counters.get("robot_poses", 0) >= taken + 9)
+        assert status.counters["robot_poses"] == taken + 9
+        assert status.counters["bad_robot_pose"] == 2 and status.counters["pose_time_jumps"] == 1
+        launch.wait_line(r"start again at t=1.23, behind the kept history \(newest t=1e\+300\)")
+        for seq in range(124, 129):
+            wrenches.publish(tick(seq))
+        again = _arrays(probe, 5)
+        assert [a.seq for a in again] == list(range(124, 129))
+        assert all(a.whisker_ids == names for a in again)
     finally:
         probe.close()
         launch.kill()

@@ -37,9 +37,13 @@ def ramp(n: int) -> np.ndarray:
 @contextmanager
 def driver(tmp_path: Path, endpoints: Endpoints, device: NetFTDevice, **params: Any
            ) -> Iterator[subprocess.Popen[str]]:
+    """The driver of ``device``. ``stall_s`` 2 unless a test of stalls says otherwise: a driver
+    starved of the CPU for a moment on a loaded machine must not take it for a stall and request
+    the stream again (the sensor then starts its sequence anew: records repeat, and what was
+    lost around the restart cannot be known)."""
     values = {"whisker": "w0", "address": "127.0.0.1", "port": device.address[1],
               "counts_per_force": CPF, "counts_per_torque": CPF, "ft_rate_hz": device.rate_hz,
-              "stall_s": 0.2, "restart_s": 0.3, "free_samples": 20, **params}
+              "stall_s": 2.0, "restart_s": 0.3, "free_samples": 20, **params}
     file = tmp_path / "netft.yaml"
     file.write_text(yaml.safe_dump(values))
     proc = subprocess.Popen(
@@ -125,12 +129,9 @@ def test_every_record_once_and_in_order(tmp_path: Path, endpoints: Endpoints, wa
 
 def test_loss_and_reordering_are_counted_exactly(tmp_path: Path, endpoints: Endpoints,
                                                  watch: Watch) -> None:
-    # stall_s 2: a driver starved of the CPU for a moment on a loaded machine must not take it
-    # for a stall and request the stream again (the sensor then starts its sequence anew, and
-    # what was lost around the restart cannot be known: that case is the stall test's)
     with NetFTDevice(ramp(100_000), rate_hz=2000, counts_per_force=CPF,
                      spec=SignalSpec(seed=3)) as device, \
-            driver(tmp_path, endpoints, device, stall_s=2.0):
+            driver(tmp_path, endpoints, device):
         watch.until(lambda c: c.get("records", 0) > 100)
         device.loss, device.reorder = 0.05, 0.05
         time.sleep(1.5)
@@ -147,7 +148,7 @@ def test_loss_and_reordering_are_counted_exactly(tmp_path: Path, endpoints: Endp
 def test_a_stalled_device_is_reported_within_half_a_second(tmp_path: Path, endpoints: Endpoints,
                                                            watch: Watch, fault: str) -> None:
     with NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF) as device, \
-            driver(tmp_path, endpoints, device):
+            driver(tmp_path, endpoints, device, stall_s=0.2):
         watch.until(lambda c: c.get("records", 0) > 100)
         start = time.monotonic()
         setattr(device, fault, True)
@@ -244,7 +245,7 @@ def test_a_restarted_device_resumes_the_stream(tmp_path: Path, endpoints: Endpoi
                                                watch: Watch) -> None:
     device = NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF)
     port = device.address[1]
-    with driver(tmp_path, endpoints, device):
+    with driver(tmp_path, endpoints, device, stall_s=0.2):
         watch.take(100)
         device.close()  # the sensor reboots: its rdt_sequence starts again
         time.sleep(0.3)

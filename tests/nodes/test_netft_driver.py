@@ -282,4 +282,8 @@ def test_vibrissa_sensor_bias_tares_a_free_rod(tmp_path: Path, endpoints: Endpoi
             env={**os.environ, **endpoints.to_env()}, capture_output=True, text=True, timeout=30)
         assert done.returncode == 0, done.stderr
         assert "/s/netft: sensor biased" in done.stdout
+        # the command is a datagram the device reads on its own thread (RDT has no reply)
+        deadline = time.monotonic() + 5.0
+        while device.stats.biases < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert device.stats.biases >= 1

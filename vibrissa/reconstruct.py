@@ -290,20 +290,19 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         See ``wrench_cov``.
     """
     # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
-    q, p, f0, m0 = (np.require(a, dtype=float, requirements=["C", "W"])
-                    for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
+    q, p, f0, m0 = (_kernel_array(a) for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
     if not (q.shape[1:] == (4,) and p.shape[1:] == f0.shape[1:] == m0.shape[1:] == (3,)
             and len(q) == len(p) == len(f0) == len(m0)):
         raise ValueError(f"q_WC_xyzw (N, 4), p_WC_m, f0_C_n, m0_C_nm (N, 3) must have the same "
                          f"number of rows, got {q.shape}, {p.shape}, {f0.shape}, {m0.shape}")
     if isinstance(rod, RodScale):
-        units = np.tile([rod.length_m, rod.force_n, rod.moment_nm], (len(q), 1))
+        length_m, force_n, moment_nm = (np.full(len(q), value) for value in
+                                        (rod.length_m, rod.force_n, rod.moment_nm))
     else:
         units = rod if isinstance(rod, np.ndarray) else rod_units(rod)
         if units.shape != (len(q), 3):
             raise ValueError(f"rod: {len(units)} rods for {len(q)} rows")
-    length_m, force_n, moment_nm = (np.ascontiguousarray(units[:, j], dtype=float)
-                                    for j in range(3))
+        length_m, force_n, moment_nm = np.array(units.T, dtype=float, order="C")
     if wrench_cov is None:
         cov = _NO_COVARIANCE
     else:
@@ -321,6 +320,15 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
 
 
 _NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
+
+
+def _kernel_array(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``a`` as the compiled kernels take it: float64, C-contiguous and writable (a copy only
+    when it is not; `np.require`'s checks cost more than Step 2 of a small tick)."""
+    if (type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous
+            and a.flags.writeable):
+        return a
+    return np.require(a, dtype=float, requirements=["C", "W"])
 
 
 @compiled

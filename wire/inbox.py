@@ -2,7 +2,8 @@
 
 The taker (the node's thread, in ``Subscriber.receive``) reads its sockets itself, as a
 single-threaded subscriber would. While it is busy elsewhere, a drainer thread takes what
-arrives off the sockets every ``DRAIN_PERIOD_S`` into a FIFO of at most ``max_bytes`` bytes,
+arrives off the sockets every ``DRAIN_PERIOD_S`` into a FIFO of at most ``max_bytes`` bytes
+(while the taker waits in ``take`` the drainer sleeps: an idle node does not wake for it),
 so what a node buffers is that FIFO plus at most ``PIPE_HWM`` messages per connection in
 ZeroMQ (more push back on the sender), whatever ZeroMQ's marks in messages would allow. One
 lock serialises every use of the sockets, which is what ZeroMQ asks of a socket shared by
@@ -65,6 +66,8 @@ class Inbox:
         self._turn = 0  # the socket read first next time
         self._lock = threading.Lock()  # the sockets, the FIFO and its counts
         self._stop = threading.Event()
+        self._busy = threading.Event()  # set while the taker is not in take
+        self._busy.set()
         self._thread = threading.Thread(target=self._drain_while_busy, name=name, daemon=True)
         self._thread.start()
 
@@ -77,17 +80,22 @@ class Inbox:
         """The oldest message and, when its payload was cut for its length, that length
         (else 0); ``None`` when none arrives within ``timeout_s`` seconds."""
         deadline = time.monotonic() + timeout_s
-        with self._lock:
-            while True:
-                if self._queue:
-                    frames, size, cut = self._queue.popleft()
-                    self._bytes -= size
-                    return frames, cut
-                if self._sockets and self._read():
-                    continue
-                remaining_ms = round((deadline - time.monotonic()) * 1000)
-                if remaining_ms < 0 or self._stop.is_set() or not self._poller.poll(remaining_ms):
-                    return None
+        self._busy.clear()
+        try:
+            with self._lock:
+                while True:
+                    if self._queue:
+                        frames, size, cut = self._queue.popleft()
+                        self._bytes -= size
+                        return frames, cut
+                    if self._sockets and self._read():
+                        continue
+                    remaining_ms = round((deadline - time.monotonic()) * 1000)
+                    if (remaining_ms < 0 or self._stop.is_set()
+                            or not self._poller.poll(remaining_ms)):
+                        return None
+        finally:
+            self._busy.set()
 
     def add_socket_locked(self, sock: zmq.Socket[Any]) -> None:
         """Take messages from ``sock`` too; only inside ``run_locked``."""
@@ -102,16 +110,18 @@ class Inbox:
     def close(self, timeout_s: float = 2.0) -> None:
         """Stop the drainer and close every socket (idempotent)."""
         self._stop.set()
+        self._busy.set()  # a drainer waiting for the taker to be busy wakes to its end
         self._thread.join(timeout_s)
         with self._lock:
             for sock in self._sockets:
                 sock.close()
 
     def _drain_while_busy(self) -> None:
-        """One pass over the sockets per period (never a loop that a flood could keep going
-        while the taker waits for the lock)."""
-        while not self._stop.wait(DRAIN_PERIOD_S):
-            if self._lock.acquire(blocking=False):  # else the taker is reading them itself
+        """One pass over the sockets per period while the taker is busy elsewhere (never a loop
+        that a flood could keep going while the taker waits for the lock); none while it
+        waits in ``take``, where it reads them itself."""
+        while self._busy.wait() and not self._stop.wait(DRAIN_PERIOD_S):
+            if self._busy.is_set() and self._lock.acquire(blocking=False):
                 try:
                     self._read()
                 except zmq.ZMQError:

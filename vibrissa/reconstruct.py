@@ -296,7 +296,7 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         raise ValueError(f"q_WC_xyzw (N, 4), p_WC_m, f0_C_n, m0_C_nm (N, 3) must have the same "
                          f"number of rows, got {q.shape}, {p.shape}, {f0.shape}, {m0.shape}")
     if isinstance(rod, RodScale):
-        length_m, force_n, moment_nm = (np.full(len(q), value) for value in
+        length_m, force_n, moment_nm = (np.full(len(q), value, dtype=float) for value in
                                         (rod.length_m, rod.force_n, rod.moment_nm))
     else:
         units = rod if isinstance(rod, np.ndarray) else rod_units(rod)

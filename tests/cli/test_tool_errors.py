@@ -62,7 +62,7 @@ def test_bag_info_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
 def test_bag_record_refuses_an_existing_file_unless_asked(tmp_path: Path) -> None:
     existing = tmp_path / "keep.mcap"
     existing.write_bytes(b"precious")
-    env_domain = str(27000 + os.getpid() % 2000)  # nobody publishes there
+    env_domain = str(9900 + os.getpid() % 1000)  # nobody publishes there (ports below the ephemeral ones)
     refused = vibrissa("bag", "record", "-o", str(existing), "--duration", "0.2",
                        "--domain", env_domain)
     assert refused.returncode == 1

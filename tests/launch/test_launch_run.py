@@ -300,7 +300,7 @@ def test_show_args_and_dry_run(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "[reconstructor]   param rod_length_m: 0.5" in out
 
 
-@pytest.mark.parametrize("transport", [None, {"domain": 5000 + os.getpid() % 5000}])
+@pytest.mark.parametrize("transport", [None, {"domain": 5000 + os.getpid() % 1500}])
 def test_nodes_talk_through_the_launcher_proxy(
     tmp_path: Path, transport: dict[str, Any] | None
 ) -> None:

@@ -21,7 +21,7 @@ from vibrissa.msgs import EndOfStream, WhiskerWrench
 from vibrissa.wire import Endpoints, Subscriber
 
 LAUNCH = Path(__file__).parents[2] / "launch"
-DOMAIN = 24000 + os.getpid() % 4000
+DOMAIN = 8200 + os.getpid() % 12 * 128  # +0..+120; ports below the ephemeral ones (32768-60999)
 
 
 class Launch:

@@ -19,7 +19,7 @@ from typing import Any
 from tests.system.test_first_hour import Launch, demo_with
 from vibrissa.wire.security import create_keys
 
-DOMAIN = 28100 + os.getpid() % 900
+DOMAIN = 11000 + os.getpid() % 1500  # ports below the ephemeral ones (32768-60999)
 
 INTRUDER = r"""
 import sys, time

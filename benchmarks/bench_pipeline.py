@@ -15,7 +15,9 @@ and, below every pipeline, the machine's own wake-up latency (``timer``): one pr
 sleeps until each tick is due, as the load does, and sends nothing; its "latency" is how late
 it woke. A message through any chain here wakes two processes (the middle one and the sink),
 each at the mercy of the same scheduler: the timer's p99 is the tail of one wake-up in that
-minute. Further, the pipeline with CURVE on every socket (``curve``: keys of ``vibrissa keys``, the ZAP guards;
+minute. ``busy`` is the floor whose echo spins ``--busy-us`` (default 150) on each message
+before forwarding it: a node's work without its code, for the tail that work alone makes.
+Further, the pipeline with CURVE on every socket (``curve``: keys of ``vibrissa keys``, the ZAP guards;
 the sink connects with the graph's key), and the floor through the broker (``proxied``): the
 same bare processes connected through the proxy, as tools and raw publishers are (what the
 broker costs without any work)::
@@ -35,6 +37,11 @@ every figure is the median over the repeats (runs interleaved), sustained counts
 and ``pooled p99 x`` is the ratio of the p99 of all repeats' latencies together: a run's p99 is
 set by the few stalls of a few ms that happen to fall in it (on a shared VM they hit the floor
 as much as the pipeline), and pooling the repeats counts more of them.
+
+Every run records the share of the CPUs' time the hypervisor gave to other guests meanwhile
+(``steal``, Linux's /proc/stat): on a shared VM it ranges from 0 to tens of per cent from minute
+to minute, and a run with steal holds stalls of several ms that no process here causes. ``calm
+p99`` is the median p99 of the calm runs (steal < 1 %) and their count.
 
 The robot graph (``robot``): the pipeline of ``vibrissa``, but every row is in its clamp frame
 (``w00/clamp``, ..., no pose fields) and the reconstructor places it through a robot description
@@ -88,12 +95,13 @@ WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
 UNITS = ("wrench", "tick")  # one WhiskerWrench per whisker, or one WhiskerWrenchArray per tick
-MODES = ("timer", "bare", "proxied", "vibrissa", "curve", "robot", "robot-rt")
-# one process waking at each tick (no message), the floor, the floor through the proxy, the
-# pipeline, the pipeline encrypted and authenticated, the robot graph (poses one period ahead),
-# the robot graph with poses in real time
-DEFAULT_MODES = MODES[:6]
-FLOORS = ("timer", "bare", "proxied")
+MODES = ("timer", "bare", "busy", "proxied", "vibrissa", "curve", "robot", "robot-rt")
+# one process waking at each tick (no message), the floor, the floor with work per message, the
+# floor through the proxy, the pipeline, the pipeline encrypted and authenticated, the robot graph
+# (poses one period ahead), the robot graph with poses in real time
+DEFAULT_MODES = ("timer", "bare", "proxied", "vibrissa", "curve", "robot")
+FLOORS = ("timer", "bare", "busy", "proxied")
+CALM_STEAL = 0.01  # a run is calm when the hypervisor stole less than this share of the CPUs
 ROBOT_MODES = ("robot", "robot-rt")
 POSE_TOPIC = "/bench/pose"
 POSE_PERIOD_S = 0.01  # the robot's poses at 100 Hz
@@ -299,9 +307,10 @@ def _timer(n: int, rate: float, out: str) -> None:
     np.save(out, t_wake - (start + np.arange(n) * WHISKERS / rate))
 
 
-def _echo(source: str, endpoint: str, via_proxy: bool) -> None:
+def _echo(source: str, endpoint: str, via_proxy: bool, busy_s: float = 0.0) -> None:
     """Forward every message; ``via_proxy``: connect to the proxy's ``endpoint`` and forward
-    /bench/wrench as /bench/contact, else bind ``endpoint`` and forward as it came."""
+    /bench/wrench as /bench/contact, else bind ``endpoint`` and forward as it came; ``busy_s``:
+    spin that long on each message before forwarding it (a node's work, without its code)."""
     context: zmq.Context[Any] = zmq.Context()
     sub, pub = context.socket(zmq.SUB), context.socket(zmq.PUB)
     for sock in (sub, pub):
@@ -319,6 +328,9 @@ def _echo(source: str, endpoint: str, via_proxy: bool) -> None:
     try:
         while True:
             frames = sub.recv_multipart()
+            done = time.perf_counter() + busy_s
+            while time.perf_counter() < done:
+                pass
             if via_proxy:
                 frames[0] = out_topic
             pub.send_multipart(frames)
@@ -363,6 +375,7 @@ class Run:
     backlog_s: float
     rows: int  # wrenches sent
     counters: dict[str, int] = field(default_factory=dict)  # the reconstructor's, at the end
+    steal: float = np.nan  # share of the CPUs' time the hypervisor gave to others meanwhile
 
     @property
     def lost(self) -> int:
@@ -382,6 +395,23 @@ class Run:
         """Percentile ``q`` of the latency, us (``first``: of the first message of each tick)."""
         latency = self.first_latency_s if first else self.latency_s
         return float(np.percentile(latency, q)) * 1e6 if len(latency) else np.nan
+
+
+def _cpu_times() -> tuple[float, float]:
+    """(steal, total) CPU time of all CPUs since boot, in clock ticks (Linux's /proc/stat; NaN
+    elsewhere): steal is time the hypervisor ran another guest on a CPU of this one."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    except OSError:
+        return np.nan, np.nan
+    ticks = [int(x) for x in fields[:8]]  # user nice system idle iowait irq softirq steal
+    return float(ticks[7]), float(sum(ticks))
+
+
+def _steal(before: tuple[float, float]) -> float:
+    """Share of the CPUs' time stolen since ``before`` (a `_cpu_times`)."""
+    steal, total = _cpu_times()
+    return (steal - before[0]) / max(total - before[1], 1.0)
 
 
 def _python(*args: str, **kwargs: Any) -> subprocess.Popen[str]:
@@ -438,10 +468,12 @@ def _announced(endpoints: Endpoints, node: str, topic: str, timeout_s: float = 3
     return status.endpoints[topic]
 
 
-def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> Run:
+def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path,
+            busy_s: float = 0.0) -> Run:
     """One run of the pipeline (``mode`` = ``vibrissa``, ``curve``, ``robot``, ``robot-rt``),
-    the floor (``bare``) or the floor through the proxy (``proxied``), sending a message per
-    wrench or per tick (``unit``) at ``rate`` wrenches/s."""
+    the floor (``bare``; ``busy``: its echo spins ``busy_s`` per message) or the floor through
+    the proxy (``proxied``), sending a message per wrench or per tick (``unit``) at ``rate``
+    wrenches/s."""
     per_tick = _per_tick(unit)
     n = int(rate * duration_s) // WHISKERS * per_tick
     rows = n * WHISKERS // per_tick
@@ -456,10 +488,12 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
     try:
         if mode == "timer":
             ticks = n // per_tick
+            before = _cpu_times()
             _python(me, "_timer", str(ticks), str(rate), str(out)).wait(60 + 2 * duration_s)
             late = np.load(out)
-            return Run(mode, unit, rate, ticks, ticks, late, late, duration_s, 0.0, 0)
-        if mode == "bare":
+            return Run(mode, unit, rate, ticks, ticks, late, late, duration_s, 0.0, 0,
+                       steal=_steal(before))
+        if mode in ("bare", "busy"):
             probe = context.socket(zmq.PUB)  # find two free ports
             load_ep = f"tcp://127.0.0.1:{probe.bind_to_random_port('tcp://127.0.0.1')}"
             echo_ep = f"tcp://127.0.0.1:{probe.bind_to_random_port('tcp://127.0.0.1')}"
@@ -468,7 +502,8 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             helpers.append(load)
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
-            echo = _python(me, "_echo", load_ep, echo_ep, "direct", stdout=subprocess.PIPE)
+            echo = _python(me, "_echo", load_ep, echo_ep, "direct",
+                           str(busy_s if mode == "busy" else 0.0), stdout=subprocess.PIPE)
             helpers.append(echo)
             assert echo.stdout is not None and echo.stdout.readline().strip() == "ready"
             sink.setsockopt(zmq.SUBSCRIBE, b"")
@@ -482,7 +517,7 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
             pub_ep, sub_ep = proxy.stdout.readline().split()
             sink.setsockopt(zmq.SUBSCRIBE, CONTACT.encode() + b"\0")
             sink.connect(sub_ep)
-            echo = _python(me, "_echo", sub_ep, pub_ep, "proxy", stdout=subprocess.PIPE)
+            echo = _python(me, "_echo", sub_ep, pub_ep, "proxy", "0", stdout=subprocess.PIPE)
             helpers.append(echo)
             assert echo.stdout is not None and echo.stdout.readline().strip() == "ready"
             load = _python(me, "_load", "proxied", unit, pub_ep, str(n), str(rate), str(out),
@@ -522,9 +557,11 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
             header_seq = True
         assert load.stdin is not None
+        before = _cpu_times()
         load.stdin.write("go\n")
         load.stdin.flush()
         t_recv = _sink(sink, n, header_seq, timeout_s=30.0 + 2 * duration_s)
+        steal = _steal(before)
         if header_seq:  # a node: where every row went, once it has counted them all
             counters = _node_status(
                 endpoints, "/bench/reconstructor",
@@ -554,7 +591,7 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path) -> 
     send_s = float(t_send[-1] - t_send[0]) if n > 1 else 0.0
     backlog = float(np.nanmax(t_recv) - t_send[-1]) if ok.any() else np.inf
     return Run(mode, unit, rate, n, int(ok.sum()), latency[ok], first[np.isfinite(first)],
-               send_s, backlog, rows, counters)
+               send_s, backlog, rows, counters, steal)
 
 
 def _pooled_p99(runs: list[Run]) -> float:
@@ -571,6 +608,12 @@ def _ratio(runs: list[Run], base: list[Run], q: float) -> float:
     return float(np.median([a.pct(q) / b.pct(q) for a, b in zip(runs, base, strict=True)]))
 
 
+def _calm_p99(runs: list[Run]) -> str:
+    """Median p99 of the calm runs (steal below CALM_STEAL), us, and how many there were."""
+    calm = [r.pct(99) for r in runs if r.steal < CALM_STEAL]
+    return f"{np.median(calm):.0f} ({len(calm)})" if calm else "- (0)"
+
+
 def _table(runs: list[Run], unit: str, rates: list[float], repeats: int,
            modes: list[str]) -> None:
     """Medians over the repeats per rate and mode; ratios are medians of per-repeat ratios."""
@@ -581,7 +624,7 @@ def _table(runs: list[Run], unit: str, rates: list[float], repeats: int,
     header = (f"{'rate/s':>8} {'mode':>9} {'sent':>7} {'lost':>6} {'no pose':>7} {'p50 us':>9} "
               f"{'p99 us':>9} {'max us':>9} {'first p50':>9} {'backlog ms':>10} {'sustained':>9} "
               f"{'p50 x':>7} {'p99 x':>7} {'pooled p99 x':>12} {'vs vib p50':>10} "
-              f"{'vs vib p99':>10}")
+              f"{'vs vib p99':>10} {'steal %':>7} {'calm p99 us':>14}")
     print(header)
     print("-" * len(header))
     for rate in rates:
@@ -603,7 +646,8 @@ def _table(runs: list[Run], unit: str, rates: list[float], repeats: int,
                   f"{np.median([r.backlog_s for r in mine]) * 1e3:10.1f} "
                   f"{sum(r.sustained for r in mine):>7d}/{len(mine)} "
                   f"{_ratio(mine, bare, 50):7.1f} {_ratio(mine, bare, 99):7.1f} "
-                  f"{_pooled_p99(mine) / _pooled_p99(bare):12.1f} {vs_vib}")
+                  f"{_pooled_p99(mine) / _pooled_p99(bare):12.1f} {vs_vib} "
+                  f"{np.median([r.steal for r in mine]) * 100:7.1f} {_calm_p99(mine):>14}")
     for mode in modes:
         ok = [rate for rate in rates if all(
             r.sustained for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode))]
@@ -623,7 +667,7 @@ def main(argv: list[str] | None = None) -> int:
         _timer(int(argv[1]), float(argv[2]), argv[3])
         return 0
     if argv and argv[0] == "_echo":
-        _echo(argv[1], argv[2], argv[3] == "proxy")
+        _echo(argv[1], argv[2], argv[3] == "proxy", float(argv[4]))
         return 0
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=2.0, help="seconds per run")
@@ -632,6 +676,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=1, help="runs per rate, mode and unit")
     parser.add_argument("--units", default=",".join(UNITS),
                         help="what one message carries: wrench, tick or both")
+    parser.add_argument("--busy-us", type=float, default=150.0,
+                        help="work per message of the busy floor's echo, us")
     parser.add_argument("--modes", default=",".join(DEFAULT_MODES),
                         help=f"chains to run, of {', '.join(MODES)} (ratios need bare and vibrissa)")
     args = parser.parse_args(argv)
@@ -650,14 +696,16 @@ def main(argv: list[str] | None = None) -> int:
             for rate in rates:
                 for unit in units:
                     for mode in modes:
-                        run = measure(mode, unit, rate, args.duration, Path(tmp))
+                        run = measure(mode, unit, rate, args.duration, Path(tmp),
+                                      args.busy_us * 1e-6)
                         runs.append(run)
                         rows = (f"  no point {run.no_point}  no_pose {run.counters['no_pose']}"
                                 if run.counters else "")
                         print(f"  {repeat} {unit:6s} {mode:8s} {rate:8.0f}/s  p50 "
                               f"{run.pct(50):9.0f} us  p99 {run.pct(99):9.0f} us  first p50 "
                               f"{run.pct(50, first=True):9.0f} us  lost {run.lost}  backlog "
-                              f"{run.backlog_s * 1e3:.1f} ms{rows}", flush=True)
+                              f"{run.backlog_s * 1e3:.1f} ms{rows}  steal "
+                              f"{run.steal * 100:.1f} %", flush=True)
     for unit in units:
         _table(runs, unit, rates, args.repeat, modes)
     nodes = [mode for mode in modes if mode not in FLOORS]
@@ -680,7 +728,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{no_point}, no_pose {no_pose}, sustained in "
                   f"{sum(r.sustained for r in target)}/{len(target)} runs, p99 "
                   f"{np.median([r.pct(99) for r in target]):.0f} us (median), pooled "
-                  f"{_pooled_p99(target):.0f} us{overhead}")
+                  f"{_pooled_p99(target):.0f} us, in calm runs (steal < {CALM_STEAL:.0%}) "
+                  f"{_calm_p99(target)}{overhead}")
         plain = [r for r in runs if (r.unit, r.mode) == (unit, "vibrissa")]
         for mode in nodes:
             other = [r for r in runs if (r.unit, r.mode) == (unit, mode)]

@@ -2,12 +2,14 @@
 
 The taker (the node's thread, in ``Subscriber.receive``) reads its sockets itself, as a
 single-threaded subscriber would. While it is busy elsewhere, a drainer thread takes what
-arrives off the sockets every ``DRAIN_PERIOD_S`` into a FIFO of at most ``max_bytes`` bytes
-(while the taker waits in ``take`` the drainer sleeps: an idle node does not wake for it),
-so what a node buffers is that FIFO plus at most ``PIPE_HWM`` messages per connection in
-ZeroMQ (more push back on the sender), whatever ZeroMQ's marks in messages would allow. One
-lock serialises every use of the sockets, which is what ZeroMQ asks of a socket shared by
-threads.
+arrives off the sockets every ``DRAIN_PERIOD_S`` into a FIFO of at most ``max_bytes`` bytes.
+Once the taker has waited in ``take`` for a whole period, the drainer sleeps until it leaves:
+an idle node does not wake for it, and a busy one never wakes it (a thread's wake-up costs the
+node CPU time and the GIL: on a shared VM, waking the drainer at every message cost the
+reconstructor 16 % more CPU per tick). So what a node buffers is that FIFO plus at most
+``PIPE_HWM`` messages per connection in ZeroMQ (more push back on the sender), whatever
+ZeroMQ's marks in messages would allow. One lock serialises every use of the sockets, which is
+what ZeroMQ asks of a socket shared by threads.
 
 Beyond the bound the arriving message is dropped and counted here; its sequence number is
 then missing downstream, so the subscriber counts it as lost like any other gap. A payload
@@ -34,9 +36,10 @@ PIPE_HWM = 1000
 """Receive high-water mark of an inbox's sockets, messages per connection: what ZeroMQ holds
 while the drainer sleeps (more push back on the sender)."""
 
-DRAIN_PERIOD_S = 0.002
+DRAIN_PERIOD_S = 0.005
 """How often the drainer takes up to ``_FAIR_RUN`` messages off each socket while the taker is
-busy elsewhere (beyond that rate ZeroMQ holds the rest, then pushes back)."""
+busy elsewhere (beyond that rate ZeroMQ holds the rest, then pushes back): ``PIPE_HWM`` per
+connection lasts 15 ms at 64 000 messages/s."""
 
 _FAIR_RUN = 64  # messages in a row from one socket before the others get a turn
 
@@ -66,8 +69,9 @@ class Inbox:
         self._turn = 0  # the socket read first next time
         self._lock = threading.Lock()  # the sockets, the FIFO and its counts
         self._stop = threading.Event()
-        self._busy = threading.Event()  # set while the taker is not in take
-        self._busy.set()
+        self._taking_since: float | None = None  # when the taker entered take (None: not in it)
+        self._drainer_asleep = False  # until the taker leaves take, on _wake
+        self._wake = threading.Event()
         self._thread = threading.Thread(target=self._drain_while_busy, name=name, daemon=True)
         self._thread.start()
 
@@ -79,8 +83,8 @@ class Inbox:
     def take(self, timeout_s: float) -> tuple[list[bytes], int] | None:
         """The oldest message and, when its payload was cut for its length, that length
         (else 0); ``None`` when none arrives within ``timeout_s`` seconds."""
-        deadline = time.monotonic() + timeout_s
-        self._busy.clear()
+        self._taking_since = now = time.monotonic()
+        deadline = now + timeout_s
         try:
             with self._lock:
                 while True:
@@ -95,7 +99,9 @@ class Inbox:
                             or not self._poller.poll(remaining_ms)):
                         return None
         finally:
-            self._busy.set()
+            self._taking_since = None
+            if self._drainer_asleep:  # read after the line above: the drainer cannot miss it
+                self._wake.set()
 
     def add_socket_locked(self, sock: zmq.Socket[Any]) -> None:
         """Take messages from ``sock`` too; only inside ``run_locked``."""
@@ -110,7 +116,7 @@ class Inbox:
     def close(self, timeout_s: float = 2.0) -> None:
         """Stop the drainer and close every socket (idempotent)."""
         self._stop.set()
-        self._busy.set()  # a drainer waiting for the taker to be busy wakes to its end
+        self._wake.set()  # a drainer asleep until the taker leaves take wakes to its end
         self._thread.join(timeout_s)
         with self._lock:
             for sock in self._sockets:
@@ -119,9 +125,19 @@ class Inbox:
     def _drain_while_busy(self) -> None:
         """One pass over the sockets per period while the taker is busy elsewhere (never a loop
         that a flood could keep going while the taker waits for the lock); none while it
-        waits in ``take``, where it reads them itself."""
-        while self._busy.wait() and not self._stop.wait(DRAIN_PERIOD_S):
-            if self._busy.is_set() and self._lock.acquire(blocking=False):
+        waits in ``take``, where it reads them itself, and asleep once it has waited there a
+        whole period, until it leaves."""
+        while not self._stop.wait(DRAIN_PERIOD_S):
+            since = self._taking_since
+            if since is not None:
+                if time.monotonic() - since >= DRAIN_PERIOD_S:
+                    self._wake.clear()
+                    self._drainer_asleep = True
+                    if self._taking_since is not None:  # checked after the flag is up
+                        self._wake.wait()
+                    self._drainer_asleep = False
+                continue
+            if self._lock.acquire(blocking=False):
                 try:
                     self._read()
                 except zmq.ZMQError:

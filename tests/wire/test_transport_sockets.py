@@ -302,6 +302,29 @@ def test_a_subscriber_that_does_not_read_buffers_at_most_its_byte_bound(
         assert (end.sent, end.received, end.lost) == (n, data, sub.dropped)
 
 
+def test_a_subscriber_busy_after_a_long_wait_still_has_its_queue_drained(
+    proxy: Proxy, context: zmq.Context[Any]
+) -> None:
+    # After a long wait in receive the drainer sleeps until the taker leaves: it must then drain
+    # again, or what arrives while the taker is busy would pile up in ZeroMQ, not in the queue.
+    n, bound = 30, 4 << 20  # 30 clouds of 48 kB: all fit
+    cloud = ContactCloud(stamp=0.0, frame_id="world", points=np.zeros((1000, 3)),
+                         normals=np.zeros((1000, 3)))
+    size = len(encode(cloud))
+    with Publisher("/map/cloud", ContactCloud, proxy.endpoints, context, hwm=n + 10) as pub, \
+            Subscriber({"/map/cloud": ContactCloud}, proxy.endpoints, context,
+                       max_buffered_bytes=bound) as sub:
+        connect(pub, sub)
+        assert sub.receive(0.3) is None  # 60 drain periods: the drainer is asleep by now
+        for _ in range(n):  # the taker is busy elsewhere from here on
+            pub.publish(cloud)
+        deadline = time.monotonic() + 10.0
+        while sub.queued_bytes < n * size and time.monotonic() < deadline:
+            time.sleep(0.01)
+        # every payload and its topic and header frames
+        assert n * size <= sub.queued_bytes < (n + 1) * size and sub.dropped == 0
+
+
 def test_the_byte_bound_comes_from_the_environment_when_not_given(
     proxy: Proxy, context: zmq.Context[Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from vibrissa.frames import (
     Transform,
     mounted_poses,
+    pose_between,
     quaternion_products,
     quaternion_rotate,
     quaternion_slerp,
@@ -91,10 +92,8 @@ class _Edge:
             i = bisect.bisect_right(self.stamps, float(t[0])) - 1
             if i == len(self.stamps) - 1:  # the newest stamp (or the only pose): that pose
                 return self.poses[i][None, :3].copy(), self.poses[i][None, 3:].copy()
-            pose0, pose1 = self.poses[i], self.poses[i + 1]
-            frac = (t - self.stamps[i]) / (self.stamps[i + 1] - self.stamps[i])
-            return (pose0[None, :3] + frac[:, None] * (pose1[:3] - pose0[:3]),
-                    quaternion_slerp(pose0[None, 3:], pose1[None, 3:], frac))
+            fraction = (float(t[0]) - self.stamps[i]) / (self.stamps[i + 1] - self.stamps[i])
+            return pose_between(self.poses[i], self.poses[i + 1], fraction)
         stamps, p, q = self.kept()
         if len(stamps) == 1:  # one pose, and every stamp is its stamp
             return np.tile(p[0], (len(t), 1)), np.tile(q[0], (len(t), 1))
@@ -118,6 +117,14 @@ class RowPoses:
     p: NDArray[np.float64]
     q_xyzw: NDArray[np.float64]
     errors: list[str]
+
+    @classmethod
+    def none_found(cls, n: int, error: str | None = None) -> RowPoses:
+        """``n`` rows none of which was found (and the error why, when given)."""
+        identity = np.zeros((n, 4))
+        identity[:, 3] = 1.0
+        return cls(np.zeros(n, bool), np.full((n, 3), np.nan), identity,
+                   [] if error is None else [error])
 
     def note(self, error: str) -> None:
         if error not in self.errors:
@@ -277,9 +284,6 @@ class FrameBuffer:
         n = len(t)
         if len(sources) != n:
             raise ValueError(f"{len(sources)} sources for {n} stamps")
-        identity = np.zeros((n, 4))
-        identity[:, 3] = 1.0
-        out = RowPoses(np.zeros(n, bool), np.full((n, 3), np.nan), identity, [])
         plan = self._plans.get(tuple(sources))
         if plan is None:
             plan = self._plan(tuple(sources))
@@ -290,11 +294,10 @@ class FrameBuffer:
             try:
                 p_TA, q_TA = self._lookup(target, anchor, t[:1])
             except FrameError as exc:
-                out.note(str(exc))
-                return out
-            out.p, out.q_xyzw = mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q)
-            out.ok[:] = True
-            return out
+                return RowPoses.none_found(n, str(exc))
+            return RowPoses(np.ones(n, bool), *mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q),
+                            [])
+        out = RowPoses.none_found(n)
         for error in unknown:
             out.note(error)
         for anchor, rows in by_anchor.items():

@@ -345,3 +345,17 @@ def quaternion_slerp(q0_xyzw: FloatArray, q1_xyzw: FloatArray, fraction: FloatAr
         out[i, 2] = w0 * ez + ew * z0 + x0 * ey - y0 * ex
         out[i, 3] = w0 * ew - x0 * ex - y0 * ey - z0 * ez
     return out
+
+
+@compiled
+def pose_between(pose0: FloatArray, pose1: FloatArray, fraction: float
+                 ) -> tuple[FloatArray, FloatArray]:
+    """The pose a ``fraction`` of the way from pose0 to pose1 ((x, y, z, qx, qy, qz, qw) each),
+    as rows (1, 3) and (1, 4): position linear, orientation `quaternion_slerp` (one call for a
+    sensor tick's pose, where the array operations would cost more than the arithmetic)."""
+    p = np.empty((1, 3))
+    for j in range(3):
+        p[0, j] = pose0[j] + fraction * (pose1[j] - pose0[j])
+    f = np.empty(1)
+    f[0] = fraction
+    return p, quaternion_slerp(pose0[3:].reshape((1, 4)), pose1[3:].reshape((1, 4)), f)

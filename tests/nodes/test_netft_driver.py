@@ -40,10 +40,13 @@ def driver(tmp_path: Path, endpoints: Endpoints, device: NetFTDevice, **params: 
     """The driver of ``device``. ``stall_s`` 2 unless a test of stalls says otherwise: a driver
     starved of the CPU for a moment on a loaded machine must not take it for a stall and request
     the stream again (the sensor then starts its sequence anew: records repeat, and what was
-    lost around the restart cannot be known)."""
+    lost around the restart cannot be known). ``max_latency_s`` 2 for the same reason: with the
+    driver's 50 ms, records that waited out such a moment are dropped as stale (counted), and a
+    test that every record arrives saw a gap in CI."""
     values = {"whisker": "w0", "address": "127.0.0.1", "port": device.address[1],
               "counts_per_force": CPF, "counts_per_torque": CPF, "ft_rate_hz": device.rate_hz,
-              "stall_s": 2.0, "restart_s": 0.3, "free_samples": 20, **params}
+              "stall_s": 2.0, "max_latency_s": 2.0, "restart_s": 0.3, "free_samples": 20,
+              **params}
     file = tmp_path / "netft.yaml"
     file.write_text(yaml.safe_dump(values))
     proc = subprocess.Popen(

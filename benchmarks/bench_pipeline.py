@@ -43,6 +43,12 @@ Every run records the share of the CPUs' time the hypervisor gave to other guest
 to minute, and a run with steal holds stalls of several ms that no process here causes. ``calm
 p99`` is the median p99 of the calm runs (steal < 1 %) and their count.
 
+``late %`` is the share of the messages later than 2 ms (a p99 under 2 ms is a share under
+1 %), ``in a row`` how many late messages there are per run of them. A stall of the machine
+(on this VM: the kernel's kdamond holds a CPU for 1-4 ms every 512 ms, docs/PERFORMANCE.md)
+makes every chain late for a few ticks; the run is as long as the chain takes to catch up,
+so it grows with the work per message.
+
 The robot graph (``robot``): the pipeline of ``vibrissa``, but every row is in its clamp frame
 (``w00/clamp``, ..., no pose fields) and the reconstructor places it through a robot description
 (32 whiskers, each its own mount, L and EI, in a temporary file: ``robot``) and the robot's pose
@@ -102,6 +108,7 @@ MODES = ("timer", "bare", "busy", "proxied", "vibrissa", "curve", "robot", "robo
 DEFAULT_MODES = ("timer", "bare", "proxied", "vibrissa", "curve", "robot")
 FLOORS = ("timer", "bare", "busy", "proxied")
 CALM_STEAL = 0.01  # a run is calm when the hypervisor stole less than this share of the CPUs
+LATE_S = 0.002  # the target's p99, s: the table counts the messages later than this
 ROBOT_MODES = ("robot", "robot-rt")
 POSE_TOPIC = "/bench/pose"
 POSE_PERIOD_S = 0.01  # the robot's poses at 100 Hz
@@ -391,6 +398,16 @@ class Run:
         return (self.lost == 0 and self.no_point == 0
                 and self.backlog_s <= max(0.05, 0.05 * self.send_s))
 
+    def late(self) -> tuple[float, float]:
+        """Share of the messages later than LATE_S (p99 < LATE_S means under 1 %), and how many
+        in a row on average: one stall of the machine makes a run of late ticks as long as the
+        chain takes to catch up."""
+        late = self.latency_s > LATE_S
+        if not late.any():
+            return 0.0, 0.0
+        starts = np.count_nonzero(late[1:] & ~late[:-1]) + int(late[0])
+        return float(late.mean()), float(np.count_nonzero(late)) / starts
+
     def pct(self, q: float, first: bool = False) -> float:
         """Percentile ``q`` of the latency, us (``first``: of the first message of each tick)."""
         latency = self.first_latency_s if first else self.latency_s
@@ -624,7 +641,7 @@ def _table(runs: list[Run], unit: str, rates: list[float], repeats: int,
     header = (f"{'rate/s':>8} {'mode':>9} {'sent':>7} {'lost':>6} {'no pose':>7} {'p50 us':>9} "
               f"{'p99 us':>9} {'max us':>9} {'first p50':>9} {'backlog ms':>10} {'sustained':>9} "
               f"{'p50 x':>7} {'p99 x':>7} {'pooled p99 x':>12} {'vs vib p50':>10} "
-              f"{'vs vib p99':>10} {'steal %':>7} {'calm p99 us':>14}")
+              f"{'vs vib p99':>10} {'steal %':>7} {'calm p99 us':>14} {'late %':>6} {'in a row':>8}")
     print(header)
     print("-" * len(header))
     for rate in rates:
@@ -647,7 +664,9 @@ def _table(runs: list[Run], unit: str, rates: list[float], repeats: int,
                   f"{sum(r.sustained for r in mine):>7d}/{len(mine)} "
                   f"{_ratio(mine, bare, 50):7.1f} {_ratio(mine, bare, 99):7.1f} "
                   f"{_pooled_p99(mine) / _pooled_p99(bare):12.1f} {vs_vib} "
-                  f"{np.median([r.steal for r in mine]) * 100:7.1f} {_calm_p99(mine):>14}")
+                  f"{np.median([r.steal for r in mine]) * 100:7.1f} {_calm_p99(mine):>14} "
+                  f"{np.median([r.late()[0] for r in mine]) * 100:6.2f} "
+                  f"{np.median([r.late()[1] for r in mine]):8.1f}")
     for mode in modes:
         ok = [rate for rate in rates if all(
             r.sustained for r in runs if (r.unit, r.rate, r.mode) == (unit, rate, mode))]

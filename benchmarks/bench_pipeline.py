@@ -45,9 +45,8 @@ p99`` is the median p99 of the calm runs (steal < 1 %) and their count.
 
 ``late %`` is the share of the messages later than 2 ms (a p99 under 2 ms is a share under
 1 %), ``in a row`` how many late messages there are per run of them. A stall of the machine
-(on this VM: the kernel's kdamond holds a CPU for 1-4 ms every 512 ms, docs/PERFORMANCE.md)
-makes every chain late for a few ticks; the run is as long as the chain takes to catch up,
-so it grows with the work per message.
+(on this VM most likely the kernel's kdamond, which holds a CPU for 1-4 ms every 512 ms:
+docs/PERFORMANCE.md) makes every chain late for a few ticks, as many as it takes to catch up.
 
 The robot graph (``robot``): the pipeline of ``vibrissa``, but every row is in its clamp frame
 (``w00/clamp``, ..., no pose fields) and the reconstructor places it through a robot description

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from vibrissa.equilibrium import NEWTON_TOL
 from vibrissa.frames import Transform
 from vibrissa.reconstruct import reconstruct_si
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
@@ -127,8 +128,15 @@ def test_moving_the_whole_scene_moves_the_contacts_and_keeps_every_clamp_wrench(
     np.testing.assert_array_equal(a.phase, b.phase)
     rows = np.flatnonzero((a.phase == SamplePhase.TIP) | (a.phase == SamplePhase.TANGENTIAL))
     scale_f, scale_m = whisker.scale.force_n, whisker.scale.moment_nm
-    np.testing.assert_allclose(b.f0_n[rows] / scale_f, a.f0_n[rows] / scale_f, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(b.m0_nm[rows] / scale_m, a.m0_nm[rows] / scale_m, rtol=0, atol=1e-12)
+    # Each run solves every step's equilibrium to NEWTON_TOL (1e-12) of its residual, from the
+    # step before: over 600 steps the two runs' roundings part by a few 1e-12 in the paper's
+    # units (2.2e-12 in f0 on an AVX-512 host; under 1e-12 on earlier hosts). A wrong frame is
+    # off by O(1).
+    wrench_tol = 100 * NEWTON_TOL
+    np.testing.assert_allclose(b.f0_n[rows] / scale_f, a.f0_n[rows] / scale_f, rtol=0,
+                               atol=wrench_tol)
+    np.testing.assert_allclose(b.m0_nm[rows] / scale_m, a.m0_nm[rows] / scale_m, rtol=0,
+                               atol=wrench_tol)
     np.testing.assert_allclose(b.p_W_m[rows], X.apply(a.p_W_m[rows]), rtol=0,
                                atol=1e-12 * whisker.length_m)
 

@@ -133,3 +133,16 @@ def test_si_step2_with_a_turned_clamp_finds_the_turned_contact() -> None:
     np.testing.assert_allclose(got.s1_m, np.minimum(sweep.s1, 1.0) * rod.length_m, atol=1e-12)
     bad = reconstruct_si(np.zeros((1, 4)), np.zeros((1, 3)), f0_n[:1], m0_nm[:1], rod)
     assert not bad.pose_ok[0] and not bad.valid[0]
+
+
+def test_si_step2_flags_a_finite_wrench_that_overflows_in_the_rods_units() -> None:
+    # EI/L^2 = 0.04 N: f0 = 1e308 N is 2.5e309 in the rod's units, beyond the float range;
+    # 1e300 N is not, and has its point (the force dwarfs m0: the contact is at the clamp).
+    rod = RodScale(0.05, 1e-4)
+    q, p = np.array([[0.0, 0.0, 0.0, 1.0]] * 2), np.zeros((2, 3))
+    got = reconstruct_si(q, p, np.array([[1e308, 0, 0], [1e300, 0, 0]]),
+                         np.array([[0, 1e-3, 0]] * 2), rod)
+    assert got.status[0] == ContactStatus.NON_FINITE_INPUT and not got.valid[0]
+    assert np.isnan(got.point_m[0]).all()
+    assert got.valid[1] and np.isfinite(got.point_m[1]).all()
+    assert np.linalg.norm(got.point_m[1]) < 1e-12 * rod.length_m

@@ -340,7 +340,8 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
             poses = frames.lookup_rows(map_frame, sources, np.full(n, msg.stamp))
             q, p, placed = poses.q_xyzw, poses.p, poses.ok
             errors += poses.errors
-        placed[missing] = True  # counted as unknown whiskers, not as rows without a pose
+        if missing:
+            placed[missing] = True  # counted as unknown whiskers, not as rows without a pose
         no_pose = n - int(np.count_nonzero(placed))
     if missing:
         placed[missing] = False
@@ -390,9 +391,9 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas)
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
-    # A row whose result overflows (finite inputs near the float limit, rotated) has no
-    # contact that can be published: it counts as no consistent contact.
-    valid = result.valid & np.isfinite(np.column_stack((point, force, s1))).all(axis=1)
+    # a row whose result overflows (finite inputs near the float limit) is flagged
+    # NON_FINITE_INPUT by Step 2: not valid, so it counts as no consistent contact
+    valid = result.valid
     covariance = result.covariance_m2
     # with a noise model: per row, a point that is the tip within the noise, or that has no
     # covariance (an axial load: it gets the rod's reach, L^2 I)

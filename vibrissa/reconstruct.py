@@ -210,9 +210,23 @@ def reconstruct_row(
         point[0] = point[1] = point[2] = math.nan
         return math.nan, PHASE_NONE, math.nan, status
     point[0], point[1], point[2] = p0_W[0] + p1x, p0_W[1] + p1y, p0_W[2] + p1z
+    if _overflows(point, force):
+        point[0] = point[1] = point[2] = math.nan
+        return math.nan, PHASE_NONE, math.nan, status | _NON_FINITE
     s1 = min(s1, 1.0)
     phase = PHASE_TIP if s1 >= 1.0 - max(TIP_TOLERANCE, tip_band) else PHASE_TANGENTIAL
     return s1, phase, math.atan2(e_uy, e_ux), status
+
+
+@compiled
+def _overflows(point: NDArray[np.float64], force: NDArray[np.float64]) -> bool:
+    """Whether a contact of finite inputs has an infinite point or force (3,): inputs near the
+    float limit (p0 + P1 - P0, a rotation, the rod's units) overflow; it is then flagged
+    NON_FINITE_INPUT, so that a usable contact is always finite."""
+    for j in range(3):
+        if not (abs(point[j]) < math.inf and abs(force[j]) < math.inf):  # inf or NaN
+            return True
+    return False
 
 
 class ReconstructionSI(NamedTuple):
@@ -360,12 +374,16 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
             tip_band = tip_sigmas * math.sqrt(max(s1_var, 0.0))
     s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force,
                                               tip_band)
-    if cov.shape[0] > 0 and not (known and status & _NO_CONTACT == 0):
-        covariance[:, :] = math.nan
     for j in range(3):
         point[j] *= length_m
         force[j] *= force_n
-    return True, s1 * length_m, phase, status
+    s1 *= length_m
+    if status & _NO_CONTACT == 0 and _overflows(point, force):
+        point[:] = math.nan
+        s1, phase, status = math.nan, PHASE_NONE, status | _NON_FINITE
+    if cov.shape[0] > 0 and not (known and status & _NO_CONTACT == 0):
+        covariance[:, :] = math.nan
+    return True, s1, phase, status
 
 
 @compiled

@@ -30,8 +30,8 @@ class ContactStatus(enum.IntFlag):
     NO_FORCE = 1  # |f0| == 0: nothing touches the rod
     CURVATURE_NEVER_VANISHES = 2  # kappa has no zero at finite arc length (k >= 1)
     CONTACT_BEYOND_ROD = 4  # first zero of kappa lies past the rod's tip (s1 > 1)
-    NON_FINITE_INPUT = 8  # NaN or inf in p0, f0 or m0; in reconstruct_si also a finite one that
-    # overflows to inf in the rod's units (f0 / (EI/L^2) beyond 1.8e308, e.g. f0 = 1e308 N)
+    NON_FINITE_INPUT = 8  # NaN or inf in p0, f0 or m0, or finite ones near the float limit whose
+    # contact point or force overflows (also in the rod's units: f0 = 1e308 N on EI/L^2 < 0.5 N)
     AXIAL_LOAD = 16  # force along the straight rod: taken as tip contact of the straight rod
     TIP_WITHIN_NOISE = 32  # first zero of kappa past the tip, within the noise: taken as the tip
 

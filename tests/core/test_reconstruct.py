@@ -135,7 +135,7 @@ def test_si_step2_with_a_turned_clamp_finds_the_turned_contact() -> None:
     assert not bad.pose_ok[0] and not bad.valid[0]
 
 
-def test_si_step2_flags_a_finite_wrench_that_overflows_in_the_rods_units() -> None:
+def test_step2_flags_finite_inputs_whose_contact_overflows() -> None:
     # EI/L^2 = 0.04 N: f0 = 1e308 N is 2.5e309 in the rod's units, beyond the float range;
     # 1e300 N is not, and has its point (the force dwarfs m0: the contact is at the clamp).
     rod = RodScale(0.05, 1e-4)
@@ -143,6 +143,16 @@ def test_si_step2_flags_a_finite_wrench_that_overflows_in_the_rods_units() -> No
     got = reconstruct_si(q, p, np.array([[1e308, 0, 0], [1e300, 0, 0]]),
                          np.array([[0, 1e-3, 0]] * 2), rod)
     assert got.status[0] == ContactStatus.NON_FINITE_INPUT and not got.valid[0]
-    assert np.isnan(got.point_m[0]).all()
+    assert np.isnan(got.point_m[0]).all() and np.isnan(got.s1_m[0])
     assert got.valid[1] and np.isfinite(got.point_m[1]).all()
     assert np.linalg.norm(got.point_m[1]) < 1e-12 * rod.length_m
+    # Finite and fine in C, the contact force turned 45 deg about x into W is 1.84e308: it was
+    # once a usable contact (status OK) with an infinite force.
+    turned = reconstruct([[0.0, 0.0, 0.0]], [[0.0, -1.3e308, -1.3e308]], [[1e300, 0.0, 0.0]],
+                         Rotation.from_euler("x", 45, degrees=True).as_matrix())
+    assert turned.status[0] == ContactStatus.NON_FINITE_INPUT and np.isnan(turned.point[0]).all()
+    assert np.isinf(turned.force[0]).any()
+    q_turned = Rotation.from_euler("x", 45, degrees=True).as_quat()[None]
+    si = reconstruct_si(q_turned, np.zeros((1, 3)), [[0.0, -1.3e308, -1.3e308]],
+                        [[1e300, 0.0, 0.0]], RodScale())
+    assert si.status[0] == ContactStatus.NON_FINITE_INPUT and not si.valid[0]

@@ -6,9 +6,9 @@ A numeric array is a map ``{"dtype": "<f8", "shape": [N, 3], "data": <raw little
 msgpack nil there decodes too). Only finite floats go on the wire: ``encode`` refuses NaN/inf with
 ``ValueError`` and ``decode`` with ``NonFiniteError``.
 
-Decoded arrays are read-only views of the immutable ``bytes`` objects msgpack unpacks them
-into (each its own object, not the caller's payload buffer), so no copy is made and nothing
-can change them later.
+Decoded arrays are read-only views of immutable ``bytes``: the objects msgpack unpacks them
+into, or the payload itself when it is ``bytes`` and read through the template of its stream
+(a mutable buffer never is), so no copy is made and nothing can change them later.
 """
 
 from __future__ import annotations
@@ -247,6 +247,26 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
             t.TYPE_NAME for t in (expected if isinstance(expected, tuple) else (expected,)))
         raise OversizeError(f"payload of {len(payload)} bytes, more than the {limit} bytes "
                             f"of {names}")
+    if type(payload) is not bytes:  # templates read in place: only immutable bytes
+        return _decode_general(payload, expected)
+    templates = _TEMPLATES.get(len(payload))
+    for i, template in enumerate(templates or ()):
+        if expected is None or template.cls is expected or (
+                isinstance(expected, tuple) and template.cls in expected):
+            msg = _from_template(template, payload)
+            if msg is not None:
+                if i:  # the stream that sends most comes first
+                    templates.insert(0, templates.pop(i))  # type: ignore[union-attr]
+                return msg
+    msg = _decode_general(payload, expected)
+    if type(msg) in _TEMPLATED and len(payload) <= _MAX_TEMPLATE_BYTES:
+        _learn_template(payload, msg)
+    return msg
+
+
+def _decode_general(payload: bytes,
+                    expected: type[Message] | tuple[type[Message], ...] | None) -> Message:
+    """Decode without a template: the path that finds and names what is wrong."""
     obj = _unpack(payload)
     name = obj.pop("_type", None)
     version = obj.pop("_v", None)
@@ -494,6 +514,181 @@ def _decode_fast(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> Me
     msg = object.__new__(cls)
     msg.__dict__.update(values)
     return msg
+
+
+# -- decode, template path ----------------------------------------------------------------
+#
+# A stream of arrays sends payloads of one layout tick after tick: the same keys, strings,
+# shapes and msgpack types, only the numbers differ. After two payloads of one type and length
+# in a row, the second is kept as a template of that length: where each number's bytes lie (a
+# float's 8, an int's, an array's data) and the message's other values. A payload of that
+# length whose every other byte is the template's is read in place: its floats checked finite,
+# its ints of the template's msgpack type, its enum arrays checked, then the cross-field rules as
+# on any decode. Same bytes outside the numbers, and in them numbers of the same types and
+# lengths, is the same structure for the general path: the two give equal messages (fuzzed in
+# tests/wire/test_codec_template.py). A nil, a negative fixint or an older version is never a
+# slot, and a payload that differs goes the general way. Per-wrench types are left out: their
+# streams (one per whisker) take turns, and so would their layouts.
+
+_TEMPLATED = frozenset((WhiskerWrenchArray, ContactPointArray))
+_SLOT_FLOAT, _SLOT_INT, _SLOT_ARRAY = range(3)
+_BIG_DOUBLE = struct.Struct(">d")
+_UINT_MARKERS, _INT_MARKERS = frozenset((0xCC, 0xCD, 0xCE, 0xCF)), frozenset((0xD0, 0xD1, 0xD2, 0xD3))
+_MAX_TEMPLATE_BYTES = 1 << 16  # longer payloads (arrays of ~1 000 rows) go the general way:
+# their data, not the walk through their keys, is what their decode costs
+_MAX_LENGTHS = 16  # payload lengths with templates: what templates hold stays under 8 MB
+_PER_LENGTH = 4  # templates of one length: streams of equal length from different sources
+_RELEARN_AFTER = 64  # payloads of a length with all its templates taken that none fitted, before
+# the least used is replaced: more streams of one length than templates cost a walk per 64
+
+
+@dataclasses.dataclass(frozen=True)
+class _Template:
+    cls: type[Message]
+    fixed: tuple[tuple[int, bytes], ...]  # (offset, bytes) between the slots
+    # (field, kind, offset, check): float -> None; int -> (msgpack marker or None for a positive
+    # fixint, byte count, signed); array -> (dtype, shape, count, enum or None)
+    slots: tuple[tuple[str, int, int, Any], ...]
+    values: dict[str, Any]  # the other fields' values
+    copied: tuple[str, ...]  # those that are lists or maps: a copy per message
+
+
+_TEMPLATES: dict[int, list[_Template]] = {}  # by payload length, the last one fitted first
+_MISSES: dict[int, int] = {}  # by payload length, since its last template was made
+_last_decoded: list[tuple[type, int] | None] = [None]  # (type, length) of the last payload
+
+
+def _from_template(template: _Template, payload: bytes) -> Message | None:
+    """The message of ``payload`` read through ``template``, or None when it does not fit."""
+    for offset, want in template.fixed:
+        if not payload.startswith(want, offset):
+            return None
+    values = dict(template.values)
+    for name in template.copied:
+        values[name] = type(values[name])(values[name])
+    total = 0.0  # of every float: finite proves them all finite (overflow: the general path)
+    for name, kind, offset, check in template.slots:
+        if kind == _SLOT_FLOAT:
+            value = _BIG_DOUBLE.unpack_from(payload, offset)[0]
+            total += value
+        elif kind == _SLOT_INT:
+            marker, size, signed = check
+            first = payload[offset]
+            if marker is None:
+                if first >= 0x80:
+                    return None
+                value = first
+            elif first != marker:
+                return None
+            else:
+                value = int.from_bytes(payload[offset + 1:offset + size], "big", signed=signed)
+        else:
+            dtype, shape, count, enum_type = check
+            value = np.frombuffer(payload, dtype, count, offset)  # read-only: bytes
+            if len(shape) != 1:
+                value = value.reshape(shape)
+            if not _all_finite(value) or (enum_type is not None
+                                          and not enum_values_ok(enum_type, value)):
+                return None
+        values[name] = value
+    if not math.isfinite(total):
+        return None
+    msg = object.__new__(template.cls)
+    msg.__dict__.update(values)
+    _check_fields(msg)
+    return msg
+
+
+def _learn_template(payload: bytes, msg: Message) -> None:
+    """Keep ``payload`` (decoded the general way) as a template of its length when the one
+    decoded that way before it had the same type and length: a stream, not a one-off (the walk
+    costs about a decode)."""
+    size = len(payload)
+    key = (type(msg), size)
+    last, _last_decoded[0] = _last_decoded[0], key
+    templates = _TEMPLATES.get(size)
+    if templates is not None and len(templates) >= _PER_LENGTH:
+        _MISSES[size] = _MISSES.get(size, 0) + 1
+        if _MISSES[size] < _RELEARN_AFTER:
+            return
+    if last != key:
+        return
+    template = _make_template(payload, msg)
+    if template is None:
+        return
+    if templates is None:
+        if len(_TEMPLATES) >= _MAX_LENGTHS:
+            _TEMPLATES.clear()
+            _MISSES.clear()
+        templates = _TEMPLATES[size] = []
+    templates.insert(0, template)
+    del templates[_PER_LENGTH:]
+    _MISSES[size] = 0
+
+
+def _make_template(payload: bytes, msg: Message) -> _Template | None:
+    """The template of a payload that decoded to ``msg`` (None: one the codec upgraded, or a
+    layout without a place for its numbers)."""
+    cls = type(msg)
+    specs = dict(field_specs(cls))
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=True)
+    unpacker.feed(payload)
+    slots: list[tuple[str, int, int, Any]] = []
+    spans: list[tuple[int, int]] = []
+    try:
+        for _ in range(unpacker.read_map_header()):
+            name = unpacker.unpack()
+            start = unpacker.tell()
+            spec = specs.get(name)
+            if name == "_v" and unpacker.unpack() != cls.VERSION:
+                return None
+            if spec is None or getattr(msg, name) is None:
+                if name != "_v":
+                    unpacker.skip()
+                continue
+            if spec.kind == FLOAT:
+                unpacker.skip()
+                if payload[start] != 0xCB:
+                    return None
+                slots.append((name, _SLOT_FLOAT, start + 1, None))
+                spans.append((start + 1, start + 9))
+            elif spec.kind == INT and spec.enum is None:
+                unpacker.skip()
+                size, first = unpacker.tell() - start, payload[start]
+                if first < 0x80:
+                    slots.append((name, _SLOT_INT, start, (None, 1, False)))
+                elif first in _UINT_MARKERS or first in _INT_MARKERS:
+                    slots.append((name, _SLOT_INT, start, (first, size, first in _INT_MARKERS)))
+                else:
+                    continue  # a negative fixint is its own marker: left in the fixed bytes
+                spans.append((start, start + size))
+            elif spec.kind == ARRAY:
+                array = getattr(msg, name)
+                for _ in range(unpacker.read_map_header()):
+                    if unpacker.unpack() != "data":
+                        unpacker.skip()
+                        continue
+                    data = unpacker.unpack()
+                    offset = unpacker.tell() - len(data)
+                    slots.append((name, _SLOT_ARRAY, offset,
+                                  (array.dtype, array.shape, array.size, spec.enum)))
+                    spans.append((offset, offset + len(data)))
+            else:
+                unpacker.skip()
+    except (ValueError, TypeError, msgpack.UnpackException):
+        return None
+    fixed: list[tuple[int, bytes]] = []
+    end = 0
+    for start, stop in sorted(spans):
+        if start > end:
+            fixed.append((end, payload[end:start]))
+        end = stop
+    if end < len(payload):
+        fixed.append((end, payload[end:]))
+    in_slots = {name for name, *_ in slots}
+    values = {name: value for name, value in msg.__dict__.items() if name not in in_slots}
+    copied = tuple(name for name, value in values.items() if isinstance(value, (list, dict)))
+    return _Template(cls, tuple(fixed), tuple(slots), values, copied)
 
 
 def _shaped_array(value: Any, check: tuple[str, tuple[int | str, ...], np.dtype[Any], Any],

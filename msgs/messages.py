@@ -89,14 +89,14 @@ class FieldSpec:
         """Whether ``value`` already is what construction would make of it.
 
         Exact Python types, and read-only arrays of the field's dtype and shape (symbolic sizes
-        bound in ``sizes``): the checks of ``_coerce`` hold for them, so the fast path of
-        construction skips it.
+        bound in ``sizes``) that are not of an enum: the checks of ``_coerce`` hold for them, so
+        the fast path of construction skips it (an enum array's values are checked there).
         """
         exact = self.exact_type
         if exact is None or type(value) is not exact:
             return False
         if isinstance(value, np.ndarray):
-            if value.flags.writeable or value.dtype != self.dtype:
+            if value.flags.writeable or value.dtype != self.dtype or self.enum is not None:
                 return False
             if self.fixed_shape is not None:
                 return bool(value.shape == self.fixed_shape)
@@ -111,10 +111,24 @@ def enum_values_ok(enum_type: type[enum.IntEnum] | type[enum.IntFlag], values: A
     """Whether every value (an int or an int array) is a member of ``enum_type``: a defined
     value of an IntEnum, or a combination of defined bits of an IntFlag (no others)."""
     array = np.asarray(values)
-    if issubclass(enum_type, enum.IntFlag):
-        mask = functools.reduce(lambda a, b: a | int(b), enum_type, 0)
+    flags, mask, members = _enum_values(enum_type)
+    if array.size <= 64:  # a tick's rows: Python's ints cost less than numpy's calls
+        items = array.ravel().tolist()
+        if flags:
+            return all(type(v) is int and v >= 0 and not v & ~mask for v in items)
+        return members.issuperset(items)
+    if flags:
         return bool(np.all(array >= 0) and not np.any(array & ~mask))
-    return bool(np.all(np.isin(array, [int(m) for m in enum_type])))
+    return bool(np.all(np.isin(array, list(members))))
+
+
+@functools.cache
+def _enum_values(enum_type: type[enum.IntEnum] | type[enum.IntFlag]
+                 ) -> tuple[bool, int, frozenset[int]]:
+    """Whether ``enum_type`` is an IntFlag, the mask of its bits, the values of its members."""
+    if issubclass(enum_type, enum.IntFlag):
+        return True, functools.reduce(lambda a, b: a | int(b), enum_type, 0), frozenset()
+    return False, 0, frozenset(int(m) for m in enum_type)
 
 
 def enum_member(enum_type: type[enum.IntEnum] | type[enum.IntFlag], value: int) -> Any:

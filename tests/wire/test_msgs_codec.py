@@ -671,6 +671,14 @@ def test_undefined_flag_bits_and_phases_are_refused() -> None:
         ContactPoint(**{**samples()[1].__dict__, "status": undefined})
     with pytest.raises(ValueError, match="not ContactPhase members"):
         ContactPointArray(**{**contact_array().__dict__, "phase": [1, 5]})
+    # Read-only arrays of the field's dtype are taken as they are, but not their values: once,
+    # such an array of undefined phases made a message that every receiver refused.
+    for name, bad, why in (("phase", [1, 7], "not ContactPhase"),
+                           ("status", [0, undefined], "not ContactStatus")):
+        frozen = np.array(bad, np.int32)
+        frozen.flags.writeable = False
+        with pytest.raises(ValueError, match=why):
+            ContactPointArray(**{**contact_array().__dict__, name: frozen})
 
 
 def test_a_payload_over_its_types_size_is_refused_before_it_is_read() -> None:

@@ -89,6 +89,7 @@ import msgpack
 import numpy as np
 import zmq
 
+from vibrissa.launch.launcher import die_with_parent
 from vibrissa.msgs import NodeStatus, Ping, peek_type
 from vibrissa.wire import Endpoints
 from vibrissa.wire.security import Keys, create_keys
@@ -431,7 +432,10 @@ def _steal(before: tuple[float, float]) -> float:
 
 
 def _python(*args: str, **kwargs: Any) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, *args], text=True, **kwargs)
+    """A helper process that ends with the bench, however the bench ends (a killed bench once
+    left a reconstructor that kept 2 % of a CPU busy retrying its peers)."""
+    return subprocess.Popen([sys.executable, *args], text=True,
+                            preexec_fn=die_with_parent(os.getpid()), **kwargs)
 
 
 def _sink(sock: zmq.Socket[Any], n: int, header_seq: bool, timeout_s: float) -> np.ndarray:

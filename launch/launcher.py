@@ -73,6 +73,7 @@ __all__ = [
     "Launcher",
     "RUN_MODULE",
     "NodeOutcome",
+    "die_with_parent",
     "node_command",
     "resolve_launch_file",
 ]
@@ -388,7 +389,7 @@ class Launcher:
             proc = subprocess.Popen(
                 argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                 env=env, start_new_session=True,  # own process group: signalled as a whole
-                preexec_fn=_die_with_parent(os.getpid()),
+                preexec_fn=die_with_parent(os.getpid()),
             )
         except OSError as exc:
             node.proc = None
@@ -603,9 +604,9 @@ _PR_SET_PDEATHSIG = 1
 _LIBC = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
 
 
-def _die_with_parent(launcher_pid: int) -> Callable[[], None] | None:
-    """What a child runs between fork and exec: a SIGTERM to it when the launcher dies (Linux;
-    elsewhere nothing). If the launcher is already gone, it ends at once."""
+def die_with_parent(launcher_pid: int) -> Callable[[], None] | None:
+    """What a child runs between fork and exec: a SIGTERM to it when the launcher (any parent,
+    ``launcher_pid``) dies (Linux; elsewhere nothing). If it is already gone, it ends at once."""
     if _LIBC is None:
         return None
     libc = _LIBC

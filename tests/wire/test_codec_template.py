@@ -212,7 +212,7 @@ def test_a_mutable_payload_is_never_read_in_place() -> None:
 def test_any_bytes_in_the_slots(stream: str, data: st.DataObject) -> None:
     payload = bytearray(encode(STREAMS[stream](3)))
     template = templated(bytes(payload))
-    for name, kind, offset, check in template.slots:
+    for _, kind, offset, check in template.slots:
         if data.draw(st.booleans()):
             size = 8 if kind == codec._SLOT_FLOAT else (
                 check[1] if kind == codec._SLOT_INT else check[2] * check[0].itemsize)

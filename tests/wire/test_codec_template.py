@@ -241,3 +241,12 @@ def test_a_long_payload_gets_no_template() -> None:
     for _ in range(3):
         assert decode(payload) == wide
     assert codec._TEMPLATES == {}
+
+
+def test_a_payload_that_fits_a_template_of_an_unexpected_type_is_refused() -> None:
+    payload = encode(wrench_array(3))
+    templated(payload)
+    with pytest.raises(DecodeError, match="got vibrissa/WhiskerWrenchArray, expected"):
+        decode(encode(wrench_array(4)), ContactPointArray)
+    assert decode(encode(wrench_array(4)), (ContactPointArray, WhiskerWrenchArray)) == (
+        wrench_array(4))

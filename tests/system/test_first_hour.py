@@ -18,6 +18,7 @@ import pytest
 import yaml
 
 from vibrissa.msgs import EndOfStream, WhiskerWrench
+from vibrissa.nodes.wrench_source import PROGRESS_PERIOD_S
 from vibrissa.wire import Endpoints, Subscriber
 
 LAUNCH = Path(__file__).parents[2] / "launch"
@@ -111,14 +112,17 @@ def test_samples_stream_while_the_sweeps_are_solved(tmp_path: Path) -> None:
     finally:
         if launch.proc.poll() is None:
             launch.proc.kill()
-    done = launch.wait_line(r"wrench_source\] .*done: 10474 messages")
-    progress = [t for t, line in launch.lines if "sweeps ended" in line and "done:" not in line]
-    # progress is logged while it works (every 2 s: once or more, the demo's sweeps now
-    # take 3-4 s on this machine)
-    assert len(progress) >= 1, launch.text()
+    launch.wait_line(r"wrench_source\] .*done: 10474 messages")
+    (done,) = [line for _, line in launch.lines if "done: 10474 messages" in line]
+    found = re.search(r"published in ([0-9.]+) s", done)
+    assert found is not None, done
+    solving_s = float(found.group(1))  # from the first sweep's start to the last message
+    progress = [line for _, line in launch.lines if "sweeps ended" in line and "done:" not in line]
+    if solving_s > PROGRESS_PERIOD_S + 0.5:  # progress is logged every 2 s while it works (a
+        assert progress, launch.text()  # fast hour of this machine solves the demo in 2.0 s)
     span = arrivals[-1] - arrivals[0]
     assert len(arrivals) > 10_000 - 500  # the subscriber may join a moment late
-    assert span > 0.5 * (done - progress[0] + 2.0)  # spread out, not a burst at the end
+    assert span > 0.5 * solving_s, launch.text()  # spread out, not a burst at the end
     share_in_first_half = sum(t < arrivals[0] + span / 2 for t in arrivals) / len(arrivals)
     assert share_in_first_half > 0.1
 

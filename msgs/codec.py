@@ -250,9 +250,9 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
     if type(payload) is not bytes:  # templates read in place: only immutable bytes
         return _decode_general(payload, expected)
     templates = _TEMPLATES.get(len(payload))
+    allowed = expected if isinstance(expected, tuple) or expected is None else (expected,)
     for i, template in enumerate(templates or ()):
-        if expected is None or template.cls is expected or (
-                isinstance(expected, tuple) and template.cls in expected):
+        if allowed is None or template.cls in allowed:
             msg = _from_template(template, payload)
             if msg is not None:
                 if i:  # the stream that sends most comes first
@@ -640,11 +640,12 @@ def _make_template(payload: bytes, msg: Message) -> _Template | None:
             name = unpacker.unpack()
             start = unpacker.tell()
             spec = specs.get(name)
-            if name == "_v" and unpacker.unpack() != cls.VERSION:
-                return None
-            if spec is None or getattr(msg, name) is None:
-                if name != "_v":
-                    unpacker.skip()
+            if name == "_v":
+                if unpacker.unpack() != cls.VERSION:
+                    return None
+                continue
+            if spec is None or getattr(msg, name) is None:  # _type, a nil: fixed bytes
+                unpacker.skip()
                 continue
             if spec.kind == FLOAT:
                 unpacker.skip()

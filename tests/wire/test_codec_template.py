@@ -7,6 +7,7 @@ import contextlib
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import msgpack
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -250,3 +251,14 @@ def test_a_payload_that_fits_a_template_of_an_unexpected_type_is_refused() -> No
         decode(encode(wrench_array(4)), ContactPointArray)
     assert decode(encode(wrench_array(4)), (ContactPointArray, WhiskerWrenchArray)) == (
         wrench_array(4))
+
+
+def test_an_older_version_the_codec_upgrades_gets_no_template() -> None:
+    obj = msgpack.unpackb(encode(wrench_array(3)), raw=False)
+    obj["_v"] = 1  # version 1: frame_id named the pose's frame, no frame_ids
+    obj["frame_id"] = obj.pop("pose_frame_id")
+    del obj["frame_ids"]
+    payload = msgpack.packb(obj)
+    for _ in range(3):
+        assert assert_same_as_general(payload) == wrench_array(3)
+    assert codec._TEMPLATES == {}

@@ -35,9 +35,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.cli import tables
-from vibrissa.runtime.csv_text import cell, read_csv, write_csv
-from vibrissa.runtime.scene_file import SceneError, load_scene
-from vibrissa.runtime.scene_results import SCENE_COLUMNS, write_results
+from vibrissa.runtime.csv_text import cell, read_csv, refuse_overwrite, write_csv
+from vibrissa.runtime.scene_file import SceneError, load_scene, number_cell, scene_files
+from vibrissa.runtime.scene_results import SCENE_COLUMNS, SUMMARY_FILE, write_results
 from vibrissa.scene import reconstruct_along, simulate
 from vibrissa.status import ContactPhase
 
@@ -52,6 +52,11 @@ def print_sample_progress(whisker: str, sample: int, samples: int) -> None:
 def run_simulate(args: argparse.Namespace) -> int:
     """The ``simulate`` subcommand."""
     scene = load_scene(args.scene)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise SceneError(f"{out}: exists and is not a folder")
+    refuse_overwrite([out / f"{w.name}.csv" for w in scene.whiskers] + [out / SUMMARY_FILE],
+                     scene_files(args.scene))
     total = len(scene.whiskers)
     samples = len(scene.path.t)
     print(f"simulating {total} whisker(s) x {samples} path samples past "
@@ -63,7 +68,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 
     results = simulate(scene, workers=args.workers, progress=progress,
                        sample_progress=print_sample_progress)
-    for path in write_results(Path(args.out), scene, results):
+    for path in write_results(out, scene, results):
         print(f"wrote {path}")
     return 0
 
@@ -101,7 +106,7 @@ def read_wrenches(path: Path) -> tuple[list[str], FloatArray, list[str], FloatAr
         for j, name in enumerate(("t", *WRENCH_COLUMNS[2:])):
             text = row[at[name]].strip()
             try:
-                values[i, j] = float(text) if text else math.nan
+                values[i, j] = number_cell(text) if text else math.nan
             except ValueError:
                 raise SceneError(f"{path.name}: row {i + 1}, column {name}: {text!r} is not a "
                                  f"number") from None
@@ -113,6 +118,7 @@ def read_wrenches(path: Path) -> tuple[list[str], FloatArray, list[str], FloatAr
 def run_reconstruct(args: argparse.Namespace) -> int:
     """``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o POINTS.csv``."""
     scene = load_scene(args.scene)
+    refuse_overwrite([Path(args.output)], [Path(args.input), *scene_files(args.scene)])
     t_text, t, names, f0, m0 = read_wrenches(Path(args.input))
     known = [w.name for w in scene.whiskers]
     for i, name in enumerate(names):

@@ -37,7 +37,6 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import os
-import re
 import shlex
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -238,55 +237,11 @@ def check_node_params(description: LaunchDescription) -> None:
 # YAML loading
 
 
-class _StrictLoader(yaml_numbers.Loader):
-    """SafeLoader with YAML 1.2 booleans, duplicate keys and aliases rejected.
-
-    Only ``true``/``false`` are booleans, so ``respawn: yes`` is reported as a wrong type
-    instead of silently meaning true; a repeated key is an error instead of last-one-wins. An
-    alias (``*name``) is refused where it stands: a few hundred bytes of nested aliases expand
-    to 10^8 values (a "billion laughs"), and a recursive one never ends.
-    """
-
-    def compose_node(self, parent: Any, index: Any) -> Any:
-        if self.check_event(yaml.AliasEvent):  # type: ignore[no-untyped-call]
-            event = self.peek_event()  # type: ignore[no-untyped-call]
-            raise yaml.composer.ComposerError(
-                None, None, f"aliases (*{event.anchor}) are not allowed in launch files",
-                event.start_mark)
-        return super().compose_node(parent, index)  # type: ignore[no-untyped-call]
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        seen: set[Any] = set()
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
-            try:
-                duplicate = key in seen
-            except TypeError:  # unhashable key: let the base class report it
-                break
-            if duplicate:
-                raise yaml.constructor.ConstructorError(
-                    None, None, f"duplicate key {key!r}", key_node.start_mark
-                )
-            seen.add(key)
-        return super().construct_mapping(node, deep=deep)
-
-
-_BOOL_TAG = "tag:yaml.org,2002:bool"
-_StrictLoader.yaml_implicit_resolvers = {
-    first: [(tag, rx) for tag, rx in resolvers if tag != _BOOL_TAG]
-    for first, resolvers in yaml_numbers.Loader.yaml_implicit_resolvers.items()
-}
-_StrictLoader.add_implicit_resolver(
-    _BOOL_TAG, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")
-)
-_StrictLoader.add_constructor(
-    yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _StrictLoader.construct_mapping
-)
-
-
 def _load_yaml(text: str, source: str) -> Any:
     try:
-        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+        return yaml_numbers.load_strict(text)
+    except RecursionError:
+        raise LaunchFileError(source, "", "nested too deeply") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -385,7 +340,7 @@ class _Parser:
             return value
         text = self.substitute(value, path)
         try:
-            typed = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+            typed = yaml_numbers.load_strict(text)
         except yaml.YAMLError:
             return text
         return typed if isinstance(typed, (bool, int, float, str)) else text

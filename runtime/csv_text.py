@@ -38,10 +38,11 @@ def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]])
 
 def read_csv(path: Path, columns: Sequence[str]) -> tuple[list[str], list[list[str]]]:
     """The header (stripped) and the rows of a CSV that must have ``columns`` (more are
-    allowed); `SceneError` names the file and what is wrong."""
+    allowed, each once); `SceneError` names the file and what is wrong. A UTF-8 byte order mark
+    (as spreadsheets save) and blank lines are no part of the table."""
     try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
+        with path.open(newline="", encoding="utf-8-sig") as handle:
+            rows = [row for row in csv.reader(handle) if row]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise SceneError(f"{path}: {exc}") from None
     header = [c.strip() for c in rows[0]] if rows else []
@@ -49,4 +50,18 @@ def read_csv(path: Path, columns: Sequence[str]) -> tuple[list[str], list[list[s
     if missing:
         raise SceneError(f"{path}: missing column(s) {', '.join(missing)} (the columns are "
                          f"{','.join(columns)})")
+    repeated = sorted({name for name in header if header.count(name) > 1})
+    if repeated:
+        raise SceneError(f"{path}: column(s) {', '.join(repeated)} appear more than once")
     return header, rows[1:]
+
+
+def refuse_overwrite(outputs: Iterable[Path], inputs: Iterable[Path]) -> None:
+    """`SceneError` when an output file would replace an input file (the same file by any
+    path), or is an existing folder."""
+    for out in outputs:
+        if out.is_dir():
+            raise SceneError(f"{out}: is a folder, not a file")
+        for source in inputs:
+            if out.exists() and source.exists() and out.samefile(source):
+                raise SceneError(f"{out}: would overwrite the input {source}")

@@ -7,11 +7,17 @@ ellipsoid | paraboloid, sizes, ``position_m``, ``quaternion_xyzw``), ``whiskers`
 sensor's frame in the clamp frame, identity when left out) and ``path`` (a CSV ``t,x,y,z,qx,qy,qz,qw`` of robot
 poses X_WR, relative to the scene file). Its ``whiskers`` are also the robot description the
 nodes load (`load_robot`): one file, one truth.
+
+The YAML is read strictly (`vibrissa.runtime.yaml_numbers.load_strict`: no aliases, no repeated
+keys, only ``true``/``false`` as booleans). Names of whiskers and objects are `NAME_RULE`'s:
+they become file names (``vibrissa simulate``) and frame names (``<whisker>/clamp``). Numbers
+must be within `LIMITS` (a rod of 1e308 m is a typo, and its units overflow).
 """
 
 from __future__ import annotations
 
 import csv
+import re
 from pathlib import Path
 from typing import Any
 
@@ -22,11 +28,22 @@ from vibrissa.frames import Transform
 from vibrissa.runtime import yaml_numbers
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
 
-__all__ = ["SceneError", "load_path", "load_robot", "load_scene"]
+__all__ = ["LIMITS", "NAME_RULE", "SceneError", "check_name", "load_path", "load_robot", "load_scene",
+           "number_cell", "scene_files"]
 
 _OBJECT_SIZES = {"sphere": ("radius_m",), "ellipsoid": ("semi_axes_m",),
                  "paraboloid": ("a_per_m", "b_per_m", "h_m")}
 _PATH_COLUMNS = ("t", "x", "y", "z", "qx", "qy", "qz", "qw")
+
+NAME_RULE = "1-64 of A-Z a-z 0-9 _ - ., not starting with . or -"
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
+
+LIMITS = {"length_m": (1e-4, 10.0), "ei_nm2": (1e-15, 1e4), "size_m": (1e-6, 1e6),
+          "per_m": (1e-6, 1e6), "position_m": (-1e7, 1e7), "mu": (0.0, 10.0)}
+"""Closed ranges of a scene's numbers: rod length L, m; bending stiffness EI, N m^2 (a 50-um
+nylon hair is ~1e-9, a 5-mm steel rod ~6); an object's radius, semi-axes, and a paraboloid's
+|h_m|, m; a paraboloid's curvatures a_per_m, b_per_m, 1/m; any position (objects, mounts,
+sensors), m; the friction coefficient. Within them no unit conversion or square overflows."""
 
 
 class SceneError(ValueError):
@@ -41,7 +58,7 @@ def load_scene(path: str | Path) -> Scene:
     doc = _read_yaml(path)
     where = path.name
     body = _mapping(doc, where, ("mu", "objects", "whiskers", "path"), ("mu", "whiskers", "path"))
-    mu = _number(body["mu"], f"{where}: mu")
+    mu = _number(body["mu"], f"{where}: mu", "mu")
     objects = tuple(_object(item, f"{where}: objects[{i}]")
                     for i, item in enumerate(_list(body.get("objects", []), f"{where}: objects")))
     whiskers = _whiskers(body["whiskers"], where)
@@ -53,6 +70,13 @@ def load_scene(path: str | Path) -> Scene:
         raise
     except ValueError as exc:
         raise SceneError(f"{where}: {exc}") from None
+
+
+def scene_files(path: str | Path) -> list[Path]:
+    """The files a scene is read from: SCENE.yaml and its path CSV (as `load_scene` found
+    them; call it after `load_scene`)."""
+    path = Path(path)
+    return [path, path.parent / _read_yaml(path)["path"]]
 
 
 def load_robot(path: str | Path) -> tuple[Whisker, ...]:
@@ -68,9 +92,41 @@ def load_robot(path: str | Path) -> tuple[Whisker, ...]:
 
 def _read_yaml(path: Path) -> Any:
     try:
-        return yaml_numbers.load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        return yaml_numbers.load_strict(path.read_text(encoding="utf-8-sig"))
+    except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{path.name}: nested too deeply") from None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        raise SceneError(f"{path.name}: {where}{exc.problem or exc.context or 'invalid YAML'}"
+                         ) from None
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{path.name}: invalid YAML: {exc}") from None
+
+
+def check_name(name: Any, where: str) -> str:
+    """``name`` if it is a text by `NAME_RULE`, else `SceneError` naming ``where``."""
+    if not isinstance(name, str):
+        raise SceneError(f"{where}: expected a name ({NAME_RULE}), got {type(name).__name__} "
+                         f"{_show(name)}: quote it if it is meant as text")
+    if not _NAME.fullmatch(name):
+        raise SceneError(f"{where}: {_show(name)} is not a name ({NAME_RULE})")
+    return name
+
+
+def number_cell(text: str) -> float:
+    """A CSV cell as a float (decimal or exponent notation, ``nan``, ``inf``); ValueError for
+    anything else, also for Python's own ``1_000`` and surrounding spaces inside."""
+    if "_" in text:
+        raise ValueError(f"{text!r} is not a number")
+    return float(text)
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _whiskers(value: Any, where: str) -> tuple[Whisker, ...]:
@@ -89,9 +145,9 @@ def _whiskers(value: Any, where: str) -> tuple[Whisker, ...]:
 def load_path(path: Path) -> RobotPath:
     """Read a path CSV (``t,x,y,z,qx,qy,qz,qw``) into a `RobotPath`."""
     try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
-    except (OSError, UnicodeDecodeError) as exc:
+        with path.open(newline="", encoding="utf-8-sig") as handle:
+            rows = [row for row in csv.reader(handle) if row]  # blank lines are no rows
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise SceneError(f"{path}: {exc}") from None
     if not rows or [c.strip() for c in rows[0]] != list(_PATH_COLUMNS):
         raise SceneError(f"{path.name}: the header must be {','.join(_PATH_COLUMNS)}, got "
@@ -101,11 +157,13 @@ def load_path(path: Path) -> RobotPath:
         if len(row) != 8:
             raise SceneError(f"{path.name}: row {i + 1}: expected 8 values, got {len(row)}")
         try:
-            values[i] = [float(cell) for cell in row]
+            values[i] = [number_cell(cell) for cell in row]
         except ValueError:
             raise SceneError(f"{path.name}: row {i + 1}: not a number in {row}") from None
-        if not np.all(np.isfinite(values[i])):
-            raise SceneError(f"{path.name}: row {i + 1}: values must be finite, got {row}")
+        low, high = LIMITS["position_m"]
+        if not (np.all(np.isfinite(values[i])) and np.all(np.abs(values[i, 1:4]) <= high)):
+            raise SceneError(f"{path.name}: row {i + 1}: values must be finite, positions within "
+                             f"[{low:g}, {high:g}] m, got {row}")
     try:
         return robot_path(values[:, 0], values[:, 1:4], values[:, 4:8])
     except ValueError as exc:
@@ -131,20 +189,26 @@ def _list(value: Any, where: str) -> list[Any]:
     return value
 
 
-def _number(value: Any, where: str) -> float:
+def _number(value: Any, where: str, limits: str | None = None) -> float:
+    """A finite number, within ``LIMITS[limits]`` when given."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise SceneError(f"{where}: expected a finite number, got {value!r}")
+        raise SceneError(f"{where}: expected a finite number, got {_show(value)}")
+    if limits is not None:
+        low, high = LIMITS[limits]
+        if not low <= value <= high:
+            raise SceneError(f"{where}: {value!r} is outside [{low:g}, {high:g}]")
     return float(value)
 
 
-def _vector(value: Any, where: str, n: int) -> list[float]:
+def _vector(value: Any, where: str, n: int, limits: str | None = None) -> list[float]:
     if not isinstance(value, list) or len(value) != n:
-        raise SceneError(f"{where}: expected {n} numbers, got {value!r}")
-    return [_number(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        raise SceneError(f"{where}: expected {n} numbers, got {_show(value)}")
+    return [_number(v, f"{where}[{i}]", limits) for i, v in enumerate(value)]
 
 
 def _pose(body: dict[str, Any], where: str) -> Transform:
-    position = _vector(body.get("position_m", [0.0, 0.0, 0.0]), f"{where}.position_m", 3)
+    position = _vector(body.get("position_m", [0.0, 0.0, 0.0]), f"{where}.position_m", 3,
+                       "position_m")
     q = _vector(body.get("quaternion_xyzw", [0.0, 0.0, 0.0, 1.0]), f"{where}.quaternion_xyzw", 4)
     norm = float(np.linalg.norm(q))
     if not abs(norm - 1.0) <= 1e-6:
@@ -153,7 +217,9 @@ def _pose(body: dict[str, Any], where: str) -> Transform:
 
 
 def _object(value: Any, where: str) -> SceneObject:
-    shape = value.get("shape") if isinstance(value, dict) else None
+    if not isinstance(value, dict):
+        raise SceneError(f"{where}: expected a mapping, got {type(value).__name__} {_show(value)}")
+    shape = value.get("shape")
     if shape not in SHAPES:
         raise SceneError(f"{where}.shape: expected one of {', '.join(SHAPES)}, got {shape!r}")
     sizes = _OBJECT_SIZES[shape]
@@ -161,11 +227,16 @@ def _object(value: Any, where: str) -> SceneObject:
                     ("name", "shape", *sizes))
     values: dict[str, Any] = {}
     for key in sizes:
-        values[key] = (_vector(body[key], f"{where}.{key}", 3) if key == "semi_axes_m"
-                       else _number(body[key], f"{where}.{key}"))
+        if key == "semi_axes_m":
+            values[key] = _vector(body[key], f"{where}.{key}", 3, "size_m")
+        elif key == "h_m":  # the vertex's height: either side of the origin
+            values[key] = _number(body[key], f"{where}.{key}", "position_m")
+        else:
+            values[key] = _number(body[key], f"{where}.{key}",
+                                  "per_m" if key.endswith("_per_m") else "size_m")
     pose = _pose(body, where)  # its errors name the field already
     try:
-        return SceneObject(str(body["name"]), shape, values, pose)
+        return SceneObject(check_name(body["name"], f"{where}.name"), shape, values, pose)
     except ValueError as exc:
         raise SceneError(f"{where}: {exc}") from None
 
@@ -173,10 +244,10 @@ def _object(value: Any, where: str) -> SceneObject:
 def _whisker(value: Any, where: str) -> Whisker:
     body = _mapping(value, where, ("name", "length_m", "ei_nm2", "mount", "sensor"),
                     ("name", "length_m", "ei_nm2", "mount"))
-    length, ei = _number(body["length_m"], f"{where}.length_m"), _number(body["ei_nm2"], f"{where}.ei_nm2")
-    if not (length > 0 and ei > 0):
-        raise SceneError(f"{where}: length_m and ei_nm2 must be > 0, got {length}, {ei}")
+    name = check_name(body["name"], f"{where}.name")
+    length = _number(body["length_m"], f"{where}.length_m", "length_m")
+    ei = _number(body["ei_nm2"], f"{where}.ei_nm2", "ei_nm2")
     mount = _mapping(body["mount"], f"{where}.mount", ("position_m", "quaternion_xyzw"), ())
     sensor = _mapping(body.get("sensor", {}), f"{where}.sensor", ("position_m", "quaternion_xyzw"), ())
-    return Whisker(str(body["name"]), length, ei, _pose(mount, f"{where}.mount"),
+    return Whisker(name, length, ei, _pose(mount, f"{where}.mount"),
                    _pose(sensor, f"{where}.sensor"))

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from vibrissa.runtime.csv_text import cells, read_csv, write_csv
-from vibrissa.runtime.scene_file import SceneError
+from vibrissa.runtime.scene_file import SceneError, check_name
 from vibrissa.scene import Episode, SamplePhase, Scene, WhiskerResult
 
 __all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "read_results", "write_results"]
@@ -62,7 +62,7 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
             for r, phase, obj in zip(numbers, result.phase.tolist(), result.object.tolist(),
                                      strict=True)
         )
-        target = out / f"{result.name}.csv"
+        target = out / f"{check_name(result.name, 'whisker')}.csv"  # a file name
         write_csv(target, tuple(SCENE_COLUMNS), rows)
         written.append(target)
     summary = {

@@ -443,6 +443,8 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
                            np.full(len(t), np.nan), np.zeros(len(t), np.int32),
                            np.full((len(t), 3), np.nan), np.zeros(len(t), np.int32))
     rows = np.flatnonzero(covered)
+    if not len(rows):  # no rows, or none within the path
+        return out
     which = rows_of[rows]
     mount_p = np.array([w.X_RC.translation for w in scene.whiskers])[which]
     mount_R = Rotation.from_quat(np.array([w.X_RC.quaternion_xyzw for w in scene.whiskers])[which])

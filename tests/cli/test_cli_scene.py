@@ -77,14 +77,32 @@ def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path) -> None
     (("    ei_nm2: 2.0e-5\n", ""), "scene.yaml: whiskers[0]: missing 'ei_nm2'"),
     (("    mount: {position_m: [0.0, 0.0, 0.0]}\n", ""), "scene.yaml: whiskers[0]: missing 'mount'"),
     (("length_m: 0.04", "length_m: -0.04"),
-     "scene.yaml: whiskers[1]: length_m and ei_nm2 must be > 0, got -0.04"),
+     "scene.yaml: whiskers[1].length_m: -0.04 is outside [0.0001, 10]"),
     (("name: w1", "name: w0"), "scene.yaml: whiskers[1]: the name 'w0' is taken by whiskers[0]"),
     (("shape: sphere", "shape: cube"), "scene.yaml: objects[0].shape: expected one of sphere"),
     (("[0, 0, 0.3826834, 0.9238795]", "[0, 0, 0.5, 0.9]"),
      "objects[1].quaternion_xyzw: [0.0, 0.0, 0.5, 0.9] is not a unit quaternion"),
     (("mu: 0.25", "mu: high"), "scene.yaml: mu: expected a finite number"),
     (("path: path.csv", "path: nowhere.csv"), "nowhere.csv"),
-    (("length_m: 0.05", "length_m: -0.05"), "whiskers[0]: length_m and ei_nm2 must be > 0"),
+    (("length_m: 0.05", "length_m: -0.05"), "whiskers[0].length_m: -0.05 is outside"),
+    # numbers that overflow the rod's units or the geometry: refused, not simulated
+    (("length_m: 0.05", "length_m: 1e308"), "whiskers[0].length_m: 1e+308 is outside"),
+    (("ei_nm2: 2.0e-5", "ei_nm2: 1e308"), "whiskers[0].ei_nm2: 1e+308 is outside"),
+    (("radius_m: 0.015", "radius_m: 1e200"), "objects[0].radius_m: 1e+200 is outside"),
+    (("radius_m: 0.015", "radius_m: -0.015"), "objects[0].radius_m: -0.015 is outside"),
+    (("mount: {position_m: [0.0, 0.0, 0.0]}", "mount: {position_m: [1e308, 0.0, 0.0]}"),
+     "whiskers[0].mount.position_m[0]: 1e+308 is outside"),
+    # names become file and frame names
+    (("name: w0", "name: ../escaped"), "whiskers[0].name: '../escaped' is not a name"),
+    (("name: w0", "name: /tmp/x"), "whiskers[0].name: '/tmp/x' is not a name"),
+    (("name: w0", "name: ''"), "whiskers[0].name: '' is not a name"),
+    (("name: w0", "name: 010"), "whiskers[0].name: expected a name"),
+    (("name: w0", "name: [a, b]"), "whiskers[0].name: expected a name"),
+    (("name: ball", "name: ~"), "objects[0].name: expected a name"),
+    # the YAML itself: repeated keys, aliases, syntax, with the file and line
+    (("mu: 0.25", "mu: 5\nmu: 0.25"), "scene.yaml: line 2, column 1: duplicate key 'mu'"),
+    (("mu: 0.25", "m: &m [1, 2]\nmu: *m"), "scene.yaml: line 2, column 5: aliases (*m) are not"),
+    (("mu: 0.25", "mu: [0.25"), "scene.yaml: line"),
 ])
 def test_a_bad_scene_is_one_line_naming_file_and_key(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                       change: tuple[str, str], message: str) -> None:
@@ -188,6 +206,10 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
      "wrenches.csv: row 1: t must be a finite number"),
     ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n0.1,w0,0,zero,0,0,0,0\n",
      "wrenches.csv: row 1, column f0y: 'zero' is not a number"),
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n0.1_5,w0,0,0,0,0,0,0\n",  # Python's, not a CSV number
+     "wrenches.csv: row 1, column t: '0.1_5' is not a number"),
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z,t\n0.1,w0,0,0,0,0,0,0,0.2\n",
+     "wrenches.csv: column(s) t appear more than once"),
 ])
 def test_reconstruct_with_a_scene_names_what_is_wrong(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, message: str) -> None:
@@ -198,6 +220,49 @@ def test_reconstruct_with_a_scene_names_what_is_wrong(
                  str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "p.csv")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
+
+
+def test_reconstruct_reads_what_spreadsheets_write_and_an_empty_table(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    header = "t,whisker,f0x,f0y,f0z,m0x,m0y,m0z"
+    row = "0.5,w0,0.001,-0.002,0.0005,1e-05,2e-05,0"
+    points = tmp_path / "p.csv"
+    # a byte order mark, CRLF line ends, a blank line and a trailing one: the same one row
+    for text in ("\ufeff" + header + "\r\n" + row + "\r\n", header + "\n\n" + row + "\n\n"):
+        (tmp_path / "wrenches.csv").write_text(text, encoding="utf-8")
+        assert main(["reconstruct", str(tmp_path / "wrenches.csv"), "--scene",
+                     str(tmp_path / "scene.yaml"), "-o", str(points)]) == 0
+        rows = points.read_text().splitlines()
+        assert len(rows) == 2 and rows[1].startswith("0.5,w0,"), rows
+    (tmp_path / "wrenches.csv").write_text(header + "\n")  # no rows: no points, not an error
+    assert main(["reconstruct", str(tmp_path / "wrenches.csv"), "--scene",
+                 str(tmp_path / "scene.yaml"), "-o", str(points)]) == 0
+    assert points.read_text() == "t,whisker,px,py,pz,s1,phase,status\n"
+    assert "reconstruct: 0 rows, 0 with a contact" in capsys.readouterr().err
+
+
+def test_an_output_never_replaces_an_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]
+                                           ) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    wrenches = tmp_path / "wrenches.csv"
+    wrenches.write_text("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n0.5,w0,0,0,0,0,0,0\n")
+    before = {p: p.read_bytes() for p in (wrenches, tmp_path / "scene.yaml", tmp_path / "path.csv")}
+    for output in before:
+        assert main(["reconstruct", str(wrenches), "--scene", str(tmp_path / "scene.yaml"),
+                     "-o", str(output)]) == 1
+        assert f"would overwrite the input {output}" in capsys.readouterr().err
+    # a whisker named as the path file, simulated into the scene's folder
+    (tmp_path / "scene.yaml").write_text(SCENE.replace("name: w0", "name: path"))
+    before[tmp_path / "scene.yaml"] = (tmp_path / "scene.yaml").read_bytes()
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path)]) == 1
+    assert "path.csv: would overwrite the input" in capsys.readouterr().err
+    assert all(p.read_bytes() == b for p, b in before.items())
+    (tmp_path / "afile").write_text("")  # an output folder that is a file: said before solving
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "afile")]) == 1
+    assert "afile: exists and is not a folder" in capsys.readouterr().err
 
 
 def test_the_whiskers_of_a_scene_file_are_the_robot_description(tmp_path: Path) -> None:

@@ -38,7 +38,9 @@ L^2 I, the rod's reach), ``no_contact`` (valid
 wrench, no consistent contact, or a result that overflows to inf near the float limit),
 ``bad_pose`` (clamp quaternion of zero or non-finite length), ``no_pose`` (no clamp pose at
 the wrench's stamp within ``pose_timeout_s``), ``unknown_whisker`` (not in the robot
-description); and ``robot_poses``, ``bad_robot_pose`` (poses taken, refused), ``batches`` and
+description); and ``robot_poses``, ``bad_robot_pose`` (poses taken, refused),
+``pose_time_jumps``, ``pose_reparents`` (histories dropped: a new timeline, a new parent frame;
+`vibrissa.frame_buffer`), ``batches`` and
 ``max_batch`` (batches and the largest, in messages). Undecodable input (wrong type, version,
 field type, truncated bytes, NaN) is rejected and counted by the transport (``rejected``) and
 the node carries on.
@@ -53,6 +55,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -615,25 +618,59 @@ def _compile_kernels(rod: Rods, detector: ContactDetector | None) -> None:
     frames.lookup_rows("world", ["warm-up/clamp"] * 2, [0.5, 0.5])
 
 
-def _on_pose(frames: FrameBuffer, counters: dict[str, int], fqn: str
+_KIND = re.compile(r"'[^']*'|\"[^\"]*\"|[-+]?\.?\d[\w.+-]*")  # names and numbers in a text
+_MAX_KINDS = 256
+_LOGGED_CHARS = 500
+
+
+class Warnings:
+    """Warnings logged once per kind, then every 1000th of it with its count: a kind is the
+    text without its quoted names and its numbers, so a stamp in each "no pose at t=..." does
+    not make every wrench a kind of its own, nor use up what other kinds get. At most
+    `_MAX_KINDS` kinds (then one more, "other"); a text is logged to `_LOGGED_CHARS`
+    characters (names come off the wire)."""
+
+    def __init__(self, fqn: str) -> None:
+        self.fqn = fqn
+        self._counts: dict[str, int] = {}
+
+    def __call__(self, text: str) -> None:
+        kind = _KIND.sub("#", text[:_LOGGED_CHARS])
+        if kind not in self._counts and len(self._counts) >= _MAX_KINDS:
+            kind = "other"
+        count = self._counts[kind] = self._counts.get(kind, 0) + 1
+        if count == 1 or count % 1000 == 0:
+            shown = text if len(text) <= _LOGGED_CHARS else text[:_LOGGED_CHARS - 3] + "..."
+            log.warning("%s: %s%s", self.fqn, shown,
+                        f" ({count} of this kind so far)" if count > 1 else "")
+
+
+def _on_pose(frames: FrameBuffer, counters: dict[str, int], warn: Warnings
              ) -> Callable[[RobotPose], None]:
     def on_pose(pose: RobotPose) -> None:
+        if pose.child_frame_id not in frames:  # no clamp hangs under it: of no use, and a
+            counters["bad_robot_pose"] += 1    # stream of invented names would fill the buffer
+            warn(f"robot pose refused: {pose.child_frame_id!r} is neither the robot's frame nor "
+                 "above it (a frame comes above it as the parent in a pose)")
+            return
+        parent = frames.parent(pose.child_frame_id)
         try:
             forgotten = frames.add_pose(pose.frame_id, pose.child_frame_id, pose.stamp,
                                         pose.position, pose.orientation)
         except ValueError as exc:  # a zero quaternion, a frame that would close a loop, ...
             counters["bad_robot_pose"] += 1
-            if counters["bad_robot_pose"] == 1 or counters["bad_robot_pose"] % 1000 == 0:
-                log.warning("%s: robot pose refused (%d so far): %s", fqn,
-                            counters["bad_robot_pose"], exc)
+            warn(f"robot pose refused: {exc}")
             return
         counters["robot_poses"] += 1
+        if parent is not None and parent != pose.frame_id:
+            counters["pose_reparents"] += 1
+            warn(f"the poses of {pose.child_frame_id!r} now come in {pose.frame_id!r}, no longer "
+                 f"in {parent!r}: its history there is dropped")
         if forgotten is not None:
             counters["pose_time_jumps"] += 1
-            log.warning("%s: the poses of %s in %s start again at t=%r, behind the kept history "
-                        "(newest t=%r): that history is dropped (%d time jump(s) so far)", fqn,
-                        pose.child_frame_id, pose.frame_id, pose.stamp, forgotten,
-                        counters["pose_time_jumps"])
+            warn(f"the poses of {pose.child_frame_id!r} in {pose.frame_id!r} start again at "
+                 f"t={pose.stamp!r}, behind the kept history (newest t={forgotten!r}): that "
+                 "history is dropped")
     return on_pose
 
 
@@ -642,7 +679,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
     counters = node.counters
     counters.update(contacts=0, free=0, tip_within_noise=0, no_covariance=0, no_contact=0,
                     bad_pose=0, no_pose=0, unknown_whisker=0, robot_poses=0, bad_robot_pose=0,
-                    pose_time_jumps=0, batches=0, max_batch=0)
+                    pose_time_jumps=0, pose_reparents=0, batches=0, max_batch=0)
     whiskers = load_robot(params.robot) if params.robot else ()
     rod: Rods = RodTable({w.name: w.scale for w in whiskers}) if whiskers else params.rod
     frames = robot_frames(whiskers, params.robot_frame, params.history_s) if whiskers else None
@@ -653,7 +690,8 @@ def run(node: Node, params: ReconstructorParams) -> None:
     publisher = node.create_publisher(params.output_topic, (ContactPoint, ContactPointArray),
                                       wait_for=params.wait_for)
     wait = PoseWait(frames, params.map_frame, params.pose_timeout_s)
-    on_pose = _on_pose(frames, counters, node.fqn) if frames is not None else (
+    warn = Warnings(node.fqn)
+    on_pose = _on_pose(frames, counters, warn) if frames is not None else (
         lambda pose: None)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, on_pose,
                              resolve_topic(params.input_topic, node.namespace))
@@ -665,7 +703,6 @@ def run(node: Node, params: ReconstructorParams) -> None:
     _compile_kernels(rod, detector)
     node.set_state("running")
     ends: list[EndOfStream] = []  # held until the wrenches before them are out
-    reported: set[str] = set()
     while not node.stop_requested:
         batch, eos = batches.collect(min(0.1, wait.wait_s()))
         wait.add(batch)
@@ -679,9 +716,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
                 publisher.publish(outcome.contacts)
             _count(counters, outcome)
             for error in outcome.errors:
-                if error not in reported and len(reported) < 100:
-                    reported.add(error)
-                    log.warning("%s: %s", node.fqn, error)
+                warn(error)
         if ready:
             counters["batches"] += 1
             counters["max_batch"] = max(counters["max_batch"], len(ready))

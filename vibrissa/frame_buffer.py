@@ -2,6 +2,10 @@
 joined by static transforms (a whisker's mount) or by stamped poses (the robot in ``world`` or
 ``odom``, from a pose stream).
 
+A frame with stamped poses moves to a new parent when a pose names one (tf2 lets a frame's
+parent change over time): its history under the old parent is dropped, so that one stray pose
+in another frame costs a few lookups, not the stream. A static frame keeps its parent.
+
 A lookup at a stamp composes the transforms along the tree, each stamped one interpolated
 between the two poses around the stamp (position linear, orientation slerp, the rule of
 `vibrissa.frames.PoseSamples`, with the compiled quaternion kernels of `vibrissa.frames`: a
@@ -47,6 +51,22 @@ stray pose stamped far ahead of the stream): the edge forgets its history and ke
 of them. So one bad stamp costs a few poses, not the stream."""
 
 FloatArray = NDArray[np.float64]
+
+_SHOWN = 8  # frame names an error lists at most
+
+
+def _short(name: str) -> str:
+    """A frame name as an error shows it: at most 40 characters (names come off the wire)."""
+    return name if len(name) <= 40 else name[:37] + "..."
+
+
+def _known(frames: set[str]) -> str:
+    """The first `_SHOWN` of ``frames``, sorted and shortened, and how many there are."""
+    if not frames:
+        return "none yet"
+    names = sorted(frames)
+    shown = ", ".join(_short(name) for name in names[:_SHOWN])
+    return shown if len(names) <= _SHOWN else f"{shown}, ... ({len(names)} in all)"
 
 
 class FrameError(LookupError):
@@ -166,8 +186,10 @@ class FrameBuffer:
 
     def add(self, parent: str, child: str, stamp: float, X_parent_child: Transform
             ) -> float | None:
-        """The pose of ``child`` in ``parent`` at ``stamp`` (s); a pose at a stamp already kept
-        replaces it. One older than the kept history is refused (ValueError), unless it is the
+        """The pose of ``child`` in ``parent`` at ``stamp`` (s); a different pose at a stamp
+        already kept is refused (ValueError; tf2 keeps the first too), the same one ignored.
+        A pose naming another parent than the kept ones' moves ``child`` there (its history
+        goes; a static frame is refused). One older than the kept history is refused (ValueError), unless it is the
         `TIME_JUMP_POSES`-th such in a row: then the edge starts again from it, and the newest
         stamp of the history it forgot is returned (else None)."""
         return self.add_pose(parent, child, stamp, X_parent_child.translation,
@@ -183,7 +205,8 @@ class FrameBuffer:
             raise ValueError(f"stamp of {child} in {parent} must be finite, got {stamp}")
         p = np.asarray(position, dtype=float).reshape(3)
         q = np.asarray(quaternion_xyzw, dtype=float).reshape(4)
-        norm = math.sqrt(float(q @ q))
+        scale = float(np.max(np.abs(q)))  # scaled first: |q|^2 of (0, 0, 1e300, 1e300) overflows
+        norm = scale * math.sqrt(float((q / scale) @ (q / scale))) if scale > 0 else 0.0
         if not (np.isfinite(p).all() and 0.0 < norm < math.inf):
             raise ValueError(f"pose of {child} in {parent} at t={stamp!r}: position {p.tolist()} "
                              f"and quaternion {q.tolist()} must be finite, the quaternion "
@@ -209,10 +232,12 @@ class FrameBuffer:
         pose = np.concatenate([p, q / norm])
         k = bisect.bisect_left(edge.stamps, stamp)
         if k < len(edge.stamps) and edge.stamps[k] == stamp:
-            edge.poses[k] = pose
-        else:
-            edge.stamps.insert(k, stamp)
-            edge.poses.insert(k, pose)
+            if not np.array_equal(edge.poses[k], pose):  # as tf2: the first pose of a stamp
+                raise ValueError(f"pose of {_short(child)} in {_short(parent)} at t={stamp!r}: "
+                                 "another pose has this stamp already (kept)")
+            return forgotten
+        edge.stamps.insert(k, stamp)
+        edge.poses.insert(k, pose)
         old = max(bisect.bisect_left(edge.stamps, edge.stamps[-1] - self.history_s),
                   len(edge.stamps) - MAX_POSES)
         if old:
@@ -338,8 +363,7 @@ class FrameBuffer:
         for i, source in enumerate(sources):
             anchored = self._anchor(source)
             if anchored is None:
-                error = (f"unknown frame {source!r} (known: "
-                         f"{', '.join(sorted(self.frames)) or 'none yet'})")
+                error = f"unknown frame {_short(source)!r} (known: {_known(self._frames)})"
                 if error not in unknown:
                     unknown.append(error)
                 continue
@@ -461,6 +485,9 @@ class FrameBuffer:
         if parent == child:
             raise ValueError(f"frame {child} cannot be its own parent")
         edge = self._edges.get(child)
+        if edge is not None and edge.parent != parent and edge.static is None and not static:
+            self._move(child, parent)  # a stamped frame under a new parent, as tf2 allows
+            edge = None
         if edge is None:
             new = {parent, child} - self._frames
             if len(self._frames) + len(new) > MAX_FRAMES:
@@ -476,12 +503,38 @@ class FrameBuffer:
             self._plans.clear()
             self._newest.clear()
         elif edge.parent != parent:
-            raise ValueError(f"frame {child} already has the parent {edge.parent}; a frame has "
-                             f"one parent (got {parent})")
+            raise ValueError(f"frame {_short(child)} already has the parent "
+                             f"{_short(edge.parent)}; a static frame keeps it (got "
+                             f"{_short(parent)})")
         elif static != (edge.static is not None or not edge.stamps):
             kind = "static" if edge.static is not None else "stamped"
             raise ValueError(f"{child} in {parent} is {kind} already")
         return edge
+
+    def __contains__(self, frame: object) -> bool:
+        """Whether ``frame`` is named in the buffer."""
+        return frame in self._frames
+
+    def parent(self, frame: str) -> str | None:
+        """The parent of ``frame`` (None: a root, or not a frame)."""
+        edge = self._edges.get(frame)
+        return None if edge is None else edge.parent
+
+    def _move(self, child: str, parent: str) -> None:
+        """Drop ``child``'s stamped edge to its parent, so that ``_edge`` makes one to ``parent``
+        (after its checks: a loop, the frame limit); the old parent goes too when nothing else
+        names it."""
+        if self._chain_has(parent, child):
+            raise ValueError(f"{_short(child)} in {_short(parent)} would close a loop: "
+                             f"{_short(parent)} is already under {_short(child)}")
+        old = self._edges.pop(child).parent
+        if old not in self._edges and all(e.parent != old for e in self._edges.values()):
+            self._frames.discard(old)
+        self._frames.discard(child)  # named again by the new edge (still a parent of others)
+        if any(e.parent == child for e in self._edges.values()):
+            self._frames.add(child)
+        for cache in (self._splits, self._anchors, self._plans, self._newest):
+            cache.clear()
 
     def _chain_has(self, frame: str, ancestor: str) -> bool:
         while frame in self._edges:
@@ -493,8 +546,8 @@ class FrameBuffer:
     def _chain(self, frame: str) -> tuple[list[str], str]:
         """The frames from ``frame`` up to (not including) its root, and the root."""
         if frame not in self._frames:
-            known = ", ".join(sorted(self._frames)) or "none yet"
-            raise ConnectivityError(f"unknown frame {frame!r} (known: {known})")
+            raise ConnectivityError(f"unknown frame {_short(frame)!r} (known: "
+                                    f"{_known(self._frames)})")
         chain = []
         while frame in self._edges:
             chain.append(frame)

@@ -226,3 +226,60 @@ def test_a_flood_of_poses_or_of_frame_names_keeps_the_buffer_bounded() -> None:
     with pytest.raises(ValueError, match=f"holds {MAX_FRAMES} frames already"):
         names.add_pose("world", "one_more", 0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
     names.add_pose("world", "f3", 1.0, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])  # known: fine
+
+
+def test_a_stray_pose_in_another_parent_moves_the_frame_and_the_stream_takes_it_back() -> None:
+    buffer = FrameBuffer()
+    buffer.set_static("base_link", "w0/clamp", Transform(translation=[0.0, 0.0, 0.1]))
+    identity = [0.0, 0.0, 0.0, 1.0]
+    buffer.add_pose("odom", "base_link", 0.0, [5.0, 0.0, 0.0], identity)  # a stray one, first
+    assert buffer.parent("base_link") == "odom"
+    for k in range(1, 4):  # the robot's stream: base_link moves to world, odom is forgotten
+        buffer.add_pose("world", "base_link", 0.1 * k, [0.1 * k, 0.0, 0.0], identity)
+    assert buffer.parent("base_link") == "world" and "odom" not in buffer.frames
+    X = buffer.lookup("world", "w0/clamp", 0.25)
+    assert np.allclose(X.translation, [0.25, 0.0, 0.1], rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="would close a loop"):  # moved, but not into a loop
+        buffer.add_pose("w0/clamp", "base_link", 0.4, [0.0, 0.0, 0.0], identity)
+    with pytest.raises(ValueError, match="a static frame keeps it"):
+        buffer.set_static("odom", "w0/clamp", Transform())
+
+
+def test_a_flood_of_invented_parents_does_not_fill_the_buffer() -> None:
+    buffer = FrameBuffer()
+    identity = [0.0, 0.0, 0.0, 1.0]
+    for k in range(3 * MAX_FRAMES):  # each moves base_link on; the one it left is dropped
+        buffer.add_pose(f"junk{k}", "base_link", float(k), [0.0, 0.0, 0.0], identity)
+    assert len(buffer.frames) == 2
+    buffer.add_pose("world", "base_link", 0.0, [1.0, 0.0, 0.0], identity)
+    assert buffer.frames == {"world", "base_link"}
+
+
+def test_a_second_pose_at_a_kept_stamp_is_refused_and_the_first_kept() -> None:
+    buffer = FrameBuffer()
+    buffer.add_pose("world", "base_link", 1.0, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+    buffer.add_pose("world", "base_link", 1.0, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])  # the same
+    with pytest.raises(ValueError, match="another pose has this stamp already"):
+        buffer.add_pose("world", "base_link", 1.0, [6.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+    assert buffer.lookup("world", "base_link", 1.0).translation[0] == 1.0
+
+
+def test_a_quaternion_of_any_finite_size_is_normalised() -> None:
+    buffer = FrameBuffer()
+    half = np.sqrt(0.5)
+    for k, scale in enumerate((1e300, 1e-200, 3.0)):
+        buffer.add_pose("world", f"f{k}", 0.0, [0.0, 0.0, 0.0], [0.0, 0.0, scale, scale])
+        q = buffer.lookup("world", f"f{k}", 0.0).quaternion_xyzw
+        assert np.allclose(np.abs(q), [0.0, 0.0, half, half], rtol=0, atol=1e-15), (scale, q)
+
+
+def test_an_unknown_frame_error_stays_short_whatever_the_names() -> None:
+    buffer = FrameBuffer()
+    for k in range(200):
+        buffer.add_pose("world", f"{k:04d}" + "x" * 50_000, 0.0, [0.0, 0.0, 0.0],
+                        [0.0, 0.0, 0.0, 1.0])
+    with pytest.raises(ConnectivityError) as caught:
+        buffer.lookup("world", "y" * 50_000, 0.0)
+    assert len(str(caught.value)) < 1000 and "(201 in all)" in str(caught.value)
+    rows = buffer.lookup_rows("world", ["z" * 50_000], [0.0])
+    assert not rows.ok[0] and len(rows.errors[0]) < 1000

@@ -659,7 +659,13 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
     past the last pose no_pose, and a backlog that never drains ends the wait at 10 timeouts."""
     from vibrissa.frames import Transform
     from vibrissa.msgs import RobotPose
-    from vibrissa.nodes.reconstructor import BACKLOG_TIMEOUTS, PoseWait, _on_pose, robot_frames
+    from vibrissa.nodes.reconstructor import (
+        BACKLOG_TIMEOUTS,
+        PoseWait,
+        Warnings,
+        _on_pose,
+        robot_frames,
+    )
     from vibrissa.scene import Whisker
 
     whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
@@ -684,7 +690,7 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
     wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
 
     counters = {"robot_poses": 0, "bad_robot_pose": 0}
-    on_pose = _on_pose(frames, counters, "/robot/reconstructor")
+    on_pose = _on_pose(frames, counters, Warnings("/robot/reconstructor"))
     rods = {w.name: w.scale for w in whiskers}
     batches = BatchCollector(receive, drain_limit=2, max_batch=3, on_pose=on_pose)
     taken: list[tuple[int, int]] = []  # (seq, no_pose rows) as each wrench is let through
@@ -708,6 +714,54 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
     assert wait.take(drained=False) == []
     now[0] += 0.02
     assert [m.seq for m in wait.take(drained=False)] == [10]
+
+
+def test_warnings_are_logged_once_per_kind_then_every_thousandth(
+        caplog: pytest.LogCaptureFixture) -> None:
+    from vibrissa.nodes.reconstructor import Warnings
+
+    warn = Warnings("/robot/reconstructor")
+    with caplog.at_level("WARNING", logger="vibrissa.nodes.reconstructor"):
+        for k in range(1000):  # a stamp in each: one kind
+            warn(f"cannot look up w00/clamp in world at t={k * 0.001!r}: 0.2 s newer than the "
+                 "last pose; no extrapolation")
+        warn("whisker 'ghost' is not in the robot description (w00)")  # another kind: logged
+        warn("robot pose refused: " + "x" * 70_000)  # off the wire: logged, shortened
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 4, lines
+    assert "t=0.0:" in lines[0] and lines[1].endswith("(1000 of this kind so far)")
+    assert "'ghost' is not in the robot description" in lines[2]
+    assert len(lines[3]) < 600 and lines[3].endswith("...")
+
+
+def test_a_stray_pose_in_another_frame_is_counted_and_the_stream_goes_on() -> None:
+    from vibrissa.frames import Transform
+    from vibrissa.msgs import RobotPose
+    from vibrissa.nodes.reconstructor import Warnings, _on_pose, robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0]))]
+    frames = robot_frames(whiskers)
+    counters = dict.fromkeys(("robot_poses", "bad_robot_pose", "pose_time_jumps",
+                              "pose_reparents"), 0)
+    on_pose = _on_pose(frames, counters, Warnings("/robot/reconstructor"))
+    on_pose(RobotPose(stamp=0.0, frame_id="odom", child_frame_id="base_link",
+                      position=[5.0, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0]))
+    for k in range(3):
+        on_pose(RobotPose(stamp=0.1 * k, frame_id="world", child_frame_id="base_link",
+                          position=[0.1 * k, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0]))
+    assert counters == {"robot_poses": 4, "bad_robot_pose": 0, "pose_time_jumps": 0,
+                        "pose_reparents": 1}
+    for k in range(2000):  # invented frames that no clamp hangs under: refused, not kept
+        on_pose(RobotPose(stamp=0.3, frame_id="odom", child_frame_id=f"junk{k}",
+                          position=[0.0, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0]))
+    assert counters["bad_robot_pose"] == 2000 and frames.frames == {"world", "base_link", "a/clamp"}
+    on_pose(RobotPose(stamp=0.3, frame_id="world", child_frame_id="base_link",
+                      position=[0.3, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0]))
+    assert counters["robot_poses"] == 5
+    rows = frames.lookup_rows("world", ["a/clamp"], [0.15])
+    assert rows.ok[0] and np.allclose(rows.p[0] - whiskers[0].X_RC.translation,
+                                      [0.15, 0.0, 0.0], rtol=0, atol=1e-15)
 
 
 def test_rows_of_a_whisker_the_robot_does_not_have_are_counted_and_named() -> None:

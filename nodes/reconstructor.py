@@ -148,6 +148,12 @@ class ReconstructorParams:
     history_s
         Robot poses kept for interpolation, s: a wrench older than the newest pose by more
         than this counts as ``no_pose``.
+    max_pose_gap_s
+        Two robot poses more than this apart are not interpolated between, s: a wrench
+        stamped between them waits for the poses that fill the gap (``pose_timeout_s``), then
+        counts as ``no_pose``. Guards against a pose stream that stopped, and one pose
+        stamped far ahead of it, being taken for the robot's motion; raise it for a slower
+        pose stream.
     noise_force_n, noise_moment_nm
         Std of the free-rod wrench noise on each force axis (N) and moment axis (N m) of every
         whisker's sensor: both > 0 turns on contact detection and the points' covariances,
@@ -177,6 +183,7 @@ class ReconstructorParams:
     robot_frame: str = ROBOT_FRAME
     pose_timeout_s: float = 0.5
     history_s: float = DEFAULT_HISTORY_S
+    max_pose_gap_s: float = 1.0
     noise_force_n: float = 0.0
     noise_moment_nm: float = 0.0
     contact_on_sigmas: float = ON_SIGMAS
@@ -192,6 +199,7 @@ class ReconstructorParams:
             require(bool(getattr(self, key)), key, getattr(self, key), "a frame name")
         require_non_negative("pose_timeout_s", self.pose_timeout_s)
         require_positive("history_s", self.history_s)
+        require_positive("max_pose_gap_s", self.max_pose_gap_s)
         require_non_negative("noise_force_n", self.noise_force_n)
         require_non_negative("noise_moment_nm", self.noise_moment_nm)
         require((self.noise_force_n > 0) == (self.noise_moment_nm > 0), "noise_moment_nm",
@@ -565,7 +573,8 @@ class PoseWait:
             return True
         sources = [msg.frame_id] if isinstance(msg, WhiskerWrench) else msg.frame_ids
         newest = self.frames.newest_rows(self.map_frame, sources)
-        return newest is not None and newest >= msg.stamp
+        return (newest is not None and newest >= msg.stamp
+                and not self.frames.has_gap_rows(self.map_frame, sources, msg.stamp))
 
 
 def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
@@ -582,10 +591,11 @@ def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
 
 
 def robot_frames(whiskers: Sequence[Whisker], robot_frame: str = ROBOT_FRAME,
-                 history_s: float = DEFAULT_HISTORY_S) -> FrameBuffer:
+                 history_s: float = DEFAULT_HISTORY_S, max_gap_s: float = math.inf
+                 ) -> FrameBuffer:
     """A frame buffer with the mounts of the robot description: each whisker's clamp frame
     (`vibrissa.frames.clamp_frame`) at X_RC in ``robot_frame``."""
-    frames = FrameBuffer(history_s)
+    frames = FrameBuffer(history_s, max_gap_s)
     for whisker in whiskers:
         frames.set_static(robot_frame, clamp_frame(whisker.name), whisker.X_RC)
     return frames
@@ -682,7 +692,8 @@ def run(node: Node, params: ReconstructorParams) -> None:
                     pose_time_jumps=0, pose_reparents=0, batches=0, max_batch=0)
     whiskers = load_robot(params.robot) if params.robot else ()
     rod: Rods = RodTable({w.name: w.scale for w in whiskers}) if whiskers else params.rod
-    frames = robot_frames(whiskers, params.robot_frame, params.history_s) if whiskers else None
+    frames = (robot_frames(whiskers, params.robot_frame, params.history_s, params.max_pose_gap_s)
+              if whiskers else None)
     topics: dict[str, object] = {params.input_topic: (WhiskerWrench, WhiskerWrenchArray)}
     if frames is not None:
         topics[params.pose_topic] = RobotPose

@@ -158,18 +158,26 @@ _MAX_PLANS = 64
 class FrameBuffer:
     """Static and stamped transforms between named frames; `lookup` at any stamp the kept
     poses cover. Poses older than ``history_s`` behind the newest of their edge are forgotten,
-    and so are the oldest beyond `MAX_POSES` an edge; at most `MAX_FRAMES` frames."""
+    and so are the oldest beyond `MAX_POSES` an edge; at most `MAX_FRAMES` frames. Two kept
+    poses more than ``max_gap_s`` apart are not interpolated between (a pose stream that
+    stopped, or one pose stamped far ahead of it): a stamp between them is an
+    `ExtrapolationError` too."""
 
-    def __init__(self, history_s: float = DEFAULT_HISTORY_S) -> None:
+    def __init__(self, history_s: float = DEFAULT_HISTORY_S, max_gap_s: float = math.inf
+                 ) -> None:
         if not history_s > 0:
             raise ValueError(f"history_s must be > 0, got {history_s}")
+        if not max_gap_s > 0:
+            raise ValueError(f"max_gap_s must be > 0, got {max_gap_s}")
         self.history_s = history_s
+        self.max_gap_s = max_gap_s
         self._edges: dict[str, _Edge] = {}  # by child frame
         self._frames: set[str] = set()
         self._anchors: dict[str, tuple[str, FloatArray, FloatArray]] = {}  # lookup_rows'
         self._plans: dict[tuple[str, ...], _RowPlan] = {}  # lookup_rows' of frame lists
         self._newest: dict[tuple[str, str], float | None] = {}  # newest's, by (target, anchor)
         self._splits: dict[tuple[str, str], tuple[list[str], list[str]]] = {}  # _lookup's
+        self._stamped: dict[tuple[str, str], list[_Edge]] = {}  # has_gap_rows', by (target, anchor)
 
     @property
     def frames(self) -> set[str]:
@@ -462,10 +470,14 @@ class FrameBuffer:
                 p, q = p_edge + quaternion_rotate(q_edge, p), quaternion_products(q_edge, q)
         return p, q
 
-    @staticmethod
-    def _check_covered(edge: _Edge, child: str, t: FloatArray, target: str, source: str) -> None:
+    def _check_covered(self, edge: _Edge, child: str, t: FloatArray, target: str, source: str
+                       ) -> None:
         stamps = edge.stamps
-        if edge.static is not None or (len(t) == 1 and stamps[0] <= t[0] <= stamps[-1]):
+        if edge.static is not None:
+            return
+        if len(t) == 1 and stamps[0] <= t[0] <= stamps[-1]:
+            if self.max_gap_s < math.inf:
+                self._check_gaps(edge, child, t, target, source)
             return
         outside = ~((t >= stamps[0]) & (t <= stamps[-1]))
         if outside.any():
@@ -477,6 +489,69 @@ class FrameBuffer:
                 + (f"{stamp - stamps[-1]:.6g} s newer than the last pose" if newer
                    else f"{stamps[0] - stamp:.6g} s older than the kept history")
                 + "; no extrapolation)")
+        if self.max_gap_s < math.inf:
+            self._check_gaps(edge, child, t, target, source)
+
+    def _check_gaps(self, edge: _Edge, child: str, t: FloatArray, target: str, source: str
+                    ) -> None:
+        """ExtrapolationError for a stamp of ``t`` (within the kept poses) between two poses
+        more than ``max_gap_s`` apart."""
+        gap_at = self._gap_at(edge, t)
+        if gap_at is not None:
+            stamp, before, after = gap_at
+            raise ExtrapolationError(
+                f"cannot look up {_short(source)} in {_short(target)} at t={stamp!r}: the poses "
+                f"of {_short(child)} in {_short(edge.parent)} around it, at t={before!r} and "
+                f"t={after!r}, are {after - before:.6g} s apart, more than max_gap_s "
+                f"({self.max_gap_s:g} s); no interpolation across the gap")
+
+    def _gap_at(self, edge: _Edge, t: FloatArray) -> tuple[float, float, float] | None:
+        """The first stamp of ``t`` within ``edge``'s poses that falls between two of them more
+        than ``max_gap_s`` apart (not on either), with their stamps; None when there is none."""
+        for stamp in np.unique(t).tolist():
+            around = self._gap_around(edge, stamp)
+            if around is not None:
+                return stamp, *around
+        return None
+
+    def _gap_around(self, edge: _Edge, stamp: float) -> tuple[float, float] | None:
+        stamps = edge.stamps
+        k = bisect.bisect_right(stamps, stamp) - 1
+        if (0 <= k < len(stamps) - 1 and stamp != stamps[k]
+                and stamps[k + 1] - stamps[k] > self.max_gap_s):
+            return stamps[k], stamps[k + 1]
+        return None
+
+    def has_gap_rows(self, target: str, sources: Sequence[str], stamp: float) -> bool:
+        """Whether a stamped edge between ``target`` and a known frame of ``sources`` has two
+        poses more than ``max_gap_s`` apart around ``stamp`` (then more poses may yet fill
+        the gap: a wrench waits for them)."""
+        if self.max_gap_s == math.inf:
+            return False
+        plan = self._plans.get(tuple(sources))
+        if plan is None:
+            plan = self._plan(tuple(sources))
+        for anchor in plan[0]:
+            for edge in self._stamped_between(target, anchor):
+                if self._gap_around(edge, stamp) is not None:
+                    return True
+        return False
+
+    def _stamped_between(self, target: str, anchor: str) -> list[_Edge]:
+        """The stamped edges from ``anchor`` and from ``target`` up to their roots (none when
+        either is unknown), kept until the tree changes."""
+        key = (target, anchor)
+        edges = self._stamped.get(key)
+        if edges is None:
+            try:
+                chain = self._chain(anchor)[0] + self._chain(target)[0]
+            except ConnectivityError:
+                chain = []
+            edges = [self._edges[f] for f in chain if self._edges[f].static is None]
+            if len(self._stamped) >= _MAX_PLANS:
+                self._stamped.clear()
+            self._stamped[key] = edges
+        return edges
 
     def _edge(self, parent: str, child: str, static: bool) -> _Edge:
         for name in (parent, child):
@@ -498,6 +573,7 @@ class FrameBuffer:
                                  f"under {child}")
             edge = self._edges[child] = _Edge(parent)
             self._frames.update((parent, child))
+            self._stamped.clear()
             self._splits.clear()
             self._anchors.clear()
             self._plans.clear()
@@ -533,7 +609,7 @@ class FrameBuffer:
         self._frames.discard(child)  # named again by the new edge (still a parent of others)
         if any(e.parent == child for e in self._edges.values()):
             self._frames.add(child)
-        for cache in (self._splits, self._anchors, self._plans, self._newest):
+        for cache in (self._splits, self._anchors, self._plans, self._newest, self._stamped):
             cache.clear()
 
     def _chain_has(self, frame: str, ancestor: str) -> bool:

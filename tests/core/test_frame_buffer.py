@@ -283,3 +283,26 @@ def test_an_unknown_frame_error_stays_short_whatever_the_names() -> None:
     assert len(str(caught.value)) < 1000 and "(201 in all)" in str(caught.value)
     rows = buffer.lookup_rows("world", ["z" * 50_000], [0.0])
     assert not rows.ok[0] and len(rows.errors[0]) < 1000
+
+
+def test_poses_further_apart_than_max_gap_are_not_interpolated_between() -> None:
+    buffer = FrameBuffer(max_gap_s=0.5)
+    buffer.set_static("base_link", "w0/clamp", MOUNT)
+    identity = [0.0, 0.0, 0.0, 1.0]
+    for stamp in (0.0, 0.1, 0.2, 5.0):  # a stream, then one pose 4.8 s after it
+        buffer.add_pose("world", "base_link", stamp, [stamp, 0.0, 0.0], identity)
+    assert buffer.lookup("world", "base_link", 0.15).translation[0] == pytest.approx(0.15)
+    assert buffer.lookup("world", "base_link", 5.0).translation[0] == 5.0  # on a pose: fine
+    with pytest.raises(ExtrapolationError, match=r"at t=0.2 and t=5.0, are 4.8 s apart, more "
+                                                 r"than max_gap_s \(0.5 s\)"):
+        buffer.lookup("world", "w0/clamp", 1.0)
+    rows = buffer.lookup_rows("world", ["w0/clamp"] * 2, [0.15, 1.0])
+    assert rows.ok.tolist() == [True, False] and "more than max_gap_s" in rows.errors[0]
+    assert not buffer.has_gap_rows("world", ["w0/clamp"], 0.15)
+    assert buffer.has_gap_rows("world", ["w0/clamp"], 1.0)
+    for stamp in np.arange(0.3, 5.0, 0.1):  # the stream fills the gap
+        buffer.add_pose("world", "base_link", float(stamp), [float(stamp), 0.0, 0.0], identity)
+    assert not buffer.has_gap_rows("world", ["w0/clamp"], 1.0)
+    assert buffer.lookup("world", "base_link", 1.05).translation[0] == pytest.approx(1.05)
+    unlimited = robot_buffer()  # the default: tf2's, any two poses are interpolated between
+    assert unlimited.max_gap_s == np.inf and not unlimited.has_gap_rows("world", ["w0/clamp"], 1.0)

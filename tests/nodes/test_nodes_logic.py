@@ -764,6 +764,43 @@ def test_a_stray_pose_in_another_frame_is_counted_and_the_stream_goes_on() -> No
                                       [0.15, 0.0, 0.0], rtol=0, atol=1e-15)
 
 
+def test_a_wrench_waits_for_the_poses_across_a_gap_not_for_a_stray_pose_ahead() -> None:
+    """The pose stream lags; one pose stamped 5 s ahead of it (1 m off) would end the wait of
+    every wrench before it and place it between the last real pose and the stray one. With
+    max_pose_gap_s the wrench waits until the stream passes its stamp, and its point is the
+    stream's."""
+    from vibrissa.frames import Transform
+    from vibrissa.msgs import RobotPose
+    from vibrissa.nodes.reconstructor import PoseWait, Warnings, _on_pose, robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0]))]
+    frames = robot_frames(whiskers, max_gap_s=1.0)
+    counters = dict.fromkeys(("robot_poses", "bad_robot_pose", "pose_time_jumps",
+                              "pose_reparents"), 0)
+    on_pose = _on_pose(frames, counters, Warnings("/robot/reconstructor"))
+
+    def pose(stamp: float, x: float) -> RobotPose:
+        return RobotPose(stamp=stamp, frame_id="world", child_frame_id="base_link",
+                         position=[x, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0])
+
+    now = [0.0]
+    wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
+    on_pose(pose(0.0, 0.0))
+    on_pose(pose(5.0, 1.0))  # the stray one
+    wait.add([_robot_wrench(0.025, 1, ("a",))])
+    assert wait.take() == []  # not placed between t=0 and the stray pose
+    for k in (1, 2, 3):
+        on_pose(pose(0.01 * k, 0.01 * k))
+    (ready,) = wait.take()
+    rods = {w.name: w.scale for w in whiskers}
+    out = reconstruct_messages([ready], rods, frames, "world")[0]
+    rows = frames.lookup_rows("world", ["a/clamp"], [0.025])
+    assert out.no_pose == 0 and rows.ok[0]
+    assert np.allclose(rows.p[0] - whiskers[0].X_RC.translation, [0.025, 0.0, 0.0], rtol=0,
+                       atol=1e-15)
+
+
 def test_rows_of_a_whisker_the_robot_does_not_have_are_counted_and_named() -> None:
     from vibrissa.frames import Transform
     from vibrissa.nodes.reconstructor import robot_frames

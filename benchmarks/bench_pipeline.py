@@ -112,7 +112,7 @@ LATE_S = 0.002  # the target's p99, s: the table counts the messages later than 
 ROBOT_MODES = ("robot", "robot-rt")
 POSE_TOPIC = "/bench/pose"
 POSE_PERIOD_S = 0.01  # the robot's poses at 100 Hz
-ROW_COUNTERS = ("contacts", "no_contact", "bad_pose", "no_pose", "unknown_whisker")
+ROW_COUNTERS = ("contacts", "no_contact", "bad_pose", "no_pose", "unknown_whisker", "wrong_frame")
 # the reconstructor's counters of rows: each row lands in one
 
 

@@ -38,10 +38,12 @@ L^2 I, the rod's reach), ``no_contact`` (valid
 wrench, no consistent contact, or a result that overflows to inf near the float limit),
 ``bad_pose`` (clamp quaternion of zero or non-finite length), ``no_pose`` (no clamp pose at
 the wrench's stamp within ``pose_timeout_s``), ``unknown_whisker`` (not in the robot
-description); and ``robot_poses``, ``bad_robot_pose`` (poses taken, refused),
-``pose_time_jumps``, ``pose_reparents`` (histories dropped: a new timeline, a new parent frame;
-`vibrissa.frame_buffer`), ``batches`` and
-``max_batch`` (batches and the largest, in messages). Undecodable input (wrong type, version,
+description), ``wrong_frame`` (measured, by its ``frame_ids``, in another frame than its
+whisker's clamp frame: placed there it would get another whisker's mount); and
+``robot_poses``, ``bad_robot_pose`` (poses taken, refused), ``pose_time_jumps``,
+``pose_reparents`` (histories dropped: a new timeline, a new parent frame;
+`vibrissa.frame_buffer`), ``batches`` and ``max_batch`` (batches and the largest, in
+messages). Undecodable input (wrong type, version,
 field type, truncated bytes, NaN) is rejected and counted by the transport (``rejected``) and
 the node carries on.
 
@@ -238,6 +240,7 @@ class RodTable(Mapping[str, RodScale]):
     def __init__(self, rods: Mapping[str, RodScale]) -> None:
         self._rods = dict(rods)
         self._rows: dict[tuple[str, ...], tuple[FloatArray, list[int]]] = {}
+        self._frames: dict[tuple[tuple[str, ...], tuple[str, ...]], list[int]] = {}
 
     def __getitem__(self, name: str) -> RodScale:
         return self._rods[name]
@@ -261,6 +264,18 @@ class RodTable(Mapping[str, RodScale]):
             found = self._rows[key] = (units, [i for i, w in enumerate(key) if w not in self._rods])
         return found
 
+    def wrong_frames(self, whiskers: Sequence[str], frames: Sequence[str]) -> list[int]:
+        """The rows of known whiskers measured in another frame than their clamp frame
+        (`vibrissa.frames.clamp_frame`)."""
+        key = (tuple(whiskers), tuple(frames))
+        found = self._frames.get(key)
+        if found is None:
+            if len(self._frames) >= _MAX_ROW_LISTS:
+                self._frames.clear()
+            found = self._frames[key] = [i for i, (w, f) in enumerate(zip(*key, strict=True))
+                                         if w in self._rods and f != clamp_frame(w)]
+        return found
+
 
 @dataclass
 class Reconstructed:
@@ -282,6 +297,9 @@ class Reconstructed:
         stamp (``errors`` says why).
     unknown_whisker
         Rows of a whisker the robot description does not list (``errors`` names it).
+    wrong_frame
+        Rows of a whisker measured in another frame than its clamp frame (``errors`` names
+        it).
     free
         Rows below the contact threshold (with a noise model): the rod is free.
     tip_within_noise
@@ -297,6 +315,7 @@ class Reconstructed:
     unknown_whisker: int = 0
     errors: list[str] = field(default_factory=list)
     free: int = 0
+    wrong_frame: int = 0
     tip_within_noise: int = 0
     no_covariance: int = 0
 
@@ -317,6 +336,7 @@ class _Rows:
     unknown_whisker: int = 0
     errors: list[str] = field(default_factory=list)
     free: int = 0
+    wrong_frame: int = 0
 
 
 def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
@@ -328,12 +348,14 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
     placed = np.ones(n, bool)
     errors: list[str] = []
     units: FloatArray | None = None
-    missing: list[int] = []
-    if not isinstance(rod, RodScale):
-        units, missing = (rod if isinstance(rod, RodTable) else RodTable(rod)).rows(whiskers)
+    table = None if isinstance(rod, RodScale) else rod if isinstance(rod, RodTable) else RodTable(rod)
+    missing: list[int] = []  # rows of whiskers the robot description does not have
+    wrong: list[int] = []  # rows of its whiskers in another frame than their clamp frame
+    if table is not None:
+        units, missing = table.rows(whiskers)
         if missing:
             errors.append(f"whisker {whiskers[missing[0]]!r} is not in the robot description "
-                          f"({', '.join(rod)})")
+                          f"({', '.join(table)})")
     if msg.has_pose:
         q, p = msg.clamp_orientation, msg.clamp_position
         q, p = (q[None], p[None]) if single else (q, p)
@@ -351,17 +373,26 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
             poses = frames.lookup_rows(map_frame, sources, np.full(n, msg.stamp))
             q, p, placed = poses.q_xyzw, poses.p, poses.ok
             errors += poses.errors
-        if missing:
-            placed[missing] = True  # counted as unknown whiskers, not as rows without a pose
+            if table is not None:
+                wrong = table.wrong_frames(whiskers, sources)
+                if wrong:
+                    errors.append(f"whisker {whiskers[wrong[0]]!r} measured in frame "
+                                  f"{sources[wrong[0]]!r}, not in its clamp frame "
+                                  f"{clamp_frame(whiskers[wrong[0]])!r}")
+        skipped = missing + wrong
+        if skipped:
+            placed[skipped] = True  # counted as such, not as rows without a pose
         no_pose = n - int(np.count_nonzero(placed))
-    if missing:
-        placed[missing] = False
+    skipped = missing + wrong
+    if skipped:
+        placed[skipped] = False
     free = 0
     if detector is not None:  # every row moves its whisker's state, placed or not
         free_rows = placed & ~detector.update(whiskers, f0, m0)[0]
         free = int(np.count_nonzero(free_rows))
         placed &= ~free_rows
-    return _Rows(q, p, f0, m0, placed, units, frame_id, no_pose, len(missing), errors, free)
+    return _Rows(q, p, f0, m0, placed, units, frame_id, no_pose, len(missing), errors, free,
+                 len(wrong))
 
 
 def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
@@ -452,6 +483,7 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         outcomes.append(Reconstructed(
             contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
             unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,
+            wrong_frame=part.wrong_frame,
             tip_within_noise=(0 if tip_within_noise is None
                               else int(np.count_nonzero(tip_within_noise[rows]))),
             no_covariance=(0 if no_covariance is None
@@ -585,6 +617,7 @@ def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
     counters["bad_pose"] += outcome.bad_pose
     counters["no_pose"] += outcome.no_pose
     counters["unknown_whisker"] += outcome.unknown_whisker
+    counters["wrong_frame"] += outcome.wrong_frame
     counters["free"] += outcome.free
     counters["tip_within_noise"] += outcome.tip_within_noise
     counters["no_covariance"] += outcome.no_covariance
@@ -688,7 +721,8 @@ def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     counters = node.counters
     counters.update(contacts=0, free=0, tip_within_noise=0, no_covariance=0, no_contact=0,
-                    bad_pose=0, no_pose=0, unknown_whisker=0, robot_poses=0, bad_robot_pose=0,
+                    bad_pose=0, no_pose=0, unknown_whisker=0, wrong_frame=0, robot_poses=0,
+                    bad_robot_pose=0,
                     pose_time_jumps=0, pose_reparents=0, batches=0, max_batch=0)
     whiskers = load_robot(params.robot) if params.robot else ()
     rod: Rods = RodTable({w.name: w.scale for w in whiskers}) if whiskers else params.rod

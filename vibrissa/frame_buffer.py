@@ -35,12 +35,16 @@ from vibrissa.frames import (
     quaternion_slerp,
 )
 
-__all__ = ["ConnectivityError", "ExtrapolationError", "FrameBuffer", "FrameError", "RowPoses"]
+__all__ = ["MAX_DEPTH", "MAX_FRAMES", "MAX_POSES", "ConnectivityError", "ExtrapolationError",
+           "FrameBuffer", "FrameError", "RowPoses"]
 
 DEFAULT_HISTORY_S = 10.0
 MAX_FRAMES = 1024
 """The most frames a buffer holds: a pose naming a new frame beyond it is refused (ValueError),
 so that a stream of invented frame names cannot grow it without end."""
+MAX_DEPTH = 32
+"""The most frames from a frame up to its root (a robot's tree is a few deep): with
+`MAX_POSES` per stamped edge it bounds what one chain of invented parents can hold."""
 MAX_POSES = 100_000
 """The most stamped poses kept per edge (10 s at 10 kHz); beyond it the oldest are forgotten,
 so that a flood of poses shortens the history instead of growing the memory."""
@@ -571,6 +575,9 @@ class FrameBuffer:
             if self._chain_has(parent, child):
                 raise ValueError(f"{child} in {parent} would close a loop: {parent} is already "
                                  f"under {child}")
+            if self._depth(parent) + self._height(child) >= MAX_DEPTH:
+                raise ValueError(f"{_short(child)} in {_short(parent)}: a chain of frames deeper "
+                                 f"than {MAX_DEPTH}, the most the buffer takes")
             edge = self._edges[child] = _Edge(parent)
             self._frames.update((parent, child))
             self._stamped.clear()
@@ -611,6 +618,26 @@ class FrameBuffer:
             self._frames.add(child)
         for cache in (self._splits, self._anchors, self._plans, self._newest, self._stamped):
             cache.clear()
+
+    def _depth(self, frame: str) -> int:
+        """Frames above ``frame`` up to its root."""
+        depth = 0
+        while frame in self._edges:
+            frame = self._edges[frame].parent
+            depth += 1
+        return depth
+
+    def _height(self, frame: str) -> int:
+        """Frames below ``frame`` down to its deepest descendant."""
+        children: dict[str, list[str]] = {}
+        for child, edge in self._edges.items():
+            children.setdefault(edge.parent, []).append(child)
+        height, level = 0, [frame]
+        while True:
+            level = [c for f in level for c in children.get(f, ())]
+            if not level:
+                return height
+            height += 1
 
     def _chain_has(self, frame: str, ancestor: str) -> bool:
         while frame in self._edges:

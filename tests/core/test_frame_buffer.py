@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from vibrissa.frame_buffer import (
+    MAX_DEPTH,
     MAX_FRAMES,
     MAX_POSES,
     TIME_JUMP_POSES,
@@ -306,3 +307,15 @@ def test_poses_further_apart_than_max_gap_are_not_interpolated_between() -> None
     assert buffer.lookup("world", "base_link", 1.05).translation[0] == pytest.approx(1.05)
     unlimited = robot_buffer()  # the default: tf2's, any two poses are interpolated between
     assert unlimited.max_gap_s == np.inf and not unlimited.has_gap_rows("world", ["w0/clamp"], 1.0)
+
+
+def test_a_chain_of_invented_parents_stops_at_max_depth() -> None:
+    buffer = FrameBuffer()
+    buffer.set_static("base_link", "w0/clamp", Transform())
+    identity = [0.0, 0.0, 0.0, 1.0]
+    buffer.add_pose("a1", "base_link", 0.0, [0.0, 0.0, 0.0], identity)
+    for k in range(2, MAX_DEPTH):  # a_k above a_(k-1): MAX_DEPTH edges from w0/clamp up
+        buffer.add_pose(f"a{k}", f"a{k - 1}", 0.0, [0.0, 0.0, 0.0], identity)
+    with pytest.raises(ValueError, match=f"deeper than {MAX_DEPTH}"):
+        buffer.add_pose(f"a{MAX_DEPTH}", f"a{MAX_DEPTH - 1}", 0.0, [0.0, 0.0, 0.0], identity)
+    assert buffer.lookup(f"a{MAX_DEPTH - 1}", "w0/clamp", 0.0).translation.tolist() == [0, 0, 0]

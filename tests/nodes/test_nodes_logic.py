@@ -817,6 +817,30 @@ def test_rows_of_a_whisker_the_robot_does_not_have_are_counted_and_named() -> No
     assert out.contacts is not None and "ghost" not in out.contacts.whisker_ids
 
 
+def test_a_row_measured_in_another_whiskers_frame_is_counted_not_placed() -> None:
+    from vibrissa.frames import Transform
+    from vibrissa.nodes.reconstructor import robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
+                Whisker("b", 0.03, 9e-5, Transform.from_xyz_rpy([0, 0.02, 0], [-1.2, 0, 0]))]
+    frames = robot_frames(whiskers)
+    for stamp in (0.0, 1.0):
+        frames.add("world", "base_link", stamp, Transform())
+    tick = _robot_wrench(0.5, 0)
+    swapped = WhiskerWrenchArray(stamp=0.5, seq=1, whisker_ids=["a", "b"],
+                                 frame_ids=["b/clamp", "b/clamp"], f0=tick.f0, m0=tick.m0)
+    rods = {w.name: w.scale for w in whiskers}
+    good, bad = reconstruct_messages([tick, swapped], rods, frames)
+    assert (good.wrong_frame, good.contacts.whisker_ids) == (0, ["a", "b"])  # type: ignore[union-attr]
+    # row a of the second tick at b's mount would be a's rod at b's place: a point nowhere
+    assert (bad.wrong_frame, bad.no_pose, bad.unknown_whisker) == (1, 0, 0)
+    assert bad.contacts is not None and bad.contacts.whisker_ids == ["b"]
+    assert np.array_equal(bad.contacts.point, good.contacts.point[1:])  # type: ignore[union-attr]
+    assert any("whisker 'a' measured in frame 'b/clamp', not in its clamp frame 'a/clamp'" in e
+               for e in bad.errors)
+
+
 def test_a_bad_robot_description_is_a_parameter_error_naming_it(tmp_path: Path) -> None:
     from vibrissa.nodes.reconstructor import ReconstructorParams
 

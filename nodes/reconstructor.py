@@ -379,13 +379,11 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
                     errors.append(f"whisker {whiskers[wrong[0]]!r} measured in frame "
                                   f"{sources[wrong[0]]!r}, not in its clamp frame "
                                   f"{clamp_frame(whiskers[wrong[0]])!r}")
-        skipped = missing + wrong
-        if skipped:
-            placed[skipped] = True  # counted as such, not as rows without a pose
+        if missing or wrong:
+            placed[missing + wrong] = True  # counted as such, not as rows without a pose
         no_pose = n - int(np.count_nonzero(placed))
-    skipped = missing + wrong
-    if skipped:
-        placed[skipped] = False
+    if missing or wrong:
+        placed[missing + wrong] = False
     free = 0
     if detector is not None:  # every row moves its whisker's state, placed or not
         free_rows = placed & ~detector.update(whiskers, f0, m0)[0]

@@ -201,9 +201,10 @@ class FrameBuffer:
         """The pose of ``child`` in ``parent`` at ``stamp`` (s); a different pose at a stamp
         already kept is refused (ValueError; tf2 keeps the first too), the same one ignored.
         A pose naming another parent than the kept ones' moves ``child`` there (its history
-        goes; a static frame is refused). One older than the kept history is refused (ValueError), unless it is the
-        `TIME_JUMP_POSES`-th such in a row: then the edge starts again from it, and the newest
-        stamp of the history it forgot is returned (else None)."""
+        goes; a static frame is refused). One older than the kept history is refused
+        (ValueError), unless it is the `TIME_JUMP_POSES`-th such in a row: then the edge starts
+        again from it, and the newest stamp of the history it forgot is returned (else
+        None)."""
         return self.add_pose(parent, child, stamp, X_parent_child.translation,
                              X_parent_child.quaternion_xyzw)
 

@@ -127,9 +127,11 @@ def test_a_websocket_client_receives_every_channel_of_the_live_view(tmp_path: Pa
     wanted = {"/contacts", "/tf", "/meshes", "/map/cloud", "/health",
               *(f"/whiskers/{name}/wrench" for name in whiskers)}
     # the bridge ends 10 s after the map: time for a client on a loaded machine to see every
-    # channel (with 3 s, CI's client once saw the connection close first)
+    # channel (with 3 s, CI's client once saw the connection close first); the path plays in
+    # real time (500 samples/s, 3.4 s), as a robot streams: as fast as possible, a loaded
+    # client once got no message at all of one whisker's wrench channel
     launch = Launch(tmp_path, entries("view.yaml"), f"out:={tmp_path / 'out'}",
-                    f"scene:={SCENE}", "port:=0", "hold:=10")
+                    f"scene:={SCENE}", "port:=0", "hold:=10", "rate:=500")
     try:
         port = int(launch.wait_line(r"serving the graph to Foxglove on ws://127\.0\.0\.1:(\d+)",
                                     30).group(1))

@@ -480,8 +480,8 @@ class FrameBuffer:
         stamps = edge.stamps
         if edge.static is not None:
             return
-        if len(t) == 1 and stamps[0] <= t[0] <= stamps[-1]:
-            if self.max_gap_s < math.inf:
+        if len(t) == 1 and stamps[0] <= t[0] <= stamps[-1]:  # a tick: one stamp
+            if self.max_gap_s < math.inf and self._gap_around(edge, float(t[0])) is not None:
                 self._check_gaps(edge, child, t, target, source)
             return
         outside = ~((t >= stamps[0]) & (t <= stamps[-1]))
@@ -513,7 +513,7 @@ class FrameBuffer:
     def _gap_at(self, edge: _Edge, t: FloatArray) -> tuple[float, float, float] | None:
         """The first stamp of ``t`` within ``edge``'s poses that falls between two of them more
         than ``max_gap_s`` apart (not on either), with their stamps; None when there is none."""
-        for stamp in np.unique(t).tolist():
+        for stamp in dict.fromkeys(t.tolist()):  # each distinct stamp once, in order
             around = self._gap_around(edge, stamp)
             if around is not None:
                 return stamp, *around

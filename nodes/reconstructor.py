@@ -626,7 +626,7 @@ def robot_frames(whiskers: Sequence[Whisker], robot_frame: str = ROBOT_FRAME,
                  ) -> FrameBuffer:
     """A frame buffer with the mounts of the robot description: each whisker's clamp frame
     (`vibrissa.frames.clamp_frame`) at X_RC in ``robot_frame``."""
-    frames = FrameBuffer(history_s, max_gap_s)
+    frames = FrameBuffer(history_s, max_gap_s, gap_name="max_pose_gap_s")
     for whisker in whiskers:
         frames.set_static(robot_frame, clamp_frame(whisker.name), whisker.X_RC)
     return frames

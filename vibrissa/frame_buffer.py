@@ -167,14 +167,15 @@ class FrameBuffer:
     stopped, or one pose stamped far ahead of it): a stamp between them is an
     `ExtrapolationError` too."""
 
-    def __init__(self, history_s: float = DEFAULT_HISTORY_S, max_gap_s: float = math.inf
-                 ) -> None:
+    def __init__(self, history_s: float = DEFAULT_HISTORY_S, max_gap_s: float = math.inf,
+                 gap_name: str = "max_gap_s") -> None:
         if not history_s > 0:
             raise ValueError(f"history_s must be > 0, got {history_s}")
         if not max_gap_s > 0:
             raise ValueError(f"max_gap_s must be > 0, got {max_gap_s}")
         self.history_s = history_s
         self.max_gap_s = max_gap_s
+        self.gap_name = gap_name  # how errors name max_gap_s (a node's parameter)
         self._edges: dict[str, _Edge] = {}  # by child frame
         self._frames: set[str] = set()
         self._anchors: dict[str, tuple[str, FloatArray, FloatArray]] = {}  # lookup_rows'
@@ -507,7 +508,7 @@ class FrameBuffer:
             raise ExtrapolationError(
                 f"cannot look up {_short(source)} in {_short(target)} at t={stamp!r}: the poses "
                 f"of {_short(child)} in {_short(edge.parent)} around it, at t={before!r} and "
-                f"t={after!r}, are {after - before:.6g} s apart, more than max_gap_s "
+                f"t={after!r}, are {after - before:.6g} s apart, more than {self.gap_name} "
                 f"({self.max_gap_s:g} s); no interpolation across the gap")
 
     def _gap_at(self, edge: _Edge, t: FloatArray) -> tuple[float, float, float] | None:

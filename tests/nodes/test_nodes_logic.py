@@ -790,6 +790,8 @@ def test_a_wrench_waits_for_the_poses_across_a_gap_not_for_a_stray_pose_ahead() 
     on_pose(pose(5.0, 1.0))  # the stray one
     wait.add([_robot_wrench(0.025, 1, ("a",))])
     assert wait.take() == []  # not placed between t=0 and the stray pose
+    gap = frames.lookup_rows("world", ["a/clamp"], [0.025])
+    assert not gap.ok[0] and "more than max_pose_gap_s (1 s)" in gap.errors[0]  # the parameter
     for k in (1, 2, 3):
         on_pose(pose(0.01 * k, 0.01 * k))
     (ready,) = wait.take()

@@ -41,9 +41,10 @@ _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
 LIMITS = {"length_m": (1e-4, 10.0), "ei_nm2": (1e-15, 1e4), "size_m": (1e-6, 1e6),
           "per_m": (1e-6, 1e6), "position_m": (-1e7, 1e7), "mu": (0.0, 10.0)}
 """Closed ranges of a scene's numbers: rod length L, m; bending stiffness EI, N m^2 (a 50-um
-nylon hair is ~1e-9, a 5-mm steel rod ~6); an object's radius, semi-axes, and a paraboloid's
-|h_m|, m; a paraboloid's curvatures a_per_m, b_per_m, 1/m; any position (objects, mounts,
-sensors), m; the friction coefficient. Within them no unit conversion or square overflows."""
+nylon hair is ~1e-9, a 5-mm steel rod ~6); an object's radius and semi-axes, m; a paraboloid's
+curvatures a_per_m, b_per_m, 1/m; any position (objects, mounts, sensors, path, and a
+paraboloid's vertex height h_m), m; the friction coefficient. Within them no unit conversion
+or square overflows."""
 
 
 class SceneError(ValueError):
@@ -118,7 +119,7 @@ def check_name(name: Any, where: str) -> str:
 
 def number_cell(text: str) -> float:
     """A CSV cell as a float (decimal or exponent notation, ``nan``, ``inf``); ValueError for
-    anything else, also for Python's own ``1_000`` and surrounding spaces inside."""
+    anything else, also for Python's own ``1_000``."""
     if "_" in text:
         raise ValueError(f"{text!r} is not a number")
     return float(text)
@@ -235,8 +236,9 @@ def _object(value: Any, where: str) -> SceneObject:
             values[key] = _number(body[key], f"{where}.{key}",
                                   "per_m" if key.endswith("_per_m") else "size_m")
     pose = _pose(body, where)  # its errors name the field already
+    name = check_name(body["name"], f"{where}.name")
     try:
-        return SceneObject(check_name(body["name"], f"{where}.name"), shape, values, pose)
+        return SceneObject(name, shape, values, pose)
     except ValueError as exc:
         raise SceneError(f"{where}: {exc}") from None
 

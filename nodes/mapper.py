@@ -60,6 +60,7 @@ from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from itertools import compress
 from pathlib import Path
 from typing import Any
 
@@ -93,7 +94,7 @@ from vibrissa.nodes.surface_fit import (
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.scene_file import load_scene
+from vibrissa.runtime.scene_file import LIMITS, load_scene
 from vibrissa.runtime.signals import default_actions
 from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
@@ -273,17 +274,20 @@ class FrameCloud:
     forces: list[FloatArray] = field(default_factory=list)
     covariances: list[FloatArray] = field(default_factory=list)  # (k, 3, 3); NaN: none came
 
-    def add(self, msg: ContactPoint | ContactPointArray) -> None:
-        """Append every row of a message (a ContactPoint is one row), each with its whisker
-        and the message's ``seq``."""
+    def add(self, msg: ContactPoint | ContactPointArray,
+            keep: npt.NDArray[np.bool_] | None = None) -> None:
+        """Append every row of a message (a ContactPoint is one row), or those ``keep`` says,
+        each with its whisker and the message's ``seq``."""
         whisker_ids = [msg.whisker_id] if isinstance(msg, ContactPoint) else msg.whisker_ids
+        rows = slice(None) if keep is None else keep
+        whisker_ids = whisker_ids if keep is None else list(compress(whisker_ids, keep.tolist()))
         self.whisker_ids += whisker_ids
         self.seqs += [msg.seq] * len(whisker_ids)
-        self.points.append(np.reshape(msg.point, (-1, 3)))
-        self.forces.append(np.reshape(msg.force, (-1, 3)))
+        self.points.append(np.reshape(msg.point, (-1, 3))[rows])
+        self.forces.append(np.reshape(msg.force, (-1, 3))[rows])
         self.covariances.append(np.full((len(whisker_ids), 3, 3), np.nan)
                                 if msg.covariance is None
-                                else np.reshape(msg.covariance, (-1, 3, 3)))
+                                else np.reshape(msg.covariance, (-1, 3, 3))[rows])
 
     def ordered(self) -> tuple[FloatArray, FloatArray, list[str], FloatArray]:
         """Points (N, 3), forces (N, 3), whisker ids and covariances (N, 3, 3; NaN where
@@ -295,12 +299,20 @@ class FrameCloud:
                 np.concatenate([np.empty((0, 3, 3)), *self.covariances])[order])
 
 
+MAX_POSITION_M = LIMITS["position_m"][1]
+"""The farthest contact point the map takes, m (a scene's positions: `LIMITS`)."""
+MAX_FORCE_N = 1e12
+"""The largest contact force component the map takes, N: a normal from its direction."""
+
+
 class Accumulator:
     """The mapper's state without sockets: points per frame and ended sources.
 
     It keeps at most ``max_points`` points in at most ``max_frames`` frames, so that a long run
     or a flood cannot exhaust the memory: a message beyond either bound is dropped whole and
-    its rows are counted in ``dropped`` (by reason).
+    its rows are counted in ``dropped`` (by reason). A row the map cannot use is dropped and
+    counted too: a point farther than `MAX_POSITION_M` from the origin (``out_of_range``), a
+    contact force of zero or beyond `MAX_FORCE_N` (``no_force_direction``: no normal).
     """
 
     def __init__(self, expected: int | Sequence[str], max_points: int = MapperParams.max_points,
@@ -323,10 +335,25 @@ class Accumulator:
             elif self.n_points + rows > self.max_points:
                 self.dropped["max_points"] += rows
             else:
-                self.frames.setdefault(msg.frame_id, FrameCloud()).add(msg)
-                self.n_points += rows
+                keep = self._usable(msg)
+                kept = rows if keep is None else int(np.count_nonzero(keep))
+                if kept:
+                    self.frames.setdefault(msg.frame_id, FrameCloud()).add(msg, keep)
+                    self.n_points += kept
         elif isinstance(msg, EndOfStream):
             self.ended.add(msg.source)
+
+    def _usable(self, msg: ContactPoint | ContactPointArray) -> npt.NDArray[np.bool_] | None:
+        """The rows the map can use (None: all), counting the others in ``dropped``."""
+        point = np.abs(np.reshape(msg.point, (-1, 3))).max(axis=1)
+        force = np.abs(np.reshape(msg.force, (-1, 3))).max(axis=1)
+        far, no_force = point > MAX_POSITION_M, ~((force > 0) & (force <= MAX_FORCE_N))
+        if not (far.any() or no_force.any()):
+            return None
+        for reason, rows in (("out_of_range", far), ("no_force_direction", no_force & ~far)):
+            if rows.any():
+                self.dropped[reason] += int(np.count_nonzero(rows))
+        return ~(far | no_force)
 
     @property
     def done(self) -> bool:
@@ -722,6 +749,11 @@ def _counts(whiskers: list[dict[str, Any]]) -> str:
     return ", ".join(f"{w['whisker_id']} ({w['n_points']})" for w in whiskers)
 
 
+_DROPPED = {"out_of_range": f"farther than {MAX_POSITION_M:g} m from the origin",
+            "no_force_direction": f"with a contact force of zero or over {MAX_FORCE_N:g} N (no "
+                                  "normal)"}
+
+
 def format_report(report: dict[str, Any]) -> str:
     """The human-readable report (lengths in mm)."""
     empty = " - THE MAP IS EMPTY" if report["n_points"] == 0 else ""
@@ -736,7 +768,7 @@ def format_report(report: dict[str, Any]) -> str:
     if report["lost"]:
         lines.append(f"LOST: {report['lost']} contact message(s) never arrived")
     for bound, n in report.get("dropped_points", {}).items():
-        lines.append(f"DROPPED: {n} contact point(s) beyond {bound}")
+        lines.append(f"DROPPED: {n} contact point(s) {_DROPPED.get(bound, 'beyond ' + bound)}")
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
                      f"{stream['received']} received, {stream['lost']} lost")
@@ -812,7 +844,7 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
             acc.add(rx.msg)
             if acc.dropped.total() > dropped and _power_of_ten(acc.dropped.total(), dropped):
                 log.warning("%s: %d contact point(s) dropped so far, beyond the map's bounds "
-                            "(max_points %d, max_frames %d): %s", node.fqn,
+                            "(max_points %d, max_frames %d) or not usable: %s", node.fqn,
                             acc.dropped.total(), params.max_points, params.max_frames,
                             dict(acc.dropped))
             last = time.monotonic()

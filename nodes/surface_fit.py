@@ -259,13 +259,18 @@ class TrueObject:
         return np.abs(self.surface.signed_distance(points_m / self.unit_m)) * self.unit_m
 
 
+MIN_EXTENT_M = 1e-9
+"""The smallest spread of an object's points a surface is fitted to, m: below a nanometre the
+contacts of a whisker are one place (and the fit's scales underflow)."""
+
+
 def too_little_for_a_surface(points: FloatArray) -> str | None:
-    """Why ``points`` (N, 3) cannot carry a surface (fewer than 4, all at one point, all on one
-    straight line), or ``None`` when they can."""
+    """Why ``points`` (N, 3) cannot carry a surface (fewer than 4, all at one point or within
+    `MIN_EXTENT_M` of it, all on one straight line), or ``None`` when they can."""
     if len(points) < 4:
         return f"{len(points)} point(s), a surface needs 4 or more"
     singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    if not singular[0] > 1e-9 * float(np.abs(points).max()):
+    if not singular[0] > max(1e-9 * float(np.abs(points).max()), MIN_EXTENT_M):
         return f"all {len(points)} points at one place"
     if singular[1] <= 1e-9 * singular[0]:
         return f"all {len(points)} points on one straight line"

@@ -4,6 +4,7 @@ loss is allowed."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -105,3 +106,26 @@ def test_points_beyond_the_maps_bounds_are_dropped_counted_and_fail_the_mapper(
     assert "DROPPED: 3 contact point(s) beyond max_frames" in text
     assert "DROPPED: 3 contact point(s) beyond max_points" in text
     assert "dropped beyond the map's bounds" in out and "dropped so far" in out
+
+
+def test_points_the_map_cannot_use_are_dropped_counted_and_the_map_still_written(
+    tmp_path: Path, endpoints: Endpoints
+) -> None:
+    """A point at 1e300 m (its plot and its page overflowed) and a contact force of zero or
+    2e303 N (no normal: the surface fit asserted): counted per reason, reported, exit 4, and
+    the map of the usable points written."""
+    def send(pub: Publisher) -> None:
+        for i in range(8):
+            pub.publish(contact(i))
+        pub.publish(dataclasses.replace(contact(8), point=[1e300, 0.0, 0.5]))
+        for i, force in ((9, [0.0, 0.0, 0.0]), (10, [0.0, 2e303, 2e303])):
+            pub.publish(dataclasses.replace(contact(i), force=force))
+
+    rc, out = run_mapper(tmp_path, endpoints, [], send)
+    assert rc == 4 and "Traceback" not in out, out
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["n_points"] == 8
+    assert report["dropped_points"] == {"out_of_range": 1, "no_force_direction": 2}
+    text = (tmp_path / "report.txt").read_text()
+    assert "DROPPED: 1 contact point(s) farther than 1e+07 m from the origin" in text
+    assert "DROPPED: 2 contact point(s) with a contact force of zero or over 1e+12 N" in text

@@ -300,7 +300,7 @@ class FrameCloud:
 
 
 MAX_POSITION_M = LIMITS["position_m"][1]
-"""The farthest contact point the map takes, m (a scene's positions: `LIMITS`)."""
+"""The largest coordinate of a contact point the map takes, m (a scene's positions: `LIMITS`)."""
 MAX_FORCE_N = 1e12
 """The largest contact force component the map takes, N: a normal from its direction."""
 
@@ -311,7 +311,7 @@ class Accumulator:
     It keeps at most ``max_points`` points in at most ``max_frames`` frames, so that a long run
     or a flood cannot exhaust the memory: a message beyond either bound is dropped whole and
     its rows are counted in ``dropped`` (by reason). A row the map cannot use is dropped and
-    counted too: a point farther than `MAX_POSITION_M` from the origin (``out_of_range``), a
+    counted too: a point with a coordinate beyond `MAX_POSITION_M` (``out_of_range``), a
     contact force of zero or beyond `MAX_FORCE_N` (``no_force_direction``: no normal).
     """
 
@@ -749,7 +749,7 @@ def _counts(whiskers: list[dict[str, Any]]) -> str:
     return ", ".join(f"{w['whisker_id']} ({w['n_points']})" for w in whiskers)
 
 
-_DROPPED = {"out_of_range": f"farther than {MAX_POSITION_M:g} m from the origin",
+_DROPPED = {"out_of_range": f"with a coordinate beyond {MAX_POSITION_M:g} m",
             "no_force_direction": f"with a contact force of zero or over {MAX_FORCE_N:g} N (no "
                                   "normal)"}
 

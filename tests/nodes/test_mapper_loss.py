@@ -127,5 +127,5 @@ def test_points_the_map_cannot_use_are_dropped_counted_and_the_map_still_written
     assert report["n_points"] == 8
     assert report["dropped_points"] == {"out_of_range": 1, "no_force_direction": 2}
     text = (tmp_path / "report.txt").read_text()
-    assert "DROPPED: 1 contact point(s) farther than 1e+07 m from the origin" in text
+    assert "DROPPED: 1 contact point(s) with a coordinate beyond 1e+07 m" in text
     assert "DROPPED: 2 contact point(s) with a contact force of zero or over 1e+12 N" in text

@@ -77,7 +77,8 @@ def decode(channel: dict[str, Any], payload: bytes) -> Any:
 
 async def _watch(url: str, wanted: set[str], timeout: float) -> tuple[dict[str, Any], dict[str, Any]]:
     """Subscribe to every advertised channel until each of ``wanted`` and every advertised
-    channel has a message; the server info and each topic's first decoded message."""
+    channel has a message; the server info and each topic's first decoded message (of
+    ``/health``, the first that lists a node)."""
     channels: dict[int, dict[str, Any]] = {}
     subscriptions: dict[int, dict[str, Any]] = {}
     first: dict[str, Any] = {}
@@ -114,7 +115,10 @@ async def _watch(url: str, wanted: set[str], timeout: float) -> tuple[dict[str, 
             payload = frame[13:]
             assert payload, channel["topic"]
             assert stamp_ns > 0
-            first.setdefault(channel["topic"], decode(channel, payload))
+            message = decode(channel, payload)
+            if channel["topic"] == "/health" and not message["nodes"]:
+                continue  # the bridge's first table may come before any node's status
+            first.setdefault(channel["topic"], message)
     return info, first
 
 

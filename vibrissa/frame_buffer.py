@@ -193,9 +193,7 @@ class FrameBuffer:
         """A transform that does not change (a mount); replaces an earlier static one."""
         edge = self._edge(parent, child, static=True)
         edge.static = X_parent_child
-        self._anchors.clear()
-        self._plans.clear()
-        self._newest.clear()
+        self._forget_tree()  # the mounts composed into anchors and plans
 
     def add(self, parent: str, child: str, stamp: float, X_parent_child: Transform
             ) -> float | None:
@@ -582,11 +580,7 @@ class FrameBuffer:
                                  f"than {MAX_DEPTH}, the most the buffer takes")
             edge = self._edges[child] = _Edge(parent)
             self._frames.update((parent, child))
-            self._stamped.clear()
-            self._splits.clear()
-            self._anchors.clear()
-            self._plans.clear()
-            self._newest.clear()
+            self._forget_tree()
         elif edge.parent != parent:
             raise ValueError(f"frame {_short(child)} already has the parent "
                              f"{_short(edge.parent)}; a static frame keeps it (got "
@@ -615,9 +609,11 @@ class FrameBuffer:
         old = self._edges.pop(child).parent
         if old not in self._edges and all(e.parent != old for e in self._edges.values()):
             self._frames.discard(old)
-        self._frames.discard(child)  # named again by the new edge (still a parent of others)
-        if any(e.parent == child for e in self._edges.values()):
-            self._frames.add(child)
+        self._forget_tree()
+
+    def _forget_tree(self) -> None:
+        """Drop what was derived from the tree (chains, anchors and their static poses, plans,
+        newest stamps): an edge came, went or changed its static transform."""
         for cache in (self._splits, self._anchors, self._plans, self._newest, self._stamped):
             cache.clear()
 

@@ -20,7 +20,8 @@ Serves (Foxglove channels)
 --------------------------
 ``/whiskers/<whisker>/wrench`` : JSON ``{stamp, seq, frame_id, f0: {x, y, z}, m0: {x, y, z}}``
     Every wrench row as it arrives (N, N m, in the whisker's clamp frame), one channel per
-    whisker, advertised when the whisker first appears.
+    whisker: those of the robot description's whiskers from the start, any other's when it
+    first appears.
 ``/contacts`` : foxglove.PointCloud
     Every contact point so far in ``map_frame`` (fields x, y, z float32 m; ``whisker``
     float32, the whisker's index in order of appearance, for the colour), growing every
@@ -233,6 +234,8 @@ class LiveView:
                                                                           context=context)
         self._health: Channel = fg.Channel("/health", schema=HEALTH_SCHEMA, context=context)
         self._mounts = [(params.robot_frame, clamp_frame(name), X_RC) for name, X_RC in mounts]
+        for name, _ in mounts:  # before any client connects: see _wrench_channel
+            self._wrench_channel(name)
         self._whisker_index: dict[str, int] = {}
         self._points: list[npt.NDArray[np.float32]] = []  # (n, 4) rows: x, y, z, whisker
         self._cloud_rows = 0
@@ -275,15 +278,25 @@ class LiveView:
         else:
             rows = list(zip(msg.whisker_ids, msg.frame_ids, msg.f0, msg.m0, strict=True))
         for whisker, frame_id, f0, m0 in rows:
-            channel = self._wrench.get(whisker)
-            if channel is None:
-                if not self._room(self._wrench, whisker):
-                    continue
-                channel = self._wrench[whisker] = self.fg.Channel(
-                    f"/whiskers/{whisker}/wrench", schema=WRENCH_SCHEMA, context=self._context)
-            self._log(channel, {"stamp": msg.stamp, "seq": msg.seq, "frame_id": frame_id,
-                                "f0": _vec3(f0), "m0": _vec3(m0)}, now)
+            channel = self._wrench_channel(whisker)
+            if channel is not None:
+                self._log(channel, {"stamp": msg.stamp, "seq": msg.seq, "frame_id": frame_id,
+                                    "f0": _vec3(f0), "m0": _vec3(m0)}, now)
         self.counters["wrenches"] += len(rows)
+
+    def _wrench_channel(self, whisker: str) -> Channel | None:
+        """The wrench channel of ``whisker``, made on first use (None: no room for it).
+
+        foxglove-sdk (0.30) advertises a channel made while a client is connected before it
+        takes subscriptions to it: a client that answers within that moment is refused
+        ("Unknown channel ID", 7 of 2 000 channels in a stress test) and never gets the
+        channel's messages. So the channels of the robot description's whiskers are made with
+        the view, before the server starts; only those of other whiskers come on first sight."""
+        channel = self._wrench.get(whisker)
+        if channel is None and self._room(self._wrench, whisker):
+            channel = self._wrench[whisker] = self.fg.Channel(
+                f"/whiskers/{whisker}/wrench", schema=WRENCH_SCHEMA, context=self._context)
+        return channel
 
     def _log(self, channel: Any, msg: Any, now: float) -> None:
         """Log on ``channel`` at ``now`` (s): the wall clock live, the bag's time offline."""
@@ -423,9 +436,9 @@ def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
                   params.mesh_topic: SurfaceMesh, STATUS_TOPIC: NodeStatus})
     inputs = node.create_subscriber(types)
     mesh_topic = node.resolve(params.mesh_topic)
+    view = LiveView(fg, params, mounts, node.counters)  # its channels before any client
     server = fg.start_server(name=f"vibrissa {node.fqn}", host=params.host, port=params.port)
     try:
-        view = LiveView(fg, params, mounts, node.counters)
         url = f"ws://{params.host}:{server.port}"
         log.info("%s: serving the graph to Foxglove on %s (Foxglove app: Open connection -> "
                  "Foxglove WebSocket -> %s; layout: launch/foxglove_layout.json)",
@@ -459,18 +472,20 @@ def export_bag(bag: str | os.PathLike[str], output: str | os.PathLike[str],
     """The live view of a recorded bag, as a file: an MCAP of the same Foxglove channels and
     schemas (PointCloud, FrameTransforms, SceneUpdate, the wrench series), each message at its
     bag log time; the cloud and the health table every ``params.period_s`` of bag time. Needs
-    the extra ``view``. Returns the view's counters."""
+    the extra ``view``. Returns the view's counters, with ``damaged_chunks`` and
+    ``unreadable_bytes`` of the bag (a damaged bag is also logged as a warning)."""
     fg = import_foxglove()
     params = params or FoxgloveBridgeParams()
     mounts = ([(w.name, w.X_RC) for w in load_robot(params.robot)] if params.robot else [])
     counters: dict[str, int] = {}
     context = fg.Context()
+    reader = BagReader(bag)  # a path that is no bag fails here, before the output is made
     writer = fg.open_mcap(os.fspath(output), allow_overwrite=True, context=context)
     try:
         view = LiveView(fg, params, mounts, counters, context)
         next_tick = -math.inf
         now = 0.0
-        for record in BagReader(bag):
+        for record in reader:
             msg = codec.decode(record.payload)
             now = record.log_time_ns * 1e-9
             if not isinstance(msg, EndOfStream):
@@ -481,6 +496,9 @@ def export_bag(bag: str | os.PathLike[str], output: str | os.PathLike[str],
         view.tick(now + params.period_s)  # the last of the cloud and the health table
     finally:
         writer.close()
+    damage = reader.report_damage("exported")
+    counters["damaged_chunks"] = damage.damaged_chunks
+    counters["unreadable_bytes"] = damage.unreadable_bytes
     return counters
 
 

@@ -3,11 +3,14 @@ Foxglove bridge's logic, logging to an MCAP file that the test reads back)."""
 
 from __future__ import annotations
 
+import json
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from vibrissa.frames import Transform
 from vibrissa.msgs import ContactPointArray, NodeStatus, WhiskerWrench
 from vibrissa.nodes import foxglove_bridge
 from vibrissa.nodes.foxglove_bridge import FoxgloveBridgeParams, LiveView
@@ -48,3 +51,39 @@ def test_invented_names_and_a_long_cloud_keep_the_view_bounded(
         topics = {channel.topic for channel in reader.get_summary().channels.values()}
     assert {t for t in topics if t.startswith("/whiskers/")} == {
         f"/whiskers/w{k}/wrench" for k in range(8)}
+
+
+def test_a_client_sees_the_robot_descriptions_wrench_channels_before_any_wrench() -> None:
+    """foxglove-sdk takes a subscription to a channel made while a client is connected only
+    after advertising it: a fast client can be refused. The channels of the described whiskers
+    exist before the server starts, so a client gets them at connect and can subscribe."""
+    websockets = pytest.importorskip("websockets.sync.client")
+    context = fg.Context()
+    mounts = [(f"w{k}", Transform()) for k in range(3)]
+    view = LiveView(fg, FoxgloveBridgeParams(), mounts, {}, context)
+    server = fg.start_server(port=0, context=context)
+    try:
+        with websockets.connect(f"ws://127.0.0.1:{server.port}",
+                                subprotocols=["foxglove.sdk.v1"]) as ws:
+            advertised: dict[str, int] = {}
+            while len(advertised) < 8:  # 5 fixed channels and 3 wrench channels
+                op = json.loads(ws.recv(timeout=5.0))
+                if op["op"] == "advertise":
+                    advertised.update({c["topic"]: c["id"] for c in op["channels"]})
+            assert {t for t in advertised if t.startswith("/whiskers/")} == {
+                "/whiskers/w0/wrench", "/whiskers/w1/wrench", "/whiskers/w2/wrench"}
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 7, "channelId": advertised["/whiskers/w1/wrench"]}]}))
+            time.sleep(0.2)  # the server takes the subscription
+            view.handle("/robot/wrench", WhiskerWrench(
+                stamp=1.5, seq=4, whisker_id="w1", frame_id="w1/clamp", f0=[1.0, 0.0, 0.0],
+                m0=[0.0, 2.0, 0.0]), 10.0)
+            frame = ws.recv(timeout=5.0)
+            while isinstance(frame, str):  # skip control messages
+                frame = ws.recv(timeout=5.0)
+    finally:
+        server.stop()
+    assert frame[0] == 0x01 and int.from_bytes(frame[1:5], "little") == 7
+    wrench = json.loads(frame[13:])
+    assert wrench["frame_id"] == "w1/clamp" and wrench["seq"] == 4
+    assert wrench["m0"] == {"x": 0.0, "y": 2.0, "z": 0.0}

@@ -176,7 +176,7 @@ def _export(args: argparse.Namespace) -> int:
         print("vibrissa bag export: error: name the output once (OUT or -o OUT)", file=sys.stderr)
         return 2
     if args.format == "json":
-        info = export_json(args.bag, output, topics=args.topics)
+        info, _ = export_json(args.bag, output, topics=args.topics)  # damage: logged
         print(f"wrote {info.message_count} JSON messages to {output}", file=sys.stderr)
         return 0
     if args.format == "foxglove":

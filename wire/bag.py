@@ -36,7 +36,7 @@ from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, ChunkIndex, Schema
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader, breakup_chunk, get_chunk_data_stream
 from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
@@ -45,6 +45,7 @@ from vibrissa.msgs import Message as WireMessage
 from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher
 
 __all__ = [
+    "BagDamage",
     "BagInfo",
     "BagReader",
     "BagRecord",
@@ -94,6 +95,26 @@ class BagRecord(NamedTuple):
 
 
 @dataclass(frozen=True)
+class BagDamage:
+    """What a read of a bag could not use: chunks skipped as unreadable, a tail cut off (no
+    complete record after it), and their bytes. False when nothing was lost."""
+
+    damaged_chunks: int = 0
+    truncated: bool = False
+    unreadable_bytes: int = 0
+
+    def __bool__(self) -> bool:
+        return bool(self.damaged_chunks or self.truncated)
+
+    def note(self, lost: str) -> str:
+        """One line on the loss; ``lost`` ends it: "their messages not {lost}" ("played")."""
+        what = [f"{self.damaged_chunks} damaged chunk(s) skipped"] if self.damaged_chunks else []
+        what += ["cut off at the end"] if self.truncated else []
+        return (f"{', '.join(what)}; {self.unreadable_bytes} unreadable bytes, their messages "
+                f"not {lost}")
+
+
+@dataclass(frozen=True)
 class TopicInfo:
     """Message count and type of one topic in a bag."""
 
@@ -107,9 +128,10 @@ class BagInfo:
     """Summary of a bag.
 
     ``start_ns``/``end_ns`` are the first and last log times (ns, Unix epoch; 0 when empty),
-    ``duration_s`` their difference in seconds. ``truncated`` is True when the file has no
-    valid footer (the writer was cut off); ``unreadable_bytes`` is then the size of the tail
-    after the last complete record.
+    ``duration_s`` their difference in seconds. Every chunk was read (decompressed, its CRC
+    checked): ``damaged_chunks`` did not read; ``truncated`` is True when the file has no valid
+    summary and could be read only up to some record (the writer was cut off);
+    ``unreadable_bytes`` counts both. The counts and times are those of the readable messages.
     """
 
     path: str
@@ -120,8 +142,14 @@ class BagInfo:
     topics: tuple[TopicInfo, ...]
     types: dict[str, int]
     chunk_count: int
+    damaged_chunks: int
     truncated: bool
     unreadable_bytes: int
+
+    @property
+    def damage(self) -> BagDamage:
+        """What of the bag could not be read."""
+        return BagDamage(self.damaged_chunks, self.truncated, self.unreadable_bytes)
 
     @property
     def topic_counts(self) -> dict[str, int]:
@@ -148,10 +176,8 @@ class BagInfo:
             lines.append(f"start:     {_format_time(self.start_ns)} ({self.start_ns} ns)")
             lines.append(f"end:       {_format_time(self.end_ns)} ({self.end_ns} ns)")
         lines.append(f"chunks:    {self.chunk_count}")
-        if self.truncated:
-            lines.append(
-                f"truncated: yes, no footer; {self.unreadable_bytes} trailing bytes unreadable"
-            )
+        lines.append("integrity: " + (self.damage.note("counted") if self.damage else
+                                      "intact, every chunk decompressed and its CRC checked"))
         width = max([len(t.topic) for t in self.topics] + [5])
         lines.append("topics:")
         for t in self.topics:
@@ -361,7 +387,8 @@ class BagReader:
     sorted, up to the last complete chunk. After a full iteration, ``truncated`` and
     ``unreadable_bytes`` tell whether and how much of the file's tail was lost, and
     ``damaged_chunks`` how many chunks of a finished bag were skipped as unreadable (their bytes
-    count in ``unreadable_bytes``; the messages around them are all read, none twice).
+    count in ``unreadable_bytes``; the messages around them are all read, none twice);
+    :attr:`damage` holds the three, :meth:`report_damage` says them.
 
     Parameters
     ----------
@@ -381,6 +408,19 @@ class BagReader:
     def __iter__(self) -> Iterator[BagRecord]:
         return self.records()
 
+    @property
+    def damage(self) -> BagDamage:
+        """What the last full iteration (or :meth:`info`) could not read."""
+        return BagDamage(self.damaged_chunks, self.truncated, self.unreadable_bytes)
+
+    def report_damage(self, lost: str) -> BagDamage:
+        """After a full iteration: log a warning of one line when something could not be read
+        (``lost`` ends it: "their messages not {lost}"), and return :attr:`damage`."""
+        damage = self.damage
+        if damage:
+            log.warning("%s: %s", self.path, damage.note(lost))
+        return damage
+
     def is_finished(self) -> bool:
         """True when the file ends with a footer and the closing magic bytes."""
         size = self.path.stat().st_size
@@ -395,17 +435,22 @@ class BagReader:
         self.truncated = False
         self.unreadable_bytes = 0
         self.damaged_chunks = 0
-        summary = None
-        if self.is_finished():
-            try:
-                with open(self.path, "rb") as f:
-                    summary = SeekingReader(f).get_summary()
-            except _DAMAGE_ERRORS:
-                summary = None  # closing magic but a broken summary: stream instead
+        summary = self._summary()
         if summary is not None and summary.chunk_indexes:
             yield from self._indexed(summary)
         else:
             yield from self._streamed()
+
+    def _summary(self) -> Summary | None:
+        """The summary section of a finished bag; None when there is none or it does not read
+        (then the file is streamed instead)."""
+        if not self.is_finished():
+            return None
+        try:
+            with open(self.path, "rb") as f:
+                return SeekingReader(f).get_summary()
+        except _DAMAGE_ERRORS:
+            return None
 
     def _keep(self, topic: str) -> bool:
         return self.topics is None or topic in self.topics
@@ -439,17 +484,8 @@ class BagReader:
                        ) -> list[BagRecord]:
         """The kept messages of one chunk, in file order (raises one of ``_DAMAGE_ERRORS``
         when the chunk does not read or its CRC does not match)."""
-        if index.chunk_start_offset + index.chunk_length > os.fstat(f.fileno()).st_size:
-            raise EOFError(f"chunk at {index.chunk_start_offset} runs past the end of the file")
-        f.seek(index.chunk_start_offset)
-        raw = f.read(index.chunk_length)
-        if len(raw) != index.chunk_length:
-            raise EOFError(f"chunk at {index.chunk_start_offset} runs past the end of the file")
-        chunk = next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
-        if not isinstance(chunk, Chunk):
-            raise McapError(f"no chunk at offset {index.chunk_start_offset}")
         out = []
-        for record in breakup_chunk(chunk, validate_crc=True):
+        for record in breakup_chunk(_read_chunk(f, index), validate_crc=True):
             if isinstance(record, McapMessage):
                 channel = summary.channels.get(record.channel_id)
                 if channel is not None and self._keep(channel.topic):
@@ -502,33 +538,25 @@ class BagReader:
             self.unreadable_bytes = size - good_end
 
     def info(self) -> BagInfo:
-        """Summarise the bag: counts per topic and type, first/last log time, truncation."""
+        """Summarise the bag: counts per topic and type, first/last log time, damage.
+
+        Every chunk is decompressed and its CRC checked (no message is parsed); the counts and
+        times come from the summary's statistics when all chunks read, else from reading every
+        readable message (also with ``topics``: the statistics have no per-topic times).
+        """
         counts: Counter[tuple[str, str]] = Counter()
         start_ns, end_ns, n = 0, 0, 0
-        chunk_count = 0
-        summary = None
-        if self.is_finished():
-            try:
-                with open(self.path, "rb") as f:
-                    summary = SeekingReader(f).get_summary()
-            except _DAMAGE_ERRORS:
-                summary = None
+        summary = self._summary()
         stats = None if summary is None else summary.statistics
-        if summary is not None and stats is not None:
-            assert summary is not None
+        if (summary is not None and stats is not None and self.topics is None
+                and self._chunks_read(summary)):
             for channel_id, count in stats.channel_message_counts.items():
                 channel = summary.channels[channel_id]
-                if not self._keep(channel.topic):
-                    continue
                 schema = summary.schemas.get(channel.schema_id)
                 counts[(channel.topic, schema.name if schema else "")] += count
             n = sum(counts.values())
-            if self.topics is None:
-                start_ns, end_ns = stats.message_start_time, stats.message_end_time
-            else:  # per-topic times are not in the statistics record
-                start_ns, end_ns = self._time_range()
-            chunk_count = stats.chunk_count
-            self.truncated, self.unreadable_bytes = False, 0
+            start_ns, end_ns = stats.message_start_time, stats.message_end_time
+            self.truncated, self.unreadable_bytes, self.damaged_chunks = False, 0, 0
         else:
             first = True
             for rec in self.records():
@@ -539,7 +567,6 @@ class BagReader:
                     first = False
                 start_ns = min(start_ns, rec.log_time_ns)
                 end_ns = max(end_ns, rec.log_time_ns)
-            chunk_count = self._count_chunks()
         topics = tuple(
             TopicInfo(topic=t, type_name=ty, count=c) for (t, ty), c in sorted(counts.items())
         )
@@ -554,14 +581,22 @@ class BagReader:
             end_ns=end_ns,
             topics=topics,
             types=dict(types),
-            chunk_count=chunk_count,
+            chunk_count=self._count_chunks() if stats is None else stats.chunk_count,
+            damaged_chunks=self.damaged_chunks,
             truncated=self.truncated,
             unreadable_bytes=self.unreadable_bytes,
         )
 
-    def _time_range(self) -> tuple[int, int]:
-        times = [r.log_time_ns for r in self.records()]
-        return (min(times), max(times)) if times else (0, 0)
+    def _chunks_read(self, summary: Summary) -> bool:
+        """Whether every chunk of the index decompresses and matches its CRC (a chunk without
+        a CRC, which :class:`BagWriter` never writes, is only decompressed)."""
+        with open(self.path, "rb") as f:
+            for index in summary.chunk_indexes:
+                try:
+                    get_chunk_data_stream(_read_chunk(f, index), validate_crc=True)
+                except _DAMAGE_ERRORS:
+                    return False
+        return True
 
     def _count_chunks(self) -> int:
         n = 0
@@ -573,6 +608,21 @@ class BagReader:
             except _DAMAGE_ERRORS:
                 pass
         return n
+
+
+def _read_chunk(f: IO[bytes], index: ChunkIndex) -> Chunk:
+    """The chunk record ``index`` points to, still compressed (raises one of
+    ``_DAMAGE_ERRORS`` when it does not parse or runs past the end of the file)."""
+    if index.chunk_start_offset + index.chunk_length > os.fstat(f.fileno()).st_size:
+        raise EOFError(f"chunk at {index.chunk_start_offset} runs past the end of the file")
+    f.seek(index.chunk_start_offset)
+    raw = f.read(index.chunk_length)
+    if len(raw) != index.chunk_length:
+        raise EOFError(f"chunk at {index.chunk_start_offset} runs past the end of the file")
+    chunk = next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records, None)
+    if not isinstance(chunk, Chunk):
+        raise McapError(f"no chunk at offset {index.chunk_start_offset}")
+    return chunk
 
 
 def _record(schema: Schema | None, channel: Channel, message: McapMessage) -> BagRecord:
@@ -588,13 +638,14 @@ def _record(schema: Schema | None, channel: Channel, message: McapMessage) -> Ba
 
 def export_json(
     src: str | os.PathLike[str], dst: str | os.PathLike[str], topics: Iterable[str] | None = None
-) -> BagInfo:
+) -> tuple[BagInfo, BagDamage]:
     """Convert a msgpack bag into a JSON-encoded MCAP that Foxglove opens.
 
     Every payload is decoded with the codec and written as ``codec.to_jsonable`` JSON
     (``message_encoding="json"``, arrays as nested lists), with the type's JSON schema
-    (``encoding="jsonschema"``) and the original log/publish times. A cut-off source is
-    exported up to its last complete chunk. Returns the info of the written file.
+    (``encoding="jsonschema"``) and the original log/publish times. A damaged or cut-off source
+    is exported as far as it reads. Returns the info of the written file and what of ``src``
+    could not be read (also logged as a warning, see :meth:`BagReader.report_damage`).
     """
     reader = BagReader(src, topics=topics)
     with BagWriter(dst, message_encoding=JSON_ENCODING, flush_interval_s=math.inf) as out:
@@ -605,7 +656,7 @@ def export_json(
             data = json.dumps(codec.to_jsonable(msg), allow_nan=False).encode()
             out._write(rec.topic, schema_id, data, rec.log_time_ns, rec.publish_time_ns,
                        rec.sequence)
-    return BagReader(dst).info()
+    return BagReader(dst).info(), reader.report_damage("exported")
 
 
 @dataclass
@@ -714,11 +765,7 @@ def play_bag(
             publishers[rec.topic].publish_raw(rec.payload)
             result.published[rec.topic] += 1
         result.wall_s = time.monotonic() - t_wall0
-        if reader.damaged_chunks or reader.truncated:
-            log.warning("%s: %d damaged chunk(s) skipped%s; %d unreadable bytes, their "
-                        "messages not played", path, reader.damaged_chunks,
-                        ", cut off at the end" if reader.truncated else "",
-                        reader.unreadable_bytes)
+        reader.report_damage("played")
         return result
     finally:
         if own:

@@ -73,7 +73,7 @@ from vibrissa.msgs import (
     codec,
 )
 from vibrissa.msgs import Message as WireMessage
-from vibrissa.wire.bag import BagReader, BagWriter, check_bag_file
+from vibrissa.wire.bag import BagDamage, BagReader, BagWriter, check_bag_file
 
 if TYPE_CHECKING:
     from vibrissa.scene import Whisker
@@ -232,12 +232,14 @@ def _whisker_names(msg: WireMessage) -> Iterable[str]:
 @dataclass
 class ExportResult:
     """What :func:`export_ros2` wrote: ROS messages per topic, vibrissa messages skipped per
-    type, and the bag's list of whisker names (the ``whisker`` index of a point cloud)."""
+    type, the bag's list of whisker names (the ``whisker`` index of a point cloud), and what
+    of the source bag could not be read."""
 
     path: Path
     written: Counter[str] = field(default_factory=Counter)
     skipped: Counter[str] = field(default_factory=Counter)
     whiskers: list[str] = field(default_factory=list)
+    damage: BagDamage = field(default_factory=BagDamage)
 
     def summary(self) -> str:
         """One line: messages and topics written, messages skipped by type."""
@@ -272,7 +274,8 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     Parameters
     ----------
     src
-        A vibrissa ``.mcap`` bag (a cut-off one up to its last complete chunk).
+        A vibrissa ``.mcap`` bag (a damaged or cut-off one as far as it reads; what does not
+        read is logged as a warning and in the result's ``damage``).
     dst
         The rosbag2 folder to create.
     whiskers
@@ -327,6 +330,7 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
                 ros_out.write(topic, msgtype, ros_msg, rec.log_time_ns)
     finally:
         writer.close()
+    result.damage = reader.report_damage("exported")
     return result
 
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import json
+import logging
 import tracemalloc
 from pathlib import Path
 
@@ -13,7 +15,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from vibrissa.msgs import EndOfStream, WhiskerWrench, decode, encode, json_schema, to_jsonable
-from vibrissa.wire.bag import VERSION_KEY, BagReader, BagWriter, export_json
+from vibrissa.wire.bag import VERSION_KEY, BagDamage, BagReader, BagWriter, export_json
 
 T0_NS = 1_700_000_000_000_000_000
 
@@ -94,7 +96,7 @@ def test_info_counts(tmp_path: Path) -> None:
     assert info.types == {"vibrissa/WhiskerWrench": 300, "vibrissa/EndOfStream": 2}
     assert info.start_ns == T0_NS and info.end_ns == T0_NS + 301 * 1_000_000
     assert info.duration_s == pytest.approx(0.301)
-    assert not info.truncated
+    assert not info.truncated and info.damaged_chunks == 0 and not info.damage
     assert "/whisker0/wrench" in info.format()
 
 
@@ -107,6 +109,25 @@ def chunk_ends(path: Path) -> list[tuple[int, int]]:
                 n += sum(isinstance(r, Message) for r in breakup_chunk(record))
                 out.append((f.tell(), n))
     return out
+
+
+def flip_inside_a_chunk(path: Path) -> tuple[int, set[int]]:
+    """Flip one bit in the middle of the compressed data of the file's middle chunk, found with
+    the mcap package's own reader; (the chunk's length in bytes, its messages' log times)."""
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    indexes = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    index = indexes[len(indexes) // 2]
+    data = bytearray(path.read_bytes())
+    raw = bytes(data[index.chunk_start_offset: index.chunk_start_offset + index.chunk_length])
+    chunk = next(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True).records)
+    assert isinstance(chunk, Chunk) and chunk.compression == "zstd"
+    times = {r.log_time for r in breakup_chunk(chunk) if isinstance(r, Message)}
+    # the compressed records are the chunk record's last field
+    data[index.chunk_start_offset + index.chunk_length - len(chunk.data) // 2] ^= 0x08
+    path.write_bytes(bytes(data))
+    return index.chunk_length, times
 
 
 def test_truncated_bag_yields_a_prefix(tmp_path: Path) -> None:
@@ -148,8 +169,8 @@ def test_truncated_mid_chunk_reports_the_tail(tmp_path: Path) -> None:
 def test_export_json_opens_with_mcap_reader(tmp_path: Path) -> None:
     src, dst = tmp_path / "a.mcap", tmp_path / "a.json.mcap"
     written = write_bag(src, n=30)
-    info = export_json(src, dst)
-    assert info.message_count == len(written)
+    info, damage = export_json(src, dst)
+    assert info.message_count == len(written) and not damage
     with open(dst, "rb") as f:
         reader = make_reader(f)
         rows = list(reader.iter_messages())
@@ -217,3 +238,22 @@ def test_a_chunk_claiming_terabytes_is_skipped_not_allocated(tmp_path: Path) -> 
     assert peak < 64 << 20
     assert got == written[ends[0][1]:]  # the first chunk skipped, the rest read
     assert reader.damaged_chunks == 1
+
+
+def test_info_and_export_json_of_a_damaged_bag_count_only_what_reads(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    path = tmp_path / "bag.mcap"
+    written = write_bag(path, n=400, chunk_size=4096, max_chunk_messages=32)
+    length, lost = flip_inside_a_chunk(path)
+    rest = [w for w in written if w[1] not in lost]
+    info = BagReader(path).info()
+    assert (info.message_count, info.damaged_chunks, info.truncated, info.unreadable_bytes) == (
+        len(rest), 1, False, length)
+    assert (info.start_ns, info.end_ns) == (rest[0][1], rest[-1][1])
+    assert sum(info.topic_counts.values()) == len(rest)
+    with caplog.at_level(logging.WARNING, logger="vibrissa.wire.bag"):
+        exported, damage = export_json(path, tmp_path / "out.mcap")
+    assert exported.message_count == len(rest)
+    assert damage == BagDamage(damaged_chunks=1, truncated=False, unreadable_bytes=length)
+    assert caplog.messages == [f"{path}: 1 damaged chunk(s) skipped; {length} unreadable bytes, "
+                               "their messages not exported"]

@@ -6,7 +6,8 @@ clamp origin X_WR X_RC and a short segment along the clamp's +z, the rod's axis 
 in the whisker's colour), the contacts coloured by whisker, the noise points (black crosses),
 each object's known mesh coloured by its distance to the true surface when that is known and
 by its predicted std otherwise (one colour bar in mm), and the unknown part of the meshes in
-faint grey; a legend for every layer.
+faint grey; a legend for every layer. Names from the wire (whiskers, objects, frames) are drawn
+as ``short_name`` gives them, and no text is read as matplotlib's mathtext (a ``$`` in a name).
 The 3D view is cut to the objects (contacts, meshes, true objects) with equal scales on its
 axes, so that the shapes are true; the top view shows the whole path.
 
@@ -20,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -28,6 +29,9 @@ import numpy.typing as npt
 from vibrissa.nodes.surface_fit import TrueObject
 from vibrissa.scene import RobotPath, Whisker
 from vibrissa.surfaces import Ellipsoid, Paraboloid
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -43,6 +47,19 @@ ROD_AXIS_FRACTION = 0.25
 
 MM = 1e3
 """Figure units per metre."""
+
+MAX_NAME_CHARS = 32
+"""The most characters of a name drawn (``short_name``)."""
+
+
+def short_name(name: str) -> str:
+    """``name`` as the figure draws it: control characters as spaces, and a name longer than
+    `MAX_NAME_CHARS` cut to that length in its middle (``…``), so that both ends show."""
+    name = "".join(c if c.isprintable() else " " for c in name)
+    if len(name) <= MAX_NAME_CHARS:
+        return name
+    head = MAX_NAME_CHARS // 2
+    return f"{name[:head]}…{name[len(name) - (MAX_NAME_CHARS - head - 1):]}"
 
 
 @dataclass(frozen=True)
@@ -202,6 +219,11 @@ def _clipped(p: FloatArray, lo: FloatArray, hi: FloatArray) -> FloatArray:
 
 def plot_map(path: str | Path, layers: MapLayers) -> None:
     """Write the figure of ``layers`` to ``path`` (PNG)."""
+    draw_map(layers).savefig(path, dpi=100, format="png")
+
+
+def draw_map(layers: MapLayers) -> Figure:
+    """The figure of ``layers`` (Agg canvas)."""
     import matplotlib
     from matplotlib.cm import ScalarMappable
     from matplotlib.collections import PolyCollection
@@ -257,13 +279,13 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
             top.plot(grid_W[0], grid_W[1], color="0.7", linewidth=0.3)
             top.plot(grid_W[0].T, grid_W[1].T, color="0.7", linewidth=0.3)
             at = grid_W.reshape(3, -1)
-            ax.text(at[0].mean(), at[1].mean(), at[2].max(), true.name, color="0.3",
-                    fontsize=9, ha="center", va="bottom")
-            top.text(at[0].mean(), at[1].mean(), true.name, color="0.3", fontsize=9,
-                     ha="center", va="center", style="italic")
+            ax.text(at[0].mean(), at[1].mean(), at[2].max(), short_name(true.name),
+                    color="0.3", fontsize=9, ha="center", va="bottom", parse_math=False)
+            top.text(at[0].mean(), at[1].mean(), short_name(true.name), color="0.3",
+                     fontsize=9, ha="center", va="center", style="italic", parse_math=False)
         handles.append(Line2D([], [], color="0.5", linewidth=0.8,
                               label=f"true {'objects' if len(layers.true_objects) > 1 else 'object'}"
-                              f" ({', '.join(t.name for t in layers.true_objects[:6])}"
+                              f" ({', '.join(short_name(t.name) for t in layers.true_objects[:6])}"
                               f"{', ...' if len(layers.true_objects) > 6 else ''})"))
 
     if layers.path is not None:
@@ -302,7 +324,7 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
             top.scatter(q[:, 0], q[:, 1], s=2.5, color=colour[name], linewidths=0)
         whisker_handles.append(Line2D([], [], linestyle="", marker="o", markersize=5,
                                       color=colour[name],
-                                      label=f"{name}: {thousands(count)} contacts"))
+                                      label=f"{short_name(name)}: {thousands(count)} contacts"))
     handles += _capped(whisker_handles, "whiskers", Line2D([], [], linestyle=""))
     noise = shown[labels[shown] < 0]
     if np.any(labels < 0):
@@ -367,9 +389,12 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
     top.set_ylabel("y [mm]")
     top.grid(True, linewidth=0.3, alpha=0.5)
     top.set_title("top view (looking down z)", fontsize=10)
-    key.legend(handles=handles, loc="upper center", fontsize=8, frameon=False,
-               borderaxespad=0.0, ncols=2 if len(handles) > 12 else 1)
-    fig.suptitle(layers.title, fontsize=13, y=0.98)
+    legend = key.legend(handles=handles, loc="upper center", fontsize=8, frameon=False,
+                        borderaxespad=0.0, ncols=2 if len(handles) > 12 else 1)
+    for text in legend.get_texts():
+        text.set_parse_math(False)
+    fig.suptitle(layers.title, fontsize=13, y=0.98, parse_math=False)
     if layers.subtitle:
-        fig.text(0.5, 0.925, layers.subtitle, ha="center", va="top", fontsize=8, color="0.25")
-    fig.savefig(path, dpi=100, format="png")
+        fig.text(0.5, 0.925, layers.subtitle, ha="center", va="top", fontsize=8, color="0.25",
+                 parse_math=False)
+    return fig

@@ -33,6 +33,13 @@ received, lost) or points were dropped beyond ``max_points`` / ``max_frames``, u
 writes nothing and exits 0; a stop during the fit ends the process at once (Open3D and LAPACK do
 not return to Python until they are done).
 
+Points dropped are counted by reason (``Accumulator``; the report's ``dropped_points``): beyond
+the bounds (``max_points``, ``max_frames``) or not usable (``out_of_range``,
+``no_force_direction``); a point whose covariance is not symmetric positive semidefinite is
+mapped as one without a covariance and counted in ``bad_covariance`` (the report's too). Counters in this node's
+``NodeStatus`` (besides the runtime's received, published, rejected, lost): ``bad_covariance``
+and each of the dropped counts once it is not 0.
+
 Objects: with ``true_surface`` a frame is that one object; otherwise DBSCAN separates the points
 of a frame into objects (``vibrissa.nodes.surface_fit.cluster_points``), named after the nearest
 object of ``scene`` (frame ``world``) or ``object0``, ``object1``, ... in the order of their
@@ -76,7 +83,7 @@ from vibrissa.msgs import (
     SweepProposal,
 )
 from vibrissa.next_sweep import Proposal, propose_sections
-from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map, thousands
+from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map, short_name, thousands
 from vibrissa.nodes.map_page import write_page
 from vibrissa.nodes.surface_fit import (
     MIN_POINTS,
@@ -272,12 +279,13 @@ class FrameCloud:
     seqs: list[int] = field(default_factory=list)
     points: list[FloatArray] = field(default_factory=list)  # (k, 3) per message
     forces: list[FloatArray] = field(default_factory=list)
-    covariances: list[FloatArray] = field(default_factory=list)  # (k, 3, 3); NaN: none came
+    covariances: list[FloatArray] = field(default_factory=list)  # (k, 3, 3); NaN: none
 
-    def add(self, msg: ContactPoint | ContactPointArray,
-            keep: npt.NDArray[np.bool_] | None = None) -> None:
+    def add(self, msg: ContactPoint | ContactPointArray, keep: npt.NDArray[np.bool_] | None,
+            covariances: FloatArray) -> None:
         """Append every row of a message (a ContactPoint is one row), or those ``keep`` says,
-        each with its whisker and the message's ``seq``."""
+        each with its whisker, the message's ``seq`` and its covariance from ``covariances``
+        (k, 3, 3) of the rows appended (NaN: none)."""
         whisker_ids = [msg.whisker_id] if isinstance(msg, ContactPoint) else msg.whisker_ids
         rows = slice(None) if keep is None else keep
         whisker_ids = whisker_ids if keep is None else list(compress(whisker_ids, keep.tolist()))
@@ -285,9 +293,7 @@ class FrameCloud:
         self.seqs += [msg.seq] * len(whisker_ids)
         self.points.append(np.reshape(msg.point, (-1, 3))[rows])
         self.forces.append(np.reshape(msg.force, (-1, 3))[rows])
-        self.covariances.append(np.full((len(whisker_ids), 3, 3), np.nan)
-                                if msg.covariance is None
-                                else np.reshape(msg.covariance, (-1, 3, 3))[rows])
+        self.covariances.append(covariances)
 
     def ordered(self) -> tuple[FloatArray, FloatArray, list[str], FloatArray]:
         """Points (N, 3), forces (N, 3), whisker ids and covariances (N, 3, 3; NaN where
@@ -303,6 +309,25 @@ MAX_POSITION_M = LIMITS["position_m"][1]
 """The largest coordinate of a contact point the map takes, m (a scene's positions: `LIMITS`)."""
 MAX_FORCE_N = 1e12
 """The largest contact force component the map takes, N: a normal from its direction."""
+COVARIANCE_RTOL = 1e-9
+"""How far from symmetric positive semidefinite a covariance may be, relative to its largest
+entry (asymmetry) and |eigenvalue| (a negative eigenvalue): the reconstructor's J S J^T is off
+by rounding only, a rank-deficient one has eigenvalues of about -1e-16 x the largest."""
+
+
+def is_covariance(covariances: FloatArray) -> npt.NDArray[np.bool_]:
+    """Whether each of ``covariances`` (k, 3, 3) is a covariance: finite, symmetric and
+    positive semidefinite, to `COVARIANCE_RTOL`."""
+    c = np.asarray(covariances, dtype=np.float64).reshape(-1, 3, 3)
+    finite = np.isfinite(c).all(axis=(1, 2))
+    c = np.where(np.isfinite(c), c, 0.0)  # refused by `finite`; zeros keep the rest finite
+    # each matrix over its largest entry: eigvalsh neither overflows nor loses subnormals
+    scale = np.abs(c).max(axis=(1, 2))
+    unit = c / np.where(scale > 0, scale, 1.0)[:, None, None]
+    symmetric = np.abs(unit - unit.transpose(0, 2, 1)).max(axis=(1, 2)) <= COVARIANCE_RTOL
+    eigenvalues = np.linalg.eigvalsh(unit)  # of its lower triangle: symmetric checked above
+    semidefinite = eigenvalues[:, 0] >= -COVARIANCE_RTOL * np.abs(eigenvalues).max(axis=1)
+    return np.asarray(finite & symmetric & semidefinite)
 
 
 class Accumulator:
@@ -312,7 +337,9 @@ class Accumulator:
     or a flood cannot exhaust the memory: a message beyond either bound is dropped whole and
     its rows are counted in ``dropped`` (by reason). A row the map cannot use is dropped and
     counted too: a point with a coordinate beyond `MAX_POSITION_M` (``out_of_range``), a
-    contact force of zero or beyond `MAX_FORCE_N` (``no_force_direction``: no normal).
+    contact force of zero or beyond `MAX_FORCE_N` (``no_force_direction``: no normal). A row
+    whose covariance is not one (`is_covariance`) is kept as a point without a covariance and
+    counted in ``bad_covariance``.
     """
 
     def __init__(self, expected: int | Sequence[str], max_points: int = MapperParams.max_points,
@@ -324,6 +351,7 @@ class Accumulator:
         self.ended: set[str] = set()
         self.n_points = 0
         self.dropped: Counter[str] = Counter()
+        self.bad_covariance = 0
 
     def add(self, msg: object) -> None:
         """Take a ContactPoint, a ContactPointArray or an EndOfStream."""
@@ -338,7 +366,8 @@ class Accumulator:
                 keep = self._usable(msg)
                 kept = rows if keep is None else int(np.count_nonzero(keep))
                 if kept:
-                    self.frames.setdefault(msg.frame_id, FrameCloud()).add(msg, keep)
+                    self.frames.setdefault(msg.frame_id, FrameCloud()).add(
+                        msg, keep, self._covariances(msg, keep, kept))
                     self.n_points += kept
         elif isinstance(msg, EndOfStream):
             self.ended.add(msg.source)
@@ -354,6 +383,17 @@ class Accumulator:
             if rows.any():
                 self.dropped[reason] += int(np.count_nonzero(rows))
         return ~(far | no_force)
+
+    def _covariances(self, msg: ContactPoint | ContactPointArray,
+                     keep: npt.NDArray[np.bool_] | None, kept: int) -> FloatArray:
+        """The covariances (kept, 3, 3) of the rows kept, NaN where none came or where one is
+        not a covariance (counted in ``bad_covariance``)."""
+        if msg.covariance is None:
+            return np.full((kept, 3, 3), np.nan)
+        covariances = np.reshape(msg.covariance, (-1, 3, 3))[slice(None) if keep is None else keep]
+        bad = ~is_covariance(covariances)
+        self.bad_covariance += int(np.count_nonzero(bad))
+        return np.where(bad[:, None, None], np.nan, covariances)
 
     @property
     def done(self) -> bool:
@@ -478,8 +518,8 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
     points, forces, whisker_ids, covariances = cloud.ordered()
     lines = whisker_lines(points, whisker_ids)
     normals = contact_normals(points, forces, lines)
-    # each point's variance along its normal (NaN without a covariance: the floor point_std_m;
-    # one too large for floats: the ceiling)
+    # each point's variance along its normal (NaN without a covariance, or with one that is not
+    # a covariance: the floor point_std_m; one too large for floats: the ceiling)
     given = np.isfinite(covariances).all(axis=(1, 2))
     with np.errstate(over="ignore", invalid="ignore"):
         normal_var = np.einsum("ni,nij,nj->n", normals, covariances, normals)
@@ -576,12 +616,12 @@ def map_layers(frame: FrameMap, params: MapperParams) -> MapLayers:
     to the true surface when it is known, else by their std), and the truth when known."""
     result = frame.result
     whiskers = sorted(set(frame.whisker_ids))
-    title = (f"{result.frame_id} map: {_plural(len(result.objects), 'object')}, "
+    title = (f"{short_name(result.frame_id)} map: {_plural(len(result.objects), 'object')}, "
              f"{_plural(result.n_points, 'contact')} from {_plural(len(whiskers), 'whisker')}")
     truth = params.truth(result.frame_id)
     notes = []
     for obj in result.objects[:6]:
-        note = f"{obj.name}: {_plural(obj.n_points, 'point')}, "
+        note = f"{short_name(obj.name)}: {_plural(obj.n_points, 'point')}, "
         note += (f"surface known over {_plural(obj.n_triangles, 'triangle')}"
                  f" ({obj.n_triangles / (obj.n_triangles + obj.unknown_triangles):.0%})"
                  if obj.n_triangles else obj.method.removeprefix("none: "))
@@ -729,6 +769,7 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         "frames": [asdict(r) for r in results],
         "lost": lost,
         "dropped_points": dict(acc.dropped),
+        "bad_covariance": acc.bad_covariance,
         "streams": [asdict(stream) for stream in streams],
     }
     report_json = out_dir / "report.json"
@@ -769,6 +810,10 @@ def format_report(report: dict[str, Any]) -> str:
         lines.append(f"LOST: {report['lost']} contact message(s) never arrived")
     for bound, n in report.get("dropped_points", {}).items():
         lines.append(f"DROPPED: {n} contact point(s) {_DROPPED.get(bound, 'beyond ' + bound)}")
+    if report["bad_covariance"]:
+        lines.append(f"BAD COVARIANCE: {report['bad_covariance']} contact point(s) with a "
+                     "covariance that is not symmetric positive semidefinite, mapped as points "
+                     "without one (point_std_m)")
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
                      f"{stream['received']} received, {stream['lost']} lost")
@@ -835,18 +880,24 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
     proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,
                                          wait_for=params.wait_for)
+    node.counters["bad_covariance"] = 0
     node.set_state("running", f"waiting for {expected} source(s) to end")
     last = time.monotonic()
     while not node.stop_requested and not acc.done:
         rx = subscriber.receive(0.1)
         if rx is not None:
-            dropped = acc.dropped.total()
+            dropped, bad = acc.dropped.total(), acc.bad_covariance
             acc.add(rx.msg)
+            node.counters.update(acc.dropped, bad_covariance=acc.bad_covariance)
             if acc.dropped.total() > dropped and _power_of_ten(acc.dropped.total(), dropped):
                 log.warning("%s: %d contact point(s) dropped so far, beyond the map's bounds "
                             "(max_points %d, max_frames %d) or not usable: %s", node.fqn,
                             acc.dropped.total(), params.max_points, params.max_frames,
                             dict(acc.dropped))
+            if acc.bad_covariance > bad and _power_of_ten(acc.bad_covariance, bad):
+                log.warning("%s: %d contact point(s) so far with a covariance that is not "
+                            "symmetric positive semidefinite, mapped without it", node.fqn,
+                            acc.bad_covariance)
             last = time.monotonic()
         elif params.timeout_s > 0 and time.monotonic() - last > params.timeout_s:
             log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)", node.fqn,

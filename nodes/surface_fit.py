@@ -140,16 +140,38 @@ def contact_normals(points: FloatArray, forces: FloatArray, lines: IntArray) -> 
 
 
 def line_spacing(points: FloatArray, lines: IntArray) -> float:
-    """Median distance from a point to the nearest point of another line (inf if one line)."""
-    labels = np.unique(lines)
+    """Median over the points (N, 3) of the distance to the nearest point of another line
+    (``lines`` (N,)); inf with one line.
+
+    Exact, in O(N log N log L) for L lines: two lines differ in a bit of their index, so for
+    each bit the points whose line has it 0 query a KD-tree of those with it 1 and the other
+    way round, and the least distance over the bits is the nearest point of another line.
+    Identical points are one place first: a KD-tree cannot split them (a query would scan them
+    all), and a place with points of two or more lines is 0 from another line and is in every
+    KD-tree (it has a line other than any point's).
+    """
+    labels, line_of = np.unique(lines, return_inverse=True)
     if len(labels) < 2:
         return float("inf")
-    nearest = np.full(len(points), np.inf)
-    for label in labels:
-        inside = lines == label
-        tree = cKDTree(points[~inside])
-        nearest[inside] = tree.query(points[inside])[0]
-    return float(np.median(nearest))
+    places, place_of = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=0,
+                                 return_inverse=True)
+    place_of = place_of.ravel()
+    pairs = np.unique(place_of * len(labels) + line_of.ravel())  # each (place, line) once
+    pair_place, pair_line = np.divmod(pairs, len(labels))
+    shared = np.bincount(pair_place, minlength=len(places)) > 1
+    line_at = np.zeros(len(places), dtype=np.int64)
+    line_at[pair_place] = pair_line  # the one line of a place not shared
+    nearest = np.where(shared, 0.0, np.inf)
+    alone, together = np.flatnonzero(~shared), np.flatnonzero(shared)
+    for bit in range((len(labels) - 1).bit_length()):
+        side = (line_at[alone] >> bit) & 1
+        for s in (0, 1):
+            query = alone[side == s]
+            others = np.concatenate([alone[side != s], together])
+            if len(query) and len(others):
+                distance = cKDTree(places[others]).query(places[query])[0]
+                nearest[query] = np.minimum(nearest[query], distance)
+    return float(np.median(nearest[place_of]))
 
 
 def line_extent(points: FloatArray, lines: IntArray) -> float:

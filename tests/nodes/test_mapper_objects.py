@@ -19,12 +19,20 @@ from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import Transform
 from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream, decode, encode
-from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map
-from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
-from vibrissa.nodes.surface_fit import cluster_points, whisker_lines
+from vibrissa.nodes.map_figure import MAX_NAME_CHARS, MapLayers, MeshLayer, draw_map, plot_map, short_name
+from vibrissa.nodes.mapper import (
+    Accumulator,
+    MapperParams,
+    fit_frame,
+    is_covariance,
+    map_layers,
+    write_outputs,
+)
+from vibrissa.nodes.surface_fit import TrueObject, cluster_points, whisker_lines
 from vibrissa.runtime import load_params
 from vibrissa.runtime.params import ParamError
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
+from vibrissa.surfaces import parse_surface
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -443,15 +451,110 @@ def test_hostile_covariances_do_not_break_the_map(scene_map: dict[str, Any], tmp
     rng = np.random.default_rng(4)
     hostile = [np.diag([-1.0, -1.0, -1.0]), np.full((3, 3), 1e300), np.zeros((3, 3)),
                np.array([[0.0, 1e10, 0.0], [-1e10, 0.0, 0.0], [0.0, 0.0, 1e-30]])]
-    msgs = []
+    msgs, negative_or_asymmetric = [], 0
     for msg in messages():
         if isinstance(msg, ContactPointArray):
             n = len(msg.whisker_ids)
-            cov = np.array([hostile[k] for k in rng.integers(0, len(hostile), n)])
-            msg = dataclasses.replace(msg, covariance=cov)
+            which = rng.integers(0, len(hostile), n)
+            negative_or_asymmetric += int(np.sum((which == 0) | (which == 3)))
+            msg = dataclasses.replace(msg, covariance=np.array([hostile[k] for k in which]))
         msgs.append(decode(encode(msg)))
     report, _ = write_outputs(accumulate(msgs), scene_map["params"], tmp_path / "out")
     [frame] = report["frames"]
     assert [obj["name"] for obj in frame["objects"]] == ["ball", "egg"]
     for obj in frame["objects"]:
         assert obj["n_triangles"] > 0 and obj["mesh_to_surface_max"] < 5e-3
+    assert report["bad_covariance"] == negative_or_asymmetric > 0
+
+
+def _jsjt(rank: int) -> np.ndarray:
+    """J S J^T of a random J (3, 6) of ``rank`` and a diagonal S: a covariance as the
+    reconstructor makes it, off by rounding only (a rank below 3 leaves eigenvalues of about
+    -1e-17 x the largest)."""
+    rng = np.random.default_rng(rank)
+    J = rng.normal(size=(3, rank)) @ rng.normal(size=(rank, 6)) * 1e-3
+    return np.asarray(J @ np.diag(rng.uniform(0.5, 2.0, 6)) @ J.T)
+
+
+@pytest.mark.parametrize(("covariance", "accepted"), [
+    (_jsjt(3), True),
+    (_jsjt(2), True),
+    (_jsjt(1), True),
+    (np.zeros((3, 3)), True),
+    (np.full((3, 3), 1e300), True),  # rank one, its entries near the float limit
+    (np.diag([1.0, 1.0, -1e-10]), True),  # within 1e-9 of the largest eigenvalue
+    (np.diag([1e-320, 1e-320, 1e-320]), True),  # subnormal
+    (-1e-2 * np.eye(3), False),
+    (-1e-300 * np.eye(3), False),
+    (np.diag([1.0, 1.0, -1e-8]), False),
+    (np.diag([1e300, 1e300, -1e292]), False),
+    (np.eye(3) + np.triu(np.full((3, 3), 1e-8), 1), False),  # asymmetric beyond 1e-9
+    (np.eye(3) + np.triu(np.full((3, 3), 1e-10), 1), True),
+    (np.full((3, 3), np.nan), False),
+])
+def test_a_covariance_is_symmetric_positive_semidefinite_up_to_rounding(
+        covariance: np.ndarray, accepted: bool) -> None:
+    assert is_covariance(covariance[None]).tolist() == [accepted]
+
+
+def test_points_whose_covariance_is_not_one_are_counted_and_mapped_as_without(
+        tmp_path: Path) -> None:
+    """-1e-2 I, -1e-300 I and diag(-1e-4, 1e-4, 1e-4) (the fit took n^T C n as a point's
+    variance: a std of up to 1 cm for the last) are counted in bad_covariance, and the map is
+    bit for bit the map of the same points without covariances."""
+    params = MapperParams(out_dir=str(tmp_path), plot=False)
+    bad = np.array([-1e-2 * np.eye(3), -1e-300 * np.eye(3), np.diag([-1e-4, 1e-4, 1e-4])])
+    clean = messages()
+    hostile = [decode(encode(dataclasses.replace(
+        msg, covariance=bad[np.arange(len(msg.whisker_ids)) % 3]
+        if isinstance(msg, ContactPointArray) else bad[2])))
+        if not isinstance(msg, EndOfStream) else msg for msg in clean]
+    acc = accumulate(hostile)
+    assert acc.bad_covariance == 282
+    report, _ = write_outputs(acc, params, tmp_path / "hostile")
+    without, _ = write_outputs(accumulate(clean), params, tmp_path / "without")
+    for name in ("cloud.ply", "mesh.ply", "mesh_object0.ply", "mesh_object1.ply"):
+        assert ((tmp_path / "hostile" / name).read_bytes()
+                == (tmp_path / "without" / name).read_bytes()), name
+    assert report["bad_covariance"] == 282 and without["bad_covariance"] == 0
+    relocated = json.loads(json.dumps(report).replace("/hostile/", "/without/"))
+    assert relocated["frames"] == without["frames"]
+    assert ("BAD COVARIANCE: 282 contact point(s) with a covariance that is not symmetric "
+            "positive semidefinite" in (tmp_path / "hostile" / "report.txt").read_text())
+    assert "BAD COVARIANCE" not in (tmp_path / "without" / "report.txt").read_text()
+
+
+def test_names_are_short_in_the_figure() -> None:
+    assert short_name("w0") == "w0" and short_name("x" * MAX_NAME_CHARS) == "x" * MAX_NAME_CHARS
+    assert short_name("head" + "x" * 10_000 + "tail") == "head" + "x" * 12 + "…" + "x" * 11 + "tail"
+    assert short_name("a\nb\tc\x00") == "a b c "
+
+
+def test_the_figure_draws_wire_names_short_and_as_text(tmp_path: Path) -> None:
+    """A 10 kB whisker id was a legend label across the figure, a frame id the title; a ``$``
+    in a name made matplotlib parse it as mathtext, and fail."""
+    long_whisker, long_frame, long_object = "W" * 10_000, "f" * 10_000, "ball" * 1000
+    math = "w$\\frac$"
+    acc = Accumulator(1)
+    for msg in messages(long_frame):
+        if isinstance(msg, ContactPointArray):
+            msg = dataclasses.replace(msg, whisker_ids=[long_whisker if w == "w0" else
+                                                        math if w == "w1" else w
+                                                        for w in msg.whisker_ids])
+        acc.add(msg)
+    params = MapperParams(out_dir=str(tmp_path), plot=False)
+    layers = dataclasses.replace(
+        map_layers(fit_frame(long_frame, acc.frames[long_frame], params), params),
+        true_objects=[TrueObject(long_object, parse_surface("sphere:r=0.015,cx=0.03,cz=0.04"))])
+    figure = draw_map(layers)
+    assert figure.get_suptitle() == layers.title
+    assert layers.title.startswith(f"{short_name(long_frame)} map: 2 objects, 282 contacts")
+    [legend] = [ax.get_legend() for ax in figure.axes if ax.get_legend() is not None]
+    labels = [text.get_text() for text in legend.get_texts()]
+    assert f"{short_name(long_whisker)}: 60 contacts" in labels
+    assert f"{math}: 110 contacts" in labels
+    assert f"true object ({short_name(long_object)})" in labels
+    assert max(len(line) for label in labels for line in label.splitlines()) < 64
+    assert not any(text.get_parse_math() for text in legend.get_texts())
+    plot_map(tmp_path / "map.png", layers)  # drawn: no mathtext to parse
+    assert png_size(tmp_path / "map.png") == (1600, 900)

@@ -238,7 +238,7 @@ def draw_map(layers: MapLayers) -> Figure:
     notes = layers.subtitle.count("\n") + 1 if layers.subtitle else 0
     grid = fig.add_gridspec(2, 2, width_ratios=[1.35, 1.0], height_ratios=[1.0, 0.8],
                             left=0.02, right=0.98, bottom=0.06, top=0.91 - 0.016 * notes,
-                            wspace=0.12, hspace=0.15)
+                            wspace=0.2, hspace=0.15)
     ax: Any = fig.add_subplot(grid[:, 0], projection="3d")
     top: Any = fig.add_subplot(grid[0, 1])
     key: Any = fig.add_subplot(grid[1, 1])

@@ -6,6 +6,7 @@ import argparse
 import math
 import sys
 import threading
+from pathlib import Path
 from typing import Any
 
 import zmq
@@ -88,6 +89,9 @@ def register(subparsers: Any) -> None:
                    "mounts go to /tf_static (ros2) or /tf (foxglove)")
     p.add_argument("--robot-frame", default=ROBOT_FRAME, metavar="FRAME",
                    help=f"ros2: parent frame of the mounts (default {ROBOT_FRAME})")
+    p.add_argument("--overwrite", action="store_true",
+                   help="json, foxglove: replace an existing OUT (never the input bag; a ROS 2 "
+                   "bag always goes to a new folder)")
     p.set_defaults(func=_export)
 
     p = sub.add_parser(
@@ -175,6 +179,16 @@ def _export(args: argparse.Namespace) -> int:
     if output is None or (args.output and args.outdir):
         print("vibrissa bag export: error: name the output once (OUT or -o OUT)", file=sys.stderr)
         return 2
+    out = Path(output)
+    if args.format != "ros2" and out.exists():  # a ROS 2 bag refuses any existing OUT itself
+        if Path(args.bag).exists() and out.samefile(args.bag):
+            print(f"vibrissa bag export: error: {output} would overwrite the input bag",
+                  file=sys.stderr)
+            return 2
+        if not args.overwrite:
+            print(f"vibrissa bag export: error: {output} exists (--overwrite replaces it)",
+                  file=sys.stderr)
+            return 2
     if args.format == "json":
         info, _ = export_json(args.bag, output, topics=args.topics)  # damage: logged
         print(f"wrote {info.message_count} JSON messages to {output}", file=sys.stderr)
@@ -188,8 +202,8 @@ def _export(args: argparse.Namespace) -> int:
         except (SceneError, ValueError, FileNotFoundError) as exc:
             print(f"vibrissa bag export: error: {exc}", file=sys.stderr)
             return 2
-        print(f"wrote the live view of {args.bag} to {output}: " + ", ".join(
-            f"{k} {v}" for k, v in counts.items() if v), file=sys.stderr)
+        print(f"wrote the live view of {args.bag} to {output}: " + (", ".join(
+            f"{k} {v}" for k, v in counts.items() if v) or "no messages"), file=sys.stderr)
         return 0
     try:
         whiskers = load_robot(args.robot) if args.robot else ()

@@ -90,3 +90,29 @@ def test_keys_that_cannot_be_used_stop_a_launch_before_anything_starts(
     assert "accessible by others (mode 0644): chmod 600" in capsys.readouterr().err
     assert vibrissa_main(["topic", "list", "--keys", str(loose)]) == 1
     assert "chmod 600" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fmt", ["json", "foxglove"])
+def test_bag_export_never_writes_over_its_input_nor_silently_over_a_file(
+        tmp_path: Path, fmt: str) -> None:
+    bag = tmp_path / "rec.mcap"
+    with BagWriter(bag) as out:
+        out.write("/w/wrench", encode(WhiskerWrench(
+            stamp=0.0, seq=0, whisker_id="w0", frame_id="w0/clamp", f0=[1, 0, 0], m0=[0, 0, 0])), 1)
+    before = bag.read_bytes()
+    for target in (bag, tmp_path / "." / "rec.mcap"):  # the input by any path
+        result = vibrissa("bag", "export", "--format", fmt, str(bag), str(target), "--overwrite")
+        assert result.returncode == 2 and "Traceback" not in result.stderr
+        assert result.stderr.strip() == (f"vibrissa bag export: error: {target} would overwrite "
+                                         "the input bag")
+    assert bag.read_bytes() == before
+    other = tmp_path / "other.mcap"
+    other.write_bytes(b"keep me")
+    result = vibrissa("bag", "export", "--format", fmt, str(bag), str(other))
+    assert result.returncode == 2
+    assert result.stderr.strip() == (f"vibrissa bag export: error: {other} exists (--overwrite "
+                                     "replaces it)")
+    assert other.read_bytes() == b"keep me"
+    result = vibrissa("bag", "export", "--format", fmt, str(bag), str(other), "--overwrite")
+    assert result.returncode == 0, result.stderr
+    assert other.read_bytes()[:8] == b"\x89MCAP0\r\n"

@@ -14,12 +14,15 @@ SCENE.yaml (world frame W, z up)::
          sensor: {position_m: [0, 0, -0.012]}}   # optional: X_CS of its F/T sensor (identity)
     path: path.csv        # columns t,x,y,z,qx,qy,qz,qw: robot poses X_WR; relative to the scene
 
-Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample) and
+Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample),
+``DIR/wrenches.csv`` (``t,whisker,f0x,f0y,f0z,m0x,m0y,m0z``: every whisker's wrench at every
+sample, sample by sample, the input of ``vibrissa reconstruct``) and
 ``DIR/summary.json`` (per whisker: contact episodes, phase changes, samples per phase), by
 `vibrissa.runtime.scene_results`, which reads them back too (the wrench source's ``simulated``).
 
 Also Step 2 of such a scene offline: ``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o
-POINTS.csv`` (``WRENCH_COLUMNS`` in, ``POINT_COLUMNS`` out, row for row).
+POINTS.csv`` (``WRENCH_COLUMNS`` in, ``POINT_COLUMNS`` out, row for row), e.g. on
+``DIR/wrenches.csv``.
 """
 
 from __future__ import annotations
@@ -37,7 +40,12 @@ from numpy.typing import NDArray
 from vibrissa.cli import tables
 from vibrissa.runtime.csv_text import cell, read_csv, refuse_overwrite, write_csv
 from vibrissa.runtime.scene_file import SceneError, load_scene, number_cell, scene_files
-from vibrissa.runtime.scene_results import SCENE_COLUMNS, SUMMARY_FILE, write_results
+from vibrissa.runtime.scene_results import (
+    SCENE_COLUMNS,
+    WRENCH_COLUMNS,
+    result_files,
+    write_results,
+)
 from vibrissa.scene import reconstruct_along, simulate
 from vibrissa.status import ContactPhase
 
@@ -55,8 +63,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise SceneError(f"{out}: exists and is not a folder")
-    refuse_overwrite([out / f"{w.name}.csv" for w in scene.whiskers] + [out / SUMMARY_FILE],
-                     scene_files(args.scene))
+    refuse_overwrite(result_files(out, scene), scene_files(args.scene))
     total = len(scene.whiskers)
     samples = len(scene.path.t)
     print(f"simulating {total} whisker(s) x {samples} path samples past "
@@ -72,9 +79,6 @@ def run_simulate(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     return 0
 
-
-WRENCH_COLUMNS = ("t", "whisker", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z")
-"""The columns ``vibrissa reconstruct WRENCHES.csv --scene`` reads (more are ignored)."""
 
 POINT_COLUMNS = {
     "t": ("s", "the input row's time"),
@@ -158,7 +162,8 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "simulate",
         help="Step 1 of a robot's whiskers along its path past objects (SCENE.yaml, SI)",
-        description=f"{__doc__.split(chr(10))[0]}\n\nColumns of DIR/<whisker>.csv:\n{columns}",
+        description=(__doc__.split("\n\nAlso Step 2")[0].replace("``", "").replace("::\n", ":\n")
+                     + f"\n\nColumns of DIR/<whisker>.csv:\n{columns}"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("scene", metavar="SCENE.yaml")

@@ -1,6 +1,9 @@
 """The results of ``vibrissa simulate SCENE.yaml -o DIR``, written and read back exactly:
 ``DIR/<whisker>.csv`` (`SCENE_COLUMNS`, one row per path sample) and ``DIR/summary.json``
-(per whisker: contact episodes, phase changes, samples per phase).
+(per whisker: contact episodes, phase changes, samples per phase); and written only,
+``DIR/wrenches.csv``: every whisker's wrench at every path sample (`WRENCH_COLUMNS`, sample by
+sample, the whiskers in the scene's order), the input of ``vibrissa reconstruct WRENCHES.csv
+--scene SCENE.yaml``.
 
 Floats are written by `vibrissa.runtime.csv_text` (``repr``, NaN as an empty cell), so
 `read_results` gives back the arrays of `vibrissa.scene.simulate` bit for bit (NaN where they
@@ -22,7 +25,8 @@ from vibrissa.runtime.csv_text import cells, read_csv, write_csv
 from vibrissa.runtime.scene_file import SceneError, check_name
 from vibrissa.scene import Episode, SamplePhase, Scene, WhiskerResult
 
-__all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "read_results", "write_results"]
+__all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "WRENCHES_FILE", "WRENCH_COLUMNS", "read_results",
+           "result_files", "write_results"]
 
 SCENE_COLUMNS: dict[str, tuple[str, str]] = {
     "t": ("s", "time of the path sample"),
@@ -43,14 +47,31 @@ SCENE_COLUMNS: dict[str, tuple[str, str]] = {
 """The columns of ``DIR/<whisker>.csv``: (unit, meaning)."""
 
 SUMMARY_FILE = "summary.json"
+WRENCHES_FILE = "wrenches.csv"
+
+WRENCH_COLUMNS = ("t", "whisker", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z")
+"""The columns of ``DIR/wrenches.csv``, which ``vibrissa reconstruct WRENCHES.csv --scene``
+reads (more are ignored there): s, the whisker's name, N and N m in its clamp frame."""
 
 _NUMBERS = ("t", "s1", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z", "px", "py", "pz")
 _WRENCH = _NUMBERS[2:8]
 _PHASES = {phase.label: phase for phase in SamplePhase}
 
 
+def result_files(out: Path, scene: Scene) -> list[Path]:
+    """The files `write_results` writes for ``scene`` in ``out``; `SceneError` when a whisker's
+    file would be another's (a whisker named ``wrenches``)."""
+    files = [out / f"{check_name(w.name, 'whisker')}.csv" for w in scene.whiskers]
+    if out / WRENCHES_FILE in files:
+        raise SceneError(f"whisker {Path(WRENCHES_FILE).stem!r}: its results would replace "
+                         f"{WRENCHES_FILE}, the file of every whisker's wrenches; rename it")
+    return [*files, out / WRENCHES_FILE, out / SUMMARY_FILE]
+
+
 def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> list[Path]:
-    """``out/<whisker>.csv`` per result and ``out/summary.json``; returns the files written."""
+    """``out/<whisker>.csv`` per result, ``out/wrenches.csv`` and ``out/summary.json``; returns
+    the files written."""
+    result_files(out, scene)
     out.mkdir(parents=True, exist_ok=True)
     written = []
     names = [obj.name for obj in scene.objects]
@@ -65,6 +86,12 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
         target = out / f"{check_name(result.name, 'whisker')}.csv"  # a file name
         write_csv(target, tuple(SCENE_COLUMNS), rows)
         written.append(target)
+    wrenches = [cells(np.column_stack([r.t, r.f0_n, r.m0_nm])) for r in results]
+    target = out / WRENCHES_FILE
+    write_csv(target, WRENCH_COLUMNS, ([row[0], result.name, *row[1:]]
+                                       for sample in zip(*wrenches, strict=True)
+                                       for result, row in zip(results, sample, strict=True)))
+    written.append(target)
     summary = {
         "units": {"t": "s", "length": "m", "force": "N", "moment": "N m",
                   "wrench": "clamp reaction on the rod about the clamp point, in the clamp frame"},

@@ -72,6 +72,49 @@ def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path) -> None
     assert 0.0 < episodes[0]["t_first_contact"] < episodes[1]["t_first_contact"] < 3.0
 
 
+def test_simulate_writes_the_wrenches_that_reconstruct_takes(tmp_path: Path) -> None:
+    """DIR/wrenches.csv, sample by sample and whisker by whisker, goes straight into
+    ``vibrissa reconstruct --scene``, which gives back the simulated contact points."""
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path, n=120)
+    out = tmp_path / "out"
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(out), "--workers", "1"]) == 0
+    per_whisker = {}
+    for name in ("w0", "w1"):
+        with (out / f"{name}.csv").open() as handle:
+            per_whisker[name] = list(csv.DictReader(handle))
+    with (out / "wrenches.csv").open() as handle:
+        table = list(csv.reader(handle))
+    assert table[0] == ["t", "whisker", "f0x", "f0y", "f0z", "m0x", "m0y", "m0z"]
+    assert len(table) == 1 + 2 * 120
+    for k, row in enumerate(table[1:]):
+        sample = per_whisker[row[1]][k // 2]
+        assert row[1] == ("w0", "w1")[k % 2]
+        assert row[0] == sample["t"] and row[2:] == [sample[c] for c in CONTRACT[3:9]]
+    points = tmp_path / "points.csv"
+    assert main(["reconstruct", str(out / "wrenches.csv"), "--scene", str(tmp_path / "scene.yaml"),
+                 "-o", str(points)]) == 0
+    with points.open() as handle:
+        result = list(csv.DictReader(handle))
+    touching = 0
+    for k, got in enumerate(result):
+        sample = per_whisker[got["whisker"]][k // 2]
+        if sample["phase"] in ("tip", "tangential"):
+            touching += 1
+            error = np.linalg.norm([float(got[c]) - float(sample[c]) for c in ("px", "py", "pz")])
+            assert got["phase"] == sample["phase"] and error < 1e-9 * 0.04, (got, sample)
+    assert touching > 20
+
+
+def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulating(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE.replace("name: w1", "name: wrenches"))
+    write_path(tmp_path)
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 1
+    assert "whisker 'wrenches': its results would replace wrenches.csv" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize(("change", "message"), [
     (("radius_m: 0.015", "radius: 0.015"), "scene.yaml: objects[0]: unknown key 'radius'"),
     (("    ei_nm2: 2.0e-5\n", ""), "scene.yaml: whiskers[0]: missing 'ei_nm2'"),

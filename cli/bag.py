@@ -11,7 +11,12 @@ from typing import Any
 
 import zmq
 
-from vibrissa.cli.graph import add_endpoint_flags, endpoints_from, stop_on_signals
+from vibrissa.cli.graph import (
+    add_endpoint_flags,
+    endpoints_from,
+    nothing_heard,
+    stop_on_signals,
+)
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
 from vibrissa.nodes import recorder
 from vibrissa.runtime import Node
@@ -130,10 +135,13 @@ def _record(args: argparse.Namespace) -> int:
     )
     what = ", ".join(params.topics) if params.topics else "all topics"
     print(f"recording {what} to {params.output}", file=sys.stderr, flush=True)
-    with Node(args.name, endpoints=endpoints_from(args)) as node:  # SIGINT/SIGTERM stop it
+    endpoints = endpoints_from(args)
+    with Node(args.name, endpoints=endpoints) as node:  # SIGINT/SIGTERM stop it
         result = recorder.run(node, params)
     print(f"{result.count} messages written to {params.output} ({result.reason}; "
           f"lost {result.lost}, rejected {result.rejected})", file=sys.stderr)
+    if not result.count:
+        print(f"vibrissa bag record: {nothing_heard(args, endpoints)}", file=sys.stderr)
     return 0
 
 

@@ -24,8 +24,12 @@ def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> 
     ``NAME:=VALUE`` overrides after its flags (``launch demo --dry-run out:=x``)."""
     args, extras = parser.parse_known_args(argv)
     if extras:
-        if not getattr(args, "overrides_anywhere", False) or not all(":=" in e for e in extras):
-            parser.error(f"unrecognized arguments: {' '.join(extras)}")
+        anywhere = getattr(args, "overrides_anywhere", False)
+        if not anywhere or not all(":=" in e for e in extras):
+            flag = next((e for e in extras if e.startswith("--") and ":=" not in e), None)
+            hint = (f" (a launch argument is NAME:=VALUE: {flag[2:].split('=')[0]}:=...)"
+                    if anywhere and flag else "")
+            parser.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
         args.overrides = [*args.overrides, *extras]
     return args
 

@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple, TextIO
 
@@ -162,27 +163,36 @@ class EchoResult(NamedTuple):
     timed_out: bool
 
 
+SILENCE_HINT_S = 3.0
+"""After this long with nothing received, ``echo`` and ``hz`` say once why that may be, s."""
+
+
 def echo(
     endpoints: Endpoints, topic: str, *, count: int = 0, as_json: bool = False,
     timeout_s: float = 0.0, stop: threading.Event | None = None, out: TextIO | None = None,
-    context: Any = None,
+    context: Any = None, on_silence: Callable[[], None] = lambda: None,
 ) -> EchoResult:
     """Print messages on ``topic``.
 
     Stops after ``count`` messages (0: no limit), after ``timeout_s`` s without a message
-    (0: never) or when ``stop`` is set.
+    (0: never) or when ``stop`` is set; calls ``on_silence`` once when nothing has come
+    `SILENCE_HINT_S` after the start.
     """
     validate_name(topic)
     out = out if out is not None else sys.stdout
     stop = stop if stop is not None else threading.Event()
     printed = 0
     with Subscriber({topic: None}, endpoints=endpoints, context=context) as sub:
-        last = time.monotonic()
+        last = start = time.monotonic()
+        hinted = False
         while not stop.is_set() and (count <= 0 or printed < count):
             rx = sub.receive(0.1)
             if rx is None:
                 if timeout_s > 0 and time.monotonic() - last > timeout_s:
                     return EchoResult(printed, timed_out=True)
+                if not (hinted or printed) and time.monotonic() - start > SILENCE_HINT_S:
+                    hinted = True
+                    on_silence()
                 continue
             last = time.monotonic()
             print(format_message(rx.topic, rx.msg, as_json), file=out, flush=True)
@@ -190,16 +200,30 @@ def echo(
     return EchoResult(printed, timed_out=False)
 
 
+def _silence_hint(tool: str, args: argparse.Namespace, endpoints: Endpoints
+                  ) -> Callable[[], None]:
+    """Say on stderr, once, what ``nothing_heard`` finds (a graph with keys, another domain)."""
+    said: list[bool] = []
+
+    def hint() -> None:
+        if not said:
+            said.append(True)
+            print(f"vibrissa topic {tool}: nothing on {args.topic} yet: "
+                  f"{nothing_heard(args, endpoints)}", file=sys.stderr, flush=True)
+    return hint
+
+
 def _echo(args: argparse.Namespace) -> int:
     endpoints = endpoints_from(args)
+    hint = _silence_hint("echo", args, endpoints)
     with stop_on_signals() as stop:
         result = echo(endpoints, args.topic, count=args.count, as_json=args.json,
-                      timeout_s=args.timeout, stop=stop)
+                      timeout_s=args.timeout, stop=stop, on_silence=hint)
     if result.timed_out:
         print(f"vibrissa topic echo: no message on {args.topic} for {args.timeout:g} s "
               f"({result.printed} printed)", file=sys.stderr)
         if result.printed == 0:
-            print(f"vibrissa topic echo: {nothing_heard(args, endpoints)}", file=sys.stderr)
+            hint()
         return 1
     return 1 if args.count > 0 and result.printed < args.count else 0
 
@@ -257,11 +281,13 @@ class RateMeter:
 def hz(
     endpoints: Endpoints, topic: str, *, window: int = 100, duration_s: float = 0.0,
     interval_s: float = 1.0, stop: threading.Event | None = None, out: TextIO | None = None,
-    context: Any = None,
+    context: Any = None, on_silence: Callable[[], None] = lambda: None,
 ) -> RateStats | None:
     """Report the rate of ``topic`` every ``interval_s`` s; returns the last statistics.
 
-    ``EndOfStream`` is not counted as a sample; lost messages come from ``seq`` gaps.
+    ``EndOfStream`` is not counted as a sample; lost messages come from ``seq`` gaps. Calls
+    ``on_silence`` once at the first report `SILENCE_HINT_S` after the start with nothing
+    received.
     """
     validate_name(topic)
     out = out if out is not None else sys.stdout
@@ -270,20 +296,31 @@ def hz(
     last: RateStats | None = None
     t_end = time.monotonic() + duration_s if duration_s > 0 else math.inf
     with Subscriber({topic: None}, endpoints=endpoints, context=context) as sub:
-        next_report = time.monotonic() + interval_s
+        start = time.monotonic()
+        next_report = start + interval_s
+        heard = hinted = False
         while not stop.is_set() and (now := time.monotonic()) < t_end:
             rx = sub.receive(max(0.0, min(next_report, t_end) - now))
+            heard = heard or rx is not None
             if rx is not None and not isinstance(rx.msg, EndOfStream):
                 meter.add(rx.receive_time)
             if time.monotonic() >= next_report:
                 next_report += interval_s
                 last = meter.stats(sub.counters[topic].lost) or last
                 print(last.format() if last else "no new messages", file=out, flush=True)
-        return meter.stats(sub.counters[topic].lost) or last
+                if not (heard or hinted) and time.monotonic() - start >= SILENCE_HINT_S:
+                    hinted = True
+                    on_silence()
+        stats = meter.stats(sub.counters[topic].lost) or last
+        if not (heard or hinted):
+            on_silence()
+        return stats
 
 
 def _hz(args: argparse.Namespace) -> int:
+    endpoints = endpoints_from(args)
     with stop_on_signals() as stop:
-        stats = hz(endpoints_from(args), args.topic, window=args.window,
-                   duration_s=args.duration, interval_s=args.interval, stop=stop)
+        stats = hz(endpoints, args.topic, window=args.window, duration_s=args.duration,
+                   interval_s=args.interval, stop=stop,
+                   on_silence=_silence_hint("hz", args, endpoints))
     return 0 if stats is not None else 1

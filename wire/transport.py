@@ -390,7 +390,8 @@ class Proxy:
 def _check_topic(topic: str) -> bytes:
     validate_name(topic)
     if not topic.startswith("/"):
-        raise ValueError(f"topic {topic!r} must be resolved (absolute) before use on the wire")
+        raise ValueError(f"topic {topic!r} is relative: on the wire a topic is absolute "
+                         f"(/{topic}, or in its node's namespace: /NAMESPACE/{topic})")
     return topic.encode() + b"\0"
 
 

@@ -116,3 +116,18 @@ def test_bag_export_never_writes_over_its_input_nor_silently_over_a_file(
     result = vibrissa("bag", "export", "--format", fmt, str(bag), str(other), "--overwrite")
     assert result.returncode == 0, result.stderr
     assert other.read_bytes()[:8] == b"\x89MCAP0\r\n"
+
+
+@pytest.mark.parametrize("words", [("--mu", "0.3"), ("--mu=0.3",)])
+def test_a_launch_argument_given_as_a_flag_is_answered_with_its_form(
+        words: tuple[str, ...]) -> None:
+    result = vibrissa("launch", "demo", *words)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.splitlines()[-1].endswith(
+        "unrecognized arguments: " + " ".join(words) + " (a launch argument is NAME:=VALUE: mu:=...)")
+
+
+def test_a_relative_topic_is_answered_with_the_absolute_one() -> None:
+    result = vibrissa("topic", "echo", "nope", "--timeout", "0.1")
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    assert "topic 'nope' is relative: on the wire a topic is absolute (/nope" in result.stderr

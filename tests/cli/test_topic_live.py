@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 import zmq
 
+from vibrissa.cli import topic
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.cli.topic import RateMeter, echo, format_message, hz, survey
 from vibrissa.msgs import ContactPhase, ContactPoint, NodeStatus, WhiskerWrench
@@ -90,6 +91,28 @@ def test_echo_times_out_on_a_silent_topic(endpoints: Endpoints) -> None:
     code = vibrissa_main(["topic", "echo", "/nobody", "-n", "1", "--timeout", "0.3",
                           "--pub", endpoints.pub, "--sub", endpoints.sub])
     assert code == 1
+
+
+def test_a_silent_topic_is_explained_once_by_echo_and_hz(
+        endpoints: Endpoints, context: zmq.Context[Any], monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Nothing on a topic (a graph with keys lets a tool without them read nothing): echo
+    without a timeout and hz say why, once, instead of waiting in silence."""
+    monkeypatch.setattr(topic, "SILENCE_HINT_S", 0.3)
+    calls: list[str] = []
+    stop = threading.Event()
+    threading.Timer(1.2, stop.set).start()
+    result = echo(endpoints, "/nobody", count=1, stop=stop, context=context,
+                  on_silence=lambda: calls.append("echo"))
+    assert result.printed == 0 and calls == ["echo"]
+    assert hz(endpoints, "/nobody", duration_s=1.0, interval_s=0.1, out=io.StringIO(),
+              context=context, on_silence=lambda: calls.append("hz")) is None
+    assert calls == ["echo", "hz"]
+    code = vibrissa_main(["topic", "hz", "/nobody", "--duration", "0.5", "--interval", "0.1",
+                          "--pub", endpoints.pub, "--sub", endpoints.sub])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err.count("vibrissa topic hz: nothing on /nobody yet: ") == 1, err
 
 
 def test_hz_measures_rate_and_loss(endpoints: Endpoints, talker: Publisher,

@@ -368,10 +368,12 @@ def draw_map(layers: MapLayers) -> Figure:
         handles.append(Patch(facecolor="0.85", alpha=0.5,
                              label=f"unknown: std above {' / '.join(limits)} mm, "
                                    "not on the map"))
-    if known:
+    if known:  # the scale ends at the 99th percentile: the triangles above show its top colour
+        above = float(every.max()) > float(norm.vmax)
         bar = fig.colorbar(ScalarMappable(norm, cmap), ax=[ax], shrink=0.5, pad=0.02,
-                           location="left")
-        bar.set_label(f"{layers.colour_by} [mm]")
+                           location="left", extend="max" if above else "neither")
+        bar.set_label(f"{layers.colour_by} [mm]" + (
+            f"\n(triangles up to {every.max():.2g}: the arrow)" if above else ""))
 
     ax.set_xlim(lo[0] * MM, hi[0] * MM)
     ax.set_ylim(lo[1] * MM, hi[1] * MM)

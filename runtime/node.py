@@ -178,6 +178,7 @@ class Node:
         self._subscribers: list[Subscriber] = []
         self._gates: list[_Gate] = []
         self._peers: dict[str, set[str]] = {}  # node -> seen_topics from its last status
+        self._peer_inputs: dict[str, set[str]] = {}  # node -> its subscribed topics, running
         self.counters: dict[str, int] = {}
         self.failure: str | None = None  # why the runtime stopped the node, if it did
         try:
@@ -258,11 +259,19 @@ class Node:
         if gate is None:
             gate = self._gate(publisher, list(node_names))
         deadline = time.monotonic() + timeout_s
+        told: set[str] = set()
         while not gate.opened.wait(min(0.05, max(0.0, deadline - time.monotonic()))):
             if self._stop.is_set() or time.monotonic() >= deadline:
                 log.warning("%s: %s not ready on %s after %.1f s (still buffering)",
                             self.fqn, sorted(gate.nodes), resolved, timeout_s)
                 return False
+            for node in gate.nodes - told:
+                inputs = self._peer_inputs.get(node)
+                if inputs is not None and resolved not in inputs and "*" not in inputs:
+                    told.add(node)
+                    log.warning("%s: %s runs but does not subscribe to %s (it subscribes to "
+                                "%s): a remap or a namespace may be missing", self.fqn, node,
+                                resolved, ", ".join(sorted(inputs)[:8]) or "nothing")
         return True
 
     def _gate(self, publisher: Publisher, node_names: list[str]) -> _Gate:
@@ -358,6 +367,8 @@ class Node:
                 received = self._status_sub.receive(0.02)
                 if received is not None and isinstance(received.msg, NodeStatus):
                     self._peers[received.msg.node] = set(received.msg.seen_topics)
+                    if received.msg.state == "running":
+                        self._peer_inputs[received.msg.node] = set(received.msg.subscribes)
             self._ping_streams()
             self._status_pub.publish(self.status())  # the final state
         except Exception as exc:  # the thread must not die silently: stop the node instead

@@ -94,6 +94,20 @@ def test_wait_for_subscribers_times_out_and_keeps_buffering(endpoints: Endpoints
         lonely.close(drain_s=0.1)
 
 
+def test_a_gate_says_when_its_node_runs_but_subscribes_elsewhere(
+        endpoints: Endpoints, caplog: pytest.LogCaptureFixture) -> None:
+    """A replay whose topic the downstream node does not take (a missing remap) is told so
+    while it waits, not only when the wait times out."""
+    with node("source", endpoints) as source, node("sink", endpoints, heartbeat_s=0.1) as sink:
+        source.create_publisher("/robot/data", RobotPose, wait_for=["sink"])
+        sink.create_subscriber({"/w0/data": RobotPose})
+        sink.set_state("running")
+        assert not source.wait_for_subscribers("/robot/data", ["sink"], 1.5)
+    told = [r.getMessage() for r in caplog.records if "does not subscribe" in r.getMessage()]
+    assert told == ["/w0/source: /w0/sink runs but does not subscribe to /robot/data (it "
+                    "subscribes to /w0/data): a remap or a namespace may be missing"]
+
+
 def test_close_does_not_hang_on_a_socket_the_application_forgot(endpoints: Endpoints) -> None:
     n = node("careless", endpoints)
     Subscriber(None, n.endpoints, n.context)  # never closed by the application

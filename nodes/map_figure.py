@@ -340,7 +340,8 @@ def draw_map(layers: MapLayers) -> Figure:
     values = [np.asarray(mesh.values)[mesh.triangles].mean(axis=1) * MM
               for mesh in layers.meshes]  # per triangle, mm
     every = np.concatenate(values or [np.zeros(0)])
-    norm = Normalize(0.0, float(np.percentile(every, 99)) if len(every) else 1.0, clip=True)
+    top_mm = float(np.percentile(every, 99)) if len(every) else 1.0  # the colour scale's end
+    norm = Normalize(0.0, top_mm, clip=True)
     cmap = matplotlib.colormaps["viridis"]
     unknown = 0
     for mesh, face in zip(layers.meshes, values, strict=True):
@@ -369,7 +370,7 @@ def draw_map(layers: MapLayers) -> Figure:
                              label=f"unknown: std above {' / '.join(limits)} mm, "
                                    "not on the map"))
     if known:  # the scale ends at the 99th percentile: the triangles above show its top colour
-        above = float(every.max()) > float(norm.vmax)
+        above = float(every.max()) > top_mm
         bar = fig.colorbar(ScalarMappable(norm, cmap), ax=[ax], shrink=0.5, pad=0.02,
                            location="left", extend="max" if above else "neither")
         bar.set_label(f"{layers.colour_by} [mm]" + (

@@ -368,8 +368,9 @@ class _WhiskerSteps:
         sweep, k, h, i = self.run.sweeps()[0], self.k, self.path.h, self._object
         self.run = None
         rows = k + np.rint(-sweep.x0 / h).astype(np.int64)
+        after_touch = int(np.floor(-sweep.x_touch / h)) + k + 1  # the first sample past the touch
         if len(rows):
-            span = slice(rows[0], rows[-1] + 1)
+            span = slice(after_touch, rows[-1] + 1)
             self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
             self.f0[span], self.m0[span] = np.nan, np.nan
             self.phase[rows] = sweep.phase
@@ -384,8 +385,7 @@ class _WhiskerSteps:
         if sweep.end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return
-        self.k = self._skip_unresolved(int(rows[-1]) + 1 if len(rows)
-                                       else int(np.floor(-sweep.x_touch / h)) + k + 1)
+        self.k = self._skip_unresolved(int(rows[-1]) + 1 if len(rows) else after_touch)
 
     def result(self) -> WhiskerResult:
         """The results at every sample of the path, a pause repeating the sample before it."""

@@ -194,3 +194,42 @@ def test_a_robot_that_never_moves(x_m: float, expected: SamplePhase) -> None:
                       np.tile([0.0, 0.0, 0.0, 1.0], (5, 1)))
     [r] = simulate(Scene(0.2, (CUP,), (PLAIN,), path), workers=1)
     assert np.all(r.phase == expected) and r.episodes == []  # the rod stands in the cup, or free
+
+
+def _straight_rod_depth(scene: Scene, whisker: Whisker, k: int) -> float:
+    """How deep (m, > 0: inside) the straight rod of sample ``k`` reaches into the objects."""
+    p_WC, R_WC = clamp_poses(scene, whisker)
+    rod = p_WC[k] + np.outer(np.linspace(0, whisker.length_m, 801), R_WC[k].apply([0, 0, 1]))
+    return max(-float(np.min(obj.surface(1.0).signed_distance(rod))) for obj in scene.objects)
+
+
+@pytest.mark.parametrize("name", ["plain", "tilted", "aside"])
+def test_a_free_sample_has_its_straight_rod_outside_every_object(results, name) -> None:
+    r, scene = results[name], results["scene"]
+    whisker = next(w for w in scene.whiskers if w.name == name)
+    for k in np.flatnonzero(r.phase == SamplePhase.NONE):
+        assert _straight_rod_depth(scene, whisker, int(k)) <= 1e-12, k
+
+
+@pytest.mark.parametrize("slant", [0.05, 0.15, 0.3])
+def test_a_steep_poke_with_strong_friction_is_unresolved_not_free_nor_elsewhere(slant) -> None:
+    """The rod's tip hits a ball nearly along the rod and within the friction cone (mu 0.8):
+    the tip sticks and the inextensible rod can only buckle, a branch Step 1 does not follow.
+    The samples from the touch on are unresolved while the straight rod is inside the ball.
+    Longer steps after the touch once skipped 8 samples (0.08 L) and found a tip state 4 mm
+    from the touch, on no branch from it, with the samples skipped called free."""
+    n, ds = 60, 5e-4
+    heading = np.array([np.sin(slant), 0.0, -np.cos(slant)])  # the clamp moves down, a bit aside
+    p_WR = np.array([-0.003, 0.0, 0.072]) + np.outer(np.arange(n) * ds, heading)
+    path = robot_path(np.arange(n) * 0.01, p_WR, np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)))  # rod down
+    ball = SceneObject("ball", "sphere", {"radius_m": 0.02})
+    scene = Scene(0.8, (ball,), (PLAIN,), path)
+    [r] = simulate(scene, workers=1)
+    [episode] = r.episodes
+    touch = int(np.searchsorted(r.t, episode.t_first_contact))
+    assert episode.end == "no-equilibrium" and 3 <= touch < n // 2
+    assert np.all(r.phase[:touch] == SamplePhase.NONE)
+    depth = np.array([_straight_rod_depth(scene, PLAIN, k) for k in range(n)])
+    assert np.all(depth[:touch] <= 0) and np.all(depth[touch:] > 0)  # inside from the touch on
+    assert np.all(r.phase[touch:] == SamplePhase.UNRESOLVED)
+    assert np.all(np.isnan(r.f0_n[touch:])) and np.all(np.isnan(r.p_W_m[touch:]))

@@ -91,7 +91,7 @@ _IDENTITY.flags.writeable = False
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 _EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step tries longer ones
-_REFINEMENTS = 6  # a failed step is retried with up to 2**6 sub-steps before it counts as snap-off
+_REFINEMENTS = 10  # a failed step is retried with up to 2**10 sub-steps before it counts as snap-off
 
 
 class ClampPath(Protocol):
@@ -758,10 +758,12 @@ def _refine(track: _Track, target: float) -> None:
     for level in range(1, _REFINEMENTS + 1):
         sub = span / 2**level
         while track.x0 - sub >= target - 1e-12 * step:
-            # Deeper sub-steps start close to any branch that goes on: plain Newton suffices, and
-            # a failure there is the fold itself.
+            # Every sub-step tries all stages: after a stuck sub-step the tip may slip by too
+            # little for the plain unknowns (a tip on a ball at mu 0.8, refined with plain
+            # Newton below half steps and to 1/64, snapped off 0.18 of a step in, where sliding
+            # states went on to a smooth detachment).
             if not _attempt([track], np.array([track.x0 - sub]), np.array([sub]),
-                            fallbacks=level == 1)[0]:
+                            fallbacks=True)[0]:
                 break
         if abs(track.x0 - target) <= 1e-12 * step:
             track.x0 = target

@@ -42,7 +42,7 @@ from vibrissa.paths import SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
-from vibrissa.sweep import SweepRun, advance_together
+from vibrissa.sweep import SweepRun, advance_together, next_grid_point
 from vibrissa.units import RodScale
 
 if TYPE_CHECKING:
@@ -368,7 +368,8 @@ class _WhiskerSteps:
         sweep, k, h, i = self.run.sweeps()[0], self.k, self.path.h, self._object
         self.run = None
         rows = k + np.rint(-sweep.x0 / h).astype(np.int64)
-        after_touch = int(np.floor(-sweep.x_touch / h)) + k + 1  # the first sample past the touch
+        # the first sample past the touch (on the touch within 1e-9 of a step: the next one)
+        after_touch = k + round(-next_grid_point(sweep.x_touch, 0.0, h) / h)
         if len(rows):
             span = slice(after_touch, rows[-1] + 1)
             self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise

@@ -91,6 +91,9 @@ _IDENTITY.flags.writeable = False
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 _EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step tries longer ones
+CLAMP_TOUCH_L = 1e-6
+"""A first touch nearer the clamp than this (arc length, units of L) is the object meeting the
+clamp itself: no equilibrium of the rod holds it off (the sweep ends ``no-equilibrium``)."""
 _REFINEMENTS = 10  # a failed step is retried with up to 2**10 sub-steps before it counts as snap-off
 
 
@@ -165,9 +168,10 @@ class Sweep:
     """Equilibria of one sweep, one entry per step, in the paper's units (eq. 1).
 
     ``end`` says how it ended (:class:`vibrissa.status.SweepEnd`): a detachment or a snap-off
-    (see the module docstring), no contact (the trail misses the object), no equilibrium (the
-    solver found none for the first step after the first contact: a solver failure, reported
-    rather than hidden) or the step cap.
+    (see the module docstring), no contact (the trail misses the object), no equilibrium (none
+    found for the first step after the first contact: the object meets the clamp itself,
+    ``s_touch`` 0; a tip poked into the object within the friction cone, which sticks while the
+    rod could only buckle; or a solver failure, reported rather than hidden) or the step cap.
 
     Frames: ``f0``, ``m0`` are the clamp's reactions on the rod (moment about P0) in the clamp
     frame C; ``contact`` and ``force`` (the contact force on the rod) and ``normal`` (the
@@ -201,6 +205,7 @@ class Sweep:
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
     x_touch: float  # clamp x0 at the first contact (NaN: none), units of L
+    s_touch: float  # where the straight rod touched, arc length from the clamp (NaN: none), L
     _q: FloatArray = field(repr=False)
 
     @property
@@ -413,8 +418,9 @@ def _small_slip(
             jac[:, :, j] = (_held_at_slip(surface, probe, q, batch, basis)[0] - mismatch) / steps[j]
         delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch, strict=False)])
         z += np.clip(delta, -1.0, 1.0)
-    final = _evaluate(q, replace(batch, mode=np.full(len(z), _MODE_TIP)))
-    return q, final, final.converged
+    # The slip iteration ends near the sliding state (its mismatch limited by the held states'
+    # tolerance); from there the plain unknowns converge.
+    return _newton(q, replace(batch, mode=np.full(len(z), _MODE_TIP)))
 
 
 def _small_slip_by_object(
@@ -500,6 +506,7 @@ class _Track:
     pending: tuple[FloatArray, FloatArray, FloatArray, float] = ()  # type: ignore[assignment]  # p1, normal, force, s1 of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
+    s_touch: float = float("nan")  # arc length of the straight rod's touching point, units of L
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
 
 
@@ -521,12 +528,17 @@ class SweepProgress:
         Clamp x0 at the first contact, units of L (NaN: no contact).
     end : SweepEnd or None
         How the sweep ended; None while it goes on.
+    s_touch : float
+        Where the straight rod touched, arc length from the clamp, units of L (NaN: no
+        contact; 0: the object meets the clamp itself, which no equilibrium of the rod holds
+        off).
     """
 
     n_steps: int
     x0: float
     x_touch: float
     end: SweepEnd | None
+    s_touch: float = math.nan
 
 
 class SweepRun:
@@ -580,7 +592,8 @@ class SweepRun:
         """Where sweep ``index`` stands."""
         track = self._tracks[index]
         x0 = track.rows[-1][0] if track.rows else track.x0
-        return SweepProgress(len(track.rows), float(x0), float(track.x_touch), track.end)
+        return SweepProgress(len(track.rows), float(x0), float(track.x_touch), track.end,
+                             float(track.s_touch))
 
     def reactions(self, index: int, start: int = 0) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Clamp positions x0 (n,) and reactions f0, m0 (n, 3) in the clamp frame of sweep
@@ -674,17 +687,17 @@ def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
     # Small-deflection guess for the first step: the touching point of the straight rod would
     # go into the object by ``depth`` along n; a load P at s deflects it by P s^3 / 3.
     p_next, R_next = (a[0] for a in trail.clamp_pose(
-        np.array([max(_next_grid_point(x_start, x_grid, step), trail.x_end)])))
+        np.array([max(next_grid_point(x_start, x_grid, step), trail.x_end)])))
     depth = abs((p_next + s_touch * R_next[:, 2] - p_touch) @ n_W)
     magnitude = 3.0 * depth / (max(n_u * n_u, 0.05) * max(s_touch, 0.05) ** 3)
     fu, fv = magnitude * n_u, magnitude * normal[2]
     q = np.array([psi, fu, fv, -s_touch * fu])
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
     return _Track(surface, trail, step, max_steps, locked, x_start, q, mode, p_touch,
-                  p_touch.copy(), x_touch=x_start, x_grid=x_grid)
+                  p_touch.copy(), x_touch=x_start, s_touch=s_touch, x_grid=x_grid)
 
 
-def _next_grid_point(x0: float, x_grid: float, step: float) -> float:
+def next_grid_point(x0: float, x_grid: float, step: float) -> float:
     """The first x_grid - k step (k integer) below x0 by more than 1e-9 step."""
     k = math.floor((x_grid - x0) / step + 1e-9) + 1
     return x_grid - k * step
@@ -694,12 +707,12 @@ def _advance(tracks: list[_Track]) -> None:
     """Move every track one step of its own, in one batched attempt; a track that fails is
     retried on its own, with longer steps or refined sub-steps."""
     for track in tracks:
-        if _next_grid_point(track.x0, track.x_grid, track.step) < track.trail.x_end - 1e-9 * track.step:
+        if next_grid_point(track.x0, track.x_grid, track.step) < track.trail.x_end - 1e-9 * track.step:
             track.end, track.x0_end = SweepEnd.PATH_END, track.x0
     tracks = [t for t in tracks if t.end is None]
     if not tracks:
         return
-    targets = np.array([_next_grid_point(t.x0, t.x_grid, t.step) for t in tracks])
+    targets = np.array([next_grid_point(t.x0, t.x_grid, t.step) for t in tracks])
     reached = _attempt(tracks, targets, np.array([t.step for t in tracks]))
     for track, target, ok in zip(tracks, targets, reached, strict=False):
         if ok:
@@ -725,7 +738,7 @@ def _longer_step(track: _Track) -> bool:
     """
     step = track.step
     before = track.history[-1] if track.history else None
-    next_point = _next_grid_point(track.x0, track.x_grid, step)
+    next_point = next_grid_point(track.x0, track.x_grid, step)
     for multiple in (2, 4, 8, 16):
         target = next_point - (multiple - 1) * step
         if target < max(track.trail.x_end, track.x_touch - _EARLY_TRAVEL) - 1e-9 * step:
@@ -999,5 +1012,6 @@ def _finish(track: _Track) -> Sweep:
         x0_end=float(track.x0_end),
         phase_changes=track.phase_changes,
         x_touch=float(track.x_touch),
+        s_touch=float(track.s_touch),
         _q=q,
     )

@@ -11,6 +11,10 @@ import signal
 import sys
 from collections.abc import Sequence
 
+EXIT_FAILED, EXIT_USAGE = 1, 2
+"""Exit statuses of every command: 1 the work failed; 2 the command line or an input was
+refused (a missing file, a file of the wrong kind, a bad value), as argparse's own errors."""
+
 # Each module registers its subcommands with `register(subparsers)`; every subparser
 # sets `func(args) -> int`. A command imports only its own module (start-up time).
 _COMMAND_MODULES = ("mechanics", "scenes", "launch", "bag", "topic", "keys", "sensor", "sim")
@@ -51,7 +55,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit status.
 
-    An error that escapes a command is one line on stderr and status 1 (its traceback with
+    An error that escapes a command is one line on stderr and status 2 for a refused input
+    (OSError, ValueError: a missing file, a file of the wrong kind), else 1 (its traceback with
     ``VIBRISSA_DEBUG=1``); output cut off by its reader (``| head``) ends the command quietly
     with status 141 (128 + SIGPIPE), as a shell tool that the pipe kills.
 
@@ -63,7 +68,10 @@ def main(argv: list[str] | None = None) -> int:
         atexit.register(gc.freeze)
     argv = sys.argv[1:] if argv is None else argv
     command = argv[0] if argv and not argv[0].startswith("-") else None
-    args = parse_command_line(build_parser(command), argv)
+    try:  # the command's module loads here (0.1-0.3 s): Ctrl-C meanwhile ends quietly too
+        args = parse_command_line(build_parser(command), argv)
+    except KeyboardInterrupt:
+        return 128 + signal.SIGINT
     command = " ".join(filter(None, (args.command, getattr(args, f"{args.command}_command", ""))))
     try:
         return int(args.func(args))
@@ -81,10 +89,10 @@ def main(argv: list[str] | None = None) -> int:
             raise
         if isinstance(exc, (OSError, ValueError)):  # a missing file, a file of the wrong kind
             print(f"vibrissa {command}: error: {exc}", file=sys.stderr)
-        else:
-            print(f"vibrissa {command}: error: {type(exc).__name__}: {exc} (for the "
-                  f"traceback: {DEBUG_ENV}=1)", file=sys.stderr)
-        return 1
+            return EXIT_USAGE
+        print(f"vibrissa {command}: error: {type(exc).__name__}: {exc} (for the "
+              f"traceback: {DEBUG_ENV}=1)", file=sys.stderr)
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

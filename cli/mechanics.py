@@ -16,14 +16,14 @@ from typing import Any
 
 from vibrissa import noise_study
 from vibrissa.cli import tables
+from vibrissa.cli.main import EXIT_USAGE
 from vibrissa.reconstruct import reconstruct
 from vibrissa.status import SweepEnd
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
 from vibrissa.surfaces import Surface, parse_surface
-from vibrissa.sweep import simulate_sweep
+from vibrissa.sweep import CLAMP_TOUCH_L, simulate_sweep
 from vibrissa.units import RodScale
 
-EXIT_USAGE = 2
 EXIT_NO_CONTACT = 3
 """``vibrissa sweep``: the trail never touches the object."""
 
@@ -153,11 +153,17 @@ def _sweep(args: argparse.Namespace) -> int:
               f"{args.surface.spec} all along it; the CSV holds its header only "
               f"(exit {EXIT_NO_CONTACT})", file=sys.stderr)
         return EXIT_NO_CONTACT
-    if sweep.end is SweepEnd.NO_EQUILIBRIUM:
+    if sweep.end is not SweepEnd.NO_EQUILIBRIUM:
+        return 0
+    if sweep.s_touch < CLAMP_TOUCH_L:
+        print(f"sweep: error: {args.surface.spec} meets the clamp itself (the straight rod "
+              "touches it at s = 0): no equilibrium of the rod holds it off; move the object "
+              "or the trail", file=sys.stderr)
+    else:
         print("sweep: error: no equilibrium found for the first step after the first contact "
-              "(a solver failure); a larger --step, e.g. 0.001, may get past it", file=sys.stderr)
-        return 1
-    return 0
+              f"(a solver failure); a larger --step, e.g. {2 * args.step:g}, may get past it",
+              file=sys.stderr)
+    return 1
 
 
 def _reconstruct(args: argparse.Namespace) -> int:

@@ -928,9 +928,10 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
     for publisher in (cloud_pub, mesh_pub, proposal_pub):
         publisher.publish_end_of_stream(node.fqn)
     if report["n_points"] == 0:
-        log.error("%s: the map is empty: no contact point arrived (sources ended: %s); a "
-                  "trail whose straight rod clears the object never touches it, see the "
-                  "wrench source's log", node.fqn, ", ".join(sorted(acc.ended)) or "none")
+        log.error("%s: the map is empty: no contact point arrived (sources ended: %s); the "
+                  "wrench source's log says how its sweeps ended (no-contact: the straight rod "
+                  "clears the object all along; no-equilibrium: none after the first touch)",
+                  node.fqn, ", ".join(sorted(acc.ended)) or "none")
     print(f"map of {report['n_points']} contact points written to {params.out_dir}:",
           flush=True)
     for frame in report["frames"]:

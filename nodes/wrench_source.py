@@ -59,7 +59,7 @@ from vibrissa.runtime.scene_results import read_results
 from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate
 from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import SweepRun, Trail, first_contact
+from vibrissa.sweep import CLAMP_TOUCH_L, SweepRun, Trail, first_contact
 from vibrissa.ticks import Tick, array_ticks, sequential_ticks
 from vibrissa.units import RodScale
 from vibrissa.wire.bag import BagReader, check_bag_file
@@ -312,9 +312,11 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
 
 
 def _progress(run: SweepRun, sent: int, elapsed_s: float) -> str:
-    """``sweeps ended 2/5 (detachment, snap-off), 4310 published in 4.1 s``."""
-    ends = [p.end for p in (run.progress(i) for i in range(len(run.trails)))]
-    ended = [str(end) for end in ends if end is not None]
+    """``sweeps ended 2/5 (detachment, snap-off), 4310 published in 4.1 s``; ``no-equilibrium
+    at the clamp``: the object met the clamp itself (``SweepProgress.s_touch``)."""
+    ends = [(p.end, p.s_touch) for p in (run.progress(i) for i in range(len(run.trails)))]
+    ended = [f"{end} at the clamp" if end is SweepEnd.NO_EQUILIBRIUM and s_touch < CLAMP_TOUCH_L
+             else str(end) for end, s_touch in ends if end is not None]
     return (f"sweeps ended {len(ended)}/{len(ends)}" + (f" ({', '.join(ended)})" if ended else "")
             + f", {sent} published in {elapsed_s:.1f} s")
 

@@ -227,6 +227,19 @@ def test_a_sweep_that_never_touches_exits_3_and_says_why(
     assert json.loads(out.with_suffix(".json").read_text())["end"] == "no-contact"
 
 
+def test_an_object_that_meets_the_clamp_itself_is_named_not_called_a_solver_failure(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A sphere of radius 3 L about the origin: the trail's clamp (z = 0) runs into its equator.
+    out = tmp_path / "clamp.csv"
+    assert main(["sweep", "--surface", "sphere:r=3", "--y0", "0", "--mu", "0",
+                 "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "meets the clamp itself (the straight rod touches it at s = 0)" in err
+    assert "solver failure" not in err
+    assert json.loads(out.with_suffix(".json").read_text())["end"] == "no-equilibrium"
+
+
 def test_readme_and_help_give_every_column_with_its_unit() -> None:
     readme = (Path(__file__).parents[2] / "README.md").read_text()
     sweep_help = mechanics_help("sweep")

@@ -110,7 +110,7 @@ def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulat
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "scene.yaml").write_text(SCENE.replace("name: w1", "name: wrenches"))
     write_path(tmp_path)
-    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 1
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 2
     assert "whisker 'wrenches': its results would replace wrenches.csv" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
@@ -151,7 +151,7 @@ def test_a_bad_scene_is_one_line_naming_file_and_key(tmp_path: Path, capsys: pyt
                                                       change: tuple[str, str], message: str) -> None:
     (tmp_path / "scene.yaml").write_text(SCENE.replace(*change))
     write_path(tmp_path)
-    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 1
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1, err
 
@@ -169,7 +169,7 @@ def test_a_bad_path_row_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[s
     lines = (tmp_path / "path.csv").read_text().splitlines()
     lines[row] = line
     (tmp_path / "path.csv").write_text("\n".join(lines) + "\n")
-    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 1
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 2
     assert message in capsys.readouterr().err
 
 
@@ -260,7 +260,7 @@ def test_reconstruct_with_a_scene_names_what_is_wrong(
     write_path(tmp_path)
     (tmp_path / "wrenches.csv").write_text(text)
     assert main(["reconstruct", str(tmp_path / "wrenches.csv"), "--scene",
-                 str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "p.csv")]) == 1
+                 str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "p.csv")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
 
@@ -295,16 +295,16 @@ def test_an_output_never_replaces_an_input(tmp_path: Path, capsys: pytest.Captur
     before = {p: p.read_bytes() for p in (wrenches, tmp_path / "scene.yaml", tmp_path / "path.csv")}
     for output in before:
         assert main(["reconstruct", str(wrenches), "--scene", str(tmp_path / "scene.yaml"),
-                     "-o", str(output)]) == 1
+                     "-o", str(output)]) == 2
         assert f"would overwrite the input {output}" in capsys.readouterr().err
     # a whisker named as the path file, simulated into the scene's folder
     (tmp_path / "scene.yaml").write_text(SCENE.replace("name: w0", "name: path"))
     before[tmp_path / "scene.yaml"] = (tmp_path / "scene.yaml").read_bytes()
-    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path)]) == 1
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path)]) == 2
     assert "path.csv: would overwrite the input" in capsys.readouterr().err
     assert all(p.read_bytes() == b for p, b in before.items())
     (tmp_path / "afile").write_text("")  # an output folder that is a file: said before solving
-    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "afile")]) == 1
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "afile")]) == 2
     assert "afile: exists and is not a folder" in capsys.readouterr().err
 
 

@@ -25,10 +25,10 @@ def vibrissa(*words: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
     ("bag", "export", "{missing}", "-o", "{tmp}/out.mcap"),
     ("bag", "info", "{missing}"),
 ])
-def test_a_missing_bag_is_one_line_and_exit_1(tmp_path: Path, words: tuple[str, ...]) -> None:
+def test_a_missing_bag_is_one_line_and_exit_2(tmp_path: Path, words: tuple[str, ...]) -> None:
     missing = tmp_path / "nope.mcap"
     result = vibrissa(*(w.format(missing=missing, tmp=tmp_path) for w in words))
-    assert result.returncode == 1
+    assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert result.stderr.strip() == f"vibrissa bag {words[1]}: error: no bag at {missing}"
 
@@ -37,7 +37,7 @@ def test_bag_info_of_a_csv_says_it_is_not_mcap(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     csv = tmp_path / "sweep.csv"
     csv.write_text("x0,y0,phase\n0.8,0.0,tip\n")
-    assert vibrissa_main(["bag", "info", str(csv)]) == 1
+    assert vibrissa_main(["bag", "info", str(csv)]) == 2
     out, err = capsys.readouterr()
     assert out == ""
     assert f"{csv} is not an MCAP file" in err
@@ -65,7 +65,7 @@ def test_bag_record_refuses_an_existing_file_unless_asked(tmp_path: Path) -> Non
     env_domain = str(9900 + os.getpid() % 1000)  # nobody publishes there (ports below the ephemeral ones)
     refused = vibrissa("bag", "record", "-o", str(existing), "--duration", "0.2",
                        "--domain", env_domain)
-    assert refused.returncode == 1
+    assert refused.returncode == 2
     assert "exists: overwrite it" in refused.stderr and "--overwrite" in refused.stderr
     assert existing.read_bytes() == b"precious"
     replaced = vibrissa("bag", "record", "-o", str(existing), "--duration", "0.2", "--overwrite",
@@ -88,7 +88,7 @@ def test_keys_that_cannot_be_used_stop_a_launch_before_anything_starts(
     capsys.readouterr()
     assert vibrissa_main(["launch", str(launch_file), "--dry-run"]) == 2
     assert "accessible by others (mode 0644): chmod 600" in capsys.readouterr().err
-    assert vibrissa_main(["topic", "list", "--keys", str(loose)]) == 1
+    assert vibrissa_main(["topic", "list", "--keys", str(loose)]) == 2
     assert "chmod 600" in capsys.readouterr().err
 
 

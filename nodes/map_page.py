@@ -5,7 +5,8 @@ for both pictures): the contacts coloured by whisker (the figure's palette), the
 (black crosses), each object's known mesh in the figure's colours (``viridis`` of its distance
 to the true surface or of its std, the same scale), the unknown part in faint grey, the true
 objects as grey wireframes (`map_figure.wireframe`), the robot path and the whisker mounts; a
-legend with a switch per layer, the figure's title, axes in mm.
+legend with a switch per layer (the legend folds away: "hide key", or ``map.html#nokey``), the
+figure's title, axes in mm.
 
 No network and no library: the data is JSON in the page (lengths in mm rounded to 1 um), drawn
 by a small viewer in plain JavaScript on a 2D canvas (no GPU needed, so a headless browser
@@ -170,6 +171,10 @@ html, body { margin: 0; height: 100%; overflow: hidden; background: #fff;
 #bar { height: 10px; margin: 3px 0 1px 0; }
 #bar-ticks { display: flex; justify-content: space-between; font-size: 11px; }
 #hint { color: #666; font-size: 11px; margin-top: 6px; }
+#fold { float: right; font-size: 11px; cursor: pointer; color: #06c; border: 0;
+  background: none; padding: 0; }
+#key.folded { width: auto; }
+#key.folded > :not(#fold) { display: none; }
 </style></head>
 <body>
 <canvas id="view"></canvas>
@@ -211,7 +216,13 @@ function toggle(name, label, swatch, square) {
   row.append(document.createTextNode(label));
   key.append(row);
 }
-key.append(el("h2", "layers"));
+// the key can fold away from what it covers (the robot path runs beyond the objects' box)
+const fold = el("button", "hide key"); fold.id = "fold";
+fold.addEventListener("click", () => {
+  fold.textContent = key.classList.toggle("folded") ? "show key" : "hide key";
+});
+key.append(fold, el("h2", "layers"));
+if (location.hash === "#nokey") fold.click();  // a link to the page without its key
 if (D.points.length) toggle("contacts", "contacts, coloured by whisker");
 if (D.noise.length) toggle("noise", "noise: " + D.n_noise + " points in no object", "#000");
 let nKnown = 0, nUnknown = 0;

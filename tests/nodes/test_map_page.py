@@ -34,14 +34,15 @@ def chromium() -> str:
     return found
 
 
-def browse(page: Path, tmp: Path, *action: str) -> subprocess.CompletedProcess[str]:
-    """Open ``page`` in headless Chromium (its own profile in ``tmp``) and do ``action``
-    (``--screenshot=...`` or ``--dump-dom``); the browser's log is in stderr."""
+def browse(page: Path, tmp: Path, *action: str, fragment: str = "") -> subprocess.CompletedProcess[str]:
+    """Open ``page`` (with ``#fragment``) in headless Chromium (its own profile in ``tmp``)
+    and do ``action`` (``--screenshot=...`` or ``--dump-dom``); the browser's log is in
+    stderr."""
     return subprocess.run(
         [chromium(), "--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
          f"--user-data-dir={tmp / 'profile'}", f"--window-size={WINDOW[0]},{WINDOW[1]}",
          "--virtual-time-budget=1000", "--enable-logging=stderr", "--v=0", *action,
-         page.as_uri()],
+         page.as_uri() + (f"#{fragment}" if fragment else "")],
         capture_output=True, text=True, timeout=120, check=False)
 
 
@@ -174,3 +175,12 @@ def in_scale(pixels: np.ndarray, scale: np.ndarray) -> int:
     bright = pixels[(pixels.max(axis=1) - pixels.min(axis=1)) > 40]  # not grey
     cosine = (bright / np.linalg.norm(bright, axis=1, keepdims=True)) @ scale.T
     return int(np.sum(cosine.max(axis=1) > 0.999))
+
+
+def test_the_key_folds_away_from_what_it_covers(page: dict[str, Any], tmp_path: Path) -> None:
+    shown = browse(page["path"], tmp_path, "--dump-dom")
+    folded = browse(page["path"], tmp_path, "--dump-dom", fragment="nokey")
+    assert 'id="key"' in shown.stdout and 'id="key" class="folded"' not in shown.stdout
+    assert ">hide key</button>" in shown.stdout
+    assert 'id="key" class="folded"' in folded.stdout and ">show key</button>" in folded.stdout
+    assert re.search(r'data-drawn="[1-9]', folded.stdout), folded.stderr[-2000:]

@@ -775,8 +775,7 @@ def _refine(track: _Track, target: float) -> None:
             # little for the plain unknowns (a tip on a ball at mu 0.8, refined with plain
             # Newton below half steps and to 1/64, snapped off 0.18 of a step in, where sliding
             # states went on to a smooth detachment).
-            if not _attempt([track], np.array([track.x0 - sub]), np.array([sub]),
-                            fallbacks=True)[0]:
+            if not _attempt([track], np.array([track.x0 - sub]), np.array([sub]))[0]:
                 break
         if abs(track.x0 - target) <= 1e-12 * step:
             track.x0 = target
@@ -810,14 +809,11 @@ def _ending(track: _Track) -> SweepEnd:
     return SweepEnd.SNAP_OFF
 
 
-def _attempt(
-    tracks: list[_Track], targets: FloatArray, steps: FloatArray, fallbacks: bool = True
-) -> NDArray[np.bool_]:
+def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> NDArray[np.bool_]:
     """Try to move each track by ``steps`` (n,) to its target x0 (n,): slide in its phase, the
-    other phase, then stick.
+    other phase, then stick, then the slower searches for far or barely slipping states.
 
-    ``fallbacks`` adds the slower searches for far or barely slipping states. What every stage
-    needs of the tracks (clamp poses at the targets, friction, contact points, predictors,
+    What every stage needs of the tracks (clamp poses at the targets, friction, contact points, predictors,
     objects) is gathered once: most steps are one stage of one row, whose cost is these calls.
     """
     n = len(tracks)
@@ -889,17 +885,14 @@ def _attempt(
         (other_mode, "slide"),
         # Where no sliding state is near, the contact may stick (inside the friction cone) ...
         (np.full(n, _MODE_STICK), "stick"),
+        # ... or slip only slightly from where it was: a tip slide in polar coordinates around
+        # the held point, from the stuck state (well conditioned for any slip).
+        (np.full(n, _MODE_TIP), "anchored"),
+        # Friction continuation (mu from 0 up) is the last resort for steps whose sliding state
+        # is far from the predictor.
+        (sliding_mode, "continuation"),
+        (other_mode, "continuation"),
     ]
-    if fallbacks:
-        stages += [
-            # ... or slip only slightly from where it was: a tip slide in polar coordinates
-            # around the held point, from the stuck state (well conditioned for any slip).
-            (np.full(n, _MODE_TIP), "anchored"),
-            # Friction continuation (mu from 0 up) is the last resort for steps whose sliding
-            # state is far from the predictor.
-            (sliding_mode, "continuation"),
-            (other_mode, "continuation"),
-        ]
     for modes, kind in stages:
         if success.all():
             break  # the later stages take only the rows still unsolved

@@ -14,15 +14,25 @@ import pytest
 
 from tests.core.test_random_scenes_rod import check_against_the_rod
 from vibrissa.runtime.scene_file import load_scene
-from vibrissa.scene import SamplePhase, simulate_whisker
+from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate_whisker
 
 DATA = Path(__file__).parents[1] / "data" / "tip_on_ball"
 
 
+@pytest.fixture(scope="module")
+def runs() -> dict[str, tuple[Scene, WhiskerResult]]:
+    """Each sampling's scene and its whisker's Step 1."""
+    out = {}
+    for sampling in ("coarse", "fine"):
+        scene = load_scene(DATA / f"scene_{sampling}.yaml")
+        out[sampling] = scene, simulate_whisker(scene, scene.whiskers[0])
+    return out
+
+
 @pytest.mark.parametrize("sampling", ["coarse", "fine"])
-def test_a_tip_on_a_ball_slides_on_to_a_smooth_detachment(sampling: str) -> None:
-    scene = load_scene(DATA / f"scene_{sampling}.yaml")
-    result = simulate_whisker(scene, scene.whiskers[0])
+def test_a_tip_on_a_ball_slides_on_to_a_smooth_detachment(
+        runs: dict[str, tuple[Scene, WhiskerResult]], sampling: str) -> None:
+    scene, result = runs[sampling]
     [episode] = result.episodes
     assert episode.end == "detachment"
     contact = np.flatnonzero(result.phase == SamplePhase.TIP)
@@ -39,11 +49,10 @@ def test_a_tip_on_a_ball_slides_on_to_a_smooth_detachment(sampling: str) -> None
     assert worst["free inside"] <= 0.0
 
 
-def test_the_two_samplings_detach_at_the_same_place() -> None:
+def test_the_two_samplings_detach_at_the_same_place(
+        runs: dict[str, tuple[Scene, WhiskerResult]]) -> None:
     ends = []
-    for sampling in ("coarse", "fine"):
-        scene = load_scene(DATA / f"scene_{sampling}.yaml")
-        result = simulate_whisker(scene, scene.whiskers[0])
+    for _scene, result in runs.values():
         last = np.flatnonzero(result.phase == SamplePhase.TIP)[-1]
         ends.append(result.p_W_m[last])
     # the fine path has twice the samples over the same arc: the last contacts are one coarse

@@ -31,6 +31,7 @@ import argparse
 import math
 import sys
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,8 +47,8 @@ from vibrissa.runtime.scene_results import (
     result_files,
     write_results,
 )
-from vibrissa.scene import reconstruct_along, simulate
-from vibrissa.status import ContactPhase
+from vibrissa.scene import SamplePhase, WhiskerResult, reconstruct_along, simulate
+from vibrissa.status import ContactPhase, SweepEnd
 
 FloatArray = NDArray[np.float64]
 
@@ -77,7 +78,26 @@ def run_simulate(args: argparse.Namespace) -> int:
                        sample_progress=print_sample_progress)
     for path in write_results(out, scene, results):
         print(f"wrote {path}")
+    print(episode_summary(results), file=sys.stderr)
     return 0
+
+
+def episode_summary(results: Sequence[WhiskerResult]) -> str:
+    """``12 contact episodes (7 detachment, 4 snap-off, 1 another-object); samples: 9105 none,
+    ...``, and what ``another-object`` means when an episode ended so."""
+    ends = Counter(episode.end for result in results for episode in result.episodes)
+    samples: Counter[str] = Counter()
+    for result in results:
+        samples.update(result.counts())
+    count = sum(ends.values())
+    line = (f"{count} contact episode{'s' * (count != 1)}"
+            f" ({', '.join(f'{n} {end}' for end, n in ends.most_common())})" * bool(ends)
+            + "; samples: " + ", ".join(f"{samples[phase.label]} {phase.label}"
+                                        for phase in SamplePhase))
+    if ends[SweepEnd.ANOTHER_OBJECT]:
+        line += ("\n  another-object: a rod leaning on one object met a second; contact with "
+                 "two at once is not modelled, so those samples are unresolved")
+    return line
 
 
 POINT_COLUMNS = {

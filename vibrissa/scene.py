@@ -14,9 +14,10 @@ searched for. Samples that Step 1 stepped over (the first steps after a touch ma
 2-16 samples at once, see ``vibrissa.sweep``) are ``unresolved`` as well.
 
 Several objects: a whisker touches one at a time. An episode follows the object touched
-first; another object that the rod would meet meanwhile is ignored until the episode ends (the
-rod is taken to pass it), and is then found by the next search if the straight rod touches it
-from outside (one the straight rod is inside of keeps the samples ``unresolved``).
+first; where its bent rod would enter another object, the episode ends (``another-object``:
+contact with two objects at once is not modelled) and the samples from there on are
+``unresolved`` until the straight rod is outside every object; then the next touch is searched
+for.
 
 Whiskers are solved together: a group of them advances step by step, the equilibria of all
 those in an episode found by one batched attempt each step (each row its own object, scaled to
@@ -42,7 +43,7 @@ from vibrissa.paths import SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
-from vibrissa.sweep import SweepRun, advance_together, next_grid_point
+from vibrissa.sweep import Sweep, SweepRun, advance_together, next_grid_point
 from vibrissa.units import RodScale
 
 if TYPE_CHECKING:
@@ -231,6 +232,10 @@ SampleProgress = Callable[[str, int, int], None]
 
 PROGRESS_PERIOD_S = 2.0
 
+AXIS_SEGMENTS = 256
+"""Segments of the polyline a bent rod's axis is checked against the other objects with: its
+chords stray from the arc by at most kappa / (8 x 256^2), 2e-6 L at a curvature of 1/L."""
+
 PAUSE_L = 1e-12
 """A sample where no point of the straight rod moved more than this (units of L) since the
 sample before is a pause: it repeats that sample."""
@@ -370,23 +375,55 @@ class _WhiskerSteps:
         rows = k + np.rint(-sweep.x0 / h).astype(np.int64)
         # the first sample past the touch (on the touch within 1e-9 of a step: the next one)
         after_touch = k + round(-next_grid_point(sweep.x_touch, 0.0, h) / h)
-        if len(rows):
-            span = slice(after_touch, rows[-1] + 1)
-            self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
-            self.f0[span], self.m0[span] = np.nan, np.nan
-            self.phase[rows] = sweep.phase
-            self.s1[rows] = sweep.s1 * self.whisker.length_m
-            self.f0[rows], self.m0[rows] = self.whisker.scale.wrench_to_si(sweep.f0, sweep.m0)
-            self.contact[rows] = sweep.contact * self.whisker.length_m
-            self.touched[span] = i
-        changes = [(self._time_at(-x0 / h + k), old, new) for x0, old, new in sweep.phase_changes]
+        n = self._rows_clear_of_others(sweep)  # rows kept: the rod meets another object at row n
+        end, changes = sweep.end, sweep.phase_changes
+        if n < len(rows):
+            end = SweepEnd.ANOTHER_OBJECT
+            changes = [change for change in changes if change[0] > sweep.x0[n]]
+        # the last sample of the episode: its last row, or the one where the rod meets another
+        last = int(rows[n]) if n < len(rows) else int(rows[-1]) if len(rows) else after_touch - 1
+        span = slice(after_touch, last + 1)
+        self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
+        self.f0[span], self.m0[span] = np.nan, np.nan
+        self.touched[span] = i
+        kept = rows[:n]
+        self.phase[kept] = sweep.phase[:n]
+        self.s1[kept] = sweep.s1[:n] * self.whisker.length_m
+        self.f0[kept], self.m0[kept] = self.whisker.scale.wrench_to_si(sweep.f0[:n], sweep.m0[:n])
+        self.contact[kept] = sweep.contact[:n] * self.whisker.length_m
         self.episodes.append(Episode(self.scene.objects[i].name,
-                                     self._time_at(-sweep.x_touch / h + k), str(sweep.end),
-                                     changes))
-        if sweep.end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
+                                     self._time_at(-sweep.x_touch / h + k), str(end),
+                                     [(self._time_at(-x0 / h + k), old, new)
+                                      for x0, old, new in changes]))
+        if end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return
-        self.k = self._skip_unresolved(int(rows[-1]) + 1 if len(rows) else after_touch)
+        self.k = self._skip_unresolved(last + 1)
+
+    def _rows_clear_of_others(self, sweep: Sweep) -> int:
+        """How many of the episode's rows, from its first, have the rod's axis outside every
+        other object of the scene (the axis as a polyline of ``AXIS_SEGMENTS`` chords)."""
+        others = [s for j, s in enumerate(self.surfaces) if j != self._object]
+        if not others or sweep.n_steps == 0:
+            return sweep.n_steps
+        # A row's rod lies in two balls: the bent part (length s1 from the clamp P0 to the
+        # contact P1) within s1 / 2 of (P0 + P1) / 2, the straight rest within 1 - s1 of P1.
+        middle, s1 = (sweep.p0 + sweep.contact) / 2.0, sweep.s1
+        near = np.zeros(sweep.n_steps, dtype=bool)
+        for surface in others:
+            near |= ((surface.signed_distance(middle) < s1 / 2.0 + 1e-9)
+                     | (surface.signed_distance(sweep.contact) < 1.0 - s1 + 1e-9))
+        candidates = np.flatnonzero(near)
+        for start in range(0, len(candidates), 64):
+            rows = candidates[start:start + 64]
+            axes = sweep.elastic_lines(rows, AXIS_SEGMENTS + 1)
+            starts, chords = axes[:, :-1].reshape(-1, 3), np.diff(axes, axis=1).reshape(-1, 3)
+            meets = np.zeros(len(rows), dtype=bool)
+            for surface in others:
+                meets |= surface.segment_inside(starts, chords).reshape(len(rows), -1).any(axis=1)
+            if meets.any():
+                return int(rows[np.argmax(meets)])
+        return sweep.n_steps
 
     def result(self) -> WhiskerResult:
         """The results at every sample of the path, a pause repeating the sample before it."""

@@ -54,6 +54,8 @@ class SweepEnd(str, enum.Enum):
     NO_EQUILIBRIUM = "no-equilibrium"  # the solver found none for the first step after the touch
     MAX_STEPS = "max-steps"  # the safety cap on the steps of one sweep
     PATH_END = "path-end"  # the clamp's path ended while in contact
+    ANOTHER_OBJECT = "another-object"  # (scenes) the rod, leaning on one object, met another:
+    # contact with two objects at once is not modelled
 
     def __str__(self) -> str:
         return self.value

@@ -66,7 +66,7 @@ from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from vibrissa.elastica import planar_line
 from vibrissa.equilibrium import (
@@ -225,11 +225,19 @@ class Sweep:
     def elastic_line(self, index: int, n_points: int = 101) -> FloatArray:
         """Points (n_points, 3) of the rod's axis at step ``index``, from the clamp to the tip,
         in W."""
-        psi, fu, fv, kappa0 = self._q[index]
-        u, v = planar_line(fu, fv, kappa0, np.linspace(0.0, 1.0, n_points))
-        e_u_C = bending_plane(np.array([psi]))[0][0]
-        p_WC, R_WC = self.trail.clamp_pose(self.x0[index : index + 1])
-        return p_WC[0] + np.outer(u, R_WC[0] @ e_u_C) + np.outer(v, R_WC[0][:, 2])
+        return self.elastic_lines([index], n_points)[0]
+
+    def elastic_lines(self, indices: ArrayLike, n_points: int = 101) -> FloatArray:
+        """Points (n, n_points, 3) of the rod's axis at steps ``indices`` (n,), from the clamp
+        to the tip, in W."""
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        s = np.linspace(0.0, 1.0, n_points)
+        uv = np.array([planar_line(fu, fv, kappa0, s) for _psi, fu, fv, kappa0 in self._q[indices]])
+        e_u_C = bending_plane(self._q[indices, 0])[0]
+        p_WC, R_WC = self.trail.clamp_pose(self.x0[indices])
+        e_u_W, e_v_W = np.einsum("nij,nj->ni", R_WC, e_u_C), R_WC[:, :, 2]
+        return (p_WC[:, None] + uv[:, 0, :, None] * e_u_W[:, None]
+                + uv[:, 1, :, None] * e_v_W[:, None]).reshape(len(indices), n_points, 3)
 
     def summary(self) -> dict[str, object]:
         """How the sweep went, JSON-ready."""

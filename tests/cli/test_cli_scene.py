@@ -47,12 +47,20 @@ def write_path(folder: Path, n: int = 300) -> None:
     (folder / "path.csv").write_text("\n".join(lines) + "\n")
 
 
-def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path) -> None:
+def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path, capsys) -> None:
     (tmp_path / "scene.yaml").write_text(SCENE)
     write_path(tmp_path)
     out = tmp_path / "out"
     assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(out), "--workers", "1"]) == 0
     summary = json.loads((out / "summary.json").read_text())
+    # the last line on stderr sums up summary.json
+    ends = [e["end"] for w in summary["whiskers"].values() for e in w["episodes"]]
+    totals = {p: sum(w["samples_per_phase"][p] for w in summary["whiskers"].values())
+              for p in ("none", "tip", "tangential", "unresolved")}
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last.startswith(f"{len(ends)} contact episodes (") and "another-object" not in last
+    assert all(f"{ends.count(end)} {end}" in last for end in set(ends))
+    assert last.endswith("samples: " + ", ".join(f"{n} {p}" for p, n in totals.items()))
     for name in ("w0", "w1"):
         with (out / f"{name}.csv").open() as handle:
             rows = list(csv.reader(handle))
@@ -321,3 +329,28 @@ def test_the_whiskers_of_a_scene_file_are_the_robot_description(tmp_path: Path) 
     (tmp_path / "robot.yaml").write_text("mu: 0.2\n")
     with pytest.raises(SceneError, match="robot.yaml: missing 'whiskers'"):
         load_robot(tmp_path / "robot.yaml")
+
+
+def test_simulate_says_when_a_rod_met_a_second_object(tmp_path: Path, capsys) -> None:
+    """A rod leaning on ball a runs into ball b low on its path (the scene of
+    tests/core/test_random_scenes_rod.py): the episode ends another-object, in summary.json and
+    in the closing lines, which say what that means."""
+    (tmp_path / "scene.yaml").write_text("""\
+mu: 0.3
+objects:
+  - {name: a, shape: sphere, radius_m: 0.015, position_m: [0.015, 0.0, 0.04]}
+  - {name: b, shape: sphere, radius_m: 0.005, position_m: [0.0175, 0.0, 0.0075]}
+whiskers:
+  - {name: w, length_m: 0.05, ei_nm2: 1.0e-4, mount: {position_m: [0, 0, 0]}}
+path: path.csv
+""")
+    x = np.linspace(-0.0025, 0.045, 951)
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(
+        f"{0.01 * i},{x[i]},0,0,0,0,0,1\n" for i in range(len(x))))
+    out = tmp_path / "out"
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(out), "--workers", "1"]) == 0
+    [episode] = json.loads((out / "summary.json").read_text())["whiskers"]["w"]["episodes"]
+    assert (episode["object"], episode["end"]) == ("a", "another-object")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-2].startswith("1 contact episode (1 another-object); samples: ")
+    assert "contact with two at once is not modelled" in err[-1]

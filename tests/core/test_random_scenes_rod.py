@@ -22,8 +22,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from tests.core.test_random_scenes import random_scene
+from vibrissa.frames import Transform
 from vibrissa.runtime.scene_file import load_scene
-from vibrissa.scene import SamplePhase, Scene, simulate_whisker
+from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate_whisker
 
 
 def rod_in_clamp_frame(f0_L: np.ndarray, m0_L: np.ndarray, s1_L: float) -> tuple[np.ndarray,
@@ -113,3 +114,41 @@ def test_the_robot_demos_whiskers_against_an_independent_rod(whisker: int) -> No
     assert worst["inside"] <= 1e-10
     assert worst["cone"] <= 1e-10
     assert worst["free inside"] <= 0.0
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.3])
+def test_a_rod_leaning_on_one_object_never_enters_another(mu: float) -> None:
+    """A rod slides along a ball A (side graze at 0.8 L) while the clamp drives under A, towards
+    a ball B low on its path. The bent rod meets B: contact with two objects is not modelled, so
+    the episode ends there (``another-object``), the independent rod of every contact sample is
+    outside both balls, its last one within a few samples' travel of B, and the samples after it
+    are unresolved until the straight rod is clear of both. Step 1 once followed A on and put the
+    rod 0.1 L deep into B (a posed scene of the independent check: up to 0.147 L)."""
+    L, n = 0.05, 951
+    a = SceneObject("a", "sphere", {"radius_m": 0.3 * L}, Transform(translation=[0.3 * L, 0, 0.8 * L]))
+    b = SceneObject("b", "sphere", {"radius_m": 0.1 * L}, Transform(translation=[0.35 * L, 0, 0.15 * L]))
+    x = np.linspace(-0.05, 0.9, n) * L  # 0.001 L a sample; the straight rod grazes A at x = 0
+    path = robot_path(np.arange(n) * 0.01, np.column_stack([x, np.zeros((n, 2))]),
+                      np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)))
+    whisker = Whisker("w", L, 1e-4)
+    scene = Scene(mu, (a, b), (whisker,), path)
+    worst = check_against_the_rod(scene)
+    assert worst["samples"] > 100
+    assert worst["inside"] <= 1e-10 and worst["free inside"] <= 0.0
+    assert worst["reach"] <= 1e-10 and worst["cone"] <= 1e-10
+    result = simulate_whisker(scene, whisker)
+    [episode] = result.episodes
+    assert (episode.object, episode.end) == ("a", "another-object")
+    contact = np.flatnonzero(result.phase != SamplePhase.NONE)
+    rows = contact[result.phase[contact] != SamplePhase.UNRESOLVED]
+    last, unresolved = int(rows[-1]), contact[contact > rows[-1]]
+    assert np.array_equal(unresolved, np.arange(last + 1, last + 1 + len(unresolved)))
+    assert np.all(np.isnan(result.f0_n[unresolved])) and np.all(np.isnan(result.p_W_m[unresolved]))
+    assert np.all(result.phase[unresolved[-1] + 1:] == SamplePhase.NONE)
+    # the last contact sample's independent rod is within 5 samples' travel of B
+    rod_C, tangent_C = rod_in_clamp_frame(result.f0_n[last] * L**2 / whisker.ei_nm2,
+                                          result.m0_nm[last] * L / whisker.ei_nm2,
+                                          result.s1_m[last] / L)
+    rod_W = np.vstack([rod_C, rod_C[-1] + np.outer(np.linspace(0, 1 - result.s1_m[last] / L, 50),
+                                                   tangent_C)]) + [x[last] / L, 0.0, 0.0]
+    assert 0.0 < b.surface(L).signed_distance(rod_W).min() <= 0.005

@@ -44,8 +44,14 @@ SCENE_COLUMNS: dict[str, tuple[str, str]] = {
     "py": ("m", "true contact point in W, y"),
     "pz": ("m", "true contact point in W, z"),
     "object": ("-", "name of the object touched (empty: none)"),
+    "refined": ("-", "1: Step 1 reached the sample through sub-steps, or by a longer step after "
+                     "the touch, so eq. 7's friction is along a sub-step's chord, not the one "
+                     "from the sample before; 0 otherwise"),
 }
-"""The columns of ``DIR/<whisker>.csv``: (unit, meaning)."""
+"""The columns of ``DIR/<whisker>.csv``: (unit, meaning). ``refined`` came later: a file
+without it is read as all 0."""
+
+_OPTIONAL = ("refined",)
 
 SUMMARY_FILE = "summary.json"
 WRENCHES_FILE = "wrenches.csv"
@@ -80,9 +86,11 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
         numbers = cells(np.column_stack([result.t, result.s1_m, result.f0_n, result.m0_nm,
                                          result.p_W_m]))
         rows = (
-            [r[0], SamplePhase(phase).label, *r[1:], names[obj] if obj >= 0 else ""]
-            for r, phase, obj in zip(numbers, result.phase.tolist(), result.object.tolist(),
-                                     strict=True)
+            [r[0], SamplePhase(phase).label, *r[1:], names[obj] if obj >= 0 else "",
+             "1" if refined else "0"]
+            for r, phase, obj, refined in zip(numbers, result.phase.tolist(),
+                                              result.object.tolist(), result.refined.tolist(),
+                                              strict=True)
         )
         target = out / f"{check_name(result.name, 'whisker')}.csv"  # a file name
         write_csv(target, tuple(SCENE_COLUMNS), rows)
@@ -125,9 +133,9 @@ def read_results(folder: str | Path, scene: Scene) -> list[WhiskerResult]:
         Naming the file (and the row and column) of a problem: no folder, a whisker of
         the scene without its CSV, a missing column, a row of the wrong length, a cell that
         is not a number, a ``t`` that is not the scene path's time (exactly: the results of
-        another scene or path), an unknown phase or object, a wrench that is not finite in a
-        sample that has one (all but ``unresolved``), or a ``summary.json`` without the
-        whisker's episodes.
+        another scene or path), an unknown phase or object, a refined flag not 0 or 1, a
+        wrench that is not finite in a sample that has one (all but ``unresolved``), or a
+        ``summary.json`` without the whisker's episodes.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -145,7 +153,7 @@ def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
     file (`vibrissa.runtime.scene_file.load_path`)."""
     if not path.is_file():
         raise SceneError(f"{path}: missing: the scene's whisker {name!r} has no results there")
-    header, body = read_csv(path, tuple(SCENE_COLUMNS))
+    header, body = read_csv(path, tuple(c for c in SCENE_COLUMNS if c not in _OPTIONAL))
     t_path = scene.path.t
     if len(body) != len(t_path):
         raise SceneError(f"{path}: {len(body)} rows, but the scene's path has {len(t_path)} "
@@ -153,7 +161,8 @@ def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
     for i, row in enumerate(body):
         if len(row) != len(header):
             raise SceneError(f"{path}: row {i + 1}: expected {len(header)} values, got {len(row)}")
-    column = {c: [row[header.index(c)].strip() for row in body] for c in SCENE_COLUMNS}
+    column = {c: [row[header.index(c)].strip() for row in body] if c in header else []
+              for c in SCENE_COLUMNS}
     values = np.empty((len(body), len(_NUMBERS)))
     for j, key in enumerate(_NUMBERS):
         try:
@@ -185,8 +194,13 @@ def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
             raise SceneError(f"{path}: row {i + 1}, column object: {obj!r} is not an object of "
                              f"the scene ({', '.join(objects) or 'it has none'})")
     touched = np.array([objects[obj] if obj else -1 for obj in column["object"]], dtype=np.int64)
+    for i, flag in enumerate(column["refined"]):
+        if flag not in ("0", "1"):
+            raise SceneError(f"{path}: row {i + 1}, column refined: {flag!r} is not 0 or 1")
+    refined = np.array([flag == "1" for flag in column["refined"]] or np.zeros(len(body)),
+                       dtype=bool)
     s1, f0, m0, p_W = (values[:, cols].copy() for cols in (1, slice(2, 5), slice(5, 8), slice(8, 11)))
-    return WhiskerResult(name, t_path, phase, s1, f0, m0, p_W, touched, [])
+    return WhiskerResult(name, t_path, phase, s1, f0, m0, p_W, touched, refined, [])
 
 
 def _is_number(text: str) -> bool:

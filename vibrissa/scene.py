@@ -209,7 +209,10 @@ class WhiskerResult:
     ``phase`` (N,) `SamplePhase`; ``s1_m`` (N,) the contact's arc length, m; ``f0_n``,
     ``m0_nm`` (N, 3) the clamp's reaction on the rod about the clamp point in the clamp frame
     C, N and N m (zero when free, NaN when unresolved); ``p_W_m`` (N, 3) the contact point in
-    W, m (NaN without one); ``object`` (N,) index into the scene's objects (-1: none).
+    W, m (NaN without one); ``object`` (N,) index into the scene's objects (-1: none);
+    ``refined`` (N,) whether Step 1 reached the sample through sub-steps, or by a longer step
+    after the touch (`vibrissa.sweep.Sweep`): eq. 7's chord is then a sub-step's, not the one
+    from the sample before.
     """
 
     name: str
@@ -220,6 +223,7 @@ class WhiskerResult:
     m0_nm: FloatArray
     p_W_m: FloatArray
     object: NDArray[np.int64]
+    refined: NDArray[np.bool_]
     episodes: list[Episode]
 
     def counts(self) -> dict[str, int]:
@@ -342,6 +346,7 @@ class _WhiskerSteps:
         self.phase = np.full(n, SamplePhase.NONE, dtype=np.int64)
         self.s1, self.f0, self.m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
         self.contact, self.touched = np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
+        self.refined = np.zeros(n, dtype=bool)
         self.episodes: list[Episode] = []
         self.run: SweepRun | None = None
         self.ended = False
@@ -391,6 +396,7 @@ class _WhiskerSteps:
         self.s1[kept] = sweep.s1[:n] * self.whisker.length_m
         self.f0[kept], self.m0[kept] = self.whisker.scale.wrench_to_si(sweep.f0[:n], sweep.m0[:n])
         self.contact[kept] = sweep.contact[:n] * self.whisker.length_m
+        self.refined[kept] = sweep.refined[:n]
         self.episodes.append(Episode(self.scene.objects[i].name,
                                      self._time_at(-sweep.x_touch / h + k), str(end),
                                      [(self._time_at(-x0 / h + k), old, new)
@@ -430,7 +436,8 @@ class _WhiskerSteps:
         of_sample = np.cumsum(self.moved) - 1  # the moving sample each sample repeats
         return WhiskerResult(self.whisker.name, self.scene.path.t, self.phase[of_sample],
                              self.s1[of_sample], self.f0[of_sample], self.m0[of_sample],
-                             self.contact[of_sample], self.touched[of_sample], self.episodes)
+                             self.contact[of_sample], self.touched[of_sample],
+                             self.refined[of_sample], self.episodes)
 
     def _skip_unresolved(self, k: int) -> int:
         """The first sample from ``k`` on where the straight rod is outside every object."""

@@ -65,6 +65,8 @@ def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path, capsys)
         with (out / f"{name}.csv").open() as handle:
             rows = list(csv.reader(handle))
         assert rows[0][: len(CONTRACT)] == CONTRACT and len(rows) == 301
+        assert rows[0][len(CONTRACT):] == ["object", "refined"]
+        assert {row[13] for row in rows[1:]} <= {"0", "1"}
         phases = [row[1] for row in rows[1:]]
         assert set(phases) <= {"none", "tip", "tangential", "unresolved"}
         counts = summary["whiskers"][name]["samples_per_phase"]

@@ -58,3 +58,39 @@ def test_the_two_samplings_detach_at_the_same_place(
     # the fine path has twice the samples over the same arc: the last contacts are one coarse
     # sample's travel (0.25 mm) apart at most
     assert np.linalg.norm(ends[0] - ends[1]) < 2.5e-4
+
+
+def _friction_off_chord(scene: Scene, result: WhiskerResult) -> dict[int, float]:
+    """1 - cos(friction, chord) of each sliding contact sample after another on the same object
+    (eq. 7: the friction of a slide is along P1(k-1) - P1(k), projected on the tangent plane)."""
+    whisker = scene.whiskers[0]
+    R_WC = scene.path.R_WR * whisker.X_RC.rotation
+    off = {}
+    for i in np.flatnonzero(result.phase == SamplePhase.TIP):
+        if result.phase[i - 1] != SamplePhase.TIP:
+            continue
+        n = scene.objects[result.object[i]].surface(1.0).normal(result.p_W_m[i])[0]
+        force = -R_WC[i].apply(result.f0_n[i])  # on the rod
+        friction = force - (force @ n) * n
+        chord = result.p_W_m[i - 1] - result.p_W_m[i]
+        chord -= (chord @ n) * n
+        sliding = np.linalg.norm(friction) >= scene.mu * (force @ n) * (1 - 1e-9)
+        if sliding and np.linalg.norm(chord) > 1e-12 * whisker.length_m:
+            off[int(i)] = 1.0 - friction @ chord / np.linalg.norm(friction) / np.linalg.norm(chord)
+    return off
+
+
+@pytest.mark.parametrize("sampling", ["coarse", "fine"])
+def test_refined_says_where_friction_is_not_along_the_samples_chord(
+        runs: dict[str, tuple[Scene, WhiskerResult]], sampling: str) -> None:
+    """A sample reached in one step slides against the chord from the sample before (eq. 7);
+    one reached through sub-steps, against the last sub-step's chord: ``refined`` tells them
+    apart for a checker, in the results and in the whisker's CSV."""
+    scene, result = runs[sampling]
+    off = _friction_off_chord(scene, result)
+    plain = [value for i, value in off.items() if not result.refined[i]]
+    refined = [value for i, value in off.items() if result.refined[i]]
+    assert len(plain) > 30 and max(plain) <= 1e-12
+    if sampling == "coarse":  # its refinement steps the friction off the sample's chord
+        assert refined and max(refined) > 1e-3
+    assert not np.any(result.refined & (result.phase == SamplePhase.NONE))

@@ -81,7 +81,7 @@ def test_read_results_gives_back_the_arrays_simulate_returned(simulated: Simulat
     assert [r.name for r in read] == ["plain", "tilted"]
     for got, want in zip(read, simulated.results, strict=True):
         assert got.name == want.name
-        for key in ("t", "phase", "s1_m", "f0_n", "m0_nm", "p_W_m", "object"):
+        for key in ("t", "phase", "s1_m", "f0_n", "m0_nm", "p_W_m", "object", "refined"):
             assert same_bits(getattr(got, key), getattr(want, key)), key
             assert np.array_equal(getattr(got, key), getattr(want, key), equal_nan=True), key
         assert got.episodes == want.episodes and got.counts() == want.counts()
@@ -90,6 +90,17 @@ def test_read_results_gives_back_the_arrays_simulate_returned(simulated: Simulat
     assert np.any(tilted.phase == SamplePhase.UNRESOLVED) and np.isnan(tilted.f0_n).any()
     assert set(tilted.object.tolist()) == {-1, 0, 1} and len(tilted.episodes) == 2
     assert any(e.phase_changes for e in tilted.episodes)
+
+
+def test_results_written_before_the_refined_column_read_as_never_refined(
+        simulated: Simulated, tmp_path: Path) -> None:
+    folder = tmp_path / "out"
+    shutil.copytree(simulated.out, folder)
+    for name in ("plain", "tilted"):
+        edit_csv(folder / f"{name}.csv", lambda rows: [row.pop() for row in rows])
+    for got, want in zip(read_results(folder, simulated.scene), simulated.results, strict=True):
+        assert not got.refined.any() and len(got.refined) == len(want.t)
+        assert same_bits(got.f0_n, want.f0_n) and np.array_equal(got.phase, want.phase)
 
 
 def stream(scene: Scene, results: list[WhiskerResult], params: WrenchSourceParams
@@ -194,7 +205,9 @@ CASES: list[tuple[str, Callable[[Path, Path], None], str, str]] = [
     ("a missing column", lambda folder, scene: edit_csv(folder / "plain.csv", drop_pz),
      "plain.csv", "missing column(s) pz (the columns are t,phase,s1,f0x"),
     ("a short row", lambda folder, scene: edit_csv(folder / "plain.csv", lambda rows: rows[5].pop()),
-     "plain.csv", "row 5: expected 13 values, got 12"),
+     "plain.csv", "row 5: expected 14 values, got 13"),
+    ("a refined flag not 0 or 1", lambda folder, scene: edit_csv(folder / "plain.csv", set_cell(2, 13, "yes")),
+     "plain.csv", "row 2, column refined: 'yes' is not 0 or 1"),
     ("an unknown object", lambda folder, scene: edit_csv(folder / "plain.csv", set_cell("tip", 12, "mug")),
      "plain.csv", "column object: 'mug' is not an object of the scene (cup, ball)"),
     ("no wrench in contact", lambda folder, scene: edit_csv(folder / "plain.csv", set_cell("tip", 3, "")),

@@ -121,6 +121,8 @@ def register(subparsers: Any) -> None:
                    "reconstructor's map_frame and robot_frame)")
     p.add_argument("--topic", default="/robot/wrench", help="vibrissa wrench topic")
     p.add_argument("--pose-topic", default="/robot/pose", help="vibrissa pose topic")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing OUT.mcap (never a file of the input bag)")
     p.set_defaults(func=_import)
 
 
@@ -225,6 +227,18 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _import(args: argparse.Namespace) -> int:
+    out, bag = Path(args.output), Path(args.ros2_bag)
+    inside = bag.is_dir() and out.resolve().parent == bag.resolve()
+    if inside or (out.exists() and bag.is_dir()
+                  and any(out.samefile(f) for f in bag.iterdir() if f.is_file())):
+        print(f"vibrissa bag import: error: {args.output} would write into the input bag "
+              f"{args.ros2_bag}", file=sys.stderr)
+        return 2
+    if out.is_dir() or (out.exists() and not args.overwrite):
+        print(f"vibrissa bag import: error: {args.output} exists"
+              + (" and is a folder" if out.is_dir() else " (--overwrite replaces it)"),
+              file=sys.stderr)
+        return 2
     topics: list[str] = args.wrench_topic
     if not topics:
         try:

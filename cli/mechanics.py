@@ -18,6 +18,8 @@ from vibrissa import noise_study
 from vibrissa.cli import tables
 from vibrissa.cli.main import EXIT_USAGE
 from vibrissa.reconstruct import reconstruct
+from vibrissa.runtime.csv_text import refuse_overwrite
+from vibrissa.runtime.scene_file import SceneError
 from vibrissa.status import SweepEnd
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
 from vibrissa.surfaces import Surface, parse_surface
@@ -139,6 +141,9 @@ def register(subparsers: Any) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
+    if args.output.suffix == ".json":  # the summary goes to OUT.json beside the CSV
+        return _fail("sweep", f"-o {args.output}: the summary is written to the CSV's name "
+                     "with .json; name the CSV otherwise, e.g. .csv")
     start = time.perf_counter()
     sweep = simulate_sweep(args.surface, args.y0, args.mu, step=args.step)
     output: Path = args.output
@@ -173,6 +178,10 @@ def _reconstruct(args: argparse.Namespace) -> int:
         from vibrissa.cli.scenes import run_reconstruct  # scenes only when asked for
 
         return run_reconstruct(args)
+    try:
+        refuse_overwrite([args.output], [args.input])
+    except SceneError as exc:
+        return _fail("reconstruct", str(exc))
     try:
         table = tables.read_wrench_csv(args.input)
     except tables.TableError as exc:

@@ -65,6 +65,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise SceneError(f"{out}: exists and is not a folder")
     refuse_overwrite(result_files(out, scene), scene_files(args.scene))
+    out.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before the work
     total = len(scene.whiskers)
     samples = len(scene.path.t)
     print(f"simulating {total} whisker(s) x {samples} path samples past "
@@ -90,10 +91,11 @@ def episode_summary(results: Sequence[WhiskerResult]) -> str:
     for result in results:
         samples.update(result.counts())
     count = sum(ends.values())
-    line = (f"{count} contact episode{'s' * (count != 1)}"
-            f" ({', '.join(f'{n} {end}' for end, n in ends.most_common())})" * bool(ends)
-            + "; samples: " + ", ".join(f"{samples[phase.label]} {phase.label}"
-                                        for phase in SamplePhase))
+    line = f"{count} contact episode{'s' * (count != 1)}"
+    if ends:
+        line += f" ({', '.join(f'{n} {end}' for end, n in ends.most_common())})"
+    line += "; samples: " + ", ".join(f"{samples[phase.label]} {phase.label}"
+                                      for phase in SamplePhase)
     if ends[SweepEnd.ANOTHER_OBJECT]:
         line += ("\n  another-object: a rod leaning on one object met a second; contact with "
                  "two at once is not modelled, so those samples are unresolved")

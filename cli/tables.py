@@ -147,7 +147,8 @@ def _plain(data: Any) -> Any:
 
 
 def read_wrench_csv(path: Path) -> WrenchTable:
-    """Read x0, y0, [z0,] f0x..m0z from a CSV (e.g. written by ``vibrissa sweep``).
+    """Read x0, y0, [z0,] f0x..m0z from a CSV (e.g. written by ``vibrissa sweep``); rows
+    count from 1 after the header, as in the scene's files.
 
     Raises
     ------
@@ -155,12 +156,12 @@ def read_wrench_csv(path: Path) -> WrenchTable:
         Naming the file and the missing column or the bad cell (row, column, text).
     """
     try:
-        with path.open(newline="") as handle:
+        with path.open(newline="", encoding="utf-8-sig") as handle:  # a spreadsheet's BOM
             reader = csv.reader(handle)
             header = next(reader, None)
-            rows = list(reader)
-    except OSError as exc:
-        raise TableError(f"{path}: cannot read ({exc.strerror})") from None
+            rows = [row for row in reader if row]  # blank lines are no rows
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise TableError(f"{path}: cannot read ({getattr(exc, 'strerror', None) or exc})") from None
     if header is None:
         expected = ", ".join(WRENCH_COLUMNS)
         raise TableError(f"{path}: empty file, expected a header with columns {expected}")
@@ -172,14 +173,17 @@ def read_wrench_csv(path: Path) -> WrenchTable:
     index = {name: header.index(name) for name in wanted}
     values = {name: np.empty(len(rows)) for name in wanted}
     for r, row in enumerate(rows):
+        if len(row) != len(header):  # a cut-off or mangled row is not a missing value
+            raise TableError(f"{path}: row {r + 1}: expected {len(header)} values, got "
+                             f"{len(row)}")
         for name, c in index.items():
-            text = row[c].strip() if c < len(row) else ""
+            text = row[c].strip()
             try:
                 # An empty cell is a missing value: Step 2 flags it (non_finite_input).
                 values[name][r] = float(text) if text else np.nan
             except ValueError:
                 raise TableError(
-                    f"{path}: row {r + 2}, column {name!r}: {text!r} is not a number"
+                    f"{path}: row {r + 1}, column {name!r}: {text!r} is not a number"
                 ) from None
     z0 = values["z0"] if "z0" in values else np.zeros(len(rows))
     return WrenchTable(

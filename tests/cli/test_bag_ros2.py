@@ -325,6 +325,31 @@ def test_import_refuses_bad_input_in_one_line_with_exit_2(
     assert len(err.strip().splitlines()) == 1 and not out.exists()
 
 
+@pytest.mark.parametrize("target", ["data", "metadata", "new_in_bag", "existing"])
+def test_import_never_writes_over_its_input_nor_an_existing_file_unasked(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], target: str) -> None:
+    """Import once emptied the bag's own data file when told to write there (and then called
+    the bag damaged), and wrote over its metadata.yaml or any file without a word."""
+    src = tmp_path / "ros2"
+    _ros2_bag(src, {"/w0/wrench": [(1.0, (1.0, 0, 0, 0, 0, 0))]},
+              [(1.0, "world", "base_link", (0, 0, 0, 0, 0, 0, 1))])
+    (data,) = src.glob("*.mcap")
+    other = tmp_path / "victim.yaml"
+    other.write_text("keep me\n")
+    out = {"data": data, "metadata": src / "metadata.yaml", "new_in_bag": src / "out.mcap",
+           "existing": other}[target]
+    before = {f: f.read_bytes() for f in [*src.iterdir(), other]}
+    assert vibrissa_main(["bag", "import", str(src), str(out)]) == 2
+    err = capsys.readouterr().err
+    expected = ("exists (--overwrite replaces it)" if target == "existing"
+                else f"would write into the input bag {src}")
+    assert err == f"vibrissa bag import: error: {out} {expected}\n"
+    assert {f: f.read_bytes() for f in [*src.iterdir(), other]} == before
+    if target == "existing":  # asked to: it does
+        assert vibrissa_main(["bag", "import", str(src), str(out), "--overwrite"]) == 0
+        assert len(list(BagReader(out))) == 2
+
+
 def test_export_refuses_an_existing_folder_and_a_bad_robot(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag = tmp_path / "b.mcap"

@@ -170,6 +170,49 @@ def test_reconstruct_missing_column_exit_2(tmp_path: Path,
     assert not (tmp_path / "r.csv").exists()
 
 
+@pytest.mark.parametrize(("text", "message"), [
+    ("x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,-0.1,0,0.05,0,-0.05,0\n0,0,-0.1,0\n",
+     "row 2: expected 8 values, got 4"),  # a file cut off in a row
+    ("x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,-0.1,0,0.05,0,-0.05,0,9\n",
+     "row 1: expected 8 values, got 9"),
+    ("x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,-0.1,zero,0.05,0,-0.05,0\n",
+     "row 1, column 'f0y': 'zero' is not a number"),
+    (b"x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,\xe9,0,0,0,0,0\n", "cannot read ("),
+])
+def test_reconstruct_refuses_a_bad_row_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                 text: str | bytes, message: str) -> None:
+    src = tmp_path / "w.csv"
+    src.write_bytes(text if isinstance(text, bytes) else text.encode())
+    assert main(["reconstruct", str(src), "-o", str(tmp_path / "r.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"vibrissa reconstruct: error: argument SWEEP.csv: {src}: {message}")
+    assert len(err.splitlines()) == 1 and not (tmp_path / "r.csv").exists()
+
+
+def test_reconstruct_reads_a_spreadsheets_byte_order_mark_and_blank_lines(tmp_path: Path) -> None:
+    text = "x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,-0.1,0,0.05,0,-0.05,0\n"
+    (tmp_path / "plain.csv").write_text(text)
+    (tmp_path / "saved.csv").write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n\r\n").encode())
+    for name in ("plain", "saved"):
+        assert main(["reconstruct", str(tmp_path / f"{name}.csv"), "-o",
+                     str(tmp_path / f"{name}.out")]) == 0
+    assert (tmp_path / "plain.out").read_text() == (tmp_path / "saved.out").read_text()
+
+
+def test_reconstruct_and_sweep_never_write_over_their_input(
+        sweep_csv: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    copy = tmp_path / "sweep.csv"
+    copy.write_bytes(sweep_csv.read_bytes())
+    assert main(["reconstruct", str(copy), "-o", str(tmp_path / "." / "sweep.csv")]) == 2
+    assert "would overwrite the input" in capsys.readouterr().err
+    assert copy.read_bytes() == sweep_csv.read_bytes()
+    # the sweep's summary goes to OUT with .json: an OUT.json would be written over by it
+    assert main(["sweep", "--surface", SURFACE, "--y0", "0.2", "--mu", "0", "-o",
+                 str(tmp_path / "s.json")]) == 2
+    assert "name the CSV otherwise" in capsys.readouterr().err
+    assert not (tmp_path / "s.json").exists()
+
+
 def test_reconstruct_bad_surface_exit_2(sweep_csv: Path, tmp_path: Path,
                                         capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:

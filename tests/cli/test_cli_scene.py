@@ -59,6 +59,7 @@ def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path, capsys)
               for p in ("none", "tip", "tangential", "unresolved")}
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last.startswith(f"{len(ends)} contact episodes (") and "another-object" not in last
+    assert sum(totals.values()) == 2 * 300
     assert all(f"{ends.count(end)} {end}" in last for end in set(ends))
     assert last.endswith("samples: " + ", ".join(f"{n} {p}" for p, n in totals.items()))
     for name in ("w0", "w1"):
@@ -316,6 +317,10 @@ def test_an_output_never_replaces_an_input(tmp_path: Path, capsys: pytest.Captur
     (tmp_path / "afile").write_text("")  # an output folder that is a file: said before solving
     assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "afile")]) == 2
     assert "afile: exists and is not a folder" in capsys.readouterr().err
+    # a folder under a file cannot be made: said before solving too (no progress lines)
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "afile" / "sub")]) == 2
+    err = capsys.readouterr().err
+    assert "Not a directory" in err and "simulating" not in err
 
 
 def test_the_whiskers_of_a_scene_file_are_the_robot_description(tmp_path: Path) -> None:
@@ -356,3 +361,9 @@ path: path.csv
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-2].startswith("1 contact episode (1 another-object); samples: ")
     assert "contact with two at once is not modelled" in err[-1]
+
+
+def test_the_closing_line_of_a_scene_without_contact() -> None:
+    from vibrissa.cli.scenes import episode_summary
+
+    assert episode_summary([]) == "0 contact episodes; samples: 0 none, 0 tip, 0 tangential, 0 unresolved"

@@ -396,8 +396,8 @@ class _Parser:
         value = self.retyped(value, path)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(path, f"expected a number, got {_show(value)}")
-        if not value >= minimum or value == float("inf"):
-            raise self.error(path, f"expected a finite number >= {minimum:g}, got {value!r}")
+        if not minimum <= value <= sys.float_info.max:  # NaN, inf, an int of 400 digits
+            raise self.error(path, f"expected a finite number >= {minimum:g}, got {_show(value)}")
         return float(value)
 
     def integer(self, value: Any, path: str, minimum: int, maximum: int | None = None) -> int:
@@ -406,7 +406,7 @@ class _Parser:
             raise self.error(path, f"expected int, got {_show(value)}")
         if value < minimum or (maximum is not None and value > maximum):
             bound = f"in [{minimum}, {maximum}]" if maximum is not None else f">= {minimum}"
-            raise self.error(path, f"expected an int {bound}, got {value}")
+            raise self.error(path, f"expected an int {bound}, got {_show(value)}")
         return value
 
     def deep(self, value: Any, path: str) -> Any:

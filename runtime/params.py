@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
+import sys
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -168,7 +169,8 @@ def _check(value: object, hint: Any, name: str, source: str) -> Any:
                 for k, v in value.items()}
     elif isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(value, dict):
         return hint(**_typed_values(hint, value, source, from_text=False, prefix=f"{name}."))
-    elif hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+    elif (hint is float and isinstance(value, (int, float)) and not isinstance(value, bool)
+          and abs(value) <= sys.float_info.max):  # an int of 400 digits is no float
         return float(value)
     elif hint is Path and isinstance(value, str):
         return Path(value)
@@ -184,7 +186,8 @@ def _check(value: object, hint: Any, name: str, source: str) -> Any:
     expected = getattr(hint, "__name__", None) if origin is None else None
     if origin is typing.Literal:
         expected = "one of " + ", ".join(map(repr, args))
+    shown = repr(value)
     raise ParamError(
         f"{source}: parameter {name!r} expects {expected or hint}, "
-        f"got {type(value).__name__} ({value!r})"
+        f"got {type(value).__name__} ({shown if len(shown) <= 60 else shown[:57] + '...'})"
     )

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import re
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -192,7 +193,8 @@ def _list(value: Any, where: str) -> list[Any]:
 
 def _number(value: Any, where: str, limits: str | None = None) -> float:
     """A finite number, within ``LIMITS[limits]`` when given."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+    if (isinstance(value, bool) or not isinstance(value, (int, float))
+            or not abs(value) <= sys.float_info.max):  # NaN, inf, an int of 400 digits
         raise SceneError(f"{where}: expected a finite number, got {_show(value)}")
     if limits is not None:
         low, high = LIMITS[limits]

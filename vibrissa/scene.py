@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import enum
 import os
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -109,7 +110,8 @@ class SceneObject:
             if not isinstance(value, (list, tuple)) or len(value) != 3:
                 raise ValueError(f"{key} must be 3 numbers, got {value!r}")
             value = value[index]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        if (isinstance(value, bool) or not isinstance(value, (int, float))
+                or not abs(value) <= sys.float_info.max):  # NaN, inf, an int of 400 digits
             raise ValueError(f"{key} must be a finite number, got {value!r}")
         return float(value)
 

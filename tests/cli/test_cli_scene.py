@@ -137,6 +137,8 @@ def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulat
     (("[0, 0, 0.3826834, 0.9238795]", "[0, 0, 0.5, 0.9]"),
      "objects[1].quaternion_xyzw: [0.0, 0.0, 0.5, 0.9] is not a unit quaternion"),
     (("mu: 0.25", "mu: high"), "scene.yaml: mu: expected a finite number"),
+    (("mu: 0.25", "mu: 1" + "0" * 400), "scene.yaml: mu: expected a finite number, got 1000"),
+    (("radius_m: 0.015", "radius_m: 1" + "0" * 400), "objects[0].radius_m: expected a finite"),
     (("path: path.csv", "path: nowhere.csv"), "nowhere.csv"),
     (("length_m: 0.05", "length_m: -0.05"), "whiskers[0].length_m: -0.05 is outside"),
     # numbers that overflow the rod's units or the geometry: refused, not simulated

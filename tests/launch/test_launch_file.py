@@ -172,6 +172,8 @@ def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
          "launch[0].node.respawn_delay: expected a number, got 'soon'"),
         ("  - node: {cmd: [x], name: n, respawn: true, respawn_delay: -1}\n",
          "launch[0].node.respawn_delay: expected a finite number >= 0, got -1"),
+        ("  - node: {cmd: [x], name: n, respawn: true, respawn_delay: 1" + "0" * 400 + "}\n",
+         "launch[0].node.respawn_delay: expected a finite number >= 0, got 1000"),
         ("  - node: {cmd: [x], name: n, respawn: true, respawn_max: 1.5}\n",
          "launch[0].node.respawn_max: expected int, got 1.5"),
         ("  - node: {cmd: x, name: n}\n", "launch[0].node.cmd: expected a list, got 'x'"),

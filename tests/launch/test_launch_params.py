@@ -37,6 +37,7 @@ def test_packaged_launch_files_pass_the_node_checks(name: str, tmp_path: Path) -
     ("step:=-0.001", "node 'wrench_source': parameter 'step' must be a number in (0, 0.1]"),
     ("mu:=-0.1", "node 'wrench_source': parameter 'mu' must be a finite number >= 0, got -0.1"),
     ("surface:=sphere:r=-1", "node 'wrench_source': parameter 'surface'"),
+    ("mu:=1" + "0" * 400, "node 'wrench_source': parameter 'mu' expects float, got int (1000"),
 ])
 def test_a_bad_value_is_one_line_before_anything_starts(
     override: str, expected: str, capsys: pytest.CaptureFixture[str]

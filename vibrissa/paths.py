@@ -11,6 +11,7 @@ paper's trail is one clamp displacement.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -26,6 +27,11 @@ if TYPE_CHECKING:
 FloatArray = NDArray[np.float64]
 
 _TOUCH_ITERATIONS = 200  # bisection of the touch between two samples: to the last bit of lambda
+
+SUBSAMPLE_L = 0.01
+"""Between two samples where a point of the rod moves further than this (units of L), the
+straight rod is checked at sub-samples this far apart for a touch: a rod that passes through an
+object between two samples (a coarse path) touches it."""
 
 
 def rod_motion(p_WR: FloatArray, rotations: Rotation, mount: Transform) -> FloatArray:
@@ -124,17 +130,25 @@ class SampledPath:
         object with 0 < s < 1). None when it never does on the path, or when the rod starts
         inside the object (use ``tail`` to search from a later sample).
 
-        Between the last free sample and the first one that penetrates, the touch is found
-        by bisection of the fractional sample index to the last bit.
+        The rod is checked at the samples, and between two where it moves further than
+        `SUBSAMPLE_L` near the object, at sub-samples; between the last free one and the first
+        that penetrates, the touch is found by bisection of the fractional sample index to the
+        last bit.
         """
         grid = np.arange(self.n_samples, dtype=float)
         inside = self.penetrates(surface, self.x0_of(grid))
         if inside[0]:
             return None  # the rod starts inside: no touch from outside here (unresolved)
         hits = np.flatnonzero(inside)
-        if len(hits) == 0:
+        between = self._sub_samples(surface, int(hits[0]) if len(hits) else self.n_samples - 1)
+        met = self.penetrates(surface, self.x0_of(between)) if len(between) else np.zeros(0, bool)
+        if np.any(met):  # the rod passes into the object between two free samples
+            i = int(np.argmax(met))
+            lo, hi = max(between[i - 1] if i else 0.0, math.floor(between[i])), between[i]
+        elif len(hits):
+            lo, hi = grid[hits[0] - 1], grid[hits[0]]
+        else:
             return None
-        lo, hi = grid[hits[0] - 1], grid[hits[0]]
         for _ in range(_TOUCH_ITERATIONS):
             mid = 0.5 * (lo + hi)
             if mid in (lo, hi):
@@ -148,6 +162,21 @@ class SampledPath:
         t_in, t_out = surface.line_interval(p, R[:, 2])
         s = 1.0 if t_in[0] <= 1.0 <= t_out[0] else float(np.clip(0.5 * (t_in[0] + t_out[0]), 0, 1))
         return x_touch, p + s * R[:, 2]
+
+    def _sub_samples(self, surface: Surface, end: int) -> FloatArray:
+        """Fractional sample indices between samples 0 .. ``end`` where a point of the rod
+        moves further than `SUBSAMPLE_L` from one sample to the next and the object is within
+        the rod's reach (its clamp nearer than 1 + that motion): `SUBSAMPLE_L` apart."""
+        motion = rod_motion(self.p_WR[:end + 1], self.rotations[:end + 1], self.mount)
+        coarse = np.flatnonzero(motion > SUBSAMPLE_L)
+        if len(coarse) == 0:
+            return np.zeros(0)
+        p_WC = self.clamp_pose(self.x0_of(coarse.astype(float)))[0]
+        near = coarse[surface.signed_distance(p_WC) <= 1.0 + motion[coarse]]
+        parts = [k + np.arange(1, n) / n
+                 for k, n in zip(near, np.ceil(motion[near] / SUBSAMPLE_L).astype(np.int64),
+                                 strict=True)]
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     def symmetric(self, surface: Surface) -> bool:
         """Never assumed for a general path (psi is solved for)."""

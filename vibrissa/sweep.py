@@ -776,8 +776,13 @@ def _refine(track: _Track, target: float) -> None:
         track.end, track.x0_end = SweepEnd.DETACHMENT, track.x0
         return
     span = track.x0 - target  # one step, or less for the partial first step onto a shared grid
+    # Still at the touch, the guess of the loads was for the whole span (`_start`): a sub-step
+    # pushes the rod in less, the loads in proportion (a coarse path's sample: 2 L at once).
+    touch_guess = None if track.history else track.q.copy()
     for level in range(1, _REFINEMENTS + 1):
         sub = span / 2**level
+        if touch_guess is not None and not track.history:
+            track.q = np.concatenate([touch_guess[:1], touch_guess[1:] / 2**level])
         while track.x0 - sub >= target - 1e-12 * step:
             # Every sub-step tries all stages: after a stuck sub-step the tip may slip by too
             # little for the plain unknowns (a tip on a ball at mu 0.8, refined with plain

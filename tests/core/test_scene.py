@@ -233,3 +233,25 @@ def test_a_steep_poke_with_strong_friction_is_unresolved_not_free_nor_elsewhere(
     assert np.all(depth[:touch] <= 0) and np.all(depth[touch:] > 0)  # inside from the touch on
     assert np.all(r.phase[touch:] == SamplePhase.UNRESOLVED)
     assert np.all(np.isnan(r.f0_n[touch:])) and np.all(np.isnan(r.p_W_m[touch:]))
+
+
+def test_a_path_that_jumps_past_the_front_of_a_ball_finds_the_touch_between_samples() -> None:
+    """One sample carries the clamp 2 L, from beyond a ball to past its front: neither sample's
+    straight rod is inside the ball, but the rod passes through it in between. The touch is
+    found at sub-samples and Step 1 follows the rod around the ball from there: from the
+    landing on, every sample is what a fine path gives. Once this path was free throughout."""
+    ball = SceneObject("ball", "sphere", {"radius_m": 0.3 * L0},
+                       Transform(translation=[0.6 * L0, 0.0, 0.8 * L0]))
+    x = np.linspace(2.0, -1.2, 200) * L0  # 0.016 L a sample
+    fine, coarse = (robot_path(np.arange(len(xs)) * 0.01, np.column_stack([xs, np.zeros((len(xs), 2))]),
+                               np.tile([0.0, 0.0, 0.0, 1.0], (len(xs), 1)))
+                    for xs in (x, np.concatenate([x[:1], x[124:]])))
+    [f], [c] = (simulate(Scene(0.25, (ball,), (PLAIN,), path), workers=1) for path in (fine, coarse))
+    touching = f.phase[124:] != SamplePhase.NONE
+    assert touching[0] and touching.sum() > 10  # the fine rod is around the ball at the landing
+    assert np.array_equal(c.phase[1:], f.phase[124:])
+    scale = np.abs(f.f0_n[124:]).max()
+    assert np.abs(c.f0_n[1:] - f.f0_n[124:]).max() <= 1e-9 * scale
+    assert np.abs(c.m0_nm[1:] - f.m0_nm[124:]).max() <= 1e-9 * np.abs(f.m0_nm[124:]).max()
+    [episode] = c.episodes
+    assert c.t[0] < episode.t_first_contact < c.t[1]

@@ -13,6 +13,7 @@ is one.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Sequence
@@ -102,6 +103,7 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
                                        for result, row in zip(results, sample, strict=True)))
     written.append(target)
     summary = {
+        "scene_sha256": _scene_digest(scene),
         "units": {"t": "s", "length": "m", "force": "N", "moment": "N m",
                   "wrench": "clamp reaction on the rod about the clamp point, in the clamp frame"},
         "whiskers": {
@@ -120,6 +122,21 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
     target.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     written.append(target)
     return written
+
+
+def _scene_digest(scene: Scene) -> str:
+    """SHA-256 of what a scene's results depend on: mu, the objects, the whiskers (rods,
+    mounts, sensor frames) and the path, bit for bit."""
+    digest = hashlib.sha256(repr(scene.mu).encode())
+    for obj in scene.objects:
+        digest.update(repr((obj.name, obj.shape, sorted(obj.sizes.items()))).encode())
+        digest.update(obj.X_WO.matrix.tobytes())
+    for whisker in scene.whiskers:
+        digest.update(repr((whisker.name, whisker.length_m, whisker.ei_nm2)).encode())
+        digest.update(whisker.X_RC.matrix.tobytes() + whisker.X_CS.matrix.tobytes())
+    for array in (scene.path.t, scene.path.p_WR, scene.path.R_WR.as_matrix()):
+        digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
+    return digest.hexdigest()
 
 
 def read_results(folder: str | Path, scene: Scene) -> list[WhiskerResult]:
@@ -142,7 +159,7 @@ def read_results(folder: str | Path, scene: Scene) -> list[WhiskerResult]:
         raise SceneError(f"{folder}: not a folder (expected the -o DIR of vibrissa simulate)")
     results = [_read_whisker(folder / f"{whisker.name}.csv", whisker.name, scene)
                for whisker in scene.whiskers]
-    episodes = _read_episodes(folder / SUMMARY_FILE, [r.name for r in results])
+    episodes = _read_episodes(folder / SUMMARY_FILE, [r.name for r in results], scene)
     for result in results:
         result.episodes = episodes[result.name]
     return results
@@ -211,12 +228,17 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _read_episodes(path: Path, names: Sequence[str]) -> dict[str, list[Episode]]:
-    """Each whisker's episodes from ``summary.json``."""
+def _read_episodes(path: Path, names: Sequence[str], scene: Scene) -> dict[str, list[Episode]]:
+    """Each whisker's episodes from ``summary.json``, whose ``scene_sha256`` (when it has one:
+    older files do not) must be ``scene``'s."""
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise SceneError(f"{path}: {exc}") from None
+    written_for = doc.get("scene_sha256") if isinstance(doc, dict) else None
+    if written_for is not None and written_for != _scene_digest(scene):
+        raise SceneError(f"{path}: the results of another scene: its scene_sha256 is not this "
+                         "scene's (objects, whiskers, mu or path differ); simulate this scene")
     episodes: dict[str, list[Episode]] = {}
     for name in names:
         try:

@@ -92,12 +92,15 @@ def test_read_results_gives_back_the_arrays_simulate_returned(simulated: Simulat
     assert any(e.phase_changes for e in tilted.episodes)
 
 
-def test_results_written_before_the_refined_column_read_as_never_refined(
+def test_results_written_before_the_refined_column_and_the_scene_digest_still_read(
         simulated: Simulated, tmp_path: Path) -> None:
     folder = tmp_path / "out"
     shutil.copytree(simulated.out, folder)
     for name in ("plain", "tilted"):
         edit_csv(folder / f"{name}.csv", lambda rows: [row.pop() for row in rows])
+    summary = json.loads((folder / "summary.json").read_text())
+    del summary["scene_sha256"]
+    (folder / "summary.json").write_text(json.dumps(summary))
     for got, want in zip(read_results(folder, simulated.scene), simulated.results, strict=True):
         assert not got.refined.any() and len(got.refined) == len(want.t)
         assert same_bits(got.f0_n, want.f0_n) and np.array_equal(got.phase, want.phase)
@@ -212,6 +215,12 @@ CASES: list[tuple[str, Callable[[Path, Path], None], str, str]] = [
      "plain.csv", "column object: 'mug' is not an object of the scene (cup, ball)"),
     ("no wrench in contact", lambda folder, scene: edit_csv(folder / "plain.csv", set_cell("tip", 3, "")),
      "plain.csv", "column f0x: a tip sample needs a finite wrench, got ''"),
+    ("another scene: the ball moved", lambda folder, scene: (scene / "scene.yaml").write_text(
+        SCENE.replace("[-0.125, 0.0, 0.04]", "[-0.125, 0.0, 0.045]")),
+     "summary.json", "the results of another scene: its scene_sha256 is not this scene's"),
+    ("another scene: a stiffer rod", lambda folder, scene: (scene / "scene.yaml").write_text(
+        SCENE.replace("ei_nm2: 2.0e-5", "ei_nm2: 3.0e-5")),
+     "summary.json", "the results of another scene"),
     ("no summary", lambda folder, scene: (folder / "summary.json").unlink(),
      "summary.json", "No such file"),
     ("a summary without the whisker", lambda folder, scene: drop_summary_whisker(folder / "summary.json"),

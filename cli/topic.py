@@ -15,7 +15,13 @@ from typing import Any, NamedTuple, TextIO
 
 import numpy as np
 
-from vibrissa.cli.graph import add_endpoint_flags, endpoints_from, nothing_heard, stop_on_signals
+from vibrissa.cli.graph import (
+    add_endpoint_flags,
+    endpoints_from,
+    nothing_heard,
+    stop_on_signals,
+    where,
+)
 from vibrissa.msgs import EndOfStream, Message, NodeStatus, to_jsonable
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 from vibrissa.wire.transport import Endpoints, Subscriber
@@ -209,8 +215,23 @@ def _silence_hint(tool: str, args: argparse.Namespace, endpoints: Endpoints
         if not said:
             said.append(True)
             print(f"vibrissa topic {tool}: nothing on {args.topic} yet: "
-                  f"{nothing_heard(args, endpoints)}", file=sys.stderr, flush=True)
+                  f"{_why_silent(args, endpoints)}", file=sys.stderr, flush=True)
     return hint
+
+
+def _why_silent(args: argparse.Namespace, endpoints: Endpoints) -> str:
+    """A graph whose statuses come through is reachable: then either no node publishes the
+    topic (the topics they do publish follow) or its publishers have sent nothing yet; a
+    graph heard not at all is ``nothing_heard``'s case (keys, another domain)."""
+    topics = survey(endpoints, 1.0)
+    if not topics:
+        return nothing_heard(args, endpoints)
+    publishers = sorted(topics[args.topic].publishers) if args.topic in topics else []
+    if publishers:
+        return f"its publishers ({', '.join(publishers)}) have sent nothing on it yet"
+    published = sorted(t for t, e in topics.items() if e.publishers and t != STATUS_TOPIC)
+    return (f"no node of the graph on {where(args, endpoints)} publishes it (published: "
+            f"{', '.join(published) or 'nothing but statuses'})")
 
 
 def _echo(args: argparse.Namespace) -> int:

@@ -115,6 +115,21 @@ def test_a_silent_topic_is_explained_once_by_echo_and_hz(
     assert err.count("vibrissa topic hz: nothing on /nobody yet: ") == 1, err
 
 
+def test_a_topic_no_node_publishes_is_said_so_with_the_ones_they_do(
+        endpoints: Endpoints, talker: Publisher, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A reachable graph (its statuses come through) without the topic: not the keys' fault
+    (the hint once blamed keys on a graph that had none)."""
+    monkeypatch.setattr(topic, "SILENCE_HINT_S", 0.3)
+    code = vibrissa_main(["topic", "echo", "/robot/nope", "--timeout", "2", "--pub",
+                          endpoints.pub, "--sub", endpoints.sub])
+    err = capsys.readouterr().err
+    assert code == 1 and "keys" not in err, err
+    assert err.count("vibrissa topic echo: nothing on /robot/nope yet: no node of the graph on "
+                     f"--pub {endpoints.pub} --sub {endpoints.sub} publishes it (published: "
+                     "/w0/mixed, /w0/wrench)") == 1, err
+
+
 def test_hz_measures_rate_and_loss(endpoints: Endpoints, talker: Publisher,
                                    context: zmq.Context[Any]) -> None:
     out = io.StringIO()

@@ -38,8 +38,9 @@ def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]])
 
 def read_csv(path: Path, columns: Sequence[str]) -> tuple[list[str], list[list[str]]]:
     """The header (stripped) and the rows of a CSV that must have ``columns`` (more are
-    allowed, each once); `SceneError` names the file and what is wrong. A UTF-8 byte order mark
-    (as spreadsheets save) and blank lines are no part of the table."""
+    allowed, each named once, and unnamed ones); `SceneError` names the file and what is
+    wrong. A UTF-8 byte order mark (as spreadsheets save) and blank lines are no part of the
+    table."""
     try:
         with path.open(newline="", encoding="utf-8-sig") as handle:
             rows = [row for row in csv.reader(handle) if row]
@@ -50,7 +51,8 @@ def read_csv(path: Path, columns: Sequence[str]) -> tuple[list[str], list[list[s
     if missing:
         raise SceneError(f"{path}: missing column(s) {', '.join(missing)} (the columns are "
                          f"{','.join(columns)})")
-    repeated = sorted({name for name in header if header.count(name) > 1})
+    # unnamed columns (a spreadsheet's trailing commas) are extra columns like any other
+    repeated = sorted({name for name in header if name and header.count(name) > 1})
     if repeated:
         raise SceneError(f"{path}: column(s) {', '.join(repeated)} appear more than once")
     return header, rows[1:]

@@ -266,6 +266,8 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
      "wrenches.csv: row 1, column t: '0.1_5' is not a number"),
     ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z,t\n0.1,w0,0,0,0,0,0,0,0.2\n",
      "wrenches.csv: column(s) t appear more than once"),
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z,,\n0.1,w0,0,0,0,0,0,0\n",  # a row short of the header
+     "wrenches.csv: row 1: expected 10 values, got 8"),
 ])
 def test_reconstruct_with_a_scene_names_what_is_wrong(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, message: str) -> None:
@@ -285,8 +287,10 @@ def test_reconstruct_reads_what_spreadsheets_write_and_an_empty_table(
     header = "t,whisker,f0x,f0y,f0z,m0x,m0y,m0z"
     row = "0.5,w0,0.001,-0.002,0.0005,1e-05,2e-05,0"
     points = tmp_path / "p.csv"
-    # a byte order mark, CRLF line ends, a blank line and a trailing one: the same one row
-    for text in ("\ufeff" + header + "\r\n" + row + "\r\n", header + "\n\n" + row + "\n\n"):
+    # a byte order mark, CRLF line ends, a blank line and a trailing one, unnamed columns of
+    # trailing commas: the same one row
+    for text in ("\ufeff" + header + "\r\n" + row + "\r\n", header + "\n\n" + row + "\n\n",
+                 header + ",,\n" + row + ",,\n"):
         (tmp_path / "wrenches.csv").write_text(text, encoding="utf-8")
         assert main(["reconstruct", str(tmp_path / "wrenches.csv"), "--scene",
                      str(tmp_path / "scene.yaml"), "-o", str(points)]) == 0

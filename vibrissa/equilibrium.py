@@ -23,7 +23,9 @@ from vibrissa.elastica import planar_contact_scalar
 
 FloatArray = NDArray[np.float64]
 
-MODE_TIP, MODE_TANGENTIAL, MODE_STICK = 0, 1, 2
+MODE_TIP, MODE_TANGENTIAL, MODE_STICK, MODE_STICK_TANGENTIAL = 0, 1, 2, 3
+"""Sliding at the tip, sliding tangentially, the tip held at the anchor, a tangential contact
+held at the anchor (the contact point stays on the object, the rod rolls over it: s1 free)."""
 NEWTON_TOL = 1e-12
 DIRECTION_TOL = 1e-8
 """Tolerance of the two friction-direction residuals of a sliding row: the chord of eq. 7 can
@@ -96,10 +98,12 @@ def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
     along = (fu * d_v - fv * d_u) / f
     if locked:
         in_plane = psi
-    if mode == MODE_STICK:
-        out[0], out[1], out[2], out[3] = s1 - 1.0, p1[0] - anchor[0], p1[1] - anchor[1], p1[2] - anchor[2]
+    tangential = tangent[0] * normal[0] + tangent[1] * normal[1] + tangent[2] * normal[2]
+    held = mode == MODE_STICK or mode == MODE_STICK_TANGENTIAL
+    if held:
+        out[0] = s1 - 1.0 if mode == MODE_STICK else tangential
+        out[1], out[2], out[3] = p1[0] - anchor[0], p1[1] - anchor[1], p1[2] - anchor[2]
     else:
-        tangential = tangent[0] * normal[0] + tangent[1] * normal[1] + tangent[2] * normal[2]
         out[0] = tangential if mode == MODE_TANGENTIAL else s1 - 1.0
         out[1], out[2], out[3] = gap, in_plane, along
     for i in range(3):
@@ -112,7 +116,7 @@ def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
     out[17] = kappa0
     out[21] = status
     # converged: strict geometry; a sliding row's friction direction to DIRECTION_TOL only
-    direction_tol = NEWTON_TOL if mode == MODE_STICK else DIRECTION_TOL
+    direction_tol = NEWTON_TOL if held else DIRECTION_TOL
     converged = (abs(out[0]) < NEWTON_TOL and abs(out[1]) < NEWTON_TOL
                  and abs(out[2]) < direction_tol and abs(out[3]) < direction_tol)
     out[22] = 1.0 if converged else 0.0
@@ -247,11 +251,11 @@ def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
         fn = row[14] * row[11] + row[15] * row[12] + row[16] * row[13]
         dx, dy, dz = row[4] - previous[r, 0], row[5] - previous[r, 1], row[6] - previous[r, 2]
         good = row[21] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump[r]
-        if mode[r] == MODE_TANGENTIAL:
+        if mode[r] == MODE_TANGENTIAL or mode[r] == MODE_STICK_TANGENTIAL:
             good = good and row[7] <= 1.0 and row[7] > 0.0
         else:
             good = good and row[8] * row[11] + row[9] * row[12] + row[10] * row[13] <= 1e-9
-        if mode[r] == MODE_STICK:
+        if mode[r] == MODE_STICK or mode[r] == MODE_STICK_TANGENTIAL:
             tx, ty, tz = row[14] - fn * row[11], row[15] - fn * row[12], row[16] - fn * row[13]
             good = good and math.sqrt(tx * tx + ty * ty + tz * tz) <= mu[r] * fn * (1.0 + 1e-9)
         ok[r] = good

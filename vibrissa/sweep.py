@@ -31,7 +31,18 @@ equilibrium exists near the previous one, because the friction direction of eq. 
 where the contact goes. Coulomb's law then allows the contact to stick: the rod's tip stays at
 the previous contact point (three equations) with s1 = 1, and the state is accepted when the
 resulting contact force lies inside the friction cone, |F_t| <= mu F_n. Sliding is tried first
-at every step, as in the paper.
+at every step, as in the paper. A tangential contact may hold too: its contact point stays on
+the object (three equations) with the rod tangent to it there, the rod rolling over the point
+(s1 free); tried when nothing else holds the step.
+
+Turning back (not in the paper): where the path reverses, the friction must turn through its
+cone. A slide that would move the contact against its last slide is taken only where the
+contact cannot hold (the force of the held state is outside the cone), and a held tangential
+contact slides again only once it cannot hold any longer. Slides shorter than 1e-6 L have no
+direction to turn back from (a nearly stuck tip slips by 1e-8). On an arc that reverses (mu
+0.6) a tangential contact so holds for 11 samples while its friction turns from one edge of
+the cone to the other, |F_t| down to 0.24 F_n, then slides back; sliding back at once, it had
+jumped 0.091 L over the object in one sample.
 
 Stick-slip (not in the paper): on the paper's object with mu = 0.4 and |y0| = 0.2 the tip's
 sliding branch folds again and again from x0 ~ -0.79 on: the tip creeps ever faster (measured
@@ -71,6 +82,7 @@ from numpy.typing import ArrayLike, NDArray
 from vibrissa.elastica import planar_line
 from vibrissa.equilibrium import (
     MODE_STICK,
+    MODE_STICK_TANGENTIAL,
     MODE_TANGENTIAL,
     MODE_TIP,
     admissible_rows,
@@ -261,6 +273,8 @@ class Sweep:
 
 
 _MODE_TIP, _MODE_TANGENTIAL, _MODE_STICK = MODE_TIP, MODE_TANGENTIAL, MODE_STICK
+_MODE_HELD = MODE_STICK_TANGENTIAL
+_STUCK = (MODE_STICK, MODE_STICK_TANGENTIAL)
 
 
 @dataclass
@@ -511,6 +525,7 @@ class _Track:
     x0_end: float = float("nan")
     smooth: bool = True  # the last two steps were alike plain slides (the predictor may extrapolate)
     chord: float = 0.0  # length of the last step's contact displacement, units of L
+    slid: FloatArray | None = None  # the contact's last displacement by a slide, units of L
     pending: tuple[FloatArray, FloatArray, FloatArray, float] = ()  # type: ignore[assignment]  # p1, normal, force, s1 of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
@@ -846,7 +861,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     p1 = np.array([t.p1 for t in tracks])
     anchor = np.array([t.anchor for t in tracks])
     predictors = np.array([_predict(t) for t in tracks])
-    sliding_mode = np.array([t.mode if t.mode != _MODE_STICK else _MODE_TIP for t in tracks])
+    sliding_mode = np.array([_sliding(t.mode) for t in tracks])
     stuck: dict[int, tuple[FloatArray, _State, int]] = {}
 
     def solve_stage(modes: NDArray[np.int64], kind: str) -> None:
@@ -859,10 +874,12 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
             rows, alternates = rows[finite], alternates[finite]
         if kind == "anchored":
             rows = np.array([i for i in rows if i in stuck], dtype=np.int64)
+        if kind == "held":
+            rows = rows[sliding_mode[rows] == _MODE_TANGENTIAL]
         if len(rows) == 0:
             return
         batch = _Batch(p_WC[rows], R_WC[rows], mu[rows],
-                       np.where((modes[rows] == _MODE_STICK)[:, None], anchor[rows], p1[rows]),
+                       np.where(np.isin(modes[rows], _STUCK)[:, None], anchor[rows], p1[rows]),
                        modes[rows], locked[rows],
                        *(objects if len(rows) == n else (a[rows] for a in objects)))
         if kind == "anchored":
@@ -877,6 +894,15 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         else:
             q, state, converged = _newton(predictors[rows], batch)
         ok = converged & admissible_rows(state.rows, batch.mode, batch.mu, p1[rows], jump[rows])
+        if kind in ("slide", "alternating", "continuation"):
+            # Coulomb's friction turns back through its cone: a slide against the last one is
+            # taken only where the contact cannot hold, and a held tangential contact slides
+            # only once it cannot hold any longer.
+            back = [k for k in np.flatnonzero(ok)
+                    if tracks[int(rows[k])].mode == _MODE_HELD
+                    or _turns_back(tracks[int(rows[k])], state.rows[k, 4:7])]
+            if back:
+                ok[back] = ~hold(rows[back])
         for k in np.flatnonzero(ok):
             i = int(rows[k])
             moved = state.rows[k, 4:7] - p1[i]
@@ -890,6 +916,22 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
             for k in np.flatnonzero(converged & ~ok):
                 stuck[int(rows[k])] = (q[k], _take_state(state, int(k)), int(k))
 
+    def hold(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Hold the contacts of ``rows`` where they are (a tip at its point, a tangential
+        contact with the rod rolling over it); accept those whose force is inside the cone."""
+        modes = np.where(sliding_mode[rows] == _MODE_TIP, _MODE_STICK, _MODE_HELD)
+        batch = _Batch(p_WC[rows], R_WC[rows], mu[rows], anchor[rows], modes, locked[rows],
+                       *(objects if len(rows) == n else (a[rows] for a in objects)))
+        # from the last state, not the predictor: a hold goes on from where the contact is
+        q, state, converged = _newton(np.array([tracks[i].q for i in rows]), batch)
+        ok = converged & admissible_rows(state.rows, modes, mu[rows], p1[rows], jump[rows])
+        for k in np.flatnonzero(ok):
+            i = int(rows[k])
+            _accept(tracks[i], float(targets[i]), q[k], state, int(k), int(modes[k]))
+            tracks[i].smooth, tracks[i].chord = False, 0.0
+            success[i] = True
+        return ok
+
     other_mode = np.where(sliding_mode == _MODE_TIP, _MODE_TANGENTIAL, _MODE_TIP)
     stages = [
         (sliding_mode, "slide"),
@@ -901,10 +943,13 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         # ... or slip only slightly from where it was: a tip slide in polar coordinates around
         # the held point, from the stuck state (well conditioned for any slip).
         (np.full(n, _MODE_TIP), "anchored"),
-        # Friction continuation (mu from 0 up) is the last resort for steps whose sliding state
-        # is far from the predictor.
+        # Friction continuation (mu from 0 up) for steps whose sliding state is far from the
+        # predictor.
         (sliding_mode, "continuation"),
         (other_mode, "continuation"),
+        # Last, a tangential contact may hold where it is, the rod rolling over it (a path that
+        # turns back: the force turns inside the cone).
+        (np.full(n, _MODE_HELD), "held"),
     ]
     for modes, kind in stages:
         if success.all():
@@ -947,7 +992,23 @@ def _predict_alternating(track: _Track) -> FloatArray:
     return 2.0 * track.history[-2] - track.history[-4]
 
 
+_TURN_L = 1e-6
+"""Slides shorter than this (units of L) have no direction to turn back from: a nearly stuck
+tip slips by 1e-8 to 1e-7, and round-off sets where."""
+
+
+def _turns_back(track: _Track, p1: FloatArray) -> bool:
+    """Whether moving the contact to ``p1`` turns back against its last slide."""
+    if track.slid is None:
+        return False
+    moved = p1 - track.p1
+    return (float(moved @ track.slid) < 0.0 and float(np.linalg.norm(moved)) > _TURN_L
+            and float(np.linalg.norm(track.slid)) > _TURN_L)
+
+
 def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode: int) -> None:
+    if mode not in _STUCK:
+        track.slid = state.p1[k] - track.p1
     track.q = q.copy()
     track.history = [*track.history[-3:], track.q]
     track.x0 = x0
@@ -956,13 +1017,18 @@ def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode
     if track.rows and _phase_of(mode) != phase_before:
         track.phase_changes.append((x0, phase_before.label, _phase_of(mode).label))
     track.p1 = state.p1[k].copy()
-    if mode != _MODE_STICK:
+    if mode not in _STUCK:
         track.anchor = track.p1
     track.pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy(), float(state.s1[k]))
 
 
 def _phase_of(mode: int) -> ContactPhase:
-    return ContactPhase.TANGENTIAL if mode == _MODE_TANGENTIAL else ContactPhase.TIP
+    return ContactPhase.TANGENTIAL if _sliding(mode) == _MODE_TANGENTIAL else ContactPhase.TIP
+
+
+def _sliding(mode: int) -> int:
+    """The sliding mode of a mode's phase (a held tip: the tip's)."""
+    return _MODE_TIP if mode == _MODE_STICK else _MODE_TANGENTIAL if mode == _MODE_HELD else mode
 
 
 def _record(track: _Track, refined: bool) -> None:
@@ -1003,7 +1069,7 @@ def _finish(track: _Track) -> Sweep:
         step=track.step,
         x0=x0,
         phase=np.array([_phase_of(m) for m in modes], dtype=np.int64),
-        state=np.where(modes == _MODE_STICK, STICK, SLIDE).astype(np.int64),
+        state=np.where(np.isin(modes, _STUCK), STICK, SLIDE).astype(np.int64),
         s1=s1,
         psi=psi,
         f0=f0,

@@ -50,6 +50,7 @@ import yaml
 
 from vibrissa.runtime import yaml_numbers
 from vibrissa.runtime.params import ParamError, check_params
+from vibrissa.units import finite_number
 from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
 from vibrissa.wire.transport import DEFAULT_MAX_MESSAGE_BYTES, Endpoints
 
@@ -396,7 +397,7 @@ class _Parser:
         value = self.retyped(value, path)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(path, f"expected a number, got {_show(value)}")
-        if not minimum <= value <= sys.float_info.max:  # NaN, inf, an int of 400 digits
+        if not (finite_number(value) and value >= minimum):
             raise self.error(path, f"expected a finite number >= {minimum:g}, got {_show(value)}")
         return float(value)
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-import sys
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -15,6 +14,7 @@ from typing import Any, TypeVar
 import yaml
 
 from vibrissa.runtime import yaml_numbers
+from vibrissa.units import finite_number
 
 # Not msgspec.convert: for a dataclass it ignores unknown keys (strictness is the point here),
 # takes a ``field(init=False)`` (the nodes' derived ``rod``) for a required key, and gives the
@@ -170,7 +170,7 @@ def _check(value: object, hint: Any, name: str, source: str) -> Any:
     elif isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(value, dict):
         return hint(**_typed_values(hint, value, source, from_text=False, prefix=f"{name}."))
     elif (hint is float and isinstance(value, (int, float)) and not isinstance(value, bool)
-          and abs(value) <= sys.float_info.max):  # an int of 400 digits is no float
+          and not (isinstance(value, int) and not finite_number(value))):  # 400 digits: no float
         return float(value)
     elif hint is Path and isinstance(value, str):
         return Path(value)

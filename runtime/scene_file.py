@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import csv
 import re
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ import yaml
 from vibrissa.frames import Transform
 from vibrissa.runtime import yaml_numbers
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
+from vibrissa.units import finite_number
 
 __all__ = ["LIMITS", "NAME_RULE", "SceneError", "check_name", "load_path", "load_robot", "load_scene",
            "number_cell", "scene_files"]
@@ -193,8 +193,7 @@ def _list(value: Any, where: str) -> list[Any]:
 
 def _number(value: Any, where: str, limits: str | None = None) -> float:
     """A finite number, within ``LIMITS[limits]`` when given."""
-    if (isinstance(value, bool) or not isinstance(value, (int, float))
-            or not abs(value) <= sys.float_info.max):  # NaN, inf, an int of 400 digits
+    if not finite_number(value):
         raise SceneError(f"{where}: expected a finite number, got {_show(value)}")
     if limits is not None:
         low, high = LIMITS[limits]

@@ -214,8 +214,8 @@ def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
     for i, flag in enumerate(column["refined"]):
         if flag not in ("0", "1"):
             raise SceneError(f"{path}: row {i + 1}, column refined: {flag!r} is not 0 or 1")
-    refined = np.array([flag == "1" for flag in column["refined"]] or np.zeros(len(body)),
-                       dtype=bool)
+    refined = (np.array([flag == "1" for flag in column["refined"]], dtype=bool)
+               if column["refined"] else np.zeros(len(body), dtype=bool))
     s1, f0, m0, p_W = (values[:, cols].copy() for cols in (1, slice(2, 5), slice(5, 8), slice(8, 11)))
     return WhiskerResult(name, t_path, phase, s1, f0, m0, p_W, touched, refined, [])
 

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import enum
 import os
-import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -45,7 +44,7 @@ from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
 from vibrissa.sweep import Sweep, SweepRun, advance_together, next_grid_point
-from vibrissa.units import RodScale
+from vibrissa.units import RodScale, finite_number
 
 if TYPE_CHECKING:
     from scipy.spatial.transform import Rotation
@@ -110,8 +109,7 @@ class SceneObject:
             if not isinstance(value, (list, tuple)) or len(value) != 3:
                 raise ValueError(f"{key} must be 3 numbers, got {value!r}")
             value = value[index]
-        if (isinstance(value, bool) or not isinstance(value, (int, float))
-                or not abs(value) <= sys.float_info.max):  # NaN, inf, an int of 400 digits
+        if not finite_number(value):
             raise ValueError(f"{key} must be a finite number, got {value!r}")
         return float(value)
 

@@ -863,6 +863,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     predictors = np.array([_predict(t) for t in tracks])
     sliding_mode = np.array([_sliding(t.mode) for t in tracks])
     stuck: dict[int, tuple[FloatArray, _State, int]] = {}
+    far: dict[int, tuple[FloatArray, _State, int, str]] = {}  # the first far slide of each row
 
     def solve_stage(modes: NDArray[np.int64], kind: str) -> None:
         rows = np.flatnonzero(~success)
@@ -874,6 +875,9 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
             rows, alternates = rows[finite], alternates[finite]
         if kind == "anchored":
             rows = np.array([i for i in rows if i in stuck], dtype=np.int64)
+        if kind == "continuation":
+            # for rows where no slide was found; a far slide is one
+            rows = np.array([i for i in rows if i not in far], dtype=np.int64)
         if kind == "held":
             rows = rows[sliding_mode[rows] == _MODE_TANGENTIAL]
         if len(rows) == 0:
@@ -903,18 +907,28 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
                     or _turns_back(tracks[int(rows[k])], state.rows[k, 4:7])]
             if back:
                 ok[back] = ~hold(rows[back])
+            # A far slide waits for the later stages: the contact may hold or slip a little
+            # from where it holds (`_FAR_STEPS`).
+            for k in np.flatnonzero(ok):
+                i = int(rows[k])
+                if mu[i] > 0 and _chord(state.rows[k, 4:7], p1[i]) > max(
+                        _FAR_STEPS * steps[i], _FAR_GROWTH * tracks[i].chord):
+                    far.setdefault(i, (q[k].copy(), _take_state(state, int(k)), int(modes[i]), kind))
+                    ok[k] = False
         for k in np.flatnonzero(ok):
             i = int(rows[k])
-            moved = state.rows[k, 4:7] - p1[i]
-            chord = math.sqrt(moved.dot(moved))  # np.linalg.norm's arithmetic, without its calls
-            _accept(tracks[i], float(targets[i]), q[k], state, int(k), int(modes[i]))
-            # Extrapolate only along an even stretch: in stick-slip the slides alternate in length.
-            tracks[i].smooth = kind == "slide" and 0.5 * tracks[i].chord <= chord <= 2.0 * tracks[i].chord
-            tracks[i].chord = chord
-            success[i] = True
+            take(i, q[k], _take_state(state, int(k)), int(modes[i]), kind)
         if kind == "stick":
             for k in np.flatnonzero(converged & ~ok):
                 stuck[int(rows[k])] = (q[k], _take_state(state, int(k)), int(k))
+
+    def take(i: int, q_i: FloatArray, state_i: _State, mode: int, kind: str) -> None:
+        chord = _chord(state_i.rows[0, 4:7], p1[i])
+        _accept(tracks[i], float(targets[i]), q_i, state_i, 0, mode)
+        # Extrapolate only along an even stretch: in stick-slip the slides alternate in length.
+        tracks[i].smooth = kind == "slide" and 0.5 * tracks[i].chord <= chord <= 2.0 * tracks[i].chord
+        tracks[i].chord = chord
+        success[i] = True
 
     def hold(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
         """Hold the contacts of ``rows`` where they are (a tip at its point, a tangential
@@ -955,6 +969,9 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         if success.all():
             break  # the later stages take only the rows still unsolved
         solve_stage(modes, kind)
+    for i, (q_i, state_i, mode, kind) in far.items():
+        if not success[i]:
+            take(i, q_i, state_i, mode, kind)  # no nearer state: the contact jumps
     return success
 
 
@@ -990,6 +1007,24 @@ def _predict_alternating(track: _Track) -> FloatArray:
     if len(track.history) < 4 or track.smooth:
         return np.full(4, np.nan)
     return 2.0 * track.history[-2] - track.history[-4]
+
+
+_FAR_STEPS = 2.0
+_FAR_GROWTH = 4.0
+"""A slide is far when it moves the contact further than both ``_FAR_STEPS`` steps (a step: the
+furthest any point of the straight rod moves) and ``_FAR_GROWTH`` times the last step's move. A
+far slide is taken only where no later stage finds the contact held (inside the cone) or, a
+tip, slipping a little from where it holds: the return mapping of frictional contact, whose
+state goes on from the last one. Far slides are jumps to another branch: a tip on a ball (mu
+0.3) stepped 0.12-0.28 L every other sample at one step per sample, where 4 sub-steps per
+sample stick and creep at most 0.003 L (tests/core/test_tip_jump.py). Continuous slides move the
+contact up to about 1.5 steps (the paper's trail near a detachment: 2-3, each step's move
+growing by less than 2x)."""
+
+
+def _chord(p1: FloatArray, previous: FloatArray) -> float:
+    moved = p1 - previous
+    return math.sqrt(moved.dot(moved))  # np.linalg.norm's arithmetic, without its calls
 
 
 _TURN_L = 1e-6

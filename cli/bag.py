@@ -12,10 +12,15 @@ from typing import Any
 import zmq
 
 from vibrissa.cli.graph import (
+    Names,
     add_endpoint_flags,
     endpoints_from,
+    is_graph_name,
+    no_graph,
     nothing_heard,
+    seconds,
     stop_on_signals,
+    take_spilled,
 )
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
 from vibrissa.nodes import recorder
@@ -23,9 +28,11 @@ from vibrissa.runtime import Node
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.runtime.scene_file import SceneError, load_robot
-from vibrissa.wire.bag import BagReader, PlayResult, export_json, play_bag
+from vibrissa.wire.bag import BagReader, PlayResult, check_bag_file, export_json, play_bag
 from vibrissa.wire.ros2_bag import WHISKERS_TOPIC, export_ros2, import_ros2, wrench_topics_of
 from vibrissa.wire.transport import Endpoints
+
+_TOPICS_HELP = "only these topics (several, comma-separated or not, or --topics again)"
 
 
 def register(subparsers: Any) -> None:
@@ -50,17 +57,19 @@ def register(subparsers: Any) -> None:
 
     p = sub.add_parser("play", help="publish a bag's messages with their original timing "
                        "(each with its own type, in recorded order per topic)")
-    p.add_argument("bag", metavar="FILE.mcap")
+    p.add_argument("bag", nargs="?", metavar="FILE.mcap")  # also after --topics (Names)
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--rate", type=float, default=1.0, metavar="R",
                        help="time scale, 2 = twice as fast (default 1)")
     speed.add_argument("--fast", action="store_true", help="publish as fast as possible")
-    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
-    p.add_argument("--wait", type=float, default=1.0, metavar="S",
+    p.add_argument("--topics", action=Names, is_name=is_graph_name, metavar="TOPIC",
+                   help=_TOPICS_HELP)
+    p.add_argument("--wait", type=seconds, default=1.0, metavar="S",
                    help="seconds to let subscribers connect before the first message")
-    p.add_argument("--wait-for", nargs="+", default=[], metavar="NODE",
-                   help="also wait until these nodes report every played topic as received")
-    p.add_argument("--wait-timeout", type=float, default=30.0, metavar="S",
+    p.add_argument("--wait-for", action=Names, is_name=is_graph_name, default=[],
+                   metavar="NODE", help="also wait until these nodes report every played "
+                   "topic as received (several, comma-separated or not, or --wait-for again)")
+    p.add_argument("--wait-timeout", type=seconds, default=30.0, metavar="S",
                    help="give up on --wait-for after S seconds (default 30)")
     add_endpoint_flags(p)
     p.set_defaults(func=_play)
@@ -79,7 +88,7 @@ def register(subparsers: Any) -> None:
         "sensor_msgs/PointCloud2 (x, y, z, whisker, phase, s1; whisker indexes the JSON list "
         f"of names on {WHISKERS_TOPIC}); RobotPose -> /tf; the --robot mounts -> /tf_static; "
         "SurfaceMesh -> visualization_msgs/Marker; other types are skipped and counted.")
-    p.add_argument("bag", metavar="BAG.mcap")
+    p.add_argument("bag", nargs="?", metavar="BAG.mcap")  # also after --topics (Names)
     p.add_argument("outdir", nargs="?", metavar="OUT",
                    help="output: OUT.mcap for json, a new folder for ros2 (or -o)")
     p.add_argument("-o", "--output", metavar="OUT", help="output (instead of OUT)")
@@ -88,7 +97,8 @@ def register(subparsers: Any) -> None:
                    "folder; foxglove: MCAP of the live view's channels in Foxglove's own "
                    "schemas (the 3D panel draws the points, frames and meshes; needs the extra "
                    "view)")
-    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
+    p.add_argument("--topics", action=Names, is_name=is_graph_name, metavar="TOPIC",
+                   help=_TOPICS_HELP)
     p.add_argument("--robot", metavar="SCENE.yaml",
                    help="ros2, foxglove: the robot description (a scene file's whiskers) whose "
                    "mounts go to /tf_static (ros2) or /tf (foxglove)")
@@ -148,11 +158,17 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _play(args: argparse.Namespace) -> int:
+    wrong = take_spilled(args, "bag")
+    if wrong:
+        print(f"vibrissa bag play: error: {wrong}", file=sys.stderr)
+        return 2
     rate = None if args.fast else args.rate
     if rate is not None and not (rate > 0 and math.isfinite(rate)):
         print(f"vibrissa bag play: --rate must be > 0, got {rate}", file=sys.stderr)
         return 2
     endpoints = endpoints_from(args)
+    if args.topics:
+        _say_missing_topics("play", args.bag, args.topics)
     with stop_on_signals() as stop:
         if args.wait_for:
             result = _play_gated(args, rate, endpoints, stop)
@@ -166,7 +182,20 @@ def _play(args: argparse.Namespace) -> int:
     state = "interrupted" if result.interrupted else "done"
     print(f"published {result.total} messages in {result.wall_s:.3f} s ({state})",
           file=sys.stderr)
+    nobody = no_graph(args, endpoints) if result.total else None
+    if nobody is not None:
+        print(f"vibrissa bag play: nobody received them: {nobody}", file=sys.stderr)
     return 130 if result.interrupted else 0
+
+
+def _say_missing_topics(command: str, bag: str, topics: list[str]) -> None:
+    """A warning on stderr naming the ``topics`` asked for that ``bag`` does not hold, and
+    the topics it does."""
+    present = BagReader(bag).topic_names()
+    missing = [topic for topic in topics if topic not in present]
+    if missing:
+        print(f"vibrissa bag {command}: warning: {', '.join(missing)}: no such topic in {bag} "
+              f"(its topics: {', '.join(present) or 'none'})", file=sys.stderr)
 
 
 def _play_gated(args: argparse.Namespace, rate: float | None, endpoints: Endpoints,
@@ -185,11 +214,16 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
+    wrong = take_spilled(args, "bag", "outdir")
+    if wrong:
+        print(f"vibrissa bag export: error: {wrong}", file=sys.stderr)
+        return 2
     output = args.output or args.outdir
     if output is None or (args.output and args.outdir):
         print("vibrissa bag export: error: name the output once (OUT or -o OUT)", file=sys.stderr)
         return 2
     out = Path(output)
+    check_bag_file(args.bag)  # no bag: refused before anything is made
     if args.format != "ros2" and out.exists():  # a ROS 2 bag refuses any existing OUT itself
         if Path(args.bag).exists() and out.samefile(args.bag):
             print(f"vibrissa bag export: error: {output} would overwrite the input bag",
@@ -199,6 +233,9 @@ def _export(args: argparse.Namespace) -> int:
             print(f"vibrissa bag export: error: {output} exists (--overwrite replaces it)",
                   file=sys.stderr)
             return 2
+    if args.topics:
+        _say_missing_topics("export", args.bag, args.topics)
+    out.parent.mkdir(parents=True, exist_ok=True)  # as every output file's folder
     if args.format == "json":
         info, _ = export_json(args.bag, output, topics=args.topics)  # damage: logged
         print(f"wrote {info.message_count} JSON messages to {output}", file=sys.stderr)
@@ -208,7 +245,7 @@ def _export(args: argparse.Namespace) -> int:
 
         try:
             params = foxglove_bridge.FoxgloveBridgeParams(robot=args.robot or "")
-            counts = foxglove_bridge.export_bag(args.bag, output, params)
+            counts = foxglove_bridge.export_bag(args.bag, output, params, topics=args.topics)
         except (SceneError, ValueError, FileNotFoundError) as exc:
             print(f"vibrissa bag export: error: {exc}", file=sys.stderr)
             return 2

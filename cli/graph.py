@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import math
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any
 
 from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire.security import KEYS_ENV, Keys
+from vibrissa.wire.topics import validate_name
 from vibrissa.wire.transport import DOMAIN_ENV, Endpoints
 
 SCANNED_DOMAINS = range(32)
@@ -39,6 +42,80 @@ def domain_id(text: str) -> int:
         raise argparse.ArgumentTypeError(f"domain id must be in [0, {Endpoints.MAX_DOMAIN}], "
                                          f"got {value}")
     return value
+
+
+def seconds(text: str) -> float:
+    """Argparse type: a duration in seconds, finite and >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def count(text: str) -> int:
+    """Argparse type: a count of things, an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+class Names(argparse.Action):
+    """A list option: ``--opt A,B``, ``--opt A --opt B`` or ``--opt A B``. A word after it
+    that is no name (``is_name``: a path, say) is a positional argument it took: it is kept
+    in ``spilled`` on the namespace for `take_spilled`, so ``--topics /a FILE`` still names
+    FILE."""
+
+    def __init__(self, option_strings: list[str], dest: str, *, is_name: Callable[[str], bool],
+                 **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs="+", **kwargs)
+        self.is_name = is_name
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        items = list(getattr(namespace, self.dest, None) or [])
+        spilled = list(getattr(namespace, "spilled", []))
+        for word in values:
+            parts = [part.strip() for part in word.split(",")]
+            if spilled or not all(self.is_name(part) for part in parts if part):
+                spilled.append(word)  # the positional arguments after the option
+            elif not all(parts):
+                parser.error(f"argument {option_string}: expected NAME[,NAME...], got {word!r}")
+            else:
+                items.extend(parts)
+        setattr(namespace, self.dest, items)
+        namespace.spilled = spilled
+
+
+def take_spilled(args: argparse.Namespace, required: str, *optional: str) -> str | None:
+    """Fill the positional arguments ``required`` and ``optional`` (in order) that are empty
+    with the words a `Names` option took; what is wrong if one is left over or ``required``
+    is still empty."""
+    spilled = list(getattr(args, "spilled", []))
+    for dest in (required, *optional):
+        if getattr(args, dest) is None and spilled:
+            setattr(args, dest, spilled.pop(0))
+    if spilled:
+        return f"unrecognized arguments: {' '.join(spilled)}"
+    if getattr(args, required) is None:
+        return f"the following arguments are required: {required}"
+    return None
+
+
+def is_graph_name(word: str) -> bool:
+    """Whether ``word`` is a topic or node name (``/robot/pose``, ``/probe``,
+    ``reconstructor``); a path with a dot (``robot.mcap``) is none."""
+    try:
+        validate_name(word)
+    except ValueError:
+        return False
+    return True
 
 
 def endpoints_from(args: argparse.Namespace) -> Endpoints:
@@ -87,6 +164,15 @@ def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
         text += ("; start one (`vibrissa launch demo`), or point at yours with --domain N "
                  f"({DOMAIN_ENV}=N) or --pub/--sub")
     return text
+
+
+def no_graph(args: argparse.Namespace, endpoints: Endpoints) -> str | None:
+    """`nothing_heard` when no graph runs on the tool's domain (nothing listens on its proxy's
+    port, so nobody received what it published); None when one does, or when ``--pub/--sub``
+    name the proxy."""
+    if args.pub or args.sub or Endpoints.domains_in_use([_domain(args)]):
+        return None
+    return nothing_heard(args, endpoints)
 
 
 @contextmanager

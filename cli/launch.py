@@ -9,13 +9,14 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from vibrissa.cli.graph import domain_id
+from vibrissa.cli.graph import domain_id, seconds
 from vibrissa.cli.main import parse_command_line
 from vibrissa.launch.description import (
     LaunchDescription,
     LaunchFileError,
     check_node_params,
     load_launch_file,
+    node_params,
     parse_arg_overrides,
 )
 from vibrissa.launch.launcher import DEFAULT_GRACE_S, Launcher, node_command, resolve_launch_file
@@ -58,7 +59,7 @@ def run_launch(args: argparse.Namespace) -> int:
         for spec in description.nodes:
             params = "<params-file>" if spec.params else None
             print(f"[{spec.name}] " + shlex.join(node_command(spec, params)))
-            for key, value in spec.params_dict().items():
+            for key, value in node_params(spec).items():
                 print(f"[{spec.name}]   param {key}: {value!r}")
         return 0
     return Launcher(description, grace_s=args.grace, domain=args.domain, debug=args.debug,
@@ -73,14 +74,6 @@ def _print_args(description: LaunchDescription) -> None:
     for arg in description.args:
         default = "(required)" if arg.default is None else f"default: {arg.default!r}"
         print(f"  {arg.name}: {arg.description or '-'}  [{default}]")
-
-
-def seconds(text: str) -> float:
-    """Argparse type: a duration in seconds, >= 0."""
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return value
 
 
 def register(subparsers: Any) -> None:

@@ -22,7 +22,7 @@ from vibrissa.runtime.csv_text import refuse_overwrite
 from vibrissa.runtime.scene_file import SceneError
 from vibrissa.status import SweepEnd
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
-from vibrissa.surfaces import Surface, parse_surface
+from vibrissa.surfaces import SPEC_LIMITS, Surface, parse_surface
 from vibrissa.sweep import CLAMP_TOUCH_L, simulate_sweep
 from vibrissa.units import RodScale
 
@@ -44,6 +44,14 @@ def _finite(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"{text!r} is not finite")
+    return value
+
+
+def _offset(text: str) -> float:
+    low, high = SPEC_LIMITS["position"]
+    value = _finite(text)
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be within [{low:g}, {high:g}], got {text}")
     return value
 
 
@@ -81,8 +89,8 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--surface", type=_surface, default=parse_surface(PAPER_SURFACE),
                    metavar="SPEC", help=f"object, e.g. {PAPER_SURFACE} (the default)")
-    p.add_argument("--y0", type=_finite, required=True, metavar="Y",
-                   help="trail offset, units of L")
+    p.add_argument("--y0", type=_offset, required=True, metavar="Y",
+                   help="trail offset, units of L (within +-1e6, as the object's position)")
     p.add_argument("--mu", type=_non_negative, required=True, help="friction coefficient, >= 0")
     p.add_argument("--step", type=_positive, default=PAPER_STEP, metavar="DX",
                    help=f"clamp step along -x, units of L (default {PAPER_STEP})")

@@ -28,10 +28,11 @@ POINTS.csv`` (``WRENCH_COLUMNS`` in, ``POINT_COLUMNS`` out, row for row), e.g. o
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import sys
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,8 +40,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.cli import tables
-from vibrissa.runtime.csv_text import cell, read_csv, refuse_overwrite, write_csv
-from vibrissa.runtime.scene_file import SceneError, load_scene, number_cell, scene_files
+from vibrissa.runtime.csv_text import cell, csv_writer, read_csv, refuse_overwrite
+from vibrissa.runtime.scene_file import SceneError, load_scene, number_cell, scene_files, shown
 from vibrissa.runtime.scene_results import (
     SCENE_COLUMNS,
     WRENCH_COLUMNS,
@@ -115,51 +116,75 @@ POINT_COLUMNS = {
 """The columns of POINTS.csv: (unit, meaning)."""
 
 
-def read_wrenches(path: Path) -> tuple[list[str], FloatArray, list[str], FloatArray, FloatArray]:
-    """WRENCHES.csv: the t texts, t (s), whisker names, f0 (N) and m0 (N m) in clamp frames;
-    `SceneError` names the file and the column or row. An empty wrench cell is a missing value
-    (Step 2 flags it ``non_finite_input``)."""
-    header, body = read_csv(path, WRENCH_COLUMNS)
+CHUNK_ROWS = 1 << 14
+"""Rows of WRENCHES.csv read, reconstructed and written at a time: the memory of ``vibrissa
+reconstruct --scene`` whatever the file's length (a row gives the same bits in any batch)."""
+
+
+def read_wrenches(path: Path, rows: int) -> Iterator[tuple[
+        int, list[str], FloatArray, list[str], FloatArray, FloatArray]]:
+    """WRENCHES.csv, ``rows`` rows at a time: the number of the first (1 after the header),
+    the t texts, t (s), whisker names, f0 (N) and m0 (N m) in clamp frames. `SceneError`
+    names the file and the column (here) or the row (as the rows are read). An empty wrench
+    cell is a missing value (Step 2 flags it ``non_finite_input``)."""
+    header, records = read_csv(path, WRENCH_COLUMNS)
+    return _wrench_chunks(path, header, records, rows)
+
+
+def _wrench_chunks(path: Path, header: list[str], records: Iterator[tuple[int, list[str]]],
+                   rows: int) -> Iterator[tuple[int, list[str], FloatArray, list[str], FloatArray,
+                                                FloatArray]]:
     at = {name: header.index(name) for name in WRENCH_COLUMNS}
-    t_text, names = [], []
-    values = np.empty((len(body), 7))
-    for i, row in enumerate(body):
-        if len(row) != len(header):
-            raise SceneError(f"{path.name}: row {i + 1}: expected {len(header)} values, "
-                             f"got {len(row)}")
-        t_text.append(row[at["t"]].strip())
-        names.append(row[at["whisker"]].strip())
-        for j, name in enumerate(("t", *WRENCH_COLUMNS[2:])):
-            text = row[at[name]].strip()
-            try:
-                values[i, j] = number_cell(text) if text else math.nan
-            except ValueError:
-                raise SceneError(f"{path.name}: row {i + 1}, column {name}: {text!r} is not a "
-                                 f"number") from None
-        if not math.isfinite(values[i, 0]):
-            raise SceneError(f"{path.name}: row {i + 1}: t must be a finite number")
-    return t_text, values[:, 0], names, values[:, 1:4], values[:, 4:7]
+    first = 1
+    while chunk := list(itertools.islice(records, rows)):
+        t_text, names = [], []
+        values = np.empty((len(chunk), 7))
+        for k, (_, row) in enumerate(chunk):
+            i = first + k
+            if len(row) != len(header):
+                raise SceneError(f"{path.name}: row {i}: expected {len(header)} values, "
+                                 f"got {len(row)}")
+            t_text.append(row[at["t"]].strip())
+            names.append(row[at["whisker"]].strip())
+            for j, name in enumerate(("t", *WRENCH_COLUMNS[2:])):
+                text = row[at[name]].strip()
+                try:
+                    values[k, j] = number_cell(text) if text else math.nan
+                except ValueError:
+                    raise SceneError(f"{path.name}: row {i}, column {name}: {shown(text)} is "
+                                     "not a number") from None
+            if not math.isfinite(values[k, 0]):
+                raise SceneError(f"{path.name}: row {i}: t must be a finite number")
+        yield first, t_text, values[:, 0], names, values[:, 1:4], values[:, 4:7]
+        first += len(chunk)
 
 
 def run_reconstruct(args: argparse.Namespace) -> int:
-    """``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o POINTS.csv``."""
+    """``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o POINTS.csv``, streamed
+    (`CHUNK_ROWS` at a time); POINTS.csv is written whole or not at all."""
     scene = load_scene(args.scene)
-    refuse_overwrite([Path(args.output)], [Path(args.input), *scene_files(args.scene)])
-    t_text, t, names, f0, m0 = read_wrenches(Path(args.input))
+    source, output = Path(args.input), Path(args.output)
+    refuse_overwrite([output], [source, *scene_files(args.scene)])
+    chunks = read_wrenches(source, CHUNK_ROWS)
     known = [w.name for w in scene.whiskers]
-    for i, name in enumerate(names):
-        if name not in known:
-            raise SceneError(f"{Path(args.input).name}: row {i + 1}: whisker {name!r} is not in "
-                             f"{Path(args.scene).name} ({', '.join(known)})")
-    rec = reconstruct_along(scene, t, names, f0, m0)
-    status = [tables.status_name(int(rec.status[i])) if rec.pose_ok[i] else "no_pose"
-              for i in range(len(t))]
-    rows = ([t_text[i], names[i], *(cell(v) for v in rec.point_m[i]), cell(rec.s1_m[i]),
-             ContactPhase(rec.phase[i]).label, status[i]] for i in range(len(t)))
-    write_csv(Path(args.output), tuple(POINT_COLUMNS), rows)
-    found = int(np.sum(np.isfinite(rec.point_m[:, 0])))
-    counts = Counter(name for name in status if name not in ("ok", "axial_load"))
-    line = f"reconstruct: {len(t)} rows, {found} with a contact"
+    rows = found = 0
+    counts: Counter[str] = Counter()
+    with csv_writer(output, tuple(POINT_COLUMNS)) as writer:
+        for first, t_text, t, names, f0, m0 in chunks:
+            for k, name in enumerate(names):
+                if name not in known:
+                    raise SceneError(f"{source.name}: row {first + k}: whisker {name!r} is not "
+                                     f"in {Path(args.scene).name} ({', '.join(known)})")
+            rec = reconstruct_along(scene, t, names, f0, m0)
+            status = [tables.status_name(int(code)) if ok else "no_pose"
+                      for code, ok in zip(rec.status.tolist(), rec.pose_ok.tolist(), strict=True)]
+            writer.writerows(
+                [t_text[i], names[i], *(cell(v) for v in rec.point_m[i]), cell(rec.s1_m[i]),
+                 ContactPhase(rec.phase[i]).label, status[i]] for i in range(len(t)))
+            rows += len(t)
+            found += int(np.sum(np.isfinite(rec.point_m[:, 0])))
+            counts.update(name for name in status if name not in ("ok", "axial_load"))
+    line = f"reconstruct: {rows} rows, {found} with a contact"
     if counts:
         line += f", {sum(counts.values())} without (" + ", ".join(
             f"{name}: {n}" for name, n in sorted(counts.items())) + ")"

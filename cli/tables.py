@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.reconstruct import Reconstruction
-from vibrissa.runtime.csv_text import cell, cells, write_csv
+from vibrissa.runtime.csv_text import cell, cells, csv_records, write_csv
+from vibrissa.runtime.scene_file import SceneError, shown
 from vibrissa.status import ContactPhase, ContactStatus
 from vibrissa.sweep import STATE_NAMES, Sweep
 
@@ -156,12 +157,11 @@ def read_wrench_csv(path: Path) -> WrenchTable:
         Naming the file and the missing column or the bad cell (row, column, text).
     """
     try:
-        with path.open(newline="", encoding="utf-8-sig") as handle:  # a spreadsheet's BOM
-            reader = csv.reader(handle)
-            header = next(reader, None)
-            rows = [row for row in reader if row]  # blank lines are no rows
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise TableError(f"{path}: cannot read ({getattr(exc, 'strerror', None) or exc})") from None
+        records = [row for _, row in csv_records(path)]  # a BOM, blank lines: no rows
+    except SceneError as exc:
+        raise TableError(str(exc)) from None
+    header = records[0] if records else None
+    rows = records[1:]
     if header is None:
         expected = ", ".join(WRENCH_COLUMNS)
         raise TableError(f"{path}: empty file, expected a header with columns {expected}")
@@ -183,7 +183,7 @@ def read_wrench_csv(path: Path) -> WrenchTable:
                 values[name][r] = float(text) if text else np.nan
             except ValueError:
                 raise TableError(
-                    f"{path}: row {r + 1}, column {name!r}: {text!r} is not a number"
+                    f"{path}: row {r + 1}, column {name!r}: {shown(text)} is not a number"
                 ) from None
     z0 = values["z0"] if "z0" in values else np.zeros(len(rows))
     return WrenchTable(

@@ -17,8 +17,10 @@ import numpy as np
 
 from vibrissa.cli.graph import (
     add_endpoint_flags,
+    count,
     endpoints_from,
     nothing_heard,
+    seconds,
     stop_on_signals,
     where,
 )
@@ -42,10 +44,10 @@ def register(subparsers: Any) -> None:
 
     p = sub.add_parser("echo", help="print the messages on a topic")
     p.add_argument("topic", metavar="TOPIC")
-    p.add_argument("--count", "-n", type=int, default=0, metavar="N",
-                   help="exit after N messages (default: until Ctrl-C)")
+    p.add_argument("--count", "-n", type=count, default=0, metavar="N",
+                   help="exit after N messages, N >= 1 (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
-    p.add_argument("--timeout", type=float, default=0.0, metavar="S",
+    p.add_argument("--timeout", type=seconds, default=0.0, metavar="S",
                    help="exit with status 1 after S seconds without a message")
     add_endpoint_flags(p)
     p.set_defaults(func=_echo)

@@ -39,6 +39,7 @@ import importlib.metadata
 import os
 import shlex
 import sys
+import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -49,7 +50,7 @@ from typing import Any
 import yaml
 
 from vibrissa.runtime import yaml_numbers
-from vibrissa.runtime.params import ParamError, check_params
+from vibrissa.runtime.params import ParamError, check_params, takes_text
 from vibrissa.units import finite_number
 from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
 from vibrissa.wire.transport import DEFAULT_MAX_MESSAGE_BYTES, Endpoints
@@ -65,6 +66,7 @@ __all__ = [
     "TransportSpec",
     "check_node_params",
     "load_launch_file",
+    "node_params",
     "parse_arg_overrides",
     "parse_launch",
 ]
@@ -104,10 +106,13 @@ class LaunchArg:
 
 @dataclass(frozen=True)
 class Param:
-    """One node parameter; ``value`` is any YAML value (scalar, list, mapping)."""
+    """One node parameter; ``value`` is any YAML value (scalar, list, mapping). ``text``: the
+    value's text when it was one string with substitutions (``value`` is what it reads as,
+    `yaml_numbers.scalar`); a text parameter of the node takes it as is (`node_params`)."""
 
     name: str
     value: Any
+    text: str | None = None
 
 
 @dataclass(frozen=True)
@@ -206,6 +211,20 @@ class LaunchDescription:
     nodes: tuple[NodeSpec, ...] = ()
 
 
+def node_params(spec: NodeSpec) -> dict[str, Any]:
+    """The parameters ``spec``'s node is given, in declaration order: for a ``pkg``/``exec``
+    node whose ``PARAMS`` type a parameter as text (``str``, ``Path``), a value that was one
+    string with substitutions is that text as is (``out:=2026`` is ``"2026"``), else what it
+    reads as. ValueError names a node that no package registers."""
+    hints: dict[str, Any] = {}
+    if spec.executable is not None and any(p.text is not None for p in spec.params):
+        params_class = getattr(importlib.import_module(node_module(spec.pkg, spec.executable)),
+                               "PARAMS", None)
+        hints = typing.get_type_hints(params_class) if params_class is not None else {}
+    return {p.name: p.text if p.text is not None and takes_text(hints.get(p.name)) else p.value
+            for p in spec.params}
+
+
 def check_node_params(description: LaunchDescription) -> None:
     """Check every ``pkg``/``exec`` node's parameters with its own parameter dataclass (the
     ``PARAMS`` of the node's module) before anything starts: types, ranges and specs such as
@@ -229,7 +248,7 @@ def check_node_params(description: LaunchDescription) -> None:
         params_class = getattr(module, "PARAMS", None)
         if params_class is not None:
             try:
-                check_params(params_class, spec.params_dict(), where)
+                check_params(params_class, node_params(spec), where)
             except ParamError as exc:
                 raise LaunchFileError(description.source, "", str(exc)) from None
 
@@ -332,19 +351,15 @@ class _Parser:
         )
 
     def retyped(self, value: Any, path: str) -> Any:
-        """Substitute inside a string and re-read the result as a YAML scalar.
+        """Substitute inside a string and read the result as a plain YAML 1.2 scalar
+        (`yaml_numbers.scalar`: true/false, a decimal int, a float, else the text as is).
 
         This is how ``respawn: $(var respawn)`` or ``value: $(var mu)`` get their types, as in
         ROS 2; a string without substitutions keeps the type YAML gave it.
         """
         if not isinstance(value, str) or "$(" not in value:
             return value
-        text = self.substitute(value, path)
-        try:
-            typed = yaml_numbers.load_strict(text)
-        except yaml.YAMLError:
-            return text
-        return typed if isinstance(typed, (bool, int, float, str)) else text
+        return yaml_numbers.scalar(self.substitute(value, path))
 
     # -- typed leaves ----------------------------------------------------------------------------
 
@@ -539,7 +554,12 @@ class _Parser:
                 raise self.error(f"{where}.name", f"invalid parameter name {pname!r}")
             if any(p.name == pname for p in params):
                 raise self.error(f"{where}.name", f"duplicate parameter {pname!r}")
-            params.append(Param(pname, self.deep(item["value"], f"{where}.value")))
+            value = item["value"]
+            if isinstance(value, str) and "$(" in value:
+                text = self.substitute(value, f"{where}.value")
+                params.append(Param(pname, yaml_numbers.scalar(text), text))
+            else:
+                params.append(Param(pname, self.deep(value, f"{where}.value")))
 
         remaps: list[Remap] = []
         for i, entry in enumerate(self.list_of(body.get("remap", []), f"{path}.remap")):
@@ -598,7 +618,7 @@ def parse_arg_overrides(items: Sequence[str], source: str = "command line") -> d
     Returns
     -------
     dict of str to str
-        Argument name to value; a later word overrides an earlier one.
+        Argument name to value; an argument given twice is an error.
     """
     overrides: dict[str, str] = {}
     for item in items:
@@ -609,6 +629,9 @@ def parse_arg_overrides(items: Sequence[str], source: str = "command line") -> d
             validate_token(name, "argument name")
         except ValueError as exc:
             raise LaunchFileError(source, "", f"bad argument {item!r}: {exc}") from None
+        if name in overrides:
+            raise LaunchFileError(source, "", f"argument {name!r} given twice ({name}:="
+                                  f"{overrides[name]}, {item})")
         overrides[name] = value
     return overrides
 

@@ -60,6 +60,7 @@ from vibrissa.launch.description import (
     NodeSpec,
     TransportSpec,
     node_module,
+    node_params,
 )
 from vibrissa.msgs import NodeStatus
 from vibrissa.runtime.node import DEBUG_ENV, EXIT_LOST_DATA
@@ -381,7 +382,7 @@ class Launcher:
             assert self._params_dir is not None
             params_file = os.path.join(self._params_dir, f"{spec.name}.params.yaml")
             with open(params_file, "w", encoding="utf-8") as fh:
-                yaml.safe_dump(spec.params_dict(), fh, sort_keys=False)
+                yaml.safe_dump(node_params(spec), fh, sort_keys=False)
         argv = node_command(spec, params_file, self.python)
         env = {**os.environ, **self._env, **dict(spec.env)}
         node.outcome.starts += 1

@@ -58,7 +58,7 @@ import logging
 import math
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -468,18 +468,19 @@ def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
 
 
 def export_bag(bag: str | os.PathLike[str], output: str | os.PathLike[str],
-               params: FoxgloveBridgeParams | None = None) -> dict[str, int]:
+               params: FoxgloveBridgeParams | None = None,
+               topics: Iterable[str] | None = None) -> dict[str, int]:
     """The live view of a recorded bag, as a file: an MCAP of the same Foxglove channels and
     schemas (PointCloud, FrameTransforms, SceneUpdate, the wrench series), each message at its
-    bag log time; the cloud and the health table every ``params.period_s`` of bag time. Needs
-    the extra ``view``. Returns the view's counters, with ``damaged_chunks`` and
+    bag log time; the cloud and the health table every ``params.period_s`` of bag time; only
+    ``topics`` of the bag when given. Needs the extra ``view``. Returns the view's counters, with ``damaged_chunks`` and
     ``unreadable_bytes`` of the bag (a damaged bag is also logged as a warning)."""
     fg = import_foxglove()
     params = params or FoxgloveBridgeParams()
     mounts = ([(w.name, w.X_RC) for w in load_robot(params.robot)] if params.robot else [])
     counters: dict[str, int] = {}
     context = fg.Context()
-    reader = BagReader(bag)  # a path that is no bag fails here, before the output is made
+    reader = BagReader(bag, topics)  # a path that is no bag fails here, before the output is made
     writer = fg.open_mcap(os.fspath(output), allow_overwrite=True, context=context)
     try:
         view = LiveView(fg, params, mounts, counters, context)

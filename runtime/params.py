@@ -34,8 +34,8 @@ def load_params(
     """Load frozen dataclass ``cls`` strictly: defaults, then ``params_file``, then ``overrides``.
 
     The file is a flat YAML mapping ``name: value``. An override given as text (from
-    ``--param k:=v``) is parsed as YAML, except for a ``str`` parameter, which takes the text
-    as is. Ints are accepted for floats; nested dataclasses load from mappings.
+    ``--param k:=v``) is parsed as YAML, except for a text parameter (`takes_text`), which
+    takes the text as is. Ints are accepted for floats; nested dataclasses load from mappings.
 
     Raises
     ------
@@ -62,6 +62,12 @@ def load_params(
     if overrides:
         values.update(_typed_values(cls, overrides, "--param", from_text=True))
     return _build(cls, values, source)
+
+
+def takes_text(hint: Any) -> bool:
+    """Whether a parameter of type ``hint`` takes a text as is: ``str`` or ``Path`` (with
+    ``None`` too, ``null`` is read as YAML: None)."""
+    return hint in (str, Path)
 
 
 def require(ok: bool, name: str, value: object, rule: str) -> None:
@@ -127,7 +133,7 @@ def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text:
                 f"(known: {', '.join(sorted(known))})"
             )
         hint = hints[key]
-        if from_text and isinstance(value, str) and hint is not str:
+        if from_text and isinstance(value, str) and not takes_text(hint):
             try:
                 value = yaml_numbers.load(value)
             except yaml.YAMLError as exc:

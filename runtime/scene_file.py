@@ -30,7 +30,7 @@ from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot
 from vibrissa.units import finite_number
 
 __all__ = ["LIMITS", "NAME_RULE", "SceneError", "check_name", "load_path", "load_robot", "load_scene",
-           "number_cell", "scene_files"]
+           "number_cell", "scene_files", "shown"]
 
 _OBJECT_SIZES = {"sphere": ("radius_m",), "ellipsoid": ("semi_axes_m",),
                  "paraboloid": ("a_per_m", "b_per_m", "h_m")}
@@ -112,9 +112,9 @@ def check_name(name: Any, where: str) -> str:
     """``name`` if it is a text by `NAME_RULE`, else `SceneError` naming ``where``."""
     if not isinstance(name, str):
         raise SceneError(f"{where}: expected a name ({NAME_RULE}), got {type(name).__name__} "
-                         f"{_show(name)}: quote it if it is meant as text")
+                         f"{shown(name)}: quote it if it is meant as text")
     if not _NAME.fullmatch(name):
-        raise SceneError(f"{where}: {_show(name)} is not a name ({NAME_RULE})")
+        raise SceneError(f"{where}: {shown(name)} is not a name ({NAME_RULE})")
     return name
 
 
@@ -126,7 +126,8 @@ def number_cell(text: str) -> float:
     return float(text)
 
 
-def _show(value: Any) -> str:
+def shown(value: Any) -> str:
+    """``repr(value)``, cut to 60 characters: a value in a one-line message."""
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
@@ -194,7 +195,7 @@ def _list(value: Any, where: str) -> list[Any]:
 def _number(value: Any, where: str, limits: str | None = None) -> float:
     """A finite number, within ``LIMITS[limits]`` when given."""
     if not finite_number(value):
-        raise SceneError(f"{where}: expected a finite number, got {_show(value)}")
+        raise SceneError(f"{where}: expected a finite number, got {shown(value)}")
     if limits is not None:
         low, high = LIMITS[limits]
         if not low <= value <= high:
@@ -204,7 +205,7 @@ def _number(value: Any, where: str, limits: str | None = None) -> float:
 
 def _vector(value: Any, where: str, n: int, limits: str | None = None) -> list[float]:
     if not isinstance(value, list) or len(value) != n:
-        raise SceneError(f"{where}: expected {n} numbers, got {_show(value)}")
+        raise SceneError(f"{where}: expected {n} numbers, got {shown(value)}")
     return [_number(v, f"{where}[{i}]", limits) for i, v in enumerate(value)]
 
 
@@ -220,7 +221,7 @@ def _pose(body: dict[str, Any], where: str) -> Transform:
 
 def _object(value: Any, where: str) -> SceneObject:
     if not isinstance(value, dict):
-        raise SceneError(f"{where}: expected a mapping, got {type(value).__name__} {_show(value)}")
+        raise SceneError(f"{where}: expected a mapping, got {type(value).__name__} {shown(value)}")
     shape = value.get("shape")
     if shape not in SHAPES:
         raise SceneError(f"{where}.shape: expected one of {', '.join(SHAPES)}, got {shape!r}")

@@ -170,7 +170,8 @@ def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
     file (`vibrissa.runtime.scene_file.load_path`)."""
     if not path.is_file():
         raise SceneError(f"{path}: missing: the scene's whisker {name!r} has no results there")
-    header, body = read_csv(path, tuple(c for c in SCENE_COLUMNS if c not in _OPTIONAL))
+    header, records = read_csv(path, tuple(c for c in SCENE_COLUMNS if c not in _OPTIONAL))
+    body = [row for _, row in records]
     t_path = scene.path.t
     if len(body) != len(t_path):
         raise SceneError(f"{path}: {len(body)} rows, but the scene's path has {len(t_path)} "

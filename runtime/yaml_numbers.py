@@ -1,7 +1,9 @@
-"""YAML as people write numbers: ``1e-5`` is a float (YAML 1.2), not the string PyYAML's YAML
-1.1 rules make of an exponent without a decimal point. Every YAML file vibrissa reads (launch
-files, parameter files, scene files) is read with `Loader` or a subclass of it; launch and
-scene files with `StrictLoader` (`load_strict`)."""
+"""YAML as people write numbers, decimal as in YAML 1.2: ``1e-5`` is a float (not the string
+PyYAML's YAML 1.1 rules make of an exponent without a decimal point), ``010`` is ten, and
+``1:30``, ``1_000``, ``0x10`` are text (not YAML 1.1's 90, 1000 and 16). `scalar` is that rule for a
+text on its own (a launch argument's value). Every YAML file vibrissa reads (launch files,
+parameter files, scene files) is read with `Loader` or a subclass of it; launch and scene
+files with `StrictLoader` (`load_strict`)."""
 
 from __future__ import annotations
 
@@ -10,16 +12,55 @@ from typing import Any
 
 import yaml
 
-__all__ = ["Loader", "StrictLoader", "load", "load_strict"]
+__all__ = ["Loader", "StrictLoader", "load", "load_strict", "scalar"]
+
+_INT_TAG, _FLOAT_TAG, _BOOL_TAG = (f"tag:yaml.org,2002:{kind}" for kind in ("int", "float", "bool"))
+_INT = re.compile(r"[-+]?[0-9]+")
+_FLOAT = re.compile(r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                    r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN)")
+_BOOL = re.compile(r"true|True|TRUE|false|False|FALSE")
+
+
+def scalar(text: str) -> bool | int | float | str:
+    """What ``text`` reads as, as a plain YAML 1.2 scalar: ``true``/``false``, a decimal
+    integer, a float (decimal or exponent notation, ``.inf``, ``.nan``); anything else is the
+    text itself, as is (also an integer of more digits than Python reads)."""
+    if _BOOL.fullmatch(text):
+        return text.lower() == "true"
+    if _INT.fullmatch(text):
+        try:
+            return int(text)
+        except ValueError:  # over sys.get_int_max_str_digits()
+            return text
+    if _FLOAT.fullmatch(text):
+        return float(text.replace(".", "", 1) if text[-1].isalpha() else text)
+    return text
+
+
+def _number(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int | float:
+    """An ``!!int`` or ``!!float`` node (also one tagged explicitly) by `scalar`'s rule."""
+    text = loader.construct_scalar(node)
+    value = scalar(text)
+    if isinstance(value, (bool, str)) or (node.tag == _INT_TAG and not isinstance(value, int)):
+        kind = "an int" if node.tag == _INT_TAG else "a float"
+        raise yaml.constructor.ConstructorError(None, None, f"{text!r} is not {kind}",
+                                                node.start_mark)
+    return float(value) if node.tag == _FLOAT_TAG else value
 
 
 class Loader(yaml.SafeLoader):
-    """SafeLoader that reads ``1e-5``, ``-2E3`` as floats."""
+    """SafeLoader with YAML 1.2's numbers (`scalar`)."""
 
 
-Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9]+[eE][-+]?[0-9]+$"), list("-+0123456789")
-)
+Loader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag not in (_INT_TAG, _FLOAT_TAG)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+Loader.add_implicit_resolver(_INT_TAG, re.compile(rf"^(?:{_INT.pattern})$"), list("-+0123456789"))
+Loader.add_implicit_resolver(_FLOAT_TAG, re.compile(rf"^(?:{_FLOAT.pattern})$"),
+                             list("-+0123456789."))
+Loader.add_constructor(_INT_TAG, _number)
+Loader.add_constructor(_FLOAT_TAG, _number)
 
 
 def load(text: str) -> Any:
@@ -60,14 +101,11 @@ class StrictLoader(Loader):
         return super().construct_mapping(node, deep=deep)
 
 
-_BOOL_TAG = "tag:yaml.org,2002:bool"
 StrictLoader.yaml_implicit_resolvers = {
     first: [(tag, rx) for tag, rx in resolvers if tag != _BOOL_TAG]
     for first, resolvers in Loader.yaml_implicit_resolvers.items()
 }
-StrictLoader.add_implicit_resolver(
-    _BOOL_TAG, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")
-)
+StrictLoader.add_implicit_resolver(_BOOL_TAG, re.compile(rf"^(?:{_BOOL.pattern})$"), list("tTfF"))
 StrictLoader.add_constructor(
     yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, StrictLoader.construct_mapping
 )

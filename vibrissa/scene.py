@@ -142,8 +142,10 @@ class RobotPath:
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
-        if t.ndim != 1 or len(t) < 2:
-            raise ValueError(f"a path needs at least 2 samples, got {t.shape}")
+        if t.ndim != 1:
+            raise ValueError(f"path times must be one column, got shape {t.shape}")
+        if len(t) < 2:
+            raise ValueError(f"a path needs at least 2 samples, got {len(t)}")
         steps = np.diff(t)
         if not np.all(steps > 0):
             first = int(np.flatnonzero(~(steps > 0))[0]) + 2  # 1-based row of the later sample

@@ -244,6 +244,12 @@ _SHAPE_KEYS = {
     "sphere": ("r",),
     "ellipsoid": ("rx", "ry", "rz"),
 }
+_POSITION_KEYS = ("h", "cx", "cy", "cz")
+
+SPEC_LIMITS = {"size": (1e-6, 1e6), "position": (-1e6, 1e6)}
+"""Closed ranges of a surface spec's numbers, units of L: sizes and curvatures (``r``, ``rx``,
+``ry``, ``rz``, ``a``, ``b``) and positions (``cx``, ``cy``, ``cz``, a paraboloid's ``h``).
+Within them no square of Step 1 overflows (a sphere of r = 1e300 L came out as "no contact")."""
 
 
 def _pose_spec(pose: Transform) -> str:
@@ -267,7 +273,8 @@ def parse_surface(spec: str) -> Surface:
     Raises
     ------
     ValueError
-        Naming the unknown kind, a missing or unknown key, or a value that is not a number.
+        Naming the unknown kind, a missing or unknown key, or a value that is not a number or
+        not within `SPEC_LIMITS`.
     """
     kind, _, body = spec.partition(":")
     kind = kind.strip().lower()
@@ -288,6 +295,13 @@ def parse_surface(spec: str) -> Surface:
             raise ValueError(f"surface spec {spec!r}: {key}={text!r} is not a number") from None
         if not np.isfinite(values[key]):
             raise ValueError(f"surface spec {spec!r}: {key}={text!r} is not finite")
+        kind_of = ("position" if key in _POSITION_KEYS else
+                   "size" if key in _SHAPE_KEYS[kind] else None)  # angles: any finite
+        if kind_of is not None:
+            low, high = SPEC_LIMITS[kind_of]
+            if not low <= values[key] <= high:
+                raise ValueError(f"surface spec {spec!r}: {key}={text.strip()} is outside "
+                                 f"[{low:g}, {high:g}]")
     missing = [key for key in _SHAPE_KEYS[kind] if key not in values]
     if missing:
         raise ValueError(f"surface spec {spec!r}: missing {', '.join(missing)} for {kind}")

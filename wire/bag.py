@@ -24,6 +24,7 @@ import os
 import struct
 import threading
 import time
+import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -33,8 +34,9 @@ from typing import IO, Any, NamedTuple
 
 import zmq
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, ChunkIndex, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, DataEnd, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk, get_chunk_data_stream
 from mcap.summary import Summary
@@ -64,6 +66,7 @@ JSON_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
 VERSION_KEY = "x-vibrissa-version"
 _MAGIC = b"\x89MCAP0\r\n"
+_FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary_start, summary_offset_start, crc
 _PROFILE = ""  # no well-known profile fits; Foxglove reads jsonschema + json without one
 
 # What a cut-off or corrupted record can raise while being parsed: a short read (EndOfFile,
@@ -131,7 +134,9 @@ class BagInfo:
     ``duration_s`` their difference in seconds. Every chunk was read (decompressed, its CRC
     checked): ``damaged_chunks`` did not read; ``truncated`` is True when the file has no valid
     summary and could be read only up to some record (the writer was cut off);
-    ``unreadable_bytes`` counts both. The counts and times are those of the readable messages.
+    ``unreadable_bytes`` counts both. ``summary_damaged``: a finished file whose summary section
+    (the index other readers seek through) does not read or match its CRC; its data was read
+    without it. The counts and times are those of the readable messages.
     """
 
     path: str
@@ -145,6 +150,7 @@ class BagInfo:
     damaged_chunks: int
     truncated: bool
     unreadable_bytes: int
+    summary_damaged: bool = False
 
     @property
     def damage(self) -> BagDamage:
@@ -176,8 +182,13 @@ class BagInfo:
             lines.append(f"start:     {_format_time(self.start_ns)} ({self.start_ns} ns)")
             lines.append(f"end:       {_format_time(self.end_ns)} ({self.end_ns} ns)")
         lines.append(f"chunks:    {self.chunk_count}")
-        lines.append("integrity: " + (self.damage.note("counted") if self.damage else
-                                      "intact, every chunk decompressed and its CRC checked"))
+        integrity = (self.damage.note("counted") if self.damage else
+                     "intact, every chunk decompressed and its CRC checked")
+        if self.summary_damaged:  # the data was read without it
+            integrity = ("summary section damaged (it does not read or match its CRC: readers "
+                         "that seek through its index may fail or miss messages); the data, "
+                         f"read without it: {integrity}")
+        lines.append(f"integrity: {integrity}")
         width = max([len(t.topic) for t in self.topics] + [5])
         lines.append("topics:")
         for t in self.topics:
@@ -367,13 +378,15 @@ def check_bag_file(path: str | os.PathLike[str]) -> Path:
     FileNotFoundError
         Nothing (or no file) at ``path``.
     ValueError
-        A file that is not MCAP (its first bytes are not the MCAP magic).
+        A file that is not MCAP (empty, or its first bytes are not the MCAP magic).
     """
     file = Path(path)
     if not file.is_file():
         raise FileNotFoundError(f"no bag at {file}" + (" (a folder)" if file.is_dir() else ""))
     with open(file, "rb") as f:
         head = f.read(len(_MAGIC))
+    if not head:
+        raise ValueError(f"{file} is empty (0 bytes), not an MCAP file")
     if head != _MAGIC[: len(head)]:  # a shorter head is a bag cut off at its very start
         raise ValueError(f"{file} is not an MCAP file (it does not start with the MCAP magic)")
     return file
@@ -388,7 +401,9 @@ class BagReader:
     ``unreadable_bytes`` tell whether and how much of the file's tail was lost, and
     ``damaged_chunks`` how many chunks of a finished bag were skipped as unreadable (their bytes
     count in ``unreadable_bytes``; the messages around them are all read, none twice);
-    :attr:`damage` holds the three, :meth:`report_damage` says them.
+    :attr:`damage` holds the three, :meth:`report_damage` says them. ``summary_damaged``: the
+    file is finished but its summary section does not read or match its CRC, so it is read as
+    a cut-off one is (streamed), which loses nothing.
 
     Parameters
     ----------
@@ -404,6 +419,7 @@ class BagReader:
         self.truncated = False
         self.unreadable_bytes = 0
         self.damaged_chunks = 0
+        self.summary_damaged = False
 
     def __iter__(self) -> Iterator[BagRecord]:
         return self.records()
@@ -442,15 +458,28 @@ class BagReader:
             yield from self._streamed()
 
     def _summary(self) -> Summary | None:
-        """The summary section of a finished bag; None when there is none or it does not read
-        (then the file is streamed instead)."""
+        """The summary section of a finished bag; None when there is none, or when it does
+        not read or match the footer's CRC (``summary_damaged``): the file is streamed then."""
+        self.summary_damaged = False
         if not self.is_finished():
             return None
         try:
             with open(self.path, "rb") as f:
-                return SeekingReader(f).get_summary()
+                if _summary_crc_matches(f):
+                    f.seek(0)
+                    return SeekingReader(f).get_summary()
         except _DAMAGE_ERRORS:
-            return None
+            pass
+        self.summary_damaged = True
+        return None
+
+    def topic_names(self) -> list[str]:
+        """Every topic of the bag (whatever ``topics`` keeps), sorted: the channels of its
+        summary, or of the messages that read."""
+        summary = self._summary()
+        if summary is not None:
+            return sorted({channel.topic for channel in summary.channels.values()})
+        return sorted({record.topic for record in BagReader(self.path)})
 
     def _keep(self, topic: str) -> bool:
         return self.topics is None or topic in self.topics
@@ -499,7 +528,7 @@ class BagReader:
         with open(self.path, "rb") as f:
             stream = StreamReader(f, emit_chunks=True, validate_crcs=False).records
             good_end = 0  # offset just past the last record parsed in full
-            finished = False
+            finished = data_end = False
             while True:
                 try:
                     record = next(stream)
@@ -507,6 +536,8 @@ class BagReader:
                     finished = True
                     break
                 except _DAMAGE_ERRORS:
+                    # after the data of a finished file whose summary is damaged, nothing lost
+                    finished = data_end and self.summary_damaged
                     break
                 batch: list[Schema | Channel | McapMessage] = []
                 if isinstance(record, Chunk):
@@ -520,6 +551,7 @@ class BagReader:
                         break
                 elif isinstance(record, (Schema, Channel, McapMessage)):
                     batch = [record]
+                data_end = data_end or isinstance(record, DataEnd)
                 good_end = f.tell()
                 messages: list[BagRecord] = []
                 for r in batch:
@@ -585,6 +617,7 @@ class BagReader:
             damaged_chunks=self.damaged_chunks,
             truncated=self.truncated,
             unreadable_bytes=self.unreadable_bytes,
+            summary_damaged=self.summary_damaged,
         )
 
     def _chunks_read(self, summary: Summary) -> bool:
@@ -608,6 +641,24 @@ class BagReader:
             except _DAMAGE_ERRORS:
                 pass
         return n
+
+
+def _summary_crc_matches(f: IO[bytes]) -> bool:
+    """Whether the footer's ``summary_crc`` (0: none written) is the CRC-32 of the summary
+    section and the footer up to it (the MCAP specification); raises ``McapError`` when the
+    footer is not one."""
+    size = os.fstat(f.fileno()).st_size
+    f.seek(size - len(_MAGIC) - _FOOTER.size)
+    opcode, length, summary_start, _, crc = _FOOTER.unpack(f.read(_FOOTER.size))
+    if opcode != Opcode.FOOTER or length != _FOOTER.size - 9 or summary_start > size:
+        raise McapError("no footer before the closing magic")
+    if crc == 0:
+        return True
+    f.seek(summary_start or size - len(_MAGIC) - _FOOTER.size)
+    end, computed = size - len(_MAGIC) - 4, 0
+    while f.tell() < end:
+        computed = zlib.crc32(f.read(min(1 << 20, end - f.tell())), computed)
+    return computed == crc
 
 
 def _read_chunk(f: IO[bytes], index: ChunkIndex) -> Chunk:

@@ -70,3 +70,28 @@ def test_info_of_an_intact_bag_says_it_is_intact(tmp_path: Path) -> None:
     lines = result.stdout.splitlines()
     assert f"messages:  {len(written)}" in lines
     assert "integrity: intact, every chunk decompressed and its CRC checked" in lines
+
+
+def test_info_of_a_bag_whose_summary_is_damaged_says_so_and_counts_the_data(
+        tmp_path: Path) -> None:
+    """One bit flipped in the summary's Statistics record: the summary still parses, but no
+    longer matches the footer's CRC; info says the summary is damaged and counts the messages
+    by reading the data without it."""
+    import struct
+
+    bag = tmp_path / "summary.mcap"
+    written = write_bag(bag, n=400, chunk_size=4096, max_chunk_messages=32)
+    data = bytearray(bag.read_bytes())
+    summary_start = struct.unpack_from("<Q", data, len(data) - 8 - 29 + 9)[0]
+    at = summary_start
+    while data[at] != 0x0B:  # Statistics: opcode, length, then message_count (u64)
+        at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+    data[at + 9] ^= 0x01
+    bag.write_bytes(bytes(data))
+    result = vibrissa("bag", "info", str(bag))
+    assert result.returncode == 0 and result.stderr == ""
+    lines = result.stdout.splitlines()
+    assert f"messages:  {len(written)}" in lines
+    assert ("integrity: summary section damaged (it does not read or match its CRC: readers "
+            "that seek through its index may fail or miss messages); the data, read without "
+            "it: intact, every chunk decompressed and its CRC checked") in lines

@@ -147,6 +147,12 @@ def test_reconstruct_uses_z0(tmp_path: Path) -> None:
         (["sweep", "--y0", "0", "--mu", "-0.1"], "--mu"),
         (["sweep", "--y0", "nan", "--mu", "0.1"], "--y0"),
         (["study", "paper", "--step", "0"], "--step"),
+        # numbers whose squares overflow in Step 1 (numpy warnings, then a wrong answer)
+        (["sweep", "--y0", "1e300", "--mu", "0.1"], "--y0: must be within [-1e+06, 1e+06]"),
+        (["sweep", "--surface", "sphere:r=1e300", "--y0", "0", "--mu", "0"],
+         "r=1e300 is outside [1e-06, 1e+06]"),
+        (["sweep", "--surface", "sphere:r=0.3,cz=-2e6", "--y0", "0", "--mu", "0"],
+         "cz=-2e6 is outside [-1e+06, 1e+06]"),
     ],
 )
 def test_bad_arguments_exit_2(argv: list[str], named: str, tmp_path: Path,
@@ -177,7 +183,8 @@ def test_reconstruct_missing_column_exit_2(tmp_path: Path,
      "row 1: expected 8 values, got 9"),
     ("x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,-0.1,zero,0.05,0,-0.05,0\n",
      "row 1, column 'f0y': 'zero' is not a number"),
-    (b"x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,\xe9,0,0,0,0,0\n", "cannot read ("),
+    (b"x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n0,0,\xe9,0,0,0,0,0\n",
+     "line 2: byte 0xe9 at offset 34 is not UTF-8"),
 ])
 def test_reconstruct_refuses_a_bad_row_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                  text: str | bytes, message: str) -> None:

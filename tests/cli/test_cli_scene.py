@@ -139,6 +139,11 @@ def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulat
     (("mu: 0.25", "mu: high"), "scene.yaml: mu: expected a finite number"),
     (("mu: 0.25", "mu: 1" + "0" * 400), "scene.yaml: mu: expected a finite number, got 1000"),
     (("radius_m: 0.015", "radius_m: 1" + "0" * 400), "objects[0].radius_m: expected a finite"),
+    # YAML 1.2's numbers: no sexagesimal (1:30 is not 90), no underscores, no hex
+    (("mu: 0.25", "mu: 1:30"), "scene.yaml: mu: expected a finite number, got '1:30'"),
+    (("radius_m: 0.015", "radius_m: 0_015"), "objects[0].radius_m: expected a finite number, "
+                                              "got '0_015'"),
+    (("mu: 0.25", "mu: 0x1"), "scene.yaml: mu: expected a finite number, got '0x1'"),
     (("path: path.csv", "path: nowhere.csv"), "nowhere.csv"),
     (("length_m: 0.05", "length_m: -0.05"), "whiskers[0].length_m: -0.05 is outside"),
     # numbers that overflow the rod's units or the geometry: refused, not simulated
@@ -373,3 +378,85 @@ def test_the_closing_line_of_a_scene_without_contact() -> None:
     from vibrissa.cli.scenes import episode_summary
 
     assert episode_summary([]) == "0 contact episodes; samples: 0 none, 0 tip, 0 tangential, 0 unresolved"
+
+
+def wrench_rows(n: int) -> list[str]:
+    """``n`` rows of WRENCHES.csv along the path of `write_path`, touching and not."""
+    rng = np.random.default_rng(5)
+    return [f"{0.01 * (i % 300)},w{i % 2},{rng.normal() * 1e-3},{rng.normal() * 1e-3},"
+            f"{rng.normal() * 1e-4},{rng.normal() * 1e-5},{rng.normal() * 1e-5},0\n"
+            for i in range(n)]
+
+
+def test_reconstruct_streams_in_chunks_to_the_same_bytes_and_writes_all_or_nothing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rows are read, reconstructed and written a chunk at a time: the same file whatever the
+    chunk, memory bounded by the chunk (not the file), and an error in a later chunk leaves
+    no output (not even the chunks before it)."""
+    import tracemalloc
+
+    from vibrissa.cli import scenes
+
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    header = "t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n"
+    (tmp_path / "wrenches.csv").write_text(header + "".join(wrench_rows(20000)))
+    argv = ["reconstruct", str(tmp_path / "wrenches.csv"), "--scene", str(tmp_path / "scene.yaml")]
+    assert main([*argv, "-o", str(tmp_path / "whole.csv")]) == 0
+    monkeypatch.setattr(scenes, "CHUNK_ROWS", 1000)
+    tracemalloc.start()
+    try:
+        assert main([*argv, "-o", str(tmp_path / "chunked.csv")]) == 0
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert (tmp_path / "chunked.csv").read_bytes() == (tmp_path / "whole.csv").read_bytes()
+    assert peak < 8e6, peak  # all 20 000 rows at once: ~25 MB; 1000: ~2 MB
+    (tmp_path / "wrenches.csv").write_text(header + "".join(wrench_rows(2500)) + "0.1,w7,0,0,0,0,0,0\n")
+    assert main([*argv, "-o", str(tmp_path / "points.csv")]) == 2
+    assert not (tmp_path / "points.csv").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "chunked.csv", "path.csv", "scene.yaml", "whole.csv", "wrenches.csv"]
+    # a link (as /dev/stdout is) is written through, not replaced by a file
+    (tmp_path / "wrenches.csv").write_text(header + "".join(wrench_rows(10)))
+    link = tmp_path / "link.csv"
+    link.symlink_to(tmp_path / "target.csv")
+    assert main([*argv, "-o", str(link)]) == 0
+    assert link.is_symlink() and (tmp_path / "target.csv").read_text().count("\n") == 11
+
+
+@pytest.mark.parametrize("sweep_mode", [False, True])
+def test_an_unreadable_cell_is_named_by_its_line_and_a_long_one_is_shortened(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], sweep_mode: bool) -> None:
+    """Bytes that are not UTF-8 deep in a file: the line and the byte offset in the file (not
+    in the decoder's block); a field over the csv module's limit: its line and column; a
+    long value that is not a number: a line of a readable length."""
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    header = "x0,y0,f0x,f0y,f0z,m0x,m0y,m0z\n" if sweep_mode else "t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n"
+    rows = [r.replace(",w0,", ",0.0,").replace(",w1,", ",0.1,") if sweep_mode else r
+            for r in wrench_rows(600)]
+    argv = ["reconstruct", str(tmp_path / "wrenches.csv"), "-o", str(tmp_path / "p.csv"),
+            *([] if sweep_mode else ["--scene", str(tmp_path / "scene.yaml")])]
+    before = (header + "".join(rows[:299])).encode()
+    bad = rows[299].encode().replace(b",", b",\xe9", 1)  # line 301 of the file
+    (tmp_path / "wrenches.csv").write_bytes(before + bad + "".join(rows[300:]).encode())
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    offset = len(before) + bad.index(b"\xe9")
+    assert err.endswith(f"wrenches.csv: line 301: byte 0xe9 at offset {offset} is not UTF-8 "
+                        "(invalid continuation byte)"), err
+    cut = rows[4].split(",")
+    cut[3] = "9" * 200_000  # column f0y of line 6
+    (tmp_path / "wrenches.csv").write_text(header + "".join(rows[:4]) + ",".join(cut))
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("wrenches.csv: line 6, column f0y: a field longer than 131072 "
+                        "characters (an unclosed quote?)"), err[:300]
+    (tmp_path / "wrenches.csv").write_text(header + "".join(rows[:4]) + rows[4].split(",")[0]
+                                           + ("," + rows[4].split(",")[1]) + ","
+                                           + "x" * 100_000 + ",0,0,0,0,0\n")
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "row 5, column" in err and "f0x" in err and "is not a number" in err
+    assert len(err) < 300, len(err)

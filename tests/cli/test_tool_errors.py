@@ -131,3 +131,80 @@ def test_a_relative_topic_is_answered_with_the_absolute_one() -> None:
     result = vibrissa("topic", "echo", "nope", "--timeout", "0.1")
     assert result.returncode != 0 and "Traceback" not in result.stderr
     assert "topic 'nope' is relative: on the wire a topic is absolute (/nope" in result.stderr
+
+
+@pytest.mark.parametrize("words", [("info",), ("play", "--fast"), ("export", "{tmp}/out.mcap")])
+def test_an_empty_file_is_no_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                 words: tuple[str, ...]) -> None:
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    assert vibrissa_main(["bag", words[0], str(empty),
+                          *(w.format(tmp=tmp_path) for w in words[1:])]) == 2
+    assert capsys.readouterr().err == (f"vibrissa bag {words[0]}: error: {empty} is empty "
+                                       "(0 bytes), not an MCAP file\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.mcap"]
+
+
+def wrench_bag(path: Path) -> Path:
+    with BagWriter(path) as out:
+        for i, topic in enumerate(("/w0/wrench", "/w1/wrench")):
+            out.write(topic, encode(WhiskerWrench(
+                stamp=0.0, seq=0, whisker_id=f"w{i}", frame_id=f"w{i}/clamp", f0=[1, 0, 0],
+                m0=[0, 0, 0])), 1 + i)
+    return path
+
+
+def test_bag_topics_in_any_order_and_the_ones_a_bag_lacks_are_named(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--topics takes topics comma-separated, repeated or several after it, and never
+    swallows the bag after it (a path is no topic); a topic the bag does not hold is a warning
+    that lists the bag's topics; the output's folder is made as for every other output file."""
+    bag = wrench_bag(tmp_path / "rec.mcap")
+    out = tmp_path / "no" / "folder" / "x.mcap"
+    assert vibrissa_main(["bag", "export", "--topics", "/w1/wrench,/nope", str(bag), str(out)]) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        f"vibrissa bag export: warning: /nope: no such topic in {bag} (its topics: /w0/wrench, "
+        "/w1/wrench)", f"wrote 1 JSON messages to {out}"]
+    again = tmp_path / "again.mcap"
+    assert vibrissa_main(["bag", "export", str(bag), str(again), "--topics", "/w0/wrench",
+                          "--topics", "/w1/wrench"]) == 0
+    assert capsys.readouterr().err.splitlines() == [f"wrote 2 JSON messages to {again}"]
+    several = tmp_path / "several.mcap"
+    assert vibrissa_main(["bag", "export", str(bag), "--topics", "/w0/wrench", "/w1/wrench",
+                          str(several)]) == 0
+    assert capsys.readouterr().err.splitlines() == [f"wrote 2 JSON messages to {several}"]
+    assert vibrissa_main(["bag", "export", "--topics", "/w0/wrench", str(bag), str(several),
+                          "extra.mcap"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "vibrissa bag export: error: unrecognized arguments: extra.mcap"]
+    assert vibrissa_main(["bag", "play", "--topics", "/w0/wrench"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "vibrissa bag play: error: the following arguments are required: bag"]
+    domain = str(9900 + os.getpid() % 1000)  # nobody listens there
+    assert vibrissa_main(["bag", "play", "--fast", "--wait", "0", "--topics", "/w0/wrench",
+                          "/nope", str(bag), "--domain", domain]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("vibrissa bag play: warning: /nope: no such topic in ")
+    err = err[1:]
+    assert err[0].startswith("published 1 messages in ")
+    assert err[1].startswith(f"vibrissa bag play: nobody received them: no running graph heard "
+                             f"on domain {domain} ")
+
+
+@pytest.mark.parametrize(("words", "message"), [
+    (("bag", "play", "x.mcap", "--wait", "-1"), "argument --wait: expected a number >= 0, got '-1'"),
+    (("bag", "play", "x.mcap", "--wait-timeout", "nan"),
+     "argument --wait-timeout: expected a number >= 0, got 'nan'"),
+    (("bag", "play", "x.mcap", "--topics", "/a,,/b"),
+     "argument --topics: expected NAME[,NAME...], got '/a,,/b'"),
+    (("topic", "echo", "/x", "-n", "0"), "argument --count/-n: expected an integer >= 1, got '0'"),
+    (("topic", "echo", "/x", "-n", "-1"), "argument --count/-n: expected an integer >= 1, got '-1'"),
+    (("topic", "echo", "/x", "--timeout", "-2"),
+     "argument --timeout: expected a number >= 0, got '-2'"),
+])
+def test_counts_and_waits_that_mean_nothing_are_refused(
+        capsys: pytest.CaptureFixture[str], words: tuple[str, ...], message: str) -> None:
+    with pytest.raises(SystemExit) as exc:
+        vibrissa_main(list(words))
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(message)

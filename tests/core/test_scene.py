@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from vibrissa.equilibrium import NEWTON_TOL
 from vibrissa.frames import Transform
 from vibrissa.reconstruct import reconstruct_si
-from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
+from vibrissa.scene import RobotPath, SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
 
 L0 = 0.05
 CUP = SceneObject("cup", "paraboloid", {"a_per_m": 0.5 / L0, "b_per_m": 1 / L0, "h_m": 0.4 * L0})
@@ -255,3 +255,8 @@ def test_a_path_that_jumps_past_the_front_of_a_ball_finds_the_touch_between_samp
     assert np.abs(c.m0_nm[1:] - f.m0_nm[124:]).max() <= 1e-9 * np.abs(f.m0_nm[124:]).max()
     [episode] = c.episodes
     assert c.t[0] < episode.t_first_contact < c.t[1]
+
+
+def test_a_path_of_one_sample_is_refused_by_its_count() -> None:
+    with pytest.raises(ValueError, match=r"^a path needs at least 2 samples, got 1$"):
+        RobotPath(np.zeros(1), np.zeros((1, 3)), Rotation.identity(1))

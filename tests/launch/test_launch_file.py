@@ -78,7 +78,7 @@ def test_full_example_parses(tmp_path: Path) -> None:
     recon, mapper = desc.nodes
     assert recon == NodeSpec(
         name="reconstructor", namespace="/whisker0", pkg="vibrissa", executable="reconstructor",
-        params=(Param("mu", 0.2), Param("output", "out/demo/map.npz"),
+        params=(Param("mu", 0.2, "0.2"), Param("output", "out/demo/map.npz", "out/demo/map.npz"),
                 Param("gains", [1, 2.5, 0.2]), Param("label", "plain")),
         remaps=(Remap("wrench", "/whisker0/wrench"),),
         env=(("FOO", "bar"), ("HOME_SEEN", "/home/x"), ("MISSING", "fallback value")),
@@ -113,10 +113,11 @@ def test_unknown_override_lists_known_arguments(tmp_path: Path) -> None:
 
 
 def test_parse_arg_overrides() -> None:
-    assert parse_arg_overrides(["a:=1", "b:=x:=y", "a:=2", "c:="]) == {
-        "a": "2", "b": "x:=y", "c": ""}
+    assert parse_arg_overrides(["a:=1", "b:=x:=y", "c:="]) == {"a": "1", "b": "x:=y", "c": ""}
     with pytest.raises(LaunchFileError, match="bad argument 'a=1': expected NAME:=VALUE"):
         parse_arg_overrides(["a=1"])
+    with pytest.raises(LaunchFileError, match=r"argument 'a' given twice \(a:=1, a:=2\)"):
+        parse_arg_overrides(["a:=1", "b:=x", "a:=2"])
 
 
 def test_argument_without_default_must_be_given(tmp_path: Path) -> None:

@@ -103,3 +103,41 @@ def test_a_node_failing_at_start_prints_its_traceback_only_when_asked(tmp_path: 
     assert loud.returncode == 1
     assert "Traceback (most recent call last)" in loud.stderr
     assert "NotADirectoryError" in loud.stderr
+
+
+@pytest.mark.parametrize(("override", "expected"), [
+    ("rate:=1:30", "node 'wrench_source': parameter 'rate_hz' expects float, got str ('1:30')"),
+    ("rate:=1_0", "node 'wrench_source': parameter 'rate_hz' expects float, got str ('1_0')"),
+    ("rate:=0x10", "node 'wrench_source': parameter 'rate_hz' expects float, got str ('0x10')"),
+])
+def test_a_launch_argument_is_no_yaml_1_1_number(
+    override: str, expected: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``1:30`` is no sexagesimal 90, ``1_0`` no 10, ``0x10`` no 16: YAML 1.2's plain numbers."""
+    assert vibrissa_main(["launch", "demo", override, "--dry-run"]) == 2
+    assert expected in capsys.readouterr().err
+
+
+def test_a_text_parameter_takes_a_launch_argument_as_it_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``out:=2026`` is the folder ``2026`` (not refused as an int), ``out:=&a x`` the text
+    ``&a x`` (no YAML anchor swallowed); the node reads the same from its parameter file; an
+    argument given twice is refused, naming it."""
+    import yaml
+
+    from vibrissa.launch.description import node_params
+    from vibrissa.nodes.mapper import PARAMS
+    from vibrissa.runtime.params import load_params
+
+    for value in ("2026", "&a x", "007"):
+        assert vibrissa_main(["launch", "demo", f"out:={value}", "--dry-run"]) == 0
+        assert f"[mapper]   param out_dir: {value!r}" in capsys.readouterr().out
+    description = load_launch_file(resolve_launch_file("demo"), {"out": "2026", "rate": "200"})
+    (mapper,) = [spec for spec in description.nodes if spec.name == "mapper"]
+    (tmp_path / "mapper.yaml").write_text(yaml.safe_dump(node_params(mapper)))
+    assert load_params(PARAMS, tmp_path / "mapper.yaml").out_dir == "2026"
+    (source,) = [spec for spec in description.nodes if spec.name == "wrench_source"]
+    assert node_params(source)["rate_hz"] == 200  # a number parameter: what the text reads as
+    assert vibrissa_main(["launch", "demo", "out:=a", "out:=b", "--dry-run"]) == 2
+    assert "argument 'out' given twice (out:=a, out:=b)" in capsys.readouterr().err

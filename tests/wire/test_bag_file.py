@@ -137,7 +137,10 @@ def test_truncated_bag_yields_a_prefix(tmp_path: Path) -> None:
     ends = chunk_ends(path)
     assert len(ends) > 5  # small chunks, as asked
     cut_path = tmp_path / "cut.mcap"
-    cuts = sorted({0, 5, 8, 30, *range(40, len(data), 997), *(e - 1 for e, _ in ends),
+    cut_path.write_bytes(b"")  # no byte at all: no bag, as any other file that is not MCAP
+    with pytest.raises(ValueError, match=r"cut.mcap is empty \(0 bytes\), not an MCAP file"):
+        BagReader(cut_path)
+    cuts = sorted({1, 5, 8, 30, *range(40, len(data), 997), *(e - 1 for e, _ in ends),
                    *(e for e, _ in ends), len(data) - 1})
     for cut in cuts:
         cut_path.write_bytes(data[:cut])

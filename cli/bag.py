@@ -11,6 +11,7 @@ from typing import Any
 
 import zmq
 
+from vibrissa.cli.arg_types import seconds
 from vibrissa.cli.graph import (
     Names,
     add_endpoint_flags,
@@ -18,7 +19,6 @@ from vibrissa.cli.graph import (
     is_graph_name,
     no_graph,
     nothing_heard,
-    seconds,
     stop_on_signals,
     take_spilled,
 )

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -41,28 +40,6 @@ def domain_id(text: str) -> int:
     if not 0 <= value <= Endpoints.MAX_DOMAIN:
         raise argparse.ArgumentTypeError(f"domain id must be in [0, {Endpoints.MAX_DOMAIN}], "
                                          f"got {value}")
-    return value
-
-
-def seconds(text: str) -> float:
-    """Argparse type: a duration in seconds, finite and >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return value
-
-
-def count(text: str) -> int:
-    """Argparse type: a count of things, an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
     return value
 
 

@@ -9,7 +9,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from vibrissa.cli.graph import domain_id, seconds
+from vibrissa.cli.arg_types import seconds
+from vibrissa.cli.graph import domain_id
 from vibrissa.cli.main import parse_command_line
 from vibrissa.launch.description import (
     LaunchDescription,

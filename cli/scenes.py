@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.cli import tables
+from vibrissa.cli.arg_types import count
 from vibrissa.runtime.csv_text import cell, csv_writer, read_csv, refuse_overwrite
 from vibrissa.runtime.scene_file import SceneError, load_scene, number_cell, scene_files, shown
 from vibrissa.runtime.scene_results import (
@@ -192,16 +193,6 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
-def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
 def register(subparsers: Any) -> None:
     """Add the ``simulate`` subcommand to the ``vibrissa`` dispatcher."""
     columns = "\n".join(f"  {name} [{unit}]: {meaning}"
@@ -215,6 +206,6 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("scene", metavar="SCENE.yaml")
     parser.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder")
-    parser.add_argument("--workers", type=_workers, default=None, metavar="N",
+    parser.add_argument("--workers", type=count, default=None, metavar="N",
                         help="processes for the whiskers (default: all cores)")
     parser.set_defaults(func=run_simulate)

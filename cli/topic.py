@@ -15,12 +15,11 @@ from typing import Any, NamedTuple, TextIO
 
 import numpy as np
 
+from vibrissa.cli.arg_types import count, seconds
 from vibrissa.cli.graph import (
     add_endpoint_flags,
-    count,
     endpoints_from,
     nothing_heard,
-    seconds,
     stop_on_signals,
     where,
 )

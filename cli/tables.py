@@ -6,7 +6,6 @@ empty cell. Units are the paper's (eq. 1): lengths in L, forces in EI/L^2, momen
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from collections.abc import Iterable
@@ -219,14 +218,3 @@ def write_reconstruction_csv(
         for i in range(len(rec.status))
     )
     write_csv(path, columns, rows)
-
-
-def read_csv_columns(path: Path) -> dict[str, list[str]]:
-    """All columns of a CSV as lists of cell texts, keyed by header name."""
-    with path.open(newline="") as handle:
-        reader = csv.DictReader(handle)
-        columns: dict[str, list[str]] = {name: [] for name in reader.fieldnames or []}
-        for row in reader:
-            for name in columns:
-                columns[name].append(row[name])
-    return columns

@@ -195,10 +195,6 @@ class NodeSpec:
         """Fully qualified node name, e.g. ``/whisker0/reconstructor``."""
         return node_fqn(self.name, self.namespace)
 
-    def params_dict(self) -> dict[str, Any]:
-        """The parameters as a mapping, in declaration order."""
-        return {p.name: p.value for p in self.params}
-
 
 @dataclass(frozen=True)
 class LaunchDescription:

@@ -256,13 +256,6 @@ class FrameBuffer:
             del edge.stamps[:old], edge.poses[:old]
         return forgotten
 
-    def latest(self, parent: str, child: str) -> float | None:
-        """The newest stamp of ``child`` in ``parent`` (None: none yet, or a static one)."""
-        edge = self._edges.get(child)
-        if edge is None or edge.parent != parent or not edge.stamps:
-            return None
-        return edge.stamps[-1]
-
     def newest(self, target: str, source: str) -> float | None:
         """The newest stamp at which ``source`` can be looked up in ``target``: the oldest of
         the newest poses of the stamped edges between them (inf when all are static); None

@@ -105,7 +105,7 @@ def test_history_is_bounded() -> None:
     with pytest.raises(ValueError, match=r"at t=0.5: older than the kept history \(the newest "
                        r"pose is at t=2.99, 1 s are kept\); 2 more such"):
         buffer.add("world", "base_link", 0.5, Transform())
-    assert buffer.latest("world", "base_link") == pytest.approx(2.99)
+    assert buffer.newest("world", "base_link") == pytest.approx(2.99)
 
 
 def test_a_stray_future_stamp_costs_a_few_poses_not_the_stream() -> None:
@@ -120,7 +120,7 @@ def test_a_stray_future_stamp_costs_a_few_poses_not_the_stream() -> None:
             buffer.add("world", "base_link", 0.01 * k, Transform(translation=[k, 0, 0]))
     k = 10 + TIME_JUMP_POSES - 1
     assert buffer.add("world", "base_link", 0.01 * k, Transform(translation=[k, 0, 0])) == 1e300
-    assert buffer.latest("world", "base_link") == 0.01 * k
+    assert buffer.newest("world", "base_link") == 0.01 * k
     buffer.add("world", "base_link", 0.01 * (k + 1), Transform(translation=[k + 1, 0, 0]))
     p, _q = buffer.lookup_many("world", "base_link", [0.01 * k + 0.005])
     assert p[0] == pytest.approx([k + 0.5, 0.0, 0.0], abs=1e-9)
@@ -139,7 +139,7 @@ def test_a_timeline_restarts_only_on_poses_in_a_row_each_newer() -> None:
         with pytest.raises(ValueError, match="older than the kept history"):
             buffer.add("world", "base_link", stamp, Transform())
     assert buffer.add("world", "base_link", 8.0, Transform()) == 100.5
-    assert buffer.latest("world", "base_link") == 8.0
+    assert buffer.newest("world", "base_link") == 8.0
 
 
 def test_unknown_frames_and_a_second_tree_are_named() -> None:

@@ -15,6 +15,7 @@ from vibrissa.launch.description import (
     Remap,
     TransportSpec,
     load_launch_file,
+    node_params,
     parse_arg_overrides,
 )
 
@@ -101,7 +102,7 @@ def test_dataclasses_are_frozen(tmp_path: Path) -> None:
 def test_arg_override_changes_values_and_types(tmp_path: Path) -> None:
     desc = load_launch_file(write(tmp_path, DEMO), {"mu": "0.35", "out": "elsewhere"},
                             environ=ENV)
-    params = desc.nodes[0].params_dict()
+    params = node_params(desc.nodes[0])
     assert params["mu"] == 0.35
     assert params["output"] == "elsewhere/map.npz"  # a later default sees the override
 

@@ -49,7 +49,14 @@ from vibrissa.runtime.scene_results import (
     result_files,
     write_results,
 )
-from vibrissa.scene import SamplePhase, WhiskerResult, reconstruct_along, simulate
+from vibrissa.scene import (
+    SamplePhase,
+    Scene,
+    WhiskerResult,
+    clamp_inside,
+    reconstruct_along,
+    simulate,
+)
 from vibrissa.status import ContactPhase, SweepEnd
 
 FloatArray = NDArray[np.float64]
@@ -81,13 +88,14 @@ def run_simulate(args: argparse.Namespace) -> int:
                        sample_progress=print_sample_progress)
     for path in write_results(out, scene, results):
         print(f"wrote {path}")
-    print(episode_summary(results), file=sys.stderr)
+    print(episode_summary(results, scene), file=sys.stderr)
     return 0
 
 
-def episode_summary(results: Sequence[WhiskerResult]) -> str:
+def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None) -> str:
     """``12 contact episodes (7 detachment, 4 snap-off, 1 another-object); samples: 9105 none,
-    ...``, and what ``another-object`` means when an episode ended so."""
+    ...``, what ``another-object`` means when an episode ended so, and with the ``scene`` the
+    unresolved samples of each whisker whose clamp is inside an object."""
     ends = Counter(episode.end for result in results for episode in result.episodes)
     samples: Counter[str] = Counter()
     for result in results:
@@ -101,6 +109,15 @@ def episode_summary(results: Sequence[WhiskerResult]) -> str:
     if ends[SweepEnd.ANOTHER_OBJECT]:
         line += ("\n  another-object: a rod leaning on one object met a second; contact with "
                  "two at once is not modelled, so those samples are unresolved")
+    if scene is None:
+        return line
+    for result, whisker in zip(results, scene.whiskers, strict=True):
+        inside = clamp_inside(scene, whisker)
+        held = np.flatnonzero((result.phase == SamplePhase.UNRESOLVED) & (inside >= 0))
+        if len(held):
+            names = sorted({scene.objects[k].name for k in inside[held]})
+            line += (f"\n  {result.name}: {len(held)} sample(s) unresolved with the clamp inside "
+                     f"{', '.join(names)} (from t = {result.t[held[0]]:g} s): no rod fits there")
     return line
 
 

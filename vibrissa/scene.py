@@ -461,6 +461,18 @@ class _WhiskerSteps:
         return float(start + (lam - (j - 1)) * (t_all[kept[j]] - start))
 
 
+def clamp_inside(scene: Scene, whisker: Whisker) -> NDArray[np.int64]:
+    """Per path sample (N,), the index of the object whose inside holds the whisker's clamp
+    point (-1: none): a rod clamped there has no equilibrium outside the object, and its
+    samples are `SamplePhase.UNRESOLVED`."""
+    path = scene.path
+    p_WC = path.p_WR + path.R_WR.apply(np.array(whisker.X_RC.translation, dtype=float))
+    inside = np.full(len(p_WC), -1, dtype=np.int64)
+    for k, obj in enumerate(scene.objects):
+        inside[(inside < 0) & (obj.surface(1.0).value(p_WC) < 0.0)] = k
+    return inside
+
+
 def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
                       f0_C_n: ArrayLike, m0_C_nm: ArrayLike) -> ReconstructionSI:
     """Step 2 of wrenches measured along the scene's path, one row per measurement.

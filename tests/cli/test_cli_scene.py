@@ -374,6 +374,30 @@ path: path.csv
     assert "contact with two at once is not modelled" in err[-1]
 
 
+def test_simulate_names_a_clamp_inside_an_object(tmp_path: Path, capsys) -> None:
+    """A robot that starts with its whisker's clamp inside a ball (centre 0.1 m ahead, radius
+    0.015 m, the rod pointing up) and drives out of it: the samples while the clamp is inside are unresolved, and
+    the closing lines say why."""
+    (tmp_path / "scene.yaml").write_text("""\
+mu: 0.25
+objects:
+  - {name: ball, shape: sphere, radius_m: 0.015, position_m: [0.1, 0.0, 0.0]}
+whiskers:
+  - {name: w0, length_m: 0.05, ei_nm2: 2.0e-5, mount: {position_m: [0, 0, 0]}}
+path: path.csv
+""")
+    x = 0.1005 - 0.001 * np.arange(60)  # inside while x > 0.085: samples 0-15
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(
+        f"{0.01 * i},{x[i]},0,0,0,0,0,1\n" for i in range(len(x))))
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("  w0: 16 sample(s) unresolved with the clamp inside ball (from t = 0 s): "
+                       "no rod fits there")
+    with (tmp_path / "out" / "w0.csv").open() as handle:
+        phases = [row["phase"] for row in csv.DictReader(handle)]
+    assert phases[:16] == ["unresolved"] * 16 and "unresolved" not in phases[16:]
+
+
 def test_the_closing_line_of_a_scene_without_contact() -> None:
     from vibrissa.cli.scenes import episode_summary
 

@@ -13,6 +13,7 @@ import zmq
 
 from vibrissa.cli.arg_types import seconds
 from vibrissa.cli.graph import (
+    AFTER_NAMES,
     Names,
     add_endpoint_flags,
     endpoints_from,
@@ -220,7 +221,9 @@ def _export(args: argparse.Namespace) -> int:
         return 2
     output = args.output or args.outdir
     if output is None or (args.output and args.outdir):
-        print("vibrissa bag export: error: name the output once (OUT or -o OUT)", file=sys.stderr)
+        hint = AFTER_NAMES if output is None and args.topics else ""
+        print(f"vibrissa bag export: error: name the output once (OUT or -o OUT){hint}",
+              file=sys.stderr)
         return 2
     out = Path(output)
     check_bag_file(args.bag)  # no bag: refused before anything is made

@@ -58,15 +58,19 @@ class Names(argparse.Action):
                  values: Any, option_string: str | None = None) -> None:
         items = list(getattr(namespace, self.dest, None) or [])
         spilled = list(getattr(namespace, "spilled", []))
-        for word in values:
+        names: list[str] = []
+        for k, word in enumerate(values):
             parts = [part.strip() for part in word.split(",")]
-            if spilled or not all(self.is_name(part) for part in parts if part):
-                spilled.append(word)  # the positional arguments after the option
-            elif not all(parts):
+            if not all(self.is_name(part) for part in parts if part):
+                spilled.extend(values[k:])  # the positional arguments after the option
+                break
+            if not all(parts):
                 parser.error(f"argument {option_string}: expected NAME[,NAME...], got {word!r}")
-            else:
-                items.extend(parts)
-        setattr(namespace, self.dest, items)
+            names.extend(parts)
+        if not names:
+            parser.error(f"argument {option_string}: expected a name, got {values[0]!r} (a path? "
+                         "put it before the option or after --)")
+        setattr(namespace, self.dest, items + names)
         namespace.spilled = spilled
 
 
@@ -81,8 +85,12 @@ def take_spilled(args: argparse.Namespace, required: str, *optional: str) -> str
     if spilled:
         return f"unrecognized arguments: {' '.join(spilled)}"
     if getattr(args, required) is None:
-        return f"the following arguments are required: {required}"
+        return f"the following arguments are required: {required}{AFTER_NAMES}"
     return None
+
+
+AFTER_NAMES = ("; a word after --topics or --wait-for that could be a name is read as one "
+               "(a path without a dot, say): put it before the option, or after --")
 
 
 def is_graph_name(word: str) -> bool:

@@ -62,10 +62,12 @@ def main(argv: list[str] | None = None) -> int:
 
     As the process's own command (``argv`` None) it freezes the objects at exit
     (``gc.freeze``): the interpreter's collections at shutdown would walk numba's 1e5 objects
-    for 0.3-0.4 s to free memory that the ending process returns anyway.
+    for 0.3-0.4 s to free memory that the ending process returns anyway, and SIGTERM ends it
+    as Ctrl-C does (`_terminated`).
     """
     if argv is None:
         atexit.register(gc.freeze)
+        signal.signal(signal.SIGTERM, _terminated)
     argv = sys.argv[1:] if argv is None else argv
     command = argv[0] if argv and not argv[0].startswith("-") else None
     try:  # the command's module loads here (0.1-0.3 s): Ctrl-C meanwhile ends quietly too
@@ -93,6 +95,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vibrissa {command}: error: {type(exc).__name__}: {exc} (for the "
               f"traceback: {DEBUG_ENV}=1)", file=sys.stderr)
         return EXIT_FAILED
+
+
+def _terminated(signum: int, _frame: object) -> None:
+    """SIGTERM (``kill``, ``timeout``) unwinds the command as Ctrl-C does, so that what it was
+    writing is removed (`vibrissa.runtime.files.whole_file`); status 128 + 15."""
+    raise SystemExit(128 + signum)
 
 
 if __name__ == "__main__":

@@ -61,11 +61,9 @@ import hashlib
 import json
 import logging
 import math
-import os
 import time
 from collections import Counter
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from itertools import compress
 from pathlib import Path
@@ -99,6 +97,7 @@ from vibrissa.nodes.surface_fit import (
     write_ply,
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime.files import whole_file
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.runtime.scene_file import LIMITS, load_scene
@@ -669,18 +668,6 @@ def _suffix(frame_id: str) -> str:
     return "" if frame_id == "world" else f"_{_file_part(frame_id)}"
 
 
-@contextmanager
-def _whole(path: Path) -> Iterator[Path]:
-    """A temporary path beside ``path`` to write to, renamed to ``path`` once written and
-    removed if writing fails (e.g. a full disk): a reader never sees half a file."""
-    partial = path.with_name(f".{path.stem}.partial{path.suffix}")
-    try:
-        yield partial
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
-
-
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   streams: Sequence[StreamEnd] = (), lost: int = 0,
                   ) -> tuple[dict[str, Any],
@@ -700,11 +687,11 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         result = frame.result
         sfx = _suffix(frame_id)
         files = {"cloud": out_dir / f"cloud{sfx}.ply"}
-        with _whole(files["cloud"]) as partial:
+        with whole_file(files["cloud"]) as partial:
             write_ply(str(partial), frame.points, normals=frame.normals)
         if len(frame.vertices):
             files["mesh"] = out_dir / f"mesh{sfx}.ply"
-            with _whole(files["mesh"]) as partial:
+            with whole_file(files["mesh"]) as partial:
                 write_ply(str(partial), frame.vertices, frame.triangles,
                           scalars={"std_m": frame.std})
         else:
@@ -719,17 +706,17 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                                 else "nowhere known")
                 continue
             target = out_dir / f"mesh_{_file_part(obj.name)}{sfx}.ply"
-            with _whole(target) as partial:
+            with whole_file(target) as partial:
                 write_ply(str(partial), vertices, triangles, scalars={"std_m": std})
             files[f"mesh_{obj.name}"] = target
             obj.files = {"mesh": str(target)}
         if params.plot:
             layers = map_layers(frame, params)  # one source for both pictures
             files["png"] = out_dir / f"map{sfx}.png"
-            with _whole(files["png"]) as partial:
+            with whole_file(files["png"]) as partial:
                 plot_map(partial, layers)
             files["html"] = out_dir / f"map{sfx}.html"
-            with _whole(files["html"]) as partial:
+            with whole_file(files["html"]) as partial:
                 write_page(partial, layers)
         result.files = {k: str(v) for k, v in files.items()}
         results.append(result)
@@ -775,9 +762,9 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
     report["files"] = {"report_json": str(report_json), "report_txt": str(report_txt)}
-    with _whole(report_json) as partial:
+    with whole_file(report_json) as partial:
         partial.write_text(json.dumps(report, indent=2) + "\n")
-    with _whole(report_txt) as partial:
+    with whole_file(report_txt) as partial:
         partial.write_text(format_report(report))
     return report, messages
 

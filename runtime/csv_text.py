@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import csv
 import math
-import os
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from vibrissa.runtime.files import is_stream, whole_file
 from vibrissa.runtime.scene_file import SceneError
 
 
@@ -33,23 +33,14 @@ def cells(values: ArrayLike) -> list[list[str]]:
 @contextlib.contextmanager
 def csv_writer(path: Path, columns: Sequence[str]) -> Iterator[Any]:
     """A ``csv.writer`` into ``path`` (UTF-8, ``\\n`` line ends) with the header ``columns``
-    written; creates the folder. A file is written whole or not at all: beside it, renamed into
-    place when the block ends, removed when it raises. A symbolic link (``/dev/stdout``, whose
-    target may be a file or a pipe) or anything but a file is written through directly: a
-    rename would replace the link."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    direct = path.is_symlink() or (path.exists() and not path.is_file())
-    target = path if direct else path.with_name(f".{path.name}.partial")
-    try:
+    written; creates the folder. A file is written whole or not at all (`whole_file`); a
+    stream (`is_stream`: a pipe, ``/dev/stdout``) gets the rows as they come."""
+    with contextlib.ExitStack() as stack:
+        target = path if is_stream(path) else stack.enter_context(whole_file(path))
         with target.open("w", newline="", encoding="utf-8") as handle:
             writer = csv.writer(handle, lineterminator="\n")
             writer.writerow(columns)
             yield writer
-        if not direct:
-            os.replace(target, path)
-    finally:
-        if not direct:
-            target.unlink(missing_ok=True)
 
 
 def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]]) -> None:

@@ -178,8 +178,21 @@ def test_bag_topics_in_any_order_and_the_ones_a_bag_lacks_are_named(
     assert capsys.readouterr().err.splitlines() == [
         "vibrissa bag export: error: unrecognized arguments: extra.mcap"]
     assert vibrissa_main(["bag", "play", "--topics", "/w0/wrench"]) == 2
-    assert capsys.readouterr().err.splitlines() == [
-        "vibrissa bag play: error: the following arguments are required: bag"]
+    [line] = capsys.readouterr().err.splitlines()
+    assert line.startswith("vibrissa bag play: error: the following arguments are required: "
+                           "bag; a word after --topics or --wait-for that could be a name is "
+                           "read as one")
+    # no topic at all: the bag after --topics is no topic, and nothing is played
+    with pytest.raises(SystemExit) as exc:
+        vibrissa_main(["bag", "export", "--topics", str(bag), str(several)])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"vibrissa bag export: error: argument --topics: expected a name, got {str(bag)!r} (a "
+        "path? put it before the option or after --)")
+    # a second --topics after the bag is the option's again
+    assert vibrissa_main(["bag", "export", "--topics", "/w0/wrench", str(bag), "--topics",
+                          "/w1/wrench", str(several), "--overwrite"]) == 0
+    assert capsys.readouterr().err.splitlines() == [f"wrote 2 JSON messages to {several}"]
     domain = str(9900 + os.getpid() % 1000)  # nobody listens there
     assert vibrissa_main(["bag", "play", "--fast", "--wait", "0", "--topics", "/w0/wrench",
                           "/nope", str(bag), "--domain", domain]) == 0

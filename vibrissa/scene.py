@@ -87,9 +87,10 @@ class SceneObject:
                              f"got {self.shape!r}")
         self.surface(1.0)  # checks the sizes
 
-    def surface(self, length_m: float) -> Surface:
-        """The object in units of a rod of length ``length_m``."""
-        pose = Transform(self.X_WO.rotation, self.X_WO.translation / length_m)
+    def surface(self, length_m: float, origin_m: ArrayLike = (0.0, 0.0, 0.0)) -> Surface:
+        """The object in units of a rod of length ``length_m``, in W moved to ``origin_m`` (m)."""
+        pose = Transform(self.X_WO.rotation,
+                         (np.asarray(self.X_WO.translation) - np.asarray(origin_m)) / length_m)
         try:
             if self.shape == "sphere":
                 return Sphere(self._size("radius_m") / length_m, pose)
@@ -323,6 +324,14 @@ def simulate_group(scene: Scene, whiskers: Sequence[Whisker],
     return [results[whisker.name] for whisker in whiskers]
 
 
+def local_origin(path: RobotPath) -> FloatArray:
+    """Where Step 1 puts W's origin for ``path`` (m): the middle of the path, rounded to whole
+    metres. Its equilibria are solved to residuals of 1e-12 L, and coordinates x L from the
+    origin carry x 1e-16 L of round-off: in a world frame 1 km from the robot (an odometry or
+    map frame) Step 1 found no equilibrium at all, 100 m away it moved contacts by 1e-7 m."""
+    return np.round((path.p_WR.min(axis=0) + path.p_WR.max(axis=0)) / 2.0)
+
+
 class _WhiskerSteps:
     """One whisker's Step 1 along the path, a state machine that `simulate_group` steps: past
     unresolved samples, searching the next touch, in an episode (``run``, a `SweepRun` of one
@@ -336,9 +345,10 @@ class _WhiskerSteps:
     def __init__(self, scene: Scene, whisker: Whisker) -> None:
         length = whisker.length_m
         self.scene, self.whisker = scene, whisker
-        self.surfaces = [obj.surface(length) for obj in scene.objects]
+        self.origin_m = local_origin(scene.path)
+        self.surfaces = [obj.surface(length, self.origin_m) for obj in scene.objects]
         mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
-        p_WR = scene.path.p_WR / length
+        p_WR = (scene.path.p_WR - self.origin_m) / length
         moved = np.concatenate([[True], rod_motion(p_WR, scene.path.R_WR, mount) > PAUSE_L])
         moved[-1] |= not moved[1:].any()  # a robot that never moves: its first and last sample
         self.moved = moved
@@ -398,6 +408,8 @@ class _WhiskerSteps:
         self.s1[kept] = sweep.s1[:n] * self.whisker.length_m
         self.f0[kept], self.m0[kept] = self.whisker.scale.wrench_to_si(sweep.f0[:n], sweep.m0[:n])
         self.contact[kept] = sweep.contact[:n] * self.whisker.length_m
+        if self.origin_m.any():  # (so that a scene at W's origin keeps its bits, -0.0 too)
+            self.contact[kept] += self.origin_m
         self.refined[kept] = sweep.refined[:n]
         self.episodes.append(Episode(self.scene.objects[i].name,
                                      self._time_at(-sweep.x_touch / h + k), str(end),

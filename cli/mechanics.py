@@ -90,7 +90,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--surface", type=_surface, default=parse_surface(PAPER_SURFACE),
                    metavar="SPEC", help=f"object, e.g. {PAPER_SURFACE} (the default)")
     p.add_argument("--y0", type=_offset, required=True, metavar="Y",
-                   help="trail offset, units of L (within +-1e6, as the object's position)")
+                   help="trail offset, units of L (within +-1e3, as the object's position)")
     p.add_argument("--mu", type=_non_negative, required=True, help="friction coefficient, >= 0")
     p.add_argument("--step", type=_positive, default=PAPER_STEP, metavar="DX",
                    help=f"clamp step along -x, units of L (default {PAPER_STEP})")

@@ -246,10 +246,14 @@ _SHAPE_KEYS = {
 }
 _POSITION_KEYS = ("h", "cx", "cy", "cz")
 
-SPEC_LIMITS = {"size": (1e-6, 1e6), "position": (-1e6, 1e6)}
+SPEC_LIMITS = {"size": (1e-6, 1e3), "position": (-1e3, 1e3)}
 """Closed ranges of a surface spec's numbers, units of L: sizes and curvatures (``r``, ``rx``,
 ``ry``, ``rz``, ``a``, ``b``) and positions (``cx``, ``cy``, ``cz``, a paraboloid's ``h``).
-Within them no square of Step 1 overflows (a sphere of r = 1e300 L came out as "no contact")."""
+A sweep's clamp goes to the object, and its equilibria are solved to residuals of 1e-12 L
+where a coordinate x L from the origin carries x 1e-16 L of round-off: a ball 1e3 L along the
+trail gives the steps and the ending it gives at the origin (contacts within 1e-9 L, as 10 L
+along), 1e4 L away a different sweep, 1e6 L away none. (A scene works near its path instead:
+`vibrissa.scene.local_origin`.)"""
 
 
 def _pose_spec(pose: Transform) -> str:

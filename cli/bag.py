@@ -180,13 +180,15 @@ def _play(args: argparse.Namespace) -> int:
                                   endpoints=endpoints, context=context, stop=stop)
             finally:
                 context.term()  # returns once queued messages left (linger drain_s)
-    state = "interrupted" if result.interrupted else "done"
+    stopped = stop.is_set()  # Ctrl-C or SIGTERM; else an interrupted play timed out its gate
+    state = ("interrupted" if stopped else f"--wait-for not ready after {args.wait_timeout:g} s"
+             if result.interrupted else "done")
     print(f"published {result.total} messages in {result.wall_s:.3f} s ({state})",
           file=sys.stderr)
     nobody = no_graph(args, endpoints) if result.total else None
     if nobody is not None:
         print(f"vibrissa bag play: nobody received them: {nobody}", file=sys.stderr)
-    return 130 if result.interrupted else 0
+    return 130 if stopped else 1 if result.interrupted else 0
 
 
 def _say_missing_topics(command: str, bag: str, topics: list[str]) -> None:

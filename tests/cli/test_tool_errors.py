@@ -204,6 +204,17 @@ def test_bag_topics_in_any_order_and_the_ones_a_bag_lacks_are_named(
                              f"on domain {domain} ")
 
 
+def test_a_play_whose_nodes_never_come_says_so_and_exits_1(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--wait-for a node that never comes: status 1 and why, not Ctrl-C's 130."""
+    bag = wrench_bag(tmp_path / "rec.mcap")
+    domain = str(9900 + os.getpid() % 1000)  # nobody listens there
+    assert vibrissa_main(["bag", "play", str(bag), "--wait-for", "mapper", "--wait-timeout",
+                          "0.3", "--domain", domain]) == 1
+    assert capsys.readouterr().err.splitlines()[-1].endswith(
+        "(--wait-for not ready after 0.3 s)")
+
+
 @pytest.mark.parametrize(("words", "message"), [
     (("bag", "play", "x.mcap", "--wait", "-1"), "argument --wait: expected a number >= 0, got '-1'"),
     (("bag", "play", "x.mcap", "--wait-timeout", "nan"),

@@ -157,10 +157,11 @@ def _wrench_chunks(path: Path, header: list[str], records: Iterator[tuple[int, l
     while chunk := list(itertools.islice(records, rows)):
         t_text, names = [], []
         values = np.empty((len(chunk), 7))
-        for k, (_, row) in enumerate(chunk):
+        for k, (line, row) in enumerate(chunk):
             i = first + k
+            where = f"row {i}" if line == i + 1 else f"row {i} (line {line})"  # blank lines...
             if len(row) != len(header):
-                raise SceneError(f"{path.name}: row {i}: expected {len(header)} values, "
+                raise SceneError(f"{path.name}: {where}: expected {len(header)} values, "
                                  f"got {len(row)}")
             t_text.append(row[at["t"]].strip())
             names.append(row[at["whisker"]].strip())
@@ -169,10 +170,10 @@ def _wrench_chunks(path: Path, header: list[str], records: Iterator[tuple[int, l
                 try:
                     values[k, j] = number_cell(text) if text else math.nan
                 except ValueError:
-                    raise SceneError(f"{path.name}: row {i}, column {name}: {shown(text)} is "
+                    raise SceneError(f"{path.name}: {where}, column {name}: {shown(text)} is "
                                      "not a number") from None
             if not math.isfinite(values[k, 0]):
-                raise SceneError(f"{path.name}: row {i}: t must be a finite number")
+                raise SceneError(f"{path.name}: {where}: t must be a finite number")
         yield first, t_text, values[:, 0], names, values[:, 1:4], values[:, 4:7]
         first += len(chunk)
 

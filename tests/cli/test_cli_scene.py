@@ -273,6 +273,9 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
      "wrenches.csv: column(s) t appear more than once"),
     ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z,,\n0.1,w0,0,0,0,0,0,0\n",  # a row short of the header
      "wrenches.csv: row 1: expected 10 values, got 8"),
+    # after blank lines a row is named by its file line too (POINTS.csv has no blank rows)
+    ("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n\n\n0.1,w0,0,0,0,0,0,0\n0.1,w0,0,x,0,0,0,0\n",
+     "wrenches.csv: row 2 (line 5), column f0y: 'x' is not a number"),
 ])
 def test_reconstruct_with_a_scene_names_what_is_wrong(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, message: str) -> None:

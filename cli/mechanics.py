@@ -24,7 +24,7 @@ from vibrissa.status import SweepEnd
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
 from vibrissa.surfaces import SPEC_LIMITS, Surface, parse_surface
 from vibrissa.sweep import CLAMP_TOUCH_L, simulate_sweep
-from vibrissa.units import RodScale
+from vibrissa.units import RodScale, number_text
 
 EXIT_NO_CONTACT = 3
 """``vibrissa sweep``: the trail never touches the object."""
@@ -39,7 +39,7 @@ def _surface(text: str) -> Surface:
 
 def _finite(text: str) -> float:
     try:
-        value = float(text)
+        value = number_text(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not math.isfinite(value):

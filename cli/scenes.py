@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from vibrissa.cli import tables
 from vibrissa.cli.arg_types import count
 from vibrissa.runtime.csv_text import cell, csv_writer, read_csv, refuse_overwrite
-from vibrissa.runtime.scene_file import SceneError, load_scene, number_cell, scene_files, shown
+from vibrissa.runtime.scene_file import SceneError, load_scene, scene_files, shown
 from vibrissa.runtime.scene_results import (
     SCENE_COLUMNS,
     WRENCH_COLUMNS,
@@ -58,6 +58,7 @@ from vibrissa.scene import (
     simulate,
 )
 from vibrissa.status import ContactPhase, SweepEnd
+from vibrissa.units import number_text
 
 FloatArray = NDArray[np.float64]
 
@@ -168,7 +169,7 @@ def _wrench_chunks(path: Path, header: list[str], records: Iterator[tuple[int, l
             for j, name in enumerate(("t", *WRENCH_COLUMNS[2:])):
                 text = row[at[name]].strip()
                 try:
-                    values[k, j] = number_cell(text) if text else math.nan
+                    values[k, j] = number_text(text) if text else math.nan
                 except ValueError:
                     raise SceneError(f"{path.name}: {where}, column {name}: {shown(text)} is "
                                      "not a number") from None

@@ -21,6 +21,7 @@ from vibrissa.runtime.csv_text import cell, cells, csv_records, write_csv
 from vibrissa.runtime.scene_file import SceneError, shown
 from vibrissa.status import ContactPhase, ContactStatus
 from vibrissa.sweep import STATE_NAMES, Sweep
+from vibrissa.units import number_text
 
 SWEEP_COLUMNS = (
     "x0", "y0", "phase", "s1", "psi",
@@ -179,7 +180,7 @@ def read_wrench_csv(path: Path) -> WrenchTable:
             text = row[c].strip()
             try:
                 # An empty cell is a missing value: Step 2 flags it (non_finite_input).
-                values[name][r] = float(text) if text else np.nan
+                values[name][r] = number_text(text) if text else np.nan
             except ValueError:
                 raise TableError(
                     f"{path}: row {r + 1}, column {name!r}: {shown(text)} is not a number"

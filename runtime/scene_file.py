@@ -27,10 +27,10 @@ import yaml
 from vibrissa.frames import Transform
 from vibrissa.runtime import yaml_numbers
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
-from vibrissa.units import finite_number
+from vibrissa.units import finite_number, number_text
 
 __all__ = ["LIMITS", "NAME_RULE", "SceneError", "check_name", "load_path", "load_robot", "load_scene",
-           "number_cell", "scene_files", "shown"]
+           "scene_files", "shown"]
 
 _OBJECT_SIZES = {"sphere": ("radius_m",), "ellipsoid": ("semi_axes_m",),
                  "paraboloid": ("a_per_m", "b_per_m", "h_m")}
@@ -118,14 +118,6 @@ def check_name(name: Any, where: str) -> str:
     return name
 
 
-def number_cell(text: str) -> float:
-    """A CSV cell as a float (decimal or exponent notation, ``nan``, ``inf``); ValueError for
-    anything else, also for Python's own ``1_000``."""
-    if "_" in text:
-        raise ValueError(f"{text!r} is not a number")
-    return float(text)
-
-
 def shown(value: Any) -> str:
     """``repr(value)``, cut to 60 characters: a value in a one-line message."""
     text = repr(value)
@@ -160,7 +152,7 @@ def load_path(path: Path) -> RobotPath:
         if len(row) != 8:
             raise SceneError(f"{path.name}: row {i + 1}: expected 8 values, got {len(row)}")
         try:
-            values[i] = [number_cell(cell) for cell in row]
+            values[i] = [number_text(cell) for cell in row]
         except ValueError:
             raise SceneError(f"{path.name}: row {i + 1}: not a number in {row}") from None
         low, high = LIMITS["position_m"]

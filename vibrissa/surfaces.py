@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vibrissa.compiled import compiled
 from vibrissa.frames import Transform
+from vibrissa.units import number_text
 
 FloatArray = NDArray[np.float64]
 
@@ -294,7 +295,7 @@ def parse_surface(spec: str) -> Surface:
             allowed = ", ".join(_SHAPE_KEYS[kind] + _POSE_KEYS)
             raise ValueError(f"surface spec {spec!r}: unknown key {key!r} for {kind} (allowed: {allowed})")
         try:
-            values[key] = float(text)
+            values[key] = number_text(text.strip())
         except ValueError:
             raise ValueError(f"surface spec {spec!r}: {key}={text!r} is not a number") from None
         if not np.isfinite(values[key]):

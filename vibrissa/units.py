@@ -21,6 +21,14 @@ def finite_number(value: object) -> bool:
             and abs(value) <= sys.float_info.max)
 
 
+def number_text(text: str) -> float:
+    """A number written as text: decimal or exponent notation, ``nan``, ``inf`` (as ``float``
+    reads them), but ASCII only and without Python's ``1_000``; ValueError otherwise."""
+    if "_" in text or not text.isascii():
+        raise ValueError(f"{text!r} is not a number")
+    return float(text)
+
+
 @dataclass(frozen=True)
 class RodScale:
     """A rod of length ``length_m`` (m) and bending stiffness ``ei_nm2`` (N m^2)."""

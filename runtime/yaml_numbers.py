@@ -24,7 +24,8 @@ _BOOL = re.compile(r"true|True|TRUE|false|False|FALSE")
 def scalar(text: str) -> bool | int | float | str:
     """What ``text`` reads as, as a plain YAML 1.2 scalar: ``true``/``false``, a decimal
     integer, a float (decimal or exponent notation, ``.inf``, ``.nan``); anything else is the
-    text itself, as is (also an integer of more digits than Python reads)."""
+    text itself, as is (also an integer of more digits than Python reads, and a float whose
+    nonzero digits underflow to 0, as 1e-400: neither is the number written)."""
     if _BOOL.fullmatch(text):
         return text.lower() == "true"
     if _INT.fullmatch(text):
@@ -33,7 +34,9 @@ def scalar(text: str) -> bool | int | float | str:
         except ValueError:  # over sys.get_int_max_str_digits()
             return text
     if _FLOAT.fullmatch(text):
-        return float(text.replace(".", "", 1) if text[-1].isalpha() else text)
+        value = float(text.replace(".", "", 1) if text[-1].isalpha() else text)
+        mantissa = text.lower().partition("e")[0]
+        return text if value == 0.0 and any(c in "123456789" for c in mantissa) else value
     return text
 
 

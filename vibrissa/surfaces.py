@@ -294,6 +294,8 @@ def parse_surface(spec: str) -> Surface:
         if key not in _SHAPE_KEYS[kind] + _POSE_KEYS:
             allowed = ", ".join(_SHAPE_KEYS[kind] + _POSE_KEYS)
             raise ValueError(f"surface spec {spec!r}: unknown key {key!r} for {kind} (allowed: {allowed})")
+        if key in values:
+            raise ValueError(f"surface spec {spec!r}: {key} given twice")
         try:
             values[key] = number_text(text.strip())
         except ValueError:

@@ -65,6 +65,7 @@ def test_mirror_symmetry_detection():
         ("paraboloid:a=-1,b=1,h=0.4", r"a=-1 is outside \[1e-06, 1000\]"),
         ("sphere:r=1e300", r"r=1e300 is outside \[1e-06, 1000\]"),
         ("sphere:r=1_0", r"r='1_0' is not a number"),  # Python's float reads 10
+        ("sphere:r=0.3,r=0.4", r"r given twice"),
         ("sphere:r=\uff11", r"r='\uff11' is not a number"),  # a full-width digit one
         ("ellipsoid:rx=1,ry=1,rz=1,cy=2e6", r"cy=2e6 is outside \[-1000, 1000\]"),
         ("sphere:r", "key=value"),

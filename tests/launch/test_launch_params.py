@@ -109,6 +109,8 @@ def test_a_node_failing_at_start_prints_its_traceback_only_when_asked(tmp_path: 
     ("rate:=1:30", "node 'wrench_source': parameter 'rate_hz' expects float, got str ('1:30')"),
     ("rate:=1_0", "node 'wrench_source': parameter 'rate_hz' expects float, got str ('1_0')"),
     ("rate:=0x10", "node 'wrench_source': parameter 'rate_hz' expects float, got str ('0x10')"),
+    # a float that underflows is not the number written (0: as fast as possible)
+    ("rate:=1e-400", "node 'wrench_source': parameter 'rate_hz' expects float, got str ('1e-400')"),
 ])
 def test_a_launch_argument_is_no_yaml_1_1_number(
     override: str, expected: str, capsys: pytest.CaptureFixture[str]

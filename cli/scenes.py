@@ -160,10 +160,9 @@ def _wrench_chunks(path: Path, header: list[str], records: Iterator[tuple[int, l
         values = np.empty((len(chunk), 7))
         for k, (line, row) in enumerate(chunk):
             i = first + k
-            where = f"row {i}" if line == i + 1 else f"row {i} (line {line})"  # blank lines...
             if len(row) != len(header):
-                raise SceneError(f"{path.name}: {where}: expected {len(header)} values, "
-                                 f"got {len(row)}")
+                raise SceneError(f"{path.name}: {_row_name(i, line)}: expected {len(header)} "
+                                 f"values, got {len(row)}")
             t_text.append(row[at["t"]].strip())
             names.append(row[at["whisker"]].strip())
             for j, name in enumerate(("t", *WRENCH_COLUMNS[2:])):
@@ -171,12 +170,18 @@ def _wrench_chunks(path: Path, header: list[str], records: Iterator[tuple[int, l
                 try:
                     values[k, j] = number_text(text) if text else math.nan
                 except ValueError:
-                    raise SceneError(f"{path.name}: {where}, column {name}: {shown(text)} is "
-                                     "not a number") from None
+                    raise SceneError(f"{path.name}: {_row_name(i, line)}, column {name}: "
+                                     f"{shown(text)} is not a number") from None
             if not math.isfinite(values[k, 0]):
-                raise SceneError(f"{path.name}: {where}: t must be a finite number")
+                raise SceneError(f"{path.name}: {_row_name(i, line)}: t must be a finite number")
         yield first, t_text, values[:, 0], names, values[:, 1:4], values[:, 4:7]
         first += len(chunk)
+
+
+def _row_name(row: int, line: int) -> str:
+    """``row N``, the Nth data row (POINTS.csv's row N), and its file line where blank lines
+    make them differ."""
+    return f"row {row}" if line == row + 1 else f"row {row} (line {line})"
 
 
 def run_reconstruct(args: argparse.Namespace) -> int:
@@ -187,12 +192,13 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     refuse_overwrite([output], [source, *scene_files(args.scene)])
     chunks = read_wrenches(source, CHUNK_ROWS)
     known = [w.name for w in scene.whiskers]
+    known_names = set(known)
     rows = found = 0
     counts: Counter[str] = Counter()
     with csv_writer(output, tuple(POINT_COLUMNS)) as writer:
         for first, t_text, t, names, f0, m0 in chunks:
             for k, name in enumerate(names):
-                if name not in known:
+                if name not in known_names:
                     raise SceneError(f"{source.name}: row {first + k}: whisker {name!r} is not "
                                      f"in {Path(args.scene).name} ({', '.join(known)})")
             rec = reconstruct_along(scene, t, names, f0, m0)

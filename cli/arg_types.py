@@ -1,9 +1,21 @@
-"""Argparse types the commands share: a duration, a count."""
+"""Argparse types the commands share: a duration, a count; and their parser."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import re
+
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` (and its subparsers) that takes ``-1e3`` as a value, as it takes
+    ``-1000`` and ``-0.5`` (``--y0 -1e3``; argparse's own pattern has no exponent)."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
 
 def seconds(text: str) -> float:

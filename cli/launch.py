@@ -9,7 +9,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from vibrissa.cli.arg_types import seconds
+from vibrissa.cli.arg_types import Parser, seconds
 from vibrissa.cli.graph import domain_id
 from vibrissa.cli.main import parse_command_line
 from vibrissa.launch.description import (
@@ -115,7 +115,7 @@ def register(subparsers: Any) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``vibrissa launch`` alone (same as ``vibrissa launch ...``)."""
-    parser = argparse.ArgumentParser(prog="vibrissa")
+    parser = Parser(prog="vibrissa")
     register(parser.add_subparsers(dest="command", required=True))
     args = parse_command_line(parser, ["launch", *(sys.argv[1:] if argv is None else argv)])
     return int(args.func(args))

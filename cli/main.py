@@ -11,6 +11,8 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from vibrissa.cli.arg_types import Parser
+
 EXIT_FAILED, EXIT_USAGE = 1, 2
 """Exit statuses of every command: 1 the work failed; 2 the command line or an input was
 refused (a missing file, a file of the wrong kind, a bad value), as argparse's own errors."""
@@ -41,7 +43,7 @@ def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The ``vibrissa`` parser: with a known ``command``, only that command's module is
     imported; else every command's (``--help``, a misspelt command)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="vibrissa",
         description="Vibrissa-like tactile sensing: simulate, reconstruct, run the node graph.",
     )

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from vibrissa.cli import mechanics
-from vibrissa.cli.main import main
+from vibrissa.cli.main import build_parser, main
 from vibrissa.cli.tables import COLUMNS, RECONSTRUCTION_COLUMNS, SWEEP_COLUMNS
 from vibrissa.study import run_study
 
@@ -149,6 +149,8 @@ def test_reconstruct_uses_z0(tmp_path: Path) -> None:
         (["study", "paper", "--step", "0"], "--step"),
         # numbers whose squares overflow in Step 1 (numpy warnings, then a wrong answer)
         (["sweep", "--y0", "1e300", "--mu", "0.1"], "--y0: must be within [-1000, 1000]"),
+        # a negative number with an exponent is a value, as -2000 is (argparse: an option)
+        (["sweep", "--y0", "-2e3", "--mu", "0.1"], "--y0: must be within [-1000, 1000], got -2e3"),
         (["sweep", "--surface", "sphere:r=1e300", "--y0", "0", "--mu", "0"],
          "r=1e300 is outside [1e-06, 1000]"),
         (["sweep", "--surface", "sphere:r=0.3,cz=-2e6", "--y0", "0", "--mu", "0"],
@@ -162,6 +164,13 @@ def test_bad_arguments_exit_2(argv: list[str], named: str, tmp_path: Path,
     assert exc.value.code == 2
     assert named in capsys.readouterr().err
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_negative_numbers_with_exponents_are_values() -> None:
+    args = build_parser("sweep").parse_args(["sweep", "--y0", "-1e-1", "--mu", "0", "-o", "x"])
+    assert args.y0 == -0.1
+    with pytest.raises(SystemExit):  # an option that is not one is still refused
+        build_parser("sweep").parse_args(["sweep", "--y0", "-e3", "--mu", "0", "-o", "x"])
 
 
 def test_reconstruct_missing_column_exit_2(tmp_path: Path,

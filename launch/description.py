@@ -50,6 +50,7 @@ from typing import Any
 import yaml
 
 from vibrissa.runtime import yaml_numbers
+from vibrissa.runtime.args import expand_home
 from vibrissa.runtime.params import ParamError, check_params, takes_text
 from vibrissa.units import finite_number
 from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
@@ -628,7 +629,7 @@ def parse_arg_overrides(items: Sequence[str], source: str = "command line") -> d
         if name in overrides:
             raise LaunchFileError(source, "", f"argument {name!r} given twice ({name}:="
                                   f"{overrides[name]}, {item})")
-        overrides[name] = value
+        overrides[name] = expand_home(value)
     return overrides
 
 

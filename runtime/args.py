@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -36,7 +37,7 @@ class NodeArgs:
         parser.add_argument("--name", required=True, help="node name (one token)")
         parser.add_argument("--namespace", default="/", help="namespace, e.g. /whisker0")
         parser.add_argument("--params-file", type=Path, help="YAML mapping of parameters")
-        parser.add_argument("--param", action="append", default=[], type=_key_value,
+        parser.add_argument("--param", action="append", default=[], type=_param,
                             metavar="KEY:=VALUE", help="parameter override (YAML scalar)")
         parser.add_argument("--remap", action="append", default=[], type=_key_value,
                             metavar="FROM:=TO", help="topic remap")
@@ -51,8 +52,19 @@ class NodeArgs:
         return cls(ns.name, ns.namespace, ns.params_file, dict(ns.param), dict(ns.remap))
 
 
+def expand_home(value: str) -> str:
+    """A ``NAME:=VALUE`` word's value with a leading ``~`` or ``~/`` made the home folder, as a
+    shell makes it in ``NAME=~/x`` (it leaves ``NAME:=~/x`` as it is)."""
+    return os.path.expanduser(value) if value == "~" or value.startswith("~/") else value
+
+
 def _key_value(text: str) -> tuple[str, str]:
     key, sep, value = text.partition(":=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"expected KEY:=VALUE, got {text!r}")
     return key, value
+
+
+def _param(text: str) -> tuple[str, str]:
+    key, value = _key_value(text)
+    return key, expand_home(value)

@@ -121,6 +121,12 @@ def test_parse_arg_overrides() -> None:
         parse_arg_overrides(["a:=1", "b:=x", "a:=2"])
 
 
+def test_arg_override_home_is_expanded_as_a_shell_would(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("HOME", "/home/robot")
+    assert parse_arg_overrides(["out:=~/runs/a", "h:=~", "u:=~nobody9/x", "t:=a~/b"]) == {
+        "out": "/home/robot/runs/a", "h": "/home/robot", "u": "~nobody9/x", "t": "a~/b"}
+
+
 def test_argument_without_default_must_be_given(tmp_path: Path) -> None:
     text = """\
     launch:

@@ -47,6 +47,12 @@ def test_node_args_parse() -> None:
     assert NodeArgs.parse(["--name", "n"]) == NodeArgs("n")
 
 
+def test_node_args_param_home_is_expanded(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("HOME", "/home/robot")
+    args = NodeArgs.parse(["--name", "n", "--param", "out_dir:=~/map", "--param", "x:=a~/b"])
+    assert args.params == {"out_dir": "/home/robot/map", "x": "a~/b"}
+
+
 @pytest.mark.parametrize(
     "argv",
     [[], ["--name", "a/b"], ["--name", "n", "--namespace", "rel"], ["--name", "n", "--param", "x"],

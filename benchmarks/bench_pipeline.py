@@ -33,7 +33,8 @@ nothing). Loss is sent - received (every benchmark wrench has a contact). A rate
 *sustained* when nothing is lost and the sink is done within ``max(50 ms, 5 %)`` of the send
 duration after the last send (no backlog grows). ``first p50`` is the median latency of the
 first message of each tick (whisker 0 per wrench; every message per tick). With ``--repeat``
-every figure is the median over the repeats (runs interleaved), sustained counts the repeats,
+every figure is the median over the repeats (runs interleaved, the chains' order reversed every
+other repeat: none always runs right after another), sustained counts the repeats,
 and ``pooled p99 x`` is the ratio of the p99 of all repeats' latencies together: a run's p99 is
 set by the few stalls of a few ms that happen to fall in it (on a shared VM they hit the floor
 as much as the pipeline), and pooling the repeats counts more of them.
@@ -717,7 +718,7 @@ def main(argv: list[str] | None = None) -> int:
         for repeat in range(args.repeat):
             for rate in rates:
                 for unit in units:
-                    for mode in modes:
+                    for mode in modes[::-1] if repeat % 2 else modes:
                         run = measure(mode, unit, rate, args.duration, Path(tmp),
                                       args.busy_us * 1e-6)
                         runs.append(run)

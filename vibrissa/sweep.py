@@ -64,9 +64,10 @@ Symmetric trails: when the object is its own mirror image across the vertical pl
 out-of-plane equation; otherwise round-off grows out of the plane from step to step.
 
 The sweep starts at the first contact of the straight rod with the object and ends at
-detachment (the straight rod clears the object: the reactions have gone to zero smoothly) or at
-snap-off (no equilibrium near the previous one even with the step refined, the straight rod still
-inside the object).
+detachment (the reactions have gone to zero smoothly, and the straight rod clears the object or
+is on its way out: less of it inside than at the last equilibrium) or at snap-off (no
+equilibrium near the previous one even with the step refined, the straight rod still inside the
+object).
 """
 
 from __future__ import annotations
@@ -811,13 +812,28 @@ def _refine(track: _Track, target: float) -> None:
             _record(track, refined=True)
             return
     track.end = _ending(track)
+    if track.end is SweepEnd.DETACHMENT:
+        # The reactions fade, but a rod that comes free must be on its way out of the object:
+        # a straight rod deeper in at the target than at the last equilibrium is no free rod
+        # (a tip whose force halved in a sub-step before a fold, on an independent check).
+        inside = _straight_rod_inside(track.surface, track.trail, np.array([track.x0, target]))
+        if inside[1] > 0.0 and inside[1] >= inside[0]:
+            track.end = SweepEnd.SNAP_OFF
     track.x0_end = track.rows[-1][0] if track.rows else track.x0
 
 
 def _straight_rod_clears(surface: Surface, trail: ClampPath, x0: float) -> bool:
     """Whether the undeformed rod, clamped at x0 on the trail, lies outside the object."""
-    p_WC, R_WC = trail.clamp_pose(np.array([x0]))
-    return not surface.segment_inside(p_WC, R_WC[:, :, 2])[0]
+    return bool(_straight_rod_inside(surface, trail, np.array([x0]))[0] == 0.0)
+
+
+def _straight_rod_inside(surface: Surface, trail: ClampPath, x0: FloatArray) -> FloatArray:
+    """The length of the undeformed rod inside the object (n,), L, clamped at each x0 (n,)."""
+    p_WC, R_WC = trail.clamp_pose(x0)
+    t_in, t_out = surface.line_interval(p_WC, R_WC[:, :, 2])
+    with np.errstate(invalid="ignore"):  # NaN: the line misses the object
+        length = np.minimum(t_out, 1.0) - np.maximum(t_in, 0.0)
+    return np.where(length > 0.0, length, 0.0)
 
 
 def _ending(track: _Track) -> SweepEnd:

@@ -978,8 +978,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         (other_mode, "continuation"),
         # Last, a contact may hold where it is, the rod rolling over it: a tangential one (a
         # path that turns back: the force turns inside the cone), or a tip that rolls onto the
-        # rod's side (s1 just below L; held tangential contacts only, once, missed it: an
-        # independent check's tip at mu 0.8 snapped off at 4x where 1x rolled on).
+        # rod's side (s1 just below L, the force inside the cone).
         (np.full(n, _MODE_HELD), "held"),
     ]
     for modes, kind in stages:

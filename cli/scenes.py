@@ -94,9 +94,10 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None) -> str:
-    """``12 contact episodes (7 detachment, 4 snap-off, 1 another-object); samples: 9105 none,
-    ...``, what ``another-object`` means when an episode ended so, and with the ``scene`` the
-    unresolved samples of each whisker whose clamp is inside an object."""
+    """``12 contact episodes (7 detachment, 4 snap-off, 1 another-object), 2 of them landings
+    after a snap-off; samples: 9105 none, ...``, what ``another-object`` means when an episode
+    ended so, and with the ``scene`` the unresolved samples of each whisker whose clamp is
+    inside an object."""
     ends = Counter(episode.end for result in results for episode in result.episodes)
     samples: Counter[str] = Counter()
     for result in results:
@@ -105,6 +106,9 @@ def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None
     line = f"{count} contact episode{'s' * (count != 1)}"
     if ends:
         line += f" ({', '.join(f'{n} {end}' for end, n in ends.most_common())})"
+    landings = sum(episode.start == "landing" for result in results for episode in result.episodes)
+    if landings:
+        line += f", {landings} of them landing{'s' * (landings != 1)} after a snap-off"
     line += "; samples: " + ", ".join(f"{samples[phase.label]} {phase.label}"
                                       for phase in SamplePhase)
     if ends[SweepEnd.ANOTHER_OBJECT]:

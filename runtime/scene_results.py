@@ -109,7 +109,7 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
         "whiskers": {
             r.name: {
                 "episodes": [{"object": e.object, "t_first_contact": e.t_first_contact,
-                              "end": e.end,
+                              "start": e.start, "end": e.end,
                               "phase_changes": [{"t": t, "from": a, "to": b}
                                                 for t, a, b in e.phase_changes]}
                              for e in r.episodes],
@@ -246,7 +246,8 @@ def _read_episodes(path: Path, names: Sequence[str], scene: Scene) -> dict[str, 
             items: Any = doc["whiskers"][name]["episodes"]
             episodes[name] = [
                 Episode(str(e["object"]), float(e["t_first_contact"]), str(e["end"]),
-                        [(float(c["t"]), str(c["from"]), str(c["to"])) for c in e["phase_changes"]])
+                        [(float(c["t"]), str(c["from"]), str(c["to"])) for c in e["phase_changes"]],
+                        str(e.get("start", "touch")))
                 for e in items]
         except (KeyError, TypeError, ValueError) as exc:
             raise SceneError(f"{path}: whiskers.{name}.episodes: not as vibrissa simulate writes "

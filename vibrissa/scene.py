@@ -8,7 +8,10 @@ Along the path a whisker has contact episodes. Each starts where its straight ro
 touches an object between two samples (at its tip, or a side graze of the shaft) and is one
 sweep of Step 1 (``vibrissa.sweep``) on that object, one equilibrium per path sample, until it
 ends: ``detachment`` (the rod came free smoothly), ``snap-off`` (no equilibrium near the last
-one) or ``path-end``. After a snap-off the straight rod may still be inside the object: those
+one) or ``path-end``. After a snap-off the straight rod may still be inside an object (the same
+or another): the rod lands on it at the next sample, in the state a frictionless approach from
+the side it was pushed to reaches (`_WhiskerSteps._landing`), and a ``landing`` episode goes on
+from there. Where no landing is found, or the straight rod is inside two objects, those
 samples are ``unresolved`` (no wrench, no point) until it is free again; then the next touch is
 searched for. Samples that Step 1 stepped over (the first steps after a touch may be taken as
 2-16 samples at once, see ``vibrissa.sweep``) are ``unresolved`` as well.
@@ -43,7 +46,7 @@ from vibrissa.paths import SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
-from vibrissa.sweep import Sweep, SweepRun, advance_together, next_grid_point
+from vibrissa.sweep import Landing, Sweep, SweepRun, advance_together, next_grid_point
 from vibrissa.units import RodScale, finite_number
 
 if TYPE_CHECKING:
@@ -196,13 +199,15 @@ class Scene:
 
 @dataclass(frozen=True)
 class Episode:
-    """One contact of a whisker: the object, when it began and how it ended, and the time of
-    every phase change (t, from, to)."""
+    """One contact of a whisker: the object, when it began (``start``: the straight rod's touch,
+    or a landing after a snap-off) and how it ended, and the time of every phase change (t,
+    from, to)."""
 
     object: str
     t_first_contact: float
     end: str
     phase_changes: list[tuple[float, str, str]]
+    start: str = "touch"  # or "landing": the rod landed on the object after a snap-off
 
 
 @dataclass
@@ -242,6 +247,21 @@ PROGRESS_PERIOD_S = 2.0
 AXIS_SEGMENTS = 256
 """Segments of the polyline a bent rod's axis is checked against the other objects with: its
 chords stray from the arc by at most kappa / (8 x 256^2), 2e-6 L at a curvature of 1/L."""
+
+LANDING_SIDEWAYS = 0.01
+"""A snap-off whose last contact force is within this fraction of the rod's axis (a poke) has
+no side for the rod to land on."""
+
+LANDING_DISTANCES = 2.0 ** np.arange(-6.0, 2.0)
+"""How far back (units of L) a landing's approach starts: the first at which the straight rod
+is free."""
+
+LANDING_TURNS = np.pi / 4.0 * np.array([1.0, 2.0, 3.0])
+"""Turns (rad, either way) about the rod of the force's side, and then its opposite, where a
+landing's first two approaches fold on their way."""
+
+LANDING_STEPS = (16, 256)
+"""Fewest and most steps of a landing's approach (steps of the path's sample where they fit)."""
 
 PAUSE_L = 1e-12
 """A sample where no point of the straight rod moved more than this (units of L) since the
@@ -364,9 +384,23 @@ class _WhiskerSteps:
         self.ended = False
         self.k = self._skip_unresolved(0)  # the moving sample from which the next touch is searched
         self._object = -1  # the episode's object
+        self._snapped: FloatArray | None = None  # a snap-off's last contact force: land at k
+        self._landed = False  # the episode started from a landing
 
     def start_episode(self) -> None:
-        """Search the first touch from sample ``k`` on and start its episode, or end."""
+        """Land on the object at sample ``k`` after a snap-off, or search the first touch from
+        ``k`` on; start its episode, or end."""
+        self._landed = False
+        if self._snapped is not None:
+            force, self._snapped = self._snapped, None
+            landing = self._landing(self.k, force)
+            if landing is not None:
+                rest = self.path.tail(self.k)
+                self.run = SweepRun(self.surfaces[self._object], [rest], rest.h,
+                                    landings=[landing])
+                self._landed = True
+                return
+            self.k = self._skip_unresolved(self.k)
         if self.k >= self.path.n_samples - 1:
             self.ended = True
             return
@@ -399,7 +433,7 @@ class _WhiskerSteps:
             changes = [change for change in changes if change[0] > sweep.x0[n]]
         # the last sample of the episode: its last row, or the one where the rod meets another
         last = int(rows[n]) if n < len(rows) else int(rows[-1]) if len(rows) else after_touch - 1
-        span = slice(after_touch, last + 1)
+        span = slice(k if self._landed else after_touch, last + 1)
         self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
         self.f0[span], self.m0[span] = np.nan, np.nan
         self.touched[span] = i
@@ -414,11 +448,84 @@ class _WhiskerSteps:
         self.episodes.append(Episode(self.scene.objects[i].name,
                                      self._time_at(-sweep.x_touch / h + k), str(end),
                                      [(self._time_at(-x0 / h + k), old, new)
-                                      for x0, old, new in changes]))
+                                      for x0, old, new in changes],
+                                     "landing" if self._landed else "touch"))
         if end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return
+        # A rod that snaps off with its straight rod inside an object (the same or another)
+        # lands on it (not twice from the same sample: a landing that snaps off at once is
+        # left; not inside two objects: contact with two at once is not modelled).
+        if (end is SweepEnd.SNAP_OFF and last + 1 < self.path.n_samples
+                and not (self._landed and len(rows) == 1)):
+            x0_next = self.path.x0_of(np.array([last + 1]))
+            inside = [j for j, surface in enumerate(self.surfaces)
+                      if self.path.penetrates(surface, x0_next)[0]]
+            if len(inside) == 1:
+                self.k, self._object, self._snapped = last + 1, inside[0], sweep.force[-1]
+                return
         self.k = self._skip_unresolved(last + 1)
+
+    def _landing(self, k: int, force_W: FloatArray) -> Landing | None:
+        """Where the rod lands at sample ``k`` after a snap-off, its straight rod inside the
+        object ``_object``; None where it is not found.
+
+        A quasi-static model cannot follow the jump. The state at k is found by approaching the
+        object without friction: the clamp moved back perpendicular to its axis until the
+        straight rod is free (`LANDING_DISTANCES`), then forward to its pose at k in
+        `LANDING_STEPS`, the contact followed from its touch. Sides are tried in order: the
+        side the last contact force pushed the rod to, the shortest way out of the object (the
+        normal at the straight rod's deepest point), then the first turned about the rod
+        (`LANDING_TURNS`); the first approach that reaches k without a fold of its own gives
+        the landing. The landed state's force is
+        normal to the object, inside any friction cone: the contact holds where it landed,
+        then goes on with the path's friction.
+        """
+        surface = self.surfaces[self._object]
+        p_WC, R_WC = (a[0] for a in self.path.clamp_pose(self.path.x0_of(np.array([k]))))
+        axis = R_WC[:, 2]
+        s = np.linspace(0.0, 1.0, AXIS_SEGMENTS + 1)
+        on_rod = p_WC + s[:, None] * axis
+        deepest = on_rod[np.argmin(surface.signed_distance(on_rod))]
+        sides = []  # unit vectors perpendicular to the rod
+        for side in (force_W, surface.normal(deepest[None])[0]):
+            away = side - (side @ axis) * axis
+            if np.linalg.norm(away) > LANDING_SIDEWAYS * np.linalg.norm(side):
+                sides.append(away / np.linalg.norm(away))
+        if sides:  # then the first turned about the rod: each pair nearer the way out first
+            first, way_out, across = sides[0], sides[-1], np.cross(axis, sides[0])
+            for turn in LANDING_TURNS:
+                pair = [np.cos(turn) * first + np.sin(sign * turn) * across for sign in (1, -1)]
+                sides += sorted(pair, key=lambda v: -float(v @ way_out))
+            sides.append(-first)
+        for away in sides:
+            landing = self._approach(k, surface, p_WC, axis, away)
+            if landing is not None:
+                return landing
+        return None
+
+    def _approach(self, k: int, surface: Surface, p_WC: FloatArray, axis: FloatArray,
+                  away: FloatArray) -> Landing | None:
+        """The state at sample ``k`` reached by the clamp approaching it along -``away``
+        (perpendicular to its ``axis``) without friction, from where the straight rod is free;
+        None if there is no such start or the approach's contact snaps off on the way."""
+        clear = [d for d in LANDING_DISTANCES
+                 if not surface.segment_inside((p_WC + d * away)[None], axis[None])[0]]
+        if not clear:
+            return None
+        distance = clear[0]
+        steps = int(np.clip(np.ceil(distance / self.path.h), *LANDING_STEPS))
+        back = np.linspace(distance, 0.0, steps + 1)[:, None] * away
+        approach = SampledPath(self.path.p_WR[k] + back, self.path.rotations[np.full(steps + 1, k)],
+                               0.0, self.path.mount)
+        run = SweepRun(surface, [approach], approach.h)
+        while not run.done:
+            run.advance()
+        sweep = run.sweeps()[0]
+        if (sweep.end is not SweepEnd.PATH_END or sweep.n_steps == 0
+                or abs(sweep.x0[-1] - approach.x_end) > 1e-9 * approach.h):
+            return None
+        return sweep.landing(sweep.n_steps - 1, 0.0)
 
     def _rows_clear_of_others(self, sweep: Sweep) -> int:
         """How many of the episode's rows, from its first, have the rod's axis outside every

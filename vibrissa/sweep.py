@@ -63,7 +63,8 @@ Symmetric trails: when the object is its own mirror image across the vertical pl
 (the paper's y0 = 0), the symmetric branch is kept exactly by fixing psi = 0 and dropping the
 out-of-plane equation; otherwise round-off grows out of the plane from step to step.
 
-The sweep starts at the first contact of the straight rod with the object and ends at
+The sweep starts at the first contact of the straight rod with the object (or, given a
+`Landing`, from a contact state found otherwise: a rod that landed after a snap-off) and ends at
 detachment (the reactions have gone to zero smoothly, and the straight rod clears the object or
 is on its way out: less of it inside than at the last equilibrium) or at snap-off (no
 equilibrium near the previous one even with the step refined, the straight rod still inside the
@@ -218,7 +219,8 @@ class Sweep:
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
     x_touch: float  # clamp x0 at the first contact (NaN: none), units of L
-    s_touch: float  # where the straight rod touched, arc length from the clamp (NaN: none), L
+    s_touch: float  # where the straight rod touched, arc length from the clamp (NaN: none;
+    # a sweep that starts from a `Landing`: the landed contact's s1), L
     _q: FloatArray = field(repr=False)
 
     @property
@@ -251,6 +253,13 @@ class Sweep:
         e_u_W, e_v_W = np.einsum("nij,nj->ni", R_WC, e_u_C), R_WC[:, :, 2]
         return (p_WC[:, None] + uv[:, 0, :, None] * e_u_W[:, None]
                 + uv[:, 1, :, None] * e_v_W[:, None]).reshape(len(indices), n_points, 3)
+
+    def landing(self, index: int, x0: float) -> Landing:
+        """Step ``index``'s state as a `Landing` at ``x0`` of another trail whose clamp pose
+        there is this step's."""
+        return Landing(x0, self._q[index].copy(), ContactPhase(self.phase[index]),
+                       self.contact[index].copy(), self.normal[index].copy(),
+                       self.force[index].copy(), float(self.s1[index]))
 
     def summary(self) -> dict[str, object]:
         """How the sweep went, JSON-ready."""
@@ -566,6 +575,26 @@ class SweepProgress:
     s_touch: float = math.nan
 
 
+@dataclass(frozen=True)
+class Landing:
+    """A contact state a sweep starts from instead of a touch: a rod that snapped off one
+    equilibrium and landed on the object again (`vibrissa.scene`), at clamp position ``x0``.
+
+    ``q`` = (psi, Fu, Fv, kappa0) in the clamp frame there; ``phase`` tip or tangential;
+    ``contact``, ``normal`` and ``force`` (on the rod) in W; ``s1`` the contact's arc length.
+    The sweep's first row is this state, held where it landed (a stuck tip, a held tangential
+    contact) when the trail has friction: its force, normal to the object, is inside the cone.
+    """
+
+    x0: float
+    q: FloatArray
+    phase: ContactPhase
+    contact: FloatArray
+    normal: FloatArray
+    force: FloatArray
+    s1: float
+
+
 class SweepRun:
     """Several sweeps past one object, solved together one step at a time.
 
@@ -588,10 +617,13 @@ class SweepRun:
         the whiskers of a rigid array moving together: each sweep's first step goes from its
         touch to the next grid point, a partial step. By default each trail's grid starts at
         its own first contact.
+    landings : sequence of Landing or None, optional
+        Per trail, a state to start from instead of the trail's first contact.
     """
 
     def __init__(self, surface: Surface, trails: Sequence[ClampPath], step: float = 0.001,
-                 max_steps: int = 100_000, x_grid: float | None = None) -> None:
+                 max_steps: int = 100_000, x_grid: float | None = None,
+                 landings: Sequence[Landing | None] | None = None) -> None:
         if not step > 0:
             raise ValueError(f"step must be > 0, got {step}")
         for trail in trails:
@@ -602,7 +634,12 @@ class SweepRun:
         self.step = step
         self.max_steps = max_steps
         self.x_grid = x_grid
-        self._tracks = [_start(surface, trail, step, max_steps, x_grid) for trail in trails]
+        starts = list(landings) if landings is not None else [None] * len(self.trails)
+        if len(starts) != len(self.trails):
+            raise ValueError(f"{len(starts)} landings for {len(self.trails)} trails")
+        self._tracks = [_start(surface, trail, step, max_steps, x_grid) if landing is None
+                        else _land(surface, trail, step, max_steps, x_grid, landing)
+                        for trail, landing in zip(self.trails, starts, strict=True)]
 
     @property
     def done(self) -> bool:
@@ -720,6 +757,24 @@ def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
     return _Track(surface, trail, step, max_steps, locked, x_start, q, mode, p_touch,
                   p_touch.copy(), x_touch=x_start, s_touch=s_touch, x_grid=x_grid)
+
+
+def _land(surface: Surface, trail: ClampPath, step: float, max_steps: int,
+          x_grid: float | None, landing: Landing) -> _Track:
+    """A track whose first row is ``landing``: held where it landed when there is friction."""
+    sliding = _MODE_TIP if landing.phase is ContactPhase.TIP else _MODE_TANGENTIAL
+    held = _MODE_STICK if sliding == _MODE_TIP else _MODE_HELD
+    mode = held if trail.mu > 0 else sliding
+    x_grid = x_grid if x_grid is not None else trail.x_grid if trail.x_grid is not None else landing.x0
+    track = _Track(surface, trail, step, max_steps, trail.symmetric(surface), landing.x0,
+                   landing.q.copy(), mode, landing.contact.copy(), landing.contact.copy(),
+                   x_touch=landing.x0, s_touch=landing.s1, x_grid=x_grid)
+    track.pending = (landing.contact.copy(), landing.normal.copy(), landing.force.copy(),
+                     landing.s1)
+    track.history = [track.q]
+    track.smooth = False
+    _record(track, refined=False)
+    return track
 
 
 def next_grid_point(x0: float, x_grid: float, step: float) -> float:

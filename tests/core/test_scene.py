@@ -36,25 +36,24 @@ def clamp_poses(scene: Scene, whisker: Whisker) -> tuple[np.ndarray, Rotation]:
             R_WR * whisker.X_RC.rotation)
 
 
-def test_snap_off_then_unresolved_then_a_second_episode(results) -> None:
+def test_snap_off_then_a_landing_then_a_second_object(results) -> None:
     r, scene = results["tilted"], results["scene"]
-    assert [e.object for e in r.episodes] == ["cup", "ball"]
-    assert r.episodes[0].end == "snap-off"
-    phases = r.phase
-    in_cup = np.flatnonzero(r.object == 0)
-    last = int(in_cup[phases[in_cup] != SamplePhase.UNRESOLVED][-1])
-    unresolved = np.flatnonzero(phases == SamplePhase.UNRESOLVED)
-    unresolved = unresolved[: np.argmax(np.diff(unresolved, append=np.inf) > 1) + 1]  # the first run
-    assert len(unresolved) > 10 and unresolved[0] == last + 1
-    assert np.all(np.isnan(r.f0_n[unresolved])) and np.all(np.isnan(r.p_W_m[unresolved]))
-    # independently: the straight rod of those samples is inside the cup, and the next is not
+    assert [(e.object, e.start) for e in r.episodes] == [
+        ("cup", "touch"), ("cup", "landing"), ("ball", "touch"), ("ball", "landing")]
+    assert r.episodes[0].end == r.episodes[2].end == "snap-off"
+    in_contact = np.isin(r.phase, (SamplePhase.TIP, SamplePhase.TANGENTIAL))
+    landing = int(np.searchsorted(r.t, r.episodes[1].t_first_contact))
+    assert r.t[landing] == r.episodes[1].t_first_contact
+    assert in_contact[landing - 1] and in_contact[landing] and r.object[landing] == 0
+    # independently: the straight rod is inside the cup there, so the rod cannot be free
     p_WC, R_WC = clamp_poses(scene, TILTED)
-    cup = CUP.surface(1.0)
-    for k in (unresolved[0], unresolved[-1], unresolved[-1] + 1):
-        rod = p_WC[k] + np.outer(np.linspace(0, TILTED.length_m, 400), R_WC[k].apply([0, 0, 1]))
-        assert (np.min(cup.value(rod)) < 0) == (k != unresolved[-1] + 1), k
+    rod = p_WC[landing] + np.outer(np.linspace(0, TILTED.length_m, 400),
+                                   R_WC[landing].apply([0, 0, 1]))
+    assert np.min(CUP.surface(1.0).value(rod)) < 0
+    assert not np.any(r.phase == SamplePhase.UNRESOLVED)
     second = np.flatnonzero(r.object == 1)
-    assert second[0] > unresolved[-1] + 1 and r.episodes[1].t_first_contact > r.t[unresolved[-1]]
+    assert second[0] > np.flatnonzero(r.object == 0)[-1]
+    assert r.t[second[0]] >= r.episodes[2].t_first_contact > r.t[second[0] - 1]
 
 
 def test_a_side_graze_starts_tangential(results) -> None:

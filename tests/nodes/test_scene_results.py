@@ -23,8 +23,9 @@ from vibrissa.runtime.scene_file import SceneError, load_scene
 from vibrissa.runtime.scene_results import read_results, write_results
 from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate
 
-# A cup the whiskers snap off (then the tilted one's straight rod stays inside it: unresolved
-# samples, NaN wrenches), and a ball further on: two episodes each (tests/core/test_scene.py).
+# A cup the whiskers snap off (the tilted one then lands on it again), and a ball further on
+# (tests/core/test_scene.py); a third whisker's clamp passes through both: unresolved samples,
+# NaN wrenches.
 SCENE = """\
 mu: 0.2
 objects:
@@ -34,6 +35,7 @@ whiskers:
   - {name: plain, length_m: 0.05, ei_nm2: 2.0e-5, mount: {}}
   - {name: tilted, length_m: 0.04, ei_nm2: 1.0e-5,
      mount: {position_m: [0.0, 0.005, 0.0], quaternion_xyzw: [0.04997917, 0, 0, 0.99875026]}}
+  - {name: buried, length_m: 0.03, ei_nm2: 1.0e-5, mount: {position_m: [0.0, 0.0, 0.04]}}
 path: path.csv
 """
 SAMPLES = 300
@@ -78,7 +80,7 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
 
 def test_read_results_gives_back_the_arrays_simulate_returned(simulated: Simulated) -> None:
     read = read_results(simulated.out, simulated.scene)
-    assert [r.name for r in read] == ["plain", "tilted"]
+    assert [r.name for r in read] == ["plain", "tilted", "buried"]
     for got, want in zip(read, simulated.results, strict=True):
         assert got.name == want.name
         for key in ("t", "phase", "s1_m", "f0_n", "m0_nm", "p_W_m", "object", "refined"):
@@ -86,10 +88,11 @@ def test_read_results_gives_back_the_arrays_simulate_returned(simulated: Simulat
             assert np.array_equal(getattr(got, key), getattr(want, key), equal_nan=True), key
         assert got.episodes == want.episodes and got.counts() == want.counts()
     # what makes the round trip worth checking: NaN wrenches, points and arc lengths, objects
-    tilted = simulated.results[1]
-    assert np.any(tilted.phase == SamplePhase.UNRESOLVED) and np.isnan(tilted.f0_n).any()
-    assert set(tilted.object.tolist()) == {-1, 0, 1} and len(tilted.episodes) == 2
+    tilted, buried = simulated.results[1:]
+    assert np.any(buried.phase == SamplePhase.UNRESOLVED) and np.isnan(buried.f0_n).any()
+    assert set(tilted.object.tolist()) == {-1, 0, 1} and len(tilted.episodes) == 3
     assert any(e.phase_changes for e in tilted.episodes)
+    assert [e.start for e in tilted.episodes] == ["touch", "landing", "touch"]
 
 
 def test_results_written_before_the_refined_column_and_the_scene_digest_still_read(
@@ -155,7 +158,7 @@ def test_run_scene_plays_the_folder_and_says_so(simulated: Simulated,
     node = FakeNode()
     with caplog.at_level(logging.INFO):
         sent = run_scene(node, params)  # type: ignore[arg-type]
-    assert f"read 2 whisker(s) x {SAMPLES} path samples from {simulated.out} in " in caplog.text
+    assert f"read 3 whisker(s) x {SAMPLES} path samples from {simulated.out} in " in caplog.text
     expected = [msg for _, msg in scene_stream(simulated.scene, simulated.results, params)]
     got = node.publishers["wrench"].sent[:-1] + node.publishers["/robot/pose"].sent[:-1]
     assert sent == len(expected) == len(got)

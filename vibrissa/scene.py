@@ -477,9 +477,8 @@ class _WhiskerSteps:
         side the last contact force pushed the rod to, the shortest way out of the object (the
         normal at the straight rod's deepest point), then the first turned about the rod
         (`LANDING_TURNS`); the first approach that reaches k without a fold of its own gives
-        the landing. The landed state's force is
-        normal to the object, inside any friction cone: the contact holds where it landed,
-        then goes on with the path's friction.
+        the landing. The landed state's force is normal to the object, inside any friction
+        cone: the contact holds where it landed, then goes on with the path's friction.
         """
         surface = self.surfaces[self._object]
         p_WC, R_WC = (a[0] for a in self.path.clamp_pose(self.path.x0_of(np.array([k]))))

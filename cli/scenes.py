@@ -17,7 +17,8 @@ SCENE.yaml (world frame W, z up)::
 Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample),
 ``DIR/wrenches.csv`` (``t,whisker,f0x,f0y,f0z,m0x,m0y,m0z``: every whisker's wrench at every
 sample, sample by sample, the input of ``vibrissa reconstruct``) and
-``DIR/summary.json`` (per whisker: contact episodes, phase changes, samples per phase), by
+``DIR/summary.json`` (per whisker: contact episodes, each begun by a ``touch`` or a ``landing``
+after a snap-off, phase changes, samples per phase), by
 `vibrissa.runtime.scene_results`, which reads them back too (the wrench source's ``simulated``).
 
 Also Step 2 of such a scene offline: ``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o

@@ -17,6 +17,7 @@ The checks are independent of Step 1: the objects' implicit functions from the s
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +29,10 @@ from scipy.spatial.transform import Rotation
 from tests.core.test_detachment_label import _straight_rod_inside_m
 from tests.core.test_random_scenes_rod import check_against_the_rod
 from vibrissa.cli.main import main
+from vibrissa.frames import Transform
 from vibrissa.runtime.scene_file import load_scene
 from vibrissa.runtime.scene_results import read_results
-from vibrissa.scene import SamplePhase, simulate_whisker
+from vibrissa.scene import RobotPath, SamplePhase, simulate_whisker
 
 DATA = Path(__file__).parents[1] / "data" / "landing"
 
@@ -102,3 +104,34 @@ def test_simulate_says_which_episodes_are_landings(tmp_path: Path, capsys: Any) 
     assert last.startswith("3 contact episodes (") and ", 1 of them landing after a snap-off;" in last
     (result,) = read_results(tmp_path, load_scene(scene_file))
     assert [e.start for e in result.episodes] == starts
+
+
+def _mirrored(X: Transform) -> Transform:
+    """X reflected across W's xz-plane (M X M, M = diag(1, -1, 1)): a proper pose again."""
+    M = np.diag([1.0, -1.0, 1.0])
+    return Transform(Rotation.from_matrix(M @ X.R @ M), M @ X.translation)
+
+
+@pytest.mark.parametrize("name", ["k", "m"])
+def test_a_mirrored_scene_lands_in_the_mirror_image(name: str) -> None:
+    """Symmetry: the scene reflected across W's xz-plane (objects, mounts and path; the objects
+    are symmetric in their own y) gives the same episodes, landings included, with every
+    contact point the mirror image."""
+    scene = load_scene(DATA / f"scene_{name}.yaml")
+    M = np.diag([1.0, -1.0, 1.0])
+    R_WR = scene.path.R_WR.as_matrix()
+    mirror = replace(
+        scene,
+        objects=tuple(replace(o, X_WO=_mirrored(o.X_WO)) for o in scene.objects),
+        whiskers=tuple(replace(w, X_RC=_mirrored(w.X_RC)) for w in scene.whiskers),
+        path=RobotPath(scene.path.t, scene.path.p_WR @ M,
+                       Rotation.from_matrix(M @ R_WR @ M)))
+    (whisker,), (mirrored_whisker,) = scene.whiskers, mirror.whiskers
+    result = simulate_whisker(scene, whisker)
+    image = simulate_whisker(mirror, mirrored_whisker)
+    assert [(e.object, e.start, e.end) for e in image.episodes] == [
+        (e.object, e.start, e.end) for e in result.episodes]
+    assert any(e.start == "landing" for e in result.episodes)
+    assert np.array_equal(image.phase, result.phase)
+    contact = np.isin(result.phase, (SamplePhase.TIP, SamplePhase.TANGENTIAL))
+    assert np.abs(image.p_W_m[contact] - result.p_W_m[contact] @ M).max() <= 1e-9 * whisker.length_m

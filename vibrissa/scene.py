@@ -11,10 +11,11 @@ ends: ``detachment`` (the rod came free smoothly), ``snap-off`` (no equilibrium 
 one) or ``path-end``. After a snap-off the straight rod may still be inside an object (the same
 or another): the rod lands on it at the next sample, in the state a frictionless approach from
 the side it was pushed to reaches (`_WhiskerSteps._landing`), and a ``landing`` episode goes on
-from there. Where no landing is found, or the straight rod is inside two objects, those
-samples are ``unresolved`` (no wrench, no point) until it is free again; then the next touch is
-searched for. Samples that Step 1 stepped over (the first steps after a touch may be taken as
-2-16 samples at once, see ``vibrissa.sweep``) are ``unresolved`` as well.
+from there (inside several objects: on the deepest where the landed rod enters no other).
+Where no landing is found, those samples are ``unresolved`` (no wrench, no point) until it is
+free again; then the next touch is searched for. Samples that Step 1 stepped over (the first
+steps after a touch may be taken as 2-16 samples at once, see ``vibrissa.sweep``) are
+``unresolved`` as well.
 
 Several objects: a whisker touches one at a time. An episode follows the object touched
 first; where its bent rod would enter another object, the episode ends (``another-object``:
@@ -385,6 +386,7 @@ class _WhiskerSteps:
         self.k = self._skip_unresolved(0)  # the moving sample from which the next touch is searched
         self._object = -1  # the episode's object
         self._snapped: FloatArray | None = None  # a snap-off's last contact force: land at k
+        self._inside: list[int] = []  # ... on one of these objects, the deepest first
         self._landed = False  # the episode started from a landing
 
     def start_episode(self) -> None:
@@ -393,13 +395,15 @@ class _WhiskerSteps:
         self._landed = False
         if self._snapped is not None:
             force, self._snapped = self._snapped, None
-            landing = self._landing(self.k, force)
-            if landing is not None:
-                rest = self.path.tail(self.k)
-                self.run = SweepRun(self.surfaces[self._object], [rest], rest.h,
-                                    landings=[landing])
-                self._landed = True
-                return
+            for j in self._inside:
+                self._object = j
+                landing = self._landing(self.k, force)
+                if landing is not None:
+                    rest = self.path.tail(self.k)
+                    self.run = SweepRun(self.surfaces[self._object], [rest], rest.h,
+                                        landings=[landing])
+                    self._landed = True
+                    return
             self.k = self._skip_unresolved(self.k)
         if self.k >= self.path.n_samples - 1:
             self.ended = True
@@ -453,16 +457,20 @@ class _WhiskerSteps:
         if end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return
-        # A rod that snaps off with its straight rod inside an object (the same or another)
-        # lands on it (not twice from the same sample: a landing that snaps off at once is
-        # left; not inside two objects: contact with two at once is not modelled).
+        # A rod that snaps off with its straight rod inside objects (the same or others) lands
+        # on one of them, the deepest first (not twice from the same sample: a landing that
+        # snaps off at once is left).
         if (end is SweepEnd.SNAP_OFF and last + 1 < self.path.n_samples
                 and not (self._landed and len(rows) == 1)):
             x0_next = self.path.x0_of(np.array([last + 1]))
-            inside = [j for j, surface in enumerate(self.surfaces)
-                      if self.path.penetrates(surface, x0_next)[0]]
-            if len(inside) == 1:
-                self.k, self._object, self._snapped = last + 1, inside[0], sweep.force[-1]
+            p_WC, R_WC = self.path.clamp_pose(x0_next)
+            on_rod = p_WC + np.linspace(0.0, 1.0, AXIS_SEGMENTS + 1)[:, None] * R_WC[0, :, 2]
+            self._inside = sorted(
+                (j for j, surface in enumerate(self.surfaces)
+                 if self.path.penetrates(surface, x0_next)[0]),
+                key=lambda j: float(self.surfaces[j].signed_distance(on_rod).min()))
+            if self._inside:
+                self.k, self._snapped = last + 1, sweep.force[-1]
                 return
         self.k = self._skip_unresolved(last + 1)
 
@@ -507,7 +515,8 @@ class _WhiskerSteps:
                   away: FloatArray) -> Landing | None:
         """The state at sample ``k`` reached by the clamp approaching it along -``away``
         (perpendicular to its ``axis``) without friction, from where the straight rod is free;
-        None if there is no such start or the approach's contact snaps off on the way."""
+        None if there is no such start, the approach's contact snaps off on the way, or the
+        landed rod (its axis as ``AXIS_SEGMENTS`` chords) enters another object."""
         clear = [d for d in LANDING_DISTANCES
                  if not surface.segment_inside((p_WC + d * away)[None], axis[None])[0]]
         if not clear:
@@ -524,7 +533,12 @@ class _WhiskerSteps:
         if (sweep.end is not SweepEnd.PATH_END or sweep.n_steps == 0
                 or abs(sweep.x0[-1] - approach.x_end) > 1e-9 * approach.h):
             return None
-        return sweep.landing(sweep.n_steps - 1, 0.0)
+        landed = sweep.n_steps - 1
+        rod = sweep.elastic_lines([landed], AXIS_SEGMENTS + 1)[0]
+        if any(other.segment_inside(rod[:-1], np.diff(rod, axis=0)).any()
+               for j, other in enumerate(self.surfaces) if j != self._object):
+            return None  # the landed rod would enter another object
+        return sweep.landing(landed, 0.0)
 
     def _rows_clear_of_others(self, sweep: Sweep) -> int:
         """How many of the episode's rows, from its first, have the rod's axis outside every

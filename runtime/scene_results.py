@@ -24,7 +24,8 @@ import numpy as np
 
 from vibrissa.runtime.csv_text import cells, read_csv, write_csv
 from vibrissa.runtime.scene_file import SceneError, check_name
-from vibrissa.scene import Episode, SamplePhase, Scene, WhiskerResult
+from vibrissa.scene import EPISODE_STARTS, Episode, SamplePhase, Scene, WhiskerResult
+from vibrissa.status import SweepEnd
 
 __all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "WRENCHES_FILE", "WRENCH_COLUMNS", "read_results",
            "result_files", "write_results"]
@@ -229,6 +230,13 @@ def _is_number(text: str) -> bool:
     return True
 
 
+def _one_of(value: Any, allowed: Sequence[str], key: str) -> str:
+    """``value`` if it is one of ``allowed``; else a ValueError naming ``key``."""
+    if value not in allowed:
+        raise ValueError(f"{key} {value!r} is not one of {', '.join(allowed)}")
+    return str(value)
+
+
 def _read_episodes(path: Path, names: Sequence[str], scene: Scene) -> dict[str, list[Episode]]:
     """Each whisker's episodes from ``summary.json``, whose ``scene_sha256`` (when it has one:
     older files do not) must be ``scene``'s."""
@@ -245,9 +253,10 @@ def _read_episodes(path: Path, names: Sequence[str], scene: Scene) -> dict[str, 
         try:
             items: Any = doc["whiskers"][name]["episodes"]
             episodes[name] = [
-                Episode(str(e["object"]), float(e["t_first_contact"]), str(e["end"]),
+                Episode(str(e["object"]), float(e["t_first_contact"]),
+                        _one_of(e["end"], [str(end) for end in SweepEnd], "end"),
                         [(float(c["t"]), str(c["from"]), str(c["to"])) for c in e["phase_changes"]],
-                        str(e.get("start", "touch")))
+                        _one_of(e.get("start", "touch"), EPISODE_STARTS, "start"))
                 for e in items]
         except (KeyError, TypeError, ValueError) as exc:
             raise SceneError(f"{path}: whiskers.{name}.episodes: not as vibrissa simulate writes "

@@ -198,6 +198,11 @@ class Scene:
             raise ValueError("a scene needs at least one whisker")
 
 
+EPISODE_STARTS = ("touch", "landing")
+"""How an episode begins: the straight rod touches an object, or the rod lands on one after a
+snap-off."""
+
+
 @dataclass(frozen=True)
 class Episode:
     """One contact of a whisker: the object, when it began (``start``: the straight rod's touch,
@@ -208,7 +213,7 @@ class Episode:
     t_first_contact: float
     end: str
     phase_changes: list[tuple[float, str, str]]
-    start: str = "touch"  # or "landing": the rod landed on the object after a snap-off
+    start: str = "touch"  # one of EPISODE_STARTS
 
 
 @dataclass

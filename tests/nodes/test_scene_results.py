@@ -189,6 +189,12 @@ def set_cell(row: int | str, column: int, text: str) -> Callable[[list[list[str]
     return edit
 
 
+def set_episode(summary: Path, key: str, value: object) -> None:
+    doc = json.loads(summary.read_text())
+    doc["whiskers"]["tilted"]["episodes"][0][key] = value
+    summary.write_text(json.dumps(doc))
+
+
 def drop_summary_whisker(summary: Path) -> None:
     doc = json.loads(summary.read_text())
     del doc["whiskers"]["tilted"]
@@ -228,6 +234,11 @@ CASES: list[tuple[str, Callable[[Path, Path], None], str, str]] = [
      "summary.json", "No such file"),
     ("a summary without the whisker", lambda folder, scene: drop_summary_whisker(folder / "summary.json"),
      "summary.json", "whiskers.tilted.episodes: not as vibrissa simulate writes them (KeyError"),
+    ("an episode begun otherwise", lambda folder, scene: set_episode(folder / "summary.json", "start", "jump"),
+     "summary.json", "whiskers.tilted.episodes: not as vibrissa simulate writes them (ValueError: "
+     "start 'jump' is not one of touch, landing)"),
+    ("an episode ended otherwise", lambda folder, scene: set_episode(folder / "summary.json", "end", 3),
+     "summary.json", "(ValueError: end 3 is not one of detachment, snap-off"),
     ("no folder", lambda folder, scene: shutil.rmtree(folder),
      "", "not a folder (expected the -o DIR of vibrissa simulate)"),
 ]

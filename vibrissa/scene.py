@@ -464,8 +464,9 @@ class _WhiskerSteps:
             return
         # A rod that snaps off with its straight rod inside objects (the same or others) lands
         # on one of them, the deepest first (not twice from the same sample: a landing that
-        # snaps off at once is left).
-        if (end is SweepEnd.SNAP_OFF and last + 1 < self.path.n_samples
+        # snaps off at once is left; not on the path's last sample, which, as for a touch,
+        # starts no episode).
+        if (end is SweepEnd.SNAP_OFF and last + 1 < self.path.n_samples - 1
                 and not (self._landed and len(rows) == 1)):
             x0_next = self.path.x0_of(np.array([last + 1]))
             p_WC, R_WC = self.path.clamp_pose(x0_next)

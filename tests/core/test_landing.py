@@ -135,3 +135,25 @@ def test_a_mirrored_scene_lands_in_the_mirror_image(name: str) -> None:
     assert np.array_equal(image.phase, result.phase)
     contact = np.isin(result.phase, (SamplePhase.TIP, SamplePhase.TANGENTIAL))
     assert np.abs(image.p_W_m[contact] - result.p_W_m[contact] @ M).max() <= 1e-9 * whisker.length_m
+
+
+@pytest.mark.parametrize("extra", [0, 1])
+def test_a_path_that_ends_just_after_the_snap_off(extra: int) -> None:
+    """The path ends on the sample after the snap-off (no episode starts on a path's last
+    sample: it stays unresolved) or one later (the landing's two samples)."""
+    scene = load_scene(DATA / "scene_n.yaml")
+    (whisker,) = scene.whiskers
+    full = simulate_whisker(scene, whisker)
+    landing = next(e for e in full.episodes if e.start == "landing")
+    end = int(np.searchsorted(full.t, landing.t_first_contact)) + 1 + extra
+    short = replace(scene, path=RobotPath(scene.path.t[:end], scene.path.p_WR[:end],
+                                          scene.path.R_WR[:end]))
+    result = simulate_whisker(short, whisker)
+    starts = [e.start for e in result.episodes]
+    last = result.phase[-1]
+    if extra:
+        assert starts[-1] == "landing" and result.episodes[-1].end == "path-end"
+        assert np.array_equal(result.f0_n, full.f0_n[:end])  # the same states as on the full path
+    else:
+        assert "landing" not in starts and last == SamplePhase.UNRESOLVED
+        assert np.array_equal(result.f0_n[:-1], full.f0_n[:end - 1])

@@ -469,8 +469,7 @@ class _WhiskerSteps:
         if (end is SweepEnd.SNAP_OFF and last + 1 < self.path.n_samples - 1
                 and not (self._landed and len(rows) == 1)):
             x0_next = self.path.x0_of(np.array([last + 1]))
-            p_WC, R_WC = self.path.clamp_pose(x0_next)
-            on_rod = p_WC + np.linspace(0.0, 1.0, AXIS_SEGMENTS + 1)[:, None] * R_WC[0, :, 2]
+            on_rod = self._straight_rod(last + 1)[2]
             self._inside = sorted(
                 (j for j, surface in enumerate(self.surfaces)
                  if self.path.penetrates(surface, x0_next)[0]),
@@ -490,15 +489,13 @@ class _WhiskerSteps:
         `LANDING_STEPS`, the contact followed from its touch. Sides are tried in order: the
         side the last contact force pushed the rod to, the shortest way out of the object (the
         normal at the straight rod's deepest point), then the first turned about the rod
-        (`LANDING_TURNS`); the first approach that reaches k without a fold of its own gives
-        the landing. The landed state's force is normal to the object, inside any friction
-        cone: the contact holds where it landed, then goes on with the path's friction.
+        (`LANDING_TURNS`); the first approach that reaches k without a fold of its own, the
+        landed rod clear of every other object, gives the landing. The landed state's force
+        is normal to the object, inside any friction cone: the contact holds where it landed,
+        then goes on with the path's friction.
         """
         surface = self.surfaces[self._object]
-        p_WC, R_WC = (a[0] for a in self.path.clamp_pose(self.path.x0_of(np.array([k]))))
-        axis = R_WC[:, 2]
-        s = np.linspace(0.0, 1.0, AXIS_SEGMENTS + 1)
-        on_rod = p_WC + s[:, None] * axis
+        p_WC, axis, on_rod = self._straight_rod(k)
         deepest = on_rod[np.argmin(surface.signed_distance(on_rod))]
         sides = []  # unit vectors perpendicular to the rod
         for side in (force_W, surface.normal(deepest[None])[0]):
@@ -516,6 +513,13 @@ class _WhiskerSteps:
             if landing is not None:
                 return landing
         return None
+
+    def _straight_rod(self, k: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The straight rod at moving sample ``k``: its clamp p_WC (3,), axis (3,) and
+        ``AXIS_SEGMENTS`` + 1 points from the clamp to the tip, units of L."""
+        p_WC, R_WC = (a[0] for a in self.path.clamp_pose(self.path.x0_of(np.array([k]))))
+        axis = R_WC[:, 2]
+        return p_WC, axis, p_WC + np.linspace(0.0, 1.0, AXIS_SEGMENTS + 1)[:, None] * axis
 
     def _approach(self, k: int, surface: Surface, p_WC: FloatArray, axis: FloatArray,
                   away: FloatArray) -> Landing | None:

@@ -745,7 +745,7 @@ def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
     psi = 0.0 if locked or np.hypot(normal[0], normal[1]) == 0 else float(np.arctan2(normal[1], normal[0]))
     n_u = normal[0] * np.cos(psi) + normal[1] * np.sin(psi)
     s_touch = float((p_touch - p_WC) @ R_WC[:, 2])
-    x_grid = x_grid if x_grid is not None else trail.x_grid if trail.x_grid is not None else x_start
+    x_grid = _grid(x_grid, trail, x_start)
     # Small-deflection guess for the first step: the touching point of the straight rod would
     # go into the object by ``depth`` along n; a load P at s deflects it by P s^3 / 3.
     p_next, R_next = (a[0] for a in trail.clamp_pose(
@@ -759,13 +759,18 @@ def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
                   p_touch.copy(), x_touch=x_start, s_touch=s_touch, x_grid=x_grid)
 
 
+def _grid(x_grid: float | None, trail: ClampPath, x_start: float) -> float:
+    """The steps' grid of a sweep from ``x_start``: the run's, else the trail's, else its own."""
+    return x_grid if x_grid is not None else trail.x_grid if trail.x_grid is not None else x_start
+
+
 def _land(surface: Surface, trail: ClampPath, step: float, max_steps: int,
           x_grid: float | None, landing: Landing) -> _Track:
     """A track whose first row is ``landing``: held where it landed when there is friction."""
     sliding = _MODE_TIP if landing.phase is ContactPhase.TIP else _MODE_TANGENTIAL
     held = _MODE_STICK if sliding == _MODE_TIP else _MODE_HELD
     mode = held if trail.mu > 0 else sliding
-    x_grid = x_grid if x_grid is not None else trail.x_grid if trail.x_grid is not None else landing.x0
+    x_grid = _grid(x_grid, trail, landing.x0)
     track = _Track(surface, trail, step, max_steps, trail.symmetric(surface), landing.x0,
                    landing.q.copy(), mode, landing.contact.copy(), landing.contact.copy(),
                    x_touch=landing.x0, s_touch=landing.s1, x_grid=x_grid)

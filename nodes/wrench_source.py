@@ -17,9 +17,9 @@ Publishes
     from its output folder ``simulated``, or run on start when that is empty): one array per
     path sample with a row per whisker that has a wrench there (an ``unresolved`` sample has
     none), each row in its clamp frame with no pose, stamped with the path's time; and the
-    robot's pose X_WR (``world`` -> ``robot_frame``) at ``pose_rate_hz`` on the path's clock,
-    each published ``pose_delay_s`` after its stamp in the stream (and a last one at the
-    path's end); then ``EndOfStream`` on both.
+    robot's pose X_WR (``world`` -> ``robot_frame``) at ``pose_rate_hz`` on the path's clock
+    (and a last one at the path's end; 0: the path's own samples), each published
+    ``pose_delay_s`` after its stamp in the stream; then ``EndOfStream`` on both.
 every WhiskerWrench, WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order, each message with its own type (a topic may mix both), followed by the
@@ -77,6 +77,10 @@ IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
 MAX_STEP = 0.1
 """Largest clamp step, units of L: coarser steps jump over the contact episodes."""
 
+MAX_POSES = 10_000_000
+"""Most robot poses mode ``scene`` makes of a path at ``pose_rate_hz`` (28 h at 100 Hz): a rate
+beyond it is refused rather than filling the memory with poses."""
+
 
 @dataclass(frozen=True)
 class WrenchSourceParams:
@@ -97,7 +101,10 @@ class WrenchSourceParams:
     pose_topic, map_frame, robot_frame
         Mode ``scene``: where the robot's poses go, and the frames they join.
     pose_rate_hz
-        Mode ``scene``: robot poses per second of path time.
+        Mode ``scene``: robot poses per second of path time, each interpolated on the path (a
+        localisation at its own rate); 0: a pose at each path sample, the path's own, so that
+        the lookup at a wrench's stamp (a path sample's) is exact on any path. Between two
+        poses at a fixed rate the reconstructor interpolates a chord where the path bends.
     pose_delay_s
         Mode ``scene``: each pose goes out this long after its stamp in the stream (a
         localisation that lags), s.
@@ -192,14 +199,18 @@ class WrenchSourceParams:
             return
         if self.mode == "scene":
             require(bool(self.scene), "scene", self.scene, "a scene file in mode 'scene'")
-            require_parsed("scene", self.scene, load_scene)
+            scene = require_parsed("scene", self.scene, load_scene)
             if self.simulated:
                 require_parsed("simulated", self.simulated,
-                               lambda folder: read_results(folder, load_scene(self.scene)))
+                               lambda folder: read_results(folder, scene))
             require_parsed("pose_topic", self.pose_topic, validate_name)
-            require_positive("pose_rate_hz", self.pose_rate_hz)
-            for key in ("pose_delay_s", "noise_force_n", "noise_moment_nm", "workers"):
+            for key in ("pose_rate_hz", "pose_delay_s", "noise_force_n", "noise_moment_nm",
+                        "workers"):
                 require_non_negative(key, getattr(self, key))
+            t = scene.path.t
+            require((t[-1] - t[0]) * self.pose_rate_hz <= MAX_POSES, "pose_rate_hz",
+                    self.pose_rate_hz, f"a rate of at most {MAX_POSES:.0e} poses over the "
+                    f"path's {t[-1] - t[0]:g} s (0: one at each of its {len(t)} samples)")
             return
         require_parsed("surface", self.surface, parse_surface)
         require(len(self.y0) > 0 and all(math.isfinite(y) for y in self.y0), "y0", self.y0,
@@ -325,8 +336,8 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
                  ) -> Iterator[tuple[float, WhiskerWrenchArray | RobotPose]]:
     """The messages of mode ``scene`` in publishing order, each with its time in the stream
     (the path's clock): a WhiskerWrenchArray per path sample at its time, and the robot's
-    poses at ``pose_rate_hz`` (and at the path's end), each ``pose_delay_s`` after its stamp;
-    a pose goes before a wrench of the same stream time."""
+    poses at ``pose_rate_hz`` (and at the path's end; 0: the path's samples), each
+    ``pose_delay_s`` after its stamp; a pose goes before a wrench of the same stream time."""
     t = scene.path.t
     names = [r.name for r in results]
     frame_ids = [clamp_frame(name) for name in names]
@@ -338,9 +349,11 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
         f0 = f0 + rng.normal(0.0, params.noise_force_n, f0.shape)
     if params.noise_moment_nm:
         m0 = m0 + rng.normal(0.0, params.noise_moment_nm, m0.shape)
-    pose_t = np.arange(t[0], t[-1], 1.0 / params.pose_rate_hz)
-    pose_t = np.append(pose_t, t[-1])
-    _, p_WR, R_WR = scene.path.at(pose_t)
+    if params.pose_rate_hz:
+        pose_t = np.append(np.arange(t[0], t[-1], 1.0 / params.pose_rate_hz), t[-1])
+        _, p_WR, R_WR = scene.path.at(pose_t)
+    else:
+        pose_t, p_WR, R_WR = t, scene.path.p_WR, scene.path.R_WR
     q_WR = R_WR.as_quat()
     j = 0
     for k, stamp in enumerate(t.tolist()):

@@ -20,6 +20,7 @@ from vibrissa.units import finite_number
 # takes a ``field(init=False)`` (the nodes' derived ``rod``) for a required key, and gives the
 # key path of a wrong value only inside its message text, which would have to be re-parsed.
 P = TypeVar("P")
+T = TypeVar("T")
 
 
 class ParamError(ValueError):
@@ -86,10 +87,11 @@ def require_non_negative(name: str, value: float) -> None:
     require(math.isfinite(value) and value >= 0, name, value, "a finite number >= 0")
 
 
-def require_parsed(name: str, value: object, parse: Callable[[Any], object]) -> None:
-    """``parse(value)`` succeeds (a spec such as a surface, a bag file); its error is named."""
+def require_parsed(name: str, value: object, parse: Callable[[Any], T]) -> T:
+    """``parse(value)`` succeeds (a spec such as a surface, a bag file): its result; its error
+    is named."""
     try:
-        parse(value)
+        return parse(value)
     except (ValueError, OSError) as exc:
         raise ValueError(f"parameter {name!r}: {exc}") from None
 

@@ -173,7 +173,11 @@ class Probe:
                 return got, rx.msg
             if isinstance(rx.msg, kind):
                 got.append(rx.msg)
-        pytest.fail(f"no EndOfStream within {timeout} s ({len(got)} {kind.__name__})")
+        self.wait_status("", lambda status: False, 1.0)  # the graph's last word, for the failure
+        states = "; ".join(f"{fqn} {status.state} {status.counters}"
+                           for fqn, status in sorted(self.statuses.items()))
+        pytest.fail(f"no EndOfStream within {timeout} s ({len(got)} {kind.__name__}); the nodes' "
+                    f"last statuses: {states or 'none'}")
 
     def status_of(self, fqn: str, predicate: Callable[[NodeStatus], bool],
                   timeout: float = 30.0) -> NodeStatus:

@@ -366,10 +366,9 @@ def draw_map(layers: MapLayers) -> Figure:
     if unknown:
         limits = sorted({float(f"{mesh.max_std_m * MM:.2g}") for mesh in layers.meshes
                          if len(mesh.unknown_triangles) and mesh.max_std_m > 0})
-        above = ("" if not limits else f"std above {limits[0]:g} mm, " if len(limits) == 1 else
-                 f"std above {limits[0]:g}-{limits[-1]:g} mm by object, ")  # one line for any number
-        handles.append(Patch(facecolor="0.85", alpha=0.5,
-                             label=f"unknown: {above}not on the map"))
+        std = ("" if not limits else f"std above {limits[0]:g} mm, " if len(limits) == 1 else
+               f"std above {limits[0]:g}-{limits[-1]:g} mm by object, ")  # one line for any number
+        handles.append(Patch(facecolor="0.85", alpha=0.5, label=f"unknown: {std}not on the map"))
     if known:  # the scale ends at the 99th percentile: the triangles above show its top colour
         above = float(every.max()) > top_mm
         bar = fig.colorbar(ScalarMappable(norm, cmap), ax=[ax], shrink=0.5, pad=0.02,

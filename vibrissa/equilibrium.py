@@ -197,7 +197,11 @@ def newton_row(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
 
 @compiled
 def _solve(jac: FloatArray, rhs: FloatArray) -> FloatArray:
-    """jac^-1 rhs; least squares where jac is singular."""
+    """jac^-1 rhs; least squares where jac is singular; NaN where either is not finite (the
+    Newton step then fails as a stall; LAPACK refuses such input, and numba cannot raise
+    again inside ``except``)."""
+    if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(rhs))):
+        return np.full(rhs.shape[0], np.nan)
     try:
         x = np.linalg.solve(jac, rhs)
     except Exception:  # noqa: BLE001 - numba: LinAlgError for a singular matrix

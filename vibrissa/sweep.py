@@ -448,6 +448,8 @@ def _small_slip(
             probe = z.copy()
             probe[:, j] += steps[j]
             jac[:, :, j] = (_held_at_slip(surface, probe, q, batch, basis)[0] - mismatch) / steps[j]
+        if not np.isfinite(jac).all():
+            break  # a probe found no held state (LAPACK refuses it): on from the last state
         delta = np.stack([np.linalg.lstsq(j, -m, rcond=None)[0] for j, m in zip(jac, mismatch, strict=False)])
         z += np.clip(delta, -1.0, 1.0)
     # The slip iteration ends near the sliding state (its mismatch limited by the held states'

@@ -56,6 +56,7 @@ from vibrissa.scene import (
     WhiskerResult,
     clamp_inside,
     reconstruct_along,
+    rod_inside_at_start,
     simulate,
 )
 from vibrissa.status import ContactPhase, SweepEnd
@@ -98,7 +99,7 @@ def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None
     """``12 contact episodes (7 detachment, 4 snap-off, 1 another-object), 2 of them landings
     after a snap-off; samples: 9105 none, ...``, what ``another-object`` means when an episode
     ended so, and with the ``scene`` the unresolved samples of each whisker whose clamp is
-    inside an object."""
+    inside an object, or whose rod starts inside one."""
     ends = Counter(episode.end for result in results for episode in result.episodes)
     samples: Counter[str] = Counter()
     for result in results:
@@ -124,6 +125,13 @@ def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None
             names = sorted({scene.objects[k].name for k in inside[held]})
             line += (f"\n  {result.name}: {len(held)} sample(s) unresolved with the clamp inside "
                      f"{', '.join(names)} (from t = {result.t[held[0]]:g} s): no rod fits there")
+        start = rod_inside_at_start(scene, whisker)
+        unresolved = (result.phase == SamplePhase.UNRESOLVED) & (inside < 0)
+        first = int(np.argmin(unresolved)) if not unresolved.all() else len(unresolved)
+        if start >= 0 and first:
+            line += (f"\n  {result.name}: {first} sample(s) unresolved from the path's start: its "
+                     f"rod starts inside {scene.objects[start].name}, with no touch to follow "
+                     "a contact from")
     return line
 
 

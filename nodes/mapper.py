@@ -51,8 +51,10 @@ only the known part is on the map (files, message, errors); the figure shows the
 unknown. docs/MAPPING.md has the choice of the method. Errors against the truth
 (``true_surface``, a ``parse_surface`` spec in units of L placed in the points' frame, or the
 object of ``scene`` an object was matched to): cloud -> surface = max/mean |signed distance| of
-the points (the reconstruction error), mesh -> surface = max/mean over the known mesh's
-vertices.
+the points to the nearest true object (the reconstruction error, whatever the clustering made
+of them; a point nearer another true object than its object's is counted in
+``points_nearer_other``), mesh -> surface = max/mean over the known mesh's vertices to the
+object's true object.
 """
 
 from __future__ import annotations
@@ -428,6 +430,7 @@ class ObjectResult:
     mesh_to_surface_mean: float | None = None
     next_sweeps: list[dict[str, Any]] = field(default_factory=list)
     files: dict[str, str] = field(default_factory=dict)
+    points_nearer_other: dict[str, int] = field(default_factory=dict)  # by true object: two in one
 
 
 @dataclass
@@ -558,8 +561,12 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
             std_max_m=float(std.max()) if len(std) else None,
             true_object=true.name if true is not None else None, true_object_median_m=median)
         if true is not None:
-            cloud_distance.append(true.distance(points[inside]))
+            to_each = np.array([other.distance(points[inside]) for other in truth])
+            cloud_distance.append(to_each.min(axis=0))
             mesh_distance.append(true.distance(vertices))
+            nearer = cloud_distance[-1] < to_each[list(truth).index(true)]  # than to its own
+            obj.points_nearer_other = dict(sorted(Counter(
+                truth[j].name for j in np.argmin(to_each, axis=0)[nearer]).items()))
             obj.cloud_to_surface_max, obj.cloud_to_surface_mean = _stats(cloud_distance[-1])
             obj.mesh_to_surface_max, obj.mesh_to_surface_mean = _stats(mesh_distance[-1])
         proposals.append([] if surface.gp is None or surface.mesh is None or not params.proposals
@@ -826,6 +833,10 @@ def format_report(report: dict[str, Any]) -> str:
                        f"; true object {obj['true_object']}" + (
                            "" if obj["true_object_median_m"] is None else
                            f" (median {_mm(obj['true_object_median_m'])} off)"))
+            others = obj.get("points_nearer_other") or {}
+            if others:
+                matched += ("; TWO OBJECTS IN ONE: " + ", ".join(
+                    f"{n} of its points nearer {name}" for name, n in others.items()))
             lines += [
                 f"  object {obj['name']}: {obj['n_points']} points from "
                 f"{_counts(obj['whiskers'])}{matched}",

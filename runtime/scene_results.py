@@ -32,9 +32,9 @@ __all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "WRENCHES_FILE", "WRENCH_COLUMNS", "
 
 SCENE_COLUMNS: dict[str, tuple[str, str]] = {
     "t": ("s", "time of the path sample"),
-    "phase": ("-", "none, tip, tangential or unresolved (the straight rod inside an object "
-                   "after a snap-off or where the rod met a second object, or a sample Step 1 "
-                   "stepped over)"),
+    "phase": ("-", "none, tip, tangential or unresolved (the clamp inside an object; the "
+                   "straight rod inside one at the path's start or after a snap-off; the rod "
+                   "met a second object; or a sample Step 1 stepped over)"),
     "s1": ("m", "arc length from the clamp to the contact (empty without one)"),
     "f0x": ("N", "clamp reaction force on the rod, in the clamp frame C, x"),
     "f0y": ("N", "clamp reaction force, C's y"),

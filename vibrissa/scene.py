@@ -615,6 +615,19 @@ def clamp_inside(scene: Scene, whisker: Whisker) -> NDArray[np.int64]:
     return inside
 
 
+def rod_inside_at_start(scene: Scene, whisker: Whisker) -> int:
+    """The index of the first object that the whisker's straight rod enters at the path's
+    first sample (-1: none): Step 1 follows a contact from its touch, so such a rod has no state
+    to start from, and its samples are `SamplePhase.UNRESOLVED` until the straight rod is free."""
+    path, X_RC = scene.path, whisker.X_RC
+    p_WC = path.p_WR[0] + path.R_WR[0].apply(np.array(X_RC.translation, dtype=float))
+    rod = (path.R_WR[0] * X_RC.rotation).apply([0.0, 0.0, whisker.length_m])
+    for k, obj in enumerate(scene.objects):
+        if obj.surface(1.0).segment_inside(p_WC[None], rod[None])[0]:
+            return k
+    return -1
+
+
 def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
                       f0_C_n: ArrayLike, m0_C_nm: ArrayLike) -> ReconstructionSI:
     """Step 2 of wrenches measured along the scene's path, one row per measurement.

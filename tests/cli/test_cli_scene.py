@@ -401,6 +401,30 @@ path: path.csv
     assert phases[:16] == ["unresolved"] * 16 and "unresolved" not in phases[16:]
 
 
+def test_simulate_names_a_rod_that_starts_inside_an_object(tmp_path: Path, capsys) -> None:
+    """A whisker pointing up through a ball (centre 0.03 m above its clamp, radius 0.015 m) at
+    the path's start, its clamp outside; the robot drives 1 mm a sample along x from 0.5 mm: the
+    straight rod is inside while x < 0.015 m (samples 0-14), unresolved, then free, and the
+    closing lines say why."""
+    (tmp_path / "scene.yaml").write_text("""\
+mu: 0.25
+objects:
+  - {name: ball, shape: sphere, radius_m: 0.015, position_m: [0.0, 0.0, 0.03]}
+whiskers:
+  - {name: w0, length_m: 0.05, ei_nm2: 2.0e-5, mount: {position_m: [0, 0, 0]}}
+path: path.csv
+""")
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(
+        f"{0.01 * i},{0.001 * i + 0.0005},0,0,0,0,0,1\n" for i in range(60)))
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("  w0: 15 sample(s) unresolved from the path's start: its rod starts inside "
+                       "ball, with no touch to follow a contact from")
+    with (tmp_path / "out" / "w0.csv").open() as handle:
+        phases = [row["phase"] for row in csv.DictReader(handle)]
+    assert phases == ["unresolved"] * 15 + ["none"] * 45
+
+
 def test_the_closing_line_of_a_scene_without_contact() -> None:
     from vibrissa.cli.scenes import episode_summary
 

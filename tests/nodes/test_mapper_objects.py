@@ -321,6 +321,23 @@ def test_two_clusters_on_one_object_are_told_apart(tmp_path: Path) -> None:
     assert (tmp_path / "mesh_ball-2.ply").is_file()
 
 
+def test_two_objects_in_one_cluster_are_named_and_their_points_stay_exact(tmp_path: Path) -> None:
+    """With eps 0.1 m the ball's and the egg's lines are one cluster: its points keep their
+    distance to the nearest true object (the reconstruction error, rounding only), and the
+    report says how many of them are nearer the other object."""
+    params = MapperParams(out_dir=str(tmp_path), scene=str(write_scene(tmp_path)),
+                          cluster_eps_m=0.1, plot=False)
+    report, _ = write_outputs(accumulate(messages()), params, tmp_path)
+    [frame] = report["frames"]
+    [obj] = frame["objects"]  # the strays are 0.12 m out: still noise
+    assert (obj["name"], obj["true_object"], obj["n_points"]) == ("ball", "ball", 280)
+    assert obj["points_nearer_other"] == {"egg": 100}
+    assert obj["cloud_to_surface_max"] < 1e-12 and report["max_reconstruction_error_m"] < 1e-12
+    assert obj["mesh_to_surface_max"] > 1e-3  # one surface through both: not the ball's
+    text = (tmp_path / "report.txt").read_text()
+    assert "; TWO OBJECTS IN ONE: 100 of its points nearer egg" in text
+
+
 OLD_REPORT_KEYS = {"n_points", "sources_ended", "true_surface", "rod_length_m",
                    "max_reconstruction_error_m", "frames", "lost", "streams", "files"}
 OLD_FRAME_KEYS = {"frame_id", "n_points", "method", "n_vertices", "n_triangles",

@@ -377,52 +377,37 @@ path: path.csv
     assert "contact with two at once is not modelled" in err[-1]
 
 
-def test_simulate_names_a_clamp_inside_an_object(tmp_path: Path, capsys) -> None:
-    """A robot that starts with its whisker's clamp inside a ball (centre 0.1 m ahead, radius
-    0.015 m, the rod pointing up) and drives out of it: the samples while the clamp is inside are unresolved, and
-    the closing lines say why."""
-    (tmp_path / "scene.yaml").write_text("""\
+@pytest.mark.parametrize("ball_m, x0_m, step_m, unresolved, line", [
+    # the clamp starts inside a ball 0.1 m ahead and drives out: inside while x > 0.085 m
+    ([0.1, 0.0, 0.0], 0.1005, -0.001, 16,
+     "  w0: 16 sample(s) unresolved with the clamp inside ball (from t = 0 s): no rod fits there"),
+    # the rod (up from the clamp) starts through a ball 0.03 m above the clamp: inside while
+    # x < 0.015 m, its clamp outside
+    ([0.0, 0.0, 0.03], 0.0005, 0.001, 15,
+     "  w0: 15 sample(s) unresolved from the path's start: its rod starts inside ball, with no "
+     "touch to follow a contact from"),
+])
+def test_simulate_says_why_samples_at_the_start_are_unresolved(
+        tmp_path: Path, capsys, ball_m: list[float], x0_m: float, step_m: float, unresolved: int,
+        line: str) -> None:
+    """A robot whose whisker (pointing up) starts with its clamp, or only its rod, inside a ball
+    of 0.015 m and drives out of it 1 mm a sample: those samples are unresolved, the rest free,
+    and the closing lines say why."""
+    (tmp_path / "scene.yaml").write_text(f"""\
 mu: 0.25
 objects:
-  - {name: ball, shape: sphere, radius_m: 0.015, position_m: [0.1, 0.0, 0.0]}
+  - {{name: ball, shape: sphere, radius_m: 0.015, position_m: {ball_m}}}
 whiskers:
-  - {name: w0, length_m: 0.05, ei_nm2: 2.0e-5, mount: {position_m: [0, 0, 0]}}
-path: path.csv
-""")
-    x = 0.1005 - 0.001 * np.arange(60)  # inside while x > 0.085: samples 0-15
-    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(
-        f"{0.01 * i},{x[i]},0,0,0,0,0,1\n" for i in range(len(x))))
-    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == ("  w0: 16 sample(s) unresolved with the clamp inside ball (from t = 0 s): "
-                       "no rod fits there")
-    with (tmp_path / "out" / "w0.csv").open() as handle:
-        phases = [row["phase"] for row in csv.DictReader(handle)]
-    assert phases[:16] == ["unresolved"] * 16 and "unresolved" not in phases[16:]
-
-
-def test_simulate_names_a_rod_that_starts_inside_an_object(tmp_path: Path, capsys) -> None:
-    """A whisker pointing up through a ball (centre 0.03 m above its clamp, radius 0.015 m) at
-    the path's start, its clamp outside; the robot drives 1 mm a sample along x from 0.5 mm: the
-    straight rod is inside while x < 0.015 m (samples 0-14), unresolved, then free, and the
-    closing lines say why."""
-    (tmp_path / "scene.yaml").write_text("""\
-mu: 0.25
-objects:
-  - {name: ball, shape: sphere, radius_m: 0.015, position_m: [0.0, 0.0, 0.03]}
-whiskers:
-  - {name: w0, length_m: 0.05, ei_nm2: 2.0e-5, mount: {position_m: [0, 0, 0]}}
+  - {{name: w0, length_m: 0.05, ei_nm2: 2.0e-5, mount: {{position_m: [0, 0, 0]}}}}
 path: path.csv
 """)
     (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(
-        f"{0.01 * i},{0.001 * i + 0.0005},0,0,0,0,0,1\n" for i in range(60)))
+        f"{0.01 * i},{x0_m + step_m * i},0,0,0,0,0,1\n" for i in range(60)))
     assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == ("  w0: 15 sample(s) unresolved from the path's start: its rod starts inside "
-                       "ball, with no touch to follow a contact from")
+    assert capsys.readouterr().err.strip().splitlines()[-1] == line
     with (tmp_path / "out" / "w0.csv").open() as handle:
         phases = [row["phase"] for row in csv.DictReader(handle)]
-    assert phases == ["unresolved"] * 15 + ["none"] * 45
+    assert phases == ["unresolved"] * unresolved + ["none"] * (60 - unresolved)
 
 
 def test_the_closing_line_of_a_scene_without_contact() -> None:

@@ -149,7 +149,7 @@ class ReconstructorParams:
         s; then its rows count as ``no_pose`` and the node moves on.
     history_s
         Robot poses kept for interpolation, s: a wrench older than the newest pose by more
-        than this counts as ``no_pose``.
+        than this counts as ``no_pose``. A batch ends once its stamps span half of it.
     max_pose_gap_s
         Two robot poses more than this apart are not interpolated between, s: a wrench
         stamped between them waits for the poses that fill the gap (``pose_timeout_s``), then
@@ -493,28 +493,36 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
 def collect_batch(
     receive: Callable[[float], Received | None], timeout_s: float, max_batch: int,
     on_pose: Callable[[RobotPose], None] = lambda pose: None, end_topic: str | None = None,
-) -> tuple[list[Wrenches], EndOfStream | None]:
+    max_span_s: float = math.inf,
+) -> tuple[list[Wrenches], EndOfStream | None, bool]:
     """Wait up to ``timeout_s`` for one message, then drain what is already queued.
 
-    Draining stops at ``max_batch`` messages (a WhiskerWrenchArray counts as one) or at an
-    ``EndOfStream`` (on ``end_topic`` when given: the end of the pose stream is not the end
-    of the wrenches), which is returned separately so that it goes downstream after the points
-    of the wrenches before it. A RobotPose goes to ``on_pose`` as it comes.
+    Draining stops at ``max_batch`` messages (a WhiskerWrenchArray counts as one), once the
+    stamps taken (the wrenches' and the poses') span more than ``max_span_s`` (under a backlog
+    of a stream played faster than real time: poses applied far ahead of a batch's first
+    wrench would push the poses it needs out of a frame buffer's history), or at an
+    ``EndOfStream`` (on ``end_topic`` when given: the end of the pose stream is not the end of
+    the wrenches), which is returned separately so that it goes downstream after the points of
+    the wrenches before it. A RobotPose goes to ``on_pose`` as it comes. Returns the batch, the
+    EndOfStream, and whether draining stopped before the queue was empty (a backlog).
     """
     batch: list[Wrenches] = []
+    first, last = math.inf, -math.inf  # the stamps taken so far span [first, last]
     rx = receive(timeout_s)
     while rx is not None:
         msg: Message = rx.msg
         if isinstance(msg, EndOfStream) and end_topic in (None, rx.topic):
-            return batch, msg
-        if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
-            batch.append(msg)
-        elif isinstance(msg, RobotPose):
-            on_pose(msg)
-        if len(batch) >= max_batch:
-            break
+            return batch, msg, False
+        if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray, RobotPose)):
+            if isinstance(msg, RobotPose):
+                on_pose(msg)
+            else:
+                batch.append(msg)
+            first, last = min(first, msg.stamp), max(last, msg.stamp)
+            if len(batch) >= max_batch or last - first > max_span_s:
+                return batch, None, True
         rx = receive(0.0)
-    return batch, None
+    return batch, None, False
 
 
 class BatchCollector:
@@ -523,27 +531,29 @@ class BatchCollector:
     A batch holds at most ``drain_limit`` messages, so the first wrench of a burst (a tick of
     many whiskers) goes out after at most that many decodes, not after the whole burst. A
     batch that reaches its limit means a backlog: the next one drains up to ``max_batch``
-    and the limit drops back once a batch ends below it. ``drained`` says whether the last
-    batch ended on an empty queue (everything sent before it has been read, poses too).
+    and the limit drops back once a batch ends below it. A batch also ends once its stamps
+    span ``max_span_s`` (see :func:`collect_batch`). ``drained`` says whether the last batch
+    ended on an empty queue (everything sent before it has been read, poses too).
     """
 
     def __init__(self, receive: Callable[[float], Received | None], drain_limit: int,
                  max_batch: int, on_pose: Callable[[RobotPose], None] = lambda pose: None,
-                 end_topic: str | None = None) -> None:
+                 end_topic: str | None = None, max_span_s: float = math.inf) -> None:
         self._receive = receive
         self._on_pose = on_pose
         self._end_topic = end_topic
         self.drain_limit = drain_limit
         self.max_batch = max_batch
+        self.max_span_s = max_span_s
         self.limit = drain_limit
         self.drained = True
 
     def collect(self, timeout_s: float) -> tuple[list[Wrenches], EndOfStream | None]:
         """The next batch (see :func:`collect_batch`) and the limit for the one after."""
-        batch, eos = collect_batch(self._receive, timeout_s, self.limit, self._on_pose,
-                                   self._end_topic)
-        self.drained = eos is None and len(batch) < self.limit
-        self.limit = self.max_batch if len(batch) >= self.limit else self.drain_limit
+        batch, eos, backlog = collect_batch(self._receive, timeout_s, self.limit, self._on_pose,
+                                            self._end_topic, self.max_span_s)
+        self.drained = eos is None and not backlog
+        self.limit = self.max_batch if backlog else self.drain_limit
         return batch, eos
 
 
@@ -737,7 +747,8 @@ def run(node: Node, params: ReconstructorParams) -> None:
     on_pose = _on_pose(frames, counters, warn) if frames is not None else (
         lambda pose: None)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, on_pose,
-                             resolve_topic(params.input_topic, node.namespace))
+                             resolve_topic(params.input_topic, node.namespace),
+                             max_span_s=params.history_s / 2)
     detector = None
     if params.noise_force_n > 0:
         detector = ContactDetector(wrench_covariance(params.noise_force_n,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import resource
 import signal
 import subprocess
@@ -335,14 +336,14 @@ def test_collect_batch_drains_up_to_max_and_stops_at_end_of_stream() -> None:
         timeouts.append(timeout_s)
         return _rx(queue.pop(0)) if queue else None
 
-    batch, eos = collect_batch(receive, 0.1, max_batch=3)
-    assert [w.seq for w in batch] == [0, 1, 2] and eos is None
+    batch, eos, backlog = collect_batch(receive, 0.1, max_batch=3)
+    assert [w.seq for w in batch] == [0, 1, 2] and eos is None and backlog
     assert timeouts == [0.1, 0.0, 0.0]  # waits only for the first, then drains
-    batch, eos = collect_batch(receive, 0.1, max_batch=3)
+    batch, eos, backlog = collect_batch(receive, 0.1, max_batch=3)
     assert [w.seq for w in batch] == [3, 4] and eos is not None and eos.count == 5
-    batch, eos = collect_batch(receive, 0.1, max_batch=100)
-    assert len(batch) == 2 and eos is None
-    assert collect_batch(receive, 0.1, max_batch=3) == ([], None)
+    batch, eos, backlog = collect_batch(receive, 0.1, max_batch=100)
+    assert len(batch) == 2 and eos is None and not backlog
+    assert collect_batch(receive, 0.1, max_batch=3) == ([], None, False)
 
 
 def test_arrays_are_drained_like_wrenches_in_arrival_order() -> None:
@@ -353,7 +354,7 @@ def test_arrays_are_drained_like_wrenches_in_arrival_order() -> None:
     def receive(timeout_s: float) -> Received | None:
         return _rx(queue.pop(0)) if queue else None
 
-    batch, eos = collect_batch(receive, 0.1, max_batch=3)
+    batch, eos, _ = collect_batch(receive, 0.1, max_batch=3)
     assert [type(m) for m in batch] == [WhiskerWrench, WhiskerWrenchArray, WhiskerWrenchArray]
     assert [m.seq for m in batch] == [0, 1, 2] and eos is None
     assert collect_batch(receive, 0.1, max_batch=100)[0] == [wrenches[2]]
@@ -714,6 +715,51 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
     assert wait.take(drained=False) == []
     now[0] += 0.02
     assert [m.seq for m in wait.take(drained=False)] == [10]
+
+
+@pytest.mark.parametrize("max_span_s, placed", [(5.0, True), (math.inf, False)])
+def test_a_stream_played_faster_than_real_time_keeps_the_poses_its_wrenches_need(
+        max_span_s: float, placed: bool) -> None:
+    """A robot's 30 s at 100 Hz (a pose, then a tick of two whiskers, every 10 ms) queued at once,
+    as a bag played as fast as possible reaches the node, with poses kept 10 s. Batches that end
+    once their stamps span 5 s place every tick; batches of up to 4 096 messages (2 048 ticks,
+    20 s of stream) would first apply poses far past the history of their first ticks."""
+    from vibrissa.frames import Transform
+    from vibrissa.msgs import RobotPose
+    from vibrissa.nodes.reconstructor import PoseWait, Warnings, _on_pose, robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
+                Whisker("b", 0.03, 9e-5, Transform.from_xyz_rpy([0, -0.02, 0.01], [1.5, 0, 0]))]
+    frames = robot_frames(whiskers, history_s=10.0)
+    queue: list[Any] = []
+    for k in range(3000):
+        stamp = round(0.01 * k, 9)
+        queue += [RobotPose(stamp=stamp, frame_id="world", child_frame_id="base_link",
+                            position=[0.1 * stamp, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0]),
+                  _robot_wrench(stamp, k)]
+
+    def receive(timeout_s: float) -> Received | None:
+        return _rx(queue.pop(0)) if queue else None
+
+    counters = {"robot_poses": 0, "bad_robot_pose": 0}
+    batches = BatchCollector(receive, drain_limit=15, max_batch=4096, max_span_s=max_span_s,
+                             on_pose=_on_pose(frames, counters, Warnings("/robot/reconstructor")))
+    wait = PoseWait(frames, "world", timeout_s=0.5)
+    rods = {w.name: w.scale for w in whiskers}
+    no_pose = placed_ticks = 0
+    while queue or len(wait):
+        batch, _ = batches.collect(0.0)
+        wait.add(batch)
+        ready = wait.take(batches.drained)
+        for outcome in reconstruct_messages(ready, rods, frames, "world") if ready else ():
+            no_pose += outcome.no_pose
+            placed_ticks += outcome.no_pose == 0
+    assert counters["robot_poses"] == 3000
+    if placed:
+        assert no_pose == 0 and placed_ticks == 3000
+    else:  # the batching this replaces: ticks lost their poses
+        assert no_pose > 1000
 
 
 def test_warnings_are_logged_once_per_kind_then_every_thousandth(

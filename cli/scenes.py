@@ -125,10 +125,10 @@ def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None
             names = sorted({scene.objects[k].name for k in inside[held]})
             line += (f"\n  {result.name}: {len(held)} sample(s) unresolved with the clamp inside "
                      f"{', '.join(names)} (from t = {result.t[held[0]]:g} s): no rod fits there")
-        start = rod_inside_at_start(scene, whisker)
         unresolved = (result.phase == SamplePhase.UNRESOLVED) & (inside < 0)
         first = int(np.argmin(unresolved)) if not unresolved.all() else len(unresolved)
-        if start >= 0 and first:
+        start = rod_inside_at_start(scene, whisker) if first else -1
+        if start >= 0:
             line += (f"\n  {result.name}: {first} sample(s) unresolved from the path's start: its "
                      f"rod starts inside {scene.objects[start].name}, with no touch to follow "
                      "a contact from")

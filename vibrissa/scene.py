@@ -527,11 +527,11 @@ class _WhiskerSteps:
         (perpendicular to its ``axis``) without friction, from where the straight rod is free;
         None if there is no such start, the approach's contact snaps off on the way, or the
         landed rod (its axis as ``AXIS_SEGMENTS`` chords) enters another object."""
-        clear = [d for d in LANDING_DISTANCES
-                 if not surface.segment_inside((p_WC + d * away)[None], axis[None])[0]]
-        if not clear:
+        distance = next((d for d in LANDING_DISTANCES
+                         if not surface.segment_inside((p_WC + d * away)[None], axis[None])[0]),
+                        None)
+        if distance is None:
             return None
-        distance = clear[0]
         steps = int(np.clip(np.ceil(distance / self.path.h), *LANDING_STEPS))
         back = np.linspace(distance, 0.0, steps + 1)[:, None] * away
         approach = SampledPath(self.path.p_WR[k] + back, self.path.rotations[np.full(steps + 1, k)],

@@ -717,6 +717,61 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
     assert [m.seq for m in wait.take(drained=False)] == [10]
 
 
+def test_held_poses_wait_until_a_wrench_needs_them_and_give_the_same_points() -> None:
+    """A tick that comes with the next pose (a pose stream ahead of the wrenches) goes out
+    before that pose is handled; a tick that needs a held pose gets it at once, also past its
+    timeout (a held pose is not a missing one); the points equal those of poses applied as
+    they came, bit for bit."""
+    from vibrissa.frames import Transform
+    from vibrissa.msgs import RobotPose
+    from vibrissa.nodes.reconstructor import PoseWait, Warnings, _on_pose, robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
+                Whisker("b", 0.03, 9e-5, Transform.from_xyz_rpy([0, -0.02, 0.01], [1.5, 0, 0]))]
+    rods = {w.name: w.scale for w in whiskers}
+
+    def pose(stamp: float) -> RobotPose:
+        return RobotPose(stamp=stamp, frame_id="world", child_frame_id="base_link",
+                         position=[stamp, 0.3 * stamp, 0.0],
+                         orientation=[0.0, 0.0, math.sin(2 * stamp), math.cos(2 * stamp)])
+
+    frames = robot_frames(whiskers)
+    counters = {"robot_poses": 0, "bad_robot_pose": 0}
+    now = [0.0]
+    wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0],
+                    on_pose=_on_pose(frames, counters, Warnings("/robot/reconstructor")))
+    for stamp in (0.0, 0.01):
+        wait.hold(pose(stamp))
+    wait.apply_poses()
+    assert counters["robot_poses"] == 2
+    wait.hold(pose(0.02))
+    wait.add([_robot_wrench(0.005, 1)])
+    taken = wait.take()
+    assert [m.seq for m in taken] == [1]
+    assert counters["robot_poses"] == 2 and frames.newest("world", "a/clamp") == 0.01  # held
+    wait.add([_robot_wrench(0.015, 2)])
+    taken += wait.take()  # needs the held pose: applied now
+    assert [m.seq for m in taken] == [1, 2] and counters["robot_poses"] == 3
+    wait.hold(pose(0.03))
+    wait.add([_robot_wrench(0.025, 3)])
+    now[0] += 0.6  # past its timeout, with its pose held
+    taken += wait.take()
+    wait.apply_poses()
+    assert [m.seq for m in taken] == [1, 2, 3] and counters["robot_poses"] == 4
+    outcomes = reconstruct_messages(taken, rods, frames, "world")
+    assert [out.no_pose for out in outcomes] == [0, 0, 0]
+
+    eager = robot_frames(whiskers)  # every pose applied as it came
+    for stamp in (0.0, 0.01, 0.02, 0.03):
+        kept = pose(stamp)
+        eager.add_pose("world", "base_link", stamp, kept.position, kept.orientation)
+    for out, ref in zip(outcomes, reconstruct_messages(taken, rods, eager, "world"), strict=True):
+        assert isinstance(out.contacts, ContactPointArray) and isinstance(ref.contacts, ContactPointArray)
+        assert len(out.contacts.whisker_ids) == 2
+        assert out.contacts.point.tobytes() == ref.contacts.point.tobytes()
+
+
 @pytest.mark.parametrize("max_span_s, placed", [(5.0, True), (math.inf, False)])
 def test_a_stream_played_faster_than_real_time_keeps_the_poses_its_wrenches_need(
         max_span_s: float, placed: bool) -> None:

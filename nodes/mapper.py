@@ -41,7 +41,8 @@ mapped as one without a covariance and counted in ``bad_covariance`` (the report
 and each of the dropped counts once it is not 0.
 
 Objects: with ``true_surface`` a frame is that one object; otherwise DBSCAN separates the points
-of a frame into objects (``vibrissa.nodes.surface_fit.cluster_points``), named after the nearest
+of a frame into objects (``vibrissa.nodes.surface_fit.cluster_points``; clusters that are patches of
+one convex object are joined, ``join_convex``), named after the nearest
 object of ``scene`` (frame ``world``) or ``object0``, ``object1``, ... in the order of their
 first point. Surfaces: a Gaussian-process implicit surface per object (``vibrissa.gp_surface``)
 on the points and their contact normals (the contact force with its component along the contact
@@ -86,6 +87,7 @@ from vibrissa.next_sweep import Proposal, propose_sections
 from vibrissa.nodes.map_figure import MapLayers, MeshLayer, plot_map, short_name, thousands
 from vibrissa.nodes.map_page import write_page
 from vibrissa.nodes.surface_fit import (
+    JOIN_NORMAL_TOL_RAD,
     MIN_POINTS,
     MapParams,
     ObjectSurface,
@@ -93,6 +95,7 @@ from vibrissa.nodes.surface_fit import (
     cluster_points,
     contact_normals,
     estimate_surface,
+    join_convex,
     line_spacing,
     too_little_for_a_surface,
     whisker_lines,
@@ -150,6 +153,10 @@ class MapperParams:
         half the typical extent of a contact line; see ``vibrissa.nodes.surface_fit``).
     cluster_min_points
         DBSCAN ``min_points``; smaller groups are noise (counted and reported, not fitted).
+    join_convex, join_normal_tol_rad
+        Join clusters that are patches of one convex object (an object touched by whiskers
+        far apart), within this error of the contact normals, rad
+        (``vibrissa.nodes.surface_fit.join_convex``).
     rod_length_m
         L, m (scales ``true_surface``); the mapper converts lengths only, so it needs no EI.
     cells, margin, max_std_m, point_std_m
@@ -189,6 +196,8 @@ class MapperParams:
     scene: str = ""
     cluster_eps_m: float = 0.0
     cluster_min_points: int = MIN_POINTS
+    join_convex: bool = True
+    join_normal_tol_rad: float = JOIN_NORMAL_TOL_RAD
     rod_length_m: float = 1.0
     cells: int = MapParams.cells
     margin: float = MapParams.margin
@@ -243,6 +252,8 @@ class MapperParams:
         require_non_negative("cluster_eps_m", self.cluster_eps_m)
         require(self.cluster_min_points >= 1, "cluster_min_points", self.cluster_min_points,
                 "a count >= 1")
+        require(0 <= self.join_normal_tol_rad < math.pi / 2, "join_normal_tol_rad",
+                self.join_normal_tol_rad, "an angle in [0, pi/2), rad")
         require(8 <= self.cells <= MAX_CELLS, "cells", self.cells,
                 f"a grid size in [8, {MAX_CELLS}]")
         require_non_negative("margin", self.margin)
@@ -534,10 +545,13 @@ def fit_frame(frame_id: str, cloud: FrameCloud, params: MapperParams) -> FrameMa
         clustering: dict[str, Any] = {"method": "none: true_surface is the one object"}
     else:
         clusters = cluster_points(points, lines, params.cluster_eps_m, params.cluster_min_points)
-        labels = clusters.labels
+        labels, joined = (join_convex(points, normals, clusters.labels, normal_var,
+                                      params.join_normal_tol_rad) if params.join_convex
+                          else (clusters.labels, []))
         named = name_objects(points, labels, truth)
         clustering = {"method": "dbscan", "eps_m": clusters.eps, "eps_rule": clusters.eps_rule,
-                      "min_points": clusters.min_points,
+                      "min_points": clusters.min_points, "dbscan_clusters": clusters.n_clusters,
+                      "joined_convex": joined,
                       "line_spacing_m": spacing if np.isfinite(spacing) else None,
                       "line_extent_m": clusters.line_extent}
     objects: list[ObjectResult] = []
@@ -817,6 +831,8 @@ def format_report(report: dict[str, Any]) -> str:
         if how == "dbscan":
             how = (f"DBSCAN eps {_mm(clustering['eps_m'])} (from the {clustering['eps_rule']}), "
                    f"min_points {clustering['min_points']}")
+            for group in clustering.get("joined_convex", []):
+                how += f"; {len(group)} of its clusters joined as patches of one convex object"
         lines += [
             f"frame {frame['frame_id']}: {frame['n_points']} points, "
             f"{len(frame['objects'])} object(s), {frame['noise_points']} noise point(s)",

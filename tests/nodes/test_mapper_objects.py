@@ -298,9 +298,10 @@ def test_the_scene_is_the_truth_of_frame_world_only(scene_map: dict[str, Any],
     assert (tmp_path / "mesh_object0_arm.ply").is_file()
 
 
-def test_two_clusters_on_one_object_are_told_apart(tmp_path: Path) -> None:
-    """Lines on opposite sides of the ball, 19 mm apart at the closest: with eps 6 mm two
-    clusters, both on the ball."""
+@pytest.mark.parametrize("join", [False, True])
+def test_two_clusters_on_one_object_are_told_apart_or_joined(tmp_path: Path, join: bool) -> None:
+    """Lines on opposite sides of the ball, 19 mm apart at the closest: with eps 6 mm DBSCAN
+    makes two clusters, both on the ball, which the convex join makes one (the default)."""
     back = [(w, obj, polar, azimuths + np.pi) for w, obj, polar, azimuths in LINES
             if obj is BALL and w != "w1"]
     msgs = [m for m in messages() if not isinstance(m, ContactPoint)]
@@ -312,13 +313,24 @@ def test_two_clusters_on_one_object_are_told_apart(tmp_path: Path) -> None:
             acc.add(ContactPoint(stamp=0.0, seq=k, whisker_id=f"w{5 + i}", frame_id="world",
                                  point=point, s1=0.03, phase=2, force=0.02 * normal, status=0))
     params = MapperParams(out_dir=str(tmp_path), scene=str(write_scene(tmp_path)),
-                          cluster_eps_m=0.006, plot=False)
+                          cluster_eps_m=0.006, plot=False, join_convex=join)
     report, _ = write_outputs(acc, params, tmp_path)
     [frame] = report["frames"]
-    assert [(o["name"], o["true_object"], o["n_points"]) for o in frame["objects"]] == [
-        ("ball", "ball", 180), ("egg", "egg", 100), ("ball-2", "ball", 120)]
     assert frame["clustering"]["eps_m"] == 0.006 and frame["clustering"]["eps_rule"] == "given"
-    assert (tmp_path / "mesh_ball-2.ply").is_file()
+    assert frame["clustering"]["dbscan_clusters"] == 3
+    objects = [(o["name"], o["true_object"], o["n_points"]) for o in frame["objects"]]
+    text = (tmp_path / "report.txt").read_text()
+    if not join:
+        assert objects == [("ball", "ball", 180), ("egg", "egg", 100), ("ball-2", "ball", 120)]
+        assert (tmp_path / "mesh_ball-2.ply").is_file()
+        assert frame["clustering"]["joined_convex"] == [] and "joined" not in text
+        return
+    assert objects == [("ball", "ball", 300), ("egg", "egg", 100)]
+    assert frame["clustering"]["joined_convex"] == [[0, 2]]
+    assert "; 2 of its clusters joined as patches of one convex object" in text
+    [ball] = [o for o in frame["objects"] if o["name"] == "ball"]
+    assert ball["mesh_to_surface_max"] < 1e-3  # one surface around the ball's both sides
+    assert not (tmp_path / "mesh_ball-2.ply").exists()
 
 
 def test_two_objects_in_one_cluster_are_named_and_their_points_stay_exact(tmp_path: Path) -> None:

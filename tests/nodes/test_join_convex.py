@@ -55,6 +55,15 @@ def test_objects_side_by_side_facing_the_robot_stay_apart_at_any_gap() -> None:
         assert join_convex(points, normals, labels)[1] == []
 
 
+def test_two_objects_touched_only_on_their_far_sides_are_joined() -> None:
+    """The known limit: contacts on the sides of two balls that face away from each other are
+    those of one convex body around both; the test cannot tell them apart (the report names
+    such an object when the scene is known)."""
+    points, normals, labels = cloud(patch(*BALL, [-1.0, 0.0, 0.0], 0.3),
+                                    patch([0.06, 0.0, 0.0], 0.02, [1.0, 0.0, 0.0], 0.3))
+    assert join_convex(points, normals, labels)[1] == [[0, 1]]
+
+
 def test_the_normals_error_and_the_points_std_set_the_tolerance() -> None:
     """Two patches of the ball 20 deg apart (their closest points 8.6 deg apart, so a tangent
     plane of one has the other 0.075 rad behind it): normals of one tilted towards the other by

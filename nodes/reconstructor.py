@@ -40,7 +40,8 @@ wrench, no consistent contact, or a result that overflows to inf near the float 
 the wrench's stamp within ``pose_timeout_s``), ``unknown_whisker`` (not in the robot
 description), ``wrong_frame`` (measured, by its ``frame_ids``, in another frame than its
 whisker's clamp frame: placed there it would get another whisker's mount); and
-``robot_poses``, ``bad_robot_pose`` (poses taken, refused), ``pose_time_jumps``,
+``robot_poses``, ``bad_robot_pose`` (poses put in the frame buffer, refused: a pose is held
+until it is needed, `PoseWait`), ``pose_time_jumps``,
 ``pose_reparents`` (histories dropped: a new timeline, a new parent frame;
 `vibrissa.frame_buffer`), ``batches`` and ``max_batch`` (batches and the largest, in
 messages). Undecodable input (wrong type, version,
@@ -560,6 +561,9 @@ class BatchCollector:
 BACKLOG_TIMEOUTS = 10.0
 """Under a backlog that never drains, a wrench waits this many ``pose_timeout_s`` for its pose."""
 
+MAX_HELD_POSES = 20_000
+"""The most robot poses `PoseWait` holds (200 s at 100 Hz, about 12 MB)."""
+
 
 class PoseWait:
     """Wrenches waiting for the robot pose at their stamp, in arrival order.
@@ -574,24 +578,34 @@ class PoseWait:
     ``BACKLOG_TIMEOUTS`` x ``timeout_s``. The order of the wrenches is kept: one that waits
     holds back those behind it.
 
-    Robot poses given to `hold` go to ``on_pose`` (into ``frames``) only when a wrench waits
-    for one (in `take`), else at `apply_poses`, which the node calls once the points of what
-    `take` let through are out: a tick that arrives with the next pose (a pose stream ahead
-    of the wrenches) is not late by that pose's handling (a tenth of a millisecond live, on one
-    tick in ten at 1 kHz ticks and 100 Hz poses). A lookup between two kept poses does not
-    depend on newer ones (`vibrissa.frame_buffer`), so the points are the same bits.
+    Robot poses given to `hold` go to ``on_pose`` (into ``frames``) in arrival order: as many
+    as the front wrench needs when it is not ready without them (in `take`, before any wrench
+    times out), the others at `apply_poses`, which the node calls once the points of what `take`
+    let through are out. So a tick that arrives with the next pose (a pose stream ahead of the
+    wrenches) is not late by that pose's handling (a tenth of a millisecond live, on one tick in
+    ten at 1 kHz ticks and 100 Hz poses). `apply_poses` also keeps back a pose stamped more
+    than ``lead_s`` past the newest wrench until it has been held for ``timeout_s`` with no
+    wrench coming meanwhile: poses that arrive far ahead of their wrenches (a recording played
+    as fast as possible, its poses and wrenches on separate sockets) would push the poses the
+    wrenches behind them need out of the frames' history. At most `MAX_HELD_POSES` are held
+    (then the oldest goes in). A lookup between two kept poses does not depend on newer ones
+    (`vibrissa.frame_buffer`), so the points are the same bits whenever a pose goes in.
     """
 
     def __init__(self, frames: FrameBuffer | None, map_frame: str, timeout_s: float,
                  clock: Callable[[], float] = time.monotonic,
-                 on_pose: Callable[[RobotPose], None] = lambda pose: None) -> None:
+                 on_pose: Callable[[RobotPose], None] = lambda pose: None,
+                 lead_s: float = math.inf) -> None:
         self.frames = frames
         self.map_frame = map_frame
         self.timeout_s = timeout_s
+        self.lead_s = lead_s
         self._clock = clock
         self._on_pose = on_pose
         self._queue: deque[tuple[float, Wrenches]] = deque()
-        self._poses: list[RobotPose] = []  # held, in arrival order
+        self._poses: deque[tuple[float, RobotPose]] = deque()  # held since, in arrival order
+        self._newest = -math.inf  # the newest wrench's stamp
+        self._last_wrench = -math.inf  # when the last wrench arrived
 
     def __len__(self) -> int:
         return len(self._queue)
@@ -599,25 +613,37 @@ class PoseWait:
     def add(self, msgs: Sequence[Wrenches]) -> None:
         now = self._clock()
         self._queue.extend((now, msg) for msg in msgs)
+        if msgs:
+            self._newest = max([self._newest, *(msg.stamp for msg in msgs)])
+            self._last_wrench = now
 
     def hold(self, pose: RobotPose) -> None:
         """Keep a robot pose until a wrench needs it, or until `apply_poses`."""
-        self._poses.append(pose)
+        self._poses.append((self._clock(), pose))
+        if len(self._poses) > MAX_HELD_POSES:
+            self._on_pose(self._poses.popleft()[1])
 
     def apply_poses(self) -> None:
-        """Hand the held robot poses to ``on_pose``, in arrival order."""
-        poses, self._poses = self._poses, []
-        for pose in poses:
+        """Hand the held robot poses to ``on_pose``, in arrival order, up to the first stamped
+        more than ``lead_s`` past the newest wrench that has not waited ``timeout_s`` without
+        a wrench coming."""
+        limit = self._newest + self.lead_s if self.lead_s < math.inf else math.inf
+        quiet_since = self._clock() - self.timeout_s
+        while self._poses:
+            held_since, pose = self._poses[0]
+            if pose.stamp > limit and max(held_since, self._last_wrench) > quiet_since:
+                break
+            self._poses.popleft()
             self._on_pose(pose)
 
     def take(self, drained: bool = True) -> list[Wrenches]:
         """The wrenches from the front that are ready or have waited long enough: ``timeout_s``
         when the input queue is ``drained``, ``BACKLOG_TIMEOUTS`` x ``timeout_s`` when not.
-        The held poses are applied first if a wrench is not ready without them."""
+        While the front one is not ready and poses are held, they go in, oldest first."""
         out = self._take(drained, expire=not self._poses)
-        if self._queue and self._poses:  # one of the held poses may be the one it waits for
-            self.apply_poses()
-            out += self._take(drained, expire=True)
+        while self._queue and self._poses:  # the front one's pose may be held
+            self._on_pose(self._poses.popleft()[1])
+            out += self._take(drained, expire=not self._poses)
         return out
 
     def _take(self, drained: bool, expire: bool) -> list[Wrenches]:
@@ -774,7 +800,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
     warn = Warnings(node.fqn)
     wait = PoseWait(frames, params.map_frame, params.pose_timeout_s,
                     on_pose=_on_pose(frames, counters, warn) if frames is not None else (
-                        lambda pose: None))
+                        lambda pose: None), lead_s=params.history_s / 2)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch, wait.hold,
                              resolve_topic(params.input_topic, node.namespace),
                              max_span_s=params.history_s / 2)

@@ -772,6 +772,69 @@ def test_held_poses_wait_until_a_wrench_needs_them_and_give_the_same_points() ->
         assert out.contacts.point.tobytes() == ref.contacts.point.tobytes()
 
 
+@pytest.mark.parametrize("lead_s, placed", [(5.0, True), (math.inf, False)])
+def test_poses_far_ahead_of_the_wrenches_are_held_not_pushed_out_of_the_history(
+        lead_s: float, placed: bool) -> None:
+    """A path sampled every 2 s played as fast as possible: its 300 poses (600 s) reach the node
+    before its wrenches (they come on their own socket), then a tick per pose. Held while they
+    are more than 5 s past the newest wrench, every tick is placed; applied as they came, the
+    10-s history keeps only the last six poses and the ticks before them have none. A pose held
+    for the timeout with no wrench coming goes in."""
+    from vibrissa.frames import Transform
+    from vibrissa.msgs import RobotPose
+    from vibrissa.nodes.reconstructor import PoseWait, Warnings, _on_pose, robot_frames
+    from vibrissa.scene import Whisker
+
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0])),
+                Whisker("b", 0.03, 9e-5, Transform.from_xyz_rpy([0, -0.02, 0.01], [1.5, 0, 0]))]
+    frames = robot_frames(whiskers, history_s=10.0)
+    counters = {"robot_poses": 0, "bad_robot_pose": 0}
+    now = [0.0]
+    wait = PoseWait(frames, "world", timeout_s=0.5, lead_s=lead_s, clock=lambda: now[0],
+                    on_pose=_on_pose(frames, counters, Warnings("/robot/reconstructor")))
+    rods = {w.name: w.scale for w in whiskers}
+
+    def pose(stamp: float) -> RobotPose:
+        return RobotPose(stamp=stamp, frame_id="world", child_frame_id="base_link",
+                         position=[0.01 * stamp, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0])
+
+    for k in range(300):
+        wait.hold(pose(2.0 * k))
+    wait.apply_poses()  # the node's loop after a batch of poses alone
+    no_pose = 0
+    for k in range(300):
+        now[0] += 0.001
+        wait.add([_robot_wrench(2.0 * k, k)])
+        ready = wait.take()
+        assert [m.seq for m in ready] == [k]
+        no_pose += sum(out.no_pose for out in reconstruct_messages(ready, rods, frames, "world"))
+        wait.apply_poses()
+    assert counters["robot_poses"] == 300
+    if not placed:
+        assert no_pose == 2 * 294  # all but the ticks of the poses of the last 10 s
+        return
+    assert no_pose == 0
+    for k in range(300, 310):  # the wrenches have stopped; the poses go on
+        wait.hold(pose(2.0 * k))
+    wait.apply_poses()
+    assert counters["robot_poses"] == 302  # up to 5 s past the last wrench (598 s)
+    now[0] += 0.49
+    wait.apply_poses()
+    assert counters["robot_poses"] == 302
+    now[0] += 0.01  # held for the timeout with no wrench coming: they go in
+    wait.apply_poses()
+    assert counters["robot_poses"] == 310
+    wait.hold(pose(620.0))  # a wrench meanwhile keeps a far pose held for the timeout again
+    now[0] += 0.3
+    wait.add([_robot_wrench(599.0, 300)])
+    now[0] += 0.3
+    wait.apply_poses()
+    assert counters["robot_poses"] == 310
+    now[0] += 0.2
+    wait.apply_poses()
+    assert counters["robot_poses"] == 311
+
+
 @pytest.mark.parametrize("max_span_s, placed", [(5.0, True), (math.inf, False)])
 def test_a_stream_played_faster_than_real_time_keeps_the_poses_its_wrenches_need(
         max_span_s: float, placed: bool) -> None:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vibrissa.frames import Transform
+from vibrissa.frames import Transform, non_unit_quaternion
 from vibrissa.runtime import yaml_numbers
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
 from vibrissa.units import finite_number, number_text
@@ -205,9 +205,10 @@ def _pose(body: dict[str, Any], where: str) -> Transform:
     position = _vector(body.get("position_m", [0.0, 0.0, 0.0]), f"{where}.position_m", 3,
                        "position_m")
     q = _vector(body.get("quaternion_xyzw", [0.0, 0.0, 0.0, 1.0]), f"{where}.quaternion_xyzw", 4)
-    norm = float(np.linalg.norm(q))
-    if not abs(norm - 1.0) <= 1e-6:
-        raise SceneError(f"{where}.quaternion_xyzw: {q} is not a unit quaternion (norm {norm:.9g})")
+    bad = non_unit_quaternion(q)
+    if bad is not None:
+        raise SceneError(f"{where}.quaternion_xyzw: {q} is not a unit quaternion "
+                         f"(norm {bad[1]:.9g})")
     return Transform.from_quaternion(q, position)
 
 

@@ -34,6 +34,21 @@ WORLD_FRAME = "world"
 ROBOT_FRAME = "base_link"
 """The default name of the robot's body frame R (REP 105), the parent of the whisker mounts."""
 
+UNIT_QUATERNION_TOL = 1e-6
+"""How far from 1 the norm of a quaternion that gives a pose (a scene's mounts and objects, a
+robot path) may be: such input is refused, not normalised."""
+
+
+def non_unit_quaternion(q_xyzw: ArrayLike) -> tuple[int, float] | None:
+    """The first of quaternions (N, 4) (or one, (4,)) whose norm is off 1 by more than
+    `UNIT_QUATERNION_TOL`, with that norm (inf where it overflows, without numpy's overflow
+    warning: the input is refused anyway); None when every one is unit."""
+    q = np.atleast_2d(np.asarray(q_xyzw, dtype=float))
+    with np.errstate(over="ignore", invalid="ignore"):
+        norms = np.sqrt(np.einsum("ij,ij->i", q, q))
+    bad = np.flatnonzero(~(np.abs(norms - 1.0) <= UNIT_QUATERNION_TOL))
+    return (int(bad[0]), float(norms[bad[0]])) if len(bad) else None
+
 
 def clamp_frame(whisker: str) -> str:
     """The name of a whisker's clamp frame C, the frame its wrench is measured in:

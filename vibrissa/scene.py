@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vibrissa.frames import PoseSamples, Transform
+from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
 from vibrissa.paths import SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
@@ -671,14 +671,14 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
 
 
 def robot_path(t: ArrayLike, p_WR: ArrayLike, q_WR_xyzw: ArrayLike) -> RobotPath:
-    """A `RobotPath` from quaternions (x, y, z, w), which must be unit (to 1e-6): a
-    ValueError names the first row that is not."""
+    """A `RobotPath` from quaternions (x, y, z, w), which must be unit
+    (`vibrissa.frames.non_unit_quaternion`): a ValueError names the first row that is not."""
     q = np.asarray(q_WR_xyzw, dtype=float)
-    norms = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6))
-    if len(bad):
-        raise ValueError(f"row {int(bad[0]) + 1}: quaternion {q[bad[0]].tolist()} is not a unit "
-                         f"quaternion (norm {norms[bad[0]]:.9g})")
+    bad = non_unit_quaternion(q)
+    if bad is not None:
+        row, norm = bad
+        raise ValueError(f"row {row + 1}: quaternion {q[row].tolist()} is not a unit "
+                         f"quaternion (norm {norm:.9g})")
     from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
 
     return RobotPath(np.asarray(t, dtype=float), np.asarray(p_WR, dtype=float),

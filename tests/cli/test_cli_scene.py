@@ -136,6 +136,9 @@ def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulat
     (("shape: sphere", "shape: cube"), "scene.yaml: objects[0].shape: expected one of sphere"),
     (("[0, 0, 0.3826834, 0.9238795]", "[0, 0, 0.5, 0.9]"),
      "objects[1].quaternion_xyzw: [0.0, 0.0, 0.5, 0.9] is not a unit quaternion"),
+    # |q|^2 overflows: refused by its norm, without numpy's overflow warning on the way
+    (("[0, 0, 0.3826834, 0.9238795]", "[0, 0, 1e308, 1e308]"),
+     "objects[1].quaternion_xyzw: [0.0, 0.0, 1e+308, 1e+308] is not a unit quaternion (norm inf)"),
     (("mu: 0.25", "mu: high"), "scene.yaml: mu: expected a finite number"),
     (("mu: 0.25", "mu: 1" + "0" * 400), "scene.yaml: mu: expected a finite number, got 1000"),
     (("radius_m: 0.015", "radius_m: 1" + "0" * 400), "objects[0].radius_m: expected a finite"),
@@ -165,6 +168,7 @@ def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulat
     (("mu: 0.25", "m: &m [1, 2]\nmu: *m"), "scene.yaml: line 2, column 5: aliases (*m) are not"),
     (("mu: 0.25", "mu: [0.25"), "scene.yaml: line"),
 ])
+@pytest.mark.filterwarnings("error")  # a warning on the way would be a second line
 def test_a_bad_scene_is_one_line_naming_file_and_key(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                       change: tuple[str, str], message: str) -> None:
     (tmp_path / "scene.yaml").write_text(SCENE.replace(*change))
@@ -179,7 +183,10 @@ def test_a_bad_scene_is_one_line_naming_file_and_key(tmp_path: Path, capsys: pyt
     (3, "0.0,0.1,0,0,0,0,0,1", "path times must increase strictly (row 3)"),
     (2, "0.01,0.1,0,0,0,0,0", "path.csv: row 2: expected 8 values, got 7"),
     (4, "0.03,abc,0,0,0,0,0,1", "path.csv: row 4: not a number"),
+    (5, "0.04,0.1,0,0,0,0,1e308,1e308",
+     "path.csv: row 5: quaternion [0.0, 0.0, 1e+308, 1e+308] is not a unit quaternion (norm inf)"),
 ])
+@pytest.mark.filterwarnings("error")
 def test_a_bad_path_row_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str], row: int,
                                  line: str, message: str) -> None:
     (tmp_path / "scene.yaml").write_text(SCENE)

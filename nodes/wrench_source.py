@@ -208,7 +208,8 @@ class WrenchSourceParams:
                         "workers"):
                 require_non_negative(key, getattr(self, key))
             t = scene.path.t
-            require((t[-1] - t[0]) * self.pose_rate_hz <= MAX_POSES, "pose_rate_hz",
+            # Python floats: a product past the float range is inf, without numpy's warning
+            require(float(t[-1] - t[0]) * self.pose_rate_hz <= MAX_POSES, "pose_rate_hz",
                     self.pose_rate_hz, f"a rate of at most {MAX_POSES:.0e} poses over the "
                     f"path's {t[-1] - t[0]:g} s (0: one at each of its {len(t)} samples)")
             return

@@ -66,6 +66,7 @@ from vibrissa.wire import (
 )
 from vibrissa.wire.security import Guard
 from vibrissa.wire.transport import MessageTypes
+from vibrissa.wire.waiting import wait_event
 
 log = logging.getLogger(__name__)
 
@@ -312,7 +313,7 @@ class Node:
 
     def sleep(self, seconds: float) -> bool:
         """Sleep unless a stop comes first; returns ``True`` if the full time passed."""
-        return not self._stop.wait(seconds)
+        return not wait_event(self._stop, seconds)
 
     def _on_signal(self, signum: int) -> None:
         if self._stop.is_set() and signum == signal.SIGINT:

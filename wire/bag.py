@@ -45,6 +45,7 @@ from mcap.writer import CompressionType, Writer
 from vibrissa.msgs import EndOfStream, codec
 from vibrissa.msgs import Message as WireMessage
 from vibrissa.wire.transport import Endpoints, MessageTypes, Publisher
+from vibrissa.wire.waiting import wait_event
 
 __all__ = [
     "BagDamage",
@@ -807,7 +808,7 @@ def play_bag(
                 t_bag0 = rec.log_time_ns
             if rate is not None:
                 due = t_wall0 + (rec.log_time_ns - t_bag0) * 1e-9 / rate
-                if stop.wait(max(0.0, due - time.monotonic())):
+                if wait_event(stop, due - time.monotonic()):
                     result.interrupted = True
                     break
             elif stop.is_set():

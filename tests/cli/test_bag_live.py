@@ -191,6 +191,22 @@ def test_play_stops_early(tmp_path: Path, endpoints: Endpoints, context: zmq.Con
     assert 0 < result.total < 41
 
 
+def test_play_waits_out_a_jump_of_centuries_until_stopped(
+    tmp_path: Path, endpoints: Endpoints, context: zmq.Context[Any]
+) -> None:
+    """A bag whose log times jump by 2^63 - 1 ns (292 years), played at half speed: a wait of
+    584 years, beyond what threading's waits take (OverflowError before); stopped, it ends."""
+    path = tmp_path / "far.mcap"
+    with BagWriter(path) as bag:
+        bag.write("/robot/pose", encode(pose(0)), 0)
+        bag.write("/robot/pose", encode(pose(1)), 2**63 - 1)
+    assert (2**63 - 1) * 1e-9 / 0.5 > threading.TIMEOUT_MAX
+    stop = threading.Event()
+    threading.Timer(0.8, stop.set).start()
+    result = play_bag(path, rate=0.5, wait_s=0.2, endpoints=endpoints, context=context, stop=stop)
+    assert result.interrupted and result.total == 1
+
+
 def test_cli_record_play_info_export(
     tmp_path: Path, endpoints: Endpoints, context: zmq.Context[Any],
     capsys: pytest.CaptureFixture[str],

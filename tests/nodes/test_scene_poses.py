@@ -5,6 +5,8 @@ fixed rate the reconstructor interpolates chords between the poses, off the bend
 
 from __future__ import annotations
 
+import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -121,3 +123,14 @@ def test_a_pose_rate_beyond_max_poses_over_the_path_is_refused_naming_it(
             "mode": "scene", "scene": str(scene_file), "pose_rate_hz": repr(too_fast)})
     assert load_params(WrenchSourceParams, overrides={
         "mode": "scene", "scene": str(scene_file), "pose_rate_hz": "0"}).pose_rate_hz == 0.0
+
+
+@pytest.mark.filterwarnings("error")  # no overflow warning on the way to the one-line refusal
+def test_a_pose_rate_whose_pose_count_overflows_is_refused_naming_it() -> None:
+    """The robot demo's path lasts 3.4 s: 1.8e308 poses a second would be more than a float."""
+    scene_file = Path(__file__).parents[2] / "launch" / "robot" / "scene.yaml"
+    assert float(load_scene(scene_file).path.t[-1]) * sys.float_info.max == math.inf
+    with pytest.raises(ParamError, match=r"'pose_rate_hz' must be a rate of at most 1e\+07 poses "
+                                         r"over the path's 3.398 s"):
+        load_params(WrenchSourceParams, overrides={
+            "mode": "scene", "scene": str(scene_file), "pose_rate_hz": repr(sys.float_info.max)})

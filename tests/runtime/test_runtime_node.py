@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from typing import Any
 
@@ -147,6 +149,15 @@ def test_signals_set_the_stop_flag_and_are_restored(endpoints: Endpoints) -> Non
         assert n.stop_requested
         assert not n.sleep(5.0)  # returns at once once stopped
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.parametrize("seconds", [1e300, math.inf])
+def test_a_sleep_of_any_length_ends_when_stopped(endpoints: Endpoints, seconds: float) -> None:
+    """A wrench source at rate_hz 1e-300 sleeps 1e300 s between samples: beyond what threading's
+    waits take (OverflowError stopped the node before); it sleeps until stopped."""
+    with node("n", endpoints) as n:
+        threading.Timer(0.3, n.request_stop).start()
+        assert not n.sleep(seconds) and n.stop_requested
 
 
 def test_exception_in_the_node_reports_error(endpoints: Endpoints) -> None:

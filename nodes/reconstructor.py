@@ -371,7 +371,7 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
                           "'robot') and the robot's poses")
         else:
             sources = [msg.frame_id] if single else msg.frame_ids
-            poses = frames.lookup_rows(map_frame, sources, np.full(n, msg.stamp))
+            poses = frames.lookup_rows(map_frame, sources, msg.stamp)
             q, p, placed = poses.q_xyzw, poses.p, poses.ok
             errors += poses.errors
             if table is not None:

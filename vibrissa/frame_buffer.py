@@ -155,7 +155,7 @@ class RowPoses:
             self.errors.append(error)
 
 
-_RowPlan = tuple[dict[str, NDArray[np.int64]], FloatArray, FloatArray, list[str]]
+_RowPlan = tuple[dict[str, NDArray[np.int64]], FloatArray, FloatArray, list[str], NDArray[np.bool_]]
 _MAX_PLANS = 64
 
 
@@ -301,32 +301,37 @@ class FrameBuffer:
         self._newest[key] = newest
         return newest
 
-    def lookup_rows(self, target: str, sources: Sequence[str], stamps: ArrayLike) -> RowPoses:
-        """X_target_source of each row (n): frame ``sources[i]`` at ``stamps[i]``, for the
-        rows of a sensor array (frames under one moving frame, stamps shared).
+    def lookup_rows(self, target: str, sources: Sequence[str], stamps: ArrayLike | float
+                    ) -> RowPoses:
+        """X_target_source of each row (n): frame ``sources[i]`` at ``stamps[i]`` (or every
+        row at ``stamps`` when it is one number: a sensor tick), for the rows of a sensor array
+        (frames under one moving frame, stamps shared).
 
         Each source is split into its static part up to its first stamped ancestor A (a
         mount, composed once) and A at the row's stamps; rows are looked up per A and per
         distinct stamp, so a tick of 32 clamps on one robot costs one interpolation. A row that
         cannot be looked up has ``ok`` False and its error in ``errors``; nothing raises.
         """
+        n = len(sources)
+        one_stamp = isinstance(stamps, float) or np.ndim(stamps) == 0
         t = np.asarray(stamps, dtype=float).reshape(-1)
-        n = len(t)
-        if len(sources) != n:
-            raise ValueError(f"{len(sources)} sources for {n} stamps")
+        if not one_stamp and len(t) != n:
+            raise ValueError(f"{n} sources for {len(t)} stamps")
         plan = self._plans.get(tuple(sources))
         if plan is None:
             plan = self._plan(tuple(sources))
-        by_anchor, mount_p, mount_q, unknown = plan
-        if not unknown and len(by_anchor) == 1 and n and (t == t[0]).all():
+        by_anchor, mount_p, mount_q, unknown, all_ok = plan
+        if not unknown and len(by_anchor) == 1 and n and (one_stamp or (t == t[0]).all()):
             # a tick of frames under one moving frame: one pose, composed with every mount
             (anchor,) = by_anchor
             try:
                 p_TA, q_TA = self._lookup(target, anchor, t[:1])
             except FrameError as exc:
                 return RowPoses.none_found(n, str(exc))
-            return RowPoses(np.ones(n, bool), *mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q),
+            return RowPoses(all_ok.copy(), *mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q),
                             [])
+        if one_stamp:
+            t = np.full(n, t[0])
         out = RowPoses.none_found(n)
         for error in unknown:
             out.note(error)
@@ -360,7 +365,8 @@ class FrameBuffer:
 
     def _plan(self, sources: tuple[str, ...]) -> _RowPlan:
         """Rows grouped by the anchor of their frame (`_anchor`), the static poses of the
-        frames in their anchors (positions, quaternions), and the errors of unknown frames."""
+        frames in their anchors (positions, quaternions), the errors of unknown frames, and
+        ``ok`` of every row found (read-only: a lookup returns a copy)."""
         n = len(sources)
         by_anchor: dict[str, list[int]] = {}
         mount_p, mount_q = np.zeros((n, 3)), np.tile([0.0, 0, 0, 1], (n, 1))
@@ -374,8 +380,10 @@ class FrameBuffer:
                 continue
             anchor, mount_p[i], mount_q[i] = anchored
             by_anchor.setdefault(anchor, []).append(i)
+        all_ok = np.ones(n, bool)
+        all_ok.flags.writeable = False
         plan = ({anchor: np.array(rows) for anchor, rows in by_anchor.items()}, mount_p, mount_q,
-                unknown)
+                unknown, all_ok)
         if len(self._plans) >= _MAX_PLANS:
             self._plans.clear()
         if not unknown:  # a frame may become known: plans with unknown frames are not kept

@@ -201,6 +201,30 @@ def test_a_tick_is_one_pose_composed_with_each_mount_bit_for_bit() -> None:
     assert np.array_equal(q, quaternion_products(q_rows, q_AC))
 
 
+@pytest.mark.parametrize("sources", [
+    ["w0/clamp", "w1/clamp", "w1/sensor"],  # one moving frame: the tick's one interpolation
+    ["w0/clamp", "w9/clamp", "w1/sensor"],  # an unknown frame: row by row
+    ["w0/clamp", "base_link", "landmark"],  # two anchors, one in another tree: row by row
+])
+def test_one_stamp_for_every_row_is_that_stamp_on_each_row(sources: list[str]) -> None:
+    """A tick's stamp given once (a float) gives the bits of the same stamp on every row."""
+    buffer = robot_buffer()
+    buffer.set_static("base_link", "w1/clamp", Transform(Rotation.from_euler("y", -0.7),
+                                                         [0.0, 0.03, -0.01]))
+    buffer.set_static("w1/clamp", "w1/sensor", Transform(Rotation.from_euler("z", 0.4),
+                                                         [0, 0, 0.002]))
+    buffer.add("map", "landmark", 0.0, Transform())
+    for stamp in (float(RNG.uniform(T[0], T[-1])), float(T[3]), float(T[-1]) + 0.01):
+        one, each = (buffer.lookup_rows("world", sources, s) for s in (stamp, [stamp] * 3))
+        assert one.ok.tolist() == each.ok.tolist() and one.errors == each.errors
+        assert np.array_equal(one.p, each.p, equal_nan=True) and np.array_equal(one.q_xyzw,
+                                                                                each.q_xyzw)
+        one.ok[:] = False  # a row's ok is the caller's to change, not the next lookup's
+        assert buffer.lookup_rows("world", sources, stamp).ok.tolist() == each.ok.tolist()
+    assert buffer.lookup_rows("world", sources, float(T[3])).ok.tolist() == [
+        s in ("w0/clamp", "w1/clamp", "w1/sensor", "base_link") for s in sources]
+
+
 def test_newest_rows_is_the_oldest_of_the_known_frames() -> None:
     buffer = robot_buffer()
     buffer.set_static("base_link", "w1/clamp", MOUNT)

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from vibrissa.frames import (
     Transform,
     mounted_poses,
+    mounted_poses_between,
     pose_between,
     quaternion_products,
     quaternion_rotate,
@@ -104,6 +105,25 @@ class _Edge:
             self.arrays = (np.array(self.stamps), poses[:, :3], poses[:, 3:])
         return self.arrays
 
+    def _around(self, stamp: float) -> tuple[int, float | None]:
+        """The kept pose at or before ``stamp`` (within the kept ones) and the fraction of the
+        way to the next; None at the newest stamp (or the only pose): that pose, bit for bit."""
+        i = bisect.bisect_right(self.stamps, stamp) - 1
+        if i == len(self.stamps) - 1:
+            return i, None
+        return i, (stamp - self.stamps[i]) / (self.stamps[i + 1] - self.stamps[i])
+
+    def mounted_at(self, stamp: float, p_AC: FloatArray, q_AC_xyzw: FloatArray
+                   ) -> tuple[FloatArray, FloatArray]:
+        """Frames mounted at (p_AC (N, 3), q_AC (N, 4)) on this stamped edge's child, in its
+        parent at ``stamp`` (within the kept poses): `at` of a tick composed with every mount
+        (`vibrissa.frames.mounted_poses`), in one compiled call."""
+        i, fraction = self._around(stamp)
+        pose = self.poses[i]
+        if fraction is None:
+            return mounted_poses(pose[:3], pose[3:], p_AC, q_AC_xyzw)
+        return mounted_poses_between(pose, self.poses[i + 1], fraction, p_AC, q_AC_xyzw)
+
     def at(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Positions (n, 3) and quaternions (n, 4) at stamps ``t`` (n,) within the kept ones:
         position linear, orientation slerp between the two poses around each stamp; at a kept
@@ -113,10 +133,9 @@ class _Edge:
             return (np.tile(self.static.translation, (len(t), 1)),
                     np.tile(self.static.quaternion_xyzw, (len(t), 1)))
         if len(t) == 1:  # a tick: the two poses around it, without the arrays of all kept
-            i = bisect.bisect_right(self.stamps, float(t[0])) - 1
-            if i == len(self.stamps) - 1:  # the newest stamp (or the only pose): that pose
+            i, fraction = self._around(float(t[0]))
+            if fraction is None:
                 return self.poses[i][None, :3].copy(), self.poses[i][None, 3:].copy()
-            fraction = (float(t[0]) - self.stamps[i]) / (self.stamps[i + 1] - self.stamps[i])
             return pose_between(self.poses[i], self.poses[i + 1], fraction)
         stamps, p, q = self.kept()
         if len(stamps) == 1:  # one pose, and every stamp is its stamp
@@ -324,12 +343,17 @@ class FrameBuffer:
         if not unknown and len(by_anchor) == 1 and n and (one_stamp or (t == t[0]).all()):
             # a tick of frames under one moving frame: one pose, composed with every mount
             (anchor,) = by_anchor
+            edge = self._edges.get(anchor)
             try:
-                p_TA, q_TA = self._lookup(target, anchor, t[:1])
+                if edge is not None and edge.parent == target:  # a robot's pose in the map
+                    self._check_covered(edge, anchor, t[:1], target, anchor)
+                    p, q = edge.mounted_at(float(t[0]), mount_p, mount_q)
+                else:
+                    p_TA, q_TA = self._lookup(target, anchor, t[:1])
+                    p, q = mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q)
             except FrameError as exc:
                 return RowPoses.none_found(n, str(exc))
-            return RowPoses(all_ok.copy(), *mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q),
-                            [])
+            return RowPoses(all_ok.copy(), p, q, [])
         if one_stamp:
             t = np.full(n, t[0])
         out = RowPoses.none_found(n)

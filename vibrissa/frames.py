@@ -374,3 +374,13 @@ def pose_between(pose0: FloatArray, pose1: FloatArray, fraction: float
     f = np.empty(1)
     f[0] = fraction
     return p, quaternion_slerp(pose0[3:].reshape((1, 4)), pose1[3:].reshape((1, 4)), f)
+
+
+@compiled
+def mounted_poses_between(pose0: FloatArray, pose1: FloatArray, fraction: float,
+                          p_AC: FloatArray, q_AC_xyzw: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """`mounted_poses` on the pose a ``fraction`` of the way from pose0 to pose1
+    (`pose_between`): a sensor tick's clamps on its moving frame in one call, the same bits as
+    the two calls."""
+    p, q = pose_between(pose0, pose1, fraction)
+    return mounted_poses(p[0], q[0], p_AC, q_AC_xyzw)

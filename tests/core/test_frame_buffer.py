@@ -201,6 +201,23 @@ def test_a_tick_is_one_pose_composed_with_each_mount_bit_for_bit() -> None:
     assert np.array_equal(q, quaternion_products(q_rows, q_AC))
 
 
+def test_a_tick_under_a_pose_in_the_map_frame_has_the_bits_of_the_general_lookup() -> None:
+    """A robot's clamps in the frame of its poses (one stamped edge) take one compiled call
+    (`_Edge.mounted_at`); the bits are those of the chain composed edge by edge, between two
+    poses, at a kept stamp and at the newest one."""
+    buffer = robot_buffer()
+    mounts = [f"w{j}/clamp" for j in range(1, 33)]
+    for j, name in enumerate(mounts):
+        buffer.set_static("base_link", name, Transform(Rotation.random(random_state=j),
+                                                       RNG.normal(scale=0.05, size=3)))
+    for stamp in (*RNG.uniform(T[0], T[-1], 20), T[0], T[57], T[-1]):
+        rows = buffer.lookup_rows("world", mounts, float(stamp))
+        assert rows.ok.all() and not rows.errors
+        for i, name in enumerate(mounts):
+            p, q = buffer._lookup("world", name, np.array([stamp]))  # edge by edge
+            assert np.array_equal(rows.p[i], p[0]) and np.array_equal(rows.q_xyzw[i], q[0])
+
+
 @pytest.mark.parametrize("sources", [
     ["w0/clamp", "w1/clamp", "w1/sensor"],  # one moving frame: the tick's one interpolation
     ["w0/clamp", "w9/clamp", "w1/sensor"],  # an unknown frame: row by row

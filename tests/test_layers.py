@@ -25,6 +25,7 @@ RANK = {
     "vibrissa.launch": 4,
     "vibrissa.nodes": 4,
     "vibrissa.cli": 5,
+    "": 6,  # top-level modules: the command's entry point (cli/entry), above every package
 }
 
 # Third-party libraries each layer may import besides those of the layers below it (the
@@ -40,6 +41,7 @@ LIBRARIES = {
     # foxglove: the live view (nodes/foxglove_bridge.py, the optional extra `view`)
     "vibrissa.nodes": {"open3d", "matplotlib", "mpl_toolkits", "foxglove"},
     "vibrissa.cli": {"matplotlib", "mpl_toolkits"},
+    "": set(),
 }
 
 

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import pytest
@@ -232,3 +235,22 @@ def test_counts_and_waits_that_mean_nothing_are_refused(
         vibrissa_main(list(words))
     assert exc.value.code == 2
     assert capsys.readouterr().err.splitlines()[-1].endswith(message)
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 0.05, 0.15])
+def test_ctrl_c_while_the_package_loads_ends_quietly_with_130(delay_s: float) -> None:
+    """The command's entry point (``vibrissa`` runs ``_vibrissa_entry:main``) catches a Ctrl-C
+    during the package's import (numpy, scipy, numba: 0.3-0.5 s), which the interpreter would
+    otherwise end with a traceback of the import."""
+    (script,) = [ep for ep in entry_points(group="console_scripts") if ep.name == "vibrissa"]
+    assert script.value == "_vibrissa_entry:main"
+    code = ("import sys; sys.argv = ['vibrissa', 'sweep', '--help']; "
+            "from _vibrissa_entry import main; print('ready', flush=True); sys.exit(main())")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline() == "ready\n"
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err
+    assert proc.returncode == 130

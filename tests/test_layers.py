@@ -25,7 +25,7 @@ RANK = {
     "vibrissa.launch": 4,
     "vibrissa.nodes": 4,
     "vibrissa.cli": 5,
-    "": 6,  # top-level modules: the command's entry point (cli/entry), above every package
+    "": 6,  # top-level modules: the command's entry point (_vibrissa_entry.py), above all
 }
 
 # Third-party libraries each layer may import besides those of the layers below it (the
@@ -47,8 +47,9 @@ LIBRARIES = {
 
 def package_dirs() -> dict[str, Path]:
     """Package name -> folder, as pyproject.toml installs them."""
-    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    return {name: ROOT / folder for name, folder in config["tool"]["setuptools"]["package-dir"].items()}
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    dirs = {name: ROOT / folder for name, folder in config["package-dir"].items()}
+    return {**dirs, "": ROOT} if config.get("py-modules") else dirs  # top-level modules
 
 
 def imported_modules(path: Path) -> set[str]:

@@ -237,7 +237,7 @@ def test_counts_and_waits_that_mean_nothing_are_refused(
     assert capsys.readouterr().err.splitlines()[-1].endswith(message)
 
 
-@pytest.mark.parametrize("delay_s", [0.0, 0.05, 0.15])
+@pytest.mark.parametrize("delay_s", [0.0, 0.05])  # the import takes 0.3 s here
 def test_ctrl_c_while_the_package_loads_ends_quietly_with_130(delay_s: float) -> None:
     """The command's entry point (``vibrissa`` runs ``_vibrissa_entry:main``) catches a Ctrl-C
     during the package's import (numpy, scipy, numba: 0.3-0.5 s), which the interpreter would

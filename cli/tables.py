@@ -6,6 +6,7 @@ empty cell. Units are the paper's (eq. 1): lengths in L, forces in EI/L^2, momen
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Iterable
@@ -194,6 +195,7 @@ def read_wrench_csv(path: Path) -> WrenchTable:
     )
 
 
+@functools.lru_cache(maxsize=1024)  # a few codes recur over millions of rows
 def status_name(status: int) -> str:
     """``ok``, or the lower-case flag names of a :class:`ContactStatus` joined by ``|``."""
     if status == 0:

@@ -48,7 +48,7 @@ from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
 from vibrissa.sweep import Landing, Sweep, SweepRun, advance_together, next_grid_point
-from vibrissa.units import RodScale, finite_number
+from vibrissa.units import RodScale, finite_number, rod_units
 
 if TYPE_CHECKING:
     from scipy.spatial.transform import Rotation
@@ -664,7 +664,8 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
     mount_R = Rotation.from_quat(np.array([w.X_RC.quaternion_xyzw for w in scene.whiskers])[which])
     p_WC = p_WR[rows] + R_WR[rows].apply(mount_p)
     q_WC = (R_WR[rows] * mount_R).as_quat()
-    part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], [scene.whiskers[k].scale for k in which])
+    units = rod_units([w.scale for w in scene.whiskers])[which]  # each row's rod
+    part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], units)
     for name in ("pose_ok", "point_m", "s1_m", "phase", "force_n", "status"):
         getattr(out, name)[rows] = getattr(part, name)
     return out

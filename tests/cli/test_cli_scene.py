@@ -468,6 +468,38 @@ def test_reconstruct_streams_in_chunks_to_the_same_bytes_and_writes_all_or_nothi
     assert link.is_symlink() and (tmp_path / "target.csv").read_text().count("\n") == 11
 
 
+def test_reconstruct_shows_its_rows_on_a_terminal_only(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """On a terminal, the rows done after each chunk on one updating line, cleared before the
+    closing line; into a file or a pipe, the closing line alone."""
+    import io
+    import sys
+
+    from vibrissa.cli import scenes
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    write_path(tmp_path)
+    (tmp_path / "wrenches.csv").write_text("t,whisker,f0x,f0y,f0z,m0x,m0y,m0z\n"
+                                           + "".join(wrench_rows(2500)))
+    argv = ["reconstruct", str(tmp_path / "wrenches.csv"), "--scene", str(tmp_path / "scene.yaml")]
+    monkeypatch.setattr(scenes, "CHUNK_ROWS", 1000)
+    assert main([*argv, "-o", str(tmp_path / "a.csv")]) == 0
+    closing = capsys.readouterr().err
+    assert closing.startswith("reconstruct: 2500 rows, ") and "\r" not in closing
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    assert main([*argv, "-o", str(tmp_path / "b.csv")]) == 0
+    shown = terminal.getvalue().split("\r")
+    assert [line.split(",")[0] for line in shown[1:4]] == [
+        f"reconstruct: {n} rows" for n in (1000, 2000, 2500)]
+    assert shown[4] == "\x1b[K" + closing.replace("a.csv", "b.csv")
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+
+
 @pytest.mark.parametrize("sweep_mode", [False, True])
 def test_an_unreadable_cell_is_named_by_its_line_and_a_long_one_is_shortened(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], sweep_mode: bool) -> None:

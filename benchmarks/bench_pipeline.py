@@ -91,7 +91,8 @@ import numpy as np
 import zmq
 
 from vibrissa.launch.launcher import die_with_parent
-from vibrissa.msgs import NodeStatus, Ping, peek_type
+from vibrissa.msgs import NodeStatus, Ping
+from vibrissa.msgs.codec import peek_type
 from vibrissa.wire import Endpoints
 from vibrissa.wire.security import Keys, create_keys
 
@@ -157,7 +158,8 @@ def _payloads(n: int, unit: str, robot: bool, tick_s: float) -> list[bytes]:
     (the unit rod) with its clamp pose in world, or (``robot``) the robot's ``w{j}`` in its clamp
     frame, without pose."""
     from vibrissa.frames import WORLD_FRAME, clamp_frame
-    from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray, encode
+    from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray
+    from vibrissa.msgs.codec import encode
     from vibrissa.reconstruct import reconstruct_si
     from vibrissa.units import RodScale
 
@@ -207,7 +209,8 @@ def _poses(ticks: int, tick_s: float, lead_s: float) -> tuple[list[bytes], np.nd
     due, s on the ticks' clock: ``lead_s`` before its stamp. The robot drives an arc (0.1 m/s,
     0.3 rad/s) and sways, so every lookup interpolates."""
     from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
-    from vibrissa.msgs import RobotPose, encode
+    from vibrissa.msgs import RobotPose
+    from vibrissa.msgs.codec import encode
 
     stamps = np.array([_stamp(j, POSE_PERIOD_S)
                        for j in range(int((ticks - 1) * tick_s / POSE_PERIOD_S) + 2)])

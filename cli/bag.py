@@ -23,12 +23,12 @@ from vibrissa.cli.graph import (
     stop_on_signals,
     take_spilled,
 )
+from vibrissa.formats.scene_file import SceneError, load_robot
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
 from vibrissa.nodes import recorder
 from vibrissa.runtime import Node
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.playback import play_bag_gated
-from vibrissa.runtime.scene_file import SceneError, load_robot
 from vibrissa.wire.bag import BagReader, PlayResult, check_bag_file, export_json, play_bag
 from vibrissa.wire.ros2_bag import WHISKERS_TOPIC, export_ros2, import_ros2, wrench_topics_of
 from vibrissa.wire.transport import Endpoints

@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _terminated(signum: int, _frame: object) -> None:
     """SIGTERM (``kill``, ``timeout``) unwinds the command as Ctrl-C does, so that what it was
-    writing is removed (`vibrissa.runtime.files.whole_file`); status 128 + 15."""
+    writing is removed (`vibrissa.formats.files.whole_file`); status 128 + 15."""
     raise SystemExit(128 + signum)
 
 

@@ -17,9 +17,9 @@ from typing import Any
 from vibrissa import noise_study
 from vibrissa.cli import tables
 from vibrissa.cli.main import EXIT_USAGE
+from vibrissa.formats.csv_text import refuse_overwrite
+from vibrissa.formats.scene_file import SceneError
 from vibrissa.reconstruct import reconstruct
-from vibrissa.runtime.csv_text import refuse_overwrite
-from vibrissa.runtime.scene_file import SceneError
 from vibrissa.status import SweepEnd
 from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
 from vibrissa.surfaces import SPEC_LIMITS, Surface, parse_surface

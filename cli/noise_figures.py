@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from vibrissa.cli import tables
+from vibrissa.formats.csv_text import cell, write_csv
 from vibrissa.noise_study import ErrorStats, NoiseStudyResult
-from vibrissa.runtime.csv_text import cell, write_csv
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

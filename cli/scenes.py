@@ -19,7 +19,7 @@ Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample),
 sample, sample by sample, the input of ``vibrissa reconstruct``) and
 ``DIR/summary.json`` (per whisker: contact episodes, each begun by a ``touch`` or a ``landing``
 after a snap-off, phase changes, samples per phase), by
-`vibrissa.runtime.scene_results`, which reads them back too (the wrench source's ``simulated``).
+`vibrissa.formats.scene_results`, which reads them back too (the wrench source's ``simulated``).
 
 Also Step 2 of such a scene offline: ``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o
 POINTS.csv`` (``WRENCH_COLUMNS`` in, ``POINT_COLUMNS`` out, row for row), e.g. on
@@ -43,9 +43,9 @@ from numpy.typing import NDArray
 
 from vibrissa.cli import tables
 from vibrissa.cli.arg_types import count
-from vibrissa.runtime.csv_text import cells, csv_writer, read_csv, refuse_overwrite
-from vibrissa.runtime.scene_file import SceneError, load_scene, scene_files, shown
-from vibrissa.runtime.scene_results import (
+from vibrissa.formats.csv_text import cells, csv_writer, read_csv, refuse_overwrite
+from vibrissa.formats.scene_file import SceneError, load_scene, scene_files, shown
+from vibrissa.formats.scene_results import (
     SCENE_COLUMNS,
     WRENCH_COLUMNS,
     result_files,

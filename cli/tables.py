@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from vibrissa.formats.csv_text import cell, cells, csv_records, write_csv
+from vibrissa.formats.scene_file import SceneError, shown
 from vibrissa.reconstruct import Reconstruction
-from vibrissa.runtime.csv_text import cell, cells, csv_records, write_csv
-from vibrissa.runtime.scene_file import SceneError, shown
 from vibrissa.status import ContactPhase, ContactStatus
 from vibrissa.sweep import STATE_NAMES, Sweep
 from vibrissa.units import number_text

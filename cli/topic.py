@@ -23,7 +23,8 @@ from vibrissa.cli.graph import (
     stop_on_signals,
     where,
 )
-from vibrissa.msgs import EndOfStream, Message, NodeStatus, to_jsonable
+from vibrissa.msgs import EndOfStream, Message, NodeStatus
+from vibrissa.msgs.codec import to_jsonable
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 from vibrissa.wire.transport import Endpoints, Subscriber
 

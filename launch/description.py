@@ -49,7 +49,7 @@ from typing import Any
 
 import yaml
 
-from vibrissa.runtime import yaml_numbers
+from vibrissa.formats import yaml_numbers
 from vibrissa.runtime.args import expand_home
 from vibrissa.runtime.params import ParamError, check_params, takes_text
 from vibrissa.units import finite_number

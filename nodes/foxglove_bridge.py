@@ -66,6 +66,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from vibrissa.formats.scene_file import load_robot
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform, clamp_frame
 from vibrissa.msgs import (
     ContactCloud,
@@ -82,7 +83,6 @@ from vibrissa.msgs import (
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_parsed, require_positive
-from vibrissa.runtime.scene_file import load_robot
 from vibrissa.wire.bag import BagReader
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 

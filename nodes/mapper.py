@@ -75,6 +75,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from vibrissa.formats.files import whole_file
+from vibrissa.formats.scene_file import LIMITS, load_scene
 from vibrissa.msgs import (
     ContactCloud,
     ContactPoint,
@@ -102,10 +104,8 @@ from vibrissa.nodes.surface_fit import (
     write_ply,
 )
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
-from vibrissa.runtime.files import whole_file
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.scene_file import LIMITS, load_scene
 from vibrissa.runtime.signals import default_actions
 from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
@@ -145,7 +145,7 @@ class MapperParams:
         Surface spec of the one object, units of L, in the points' frame: the frame is that
         object (no clustering); empty: see ``scene``.
     scene
-        Scene file (``vibrissa.runtime.scene_file``): its objects, robot path and whisker
+        Scene file (``vibrissa.formats.scene_file``): its objects, robot path and whisker
         mounts in frame ``world``, for the names of the objects, their errors and the figure;
         empty: the truth is not known. One of ``true_surface`` and ``scene`` at most.
     cluster_eps_m

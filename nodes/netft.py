@@ -42,11 +42,11 @@ import numpy as np
 import numpy.typing as npt
 
 from vibrissa.calibration import sensor_to_clamp
+from vibrissa.formats.scene_file import load_robot
 from vibrissa.frames import Transform, clamp_frame
 from vibrissa.msgs import SensorCommand, WhiskerWrench
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.scene_file import load_robot
 from vibrissa.wire.netft import (
     RDT_PORT,
     Command,

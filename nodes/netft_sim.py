@@ -26,11 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from vibrissa.calibration import clamp_to_sensor
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.scene_results import read_results
 from vibrissa.frames import Transform
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.scene_file import load_scene
-from vibrissa.runtime.scene_results import read_results
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import simulate_sweep
 from vibrissa.units import RodScale

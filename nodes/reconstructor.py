@@ -75,6 +75,7 @@ from vibrissa.contact_detection import (
     ContactDetector,
     wrench_covariance,
 )
+from vibrissa.formats.scene_file import load_robot
 from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform, clamp_frame
 from vibrissa.msgs import (
@@ -87,13 +88,11 @@ from vibrissa.msgs import (
     RobotPose,
     WhiskerWrench,
     WhiskerWrenchArray,
-    decode,
-    encode,
 )
+from vibrissa.msgs.codec import decode, encode
 from vibrissa.reconstruct import TIP_SIGMAS, reconstruct_si
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.scene_file import load_robot
 from vibrissa.scene import Whisker
 from vibrissa.units import RodScale, rod_units
 from vibrissa.wire.topics import resolve_topic, validate_name

@@ -44,6 +44,8 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.scene_results import read_results
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench, WhiskerWrenchArray
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
@@ -54,8 +56,6 @@ from vibrissa.runtime.params import (
     require_positive,
 )
 from vibrissa.runtime.playback import play_bag_gated
-from vibrissa.runtime.scene_file import load_scene
-from vibrissa.runtime.scene_results import read_results
 from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate
 from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
@@ -96,7 +96,7 @@ class WrenchSourceParams:
     simulated
         Mode ``scene``: the output folder (``-o DIR``) of ``vibrissa simulate`` of ``scene``,
         whose ``<whisker>.csv`` files are played (read strictly with
-        `vibrissa.runtime.scene_results.read_results` when the parameters load, and again at
+        `vibrissa.formats.scene_results.read_results` when the parameters load, and again at
         start); empty: simulate on start.
     pose_topic, map_frame, robot_frame
         Mode ``scene``: where the robot's poses go, and the frames they join.

@@ -13,7 +13,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from vibrissa.runtime import yaml_numbers
+from vibrissa.formats import yaml_numbers
 from vibrissa.units import finite_number
 
 # Not msgspec.convert: for a dataclass it ignores unknown keys (strictness is the point here),

@@ -20,6 +20,7 @@ ROOT = Path(__file__).parents[1]
 RANK = {
     "vibrissa": 0,
     "vibrissa.msgs": 1,
+    "vibrissa.formats": 1,
     "vibrissa.wire": 2,
     "vibrissa.runtime": 3,
     "vibrissa.launch": 4,
@@ -36,6 +37,7 @@ LIBRARIES = {
     "vibrissa.msgs": {"msgpack", "msgspec"},
     # rosbags, mcap_ros2: ROS 2 bags without ROS (vibrissa.wire.ros2_bag)
     "vibrissa.wire": {"zmq", "mcap", "zstandard", "rosbags", "mcap_ros2"},
+    "vibrissa.formats": {"yaml"},
     "vibrissa.runtime": {"yaml", "msgspec"},
     "vibrissa.launch": {"yaml", "msgspec"},
     # foxglove: the live view (nodes/foxglove_bridge.py, the optional extra `view`)

@@ -1,7 +1,7 @@
 """ZeroMQ transport: the XSUB/XPUB proxy, publishers and subscribers (see ARCHITECTURE.md).
 
 A message is three frames ``[topic + b"\\0", header, payload]``; the header is msgpack
-``{"pub": <uint64 publisher id>, "seq": <uint64>}`` and the payload ``vibrissa.msgs.encode(msg)``.
+``{"pub": <uint64 publisher id>, "seq": <uint64>}`` and the payload ``vibrissa.msgs.codec.encode(msg)``.
 
 Two paths, each message on exactly one
 --------------------------------------
@@ -49,17 +49,8 @@ from typing import Any, ClassVar, TypeAlias
 import msgpack
 import zmq
 
-from vibrissa.msgs import (
-    DecodeError,
-    EndOfStream,
-    Message,
-    NodeStatus,
-    Ping,
-    decode,
-    encode,
-    payload_limit,
-    peek_type,
-)
+from vibrissa.msgs import EndOfStream, Message, NodeStatus, Ping
+from vibrissa.msgs.codec import DecodeError, decode, encode, payload_limit, peek_type
 from vibrissa.msgs.messages import MAX_PAYLOAD_BYTES
 from vibrissa.wire.inbox import PIPE_HWM, Inbox
 from vibrissa.wire.security import Guard, Keys, KeysError

@@ -11,7 +11,8 @@ import pytest
 import zmq
 
 from vibrissa.cli.main import main as vibrissa_main
-from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench, encode
+from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench
+from vibrissa.msgs.codec import encode
 from vibrissa.nodes.recorder import RecorderParams, RecordResult, record, subscription
 from vibrissa.wire import Endpoints, Publisher, Subscriber
 from vibrissa.wire.bag import BagReader, BagWriter, play_bag

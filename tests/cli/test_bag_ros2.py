@@ -22,6 +22,7 @@ from rosbags.typesys.stores import ros2_jazzy as ros
 
 from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, entries, node, set_param
 from vibrissa.cli.main import main as vibrissa_main
+from vibrissa.formats.scene_file import load_robot, load_scene
 from vibrissa.msgs import (
     ContactPoint,
     ContactPointArray,
@@ -31,10 +32,9 @@ from vibrissa.msgs import (
     WhiskerWrench,
     WhiskerWrenchArray,
     codec,
-    encode,
 )
+from vibrissa.msgs.codec import encode
 from vibrissa.nodes.wrench_source import WrenchSourceParams, scene_stream
-from vibrissa.runtime.scene_file import load_robot, load_scene
 from vibrissa.scene import SamplePhase, reconstruct_along, simulate
 from vibrissa.status import ContactStatus
 from vibrissa.wire.bag import BagReader, BagWriter

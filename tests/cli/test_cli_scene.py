@@ -345,7 +345,7 @@ def test_an_output_never_replaces_an_input(tmp_path: Path, capsys: pytest.Captur
 
 
 def test_the_whiskers_of_a_scene_file_are_the_robot_description(tmp_path: Path) -> None:
-    from vibrissa.runtime.scene_file import SceneError, load_robot
+    from vibrissa.formats.scene_file import SceneError, load_robot
 
     (tmp_path / "scene.yaml").write_text(SCENE)  # its path file need not exist for this
     w0, w1 = load_robot(tmp_path / "scene.yaml")

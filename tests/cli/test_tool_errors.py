@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 from vibrissa.cli.main import main as vibrissa_main
-from vibrissa.msgs import WhiskerWrench, encode
+from vibrissa.msgs import WhiskerWrench
+from vibrissa.msgs.codec import encode
 from vibrissa.wire.bag import BagWriter
 
 

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from vibrissa.runtime.scene_file import load_scene
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.scene import SamplePhase, simulate_whisker
 
 DATA = Path(__file__).parents[1] / "data" / "detachment_inside"

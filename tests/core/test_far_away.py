@@ -12,7 +12,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from vibrissa.runtime.scene_file import load_scene
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.scene import SamplePhase, simulate
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "far_away"

@@ -29,9 +29,9 @@ from scipy.spatial.transform import Rotation
 from tests.core.test_detachment_label import _straight_rod_inside_m
 from tests.core.test_random_scenes_rod import check_against_the_rod
 from vibrissa.cli.main import main
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.scene_results import read_results
 from vibrissa.frames import Transform
-from vibrissa.runtime.scene_file import load_scene
-from vibrissa.runtime.scene_results import read_results
 from vibrissa.scene import RobotPath, SamplePhase, simulate_whisker
 
 DATA = Path(__file__).parents[1] / "data" / "landing"

@@ -22,8 +22,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from tests.core.test_random_scenes import random_scene
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.frames import Transform
-from vibrissa.runtime.scene_file import load_scene
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate_whisker
 
 

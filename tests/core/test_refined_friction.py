@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from tests.core.test_random_scenes_rod import check_against_the_rod
-from vibrissa.runtime.scene_file import load_scene
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate_whisker
 
 DATA = Path(__file__).parents[1] / "data" / "tip_on_ball"

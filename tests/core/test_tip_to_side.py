@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tests.core.test_random_scenes_rod import check_against_the_rod
-from vibrissa.runtime.scene_file import load_scene
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.scene import SamplePhase, simulate_whisker
 
 DATA = Path(__file__).parents[1] / "data" / "tip_to_side"

@@ -13,7 +13,8 @@ import pytest
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.launch.description import check_node_params, load_launch_file
 from vibrissa.launch.launcher import resolve_launch_file
-from vibrissa.msgs import EndOfStream, encode
+from vibrissa.msgs import EndOfStream
+from vibrissa.msgs.codec import encode
 from vibrissa.wire.bag import BagWriter
 
 

@@ -13,7 +13,8 @@ from typing import Any
 
 import yaml
 
-from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench, encode
+from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench
+from vibrissa.msgs.codec import encode
 from vibrissa.nodes.recorder import EndOfStreamTracker
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Header, Publisher, Received, Subscriber
 from vibrissa.wire.bag import BagReader

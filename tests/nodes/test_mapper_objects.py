@@ -18,7 +18,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vibrissa.frames import Transform
-from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream, decode, encode
+from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
+from vibrissa.msgs.codec import decode, encode
 from vibrissa.nodes.map_figure import MAX_NAME_CHARS, MapLayers, MeshLayer, draw_map, plot_map, short_name
 from vibrissa.nodes.mapper import (
     Accumulator,

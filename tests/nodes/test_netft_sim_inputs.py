@@ -17,10 +17,10 @@ import pytest
 from tests.nodes.test_netft_driver import CPF, Watch, driver
 from vibrissa.calibration import clamp_to_sensor, sensor_to_clamp
 from vibrissa.cli.main import main
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.scene_results import read_results
 from vibrissa.msgs import WhiskerWrench
 from vibrissa.nodes.netft_sim import NetFTSimParams, open_device
-from vibrissa.runtime.scene_file import load_scene
-from vibrissa.runtime.scene_results import read_results
 from vibrissa.wire import Endpoints
 
 # A ball passed along -x: `late` is free for its first 110 path samples, `early` touches the

@@ -27,9 +27,8 @@ from vibrissa.msgs import (
     EndOfStream,
     WhiskerWrench,
     WhiskerWrenchArray,
-    decode,
-    encode,
 )
+from vibrissa.msgs.codec import decode, encode
 from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
 from vibrissa.nodes.reconstructor import (
     BatchCollector,

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.msgs import ContactPointArray, RobotPose, WhiskerWrenchArray
 from vibrissa.nodes.reconstructor import RodTable, reconstruct_messages, robot_frames
 from vibrissa.nodes.wrench_source import MAX_POSES, WrenchSourceParams, scene_stream
 from vibrissa.runtime import ParamError, load_params
-from vibrissa.runtime.scene_file import load_scene
 from vibrissa.scene import Scene, WhiskerResult, simulate
 
 # Two different rods pointing to the robot's right (clamp z along the robot's -y), one tilted

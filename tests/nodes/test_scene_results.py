@@ -1,4 +1,4 @@
-"""The results of ``vibrissa simulate`` read back (`vibrissa.runtime.scene_results`) and played
+"""The results of ``vibrissa simulate`` read back (`vibrissa.formats.scene_results`) and played
 by the wrench source's mode ``scene`` with ``simulated``: the arrays bit for bit, the same
 messages as after simulating on start, and one clear error per bad folder (socket-free)."""
 
@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from vibrissa.formats.scene_file import SceneError, load_scene
+from vibrissa.formats.scene_results import read_results, write_results
 from vibrissa.msgs.codec import encode
 from vibrissa.nodes.wrench_source import WrenchSourceParams, run_scene, scene_stream
 from vibrissa.runtime import ParamError, load_params
-from vibrissa.runtime.scene_file import SceneError, load_scene
-from vibrissa.runtime.scene_results import read_results, write_results
 from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate
 
 # A cup the whiskers snap off (the tilted one then lands on it again), and a ball further on

@@ -118,8 +118,8 @@ def test_override_type_error_and_missing_required(tmp_path: Path) -> None:
 
 def test_an_exponent_without_a_decimal_point_is_a_float_in_every_yaml_file(tmp_path) -> None:
     # PyYAML's YAML 1.1 reads "1e-5" as a string; people (and YAML 1.2) mean a number.
-    from vibrissa.runtime import yaml_numbers
-    from vibrissa.runtime.scene_file import load_robot
+    from vibrissa.formats import yaml_numbers
+    from vibrissa.formats.scene_file import load_robot
 
     assert yaml_numbers.load("[1e-5, -2E3, +7e0, 1.5e-3, 1e, e5, 12]") == [
         1e-5, -2000.0, 7.0, 1.5e-3, "1e", "e5", 12]

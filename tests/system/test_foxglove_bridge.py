@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from tests.system.test_system_pipeline import LAUNCH, Launch, entries
-from vibrissa.runtime.scene_file import load_robot
+from vibrissa.formats.scene_file import load_robot
 
 websockets = pytest.importorskip("websockets")
 pytest.importorskip("foxglove")

@@ -102,7 +102,8 @@ def test_a_flood_of_huge_arrays_is_refused_without_filling_memory(tmp_path: Path
     import numpy as np
     import zmq
 
-    from vibrissa.msgs import NodeStatus, WhiskerWrenchArray, encode
+    from vibrissa.msgs import NodeStatus, WhiskerWrenchArray
+    from vibrissa.msgs.codec import encode
     from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Subscriber
 
     context: zmq.Context[Any] = zmq.Context()

@@ -10,8 +10,8 @@ import numpy as np
 
 from tests.system.test_robot_graph import SCENE, _run
 from tests.system.test_system_pipeline import entries, node, set_param
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.msgs import ContactPointArray
-from vibrissa.runtime.scene_file import load_scene
 from vibrissa.scene import SamplePhase, simulate
 from vibrissa.status import ContactStatus
 

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vibrissa.msgs import EndOfStream, Message, WhiskerWrench, WhiskerWrenchArray, encode
+from vibrissa.msgs import EndOfStream, Message, WhiskerWrench, WhiskerWrenchArray
+from vibrissa.msgs.codec import encode
 from vibrissa.runtime import Node
 from vibrissa.wire import Endpoints, Received, Subscriber
 from vibrissa.wire.bag import BagReader, BagWriter

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, entries, node, set_param
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.msgs import ContactPointArray, EndOfStream
 from vibrissa.runtime.node import EXIT_LOST_DATA
-from vibrissa.runtime.scene_file import load_scene
 from vibrissa.scene import SamplePhase, reconstruct_along, simulate
 from vibrissa.status import ContactStatus
 

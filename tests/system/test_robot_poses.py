@@ -12,10 +12,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tests.system.test_system_pipeline import LAUNCH, Launch, Probe, entries, node, set_param
+from vibrissa.formats.scene_file import load_scene
 from vibrissa.frames import clamp_frame
 from vibrissa.msgs import ContactPointArray, RobotPose, WhiskerWrenchArray
 from vibrissa.reconstruct import reconstruct_si
-from vibrissa.runtime.scene_file import load_scene
 
 SCENE = LAUNCH / "robot" / "scene.yaml"
 WRENCH, POSE, CONTACT = "/robot/wrench", "/robot/pose", "/robot/contact"

@@ -36,8 +36,8 @@ from vibrissa.msgs import (
     Ping,
     WhiskerWrench,
     WhiskerWrenchArray,
-    encode,
 )
+from vibrissa.msgs.codec import encode
 from vibrissa.reconstruct import reconstruct
 from vibrissa.runtime import Node
 from vibrissa.runtime.node import EXIT_LOST_DATA

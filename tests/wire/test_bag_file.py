@@ -14,7 +14,8 @@ from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from vibrissa.msgs import EndOfStream, WhiskerWrench, decode, encode, json_schema, to_jsonable
+from vibrissa.msgs import EndOfStream, WhiskerWrench
+from vibrissa.msgs.codec import decode, encode, json_schema, to_jsonable
 from vibrissa.wire.bag import VERSION_KEY, BagDamage, BagReader, BagWriter, export_json
 
 T0_NS = 1_700_000_000_000_000_000

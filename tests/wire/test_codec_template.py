@@ -18,13 +18,11 @@ from vibrissa.msgs import (
     ContactPoint,
     ContactPointArray,
     ContactStatus,
-    DecodeError,
     Message,
     WhiskerWrench,
     WhiskerWrenchArray,
-    decode,
-    encode,
 )
+from vibrissa.msgs.codec import DecodeError, decode, encode
 
 FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 ROWS = 5

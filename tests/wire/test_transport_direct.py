@@ -11,7 +11,8 @@ import msgpack
 import pytest
 import zmq
 
-from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench, encode
+from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench
+from vibrissa.msgs.codec import encode
 from vibrissa.runtime import Node
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Publisher, Subscriber
 

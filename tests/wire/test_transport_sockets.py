@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import zmq
 
-from vibrissa.msgs import ContactCloud, ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench, encode
+from vibrissa.msgs import ContactCloud, ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench
+from vibrissa.msgs.codec import encode
 from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
 from vibrissa.wire.transport import BUFFER_ENV, DEFAULT_MAX_BUFFERED_BYTES, MAX_PUBLISHERS
 

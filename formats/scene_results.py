@@ -5,7 +5,7 @@
 sample, the whiskers in the scene's order), the input of ``vibrissa reconstruct WRENCHES.csv
 --scene SCENE.yaml``.
 
-Floats are written by `vibrissa.runtime.csv_text` (``repr``, NaN as an empty cell), so
+Floats are written by `vibrissa.formats.csv_text` (``repr``, NaN as an empty cell), so
 `read_results` gives back the arrays of `vibrissa.scene.simulate` bit for bit (NaN where they
 were NaN). Reading is strict: every error names the file, and the row and column where there
 is one.
@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from vibrissa.runtime.csv_text import cells, read_csv, write_csv
-from vibrissa.runtime.scene_file import SceneError, check_name
+from vibrissa.formats.csv_text import cells, read_csv, write_csv
+from vibrissa.formats.scene_file import SceneError, check_name
 from vibrissa.scene import EPISODE_STARTS, Episode, SamplePhase, Scene, WhiskerResult
 from vibrissa.status import SweepEnd
 
@@ -168,7 +168,7 @@ def read_results(folder: str | Path, scene: Scene) -> list[WhiskerResult]:
 
 def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
     """One ``<whisker>.csv``; its rows count from 1 after the header, as in the scene's path
-    file (`vibrissa.runtime.scene_file.load_path`)."""
+    file (`vibrissa.formats.scene_file.load_path`)."""
     if not path.is_file():
         raise SceneError(f"{path}: missing: the scene's whisker {name!r} has no results there")
     header, records = read_csv(path, tuple(c for c in SCENE_COLUMNS if c not in _OPTIONAL))

@@ -1,4 +1,4 @@
-"""Output files written whole or not at all (`vibrissa.runtime.files`), through the CSV writer
+"""Output files written whole or not at all (`vibrissa.formats.files`), through the CSV writer
 and the command that streams the most (`vibrissa reconstruct --scene`)."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from vibrissa.runtime.csv_text import csv_writer
-from vibrissa.runtime.files import is_stream, whole_file
+from vibrissa.formats.csv_text import csv_writer
+from vibrissa.formats.files import is_stream, whole_file
 
 ROBOT_SCENE = Path(__file__).parents[2] / "launch" / "robot" / "scene.yaml"
 

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from vibrissa.runtime.files import is_stream, whole_file
-from vibrissa.runtime.scene_file import SceneError
+from vibrissa.formats.files import is_stream, whole_file
+from vibrissa.formats.scene_file import SceneError
 
 
 def cell(value: float) -> str:

@@ -8,7 +8,7 @@ sensor's frame in the clamp frame, identity when left out) and ``path`` (a CSV `
 poses X_WR, relative to the scene file). Its ``whiskers`` are also the robot description the
 nodes load (`load_robot`): one file, one truth.
 
-The YAML is read strictly (`vibrissa.runtime.yaml_numbers.load_strict`: no aliases, no repeated
+The YAML is read strictly (`vibrissa.formats.yaml_numbers.load_strict`: no aliases, no repeated
 keys, only ``true``/``false`` as booleans). Names of whiskers and objects are `NAME_RULE`'s:
 they become file names (``vibrissa simulate``) and frame names (``<whisker>/clamp``). Numbers
 must be within `LIMITS` (a rod of 1e308 m is a typo, and its units overflow).
@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from vibrissa.formats import yaml_numbers
 from vibrissa.frames import Transform, non_unit_quaternion
-from vibrissa.runtime import yaml_numbers
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
 from vibrissa.units import finite_number, number_text
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vibrissa.runtime.csv_text import cell, cells
+from vibrissa.formats.csv_text import cell, cells
 
 
 def test_cells_of_an_array_read_back_exactly_and_agree_with_cell() -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vibrissa.runtime.scene_file import SceneError, load_robot
+from vibrissa.formats.scene_file import SceneError, load_robot
 
 
 def test_robot_description_carries_the_sensor_pose(tmp_path: Path) -> None:

@@ -9,13 +9,13 @@ import csv
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from vibrissa.formats.files import is_stream, whole_file
-from vibrissa.formats.scene_file import SceneError
+from vibrissa.formats.errors import SceneError
+from vibrissa.formats.files import is_stream, open_text, whole_file
 
 
 def cell(value: float) -> str:
@@ -49,6 +49,11 @@ def write_csv(path: Path, columns: Sequence[str], rows: Iterable[Sequence[str]])
         writer.writerows(rows)
 
 
+MAX_LINE_CHARS = 1 << 20
+"""Characters of a CSV line at most (the csv module's fields stop at 128 Ki); only regular files
+are read (`open_text`), so a line without end (``/dev/zero``) never comes."""
+
+
 def csv_records(path: Path) -> Iterator[tuple[int, list[str]]]:
     """Each record of the CSV ``path`` with the file line it starts on (1 for the first); a
     UTF-8 byte order mark (as spreadsheets save) and blank lines are no part of the table.
@@ -61,14 +66,17 @@ def csv_records(path: Path) -> Iterator[tuple[int, list[str]]]:
     """
     record: list[str] = []  # the lines of the record being read
 
-    def lines(handle: Iterable[str]) -> Iterator[str]:
-        for text in handle:
+    def lines(handle: TextIO) -> Iterator[str]:
+        for text in handle:  # a regular file (`open_text`): a line is no longer than it
+            if len(text) > MAX_LINE_CHARS:
+                raise SceneError(f"{path}: line {line + len(record)}: longer than "
+                                 f"{MAX_LINE_CHARS} characters (not a CSV file?)")
             record.append(text)
             yield text
 
     line, header = 1, None
     try:
-        with path.open(newline="", encoding="utf-8-sig") as handle:
+        with open_text(path) as handle:
             reader = csv.reader(lines(handle))
             for row in reader:
                 if row:

@@ -1,13 +1,18 @@
-"""Output files a reader never sees half-written."""
+"""Output files a reader never sees half-written; input files that are regular files, read
+within bounds."""
 
 from __future__ import annotations
 
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TextIO
+
+from vibrissa.formats.errors import SceneError
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)  # read once, at import (setting it is process-wide)
@@ -47,3 +52,43 @@ def is_stream(path: Path) -> bool:
     if absolute.parts[1:2] in (("dev",), ("proc",)):
         return True
     return absolute.exists() and not Path(os.path.realpath(absolute)).is_file()
+
+
+MAX_TEXT_CHARS = 64 << 20
+"""Characters of a YAML file at most: a scene or launch file is a few kB."""
+
+
+def open_text(path: Path) -> TextIO:
+    """``path`` opened to read as UTF-8 text (a byte order mark skipped, newlines kept) if it
+    is a regular file; `SceneError` naming it otherwise (a device such as ``/dev/zero`` or a
+    pipe is read without end or waits for a writer). Opened without blocking so that a pipe
+    is refused at once, then read blocking."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise SceneError(f"{path}: not a regular file")
+        os.set_blocking(fd, True)
+        return open(fd, newline="", encoding="utf-8-sig")  # noqa: SIM115 (the caller closes it)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_text(path: Path, limit: int = MAX_TEXT_CHARS) -> str:
+    """The text of the regular file ``path`` (`open_text`), at most ``limit`` characters;
+    `SceneError` naming the file otherwise, never quoting it."""
+    with open_text(path) as handle:
+        if os.fstat(handle.fileno()).st_size > 4 * limit:  # UTF-8: at most 4 bytes a character
+            raise SceneError(f"{path}: longer than {limit} characters")
+        try:
+            text = handle.read()
+        except UnicodeDecodeError as exc:
+            raise SceneError(f"{path}: not UTF-8 text (byte {exc.start} of a block)") from None
+        except OSError as exc:
+            raise SceneError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(text) > limit:
+        raise SceneError(f"{path}: longer than {limit} characters")
+    return text

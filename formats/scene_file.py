@@ -16,8 +16,8 @@ must be within `LIMITS` (a rod of 1e308 m is a typo, and its units overflow).
 
 from __future__ import annotations
 
-import csv
 import re
+from array import array
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,9 @@ import numpy as np
 import yaml
 
 from vibrissa.formats import yaml_numbers
+from vibrissa.formats.csv_text import csv_records
+from vibrissa.formats.errors import SceneError
+from vibrissa.formats.files import read_text
 from vibrissa.frames import Transform, non_unit_quaternion
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
 from vibrissa.units import finite_number, number_text
@@ -35,6 +38,9 @@ __all__ = ["LIMITS", "NAME_RULE", "SceneError", "check_name", "load_path", "load
 _OBJECT_SIZES = {"sphere": ("radius_m",), "ellipsoid": ("semi_axes_m",),
                  "paraboloid": ("a_per_m", "b_per_m", "h_m")}
 _PATH_COLUMNS = ("t", "x", "y", "z", "qx", "qy", "qz", "qw")
+MAX_PATH_ROWS = 10_000_000
+"""Rows of a path CSV at most (2.8 h at 1 kHz; 640 MB as floats): a file that is not a path,
+or a pipe that never ends, is refused, not read without end."""
 
 NAME_RULE = "1-64 of A-Z a-z 0-9 _ - ., not starting with . or -"
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
@@ -46,11 +52,6 @@ nylon hair is ~1e-9, a 5-mm steel rod ~6); an object's radius and semi-axes, m; 
 curvatures a_per_m, b_per_m, 1/m; any position (objects, mounts, sensors, path, and a
 paraboloid's vertex height h_m), m; the friction coefficient. Within them no unit conversion
 or square overflows."""
-
-
-class SceneError(ValueError):
-    """A scene or path file that cannot be used; the message names the file and the key or
-    row."""
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -65,11 +66,13 @@ def load_scene(path: str | Path) -> Scene:
                     for i, item in enumerate(_list(body.get("objects", []), f"{where}: objects")))
     whiskers = _whiskers(body["whiskers"], where)
     if not isinstance(body["path"], str):
-        raise SceneError(f"{where}: path: expected a file name, got {body['path']!r}")
+        raise SceneError(f"{where}: path: expected a file name, got {shown(body['path'])}")
     try:
-        return Scene(mu, objects, whiskers, load_path(path.parent / body["path"]))
-    except SceneError:
-        raise
+        robot = load_path(path.parent / body["path"])
+    except SceneError as exc:
+        raise SceneError(f"{where}: path: {exc}") from None
+    try:
+        return Scene(mu, objects, whiskers, robot)
     except ValueError as exc:
         raise SceneError(f"{where}: {exc}") from None
 
@@ -93,10 +96,9 @@ def load_robot(path: str | Path) -> tuple[Whisker, ...]:
 
 
 def _read_yaml(path: Path) -> Any:
+    text = read_text(path)  # bounded; its errors name the file
     try:
-        return yaml_numbers.load_strict(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{path}: {exc}") from None
+        return yaml_numbers.load_strict(text)
     except RecursionError:
         raise SceneError(f"{path.name}: nested too deeply") from None
     except yaml.MarkedYAMLError as exc:
@@ -138,29 +140,36 @@ def _whiskers(value: Any, where: str) -> tuple[Whisker, ...]:
 
 
 def load_path(path: Path) -> RobotPath:
-    """Read a path CSV (``t,x,y,z,qx,qy,qz,qw``) into a `RobotPath`."""
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as handle:
-            rows = [row for row in csv.reader(handle) if row]  # blank lines are no rows
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise SceneError(f"{path}: {exc}") from None
-    if not rows or [c.strip() for c in rows[0]] != list(_PATH_COLUMNS):
-        raise SceneError(f"{path.name}: the header must be {','.join(_PATH_COLUMNS)}, got "
-                         f"{','.join(rows[0]) if rows else 'an empty file'}")
-    values = np.empty((len(rows) - 1, 8))
-    for i, row in enumerate(rows[1:]):
+    """Read a path CSV (``t,x,y,z,qx,qy,qz,qw``) into a `RobotPath`, row by row (at most
+    `MAX_PATH_ROWS`); errors name the file, the row and the column, never a cell's text."""
+    records = csv_records(path)
+    first = next(records, None)
+    header = [c.strip() for c in first[1]] if first else []
+    if header != list(_PATH_COLUMNS):
+        missing = [c for c in _PATH_COLUMNS if c not in header]
+        got = ("an empty file" if first is None else
+               f"a first row without {', '.join(missing)}" if missing else
+               f"a first row of {len(header)} cells")
+        raise SceneError(f"{path.name}: the header must be {','.join(_PATH_COLUMNS)}, got {got}")
+    values = array("d")
+    low, high = LIMITS["position_m"]
+    for i, (_, row) in enumerate(records, 1):
+        if i > MAX_PATH_ROWS:
+            raise SceneError(f"{path.name}: more than {MAX_PATH_ROWS} rows")
         if len(row) != 8:
-            raise SceneError(f"{path.name}: row {i + 1}: expected 8 values, got {len(row)}")
-        try:
-            values[i] = [number_text(cell) for cell in row]
-        except ValueError:
-            raise SceneError(f"{path.name}: row {i + 1}: not a number in {row}") from None
-        low, high = LIMITS["position_m"]
-        if not (np.all(np.isfinite(values[i])) and np.all(np.abs(values[i, 1:4]) <= high)):
-            raise SceneError(f"{path.name}: row {i + 1}: values must be finite, positions within "
-                             f"[{low:g}, {high:g}] m, got {row}")
+            raise SceneError(f"{path.name}: row {i}: expected 8 values, got {len(row)}")
+        for column, text in zip(_PATH_COLUMNS, row, strict=True):
+            try:
+                value = number_text(text)
+            except ValueError:
+                raise SceneError(f"{path.name}: row {i}, column {column}: not a number") from None
+            if not (np.isfinite(value) and (column not in "xyz" or abs(value) <= high)):
+                raise SceneError(f"{path.name}: row {i}, column {column}: values must be finite, "
+                                 f"positions within [{low:g}, {high:g}] m, got {value!r}")
+            values.append(value)
+    table = np.frombuffer(values, dtype=float).reshape(-1, 8)
     try:
-        return robot_path(values[:, 0], values[:, 1:4], values[:, 4:8])
+        return robot_path(table[:, 0], table[:, 1:4], table[:, 4:8])
     except ValueError as exc:
         raise SceneError(f"{path.name}: {exc}") from None
 

@@ -182,7 +182,7 @@ def test_a_bad_scene_is_one_line_naming_file_and_key(tmp_path: Path, capsys: pyt
     (5, "0.04,0.1,0,0,0,0,0.5,0.9", "path.csv: row 5: quaternion"),
     (3, "0.0,0.1,0,0,0,0,0,1", "path times must increase strictly (row 3)"),
     (2, "0.01,0.1,0,0,0,0,0", "path.csv: row 2: expected 8 values, got 7"),
-    (4, "0.03,abc,0,0,0,0,0,1", "path.csv: row 4: not a number"),
+    (4, "0.03,abc,0,0,0,0,0,1", "path.csv: row 4, column x: not a number"),
     (5, "0.04,0.1,0,0,0,0,1e308,1e308",
      "path.csv: row 5: quaternion [0.0, 0.0, 1e+308, 1e+308] is not a unit quaternion (norm inf)"),
 ])

@@ -1,4 +1,4 @@
-"""Argparse types the commands share: a duration, a count; and their parser."""
+"""Argparse types the commands share: a duration, a count, a folder; and their parser."""
 
 from __future__ import annotations
 
@@ -38,3 +38,11 @@ def count(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
     return value
+
+
+def folder(text: str) -> str:
+    """Argparse type: a folder's name, not empty (an empty ``--keys ''`` is a mistake, not
+    "no keys")."""
+    if not text:
+        raise argparse.ArgumentTypeError("expected a folder, got an empty name")
+    return text

@@ -8,6 +8,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from vibrissa.cli.arg_types import folder
 from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire.security import KEYS_ENV, Keys
 from vibrissa.wire.topics import validate_name
@@ -27,7 +28,7 @@ def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
                         help="proxy endpoint publishers connect to (XSUB), over --domain")
     parser.add_argument("--sub", metavar="ENDPOINT",
                         help="proxy endpoint subscribers connect to (XPUB), over --domain")
-    parser.add_argument("--keys", metavar="DIR",
+    parser.add_argument("--keys", metavar="DIR", type=folder,
                         help=f"CURVE keys of a graph launched with keys (default: ${KEYS_ENV})")
 
 

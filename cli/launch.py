@@ -9,7 +9,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from vibrissa.cli.arg_types import Parser, seconds
+from vibrissa.cli.arg_types import Parser, folder, seconds
 from vibrissa.cli.graph import domain_id
 from vibrissa.cli.main import parse_command_line
 from vibrissa.launch.description import (
@@ -97,7 +97,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--domain", type=domain_id, metavar="N",
                         help=f"run the graph on domain N (default: ${DOMAIN_ENV}, else 0, "
                              "else the next free one); the tools take the same --domain")
-    parser.add_argument("--keys", metavar="DIR",
+    parser.add_argument("--keys", metavar="DIR", type=folder,
                         help="encrypt and authenticate every socket with the CURVE keys of DIR "
                              f"(`vibrissa keys DIR`; default: ${KEYS_ENV}, else the file's "
                              "transport.keys, else none)")

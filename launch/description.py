@@ -272,6 +272,11 @@ def _load_yaml(text: str, source: str) -> Any:
 # Parsing helpers
 
 
+def _folder_name(value: str) -> None:
+    if not value:
+        raise ValueError("an empty folder name (leave the key out for a graph without keys)")
+
+
 def _show(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
@@ -448,7 +453,7 @@ class _Parser:
         body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint", "keys",
                                               "max_message_bytes", "max_buffered_bytes"))
         common = TransportSpec(
-            keys=self.string(body["keys"], f"{path}.keys") if "keys" in body else None,
+            keys=self.string(body["keys"], f"{path}.keys", _folder_name) if "keys" in body else None,
             max_message_bytes=self.integer(body.get("max_message_bytes",
                                                     DEFAULT_MAX_MESSAGE_BYTES),
                                            f"{path}.max_message_bytes", 1024),

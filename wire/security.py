@@ -8,8 +8,11 @@ A key folder (``vibrissa keys DIR``) holds::
     clients/NAME/                 what a client NAME needs: graph.key, NAME.key, NAME.key_secret
 
 A process whose folder holds ``graph.key_secret`` is a member of the graph (it may bind);
-a client folder holds exactly one other secret, its own, and connects only. Secret files must
-be readable by their owner alone (0600), as ssh asks of its keys.
+a client folder holds exactly one other secret, its own, and connects only. As ssh asks of its
+keys, everything that decides who is let in (the folder, ``authorized/``, every key file) must
+be the user's own and writable by nobody else, and secret files readable by the user alone
+(0600): a folder another local user made or may write is refused, since they could put their
+own key in it.
 
 With keys, every socket speaks CURVE (encrypted, each peer proves its key). A bound socket asks
 the process's `Guard` (ZeroMQ's ZAP handler, RFC 27) about each client key: allowed are the
@@ -84,9 +87,13 @@ class Keys:
     @classmethod
     def load(cls, folder: str | os.PathLike[str]) -> Keys:
         """The keys of a folder made by `create_keys` (the graph's or a client's)."""
+        if not os.fspath(folder):
+            raise KeysError("the key folder is an empty name (leave it out for a graph "
+                            "without keys)")
         root = Path(folder).absolute()  # handed to children, whatever their working folder
         if not root.is_dir():
             raise KeysError(f"key folder {root} does not exist (make one: vibrissa keys {root})")
+        _check_own(root)
         secrets = sorted(root.glob("*.key_secret"))
         if (root / f"{GRAPH_KEY}.key_secret").exists():
             name = GRAPH_KEY
@@ -101,11 +108,7 @@ class Keys:
         allowed = {server_public}
         authorized = root / "authorized"
         if authorized.is_dir():
-            mode = authorized.stat().st_mode
-            if mode & 0o022:
-                raise KeysError(f"{authorized} may be written by others (mode "
-                                f"{stat.S_IMODE(mode):04o}), who could let themselves in: "
-                                f"chmod 700 {authorized}")
+            _check_own(authorized)
             allowed |= {_read_key(path)[0] for path in sorted(authorized.glob("*.key"))}
         return cls(root, name, public, secret, server_public, frozenset(allowed))
 
@@ -136,7 +139,23 @@ class Keys:
         sock.setsockopt(zmq.ZAP_ENFORCE_DOMAIN, 1)
 
 
+def _check_own(path: Path) -> None:
+    """`KeysError` unless ``path`` is the user's own and nobody else may write it (a key put
+    there by another user would let them in)."""
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise KeysError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if st.st_uid != os.geteuid():
+        raise KeysError(f"{path} belongs to user id {st.st_uid}, not to you ({os.geteuid()}): "
+                        f"keys must be yours and private")
+    if st.st_mode & 0o022:
+        raise KeysError(f"{path} may be written by others (mode {stat.S_IMODE(st.st_mode):04o}), "
+                        f"who could let themselves in: chmod go-w {path}")
+
+
 def _read_key(path: Path) -> tuple[bytes, bytes | None]:
+    _check_own(path)
     try:
         public, secret = zmq.auth.load_certificate(path)
     except (OSError, ValueError) as exc:
@@ -163,15 +182,21 @@ def create_keys(folder: str | os.PathLike[str], clients: tuple[str, ...] = ()) -
     client not there yet; returns the files written. Secrets are 0600 from the start: each
     pair is made in a private temporary folder and moved in."""
     root = Path(folder)
-    root.mkdir(mode=0o700, parents=True, exist_ok=True)
-    written: list[Path] = []
-    if not (root / f"{GRAPH_KEY}.key_secret").exists():
-        written += _new_pair(root, GRAPH_KEY)
+    if not os.fspath(folder):
+        raise KeysError("the key folder is an empty name")
     for name in clients:
         if not name.isidentifier():
             raise KeysError(f"client name {name!r}: use letters, digits and _")
         if name == GRAPH_KEY:
             raise KeysError(f"{GRAPH_KEY!r} is the graph's own key, not a client's")
+    root.mkdir(mode=0o700, parents=True, exist_ok=True)
+    for made in (root, root / "authorized", root / "clients"):
+        if made.exists():
+            _check_own(made)  # before anything is written into it
+    written: list[Path] = []
+    if not (root / f"{GRAPH_KEY}.key_secret").exists():
+        written += _new_pair(root, GRAPH_KEY)
+    for name in clients:
         home = root / "clients" / name
         if home.exists():
             continue

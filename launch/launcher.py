@@ -14,8 +14,10 @@ launch does, so the graph stops in the time of its slowest node, not in the sum 
 each, in reverse start order, has its grace period, SIGTERM, a grace period, SIGKILL.
 
 Nodes die with their launcher: each child asks the kernel for a SIGTERM when the launcher
-dies (``PR_SET_PDEATHSIG``), so a SIGKILLed launcher leaves no node behind; the temporary
-parameter folder of a launcher that died is removed by the next launch.
+dies (``PR_SET_PDEATHSIG``), so a SIGKILLed launcher leaves no node behind; a node busy
+computing that does not end by itself is ended `vibrissa.runtime.signals.ORPHAN_GRACE_S` later
+by an alarm. The temporary parameter folder of a launcher that died is removed by the next
+launch.
 
 The launcher listens to the nodes' statuses: the summary gives, per node, what it published
 and received (all its starts together) and what it lost or refused, and names every node whose

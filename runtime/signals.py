@@ -3,10 +3,17 @@
 A handler only records (calls ``on_signal(signum)``): whoever installed it acts in its own loop,
 since a handler runs between any two bytecodes and must not take locks. Handlers can only be
 installed from the main thread; elsewhere installing is a no-op.
+
+An orphan ends whatever it is doing: a SIGTERM that comes when the parent is gone (the
+launcher's death signal, ``PR_SET_PDEATHSIG``, after a SIGKILL of the launcher) also arms an
+alarm whose default action ends the process `ORPHAN_GRACE_S` later, if its own loop has not
+ended it by then (a node busy computing a long sweep does not look at its stop flag). The
+kernel delivers the alarm, so no lock is taken and no Python code must run.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 import types
@@ -15,6 +22,9 @@ from contextlib import contextmanager
 from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+ORPHAN_GRACE_S = 5
+"""Seconds an orphaned process has, after its SIGTERM, to end by itself (a recorder closes its
+bag in well under one)."""
 
 
 class SignalHandlers:
@@ -26,6 +36,7 @@ class SignalHandlers:
         self._on_signal = on_signal
         self._signums = tuple(signums)
         self._previous: dict[int, Any] = {}  # what signal.signal returned
+        self._parent = os.getppid()
 
     def install(self) -> None:
         """Install the handlers (main thread only; a no-op elsewhere)."""
@@ -39,6 +50,9 @@ class SignalHandlers:
         self._previous.clear()
 
     def _handle(self, signum: int, frame: types.FrameType | None) -> None:
+        if signum == signal.SIGTERM and os.getppid() != self._parent:  # orphaned
+            signal.signal(signal.SIGALRM, signal.SIG_DFL)
+            signal.alarm(ORPHAN_GRACE_S)
         self._on_signal(signum)
 
     def __enter__(self) -> SignalHandlers:

@@ -272,6 +272,10 @@ def _load_yaml(text: str, source: str) -> Any:
 # Parsing helpers
 
 
+MAX_RESPAWN_DELAY_S = 3600.0
+"""A respawn waits at most an hour: a longer delay is a typo (1e300 s would hang the launch)."""
+
+
 def _folder_name(value: str) -> None:
     if not value:
         raise ValueError("an empty folder name (leave the key out for a graph without keys)")
@@ -410,12 +414,15 @@ class _Parser:
             raise self.error(path, f"expected bool, got {_show(value)}")
         return value
 
-    def number(self, value: Any, path: str, minimum: float = 0.0) -> float:
+    def number(self, value: Any, path: str, minimum: float = 0.0,
+               maximum: float | None = None) -> float:
         value = self.retyped(value, path)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(path, f"expected a number, got {_show(value)}")
         if not (finite_number(value) and value >= minimum):
             raise self.error(path, f"expected a finite number >= {minimum:g}, got {_show(value)}")
+        if maximum is not None and value > maximum:
+            raise self.error(path, f"expected at most {maximum:g}, got {_show(value)}")
         return float(value)
 
     def integer(self, value: Any, path: str, minimum: int, maximum: int | None = None) -> int:
@@ -579,7 +586,8 @@ class _Parser:
             env.append((ename, self.text(item["value"], f"{where}.value")))
 
         respawn = self.boolean(body.get("respawn", False), f"{path}.respawn")
-        respawn_delay = self.number(body.get("respawn_delay", 0.0), f"{path}.respawn_delay")
+        respawn_delay = self.number(body.get("respawn_delay", 0.0), f"{path}.respawn_delay",
+                                    maximum=MAX_RESPAWN_DELAY_S)
         respawn_max = None
         if "respawn_max" in body:
             respawn_max = self.integer(body["respawn_max"], f"{path}.respawn_max", 0)

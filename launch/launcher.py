@@ -104,6 +104,7 @@ class NodeOutcome:
     returncode: int | None = None
     failed: bool = False
     stopped_by_launcher: bool = False
+    lost_data: bool = False  # it exited EXIT_LOST_DATA: done, its input incomplete
     note: str = ""
 
     def describe(self) -> str:
@@ -112,6 +113,19 @@ class NodeOutcome:
             return self.note
         text = _describe_returncode(self.returncode)
         return f"stopped by launcher ({text})" if self.stopped_by_launcher else text
+
+
+ANSWERS = (2, 3, EXIT_LOST_DATA)
+"""Exit statuses that are a node's answer, not a crash: 2 refused input or parameters, 3
+nothing to do (a mapper without points), `EXIT_LOST_DATA` done with incomplete input. A new
+start would only repeat them (or wait for streams that ended), so they are never respawned."""
+
+
+def _crashed(rc: int | None, early: bool) -> bool:
+    """Whether an exit is a crash, which a respawn may mend: any status but 0 and `ANSWERS`
+    (killed by a signal, an error, not started), or a required node's exit 0 while the graph
+    runs."""
+    return early or rc not in (0, *ANSWERS)
 
 
 def _what_happened(rc: int | None) -> str:
@@ -440,8 +454,10 @@ class Launcher:
             return
         early = (rc == 0 and spec.required and not spec.finite and spec.on_exit != "shutdown"
                  and any(other.state != "done" for other in self.nodes if other is not node))
-        if rc == 0 and not early:
-            self.out.log(f"'{spec.name}' finished (exit 0)")
+        if (rc == 0 and not early) or rc == EXIT_LOST_DATA:
+            outcome.lost_data = rc == EXIT_LOST_DATA
+            self.out.log(f"'{spec.name}' finished (exit {rc}"
+                         f"{': its input did not arrive in full' if outcome.lost_data else ''})")
             if spec.on_exit == "shutdown":
                 self.out.log(f"'{spec.name}' has on_exit: shutdown; shutting down")
                 self._shutting_down = True
@@ -450,7 +466,8 @@ class Launcher:
         # whatever its exit status, unless its work ends by itself (finite: true).
         what = note or ("ended (exit 0) while the graph still runs (a node whose work ends "
                         "by itself is marked finite: true)" if early else _what_happened(rc))
-        if spec.respawn and (spec.respawn_max is None or outcome.respawns < spec.respawn_max):
+        if (spec.respawn and _crashed(rc, early)
+                and (spec.respawn_max is None or outcome.respawns < spec.respawn_max)):
             node.state = "waiting"
             node.respawn_at = time.monotonic() + spec.respawn_delay
             cap = f"/{spec.respawn_max}" if spec.respawn_max is not None else ""
@@ -459,7 +476,8 @@ class Launcher:
             return
         outcome.failed = True
         outcome.note = note
-        exhausted = " (respawn limit reached)" if spec.respawn else ""
+        exhausted = ("" if not spec.respawn else " (respawn limit reached)" if _crashed(rc, early)
+                     else f" (not respawned: exit {rc} is the node's answer)")
         if spec.required or spec.on_exit == "shutdown":
             why = "required node" if spec.required else "node with on_exit: shutdown"
             self._failure = f"{why} '{spec.name}' {what}{exhausted}"
@@ -563,7 +581,12 @@ class Launcher:
             return 1
         if self._signals:
             return 128 + self._signals[0]
-        if not all(allowed for allowed, _ in shortfalls):
+        lossy = [node.spec.name for node in self.nodes
+                 if node.outcome.lost_data and not node.spec.allow_loss]
+        if lossy:
+            self.out.log(f"node(s) {', '.join(lossy)} ended with exit {EXIT_LOST_DATA}: their "
+                         f"input did not arrive in full")
+        if lossy or not all(allowed for allowed, _ in shortfalls):
             self.out.log("launch finished, but data were lost (allow_loss: true on the node "
                          "accepts that)")
             return EXIT_LOST_DATA

@@ -237,13 +237,13 @@ def test_respawn_limit_then_required_failure(tmp_path: Path) -> None:
 
 
 def test_failure_of_optional_node_lets_others_finish(tmp_path: Path) -> None:
-    crasher = fixture_node("crasher", "crasher", exit_code=4)
+    crasher = fixture_node("crasher", "crasher", exit_code=5)
     sleeper = fixture_node("sleeper", "sleeper", seconds=0.5)
     missing = {"cmd": [str(tmp_path / "no-such-program")], "name": "missing"}
     rc, out, err = launch(write_launch(tmp_path, crasher, sleeper, missing))
     assert rc == 1
     assert "[sleeper] sleeper done" in out
-    assert "'crasher' exited with code 4; not required, continuing" in err
+    assert "'crasher' exited with code 5; not required, continuing" in err
     assert "'missing' could not start: [Errno 2]" in err
     assert err.strip().splitlines()[-1].startswith("[launch] launch failed: node 'crasher'")
 

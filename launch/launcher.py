@@ -156,6 +156,8 @@ class _Running:
     readers: list[threading.Thread] = field(default_factory=list)
     state: str = "pending"  # pending | running | waiting (respawn) | done
     respawn_at: float = 0.0
+    heard_at: float | None = None  # monotonic time of the current start's first status
+    ended_at: float | None = None  # monotonic time it was last seen done
 
 
 def node_command(spec: NodeSpec, params_file: str | None, python: str = sys.executable
@@ -269,6 +271,7 @@ class Launcher:
         self._env: dict[str, str] = {}
         self._params_dir: str | None = None
         self._statuses: Subscriber | None = None
+        self._stranded: list[str] = []  # nodes whose input can no longer arrive, and why
         self.traffic = Traffic()
 
     # -- the run -------------------------------------------------------------------------------
@@ -383,6 +386,38 @@ class Launcher:
             if all(node.state == "done" for node in self.nodes):
                 return
             self._collect_statuses(_POLL_S)
+            self._end_stranded()
+
+    def _end_stranded(self) -> None:
+        """Shut the graph down when a running node waits for input that can no longer arrive:
+        every node publishing a topic it takes is done, and one of them ended before this
+        start of the node was heard (its EndOfStream went out before the node listened) or
+        crashed (no EndOfStream went out)."""
+        for node in self.nodes:
+            if node.state != "running" or node.heard_at is None:
+                continue
+            inputs = self.traffic.subscribes(node.spec.fqn)
+            producers = [other for other in self.nodes if other is not node
+                         and self.traffic.publishes(other.spec.fqn) & inputs]
+            if not producers or any(other.state != "done" for other in producers):
+                continue
+            heard = node.heard_at
+            early = {other.spec.name: "ended before it listened" for other in producers
+                     if other.ended_at is not None and other.ended_at < heard}
+            crashed = {other.spec.name: _what_happened(other.outcome.returncode)
+                       for other in producers if _crashed(other.outcome.returncode, False)}
+            gone = {**crashed, **early}
+            if not gone:
+                continue
+            sent = sum((self.traffic.of(p.spec.fqn) or {}).get("published", 0) for p in producers)
+            got = (self.traffic.of(node.spec.fqn) or {}).get("received", 0)
+            why = ", ".join(f"'{name}' {what}" for name, what in gone.items())
+            self._stranded.append(f"'{node.spec.name}' waits for input that can no longer "
+                                  f"arrive ({why}): it received {got} of the {sent} message(s) "
+                                  f"its inputs' publishers sent")
+            self.out.log(f"{self._stranded[-1]}; shutting down")
+            self._shutting_down = True
+            return
 
     def _check_signals(self) -> bool:
         if not self._signals:
@@ -414,6 +449,7 @@ class Launcher:
             return
         node.proc = proc
         node.state = "running"
+        node.heard_at = None
         prefix = f"[{spec.name}] "
         node.readers = []
         for pipe, stream in ((proc.stdout, self.out.stdout), (proc.stderr, self.out.stderr)):
@@ -450,6 +486,7 @@ class Launcher:
         spec, outcome = node.spec, node.outcome
         outcome.returncode = rc
         node.state = "done"
+        node.ended_at = time.monotonic()
         if self._shutting_down:
             return
         early = (rc == 0 and spec.required and not spec.finite and spec.on_exit != "shutdown"
@@ -542,6 +579,9 @@ class Launcher:
         while rx is not None:
             if isinstance(rx.msg, NodeStatus):
                 self.traffic.add(rx.msg)
+                for node in self.nodes:
+                    if node.spec.fqn == rx.msg.node and node.state == "running":
+                        node.heard_at = node.heard_at or time.monotonic()
             rx = self._statuses.receive(0.0)
 
     def _finish(self) -> int:
@@ -579,6 +619,9 @@ class Launcher:
             names = ", ".join(f"'{o.name}' ({o.describe()})" for o in failed)
             self.out.log(f"launch failed: node {names}")
             return 1
+        if self._stranded:
+            self.out.log("data did not arrive in full: " + "; ".join(self._stranded))
+            return EXIT_LOST_DATA
         if self._signals:
             return 128 + self._signals[0]
         lossy = [node.spec.name for node in self.nodes
@@ -603,9 +646,13 @@ class Traffic:
     def __init__(self) -> None:
         self._banked: dict[str, dict[str, int]] = {}
         self._current: dict[str, dict[str, int]] = {}
+        self._topics: dict[str, tuple[set[str], set[str]]] = {}  # fqn -> published, taken
 
     def add(self, status: NodeStatus) -> None:
         """Take a node's status."""
+        published, taken = self._topics.setdefault(status.node, (set(), set()))
+        published.update(status.publishes)
+        taken.update(status.subscribes)
         counts = {key: int(status.counters.get(key, 0)) for key in self.KEYS}
         current = self._current.get(status.node)
         if current is not None and (counts["published"] < current["published"]
@@ -614,6 +661,14 @@ class Traffic:
             for key in self.KEYS:  # a new start: what the last one moved stays counted
                 banked[key] += current[key]
         self._current[status.node] = counts
+
+    def publishes(self, fqn: str) -> set[str]:
+        """The topics the node said it publishes, in any of its starts."""
+        return self._topics.get(fqn, (set(), set()))[0]
+
+    def subscribes(self, fqn: str) -> set[str]:
+        """The topics the node said it takes, in any of its starts."""
+        return self._topics.get(fqn, (set(), set()))[1]
 
     def of(self, fqn: str) -> dict[str, int] | None:
         """The node's totals, or None if it never reported."""

@@ -1,0 +1,63 @@
+"""A launch whose data can no longer arrive ends by itself and says what was lost: the demo's
+reconstructor killed late in the stream and respawned after the wrench source has sent its
+EndOfStream and ended (real processes)."""
+
+from __future__ import annotations
+
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from vibrissa.runtime.node import EXIT_LOST_DATA
+
+DEMO = Path(__file__).parents[2] / "launch" / "demo.yaml"
+DEADLINE_S = 300.0  # generous: the demo takes 10-20 s idle, minutes at load 20
+
+
+def test_a_node_respawned_after_its_input_ended_ends_the_launch_with_the_loss(tmp_path: Path) -> None:
+    launch_file = tmp_path / "demo.yaml"
+    launch_file.write_text(DEMO.read_text().replace(
+        '      respawn: "$(var respawn)"\n', "      respawn: true\n      respawn_delay: 20\n"))
+    assert "respawn_delay: 20" in launch_file.read_text()
+    proc = subprocess.Popen([sys.executable, "-m", "vibrissa.cli.launch", str(launch_file),
+                             "rate:=1000", f"out:={tmp_path / 'out'}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    lines: queue.Queue[str | None] = queue.Queue()
+
+    def read() -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            lines.put(line)
+        lines.put(None)
+
+    threading.Thread(target=read, daemon=True).start()
+    deadline = time.monotonic() + DEADLINE_S
+    seen: list[str] = []
+    reconstructor, killed = None, False
+    try:
+        while (line := lines.get(timeout=max(0.1, deadline - time.monotonic()))) is not None:
+            seen.append(line)
+            started = re.search(r"started 'reconstructor' \(pid (\d+)\)", line)
+            reconstructor = int(started.group(1)) if started else reconstructor
+            published = re.search(r"wrench_source.*?(\d+) published", line)
+            if not killed and published and int(published.group(1)) >= 5000:
+                assert reconstructor is not None
+                subprocess.run(["kill", "-9", str(reconstructor)], check=True)
+                killed = True
+        rc = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+    err = "".join(seen)
+    assert killed, err
+    assert rc == EXIT_LOST_DATA, err
+    assert "data did not arrive in full" in err
+    summary = re.search(r"reconstructor .* received (\d+)", err)
+    source = re.search(r"wrench_source .* published (\d+)", err)
+    assert summary and source and int(summary.group(1)) < int(source.group(1)), err

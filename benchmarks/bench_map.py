@@ -1,12 +1,12 @@
 """Map benchmark: three surface estimates of the same whisker contact clouds, against the truth.
 
 Methods, each on the same cloud (points in line order, normals from the contact forces as the
-mapper takes them: ``vibrissa.nodes.surface_fit.contact_normals``):
+mapper takes them: ``vibrissa.mapping.contact_normals``):
 
 * ``poisson``: the mapper's former mesh, ``fit_surface`` here (Open3D screened Poisson,
   depth 8, one thread, trimmed to 0.6 line spacings of the data). The baseline of every ratio.
-* ``gp``: the Gaussian-process implicit surface, ``vibrissa.gp_surface.fit`` and ``mesh`` on the
-  mapper's box and grid (``MapParams``: the points' box grown by 0.2 of its diagonal, 64 cells
+* ``gp``: the Gaussian-process implicit surface, ``vibrissa.mapping.gp_surface.fit`` and ``mesh`` on
+  the mapper's box and grid (``MapSettings``: the points' box grown by 0.2 of its diagonal, 64 cells
   along its longest side). What it shows is its *known* triangles; the rest is unknown.
 * ``rbf``: the classic RBF implicit surface (Carr et al. 2001): ``scipy.interpolate.
   RBFInterpolator`` (thin-plate spline r^2 log r, degree-1 polynomial, interpolating) of f = 0
@@ -23,7 +23,7 @@ Columns (errors in mm; L = 1 m, so the clouds are in m):
 * The *touched region*: where the object was touched and between its lines: points on the
   touching side of the true object (its outward normal at the closest point has a positive
   component along the cloud's mean normal) whose projection along the mean normal falls in the
-  2-D convex hull of the projected contact points (as in tests/core/test_gp_surface.py).
+  2-D convex hull of the projected contact points (as in tests/mapping/test_gp_surface.py).
 * ``max``, ``mean``: |signed distance| to the true surface of the shown mesh vertices in the
   touched region.
 * ``cover %``: share of the touched region the shown mesh covers: a grid of ``cell`` / 2 over
@@ -67,10 +67,10 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from scipy.spatial import Delaunay, cKDTree  # noqa: E402
 
-from vibrissa import gp_surface  # noqa: E402
-from vibrissa.nodes.surface_fit import (  # noqa: E402
-    MapParams,
+from vibrissa.mapping import (  # noqa: E402
+    MapSettings,
     contact_normals,
+    gp_surface,
     line_spacing,
     too_little_for_a_surface,
 )
@@ -94,7 +94,7 @@ DEFAULT_CLOUDS = ("demo", "sphere", "line", "ellipsoid")
 METHODS = ("poisson", "gp", "rbf")
 MU = 0.2
 STEP = 0.001
-MAP = MapParams()  # the mapper's box and grid
+MAP = MapSettings()  # the mapper's box and grid
 RBF_OFFSET = 0.01
 """Carr et al.'s off-surface offset delta, as a fraction of the cloud's radius."""
 
@@ -132,7 +132,7 @@ def make_cloud(name: str) -> Cloud:
 
 
 def box(points: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """The mapper's meshing box of a cloud (``MapParams.margin``)."""
+    """The mapper's meshing box of a cloud (``MapSettings.margin``)."""
     pad = MAP.margin * float(np.linalg.norm(np.ptp(points, axis=0)))
     return points.min(axis=0) - pad, points.max(axis=0) + pad
 

@@ -1,8 +1,8 @@
 """Do the mapper's next-sweep proposals cut the map's error more than evenly spaced trails?
 
 On the demo object (the paper's paraboloid, L = 1 m, mu 0.2, step 0.001), from several sets
-of trails already swept: fit the map (``vibrissa.gp_surface``), take its three proposals
-(``vibrissa.next_sweep``), sweep them (Step 1), refit, and measure the largest error of the
+of trails already swept: fit the map (``vibrissa.mapping.gp_surface``), take its three proposals
+(``vibrissa.mapping.next_sweep``), sweep them (Step 1), refit, and measure the largest error of the
 map over the reachable surface; do the same with three trails evenly spaced over the same
 range. The reachable surface: the true paraboloid's points whose y lies in the range the first
 contacts span and whose z is at most the highest contact (the rod's reach). The error at a true
@@ -18,9 +18,8 @@ import time
 
 import numpy as np
 
-from vibrissa import Trail, gp_surface, parse_surface, simulate_sweeps
-from vibrissa.next_sweep import propose_sections
-from vibrissa.nodes.surface_fit import contact_normals
+from vibrissa import Trail, parse_surface, simulate_sweeps
+from vibrissa.mapping import contact_normals, gp_surface, propose_sections
 from vibrissa.sweep import contact_lines
 
 SPEC = "paraboloid:a=0.5,b=1,h=0.4"

@@ -240,32 +240,33 @@ def _study(args: argparse.Namespace) -> int:
     print(f"study: Step 1 + Step 2 in {result.elapsed_s:.1f} s, max reconstruction error "
           f"{worst} -> {out / 'summary.json'}", file=sys.stderr)
     if not args.no_figures:
-        from vibrissa.cli import figures  # matplotlib only when drawing
+        from vibrissa.figures import paper  # matplotlib only when drawing
 
         start = time.perf_counter()
-        paths = figures.paper_figures(result, out)
+        paths = paper.paper_figures(result, out)
         print(f"study: {len(paths)} figures in {time.perf_counter() - start:.1f} s -> {out}",
               file=sys.stderr)
     return 0
 
 
 def _noise_study(args: argparse.Namespace) -> int:
-    from vibrissa.cli import noise_figures  # matplotlib only when drawing
+    from vibrissa.cli import noise_files
+    from vibrissa.figures import noise  # matplotlib only when drawing
 
     out: Path = args.output
     rod = RodScale(args.rod_length_m or noise_study.ROD_LENGTH_M,
                    args.rod_ei_nm2 or noise_study.ROD_EI_NM2)
     result = noise_study.run_noise_study(rod, step=args.step, progress=_Progress())
-    noise_figures.write_noise_study(out, result)
+    noise_files.write_noise_study(out, result)
     tangential = [row.stats for row in result.noise if row.stats.phase == "tangential"]
     print(f"study: noise: Step 1 + Step 2 in {result.elapsed_s:.1f} s, {len(result.samples)} "
-          f"contact samples, rod {noise_figures.rod_label(result)}; tangential median error "
+          f"contact samples, rod {noise.rod_label(result)}; tangential median error "
           f"{tangential[0].error_median_mm:.3g} mm at noise {result.noise[0].noise_fraction:g} "
           f"to {tangential[-1].error_median_mm:.3g} mm at {result.noise[-1].noise_fraction:g} "
           f"-> {out / 'summary.json'}", file=sys.stderr)
     if not args.no_figures:
         start = time.perf_counter()
-        paths = noise_figures.noise_figures(result, out)
+        paths = noise.noise_figures(result, out)
         print(f"study: {len(paths)} figures in {time.perf_counter() - start:.1f} s -> {out}",
               file=sys.stderr)
     return 0

@@ -8,6 +8,7 @@ the core imports no I/O library. Every ``import`` statement counts, also one ins
 from __future__ import annotations
 
 import ast
+import subprocess
 import sys
 from pathlib import Path
 
@@ -21,7 +22,9 @@ RANK = {
     "vibrissa": 0,
     "vibrissa.msgs": 1,
     "vibrissa.formats": 1,
+    "vibrissa.mapping": 1,
     "vibrissa.wire": 2,
+    "vibrissa.figures": 2,
     "vibrissa.runtime": 3,
     "vibrissa.launch": 4,
     "vibrissa.nodes": 4,
@@ -32,17 +35,20 @@ RANK = {
 # Third-party libraries each layer may import besides those of the layers below it (the
 # standard library is always allowed).
 LIBRARIES = {
-    # skimage: marching cubes, threadpoolctl: one BLAS thread (vibrissa.gp_surface)
-    "vibrissa": {"numpy", "scipy", "numba", "skimage", "threadpoolctl"},
+    "vibrissa": {"numpy", "scipy", "numba"},
+    # skimage: marching cubes, threadpoolctl: one BLAS thread (vibrissa.mapping.gp_surface),
+    # open3d: DBSCAN (vibrissa.mapping.objects)
+    "vibrissa.mapping": {"skimage", "threadpoolctl", "open3d"},
     "vibrissa.msgs": {"msgpack", "msgspec"},
     # rosbags, mcap_ros2: ROS 2 bags without ROS (vibrissa.wire.ros2_bag)
     "vibrissa.wire": {"zmq", "mcap", "zstandard", "rosbags", "mcap_ros2"},
     "vibrissa.formats": {"yaml"},
+    "vibrissa.figures": {"matplotlib", "mpl_toolkits"},
     "vibrissa.runtime": {"yaml", "msgspec"},
     "vibrissa.launch": {"yaml", "msgspec"},
     # foxglove: the live view (nodes/foxglove_bridge.py, the optional extra `view`)
-    "vibrissa.nodes": {"open3d", "matplotlib", "mpl_toolkits", "foxglove"},
-    "vibrissa.cli": {"matplotlib", "mpl_toolkits"},
+    "vibrissa.nodes": {"foxglove"},
+    "vibrissa.cli": set(),
     "": set(),
 }
 
@@ -116,8 +122,30 @@ def test_imports_point_down_only() -> None:
     ("vibrissa.nodes", "vibrissa.launch"),    # nodes and launch are siblings
     ("vibrissa.launch", "vibrissa.cli.bag"),  # the launch system is not a command
     ("vibrissa", "zmq"),                      # the core does no I/O
+    ("vibrissa.mapping", "zmq"),              # the map is a library, not a process
+    ("vibrissa.mapping", "vibrissa.nodes.mapper"),  # nor does it reach into its node
+    ("vibrissa.mapping", "vibrissa.formats.ply"),   # it writes no files
+    ("vibrissa.mapping", "matplotlib"),       # it draws nothing
+    ("vibrissa.figures", "vibrissa.wire"),    # pictures are beside the wire
 ])
 def test_a_planted_upward_import_is_found(tmp_path: Path, package: str, module: str) -> None:
     planted = tmp_path / "planted.py"
     planted.write_text(f"def f():\n    import {module}\n")
     assert violations(package, planted), f"{package} importing {module} was not caught"
+
+
+def test_the_map_library_loads_no_wire_runtime_or_file_format() -> None:
+    """``import vibrissa.mapping`` in a fresh interpreter: no message, transport, runtime or
+    file format module, and no ZeroMQ, msgpack or YAML beyond what numba itself loads."""
+    probe = ("import sys, {0}; print(' '.join(sorted(m for m in sys.modules if m in {1})))")
+    banned = ["zmq", "msgpack", "yaml", "vibrissa.msgs", "vibrissa.wire", "vibrissa.formats",
+              "vibrissa.runtime", "matplotlib", "open3d"]
+
+    def loaded(module: str) -> set[str]:
+        out = subprocess.run([sys.executable, "-c", probe.format(module, banned)], cwd=ROOT,
+                             capture_output=True, text=True, check=True, timeout=120).stdout
+        return set(out.split())
+
+    from_numba = loaded("numba")  # numba.core.config imports yaml when it is installed
+    assert from_numba <= {"yaml"}
+    assert loaded("vibrissa.mapping") <= from_numba

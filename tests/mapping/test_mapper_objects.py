@@ -17,19 +17,28 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from vibrissa.figures.map_figure import (
+    MAX_NAME_CHARS,
+    MapLayers,
+    MeshLayer,
+    draw_map,
+    map_layers,
+    plot_map,
+    short_name,
+)
 from vibrissa.frames import Transform
-from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
-from vibrissa.msgs.codec import decode, encode
-from vibrissa.nodes.map_figure import MAX_NAME_CHARS, MapLayers, MeshLayer, draw_map, plot_map, short_name
-from vibrissa.nodes.mapper import (
+from vibrissa.mapping import (
     Accumulator,
-    MapperParams,
+    TrueObject,
+    cluster_points,
     fit_frame,
     is_covariance,
-    map_layers,
-    write_outputs,
+    whisker_lines,
 )
-from vibrissa.nodes.surface_fit import TrueObject, cluster_points, whisker_lines
+from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
+from vibrissa.msgs.codec import decode, encode
+from vibrissa.nodes import mapper
+from vibrissa.nodes.mapper import MapperParams, receive
 from vibrissa.runtime import load_params
 from vibrissa.runtime.params import ParamError
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
@@ -115,8 +124,14 @@ def messages(frame_id: str = "world") -> list[Any]:
 def accumulate(msgs: list[Any]) -> Accumulator:
     acc = Accumulator(1)
     for msg in msgs:
-        acc.add(msg)
+        receive(acc, msg)
     return acc
+
+
+def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path) -> tuple[dict[str, Any], Any]:
+    """The mapper's files, messages and its report as report.json holds it."""
+    report, sent = mapper.write_outputs(acc, params, out_dir)
+    return report.as_dict(), sent
 
 
 def write_scene(folder: Path) -> Path:
@@ -264,7 +279,7 @@ def test_another_process_on_one_thread_writes_the_same_files(
     # and one thread for both instead of the machine's, must not change a bit of the map
     other = scene_map["tmp"] / "other"
     script = ("import sys; from pathlib import Path; "
-              "from tests.nodes.test_mapper_objects import accumulate, messages; "
+              "from tests.mapping.test_mapper_objects import accumulate, messages; "
               "from vibrissa.nodes.mapper import MapperParams, write_outputs; "
               "out = Path(sys.argv[1]); "
               "write_outputs(accumulate(messages()), MapperParams(out_dir=str(out), "
@@ -311,7 +326,7 @@ def test_two_clusters_on_one_object_are_told_apart_or_joined(tmp_path: Path, joi
         points = line_points(obj, polar, azimuths)
         for k, (point, normal) in enumerate(zip(points, obj.surface(1.0).normal(points),
                                                 strict=True)):
-            acc.add(ContactPoint(stamp=0.0, seq=k, whisker_id=f"w{5 + i}", frame_id="world",
+            receive(acc, ContactPoint(stamp=0.0, seq=k, whisker_id=f"w{5 + i}", frame_id="world",
                                  point=point, s1=0.03, phase=2, force=0.02 * normal, status=0))
     params = MapperParams(out_dir=str(tmp_path), scene=str(write_scene(tmp_path)),
                           cluster_eps_m=0.006, plot=False, join_convex=join)
@@ -571,10 +586,11 @@ def test_the_figure_draws_wire_names_short_and_as_text(tmp_path: Path) -> None:
             msg = dataclasses.replace(msg, whisker_ids=[long_whisker if w == "w0" else
                                                         math if w == "w1" else w
                                                         for w in msg.whisker_ids])
-        acc.add(msg)
+        receive(acc, msg)
     params = MapperParams(out_dir=str(tmp_path), plot=False)
     layers = dataclasses.replace(
-        map_layers(fit_frame(long_frame, acc.frames[long_frame], params), params),
+        map_layers(fit_frame(long_frame, acc.frames[long_frame], params.settings,
+                             params.truth(long_frame))),
         true_objects=[TrueObject(long_object, parse_surface("sphere:r=0.015,cx=0.03,cz=0.04"))])
     figure = draw_map(layers)
     assert figure.get_suptitle() == layers.title

@@ -1,7 +1,7 @@
-"""The mapper's interactive page: one self-contained HTML file of a frame's map, rotatable.
+"""The map's interactive page: one self-contained HTML file of a frame's map, rotatable.
 
-The same layers as ``map.png`` (`vibrissa.nodes.map_figure.MapLayers`, built once by the mapper
-for both pictures): the contacts coloured by whisker (the figure's palette), the noise points
+The same layers as ``map.png`` (`vibrissa.figures.map_figure.MapLayers`, built once for both
+pictures): the contacts coloured by whisker (the figure's palette), the noise points
 (black crosses), each object's known mesh in the figure's colours (``viridis`` of its distance
 to the true surface or of its std, the same scale), the unknown part in faint grey, the true
 objects as grey wireframes (`map_figure.wireframe`), the robot path and the whisker mounts; a
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from vibrissa.nodes.map_figure import (
+from vibrissa.figures.map_figure import (
     MAX_POINTS_SHOWN,
     MM,
     FloatArray,

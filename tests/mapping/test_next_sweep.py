@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from tests.core.test_gp_surface import contact_cloud
-from vibrissa import gp_surface
-from vibrissa.next_sweep import propose_sections
+from tests.mapping.test_gp_surface import contact_cloud
+from vibrissa.mapping import gp_surface
+from vibrissa.mapping.next_sweep import propose_sections
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """Where to sweep next: the sections of an object's estimated surface whose touch would cut its
-uncertainty most (``vibrissa.gp_surface``).
+uncertainty most (`vibrissa.mapping.gp_surface`).
 
 A trail of the paper (the clamp moving along x at a lateral offset y0, the rod along +z) first
 touches the object with its tip on the section y = y0 of the surface, and its contact line
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from vibrissa.gp_surface import GPSurface, conditioned
+from vibrissa.mapping.gp_surface import GPSurface, conditioned
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -1,7 +1,7 @@
 """Gaussian-process implicit surface of a contact cloud: the surface, its uncertainty, a mesh.
 
 A whisker's contact cloud is a few dense lines of very precise points, each with the object's
-outward normal (from the contact force, ``vibrissa.nodes.surface_fit.contact_normals``). The
+outward normal (from the contact force, `vibrissa.mapping.objects.contact_normals`). The
 surface is the zero set of a function f (f > 0 outside the object) estimated by Gaussian-process
 regression (GPIS: Williams & Fitzgibbon 2006; Dragiev et al. 2011), which interpolates between
 the lines and says how sure it is everywhere.

@@ -1,4 +1,4 @@
-"""The mapper's figure: one PNG of a frame's map that a person reads at a glance (matplotlib).
+"""The map's figure: one PNG of a frame's map that a person reads at a glance (matplotlib).
 
 What it shows, in mm: a 3D view and a top view (x, y) of the true objects (grey wireframes,
 named) when known, the robot path with the whisker mounts at its start, middle and end (a
@@ -11,9 +11,10 @@ as ``short_name`` gives them, and no text is read as matplotlib's mathtext (a ``
 The 3D view is cut to the objects (contacts, meshes, true objects) with equal scales on its
 axes, so that the shapes are true; the top view shows the whole path.
 
-Drawn on a ``matplotlib.figure.Figure`` with the Agg canvas, not through ``pyplot``: no global
-backend or figure state in the node, and nothing opens a window. matplotlib is imported by
-``plot_map`` only, for the same reason as Open3D in ``vibrissa.nodes.surface_fit``.
+The layers (`MapLayers`) come from a frame's map (`map_layers`), once for this figure and the
+page (`vibrissa.figures.map_page`). Drawn on a ``matplotlib.figure.Figure`` with the Agg canvas,
+not through ``pyplot``: no global backend or figure state in the caller (a node), and nothing
+opens a window. matplotlib is imported only when drawing.
 """
 
 from __future__ import annotations
@@ -26,8 +27,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from vibrissa.nodes.surface_fit import TrueObject
-from vibrissa.scene import RobotPath, Whisker
+from vibrissa.mapping import FrameMap, TrueObject
+from vibrissa.scene import RobotPath, Scene, Whisker
 from vibrissa.surfaces import Ellipsoid, Paraboloid
 
 if TYPE_CHECKING:
@@ -180,6 +181,56 @@ def whisker_colours(layers: MapLayers) -> dict[str, Any]:
 def thousands(n: int) -> str:
     """``5 214``: digits grouped by spaces."""
     return f"{n:,}".replace(",", " ")
+
+
+def _plural(n: int, word: str) -> str:
+    """``1 object``, ``2 objects``, ``5 214 contacts``."""
+    return f"{thousands(n)} {word}{'' if n == 1 else 's'}"
+
+
+def map_layers(frame: FrameMap, scene: Scene | None = None) -> MapLayers:
+    """What the pictures of a frame show: the contacts, the meshes (coloured by their distance
+    to the true surface when it is known, else by their std), the truth when known
+    (``frame.truth``), and the robot path and whisker mounts of ``scene`` (in the frame's
+    frame) when given."""
+    result = frame.result
+    whiskers = sorted(set(frame.whisker_ids))
+    title = (f"{short_name(result.frame_id)} map: {_plural(len(result.objects), 'object')}, "
+             f"{_plural(result.n_points, 'contact')} from {_plural(len(whiskers), 'whisker')}")
+    truth = frame.truth
+    notes = []
+    for obj in result.objects[:6]:
+        note = f"{short_name(obj.name)}: {_plural(obj.n_points, 'point')}, "
+        note += (f"surface known over {_plural(obj.n_triangles, 'triangle')}"
+                 f" ({obj.n_triangles / (obj.n_triangles + obj.unknown_triangles):.0%})"
+                 if obj.n_triangles else obj.method.removeprefix("none: "))
+        if obj.mesh_to_surface_mean is not None and obj.mesh_to_surface_max is not None:
+            note += (f", {obj.mesh_to_surface_mean * 1e3:.2g} mm from the true surface on "
+                     f"average, {obj.mesh_to_surface_max * 1e3:.2g} mm at most")
+        elif obj.std_max_m is not None:
+            note += f", std at most {obj.std_max_m * 1e3:.2g} mm"
+        notes.append(note)
+    if len(result.objects) > 6:
+        notes.append(f"... and {len(result.objects) - 6} more objects (report.txt)")
+    if result.noise_points:
+        notes.append(f"noise: {_plural(result.noise_points, 'point')} in no object")
+    meshes = []
+    true_of = {t.name: t for t in truth}
+    for obj, surface in zip(result.objects, frame.surfaces, strict=True):
+        vertices, triangles, std = surface.part(known=True)
+        unknown_vertices, unknown_triangles, _ = surface.part(known=False)
+        true = true_of.get(obj.true_object or "") if truth else None
+        meshes.append(MeshLayer(
+            obj.name, vertices, triangles,
+            true.distance(vertices) if true is not None else std,
+            unknown_vertices, unknown_triangles,
+            max_std_m=surface.mesh.max_std if surface.mesh is not None else 0.0))
+    return MapLayers(
+        title=title, subtitle="\n".join(notes), points=frame.points,
+        whisker_ids=frame.whisker_ids, labels=frame.labels, meshes=meshes,
+        colour_by="distance to the true surface" if truth else "predicted std of the surface",
+        true_objects=truth, path=scene.path if scene is not None else None,
+        whiskers=scene.whiskers if scene is not None else ())
 
 
 def _capped(entries: list[Any], more: str, handle: Any) -> list[Any]:

@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tests.nodes.test_mapper_objects import accumulate, messages, write_scene
-from vibrissa.nodes.map_figure import MapLayers
-from vibrissa.nodes.map_page import embedded_json, write_page
-from vibrissa.nodes.mapper import MapperParams, write_outputs
+from tests.mapping.test_mapper_objects import accumulate, messages, write_outputs, write_scene
+from vibrissa.figures.map_figure import MapLayers
+from vibrissa.figures.map_page import embedded_json, write_page
+from vibrissa.nodes.mapper import MapperParams
 
 WINDOW = (1200, 900)
 KEY_WIDTH = 340  # the legend panel on the right of the page (its colour bar is not the scene)
@@ -61,7 +61,7 @@ def rgb(hex_colour: str) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def page(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """The map of tests/nodes/test_mapper_objects.py (two objects, the scene known) and its
+    """The map of tests/mapping/test_mapper_objects.py (two objects, the scene known) and its
     page."""
     tmp = tmp_path_factory.mktemp("map_page")
     params = MapperParams(out_dir=str(tmp / "out"), scene=str(write_scene(tmp)))

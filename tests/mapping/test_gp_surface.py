@@ -6,8 +6,8 @@ import pytest
 from scipy.spatial import Delaunay, cKDTree
 from scipy.spatial.transform import Rotation
 
-from vibrissa import Trail, gp_surface, parse_surface, simulate_sweeps
-from vibrissa.nodes.surface_fit import contact_normals
+from vibrissa import Trail, parse_surface, simulate_sweeps
+from vibrissa.mapping import contact_normals, gp_surface
 from vibrissa.sweep import contact_lines
 
 DEMO_TRAILS = (-0.4, -0.2, 0.0, 0.2, 0.4)  # launch/demo.yaml

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from vibrissa.nodes.surface_fit import line_spacing
+from vibrissa.mapping import line_spacing
 
 
 def spacing_by_definition(points: np.ndarray, lines: np.ndarray) -> float:

@@ -1,5 +1,5 @@
 """Clusters that are patches of one convex object are joined; two objects are not
-(`vibrissa.nodes.surface_fit.join_convex`). The geometry is built here with numpy: spheres,
+(`vibrissa.mapping.join_convex`). The geometry is built here with numpy: spheres,
 their outward normals (p - c) / r."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vibrissa.nodes.surface_fit import cluster_points, join_convex, whisker_lines
+from vibrissa.mapping import cluster_points, join_convex, whisker_lines
 
 
 def patch(center: list[float], radius: float, direction: list[float], spread: float,

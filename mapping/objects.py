@@ -1,4 +1,4 @@
-"""Objects and surfaces of a whisker contact cloud (Open3D), without sockets: the mapper's logic.
+"""Contact lines, contact normals and the objects of a whisker contact cloud (Open3D DBSCAN).
 
 Why this method
 ---------------
@@ -15,8 +15,8 @@ A whisker's contact cloud is a handful of dense *lines* on the object (one per s
   F itself is n for mu = 0 or at an isolated point. The orientation is free: the object
   pushes the rod, so F . n > 0 and n points out of the object.
 * **The surface** is a Gaussian-process implicit surface on the points and these normals
-  (``vibrissa.gp_surface``; ``estimate_surface`` fits and meshes one object): docs/MAPPING.md
-  measures it against screened Poisson (the mapper's former mesh) and an RBF implicit surface.
+  (`vibrissa.mapping.surface`): docs/MAPPING.md measures it against screened Poisson and an
+  RBF implicit surface.
 
 Separating objects
 ------------------
@@ -40,8 +40,7 @@ points, whatever Open3D's numbering.
 
 Open3D (2 s and ~180 MB to import) is imported by ``cluster_points`` only,
 so that a node that is stopped before its fit, or a launcher checking the mapper's parameters,
-never loads it. PLY files are written with numpy (``write_ply``): Open3D's writer reports
-success on a full disk.
+never loads it.
 """
 
 from __future__ import annotations
@@ -52,10 +51,6 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
-
-from vibrissa import gp_surface
-from vibrissa.gp_surface import GPParams, GPSurface, SurfaceMeshStd
-from vibrissa.surfaces import Surface
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -347,147 +342,3 @@ def join_convex(points: FloatArray, normals: FloatArray, labels: IntArray,
     rank = np.argsort(np.argsort(first))
     out = np.where(labels >= 0, rank[group_of[np.maximum(labels, 0)]], -1)
     return out.astype(np.int64), [group for group in groups if len(group) > 1]
-
-
-@dataclass(frozen=True)
-class TrueObject:
-    """A known object: ``surface`` in units of ``unit_m`` metres, in the cloud's frame."""
-
-    name: str
-    surface: Surface
-    unit_m: float = 1.0
-
-    def distance(self, points_m: FloatArray) -> FloatArray:
-        """|signed distance| (N,) of points (N, 3), m, to the surface, m."""
-        points_m = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
-        if len(points_m) == 0:
-            return np.zeros(0)
-        return np.abs(self.surface.signed_distance(points_m / self.unit_m)) * self.unit_m
-
-
-MIN_EXTENT_M = 1e-9
-"""The smallest spread of an object's points a surface is fitted to, m: below a nanometre the
-contacts of a whisker are one place (and the fit's scales underflow)."""
-
-
-def too_little_for_a_surface(points: FloatArray) -> str | None:
-    """Why ``points`` (N, 3) cannot carry a surface (fewer than 4, all at one point or within
-    `MIN_EXTENT_M` of it, all on one straight line), or ``None`` when they can."""
-    if len(points) < 4:
-        return f"{len(points)} point(s), a surface needs 4 or more"
-    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    if not singular[0] > max(1e-9 * float(np.abs(points).max()), MIN_EXTENT_M):
-        return f"all {len(points)} points at one place"
-    if singular[1] <= 1e-9 * singular[0]:
-        return f"all {len(points)} points on one straight line"
-    return None
-
-
-@dataclass(frozen=True)
-class MapParams:
-    """Parameters of :func:`estimate_surface` (SI).
-
-    Attributes
-    ----------
-    cells
-        Marching-cubes grid cells along the longest side of an object's box.
-    margin
-        The box: the object's points' box grown by this fraction of its diagonal on every side.
-    max_std_m
-        Largest position std of a known triangle, m; 0: ``vibrissa.gp_surface.KNOWN_FRACTION``
-        of the prior std.
-    point_std_m
-        Std of a contact point's position, m.
-    """
-
-    cells: int = 64
-    margin: float = 0.2
-    max_std_m: float = 0.0
-    point_std_m: float = GPParams.point_std_m
-
-
-@dataclass(frozen=True)
-class ObjectSurface:
-    """The surface estimate of one object (:func:`estimate_surface`).
-
-    ``method`` names the method and its fitted parameters, or says why there is no surface
-    (``none: ...``; then ``gp`` and ``mesh`` are None).
-    """
-
-    method: str
-    gp: GPSurface | None = None
-    mesh: SurfaceMeshStd | None = None
-
-    def part(self, known: bool = True) -> tuple[FloatArray, IntArray, FloatArray]:
-        """(vertices (V, 3) m, triangles (T, 3), position std (V,) m) of the known (or
-        unknown) triangles; empty without a mesh."""
-        if self.mesh is None:
-            return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0)
-        return self.mesh.part(known)
-
-
-def estimate_surface(points: FloatArray, normals: FloatArray,
-                     params: MapParams | None = None,
-                     point_var_m2: FloatArray | None = None) -> ObjectSurface:
-    """The Gaussian-process implicit surface of one object's contacts (``vibrissa.gp_surface``)
-    meshed over its box, or why there is none (``too_little_for_a_surface``).
-
-    Parameters
-    ----------
-    points, normals : ndarray, shape (N, 3)
-        Contact points (m) in line order and outward unit normals (:func:`contact_normals`).
-    params
-        Meshing and noise parameters.
-    point_var_m2 : ndarray, shape (N,), optional
-        Each point's position variance along its normal, m^2 (from its covariance): the fit
-        weights the points by it (``vibrissa.gp_surface.fit``).
-    """
-    params = params or MapParams()
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    too_little = too_little_for_a_surface(points)
-    if too_little is not None:
-        return ObjectSurface(f"none: {too_little}")
-    gp = gp_surface.fit(points, normals, GPParams(point_std_m=params.point_std_m), point_var_m2)
-    pad = params.margin * float(np.linalg.norm(np.ptp(points, axis=0)))
-    mesh = gp_surface.mesh(gp, points.min(axis=0) - pad, points.max(axis=0) + pad,
-                           params.cells, params.max_std_m)
-    method = (f"gp implicit surface (quadric trend + SE: ell {gp.length_scale * gp.scale:.3g} m, "
-              f"sigma {gp.sigma * gp.scale:.3g} m; normal std {gp.normal_std:.3g} rad; "
-              f"{len(gp.active)} of {len(points)} points; known where std <= "
-              f"{mesh.max_std:.3g} m)")
-    return ObjectSurface(method, gp, mesh)
-
-
-def write_ply(path: str, points: FloatArray, triangles: IntArray | None = None,
-              normals: FloatArray | None = None,
-              scalars: dict[str, FloatArray] | None = None) -> None:
-    """Write a point cloud (``triangles`` None, optionally with normals) or a triangle mesh as
-    binary little-endian PLY, the layout Open3D writes and reads; ``scalars`` are extra vertex
-    properties (name -> (V,) values, e.g. ``std_m``), which readers that do not know them skip.
-
-    Written with numpy rather than Open3D, whose writer reports success when the disk is full:
-    here a failed write raises ``OSError``.
-    """
-    points = np.asarray(points, dtype="<f8").reshape(-1, 3)
-    properties = ["x", "y", "z"]
-    columns = [points]
-    if triangles is None and normals is not None:
-        properties += ["nx", "ny", "nz"]
-        columns.append(np.asarray(normals, dtype="<f8").reshape(-1, 3))
-    for name, values in (scalars or {}).items():
-        properties.append(name)
-        columns.append(np.asarray(values, dtype="<f8").reshape(-1, 1))
-    vertices = np.hstack(columns)
-    header = ["ply", "format binary_little_endian 1.0", "comment Created by vibrissa",
-              f"element vertex {len(vertices)}", *(f"property double {p}" for p in properties)]
-    faces = None
-    if triangles is not None:
-        faces = np.zeros(len(triangles), dtype=[("n", "u1"), ("v", "<u4", (3,))])
-        faces["n"] = 3
-        faces["v"] = triangles
-        header += [f"element face {len(faces)}", "property list uchar uint vertex_indices"]
-    with open(path, "wb") as f:
-        f.write(("\n".join([*header, "end_header"]) + "\n").encode("ascii"))
-        f.write(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
-        if faces is not None:
-            f.write(faces.tobytes())

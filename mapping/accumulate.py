@@ -1,0 +1,192 @@
+"""Contact points gathered per frame, within bounds (`Accumulator`), from plain arrays."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import compress
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+MAX_POINTS = 10_000_000
+"""Default bound of the points kept (all frames): a point takes about 200 bytes."""
+MAX_FRAMES = 64
+"""Default bound of the frames kept."""
+MAX_POSITION_M = 1e7
+"""The largest coordinate of a contact point the map takes, m: a scene file's positions
+(``vibrissa.formats.scene_file.LIMITS``; tests/mapping checks that the two agree)."""
+MAX_FORCE_N = 1e12
+"""The largest contact force component the map takes, N: a normal from its direction."""
+COVARIANCE_RTOL = 1e-9
+"""How far from symmetric positive semidefinite a covariance may be, relative to its largest
+entry (asymmetry) and |eigenvalue| (a negative eigenvalue): the reconstructor's J S J^T is off
+by rounding only, a rank-deficient one has eigenvalues of about -1e-16 x the largest."""
+
+
+@dataclass(frozen=True)
+class ContactBatch:
+    """Contact points that arrived together (one message, one tick of an array), SI.
+
+    Attributes
+    ----------
+    frame_id
+        The frame the points and forces are expressed in.
+    points_m : ndarray, shape (N, 3)
+        Contact points, m.
+    forces_n : ndarray, shape (N, 3)
+        Contact force on the rod at each point, N (its direction gives the contact normal).
+    whisker_ids
+        The whisker of each point (N names).
+    seq
+        The batch's place in its source's stream: a whisker's points are ordered by it (and
+        in the order given within a batch), which is the order along its contact lines.
+    covariances_m2 : ndarray, shape (N, 3, 3), optional
+        Each point's position covariance, m^2; None: none (the points get
+        ``MapSettings.point_std_m``).
+    """
+
+    frame_id: str
+    points_m: FloatArray
+    forces_n: FloatArray
+    whisker_ids: Sequence[str]
+    seq: int = 0
+    covariances_m2: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.whisker_ids)
+        for name, shape in (("points_m", (n, 3)), ("forces_n", (n, 3)),
+                            ("covariances_m2", (n, 3, 3))):
+            value = getattr(self, name)
+            if value is not None and np.shape(value) != shape:
+                raise ValueError(f"{name} must have shape {shape} (one row per whisker id), "
+                                 f"got {np.shape(value)}")
+
+
+@dataclass
+class FrameCloud:
+    """Contact points of one frame, in arrival order, one block of arrays per batch."""
+
+    whisker_ids: list[str] = field(default_factory=list)
+    seqs: list[int] = field(default_factory=list)
+    points: list[FloatArray] = field(default_factory=list)  # (k, 3) per batch
+    forces: list[FloatArray] = field(default_factory=list)
+    covariances: list[FloatArray] = field(default_factory=list)  # (k, 3, 3); NaN: none
+
+    def add(self, batch: ContactBatch, keep: npt.NDArray[np.bool_] | None,
+            covariances: FloatArray) -> None:
+        """Append every row of ``batch``, or those ``keep`` says, each with its whisker, the
+        batch's ``seq`` and its covariance from ``covariances`` (k, 3, 3) of the rows appended
+        (NaN: none)."""
+        rows = slice(None) if keep is None else keep
+        whisker_ids = (list(batch.whisker_ids) if keep is None
+                       else list(compress(batch.whisker_ids, keep.tolist())))
+        self.whisker_ids += whisker_ids
+        self.seqs += [batch.seq] * len(whisker_ids)
+        self.points.append(np.reshape(batch.points_m, (-1, 3))[rows])
+        self.forces.append(np.reshape(batch.forces_n, (-1, 3))[rows])
+        self.covariances.append(covariances)
+
+    def ordered(self) -> tuple[FloatArray, FloatArray, list[str], FloatArray]:
+        """Points (N, 3), forces (N, 3), whisker ids and covariances (N, 3, 3; NaN where
+        none came), sorted by (whisker, seq): line order."""
+        order = sorted(range(len(self.seqs)), key=lambda i: (self.whisker_ids[i], self.seqs[i]))
+        return (np.concatenate([np.empty((0, 3)), *self.points])[order],
+                np.concatenate([np.empty((0, 3)), *self.forces])[order],
+                [self.whisker_ids[i] for i in order],
+                np.concatenate([np.empty((0, 3, 3)), *self.covariances])[order])
+
+
+def is_covariance(covariances: FloatArray) -> npt.NDArray[np.bool_]:
+    """Whether each of ``covariances`` (k, 3, 3) is a covariance: finite, symmetric and
+    positive semidefinite, to `COVARIANCE_RTOL`."""
+    c = np.asarray(covariances, dtype=np.float64).reshape(-1, 3, 3)
+    finite = np.isfinite(c).all(axis=(1, 2))
+    c = np.where(np.isfinite(c), c, 0.0)  # refused by `finite`; zeros keep the rest finite
+    # each matrix over its largest entry: eigvalsh neither overflows nor loses subnormals
+    scale = np.abs(c).max(axis=(1, 2))
+    unit = c / np.where(scale > 0, scale, 1.0)[:, None, None]
+    symmetric = np.abs(unit - unit.transpose(0, 2, 1)).max(axis=(1, 2)) <= COVARIANCE_RTOL
+    eigenvalues = np.linalg.eigvalsh(unit)  # of its lower triangle: symmetric checked above
+    semidefinite = eigenvalues[:, 0] >= -COVARIANCE_RTOL * np.abs(eigenvalues).max(axis=1)
+    return np.asarray(finite & symmetric & semidefinite)
+
+
+class Accumulator:
+    """Points per frame and the sources that ended, within bounds.
+
+    It keeps at most ``max_points`` points in at most ``max_frames`` frames, so that a long run
+    or a flood cannot exhaust the memory: a batch beyond either bound is dropped whole and
+    its rows are counted in ``dropped`` (by reason). A row the map cannot use is dropped and
+    counted too: a point with a coordinate beyond `MAX_POSITION_M` (``out_of_range``), a
+    contact force of zero or beyond `MAX_FORCE_N` (``no_force_direction``: no normal). A row
+    whose covariance is not one (`is_covariance`) is kept as a point without a covariance and
+    counted in ``bad_covariance``. ``expected`` is how many sources (or which) must
+    ``end`` before ``done``.
+    """
+
+    def __init__(self, expected: int | Sequence[str] = 1, max_points: int = MAX_POINTS,
+                 max_frames: int = MAX_FRAMES) -> None:
+        self.expected = expected
+        self.max_points = max_points
+        self.max_frames = max_frames
+        self.frames: dict[str, FrameCloud] = {}
+        self.ended: set[str] = set()
+        self.n_points = 0
+        self.dropped: Counter[str] = Counter()
+        self.bad_covariance = 0
+
+    def add(self, batch: ContactBatch) -> None:
+        """Take a batch of contact points (one without points changes nothing)."""
+        rows = len(batch.whisker_ids)
+        if not rows:
+            return
+        if batch.frame_id not in self.frames and len(self.frames) >= self.max_frames:
+            self.dropped["max_frames"] += rows
+        elif self.n_points + rows > self.max_points:
+            self.dropped["max_points"] += rows
+        else:
+            keep = self._usable(batch)
+            kept = rows if keep is None else int(np.count_nonzero(keep))
+            if kept:
+                self.frames.setdefault(batch.frame_id, FrameCloud()).add(
+                    batch, keep, self._covariances(batch, keep, kept))
+                self.n_points += kept
+
+    def end(self, source: str) -> None:
+        """Note that ``source`` has ended its stream."""
+        self.ended.add(source)
+
+    def _usable(self, batch: ContactBatch) -> npt.NDArray[np.bool_] | None:
+        """The rows the map can use (None: all), counting the others in ``dropped``."""
+        point = np.abs(np.reshape(batch.points_m, (-1, 3))).max(axis=1)
+        force = np.abs(np.reshape(batch.forces_n, (-1, 3))).max(axis=1)
+        far, no_force = point > MAX_POSITION_M, ~((force > 0) & (force <= MAX_FORCE_N))
+        if not (far.any() or no_force.any()):
+            return None
+        for reason, rows in (("out_of_range", far), ("no_force_direction", no_force & ~far)):
+            if rows.any():
+                self.dropped[reason] += int(np.count_nonzero(rows))
+        return ~(far | no_force)
+
+    def _covariances(self, batch: ContactBatch, keep: npt.NDArray[np.bool_] | None,
+                     kept: int) -> FloatArray:
+        """The covariances (kept, 3, 3) of the rows kept, NaN where none came or where one is
+        not a covariance (counted in ``bad_covariance``)."""
+        if batch.covariances_m2 is None:
+            return np.full((kept, 3, 3), np.nan)
+        covariances = np.reshape(batch.covariances_m2, (-1, 3, 3))[
+            slice(None) if keep is None else keep]
+        bad = ~is_covariance(covariances)
+        self.bad_covariance += int(np.count_nonzero(bad))
+        return np.where(bad[:, None, None], np.nan, covariances)
+
+    @property
+    def done(self) -> bool:
+        """Whether every expected source has ended."""
+        if isinstance(self.expected, int):
+            return len(self.ended) >= self.expected
+        return set(self.expected) <= self.ended

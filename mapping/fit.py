@@ -1,0 +1,197 @@
+"""A frame's map from its contacts: objects, contact normals, a surface and next sweeps per
+object, and errors against the true objects when they are known (`fit_frame`)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from vibrissa.mapping.accumulate import ContactBatch, FrameCloud
+from vibrissa.mapping.next_sweep import Proposal, propose_sections
+from vibrissa.mapping.objects import (
+    cluster_points,
+    contact_normals,
+    join_convex,
+    line_spacing,
+    whisker_lines,
+)
+from vibrissa.mapping.report import Clustering, FrameResult, NextSweep, ObjectResult, whisker_counts
+from vibrissa.mapping.settings import MapSettings
+from vibrissa.mapping.surface import ObjectSurface, estimate_surface, too_little_for_a_surface
+from vibrissa.mapping.truth import TrueObject, name_objects
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+ONE_OBJECT = "none: true_surface is the one object"
+"""The clustering method of a frame that is one object (``MapSettings.one_object``)."""
+
+
+@dataclass(frozen=True)
+class FrameMap:
+    """A frame mapped: its result and what goes into files, messages and figures.
+
+    ``points``, ``normals`` (N, 3) and ``whisker_ids`` (N,) in line order; ``labels`` (N,)
+    the object of each point (index into ``result.objects`` and ``surfaces``, -1: noise);
+    ``surfaces`` the estimate of each object and ``proposals`` its next sweeps; ``vertices``
+    (V, 3), ``triangles`` (T, 3) and ``std`` (V,) the known part of every object's mesh in one;
+    ``truth`` the true objects it was measured against.
+    """
+
+    result: FrameResult
+    points: FloatArray
+    normals: FloatArray
+    whisker_ids: list[str]
+    labels: IntArray
+    surfaces: list[ObjectSurface]
+    vertices: FloatArray
+    triangles: IntArray
+    std: FloatArray
+    proposals: list[list[Proposal]]
+    truth: tuple[TrueObject, ...] = ()
+
+
+def _stats(distance: FloatArray) -> tuple[float | None, float | None]:
+    """Max and mean of distances (None, None when there are none)."""
+    if len(distance) == 0:
+        return None, None
+    return float(distance.max()), float(distance.mean())
+
+
+def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = None,
+              truth: Sequence[TrueObject] = ()) -> FrameMap:
+    """Objects, normals, surface estimates, next sweeps and errors of one frame.
+
+    Parameters
+    ----------
+    frame_id
+        The frame of the points.
+    cloud
+        Its contact points (`vibrissa.mapping.Accumulator.frames`).
+    settings
+        How to separate objects, fit and mesh them (default `MapSettings()`).
+    truth
+        The true objects in this frame, m: the objects are named after them and measured
+        against them; with ``settings.one_object``, the first is the frame's one object.
+    """
+    settings = settings or MapSettings()
+    truth = tuple(truth)
+    points, forces, whisker_ids, covariances = cloud.ordered()
+    lines = whisker_lines(points, whisker_ids)
+    normals = contact_normals(points, forces, lines)
+    # each point's variance along its normal (NaN without a covariance, or with one that is not
+    # a covariance: the floor point_std_m; one too large for floats: the ceiling)
+    given = np.isfinite(covariances).all(axis=(1, 2))
+    with np.errstate(over="ignore", invalid="ignore"):
+        normal_var = np.einsum("ni,nij,nj->n", normals, covariances, normals)
+    normal_var[given & ~np.isfinite(normal_var)] = np.inf
+    spacing = line_spacing(points, lines) if len(points) else float("inf")
+    if settings.one_object:  # the frame is one object (its truth, when known)
+        labels = np.zeros(len(points), dtype=np.int64)
+        named: list[tuple[str, TrueObject | None, float | None]] = [
+            ("object0", truth[0] if truth else None, None)]
+        clustering = Clustering(ONE_OBJECT)
+    else:
+        clusters = cluster_points(points, lines, settings.cluster_eps_m,
+                                  settings.cluster_min_points)
+        labels, joined = (join_convex(points, normals, clusters.labels, normal_var,
+                                      settings.join_normal_tol_rad) if settings.join_convex
+                          else (clusters.labels, []))
+        named = name_objects(points, labels, truth)
+        clustering = Clustering("dbscan", clusters.eps, clusters.eps_rule, clusters.min_points,
+                                clusters.n_clusters, joined,
+                                spacing if np.isfinite(spacing) else None, clusters.line_extent)
+    objects: list[ObjectResult] = []
+    surfaces: list[ObjectSurface] = []
+    proposals: list[list[Proposal]] = []
+    cloud_distance: list[FloatArray] = []
+    mesh_distance: list[FloatArray] = []
+    for k, (name, true, median) in enumerate(named):
+        inside = np.flatnonzero(labels == k)
+        surface = estimate_surface(points[inside], normals[inside], settings, normal_var[inside])
+        vertices, triangles, std = surface.part(known=True)
+        own_spacing = line_spacing(points[inside], lines[inside])
+        cloud_stats: tuple[float | None, float | None] = (None, None)
+        mesh_stats: tuple[float | None, float | None] = (None, None)
+        nearer_other: dict[str, int] = {}
+        if true is not None:
+            to_each = np.array([other.distance(points[inside]) for other in truth])
+            cloud_distance.append(to_each.min(axis=0))
+            mesh_distance.append(true.distance(vertices))
+            nearer = cloud_distance[-1] < to_each[truth.index(true)]  # than to its own
+            nearer_other = dict(sorted(Counter(
+                truth[j].name for j in np.argmin(to_each, axis=0)[nearer]).items()))
+            cloud_stats, mesh_stats = _stats(cloud_distance[-1]), _stats(mesh_distance[-1])
+        proposals.append([] if surface.gp is None or surface.mesh is None or not settings.proposals
+                         else propose_sections(surface.gp, surface.mesh.vertices,
+                                               points[inside], np.array(settings.proposal_axis),
+                                               settings.proposals))
+        objects.append(ObjectResult(
+            name, len(inside), whisker_counts([whisker_ids[i] for i in inside]),
+            surface.method, len(vertices), len(triangles),
+            own_spacing if np.isfinite(own_spacing) else None,
+            unknown_triangles=len(surface.part(known=False)[1]),
+            max_std_m=surface.mesh.max_std if surface.mesh is not None else None,
+            std_median_m=float(np.median(std)) if len(std) else None,
+            std_max_m=float(std.max()) if len(std) else None,
+            true_object=true.name if true is not None else None, true_object_median_m=median,
+            next_sweeps=tuple(
+                NextSweep(p.offset_m, p.axis.tolist(), len(p.line), p.std_on_line_m,
+                          p.std_max_before_m, p.std_max_after_m) for p in proposals[-1]),
+            points_nearer_other=nearer_other, cloud_to_surface_max=cloud_stats[0],
+            cloud_to_surface_mean=cloud_stats[1], mesh_to_surface_max=mesh_stats[0],
+            mesh_to_surface_mean=mesh_stats[1]))
+        surfaces.append(surface)
+    noise = np.flatnonzero(labels < 0)
+    if len(objects) == 1:
+        method = objects[0].method
+    elif objects:
+        method = "; ".join(f"{obj.name}: {obj.method}" for obj in objects)
+    else:
+        method = "none: " + (too_little_for_a_surface(points) or (
+            f"no object: all {len(points)} points are noise (DBSCAN eps "
+            f"{clustering.eps_m:.4g} m, min_points {clustering.min_points})"))
+    parts = [surface.part(known=True) for surface in surfaces]
+    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts])[:-1]
+    vertices = np.concatenate([v for v, _, _ in parts] or [np.zeros((0, 3))])
+    triangles = np.concatenate(
+        [t + offset for (_, t, _), offset in zip(parts, offsets, strict=True)]
+        or [np.zeros((0, 3), dtype=np.int64)])
+    cloud_stats, mesh_stats, noise_max = (None, None), (None, None), None
+    if truth:
+        cloud_stats = _stats(np.concatenate(cloud_distance or [np.zeros(0)]))
+        mesh_stats = _stats(np.concatenate(mesh_distance or [np.zeros(0)]))
+        if len(noise):
+            noise_max = float(np.max(np.min([true.distance(points[noise]) for true in truth],
+                                            axis=0)))
+    result = FrameResult(
+        frame_id, len(points), method, len(vertices), len(triangles),
+        spacing if np.isfinite(spacing) else None,
+        clustering=clustering, noise_points=len(noise),
+        noise_whiskers=whisker_counts([whisker_ids[i] for i in noise]), objects=tuple(objects),
+        cloud_to_surface_max=cloud_stats[0], cloud_to_surface_mean=cloud_stats[1],
+        mesh_to_surface_max=mesh_stats[0], mesh_to_surface_mean=mesh_stats[1],
+        noise_to_surface_max=noise_max)
+    std = np.concatenate([s for _, _, s in parts] or [np.zeros(0)])
+    return FrameMap(result, points, normals, whisker_ids, labels, surfaces, vertices, triangles,
+                    std, proposals, truth)
+
+
+def map_cloud(points_m: FloatArray, forces_n: FloatArray, whisker_ids: Sequence[str],
+              settings: MapSettings | None = None, truth: Sequence[TrueObject] = (),
+              covariances_m2: FloatArray | None = None, frame_id: str = "world") -> FrameMap:
+    """The map of one cloud: `fit_frame` on points (N, 3) m, in the order each whisker took
+    them, their contact forces on the rod (N, 3) N, their whiskers (N names) and optionally
+    their position covariances (N, 3, 3) m^2. No bounds apply (`Accumulator` keeps them for
+    a stream)."""
+    cloud = FrameCloud()
+    batch = ContactBatch(frame_id, np.asarray(points_m, dtype=np.float64),
+                         np.asarray(forces_n, dtype=np.float64), list(whisker_ids),
+                         covariances_m2=covariances_m2)
+    cloud.add(batch, None, np.full((len(batch.whisker_ids), 3, 3), np.nan)
+              if covariances_m2 is None else np.asarray(covariances_m2, dtype=np.float64))
+    return fit_frame(frame_id, cloud, settings, truth)

@@ -457,7 +457,8 @@ def test_a_full_disk_stops_the_recorder_with_one_error_and_a_readable_bag(
     bag = tmp_path / "rec.mcap"
     script = f"""
 import numpy as np
-from vibrissa.msgs import WhiskerWrench, encode
+from vibrissa.msgs import WhiskerWrench
+from vibrissa.msgs.codec import encode
 from vibrissa.nodes.recorder import RecorderParams, record
 from vibrissa.wire.bag import BagReader
 from vibrissa.wire.transport import Header, Received

@@ -16,7 +16,8 @@ from numba.core.registry import CPUDispatcher
 from scipy.spatial.transform import Rotation
 from vibrissa.contact_detection import ContactDetector, wrench_covariance
 from vibrissa.frames import Transform
-from vibrissa.msgs import RobotPose, WhiskerWrench, WhiskerWrenchArray, decode, encode
+from vibrissa.msgs import RobotPose, WhiskerWrench, WhiskerWrenchArray
+from vibrissa.msgs.codec import decode, encode
 from vibrissa.nodes.reconstructor import (RodTable, _compile_kernels, reconstruct_messages,
                                           robot_frames)
 from vibrissa.scene import Whisker

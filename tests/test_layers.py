@@ -8,6 +8,7 @@ the core imports no I/O library. Every ``import`` statement counts, also one ins
 from __future__ import annotations
 
 import ast
+import subprocess
 import sys
 from pathlib import Path
 
@@ -22,6 +23,7 @@ RANK = {
     "vibrissa.msgs": 1,
     "vibrissa.formats": 1,
     "vibrissa.wire": 2,
+    "vibrissa.streaming": 2,  # Step 2 on a stream of messages, without sockets
     "vibrissa.runtime": 3,
     "vibrissa.launch": 4,
     "vibrissa.nodes": 4,
@@ -38,12 +40,20 @@ LIBRARIES = {
     # rosbags, mcap_ros2: ROS 2 bags without ROS (vibrissa.wire.ros2_bag)
     "vibrissa.wire": {"zmq", "mcap", "zstandard", "rosbags", "mcap_ros2"},
     "vibrissa.formats": {"yaml"},
+    "vibrissa.streaming": set(),
     "vibrissa.runtime": {"yaml", "msgspec"},
     "vibrissa.launch": {"yaml", "msgspec"},
     # foxglove: the live view (nodes/foxglove_bridge.py, the optional extra `view`)
     "vibrissa.nodes": {"open3d", "matplotlib", "mpl_toolkits", "foxglove"},
     "vibrissa.cli": {"matplotlib", "mpl_toolkits"},
     "": set(),
+}
+
+
+# Modules a package may not import although their layer is below it: a library usable from a
+# plain script loads neither the codec nor file formats (nor their libraries).
+FORBIDDEN = {
+    "vibrissa.streaming": ("vibrissa.msgs.codec", "vibrissa.formats", "msgpack", "msgspec", "yaml"),
 }
 
 
@@ -83,7 +93,10 @@ def violations(package: str, path: Path) -> list[str]:
     found = []
     for module in sorted(imported_modules(path)):
         target = package_of(module)
-        if target is None:
+        if any(module == name or module.startswith(name + ".")
+               for name in FORBIDDEN.get(package, ())):
+            found.append(f"{where}: {package} may not import {module}")
+        elif target is None:
             top = module.split(".")[0]
             if top not in sys.stdlib_module_names and top not in allowed:
                 found.append(f"{where}: {package} may not import {module}")
@@ -116,8 +129,28 @@ def test_imports_point_down_only() -> None:
     ("vibrissa.nodes", "vibrissa.launch"),    # nodes and launch are siblings
     ("vibrissa.launch", "vibrissa.cli.bag"),  # the launch system is not a command
     ("vibrissa", "zmq"),                      # the core does no I/O
+    ("vibrissa.streaming", "zmq"),            # the stream library has no sockets
+    ("vibrissa.streaming", "vibrissa.wire.transport"),
+    ("vibrissa.streaming", "vibrissa.msgs.codec"),  # nor the codec (a layer below it)
+    ("vibrissa.streaming", "msgpack"),
+    ("vibrissa.streaming", "vibrissa.formats.scene_file"),
+    ("vibrissa.streaming", "vibrissa.runtime"),
 ])
 def test_a_planted_upward_import_is_found(tmp_path: Path, package: str, module: str) -> None:
     planted = tmp_path / "planted.py"
     planted.write_text(f"def f():\n    import {module}\n")
     assert violations(package, planted), f"{package} importing {module} was not caught"
+
+
+def test_the_stream_library_loads_no_socket_codec_file_format_or_runtime() -> None:
+    """What `import vibrissa.streaming` loads, in a fresh interpreter (the planted cases above
+    check the source; this checks what the imports pull in on the way). numba loads yaml for
+    its own configuration: what numba loads by itself is not the library's."""
+    forbidden = ["zmq", "msgpack", "yaml", "vibrissa.msgs.codec", "vibrissa.wire",
+                 "vibrissa.formats", "vibrissa.runtime"]
+    script = ("import sys; import numba; by_numba = set(sys.modules); import vibrissa.streaming; "
+              f"print(sorted(m for m in {forbidden!r} if m in sys.modules and m not in by_numba), "
+              "'yaml' in by_numba)")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert out.stdout.split()[0] == "[]", out.stdout + out.stderr

@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 	# The package's bytecode, once, as pip compiles a regular install's: an editable install's
 	# sources are otherwise compiled at every start where PYTHONDONTWRITEBYTECODE is set
 	# (0.2-0.3 s of each command on a 2-core machine; a changed file is recompiled as usual).
-	$(PY) -m compileall -q vibrissa msgs wire formats mapping figures runtime launch nodes cli _vibrissa_entry.py
+	$(PY) -m compileall -q vibrissa msgs wire formats mapping figures streaming runtime launch nodes cli _vibrissa_entry.py
 	# numba's cache of compiled kernels, once (~30 s), so that a first command is not late by it
 	$(PY) scripts/warm_up.py
 	touch $(STAMP)
@@ -33,8 +33,8 @@ study: setup
 
 test: setup
 	bash scripts/ensure_test_deps.sh
-	$(PY) -m ruff check vibrissa msgs wire formats mapping figures runtime launch nodes cli _vibrissa_entry.py tests benchmarks scripts docs/examples
-	$(PY) -m mypy vibrissa msgs wire formats mapping figures runtime launch nodes cli _vibrissa_entry.py scripts docs/examples
+	$(PY) -m ruff check vibrissa msgs wire formats mapping figures streaming runtime launch nodes cli _vibrissa_entry.py tests benchmarks scripts docs/examples
+	$(PY) -m mypy vibrissa msgs wire formats mapping figures streaming runtime launch nodes cli _vibrissa_entry.py scripts docs/examples
 	$(PY) -m pytest -p no:dash -n auto
 
 bench: setup

@@ -4,8 +4,9 @@ late by the compile (a first `vibrissa sweep` took 19 s instead of 1.7 s, a firs
 
 Runs the commands a new user runs first on tiny inputs, in one process, so that every kernel is
 compiled for the argument types those commands pass: a sweep and its reconstruction, a scene of
-two whiskers and its reconstruction through the robot's poses, and the reconstructor node's own
-warm-up, with and without a noise model. Run: ``python scripts/warm_up.py`` (make setup does).
+two whiskers and its reconstruction through the robot's poses, and the Step 2 stream's own
+warm-up (`vibrissa.streaming.warm_up`), with and without a noise model. Run:
+``python scripts/warm_up.py`` (make setup does).
 """
 
 from __future__ import annotations
@@ -57,9 +58,7 @@ def _wrenches(simulated: Path, names: tuple[str, ...], out: Path) -> None:
 
 def main() -> int:
     from vibrissa.cli.main import main as vibrissa
-    from vibrissa.contact_detection import ContactDetector, wrench_covariance
-    from vibrissa.nodes.reconstructor import _compile_kernels
-    from vibrissa.units import RodScale
+    from vibrissa.streaming import StreamSettings, warm_up
 
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -80,9 +79,8 @@ def main() -> int:
                 print(f"{said.getvalue()}warm-up: vibrissa {' '.join(argv)} exited {status}",
                       file=sys.stderr)
                 return status
-        rod = RodScale()
-        _compile_kernels(rod, None)
-        _compile_kernels(rod, ContactDetector(wrench_covariance(1e-3, 1e-3), 7.0, 5.0))
+        warm_up(StreamSettings())
+        warm_up(StreamSettings(noise_force_n=1e-3, noise_moment_nm=1e-3))
     print(f"numba's cache of compiled kernels is warm ({time.perf_counter() - start:.0f} s)")
     return 0
 

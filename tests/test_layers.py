@@ -25,6 +25,7 @@ RANK = {
     "vibrissa.mapping": 1,
     "vibrissa.wire": 2,
     "vibrissa.figures": 2,
+    "vibrissa.streaming": 2,  # Step 2 on a stream of messages, without sockets
     "vibrissa.runtime": 3,
     "vibrissa.launch": 4,
     "vibrissa.nodes": 4,
@@ -44,12 +45,20 @@ LIBRARIES = {
     "vibrissa.wire": {"zmq", "mcap", "zstandard", "rosbags", "mcap_ros2"},
     "vibrissa.formats": {"yaml"},
     "vibrissa.figures": {"matplotlib", "mpl_toolkits"},
+    "vibrissa.streaming": set(),
     "vibrissa.runtime": {"yaml", "msgspec"},
     "vibrissa.launch": {"yaml", "msgspec"},
     # foxglove: the live view (nodes/foxglove_bridge.py, the optional extra `view`)
     "vibrissa.nodes": {"foxglove"},
     "vibrissa.cli": set(),
     "": set(),
+}
+
+
+# Modules a package may not import although their layer is below it: a library usable from a
+# plain script loads neither the codec nor file formats (nor their libraries).
+FORBIDDEN = {
+    "vibrissa.streaming": ("vibrissa.msgs.codec", "vibrissa.formats", "msgpack", "msgspec", "yaml"),
 }
 
 
@@ -89,7 +98,10 @@ def violations(package: str, path: Path) -> list[str]:
     found = []
     for module in sorted(imported_modules(path)):
         target = package_of(module)
-        if target is None:
+        if any(module == name or module.startswith(name + ".")
+               for name in FORBIDDEN.get(package, ())):
+            found.append(f"{where}: {package} may not import {module}")
+        elif target is None:
             top = module.split(".")[0]
             if top not in sys.stdlib_module_names and top not in allowed:
                 found.append(f"{where}: {package} may not import {module}")
@@ -127,6 +139,12 @@ def test_imports_point_down_only() -> None:
     ("vibrissa.mapping", "vibrissa.formats.ply"),   # it writes no files
     ("vibrissa.mapping", "matplotlib"),       # it draws nothing
     ("vibrissa.figures", "vibrissa.wire"),    # pictures are beside the wire
+    ("vibrissa.streaming", "zmq"),            # the stream library has no sockets
+    ("vibrissa.streaming", "vibrissa.wire.transport"),
+    ("vibrissa.streaming", "vibrissa.msgs.codec"),  # nor the codec (a layer below it)
+    ("vibrissa.streaming", "msgpack"),
+    ("vibrissa.streaming", "vibrissa.formats.scene_file"),
+    ("vibrissa.streaming", "vibrissa.runtime"),
 ])
 def test_a_planted_upward_import_is_found(tmp_path: Path, package: str, module: str) -> None:
     planted = tmp_path / "planted.py"
@@ -149,3 +167,15 @@ def test_the_map_library_loads_no_wire_runtime_or_file_format() -> None:
     from_numba = loaded("numba")  # numba.core.config imports yaml when it is installed
     assert from_numba <= {"yaml"}
     assert loaded("vibrissa.mapping") <= from_numba
+def test_the_stream_library_loads_no_socket_codec_file_format_or_runtime() -> None:
+    """What `import vibrissa.streaming` loads, in a fresh interpreter (the planted cases above
+    check the source; this checks what the imports pull in on the way). numba loads yaml for
+    its own configuration: what numba loads by itself is not the library's."""
+    forbidden = ["zmq", "msgpack", "yaml", "vibrissa.msgs.codec", "vibrissa.wire",
+                 "vibrissa.formats", "vibrissa.runtime"]
+    script = ("import sys; import numba; by_numba = set(sys.modules); import vibrissa.streaming; "
+              f"print(sorted(m for m in {forbidden!r} if m in sys.modules and m not in by_numba), "
+              "'yaml' in by_numba)")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert out.stdout.split()[0] == "[]", out.stdout + out.stderr

@@ -1,7 +1,7 @@
-"""The robot poses of the wrench source's mode ``scene`` through the reconstructor's frame buffer
+"""The robot poses of the wrench source's mode ``scene`` through the Step 2 stream's frame buffer
 (socket-free): with ``pose_rate_hz`` 0 (a pose at each path sample, ``launch/robot.yaml``'s
 default) the points of a robot on an unevenly sampled S-curve are Step 1's contact points; at a
-fixed rate the reconstructor interpolates chords between the poses, off the bending path."""
+fixed rate the frame buffer interpolates chords between the poses, off the bending path."""
 
 from __future__ import annotations
 
@@ -14,10 +14,10 @@ import pytest
 
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.msgs import ContactPointArray, RobotPose, WhiskerWrenchArray
-from vibrissa.nodes.reconstructor import RodTable, reconstruct_messages, robot_frames
 from vibrissa.nodes.wrench_source import MAX_POSES, WrenchSourceParams, scene_stream
 from vibrissa.runtime import ParamError, load_params
 from vibrissa.scene import Scene, WhiskerResult, simulate
+from vibrissa.streaming import RodTable, reconstruct_messages, robot_frames
 
 # Two different rods pointing to the robot's right (clamp z along the robot's -y), one tilted
 # in yaw, one in roll, past a ball on the right of an S-curve.
@@ -64,7 +64,7 @@ def scene_results(tmp_path_factory: pytest.TempPathFactory
 
 def played_points(scene_file: Path, scene: Scene, results: list[WhiskerResult],
                   pose_rate_hz: float) -> tuple[list[float], dict[str, np.ndarray]]:
-    """The poses' stamps, and each whisker's points (N, 3; NaN without one) as the reconstructor
+    """The poses' stamps, and each whisker's points (N, 3; NaN without one) as the Step 2 stream
     places the played wrenches through the played poses."""
     params = WrenchSourceParams(mode="scene", scene=str(scene_file), pose_rate_hz=pose_rate_hz)
     messages = [msg for _, msg in scene_stream(scene, results, params)]

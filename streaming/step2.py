@@ -1,0 +1,282 @@
+"""Step 2 of a batch of ticks: each row's rod and clamp pose, one compiled call, a
+ContactPointArray per tick with its counts."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from itertools import compress
+from typing import TypeAlias, cast
+
+import numpy as np
+import numpy.typing as npt
+
+from vibrissa.contact_detection import ContactDetector
+from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
+from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
+from vibrissa.msgs import ContactPointArray, ContactStatus, WhiskerWrenchArray
+from vibrissa.reconstruct import TIP_SIGMAS, reconstruct_si
+from vibrissa.scene import Whisker
+from vibrissa.units import RodScale, rod_units
+
+FloatArray = npt.NDArray[np.float64]
+
+UNIT_ROD = RodScale()
+
+Rods: TypeAlias = RodScale | Mapping[str, RodScale]
+"""One rod for every whisker, or each whisker's by name (the robot description)."""
+
+_MAX_ROW_LISTS = 64
+
+
+class RodTable(Mapping[str, RodScale]):
+    """Each whisker's rod by name, and the rods of a tick's rows as Step 2 takes them: an
+    array sends the same whiskers tick after tick, so their units are made once."""
+
+    def __init__(self, rods: Mapping[str, RodScale]) -> None:
+        self._rods = dict(rods)
+        self._rows: dict[tuple[str, ...], tuple[FloatArray, list[int]]] = {}
+        self._frames: dict[tuple[tuple[str, ...], tuple[str, ...]], list[int]] = {}
+
+    def __getitem__(self, name: str) -> RodScale:
+        return self._rods[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._rods)
+
+    def __len__(self) -> int:
+        return len(self._rods)
+
+    def rows(self, whiskers: Sequence[str]) -> tuple[FloatArray, list[int]]:
+        """The units (N, 3) of the rows' rods (`vibrissa.units.rod_units`; an unknown
+        whisker's are L = EI = 1), and the rows of whiskers not in the table."""
+        key = tuple(whiskers)
+        found = self._rows.get(key)
+        if found is None:
+            if len(self._rows) >= _MAX_ROW_LISTS:
+                self._rows.clear()
+            units = rod_units([self._rods.get(w, UNIT_ROD) for w in key])
+            units.flags.writeable = False
+            found = self._rows[key] = (units, [i for i, w in enumerate(key) if w not in self._rods])
+        return found
+
+    def wrong_frames(self, whiskers: Sequence[str], frames: Sequence[str]) -> list[int]:
+        """The rows of known whiskers measured in another frame than their clamp frame
+        (`vibrissa.frames.clamp_frame`)."""
+        key = (tuple(whiskers), tuple(frames))
+        found = self._frames.get(key)
+        if found is None:
+            if len(self._frames) >= _MAX_ROW_LISTS:
+                self._frames.clear()
+            found = self._frames[key] = [i for i, (w, f) in enumerate(zip(*key, strict=True))
+                                         if w in self._rods and f != clamp_frame(w)]
+        return found
+
+
+@dataclass
+class Reconstructed:
+    """The outcome of one tick (a WhiskerWrenchArray).
+
+    Attributes
+    ----------
+    contacts
+        Its rows with a consistent contact (possibly none): SI, in the frame of the clamp
+        poses the tick carried, else in the map frame; same ``stamp`` and ``seq``.
+    no_contact
+        Rows whose reconstruction has no consistent contact (not in ``contacts``).
+    bad_pose
+        Rows skipped because their clamp quaternion has zero or non-finite length.
+    no_pose
+        Rows without a clamp pose: none came with them and the frame buffer has none at their
+        stamp (``errors`` says why).
+    unknown_whisker
+        Rows of a whisker the robot description does not list (``errors`` names it).
+    wrong_frame
+        Rows of a whisker measured in another frame than its clamp frame (``errors`` names
+        it).
+    free
+        Rows below the contact threshold (with a noise model): the rod is free.
+    tip_within_noise
+        Points in ``contacts`` that are the tip within the noise.
+    no_covariance
+        Points in ``contacts`` whose covariance is not defined (they carry L^2 I).
+    """
+
+    contacts: ContactPointArray
+    no_contact: int
+    bad_pose: int
+    no_pose: int = 0
+    unknown_whisker: int = 0
+    errors: list[str] = field(default_factory=list)
+    free: int = 0
+    wrong_frame: int = 0
+    tip_within_noise: int = 0
+    no_covariance: int = 0
+
+
+@dataclass
+class _Rows:
+    """The rows of one tick on their way to Step 2: clamp poses in ``frame_id`` where
+    ``placed``."""
+
+    q: FloatArray
+    p: FloatArray
+    placed: npt.NDArray[np.bool_]
+    units: FloatArray | None  # of each row's rod (N, 3) (None: the one rod of every row)
+    frame_id: str
+    no_pose: int = 0
+    unknown_whisker: int = 0
+    errors: list[str] = field(default_factory=list)
+    free: int = 0
+    wrong_frame: int = 0
+
+
+def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_frame: str,
+          detector: ContactDetector | None) -> _Rows:
+    whiskers = msg.whisker_ids
+    n = len(whiskers)
+    placed = np.ones(n, bool)
+    errors: list[str] = []
+    units: FloatArray | None = None
+    table = None if isinstance(rod, RodScale) else rod if isinstance(rod, RodTable) else RodTable(rod)
+    missing: list[int] = []  # rows of whiskers the robot description does not have
+    wrong: list[int] = []  # rows of its whiskers in another frame than their clamp frame
+    if table is not None:
+        units, missing = table.rows(whiskers)
+        if missing:
+            errors.append(f"whisker {whiskers[missing[0]]!r} is not in the robot description "
+                          f"({', '.join(table)})")
+    if msg.pose_frame_id is not None:
+        q, p = cast(FloatArray, msg.clamp_orientation), cast(FloatArray, msg.clamp_position)
+        frame_id = msg.pose_frame_id
+        no_pose = 0
+    else:
+        frame_id = map_frame
+        if frames is None:
+            q, p = np.zeros((n, 4)), np.zeros((n, 3))
+            placed[:] = False
+            errors.append("a wrench without clamp pose needs the robot description (parameter "
+                          "'robot') and the robot's poses")
+        else:
+            sources = msg.frame_ids
+            poses = frames.lookup_rows(map_frame, sources, msg.stamp)
+            q, p, placed = poses.q_xyzw, poses.p, poses.ok
+            errors += poses.errors
+            if table is not None:
+                wrong = table.wrong_frames(whiskers, sources)
+                if wrong:
+                    errors.append(f"whisker {whiskers[wrong[0]]!r} measured in frame "
+                                  f"{sources[wrong[0]]!r}, not in its clamp frame "
+                                  f"{clamp_frame(whiskers[wrong[0]])!r}")
+        if missing or wrong:
+            placed[missing + wrong] = True  # counted as such, not as rows without a pose
+        no_pose = n - int(np.count_nonzero(placed))
+    if missing or wrong:
+        placed[missing + wrong] = False
+    free = 0
+    if detector is not None:  # every row moves its whisker's state, placed or not
+        free_rows = placed & ~detector.update(whiskers, msg.f0, msg.m0)[0]
+        free = int(np.count_nonzero(free_rows))
+        placed &= ~free_rows
+    return _Rows(q, p, placed, units, frame_id, no_pose, len(missing), errors, free, len(wrong))
+
+
+def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_ROD,
+                         frames: FrameBuffer | None = None, map_frame: str = WORLD_FRAME,
+                         detector: ContactDetector | None = None,
+                         tip_sigmas: float = TIP_SIGMAS) -> list[Reconstructed]:
+    """Reconstruct a batch of ticks in one Step 2 call (``vibrissa.reconstruct.reconstruct_si``).
+
+    A row's clamp pose is the one its tick carries, else its clamp frame in ``map_frame`` at
+    the tick's stamp from ``frames`` (`FrameBuffer.lookup_rows`); its rod is ``rod``, or its
+    whisker's from the mapping. The rows of every tick of the batch, in order, go through one
+    compiled call, so a backlog costs one call instead of one per tick (on a few dozen rows
+    the cost is the calls, not the rows). Step 2 works row by row: a row's point does not
+    depend on the batch it arrived in (batches follow arrival timing), so a replayed bag gives
+    the live run's points bit for bit, and a tick of one row gives the same bits as the same
+    row of a larger tick. With a ``detector`` (the sensors' noise), rows of a free rod are left
+    out (``free``) and points carry their covariance; the detector's state moves on with the
+    rows, in order.
+    """
+    parts = [_rows(msg, rod, frames, map_frame, detector) for msg in msgs]
+    whole = len(parts) == 1 and parts[0].placed.all()  # the rows as they are
+    if whole:
+        part, msg = parts[0], msgs[0]
+        q, p0, f0, m0 = part.q, part.p, msg.f0, msg.m0
+    else:
+        q, p0 = (np.vstack([getattr(part, name)[part.placed] for part in parts])
+                 for name in ("q", "p"))
+        f0, m0 = (np.vstack([getattr(msg, name)[part.placed] for msg, part
+                             in zip(msgs, parts, strict=True)]) for name in ("f0", "m0"))
+    rods: RodScale | FloatArray
+    if isinstance(rod, RodScale):
+        rods = rod
+    elif whole:
+        rods = cast(FloatArray, parts[0].units)
+    else:
+        rods = np.vstack([cast(FloatArray, part.units)[part.placed] for part in parts])
+    if detector is None:
+        result = reconstruct_si(q, p0, f0, m0, rods)
+    else:
+        result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas)
+    point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
+                                       result.force_n, result.status)
+    # a row whose result overflows (finite inputs near the float limit) is flagged
+    # NON_FINITE_INPUT by Step 2: not valid, so it counts as no consistent contact
+    valid = result.valid
+    covariance = result.covariance_m2
+    # with a noise model: per row, a point that is the tip within the noise, or that has no
+    # covariance (an axial load: it gets the rod's reach, L^2 I)
+    tip_within_noise = no_covariance = None
+    if covariance is not None:
+        tip_within_noise = valid & ((status & int(ContactStatus.TIP_WITHIN_NOISE)) != 0)
+        no_covariance = valid & ~np.isfinite(covariance).all(axis=(1, 2))
+        if no_covariance.any():
+            length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
+                        else rods[:, 0])
+            covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
+        covariance.flags.writeable = False
+    for value in (point, s1, phase, force, status):
+        value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
+    outcomes = []
+    first = 0
+    for msg, part in zip(msgs, parts, strict=True):
+        n = int(np.count_nonzero(part.placed))
+        rows = slice(first, first + n)
+        good = int(np.count_nonzero(result.pose_ok[rows]))
+        kept = int(np.count_nonzero(valid[rows]))
+        whisker_ids = msg.whisker_ids
+        rows_kept: slice | npt.NDArray[np.intp] = rows
+        if kept < len(whisker_ids):
+            valid_rows = valid[rows]
+            in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
+            in_message[part.placed] = valid_rows
+            whisker_ids = list(compress(whisker_ids, in_message.tolist()))
+            rows_kept = first + np.flatnonzero(valid_rows)
+        contacts = ContactPointArray(
+            stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
+            point=point[rows_kept], s1=s1[rows_kept], phase=phase[rows_kept],
+            force=force[rows_kept], status=status[rows_kept],
+            covariance=None if covariance is None else covariance[rows_kept])
+        outcomes.append(Reconstructed(
+            contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
+            unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,
+            wrong_frame=part.wrong_frame,
+            tip_within_noise=(0 if tip_within_noise is None
+                              else int(np.count_nonzero(tip_within_noise[rows]))),
+            no_covariance=(0 if no_covariance is None
+                           else int(np.count_nonzero(no_covariance[rows])))))
+        first += n
+    return outcomes
+
+
+def robot_frames(whiskers: Sequence[Whisker], robot_frame: str = ROBOT_FRAME,
+                 history_s: float = DEFAULT_HISTORY_S, max_gap_s: float = math.inf
+                 ) -> FrameBuffer:
+    """A frame buffer with the mounts of the robot description: each whisker's clamp frame
+    (`vibrissa.frames.clamp_frame`) at X_RC in ``robot_frame``."""
+    frames = FrameBuffer(history_s, max_gap_s, gap_name="max_pose_gap_s")
+    for whisker in whiskers:
+        frames.set_static(robot_frame, clamp_frame(whisker.name), whisker.X_RC)
+    return frames

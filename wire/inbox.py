@@ -106,11 +106,6 @@ class Inbox:
             if self._drainer_asleep:  # read after the line above: the drainer cannot miss it
                 self._wake.set()
 
-    def add_socket_locked(self, sock: zmq.Socket[Any]) -> None:
-        """Take messages from ``sock`` too; only inside ``run_locked``."""
-        self._sockets.append(sock)
-        self._poller.register(sock, zmq.POLLIN)
-
     def run_locked(self, command: Callable[[], None]) -> None:
         """Run ``command`` with the sockets to itself (any thread)."""
         with self._lock:

@@ -1,7 +1,7 @@
 """A subscriber's receive queue, bounded in bytes, that adds no thread hop to a message.
 
-The taker (the node's thread, in ``Subscriber.receive``) reads its sockets itself, as a
-single-threaded subscriber would. While it is busy elsewhere, a drainer thread takes what
+The taker (the node's thread, in ``Subscriber.receive``) reads its sockets itself, one
+message per ``take``, as a single-threaded subscriber would. While it is busy elsewhere, a drainer thread takes what
 arrives off the sockets every ``DRAIN_PERIOD_S`` into a FIFO of at most ``max_bytes`` bytes.
 Once the taker has waited in ``take`` for a whole period, the drainer sleeps until it leaves:
 an idle node does not wake for it, and a busy one never wakes it (a thread's wake-up costs the
@@ -93,18 +93,18 @@ class Inbox:
                         self._bytes -= size
                         return frames, cut
                     remaining_ms = round((deadline - time.monotonic()) * 1000)
-                    if (remaining_ms < 0 or self._stop.is_set()
-                            or not self._read(max(0, remaining_ms))):
+                    if remaining_ms < 0 or self._stop.is_set():
                         return None
+                    ready = self._ready(max(0, remaining_ms))
+                    if not ready:
+                        return None
+                    taken = self._read_one(ready)
+                    if taken is not None:
+                        return taken
         finally:
             self._taking_since = None
             if self._drainer_asleep:  # read after the line above: the drainer cannot miss it
                 self._wake.set()
-
-    def add_socket_locked(self, sock: zmq.Socket[Any]) -> None:
-        """Take messages from ``sock`` too; only inside ``run_locked``."""
-        self._sockets.append(sock)
-        self._poller.register(sock, zmq.POLLIN)
 
     def run_locked(self, command: Callable[[], None]) -> None:
         """Run ``command`` with the sockets to itself (any thread)."""
@@ -146,13 +146,33 @@ class Inbox:
                 finally:
                     self._lock.release()
 
+    def _ready(self, timeout_ms: int) -> set[zmq.Socket[Any]]:
+        """The sockets readable within ``timeout_ms``: one poll finds them (a read of a socket
+        with nothing on it raises, which costs more). Holds the lock."""
+        return {sock for sock, _ in self._poller.poll(timeout_ms)}
+
+    def _read_one(self, ready: set[zmq.Socket[Any]]) -> tuple[list[bytes], int] | None:
+        """The next message of the ``ready`` sockets, the first in turn, as ``take`` returns
+        it; ``None`` when none had one after all. The taker reads one at a time and queues
+        nothing: no FIFO round trip, and no read that finds a socket empty and raises
+        (ZeroMQ's ``Again``). Holds the lock."""
+        n = len(self._sockets)
+        for k in range(n):
+            sock = self._sockets[(self._turn + k) % n]
+            if sock in ready:
+                try:
+                    frames = sock.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    continue
+                self._turn = (self._turn + k + 1) % n
+                return frames, self._cut(frames)
+        return None
+
     def _read(self, timeout_ms: int = 0) -> bool:
         """Queue (or drop) what is on the sockets that are readable within ``timeout_ms``, at
         most ``_FAIR_RUN`` from each, starting with the next socket in turn; whether any was.
-        One poll finds them: a read of a socket with nothing on it raises, which costs more
-        (on a tick, reading every socket to find out cost the reconstructor five raises).
         Holds the lock."""
-        ready = {sock for sock, _ in self._poller.poll(timeout_ms)}
+        ready = self._ready(timeout_ms)
         if not ready:
             return False
         n = len(self._sockets)
@@ -169,11 +189,16 @@ class Inbox:
         self._turn = (self._turn + 1) % n
         return True
 
-    def _put(self, frames: list[bytes]) -> None:
-        cut = 0
+    def _cut(self, frames: list[bytes]) -> int:
+        """The length of a payload too long to keep (emptied in ``frames``), else 0."""
         if len(frames) == 3 and len(frames[2]) > self._payload_limit(frames[0]):
             cut = len(frames[2])
             frames[2] = b""  # let go of it before the next one arrives
+            return cut
+        return 0
+
+    def _put(self, frames: list[bytes]) -> None:
+        cut = self._cut(frames)
         size = sum(len(frame) for frame in frames)
         if not self._queue or (self._bytes + size <= self.max_bytes
                                and len(self._queue) < self.max_messages):

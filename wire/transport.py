@@ -638,13 +638,14 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         self._discover = topics is None or any(t != STATUS_TOPIC for t in topics)
         self._status_wanted = topics is None or STATUS_TOPIC in topics
         status_prefix = _check_topic(STATUS_TOPIC)
-        self._direct_prefixes = [p for p in prefixes if p != status_prefix]
         self.direct_endpoints: set[str] = set()
         self._context = context if context is not None else zmq.Context.instance()
         self._endpoints = endpoints or Endpoints.from_env()
         self._refused_endpoints: set[str] = set()  # announced, not beside the proxy
-        self._direct: zmq.Socket[Any] | None = None  # made at the first announced endpoint
-        sock = _socket(self._context, zmq.SUB, PIPE_HWM)
+        self._direct_options_set = False  # on the socket, for the direct connections to come
+        # One socket for the proxy and every direct publisher: a receive polls one socket (each
+        # socket polled costs ZeroMQ a few system calls per receive).
+        self._socket = sock = _socket(self._context, zmq.SUB, PIPE_HWM)
         try:
             for prefix in prefixes:
                 sock.setsockopt(zmq.SUBSCRIBE, prefix)
@@ -718,22 +719,20 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                                                      status.node, topic))
 
     def _connect_direct(self, endpoint: str, node: str, topic: str) -> None:
-        """Connect the direct socket (made at the first endpoint) to ``endpoint``; runs with
-        the inbox's sockets to itself."""
-        if self._direct is None:
-            self._direct = _socket(self._context, zmq.SUB, PIPE_HWM)
+        """Connect the subscriber's socket to ``endpoint`` too; runs with the inbox's sockets
+        to itself. ZeroMQ copies a socket's options into each connection as it is made, so the
+        options set here hold for the direct connections, not for the proxy's (made before);
+        the socket's subscriptions, the status's included, go to every connection (a direct
+        publisher sends its own topic only)."""
+        if not self._direct_options_set:
             # an announced peer is not trusted with frames larger than the proxy takes
-            self._direct.setsockopt(zmq.MAXMSGSIZE, DEFAULT_MAX_MESSAGE_BYTES)
-            if self._endpoints.keys is not None:
-                self._endpoints.keys.connect_with(self._direct)
+            self._socket.setsockopt(zmq.MAXMSGSIZE, DEFAULT_MAX_MESSAGE_BYTES)
             # Endpoints of nodes that are gone stay connected (what they sent last must
             # still be read); ZeroMQ retries them at most every 5 s.
-            self._direct.setsockopt(zmq.RECONNECT_IVL_MAX, 5000)
-            for prefix in self._direct_prefixes:
-                self._direct.setsockopt(zmq.SUBSCRIBE, prefix)
-            self._inbox.add_socket_locked(self._direct)
+            self._socket.setsockopt(zmq.RECONNECT_IVL_MAX, 5000)
+            self._direct_options_set = True
         try:
-            self._direct.connect(endpoint)
+            self._socket.connect(endpoint)
         except zmq.ZMQError as exc:
             log.warning("%s announces %s on %s, cannot connect: %s", node, endpoint, topic, exc)
             return

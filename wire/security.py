@@ -224,8 +224,12 @@ def _new_pair(folder: Path, name: str) -> list[Path]:
 class Guard:
     """The ZAP handler of one context, in a thread, and the counter of refused peers.
 
-    ``refused`` counts failed handshakes on every watched (bound) socket; each refusal is
-    logged, at most one line per 10 s and client address.
+    ``refused`` counts the connections a watched (bound) socket accepted whose handshake failed
+    (ZeroMQ's handshake-failed events): a plain-text peer, a wrong server key, a key not
+    allowed, a peer that leaves before its greeting (a reset); each once. Connections the
+    kernel refuses before ZeroMQ accepts them (beyond the listen backlog, ``ZMQ_BACKLOG``,
+    100, while a flood is not yet accepted) never reach the socket and are not counted.
+    Refusals are logged at most once per 10 s, with the count since the last line.
     """
 
     _guards: ClassVar[dict[int, Guard]] = {}
@@ -237,7 +241,8 @@ class Guard:
         self.refused = 0
         self._monitors: queue.SimpleQueue[zmq.Socket[Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
-        self._last_log: dict[str, float] = {}
+        self._last_log = -_LOG_EVERY_S
+        self._logged = 0  # refusals counted in log lines so far
         zap = context.socket(zmq.REP)
         zap.setsockopt(zmq.LINGER, 0)
         zap.bind(_ZAP_ENDPOINT)
@@ -319,9 +324,10 @@ class Guard:
             monitor.close(linger=0)
             return
         self.refused += 1
-        address = event["endpoint"].decode(errors="replace")
         now = time.monotonic()
-        if now - self._last_log.get(address, -_LOG_EVERY_S) >= _LOG_EVERY_S:
-            self._last_log[address] = now
-            log.warning("refused a peer on %s without an allowed key (%d refused so far)",
-                        address, self.refused)
+        if now - self._last_log >= _LOG_EVERY_S:
+            self._last_log = now
+            log.warning("refused %d connection(s) without an allowed key on %s (%d refused so far)",
+                        self.refused - self._logged, event["endpoint"].decode(errors="replace"),
+                        self.refused)
+            self._logged = self.refused

@@ -18,8 +18,9 @@ from typing import Any
 import yaml
 
 from vibrissa.cli.graph import stop_on_signals
+from vibrissa.formats import yaml_numbers
 from vibrissa.nodes.netft_sim import NetFTSimParams, open_device
-from vibrissa.runtime import ParamError, check_params, yaml_numbers
+from vibrissa.runtime import ParamError, check_params
 
 NETFT_DESCRIPTION = """\
 Run a simulated ATI Net F/T in the foreground. It answers RDT requests (stream, stop, bias)

@@ -787,6 +787,11 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
             return None
         if self._discover and isinstance(msg, NodeStatus):
             self._connect_announced(msg)  # a status the caller takes too
+        if isinstance(msg, EndOfStream) and (topic, header.pub) not in self._next_seq:
+            counters.anomalies += 1  # a forged end: it would end a stream it never was
+            log.warning("%s: EndOfStream from publisher %016x, never heard on this topic: "
+                        "ignored", topic, header.pub)
+            return None
         is_ping = isinstance(msg, Ping)
         self._track(topic, counters, header, is_ping)
         if is_ping:

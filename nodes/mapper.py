@@ -3,7 +3,7 @@ end of stream, writes the map.
 
 Subscribes
 ----------
-``topics`` (default ``[contact]``) : ContactPoint or ContactPointArray
+``topics`` (default ``[contact]``) : ContactPointArray
     Points in SI (m, N), each in its ``frame_id``; each row of an array is a point of its
     whisker; ``EndOfStream`` from every expected source ends the accumulation.
 
@@ -79,7 +79,6 @@ from vibrissa.formats.files import whole_file
 from vibrissa.formats.scene_file import LIMITS, load_scene
 from vibrissa.msgs import (
     ContactCloud,
-    ContactPoint,
     ContactPointArray,
     EndOfStream,
     SurfaceMesh,
@@ -135,7 +134,7 @@ class MapperParams:
     Attributes
     ----------
     topics
-        ContactPoint / ContactPointArray topics, relative to the namespace unless absolute.
+        ContactPointArray topics, relative to the namespace unless absolute.
     expected_sources
         How many distinct ``EndOfStream`` sources end the accumulation, or their node names
         (relative names resolve in the namespace).
@@ -293,12 +292,12 @@ class FrameCloud:
     forces: list[FloatArray] = field(default_factory=list)
     covariances: list[FloatArray] = field(default_factory=list)  # (k, 3, 3); NaN: none
 
-    def add(self, msg: ContactPoint | ContactPointArray, keep: npt.NDArray[np.bool_] | None,
+    def add(self, msg: ContactPointArray, keep: npt.NDArray[np.bool_] | None,
             covariances: FloatArray) -> None:
-        """Append every row of a message (a ContactPoint is one row), or those ``keep`` says,
+        """Append every row of a message, or those ``keep`` says,
         each with its whisker, the message's ``seq`` and its covariance from ``covariances``
         (k, 3, 3) of the rows appended (NaN: none)."""
-        whisker_ids = [msg.whisker_id] if isinstance(msg, ContactPoint) else msg.whisker_ids
+        whisker_ids = msg.whisker_ids
         rows = slice(None) if keep is None else keep
         whisker_ids = whisker_ids if keep is None else list(compress(whisker_ids, keep.tolist()))
         self.whisker_ids += whisker_ids
@@ -366,10 +365,9 @@ class Accumulator:
         self.bad_covariance = 0
 
     def add(self, msg: object) -> None:
-        """Take a ContactPoint, a ContactPointArray or an EndOfStream."""
-        if isinstance(msg, ContactPoint) or (isinstance(msg, ContactPointArray)
-                                             and msg.whisker_ids):  # not a tick without contact
-            rows = 1 if isinstance(msg, ContactPoint) else len(msg.whisker_ids)
+        """Take a ContactPointArray or an EndOfStream."""
+        if isinstance(msg, ContactPointArray) and msg.whisker_ids:  # not a tick without contact
+            rows = len(msg.whisker_ids)
             if msg.frame_id not in self.frames and len(self.frames) >= self.max_frames:
                 self.dropped["max_frames"] += rows
             elif self.n_points + rows > self.max_points:
@@ -384,7 +382,7 @@ class Accumulator:
         elif isinstance(msg, EndOfStream):
             self.ended.add(msg.source)
 
-    def _usable(self, msg: ContactPoint | ContactPointArray) -> npt.NDArray[np.bool_] | None:
+    def _usable(self, msg: ContactPointArray) -> npt.NDArray[np.bool_] | None:
         """The rows the map can use (None: all), counting the others in ``dropped``."""
         point = np.abs(np.reshape(msg.point, (-1, 3))).max(axis=1)
         force = np.abs(np.reshape(msg.force, (-1, 3))).max(axis=1)
@@ -396,7 +394,7 @@ class Accumulator:
                 self.dropped[reason] += int(np.count_nonzero(rows))
         return ~(far | no_force)
 
-    def _covariances(self, msg: ContactPoint | ContactPointArray,
+    def _covariances(self, msg: ContactPointArray,
                      keep: npt.NDArray[np.bool_] | None, kept: int) -> FloatArray:
         """The covariances (kept, 3, 3) of the rows kept, NaN where none came or where one is
         not a covariance (counted in ``bad_covariance``)."""
@@ -889,7 +887,7 @@ def run(node: Node, params: MapperParams) -> dict[str, Any] | None:
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
     acc = Accumulator(expected, params.max_points, params.max_frames)
     subscriber = node.create_subscriber(
-        {t: (ContactPoint, ContactPointArray) for t in params.topics}, hwm=200_000)
+        {t: ContactPointArray for t in params.topics}, hwm=200_000)
     cloud_pub = node.create_publisher(params.cloud_topic, ContactCloud, wait_for=params.wait_for)
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
     proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,

@@ -2,7 +2,7 @@
 
 Subscribes
 ----------
-``input_topic`` (default ``wrench``) : WhiskerWrench or WhiskerWrenchArray
+``input_topic`` (default ``wrench``) : WhiskerWrenchArray
     SI: f0 N, m0 N m in the clamp frame C (``frame_id`` / ``frame_ids``), with or without
     the clamp pose X_PC (``pose_frame_id``); an array holds one row per whisker of one tick.
 ``pose_topic`` (default ``/robot/pose``, only with ``robot``) : RobotPose
@@ -11,10 +11,9 @@ Subscribes
 
 Publishes
 ---------
-``output_topic`` (default ``contact``) : ContactPoint or ContactPointArray
-    One ContactPoint per WhiskerWrench with a consistent contact (status OK or AXIAL_LOAD),
-    same ``stamp``, ``seq`` and ``whisker_id``; one ContactPointArray per WhiskerWrenchArray
-    (same ``stamp``, ``seq``) with the rows that have a consistent contact (possibly none);
+``output_topic`` (default ``contact``) : ContactPointArray
+    One per WhiskerWrenchArray (same ``stamp``, ``seq``) with the rows that have a consistent
+    contact (status OK or AXIAL_LOAD; possibly none);
     in the pose's frame when the wrench carried one, else in ``map_frame`` (the clamp pose
     interpolated at the wrench's stamp); then an ``EndOfStream`` of its own for every
     ``EndOfStream`` on ``input_topic`` (after the points of the wrenches before it).
@@ -50,8 +49,7 @@ the node carries on.
 
 Step 2 in SI, with the clamp pose and each row's ``vibrissa.units.RodScale`` (its whisker's
 from ``robot``, else ``rod_length_m`` and ``rod_ei_nm2``), is the core's
-``vibrissa.reconstruct.reconstruct_si``; a WhiskerWrench is a tick of one row, so both
-message shapes take the same path.
+``vibrissa.reconstruct.reconstruct_si``.
 """
 
 from __future__ import annotations
@@ -79,14 +77,11 @@ from vibrissa.formats.scene_file import load_robot
 from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform, clamp_frame
 from vibrissa.msgs import (
-    ContactPhase,
-    ContactPoint,
     ContactPointArray,
     ContactStatus,
     EndOfStream,
     Message,
     RobotPose,
-    WhiskerWrench,
     WhiskerWrenchArray,
 )
 from vibrissa.msgs.codec import decode, encode
@@ -225,7 +220,7 @@ PARAMS = ReconstructorParams
 """The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
 
-Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
+Wrenches: TypeAlias = WhiskerWrenchArray
 
 Rods: TypeAlias = RodScale | Mapping[str, RodScale]
 """One rod for every whisker, or each whisker's by name (the robot description)."""
@@ -284,8 +279,7 @@ class Reconstructed:
     Attributes
     ----------
     contacts
-        For a WhiskerWrench, its ContactPoint, or None without a consistent contact; for a
-        WhiskerWrenchArray, a ContactPointArray of its rows with one (possibly none). SI, in
+        A ContactPointArray of the input's rows with a consistent contact (possibly none). SI, in
         the frame of the clamp pose the input carried, else in the map frame; same ``stamp``
         and ``seq``.
     no_contact
@@ -308,7 +302,7 @@ class Reconstructed:
         Points in ``contacts`` whose covariance is not defined (they carry L^2 I).
     """
 
-    contacts: ContactPoint | ContactPointArray | None
+    contacts: ContactPointArray | None
     no_contact: int
     bad_pose: int
     no_pose: int = 0
@@ -341,9 +335,8 @@ class _Rows:
 
 def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
           detector: ContactDetector | None) -> _Rows:
-    single = isinstance(msg, WhiskerWrench)
-    whiskers = [msg.whisker_id] if single else msg.whisker_ids
-    f0, m0 = (msg.f0[None], msg.m0[None]) if single else (msg.f0, msg.m0)
+    whiskers = msg.whisker_ids
+    f0, m0 = msg.f0, msg.m0
     n = len(whiskers)
     placed = np.ones(n, bool)
     errors: list[str] = []
@@ -358,7 +351,6 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
                           f"({', '.join(table)})")
     if msg.has_pose:
         q, p = msg.clamp_orientation, msg.clamp_position
-        q, p = (q[None], p[None]) if single else (q, p)
         frame_id = msg.pose_frame_id
         no_pose = 0
     else:
@@ -369,7 +361,7 @@ def _rows(msg: Wrenches, rod: Rods, frames: FrameBuffer | None, map_frame: str,
             errors.append("a wrench without clamp pose needs the robot description (parameter "
                           "'robot') and the robot's poses")
         else:
-            sources = [msg.frame_id] if single else msg.frame_ids
+            sources = msg.frame_ids
             poses = frames.lookup_rows(map_frame, sources, msg.stamp)
             q, p, placed = poses.q_xyzw, poses.p, poses.ok
             errors += poses.errors
@@ -401,12 +393,12 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
 
     A row's clamp pose is the one its message carries, else its clamp frame in ``map_frame``
     at the message's stamp from ``frames`` (`FrameBuffer.lookup_rows`); its rod is ``rod``, or
-    its whisker's from the mapping. A WhiskerWrench is a tick of one row: the rows of every
+    its whisker's from the mapping. The rows of every
     message of the batch, in order, go through one compiled call, so a backlog costs one call
     instead of one per message (on a few dozen rows the cost is the calls, not the rows).
     Step 2 works row by row: a row's point does not depend on the batch it arrived in
     (batches follow arrival timing), so a replayed bag gives the live run's points bit for
-    bit, and a wrench gives the same bits as the same row of an array. With a ``detector``
+    bit. With a ``detector``
     (the sensors' noise), rows of a free rod are left out (``free``) and points carry their
     covariance; the detector's state moves on with the rows, in order.
     """
@@ -455,29 +447,19 @@ def reconstruct_messages(msgs: Sequence[Wrenches], rod: Rods = _UNIT_ROD,
         rows = slice(first, first + n)
         good = int(np.count_nonzero(result.pose_ok[rows]))
         kept = int(np.count_nonzero(valid[rows]))
-        contacts: ContactPoint | ContactPointArray | None = None
-        if isinstance(msg, WhiskerWrench):
-            if kept:
-                contacts = ContactPoint(
-                    stamp=msg.stamp, seq=msg.seq, whisker_id=msg.whisker_id,
-                    frame_id=part.frame_id, point=point[first], s1=float(s1[first]),
-                    phase=ContactPhase(int(phase[first])), force=force[first],
-                    status=ContactStatus(int(status[first])),
-                    covariance=None if covariance is None else covariance[first])
-        else:
-            whisker_ids = msg.whisker_ids
-            rows_kept: slice | npt.NDArray[np.intp] = rows
-            if kept < len(whisker_ids):
-                valid_rows = valid[rows]
-                in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
-                in_message[part.placed] = valid_rows
-                whisker_ids = list(compress(whisker_ids, in_message.tolist()))
-                rows_kept = first + np.flatnonzero(valid_rows)
-            contacts = ContactPointArray(
-                stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
-                point=point[rows_kept], s1=s1[rows_kept], phase=phase[rows_kept],
-                force=force[rows_kept], status=status[rows_kept],
-                covariance=None if covariance is None else covariance[rows_kept])
+        whisker_ids = msg.whisker_ids
+        rows_kept: slice | npt.NDArray[np.intp] = rows
+        if kept < len(whisker_ids):
+            valid_rows = valid[rows]
+            in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
+            in_message[part.placed] = valid_rows
+            whisker_ids = list(compress(whisker_ids, in_message.tolist()))
+            rows_kept = first + np.flatnonzero(valid_rows)
+        contacts = ContactPointArray(
+            stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
+            point=point[rows_kept], s1=s1[rows_kept], phase=phase[rows_kept],
+            force=force[rows_kept], status=status[rows_kept],
+            covariance=None if covariance is None else covariance[rows_kept])
         outcomes.append(Reconstructed(
             contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
             unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,
@@ -513,7 +495,7 @@ def collect_batch(
         msg: Message = rx.msg
         if isinstance(msg, EndOfStream) and end_topic in (None, rx.topic):
             return batch, msg, False
-        if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray, RobotPose)):
+        if isinstance(msg, (WhiskerWrenchArray, RobotPose)):
             if isinstance(msg, RobotPose):
                 on_pose(msg)
             else:
@@ -665,7 +647,7 @@ class PoseWait:
     def _ready(self, msg: Wrenches) -> bool:
         if msg.has_pose or self.frames is None:
             return True
-        sources = [msg.frame_id] if isinstance(msg, WhiskerWrench) else msg.frame_ids
+        sources = msg.frame_ids
         newest = self.frames.newest_rows(self.map_frame, sources)
         return (newest is not None and newest >= msg.stamp
                 and not self.frames.has_gap_rows(self.map_frame, sources, msg.stamp))
@@ -673,8 +655,7 @@ class PoseWait:
 
 def _count(counters: dict[str, int], outcome: Reconstructed) -> None:
     contacts = outcome.contacts
-    counters["contacts"] += (len(contacts.whisker_ids) if isinstance(contacts, ContactPointArray)
-                             else int(contacts is not None))
+    counters["contacts"] += len(contacts.whisker_ids) if contacts is not None else 0
     counters["no_contact"] += outcome.no_contact
     counters["bad_pose"] += outcome.bad_pose
     counters["no_pose"] += outcome.no_pose
@@ -709,11 +690,7 @@ def _compile_kernels(rod: Rods, detector: ContactDetector | None) -> None:
         f0=[[0.1 * one.force_n, 0.0, 0.0]], m0=[[0.0, 0.05 * one.moment_nm, 0.0]],
         pose_frame_id="world", clamp_position=[[0.0, 0.0, 0.0]],
         clamp_orientation=[[0.0, 0.0, 0.0, 1.0]])), WhiskerWrenchArray)
-    wrench = decode(encode(WhiskerWrench(
-        stamp=0.0, seq=0, whisker_id="warm-up", frame_id="warm-up/clamp", f0=tick.f0[0],
-        m0=tick.m0[0], pose_frame_id="world", clamp_position=[0.0, 0.0, 0.0],
-        clamp_orientation=[0.0, 0.0, 0.0, 1.0])), WhiskerWrench)
-    for batch in ([tick], [tick, tick], [wrench]):
+    for batch in ([tick], [tick, tick]):
         reconstruct_messages(batch, one)
         if detector is not None:
             warm_up = ContactDetector(detector.covariance, detector.on_sigmas,
@@ -794,11 +771,11 @@ def run(node: Node, params: ReconstructorParams) -> None:
     rod: Rods = RodTable({w.name: w.scale for w in whiskers}) if whiskers else params.rod
     frames = (robot_frames(whiskers, params.robot_frame, params.history_s, params.max_pose_gap_s)
               if whiskers else None)
-    topics: dict[str, object] = {params.input_topic: (WhiskerWrench, WhiskerWrenchArray)}
+    topics: dict[str, object] = {params.input_topic: WhiskerWrenchArray}
     if frames is not None:
         topics[params.pose_topic] = RobotPose
     subscriber = node.create_subscriber(topics, hwm=params.receive_hwm)  # type: ignore[arg-type]
-    publisher = node.create_publisher(params.output_topic, (ContactPoint, ContactPointArray),
+    publisher = node.create_publisher(params.output_topic, ContactPointArray,
                                       wait_for=params.wait_for)
     warn = Warnings(node.fqn)
     wait = PoseWait(frames, params.map_frame, params.pose_timeout_s,

@@ -293,79 +293,17 @@ def check_shape(
 
 
 @dataclass(frozen=True, eq=False)
-class WhiskerWrench(Message):
-    """One sample of a whisker's base force/torque sensor, in the whisker's clamp frame C.
-
-    A sensor measures in its own frame and does not know where it is: the clamp's pose comes
-    from the robot's pose stream and the robot description (``vibrissa.frame_buffer``). A
-    source that knows the pose (a simulation, a motion-capture rig) may send it along as
-    X_PC in ``pose_frame_id``: all three pose fields or none.
-
-    Version 1 carried the pose in every sample, with ``frame_id`` naming the pose's frame: it
-    decodes as version 2 with that frame as ``pose_frame_id`` and ``frame_id`` the clamp
-    frame ``<whisker_id>/clamp`` (``vibrissa.frames.clamp_frame``).
-    """
-
-    TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrench"
-    VERSION: ClassVar[int] = 2
-
-    stamp: float = _stamp()
-    seq: int = _count("the source's sample counter")
-    whisker_id: str = _text("which whisker the sample is from")
-    frame_id: str = _frame_id("the clamp frame C the wrench is measured in, e.g. 'w0/clamp'")
-    f0: FloatArray = _array((3,), "N", "force of the clamp on the rod, expressed in C")
-    m0: FloatArray = _array(
-        (3,), "N m", "moment of the clamp on the rod about C's origin, expressed in C"
-    )
-    pose_frame_id: str | None = _optional(
-        kind=STR, doc="frame P of the clamp pose, e.g. 'world'; omitted without a pose")
-    clamp_position: FloatArray | None = _optional(
-        kind=ARRAY, shape=(3,), unit="m", dtype=FLOAT64, doc="p_PC: C's origin in P, or omitted")
-    clamp_orientation: FloatArray | None = _optional(
-        kind=ARRAY, shape=(4,), dtype=FLOAT64,
-        doc="R_PC: unit quaternion (x, y, z, w) of C in P, z = rod axis, or omitted")
-
-    def check_fields(self) -> None:
-        _check_pose_fields(self)
-
-    @property
-    def has_pose(self) -> bool:
-        """Whether the clamp pose came with the sample."""
-        return self.pose_frame_id is not None
-
-
-@dataclass(frozen=True, eq=False)
-class ContactPoint(Message):
-    """Contact reconstructed from one WhiskerWrench."""
-
-    TYPE_NAME: ClassVar[str] = "vibrissa/ContactPoint"
-    VERSION: ClassVar[int] = 2
-
-    stamp: float = _stamp()
-    seq: int = _count("seq of the WhiskerWrench this contact was reconstructed from")
-    whisker_id: str = _text("which whisker touched")
-    frame_id: str = _frame_id()
-    point: FloatArray = _array((3,), "m", "contact point on the rod, in frame_id")
-    s1: float = _number("m", "arc length of the contact along the rod from the clamp")
-    phase: ContactPhase = _spec(kind=ENUM, enum=ContactPhase, doc="0 none, 1 tip, 2 tangential")
-    force: FloatArray = _array((3,), "N", "contact force on the rod, in frame_id")
-    status: ContactStatus = _spec(
-        kind=ENUM, enum=ContactStatus, doc="ContactStatus bit flags; 0 = OK"
-    )
-    covariance: FloatArray | None = _optional(
-        kind=ARRAY, shape=(3, 3), unit="m^2", dtype=FLOAT64,
-        doc="covariance of point from the wrench noise, in frame_id; omitted without a noise "
-        "model (version 1 has none)")
-
-
-@dataclass(frozen=True, eq=False)
 class WhiskerWrenchArray(Message):
-    """One tick of a multi-whisker array: the base wrench of each whisker in its clamp frame.
+    """The base wrench of each whisker of one tick, in its clamp frame; a single whisker's
+    sample is a batch of one row.
 
     Row i of every field belongs to whisker ``whisker_ids[i]``, measured in the clamp frame
-    ``frame_ids[i]``; all rows share ``stamp``. The clamp poses X_PC may come along, as in
-    WhiskerWrench: all three pose fields or none. Version 1 (poses in ``frame_id``) decodes as
-    version 2 with ``pose_frame_id`` = that frame and the clamp frames ``<whisker>/clamp``.
+    ``frame_ids[i]``; all rows share ``stamp``. A sensor measures in its own frame and does not
+    know where it is: the clamp poses come from the robot's pose stream and the robot
+    description (``vibrissa.frame_buffer``). A source that knows them (a simulation, a
+    motion-capture rig) may send them along as X_PC in ``pose_frame_id``: all three pose fields
+    or none. Version 1 (poses in ``frame_id``) decodes as version 2 with ``pose_frame_id`` =
+    that frame and the clamp frames ``<whisker>/clamp``.
     """
 
     TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrenchArray"
@@ -399,7 +337,7 @@ class WhiskerWrenchArray(Message):
         return self.pose_frame_id is not None
 
 
-def _check_pose_fields(msg: WhiskerWrench | WhiskerWrenchArray) -> None:
+def _check_pose_fields(msg: WhiskerWrenchArray) -> None:
     present = [name for name in _POSE_FIELDS if getattr(msg, name) is not None]
     if present and len(present) != len(_POSE_FIELDS):
         missing = [name for name in _POSE_FIELDS if name not in present]
@@ -412,7 +350,8 @@ _POSE_FIELDS = ("pose_frame_id", "clamp_position", "clamp_orientation")
 
 @dataclass(frozen=True, eq=False)
 class ContactPointArray(Message):
-    """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact."""
+    """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact
+    (a single whisker's contact is a batch of one row)."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/ContactPointArray"
     MAX_BYTES: ClassVar[int] = 1 << 20  # some 6 000 whiskers with covariances
@@ -587,9 +526,7 @@ class Ping(Message):
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.TYPE_NAME: cls
     for cls in (
-        WhiskerWrench,
         WhiskerWrenchArray,
-        ContactPoint,
         ContactPointArray,
         ContactCloud,
         SurfaceMesh,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
+from itertools import repeat
 from typing import Any
 
 import msgpack
@@ -180,7 +181,7 @@ def _unpack(payload: bytes) -> dict[str, Any]:
         raise MalformedPayloadError(f"malformed payload ({len(payload)} bytes): {exc}") from exc
     if not isinstance(obj, dict):
         raise MalformedPayloadError(f"payload is a {type(obj).__name__}, expected a msgpack map")
-    if not all(type(key) is str for key in obj):
+    if not all(map(isinstance, obj, repeat(str))):
         raise MalformedPayloadError("payload map has a key that is not a string")
     return obj
 
@@ -295,8 +296,9 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
     msg.__dict__.update(values)
     try:
         msg.check_fields()
-    except ValueError as exc:
-        raise MissingFieldError(str(exc), name) from None
+    except ValueError as exc:  # a retired type's payload: named as it came
+        raise MissingFieldError(str(exc) if cls.TYPE_NAME == name else f"{name}: {exc}",
+                                name) from None
     return msg
 
 
@@ -506,15 +508,24 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
         raise ArrayDtypeError(f"{t}.{f}: dtype {dtype!r}, expected {spec.dtype_str!r}", t, f)
     if not isinstance(data, bytes) or not isinstance(shape, list):
         raise _type_error(t, f, "array shape list[int] and bytes data", value)
+    count = 1
     for n in shape:
         if type(n) is not int or n < 0:
             raise _type_error(t, f, "array shape list[int] and bytes data", value)
-    if tuple(shape) != spec.shape:  # fixed shapes match here; symbolic ones go on
+        count *= n
+    pattern = spec.shape
+    fits = len(shape) == len(pattern)
+    if fits:  # symbolic sizes bound at first use, as in check_shape
+        for want, got in zip(pattern, shape, strict=True):
+            if want != got and (type(want) is not str or sizes.setdefault(want, got) != got):
+                fits = False
+                break
+    if not fits:
         try:
-            check_shape(f"{t}.{f}", spec.shape, tuple(shape), sizes)
+            check_shape(f"{t}.{f}", pattern, tuple(shape), sizes)
         except ValueError as exc:
             raise ArrayShapeError(str(exc), t, f) from exc
-    if len(data) != math.prod(shape) * spec.dtype.itemsize:
+    if len(data) != count * spec.dtype.itemsize:
         raise ArrayShapeError(
             f"{t}.{f}: {len(data)} data bytes for shape {tuple(shape)} of {dtype}", t, f
         )
@@ -529,9 +540,9 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
 
 
 def _decode_str_list(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, int]) -> Any:
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+    if not isinstance(value, list) or not all(map(isinstance, value, repeat(str))):
         raise _type_error(t, f, "list[str]", value)
-    if spec.length:
+    if spec.length and sizes.setdefault(spec.length, len(value)) != len(value):
         try:
             check_shape(f"{t}.{f}", (spec.length,), (len(value),), sizes)
         except ValueError as exc:

@@ -115,6 +115,8 @@ def enum_values_ok(enum_type: type[enum.IntEnum] | type[enum.IntFlag], values: A
     if array.size <= 64:  # a tick's rows: Python's ints cost less than numpy's calls
         items = array.ravel().tolist()
         if flags:
+            if array.dtype.kind in "iu" and not mask & (mask + 1):  # bits 0..k, all defined
+                return not items or (min(items) >= 0 and max(items) <= mask)
             return all(type(v) is int and v >= 0 and not v & ~mask for v in items)
         return members.issuperset(items)
     if flags:

@@ -380,7 +380,7 @@ class ImportResult:
         """One line: wrenches per whisker, poses, transforms and messages left out."""
         per = ", ".join(f"{w} {n}" for w, n in sorted(self.wrenches.items()))
         other = sum(self.other_transforms.values())
-        line = (f"wrote {sum(self.wrenches.values())} wrench samples ({per}) and {self.poses} "
+        line = (f"wrote {sum(self.wrenches.values())} wrench sample(s) ({per}) and {self.poses} "
                 f"RobotPose to {self.path}; {other} other /tf transform(s) left out")
         if self.refused:
             line += "; refused by the codec (NaN, inf or a bad name): " + ", ".join(

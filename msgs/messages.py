@@ -13,7 +13,7 @@ import enum
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -212,6 +212,22 @@ class Message:
 
     def check_fields(self) -> None:
         """Rules across fields (``ValueError``); the codec runs them on decode too."""
+
+    def select_rows(self, keep: npt.ArrayLike) -> Self:
+        """This message with only the rows ``keep`` (a bool mask (N,) or row indices) of every
+        field sized by ``N``; the other fields as they are."""
+        rows = np.asarray(keep)
+        if rows.dtype == np.bool_:
+            rows = np.flatnonzero(rows)
+        values: dict[str, Any] = {}
+        for name, spec in field_specs(type(self)):
+            value = getattr(self, name)
+            if value is not None and spec.kind == ARRAY and spec.shape[:1] == ("N",):
+                value = value[rows]
+            elif value is not None and spec.kind == STR_LIST and spec.length == "N":
+                value = [value[i] for i in rows.tolist()]
+            values[name] = value
+        return type(self)(**values)
 
     def __eq__(self, other: object) -> bool:
         if type(other) is not type(self):

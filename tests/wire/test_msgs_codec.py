@@ -666,6 +666,21 @@ def test_unusual_arrays_get_the_full_checks() -> None:
     assert decode(encode(empty)) == empty
 
 
+def test_select_rows_keeps_the_rows_of_every_sized_field() -> None:
+    msg = dataclasses.replace(contact_array(), covariance=np.stack([np.eye(3), 2 * np.eye(3)]))
+    second = msg.select_rows(np.array([False, True]))
+    assert second == msg.select_rows([1]) and second.whisker_ids == ["w2"]
+    assert (second.stamp, second.seq, second.frame_id) == (msg.stamp, msg.seq, msg.frame_id)
+    for name in ("point", "s1", "phase", "force", "status", "covariance"):
+        assert np.array_equal(getattr(second, name), getattr(msg, name)[1:]), name
+        assert not getattr(second, name).flags.writeable
+    empty = msg.select_rows(np.zeros(2, bool))
+    assert empty.whisker_ids == [] and empty.point.shape == (0, 3) and decode(encode(empty)) == empty
+    tick = wrench_array().select_rows([2, 0])
+    assert tick.whisker_ids == ["w2", "w0"] and tick.frame_ids == ["w2/clamp", "w0/clamp"]
+    assert np.array_equal(tick.f0, wrench_array().f0[[2, 0]])
+
+
 def test_construction_takes_read_only_sized_arrays_as_they_are() -> None:
     msg = contact_array()
     point = np.array(msg.point)  # writeable: copied

@@ -53,7 +53,8 @@ def test_the_example_node_runs_in_the_graph(tmp_path: Path, launch_file: str, na
         launch.kill()
     text = launch.text()
     assert rc == 0, text
-    assert "rejected" not in text and "data did not arrive in full" not in text, text
+    assert not re.search(r"rejected [1-9]|rejected message", text), text
+    assert "data did not arrive in full" not in text, text
     # what it republished: a message per input message, only tip rows, then the end
     assert isinstance(eos, EndOfStream) and eos.source == f"{namespace}/phase_filter"
     assert filtered and eos.count == len(filtered)

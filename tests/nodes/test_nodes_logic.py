@@ -21,11 +21,9 @@ from scipy.spatial.transform import Rotation
 from vibrissa.frames import quaternion_matrices
 from vibrissa.msgs import (
     ContactPhase,
-    ContactPoint,
     ContactPointArray,
     ContactStatus,
     EndOfStream,
-    WhiskerWrench,
     WhiskerWrenchArray,
 )
 from vibrissa.msgs.codec import decode, encode
@@ -54,15 +52,29 @@ UNIT_ROD = RodScale()
 class WrenchesResult:
     """The points of a batch of wrenches, and its counts."""
 
-    contacts: list[ContactPoint]
+    contacts: list[ContactPointArray]  # those of one row
     no_contact: int
     bad_pose: int
 
 
-def reconstruct_wrenches(wrenches: list[WhiskerWrench], rod: RodScale = UNIT_ROD) -> WrenchesResult:
-    """The node's one path on a batch of wrenches, its outcomes summed."""
+def one_row(*, stamp: float, seq: int, whisker_id: str, frame_id: str,
+            pose_frame_id: str | None = None, clamp_position: Any = None,
+            clamp_orientation: Any = None, f0: Any, m0: Any) -> WhiskerWrenchArray:
+    """One whisker's sample: a WhiskerWrenchArray of one row."""
+    def row(value: Any) -> Any:
+        return None if value is None else np.reshape(value, (1, -1))
+    return WhiskerWrenchArray(stamp=stamp, seq=seq, whisker_ids=[whisker_id], frame_ids=[frame_id],
+                              pose_frame_id=pose_frame_id, clamp_position=row(clamp_position),
+                              clamp_orientation=row(clamp_orientation), f0=row(f0), m0=row(m0))
+
+
+def reconstruct_wrenches(wrenches: list[WhiskerWrenchArray], rod: RodScale = UNIT_ROD
+                         ) -> WrenchesResult:
+    """The node's one path on a batch of one-row wrenches, its outcomes summed; the contacts
+    of the rows that have one."""
     outcomes = reconstruct_messages(wrenches, rod)
-    return WrenchesResult([o.contacts for o in outcomes if isinstance(o.contacts, ContactPoint)],
+    return WrenchesResult([o.contacts for o in outcomes
+                           if o.contacts is not None and o.contacts.whisker_ids],
                           sum(o.no_contact for o in outcomes), sum(o.bad_pose for o in outcomes))
 
 
@@ -77,18 +89,18 @@ def reconstruct_array(tick: WhiskerWrenchArray, rod: RodScale = UNIT_ROD) -> Rec
 
 
 def sweep_wrenches(run: SweepRun, whisker_id: str, frame_id: str, rod: RodScale
-                   ) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
+                   ) -> Iterator[WhiskerWrenchArray]:
     """The wrench source's one path, one whisker sweeping one sweep after the other."""
     return tick_messages(sequential_ticks(run, rod), [whisker_id] * len(run.trails), frame_id)
 
 
 def sweep_arrays(run: SweepRun, whisker_ids: list[str], frame_id: str, rod: RodScale
-                 ) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
+                 ) -> Iterator[WhiskerWrenchArray]:
     """The wrench source's one path, the sweeps as one rigid array."""
     return tick_messages(array_ticks(run, rod), whisker_ids, frame_id, array=True)
 
 
-def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:
+def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrenchArray]:
     """Wrenches of a rod touched at random points of a bent plane (some without contact)."""
     rng = np.random.default_rng(seed)
     p0 = rng.uniform(-1, 1, (n, 3))
@@ -96,15 +108,15 @@ def _wrenches(n: int = 64, seed: int = 3, **kwargs: Any) -> list[WhiskerWrench]:
     m0 = rng.normal(0, 1, (n, 3))
     f0[0] = 0.0  # no force: no contact
     m0[0] = 0.0
-    return [WhiskerWrench(stamp=float(i), seq=i, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+    return [one_row(stamp=float(i), seq=i, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                           clamp_position=p0[i], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
                           f0=f0[i], m0=m0[i], **kwargs) for i in range(n)]
 
 
-def _to_si(wrenches: list[WhiskerWrench], length: float, ei: float,
-           quaternion: Any = None) -> list[WhiskerWrench]:
+def _to_si(wrenches: list[WhiskerWrenchArray], length: float, ei: float,
+           quaternion: Any = None) -> list[WhiskerWrenchArray]:
     """The wrenches of a rod of length ``length`` and stiffness ``ei`` (written out, not RodScale)."""
-    return [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+    return [one_row(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                           clamp_position=w.clamp_position * length,
                           clamp_orientation=w.clamp_orientation if quaternion is None else quaternion,
                           f0=w.f0 * ei / length**2, m0=w.m0 * ei / length) for w in wrenches]
@@ -120,27 +132,27 @@ def test_sweep_wrenches_are_si_with_running_seq() -> None:
     n0, n1 = sweeps[0].n_steps, sweeps[1].n_steps
     assert n0 > 3 and n1 > 3
     assert [m.seq for m in msgs] == list(range(n0 + n1))
-    assert all(m.whisker_id == "w7" for m in msgs)
+    assert all(m.whisker_ids == ["w7"] for m in msgs)  # a batch of one row each
     last = msgs[n0 + 2]  # the third equilibrium of the second sweep
-    np.testing.assert_array_equal(last.clamp_orientation, [0, 0, 0, 1])
-    np.testing.assert_allclose(last.clamp_position, sweeps[1].p0[2] * length, rtol=1e-15)
-    np.testing.assert_allclose(last.f0, sweeps[1].f0[2] * ei / length**2, rtol=1e-15)
-    np.testing.assert_allclose(last.m0, sweeps[1].m0[2] * ei / length, rtol=1e-15)
+    np.testing.assert_array_equal(last.clamp_orientation, [[0, 0, 0, 1]])
+    np.testing.assert_allclose(last.clamp_position[0], sweeps[1].p0[2] * length, rtol=1e-15)
+    np.testing.assert_allclose(last.f0[0], sweeps[1].f0[2] * ei / length**2, rtol=1e-15)
+    np.testing.assert_allclose(last.m0[0], sweeps[1].m0[2] * ei / length, rtol=1e-15)
 
 
 def test_batch_equals_library_and_counts_no_contact() -> None:
     wrenches = _wrenches()
     result = reconstruct_wrenches(wrenches)
-    rec = reconstruct(np.stack([w.clamp_position for w in wrenches]),
-                      np.stack([w.f0 for w in wrenches]), np.stack([w.m0 for w in wrenches]))
+    rec = reconstruct(np.vstack([w.clamp_position for w in wrenches]),
+                      np.vstack([w.f0 for w in wrenches]), np.vstack([w.m0 for w in wrenches]))
     assert result.no_contact == int(np.count_nonzero(~rec.valid)) >= 1
     assert [c.seq for c in result.contacts] == np.flatnonzero(rec.valid).tolist()
     for contact in result.contacts:
-        np.testing.assert_allclose(contact.point, rec.point[contact.seq], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(contact.force, rec.force[contact.seq], rtol=0, atol=1e-12)
-        assert contact.s1 == pytest.approx(rec.s1[contact.seq], abs=1e-12)
-        assert int(contact.status) == int(rec.status[contact.seq])
-        assert int(contact.phase) == int(rec.phase[contact.seq])
+        np.testing.assert_allclose(contact.point[0], rec.point[contact.seq], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(contact.force[0], rec.force[contact.seq], rtol=0, atol=1e-12)
+        assert contact.s1[0] == pytest.approx(rec.s1[contact.seq], abs=1e-12)
+        assert int(contact.status[0]) == int(rec.status[contact.seq])
+        assert int(contact.phase[0]) == int(rec.phase[contact.seq])
 
 
 @pytest.mark.parametrize("quaternion", [[0.0, 0.0, 0.0, 1.0], [0.3, -0.2, 0.5, 2.0]])
@@ -148,7 +160,7 @@ def test_a_wrench_gives_the_same_point_bit_for_bit_in_any_batch(quaternion) -> N
     # Batches follow arrival timing; a bag replay must still give the live run's points.
     length, ei = 0.04, 3e-3
     wrenches = _to_si(_wrenches(48), length, ei, quaternion)
-    wrenches[5] = WhiskerWrench(stamp=0.0, seq=5, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+    wrenches[5] = one_row(stamp=0.0, seq=5, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                                 clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 0],
                                 f0=[1.0, 0, 0], m0=[0, 1.0, 0])
     whole = reconstruct_wrenches(wrenches, RodScale(length, ei))
@@ -169,7 +181,7 @@ def test_si_scaling_round_trip() -> None:
     for ca, cb in zip(a.contacts, b.contacts, strict=True):
         np.testing.assert_allclose(cb.point, ca.point * length, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(cb.force, ca.force * ei / length**2, rtol=1e-12, atol=1e-15)
-        assert cb.s1 == pytest.approx(ca.s1 * length, rel=1e-12)
+        assert cb.s1[0] == pytest.approx(ca.s1[0] * length, rel=1e-12)
 
 
 @pytest.mark.parametrize("cls", [WrenchSourceParams, ReconstructorParams, MapperParams])
@@ -201,20 +213,20 @@ def test_clamp_orientation_rotates_the_contact() -> None:
     np.testing.assert_allclose(R, np.eye(3) + np.sin(angle) * K
                                + (1 - np.cos(angle)) * K @ K, atol=1e-15)
     straight = _wrenches()
-    turned = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+    turned = [one_row(stamp=w.stamp, seq=w.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                             clamp_position=w.clamp_position, clamp_orientation=q * 2.0,
                             f0=w.f0, m0=w.m0) for w in straight]  # not unit: normalised
     a, b = reconstruct_wrenches(straight), reconstruct_wrenches(turned)
     assert [c.seq for c in a.contacts] == [c.seq for c in b.contacts]
     for ca, cb in zip(a.contacts, b.contacts, strict=True):
-        p0 = straight[ca.seq].clamp_position
-        np.testing.assert_allclose(cb.point - p0, R @ (ca.point - p0), atol=1e-12)
-        np.testing.assert_allclose(cb.force, R @ ca.force, atol=1e-12)
+        p0 = straight[ca.seq].clamp_position[0]  # type: ignore[index]
+        np.testing.assert_allclose(cb.point[0] - p0, R @ (ca.point[0] - p0), atol=1e-12)
+        np.testing.assert_allclose(cb.force[0], R @ ca.force[0], atol=1e-12)
 
 
 def test_zero_quaternion_is_counted_as_bad_pose() -> None:
     w = _wrenches(3)
-    bad = WhiskerWrench(stamp=0.0, seq=9, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+    bad = one_row(stamp=0.0, seq=9, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                         clamp_position=w[1].clamp_position, clamp_orientation=[0, 0, 0, 0],
                         f0=w[1].f0, m0=w[1].m0)
     result = reconstruct_wrenches([w[1], bad])
@@ -222,14 +234,14 @@ def test_zero_quaternion_is_counted_as_bad_pose() -> None:
     assert 9 not in [c.seq for c in result.contacts]
 
 
-def _tick(wrenches: list[WhiskerWrench], seq: int = 4) -> WhiskerWrenchArray:
+def _tick(wrenches: list[WhiskerWrenchArray], seq: int = 4) -> WhiskerWrenchArray:
     """The wrenches as the rows of one array message."""
     return WhiskerWrenchArray(
         stamp=2.5, seq=seq, pose_frame_id="world",
         frame_ids=[f"w{w.seq}/clamp" for w in wrenches], whisker_ids=[f"w{w.seq}" for w in wrenches],
-        clamp_position=np.stack([w.clamp_position for w in wrenches]),
-        clamp_orientation=np.stack([w.clamp_orientation for w in wrenches]),
-        f0=np.stack([w.f0 for w in wrenches]), m0=np.stack([w.m0 for w in wrenches]))
+        clamp_position=np.vstack([w.clamp_position for w in wrenches]),
+        clamp_orientation=np.vstack([w.clamp_orientation for w in wrenches]),
+        f0=np.vstack([w.f0 for w in wrenches]), m0=np.vstack([w.m0 for w in wrenches]))
 
 
 def test_an_array_of_whiskers_moves_as_one_and_reconstructs_its_sweeps() -> None:
@@ -272,7 +284,7 @@ def test_array_equals_library_and_per_wrench_path_and_counts_rows() -> None:
     unit = _wrenches(32)
     q = np.random.default_rng(5).normal(size=(32, 4))
     q[7] = 0.0  # bad pose
-    wrenches = [WhiskerWrench(stamp=w.stamp, seq=w.seq, whisker_id=f"w{w.seq}",
+    wrenches = [one_row(stamp=w.stamp, seq=w.seq, whisker_id=f"w{w.seq}",
                               frame_id=f"w{w.seq}/clamp", pose_frame_id="world",
                               clamp_position=w.clamp_position * length, clamp_orientation=q[i],
                               f0=w.f0 * ei / length**2, m0=w.m0 * ei / length)
@@ -281,7 +293,7 @@ def test_array_equals_library_and_per_wrench_path_and_counts_rows() -> None:
     per_wrench = reconstruct_wrenches(wrenches, rod)
     got = result.contacts
     assert (got.stamp, got.seq, got.frame_id) == (2.5, 4, "world")
-    assert got.whisker_ids == [c.whisker_id for c in per_wrench.contacts]
+    assert got.whisker_ids == [c.whisker_ids[0] for c in per_wrench.contacts]
     assert (result.no_contact, result.bad_pose) == (per_wrench.no_contact, per_wrench.bad_pose)
     assert result.bad_pose == 1 and result.no_contact >= 1 and "w7" not in got.whisker_ids
     # the library on the dimensionless rows, one array call
@@ -289,8 +301,8 @@ def test_array_equals_library_and_per_wrench_path_and_counts_rows() -> None:
     good = [i for i in range(32) if i != 7]
     R = Rotation.from_quat(q[good]).as_matrix()  # scipy's (x, y, z, w), normalised first
     np.testing.assert_allclose(quaternion_matrices(q[good])[0], R, rtol=0, atol=2e-15)
-    rec = reconstruct(np.stack([unit[i].clamp_position for i in good]),
-                      np.stack([unit[i].f0 for i in good]), np.stack([unit[i].m0 for i in good]), R)
+    rec = reconstruct(np.vstack([unit[i].clamp_position for i in good]),
+                      np.vstack([unit[i].f0 for i in good]), np.vstack([unit[i].m0 for i in good]), R)
     keep = [good.index(i) for i in rows]
     assert rec.valid.sum() == len(rows)
     np.testing.assert_allclose(got.point, rec.point[keep] * length, rtol=1e-12, atol=1e-15)
@@ -299,10 +311,10 @@ def test_array_equals_library_and_per_wrench_path_and_counts_rows() -> None:
     np.testing.assert_array_equal(got.phase, rec.phase[keep])
     np.testing.assert_array_equal(got.status, rec.status[keep])
     # one wrench at a time: the same rows, the same bits
-    np.testing.assert_array_equal(got.point, [c.point for c in per_wrench.contacts])
-    np.testing.assert_array_equal(got.force, [c.force for c in per_wrench.contacts])
-    assert got.s1.tolist() == [c.s1 for c in per_wrench.contacts]
-    assert got.phase.tolist() == [int(c.phase) for c in per_wrench.contacts]
+    np.testing.assert_array_equal(got.point, np.vstack([c.point for c in per_wrench.contacts]))
+    np.testing.assert_array_equal(got.force, np.vstack([c.force for c in per_wrench.contacts]))
+    assert got.s1.tolist() == [c.s1[0] for c in per_wrench.contacts]
+    assert got.phase.tolist() == [c.phase[0] for c in per_wrench.contacts]
 
 
 def test_an_array_gives_the_same_points_bit_for_bit_after_the_wire() -> None:
@@ -354,7 +366,7 @@ def test_arrays_are_drained_like_wrenches_in_arrival_order() -> None:
         return _rx(queue.pop(0)) if queue else None
 
     batch, eos, _ = collect_batch(receive, 0.1, max_batch=3)
-    assert [type(m) for m in batch] == [WhiskerWrench, WhiskerWrenchArray, WhiskerWrenchArray]
+    assert [len(m.whisker_ids) for m in batch] == [1, 2, 2]
     assert [m.seq for m in batch] == [0, 1, 2] and eos is None
     assert collect_batch(receive, 0.1, max_batch=100)[0] == [wrenches[2]]
 
@@ -387,14 +399,14 @@ def test_a_backlog_of_arrays_gives_each_tick_its_own_points_bit_for_bit() -> Non
     assert sum(len(r.contacts.whisker_ids) for r in together) > 40
     # and each tick's rows are those of its wrenches one by one, bit for bit
     for tick, result in zip(ticks, together, strict=True):
-        rows = [WhiskerWrench(stamp=0.0, seq=i, whisker_id=tick.whisker_ids[i],
+        rows = [one_row(stamp=0.0, seq=i, whisker_id=tick.whisker_ids[i],
                               frame_id=f"{tick.whisker_ids[i]}/clamp", pose_frame_id="world",
                               clamp_position=tick.clamp_position[i],
                               clamp_orientation=tick.clamp_orientation[i], f0=tick.f0[i],
                               m0=tick.m0[i]) for i in range(len(tick.whisker_ids))]
         one_by_one = [reconstruct_wrenches([row], rod) for row in rows]
         contacts = [c for r in one_by_one for c in r.contacts]
-        assert result.contacts.whisker_ids == [c.whisker_id for c in contacts]
+        assert result.contacts.whisker_ids == [c.whisker_ids[0] for c in contacts]
         assert (result.no_contact, result.bad_pose) == (
             sum(r.no_contact for r in one_by_one), sum(r.bad_pose for r in one_by_one))
         np.testing.assert_array_equal(result.contacts.point.reshape(-1, 3),
@@ -448,8 +460,8 @@ def test_contact_normals_recover_the_surface_normal_with_friction() -> None:
 
 
 def test_accumulator_ends_on_count_or_names() -> None:
-    point = ContactPoint(stamp=0.0, seq=0, whisker_id="w", frame_id="world", point=[0, 0, 1],
-                         s1=0.5, phase=1, force=[0, 0, 1], status=0)
+    point = ContactPointArray(stamp=0.0, seq=0, whisker_ids=["w"], frame_id="world",
+                              point=[[0, 0, 1]], s1=[0.5], phase=[1], force=[[0, 0, 1]], status=[0])
     acc = Accumulator(2)
     acc.add(point)
     acc.add(EndOfStream(stamp=0.0, source="/a", count=1))
@@ -482,7 +494,7 @@ def test_a_result_that_overflows_is_counted_as_no_contact_not_published() -> Non
     p0 = np.array([-1.30861562e308, 1.49614536e308, 1.16312171e308])
     f0 = np.array([1.15378996e308, -9.47832554e307, 1.11655258e308])
     m0 = np.array([4.86599216e153, 9.48589037e153, 5.07180288e153])
-    wrench = WhiskerWrench(stamp=1.0, seq=3, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
+    wrench = one_row(stamp=1.0, seq=3, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
                            clamp_position=p0,
                            clamp_orientation=q, f0=f0, m0=m0)
     decode(encode(wrench))  # the codec takes it: every value is finite
@@ -491,15 +503,17 @@ def test_a_result_that_overflows_is_counted_as_no_contact_not_published() -> Non
         stamp=1.0, seq=3, pose_frame_id="world",
         frame_ids=["w/clamp", "v/clamp"], whisker_ids=["w", "v"], clamp_position=[p0, p0],
         clamp_orientation=[q, q], f0=[f0, f0], m0=[m0, np.zeros(3)])])[0]
-    assert (single.contacts, single.no_contact, single.bad_pose) == (None, 1, 0)
+    assert single.contacts is not None and single.contacts.whisker_ids == []
+    assert (single.no_contact, single.bad_pose) == (1, 0)
     assert array.contacts is not None and array.contacts.whisker_ids == []
     assert (array.no_contact, array.bad_pose) == (2, 0)
     encode(array.contacts)  # what is published can be encoded
 
 
-def _contact(i: int, point: list[float], frame_id: str = "world") -> ContactPoint:
-    return ContactPoint(stamp=0.0, seq=i, whisker_id="w0", frame_id=frame_id, point=point, s1=0.5,
-                        phase=ContactPhase.TIP, force=[0.0, 0.0, 1.0], status=ContactStatus.OK)
+def _contact(i: int, point: list[float], frame_id: str = "world") -> ContactPointArray:
+    return ContactPointArray(stamp=0.0, seq=i, whisker_ids=["w0"], frame_id=frame_id,
+                             point=[point], s1=[0.5], phase=[ContactPhase.TIP],
+                             force=[[0.0, 0.0, 1.0]], status=[ContactStatus.OK])
 
 
 @pytest.mark.parametrize(("points", "why"), [
@@ -553,13 +567,14 @@ def test_a_full_disk_leaves_no_half_written_map_file(tmp_path: Path) -> None:
     script = f"""
 import numpy as np
 from pathlib import Path
-from vibrissa.msgs import ContactPhase, ContactPoint
+from vibrissa.msgs import ContactPhase, ContactPointArray
 from vibrissa.nodes.mapper import Accumulator, MapperParams, write_outputs
 acc = Accumulator(1)
 for i in range(3000):
-    acc.add(ContactPoint(stamp=0.0, seq=i, whisker_id="w", frame_id="world",
-                         point=[0.001 * (i % 60), 0.001 * (i // 60), 0.5 + 1e-4 * (i % 7)],
-                         s1=0.5, phase=ContactPhase.TIP, force=[0.0, 0.0, 1.0], status=0))
+    acc.add(ContactPointArray(stamp=0.0, seq=i, whisker_ids=["w"], frame_id="world",
+                              point=[[0.001 * (i % 60), 0.001 * (i // 60), 0.5 + 1e-4 * (i % 7)]],
+                              s1=[0.5], phase=[ContactPhase.TIP], force=[[0.0, 0.0, 1.0]],
+                              status=[0]))
 out = Path({str(tmp_path)!r})
 try:
     write_outputs(acc, MapperParams(out_dir=str(out), plot=False), out)
@@ -577,7 +592,8 @@ def test_a_full_disk_stops_the_recorder_with_one_error_and_a_readable_bag(
     bag = tmp_path / "rec.mcap"
     script = f"""
 import numpy as np
-from vibrissa.msgs import WhiskerWrench, encode
+from vibrissa.msgs import WhiskerWrenchArray
+from vibrissa.msgs.codec import encode
 from vibrissa.nodes.recorder import RecorderParams, record
 from vibrissa.wire.bag import BagReader
 from vibrissa.wire.transport import Header, Received
@@ -586,9 +602,10 @@ class Endless:
     seq = 0
     def receive(self, timeout_s):
         self.seq += 1
-        msg = WhiskerWrench(stamp=0.0, seq=self.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
-                            clamp_position=np.random.rand(3), clamp_orientation=[0, 0, 0, 1],
-                            f0=np.random.rand(3), m0=np.random.rand(3))
+        msg = WhiskerWrenchArray(stamp=0.0, seq=self.seq, whisker_ids=["w"], frame_ids=["w/clamp"],
+                                 pose_frame_id="world", clamp_position=np.random.rand(1, 3),
+                                 clamp_orientation=[[0, 0, 0, 1]], f0=np.random.rand(1, 3),
+                                 m0=np.random.rand(1, 3))
         return Received("/w/wrench", msg, encode(msg), Header(1, self.seq), 0.0)
     def totals(self):
         return {{"lost": 0, "rejected": 0}}

@@ -16,7 +16,8 @@ from numba.core.registry import CPUDispatcher
 from scipy.spatial.transform import Rotation
 from vibrissa.contact_detection import ContactDetector, wrench_covariance
 from vibrissa.frames import Transform
-from vibrissa.msgs import RobotPose, WhiskerWrench, WhiskerWrenchArray, decode, encode
+from vibrissa.msgs import RobotPose, WhiskerWrenchArray
+from vibrissa.msgs.codec import decode, encode
 from vibrissa.nodes.reconstructor import (RodTable, _compile_kernels, reconstruct_messages,
                                           robot_frames)
 from vibrissa.scene import Whisker
@@ -64,8 +65,7 @@ for chain in ([("world", "base_link")], [("odom", "base_link"), ("world", "odom"
                 p = pose(parent, child, stamp, 0.01 * k)
                 frames.add_pose(p.frame_id, p.child_frame_id, p.stamp, p.position,
                                 p.orientation)
-        single = wire(WhiskerWrench(stamp=0.004, seq=0, whisker_id="b", frame_id="b/clamp",
-                                    f0=[0.01, 0.0, 0.001], m0=[0.0, 2e-4, 0.0]))
+        single = tick(0.004, ("b",))  # one whisker: a batch of one row
         for batch in ([tick(0.01)], [tick(0.005)], [tick(0.002), tick(0.007, ("b", "a"))],
                       [single], [single, tick(0.003)]):
             for outcome in reconstruct_messages(batch, rod, frames, "world", noise):

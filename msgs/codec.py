@@ -25,7 +25,6 @@ import numpy as np
 from vibrissa.frames import clamp_frame
 from vibrissa.msgs.messages import (
     ARRAY,
-    ENUM,
     FLOAT,
     FLOAT64,
     INT,
@@ -157,7 +156,7 @@ def encode(msg: Message) -> bytes:
         elif spec.kind == FLOAT and not math.isfinite(value):
             raise ValueError(f"encode: {cls.TYPE_NAME}.{name} is {value}")
         else:
-            out[name] = int(value) if spec.kind == ENUM else value
+            out[name] = value
     return msgpack.packb(out)  # type: ignore[no-any-return]
 
 
@@ -366,9 +365,9 @@ _CONTACT_FIELDS = (
     ("frame_id", _legacy(STR, "frame of the geometry")),
     ("point", _vector(3, "m")),
     ("s1", _legacy(FLOAT, "m")),
-    ("phase", _legacy(ENUM, "ContactPhase", enum=ContactPhase)),
+    ("phase", _legacy(INT, "ContactPhase", enum=ContactPhase)),
     ("force", _vector(3, "N")),
-    ("status", _legacy(ENUM, "ContactStatus", enum=ContactStatus)),
+    ("status", _legacy(INT, "ContactStatus", enum=ContactStatus)),
     ("covariance", FieldSpec(kind=ARRAY, doc="m^2", dtype=np.dtype("<f8"), shape=(3, 3),
                              optional=True)),
 )
@@ -563,7 +562,6 @@ def _decode_map(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, in
 _DECODERS: dict[str, Callable[[str, str, FieldSpec, Any, dict[str, int]], Any]] = {
     FLOAT: _decode_float,
     INT: _decode_int,
-    ENUM: _decode_int,
     STR: _decode_str,
     ARRAY: _decode_array,
     STR_LIST: _decode_str_list,
@@ -598,8 +596,6 @@ def to_jsonable(msg: Message) -> dict[str, Any]:
             out[name] = None
         elif spec.kind == ARRAY:
             out[name] = value.tolist()
-        elif spec.kind == ENUM:
-            out[name] = int(value)
         elif spec.kind in (STR_LIST, STR_INT_MAP, STR_STR_MAP):
             out[name] = type(value)(value)
         else:
@@ -636,10 +632,6 @@ def _json_property(spec: FieldSpec) -> dict[str, Any]:
         return {"type": "number"}
     if spec.kind == INT:
         return {"type": "integer"}
-    if spec.kind == ENUM:
-        assert spec.enum is not None
-        names = ", ".join(f"{m.name}={int(m.value)}" for m in spec.enum)
-        return {"type": "integer", "$comment": f"{spec.enum.__name__}: {names}"}
     if spec.kind == STR:
         if spec.choices:
             return {"type": "string", "enum": list(spec.choices)}

@@ -30,7 +30,6 @@ INT32 = np.dtype("<i4")
 FLOAT = "float"
 INT = "int"
 STR = "str"
-ENUM = "enum"
 ARRAY = "array"
 STR_LIST = "str_list"
 STR_INT_MAP = "str_int_map"
@@ -79,8 +78,6 @@ class FieldSpec:
             return None
         if self.kind == ARRAY:
             return np.ndarray
-        if self.kind == ENUM:
-            return self.enum
         if self.kind == STR:
             return str if not self.choices else None
         return {FLOAT: float, INT: int}.get(self.kind)
@@ -264,10 +261,10 @@ def _coerce(cls: type, name: str, spec: FieldSpec, value: Any, sizes: dict[str, 
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
             raise TypeError(f"{where} expects a float, got {type(value).__name__}")
         return float(value)
-    if spec.kind in (INT, ENUM):
+    if spec.kind == INT:
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise TypeError(f"{where} expects an int, got {type(value).__name__}")
-        return enum_member(spec.enum, int(value)) if spec.enum is not None else int(value)
+        return int(value)
     if spec.kind == STR:
         if not isinstance(value, str):
             raise TypeError(f"{where} expects a str, got {type(value).__name__}")

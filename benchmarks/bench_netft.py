@@ -1,5 +1,5 @@
 """Net F/T driver at the sensor's top rate: the simulated device (its own process) streams 7 kHz
-over loopback UDP; the driver node (its own process) publishes every record as a WhiskerWrench;
+over loopback UDP; the driver node (its own process) publishes every record as a WhiskerWrenchArray of one row;
 a subscriber here counts them. Baseline in the same run: a bare UDP receive loop on the same
 device. Loss is "unexplained" when the device made a record that the driver neither took
 nor counted (lost, reordered); of the records it took, the stale ones (too old behind the
@@ -22,7 +22,7 @@ from pathlib import Path
 import yaml
 import zmq
 
-from vibrissa.msgs import NodeStatus, WhiskerWrench
+from vibrissa.msgs import NodeStatus, WhiskerWrenchArray
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Subscriber
 from vibrissa.wire.netft import Command, StreamTracker, pack_request
 
@@ -86,7 +86,7 @@ def driver_run(rate: float, seconds: float) -> dict[str, float]:
         params = Path(tmp) / "netft.yaml"
         params.write_text(yaml.safe_dump({"whisker": "w0", "address": "127.0.0.1", "port": port,
                                           "ft_rate_hz": rate}))
-        wrenches = Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context)
+        wrenches = Subscriber({"/w0/wrench": WhiskerWrenchArray}, proxy.endpoints, context)
         status = Subscriber({STATUS_TOPIC: NodeStatus}, proxy.endpoints, context)
         node = subprocess.Popen([sys.executable, "-m", "vibrissa.nodes.netft", "--name", "netft",
                                  "--namespace", "/w0", "--params-file", str(params)],

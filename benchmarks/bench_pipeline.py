@@ -25,8 +25,9 @@ broker costs without any work)::
     load --/bench/wrench--> proxy --> echo --/bench/contact--> proxy --> sink
 
 Two ways to send a tick of 32 whiskers at ``rate`` wrenches/s in total: *per wrench*, one
-WhiskerWrench per whisker (32 messages per tick; latency per wrench, its ContactPoint), and
-*per tick*, one WhiskerWrenchArray of 32 rows (latency per tick, its ContactPointArray). The
+WhiskerWrenchArray of one row per whisker (32 messages per tick; latency per wrench, its
+ContactPointArray), and *per tick*, one WhiskerWrenchArray of 32 rows (latency per tick, its
+ContactPointArray). The
 load sends pre-encoded payloads and records the send time of each message; the sink records the
 receive time of each by sequence number (the transport header's ``seq``, so the sink decodes
 nothing). Loss is sent - received (every benchmark wrench has a contact). A rate is
@@ -102,7 +103,7 @@ if TYPE_CHECKING:
 WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
-UNITS = ("wrench", "tick")  # one WhiskerWrench per whisker, or one WhiskerWrenchArray per tick
+UNITS = ("wrench", "tick")  # a WhiskerWrenchArray of one row per whisker, or of 32 per tick
 MODES = ("timer", "bare", "busy", "proxied", "vibrissa", "curve", "robot", "robot-rt")
 # one process waking at each tick (no message), the floor, the floor with work per message, the
 # floor through the proxy, the pipeline, the pipeline encrypted and authenticated, the robot graph
@@ -152,13 +153,13 @@ def _stamp(k: int, period_s: float) -> float:
 
 
 def _payloads(n: int, unit: str, robot: bool, tick_s: float) -> list[bytes]:
-    """``n`` encoded messages, seq 0..n-1, tick k stamped k x ``tick_s``: a WhiskerWrench each
-    (``unit`` wrench, WHISKERS per tick) or a WhiskerWrenchArray of WHISKERS rows (tick). Row j of
+    """``n`` encoded messages, seq 0..n-1, tick k stamped k x ``tick_s``: a WhiskerWrenchArray
+    of one row each (``unit`` wrench, WHISKERS per tick) or of WHISKERS rows (tick). Row j of
     a tick is whisker j's, cycling over the wrenches that have a contact on its rod: ``whisker{j}``
     (the unit rod) with its clamp pose in world, or (``robot``) the robot's ``w{j}`` in its clamp
     frame, without pose."""
     from vibrissa.frames import WORLD_FRAME, clamp_frame
-    from vibrissa.msgs import WhiskerWrench, WhiskerWrenchArray
+    from vibrissa.msgs import WhiskerWrenchArray
     from vibrissa.msgs.codec import encode
     from vibrissa.reconstruct import reconstruct_si
     from vibrissa.units import RodScale
@@ -184,7 +185,7 @@ def _payloads(n: int, unit: str, robot: bool, tick_s: float) -> list[bytes]:
     p_rows, f_rows, m_rows = p0[k], f_si[j, k], m_si[j, k]
     q_rows = np.tile([0.0, 0.0, 0.0, 1.0], (len(r), 1))
 
-    def pose(rows: slice | int) -> dict[str, Any]:
+    def pose(rows: slice) -> dict[str, Any]:
         """The clamp poses of ``rows`` in world (none for the robot's)."""
         return {} if robot else {"pose_frame_id": WORLD_FRAME, "clamp_position": p_rows[rows],
                                  "clamp_orientation": q_rows[rows]}
@@ -197,9 +198,10 @@ def _payloads(n: int, unit: str, robot: bool, tick_s: float) -> list[bytes]:
                 stamp=_stamp(i, tick_s), seq=i, whisker_ids=names, frame_ids=frames,
                 f0=f_rows[s], m0=m_rows[s], **pose(s))))
         else:
-            out.append(encode(WhiskerWrench(
-                stamp=_stamp(i // WHISKERS, tick_s), seq=i, whisker_id=names[i % WHISKERS],
-                frame_id=frames[i % WHISKERS], f0=f_rows[i], m0=m_rows[i], **pose(i))))
+            row = slice(i, i + 1)
+            out.append(encode(WhiskerWrenchArray(
+                stamp=_stamp(i // WHISKERS, tick_s), seq=i, whisker_ids=[names[i % WHISKERS]],
+                frame_ids=[frames[i % WHISKERS]], f0=f_rows[row], m0=m_rows[row], **pose(row))))
     return out
 
 
@@ -284,12 +286,11 @@ def _load(mode: str, unit: str, endpoint: str, n: int, rate: float, out: str) ->
         sock.close()
         context.term()
     else:
-        from vibrissa.msgs import RobotPose, WhiskerWrench, WhiskerWrenchArray
+        from vibrissa.msgs import RobotPose, WhiskerWrenchArray
         from vibrissa.runtime import Node
 
-        msg_type = WhiskerWrench if unit == "wrench" else WhiskerWrenchArray
         with Node("load", "/bench", handle_signals=False) as node:
-            pub = node.create_publisher("wrench", msg_type, wait_for=["reconstructor"],
+            pub = node.create_publisher("wrench", WhiskerWrenchArray, wait_for=["reconstructor"],
                                         hwm=n + 10)
             topics = ["wrench"]
             side = None
@@ -641,7 +642,7 @@ def _calm_p99(runs: list[Run]) -> str:
 def _table(runs: list[Run], unit: str, rates: list[float], repeats: int,
            modes: list[str]) -> None:
     """Medians over the repeats per rate and mode; ratios are medians of per-repeat ratios."""
-    what = "wrench published -> its ContactPoint" if unit == "wrench" else (
+    what = "wrench published -> its ContactPointArray" if unit == "wrench" else (
         "WhiskerWrenchArray of a tick published -> its ContactPointArray")
     print(f"\nper {unit} ({what}); {repeats} run(s) each, medians; x: over bare; vs vib: "
           "over vibrissa - 1")

@@ -83,8 +83,9 @@ def register(subparsers: Any) -> None:
         "export", help="convert to a JSON-encoded MCAP that Foxglove opens, or a ROS 2 bag",
         description="--format json (default): a JSON-encoded MCAP file that Foxglove opens. "
         "--format ros2: a rosbag2 folder (metadata.yaml + MCAP, CDR) for `ros2 bag play` and "
-        "Foxglove: WhiskerWrench -> geometry_msgs/WrenchStamped (an array: one topic "
-        "<topic>/<whisker> per whisker) holding what the sensor reads, the rod's load on the "
+        "Foxglove: WhiskerWrenchArray -> geometry_msgs/WrenchStamped on one topic "
+        "<topic>/<whisker> per whisker (a retired single WhiskerWrench: on <topic>) holding "
+        "what the sensor reads, the rod's load on the "
         "clamp: force = -f0, torque = -m0 in the clamp frame; contact points -> "
         "sensor_msgs/PointCloud2 (x, y, z, whisker, phase, s1; whisker indexes the JSON list "
         f"of names on {WHISKERS_TOPIC}); RobotPose -> /tf; the --robot mounts -> /tf_static; "
@@ -113,11 +114,12 @@ def register(subparsers: Any) -> None:
     p = sub.add_parser(
         "import", help="convert a ROS 2 bag (WrenchStamped per whisker, /tf) to a vibrissa bag",
         description="Each --wrench-topic (geometry_msgs/WrenchStamped, the sensor's reading: "
-        "f0 = -force, m0 = -torque, in the clamp frame header.frame_id) becomes WhiskerWrench "
-        "on --topic; the /tf transform PARENT -> CHILD of --tf-frame becomes RobotPose on "
-        "--pose-topic. Play the result with wrench_source mode replay. Exit status: 0 done, 2 "
-        "not a readable bag or a bad argument (nothing written), 4 written, but messages the "
-        "bag lists were damaged and are lost (counted per topic).")
+        "f0 = -force, m0 = -torque, in the clamp frame header.frame_id) becomes a "
+        "WhiskerWrenchArray of one row on --topic; the /tf transform PARENT -> CHILD of "
+        "--tf-frame becomes RobotPose on --pose-topic. Play the result with wrench_source mode "
+        "replay. Exit status: 0 done, 2 not a readable bag or a bad argument (nothing "
+        "written), 4 written, but messages the bag lists were damaged and are lost (counted "
+        "per topic).")
     p.add_argument("ros2_bag", metavar="ROS2_BAG", help="a rosbag2 folder")
     p.add_argument("output", metavar="OUT.mcap")
     p.add_argument("--wrench-topic", action="append", default=[], metavar="T",

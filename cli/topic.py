@@ -145,8 +145,6 @@ def _yaml_value(value: Any) -> str:
             return json.dumps(value.tolist())
         head = ", ".join(f"{x:g}" for x in value.ravel()[:6].tolist())
         return f"<array {value.dtype.str} shape {list(value.shape)}: [{head}, ...]>"
-    if isinstance(value, int) and not isinstance(value, bool) and type(value) is not int:
-        return f"{int(value)}  # {value!r}"  # enum members: value and name
     if isinstance(value, (dict, list, str, float, int, bool)) or value is None:
         return json.dumps(value)
     return repr(value)

@@ -6,7 +6,6 @@ from vibrissa.msgs.messages import (
     MESSAGE_TYPES,
     ContactCloud,
     ContactPhase,
-    ContactPoint,
     ContactPointArray,
     ContactStatus,
     EndOfStream,
@@ -17,7 +16,6 @@ from vibrissa.msgs.messages import (
     SensorCommand,
     SurfaceMesh,
     SweepProposal,
-    WhiskerWrench,
     WhiskerWrenchArray,
 )
 
@@ -25,7 +23,6 @@ __all__ = [
     "MESSAGE_TYPES",
     "ContactCloud",
     "ContactPhase",
-    "ContactPoint",
     "ContactPointArray",
     "ContactStatus",
     "EndOfStream",
@@ -36,6 +33,5 @@ __all__ = [
     "SensorCommand",
     "SurfaceMesh",
     "SweepProposal",
-    "WhiskerWrench",
     "WhiskerWrenchArray",
 ]

@@ -6,20 +6,17 @@ A numeric array is a map ``{"dtype": "<f8", "shape": [N, 3], "data": <raw little
 msgpack nil there decodes too). Only finite floats go on the wire: ``encode`` refuses NaN/inf with
 ``ValueError`` and ``decode`` with ``NonFiniteError``.
 
-Decoded arrays are read-only views of immutable ``bytes``: the objects msgpack unpacks them
-into, or the payload itself when it is ``bytes`` and read through the template of its stream
-(a mutable buffer never is), so no copy is made and nothing can change them later.
+Decoded arrays are read-only views of the immutable ``bytes`` msgpack unpacks them into, so no
+copy is made and nothing can change them later. Payloads of the retired single-whisker types
+(``RETIRED_TYPES``) decode as the array type of one row.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import enum
-import functools
 import math
-import operator
-import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from itertools import repeat
 from typing import Any
 
 import msgpack
@@ -28,26 +25,26 @@ import numpy as np
 from vibrissa.frames import clamp_frame
 from vibrissa.msgs.messages import (
     ARRAY,
-    ENUM,
     FLOAT,
+    FLOAT64,
     INT,
+    INT32,
     MAX_PAYLOAD_BYTES,
     MESSAGE_TYPES,
     STR,
     STR_INT_MAP,
     STR_LIST,
     STR_STR_MAP,
-    ContactPoint,
     ContactPointArray,
     FieldSpec,
     Message,
-    WhiskerWrench,
     WhiskerWrenchArray,
     check_shape,
     enum_member,
     enum_values_ok,
     field_specs,
 )
+from vibrissa.status import ContactPhase, ContactStatus
 
 __all__ = [
     "ArrayDtypeError",
@@ -62,7 +59,9 @@ __all__ = [
     "UnknownFieldError",
     "UnknownTypeError",
     "VersionMismatchError",
+    "RETIRED_TYPES",
     "decode",
+    "decodes_as",
     "encode",
     "json_schema",
     "payload_limit",
@@ -157,7 +156,7 @@ def encode(msg: Message) -> bytes:
         elif spec.kind == FLOAT and not math.isfinite(value):
             raise ValueError(f"encode: {cls.TYPE_NAME}.{name} is {value}")
         else:
-            out[name] = int(value) if spec.kind == ENUM else value
+            out[name] = value
     return msgpack.packb(out)  # type: ignore[no-any-return]
 
 
@@ -181,7 +180,7 @@ def _unpack(payload: bytes) -> dict[str, Any]:
         raise MalformedPayloadError(f"malformed payload ({len(payload)} bytes): {exc}") from exc
     if not isinstance(obj, dict):
         raise MalformedPayloadError(f"payload is a {type(obj).__name__}, expected a msgpack map")
-    if not all(type(key) is str for key in obj):
+    if not all(map(isinstance, obj, repeat(str))):
         raise MalformedPayloadError("payload map has a key that is not a string")
     return obj
 
@@ -247,85 +246,174 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
             t.TYPE_NAME for t in (expected if isinstance(expected, tuple) else (expected,)))
         raise OversizeError(f"payload of {len(payload)} bytes, more than the {limit} bytes "
                             f"of {names}")
-    if type(payload) is not bytes:  # templates read in place: only immutable bytes
-        return _decode_general(payload, expected)
-    templates = _TEMPLATES.get(len(payload))
-    allowed = expected if isinstance(expected, tuple) or expected is None else (expected,)
-    for i, template in enumerate(templates or ()):
-        if allowed is None or template.cls in allowed:
-            msg = _from_template(template, payload)
-            if msg is not None:
-                if i:  # the stream that sends most comes first
-                    templates.insert(0, templates.pop(i))  # type: ignore[union-attr]
-                return msg
-    msg = _decode_general(payload, expected)
-    if type(msg) in _TEMPLATED and len(payload) <= _MAX_TEMPLATE_BYTES:
-        _learn_template(payload, msg)
-    return msg
-
-
-def _decode_general(payload: bytes,
-                    expected: type[Message] | tuple[type[Message], ...] | None) -> Message:
-    """Decode without a template: the path that finds and names what is wrong."""
     obj = _unpack(payload)
     name = obj.pop("_type", None)
     version = obj.pop("_v", None)
     if not isinstance(name, str) or not isinstance(version, int) or isinstance(version, bool):
         raise MalformedPayloadError("payload has no string '_type' and integer '_v'")
-    cls = MESSAGE_TYPES.get(name)
-    if cls is None:
+    schema = _SCHEMAS.get(name)
+    if schema is None:
         raise UnknownTypeError(f"unknown message type {name!r}", name)
-    if expected is not None:
+    cls = schema.cls
+    if expected is not None and cls is not expected and (
+            type(expected) is not tuple or cls not in expected):
         allowed = expected if isinstance(expected, tuple) else (expected,)
-        if cls not in allowed:
-            names = ", ".join(t.TYPE_NAME for t in allowed)
-            raise UnexpectedTypeError(f"got {name}, expected {names}", name)
-    if len(payload) > cls.MAX_BYTES:
-        raise OversizeError(f"payload of {len(payload)} bytes, more than the {cls.MAX_BYTES} "
-                            f"bytes of {name}", name)
-    if version != cls.VERSION:
+        names = ", ".join(t.TYPE_NAME for t in allowed)
+        raise UnexpectedTypeError(f"got {name}, expected {names}", name)
+    if len(payload) > schema.max_bytes:
+        raise OversizeError(f"payload of {len(payload)} bytes, more than the "
+                            f"{schema.max_bytes} bytes of {name}", name)
+    if version != schema.version:
         upgrade = _UPGRADES.get((name, version))
         if upgrade is None:
             reads = ", ".join(str(v) for v in sorted(
-                {cls.VERSION} | {v for n, v in _UPGRADES if n == name}))
+                {schema.version} | {v for n, v in _UPGRADES if n == name}))
             raise VersionMismatchError(
                 f"{name} version {version} on the wire, this build reads version {reads}", name)
         obj = upgrade(obj)
-    layout = _fast_layout(cls, obj.keys())
-    if layout is not None:
-        fast = _decode_fast(cls, layout, obj)
-        if fast is not None:
-            _check_fields(fast)
-            return fast
-    # The general path: also the one that finds and names what is wrong.
     values: dict[str, Any] = {}
     sizes: dict[str, int] = {}
-    for field_name, spec in field_specs(cls):
-        if field_name not in obj:
-            if field_name in _defaults(cls):
-                continue  # the dataclass default applies
-            raise MissingFieldError(f"{name}: missing field {field_name!r}", name, field_name)
-        value = obj.pop(field_name)
-        values[field_name] = (None if value is None and spec.optional
-                              else _DECODERS[spec.kind](name, field_name, spec, value, sizes))
+    for field_name, spec, decoder, default in schema.fields:
+        value = obj.pop(field_name, _ABSENT)
+        if value is _ABSENT:
+            if default is _ABSENT:
+                raise MissingFieldError(f"{name}: missing field {field_name!r}", name, field_name)
+            values[field_name] = default  # the dataclass default applies
+        elif value is None and spec.optional:
+            values[field_name] = None
+        else:
+            values[field_name] = decoder(name, field_name, spec, value, sizes)
     if obj:
         extra = sorted(obj)[0]
         raise UnknownFieldError(f"{name}: unknown field {extra!r}", name, extra)
+    if schema.to_current is not None:
+        values = schema.to_current(values)
     # Every field is now checked at least as strictly as Message.__post_init__ would (dtype,
     # shape incl. shared sizes, read-only arrays, enums), so build the frozen instance
     # without running the checks twice: a third of the decode time otherwise.
     msg = object.__new__(cls)
-    msg.__dict__.update(_defaults(cls))
     msg.__dict__.update(values)
-    _check_fields(msg)
+    try:
+        msg.check_fields()
+    except ValueError as exc:  # a retired type's payload: named as it came
+        raise MissingFieldError(str(exc) if cls.TYPE_NAME == name else f"{name}: {exc}",
+                                name) from None
     return msg
 
 
-def _check_fields(msg: Message) -> None:
-    try:
-        msg.check_fields()
-    except ValueError as exc:
-        raise MissingFieldError(str(exc), msg.TYPE_NAME) from None
+_ABSENT = object()
+
+
+@dataclasses.dataclass(frozen=True)
+class _Schema:
+    """How the payloads of one type name decode: the fields as they are on the wire, each with
+    its decoder and default (``_ABSENT``: required), and the message class they make (through
+    ``to_current`` for a retired type)."""
+
+    cls: type[Message]
+    version: int
+    max_bytes: int
+    fields: tuple[tuple[str, FieldSpec, Callable[..., Any], Any], ...]
+    to_current: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+
+
+def _schema(cls: type[Message], version: int, specs: tuple[tuple[str, FieldSpec], ...],
+            max_bytes: int, to_current: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
+            ) -> _Schema:
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)
+                if f.default is not dataclasses.MISSING}
+    if to_current is not None:  # a retired type: only its optional fields have a default
+        defaults = {name: None for name, spec in specs if spec.optional}
+    return _Schema(cls, version, max_bytes, tuple(
+        (name, spec, _DECODERS[spec.kind], defaults.get(name, _ABSENT)) for name, spec in specs),
+        to_current)
+
+
+# -- retired types --------------------------------------------------------------------------
+#
+# One message type per concept: a single whisker's wrench is a WhiskerWrenchArray of one row,
+# its contact a ContactPointArray of one row. Payloads of the retired single types (bags,
+# streams of older senders) still decode, as the array of one row: their fields are checked
+# as strictly as any type's, then moved into the row.
+
+
+def _legacy(kind: str, doc: str, **kwargs: Any) -> FieldSpec:
+    return FieldSpec(kind=kind, doc=doc, **kwargs)
+
+
+def _vector(size: int, doc: str, optional: bool = False) -> FieldSpec:
+    return FieldSpec(kind=ARRAY, doc=doc, dtype=np.dtype("<f8"), shape=(size,), optional=optional)
+
+
+_WRENCH_FIELDS = (
+    ("stamp", _legacy(FLOAT, "s")),
+    ("seq", _legacy(INT, "sample counter")),
+    ("whisker_id", _legacy(STR, "the whisker")),
+    ("frame_id", _legacy(STR, "clamp frame C")),
+    ("f0", _vector(3, "N, in C")),
+    ("m0", _vector(3, "N m, in C")),
+    ("pose_frame_id", _legacy(STR, "frame P of the clamp pose", optional=True)),
+    ("clamp_position", _vector(3, "p_PC, m", optional=True)),
+    ("clamp_orientation", _vector(4, "R_PC, quaternion (x, y, z, w)", optional=True)),
+)
+"""Fields of the retired ``vibrissa/WhiskerWrench`` version 2: one row of a WhiskerWrenchArray."""
+
+_CONTACT_FIELDS = (
+    ("stamp", _legacy(FLOAT, "s")),
+    ("seq", _legacy(INT, "seq of the wrench")),
+    ("whisker_id", _legacy(STR, "the whisker")),
+    ("frame_id", _legacy(STR, "frame of the geometry")),
+    ("point", _vector(3, "m")),
+    ("s1", _legacy(FLOAT, "m")),
+    ("phase", _legacy(INT, "ContactPhase", enum=ContactPhase)),
+    ("force", _vector(3, "N")),
+    ("status", _legacy(INT, "ContactStatus", enum=ContactStatus)),
+    ("covariance", FieldSpec(kind=ARRAY, doc="m^2", dtype=np.dtype("<f8"), shape=(3, 3),
+                             optional=True)),
+)
+"""Fields of the retired ``vibrissa/ContactPoint`` version 2: one row of a ContactPointArray."""
+
+
+def _row(array: np.ndarray | None) -> np.ndarray | None:
+    """``array`` as the one row of a batch (a read-only view: read-only itself)."""
+    return None if array is None else array.reshape((1, *array.shape))
+
+
+def _one_row(values: Sequence[Any], dtype: np.dtype[Any]) -> np.ndarray:
+    array = np.array(values, dtype=dtype)
+    array.flags.writeable = False
+    return array
+
+
+def _wrench_row(v: dict[str, Any]) -> dict[str, Any]:
+    """A checked WhiskerWrench's values as the WhiskerWrenchArray of its one row."""
+    return {"stamp": v["stamp"], "seq": v["seq"], "whisker_ids": [v["whisker_id"]],
+            "frame_ids": [v["frame_id"]], "f0": _row(v["f0"]), "m0": _row(v["m0"]),
+            "pose_frame_id": v["pose_frame_id"], "clamp_position": _row(v["clamp_position"]),
+            "clamp_orientation": _row(v["clamp_orientation"])}
+
+
+def _contact_row(v: dict[str, Any]) -> dict[str, Any]:
+    """A checked ContactPoint's values as the ContactPointArray of its one row."""
+    return {"stamp": v["stamp"], "seq": v["seq"], "frame_id": v["frame_id"],
+            "whisker_ids": [v["whisker_id"]], "point": _row(v["point"]),
+            "s1": _one_row([v["s1"]], FLOAT64), "phase": _one_row([v["phase"]], INT32),
+            "force": _row(v["force"]), "status": _one_row([v["status"]], INT32),
+            "covariance": _row(v["covariance"])}
+
+
+RETIRED_TYPES: dict[str, type[Message]] = {
+    "vibrissa/WhiskerWrench": WhiskerWrenchArray,
+    "vibrissa/ContactPoint": ContactPointArray,
+}
+"""Type names no longer sent -> the type their payloads decode as (a batch of one row)."""
+
+
+def decodes_as(type_name: str) -> type[Message] | None:
+    """The message class a payload of ``type_name`` decodes to: the type itself, the type that
+    replaced a retired one (``RETIRED_TYPES``), or None for an unknown name."""
+    schema = _SCHEMAS.get(type_name)
+    return None if schema is None else schema.cls
 
 
 # -- older versions -------------------------------------------------------------------------
@@ -366,352 +454,12 @@ def _without_covariance(obj: dict[str, Any]) -> dict[str, Any]:
 
 
 _UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
-    (WhiskerWrench.TYPE_NAME, 1): _wrench_v1,
+    ("vibrissa/WhiskerWrench", 1): _wrench_v1,
     (WhiskerWrenchArray.TYPE_NAME, 1): _wrench_array_v1,
-    (ContactPoint.TYPE_NAME, 1): _without_covariance,
+    ("vibrissa/ContactPoint", 1): _without_covariance,
     (ContactPointArray.TYPE_NAME, 1): _without_covariance,
 }
 """(type name, older version) -> its upgrade to the type's current version."""
-
-
-def _defaults(cls: type[Message]) -> dict[str, Any]:
-    defaults = _DEFAULTS.get(cls)
-    if defaults is None:
-        fields = dataclasses.fields(cls)
-        defaults = {f.name: f.default for f in fields if f.default is not dataclasses.MISSING}
-        _DEFAULTS[cls] = defaults
-    return defaults
-
-
-_DEFAULTS: dict[type, dict[str, Any]] = {}
-
-
-# -- decode, fast path --------------------------------------------------------------------
-#
-# Types without maps (WhiskerWrench, ContactPoint, their arrays, ...), one layout per set of
-# present fields (optional ones present or left out): payloads are checked field by field
-# with exact-type tests, a precomputed header for fixed 1-d arrays and the shape pattern for
-# the others; anything unusual (a missing or extra field, a nil, an int for a float, a wrong
-# shape, a NaN, ...) returns None and the general path decodes it again and raises the
-# specific error. The fast path accepts a subset of what the general path accepts and returns
-# the same message, so the two cannot disagree.
-
-_FLOAT, _INT, _ENUM, _STR, _ARRAY, _SHAPED, _STR_LIST = range(7)
-
-
-@dataclasses.dataclass(frozen=True)
-class _Layout:
-    names: frozenset[str]
-    # (name, code, check): enum -> value->member map, str -> choices, fixed 1-d array ->
-    # (dtype str, shape list, byte count, dtype, struct unpacker of '<f8' data or None), other
-    # array -> (dtype str, shape pattern, dtype), string list -> its length symbol or ""
-    fields: tuple[tuple[str, int, Any], ...]
-    left_out: tuple[str, ...]  # optional fields not in the payload: None
-
-
-def _fast_layout(cls: type[Message], names: Any) -> _Layout | None:
-    """The layout of payloads of ``cls`` with exactly the fields ``names`` (None: no fast
-    path, e.g. a required field is missing or an unknown one is there)."""
-    key = (cls, frozenset(names))
-    layout = _LAYOUTS.get(key)
-    if layout is None:
-        layout = _make_layout(cls, key[1])
-        if layout is not None:  # only valid field sets are kept: garbage cannot grow the cache
-            _LAYOUTS[key] = layout
-    return layout
-
-
-def _make_layout(cls: type[Message], names: frozenset[str]) -> _Layout | None:
-    specs = field_specs(cls)
-    if not names <= {name for name, _ in specs}:
-        return None
-    fields: list[tuple[str, int, Any]] = []
-    for name, spec in specs:
-        if name not in names:
-            if spec.optional:
-                continue  # left out: None
-            return None
-        if spec.kind == FLOAT:
-            fields.append((name, _FLOAT, None))
-        elif spec.kind == INT:
-            fields.append((name, _INT, None))
-        elif spec.kind == ENUM:
-            assert spec.enum is not None
-            members: list[Any] = list(spec.enum)
-            if issubclass(spec.enum, enum.IntFlag):  # every combination of the flags
-                mask = functools.reduce(operator.or_, (int(m) for m in members), 0)
-                members = [spec.enum(v) for v in range(mask + 1) if v & ~mask == 0]
-            fields.append((name, _ENUM, {int(m): m for m in members}))
-        elif spec.kind == STR:
-            fields.append((name, _STR, frozenset(spec.choices)))
-        elif spec.kind == ARRAY and spec.fixed_shape is not None and len(spec.shape) == 1:
-            assert spec.dtype is not None
-            size = spec.fixed_shape[0]
-            floats = struct.Struct(f"<{size}d") if spec.dtype_str == "<f8" else None
-            fields.append((name, _ARRAY, (spec.dtype_str, [size], size * spec.dtype.itemsize,
-                                          spec.dtype, floats)))
-        elif spec.kind == ARRAY:
-            fields.append((name, _SHAPED, (spec.dtype_str, spec.shape, spec.dtype, spec.enum)))
-        elif spec.kind == STR_LIST:
-            fields.append((name, _STR_LIST, spec.length))
-        else:
-            return None
-    return _Layout(names, tuple(fields),
-                   tuple(name for name, spec in specs if spec.optional and name not in names))
-
-
-_LAYOUTS: dict[tuple[type, frozenset[str]], _Layout] = {}
-
-
-def _decode_fast(cls: type[Message], layout: _Layout, obj: dict[str, Any]) -> Message | None:
-    values: dict[str, Any] = {}
-    sizes: dict[str, int] = {}  # symbolic sizes, bound at first use
-    total = 0.0  # of every float: finite proves them all finite (overflow: the general path)
-    for name, code, check in layout.fields:
-        value = obj[name]
-        if code == _SHAPED:
-            value = _shaped_array(value, check, sizes)
-            if value is None or not _all_finite(value):
-                return None
-            if check[3] is not None and not enum_values_ok(check[3], value):
-                return None
-        elif code == _STR_LIST:
-            if type(value) is not list or not all(type(item) is str for item in value):
-                return None
-            if check and sizes.setdefault(check, len(value)) != len(value):
-                return None
-        elif code == _ARRAY:
-            dtype_str, shape, nbytes, dtype, floats = check
-            if type(value) is not dict or len(value) != 3:
-                return None
-            data, got_shape = value.get("data"), value.get("shape")
-            if (type(data) is not bytes or len(data) != nbytes or value.get("dtype") != dtype_str
-                    or got_shape != shape or type(got_shape[0]) is not int):
-                return None
-            if floats is not None:
-                total += sum(floats.unpack(data))
-            elif dtype.kind == "f":
-                return None
-            value = np.frombuffer(data, dtype)  # read-only: bytes are immutable
-        elif code == _FLOAT:
-            if type(value) is not float:
-                return None
-            total += value
-        elif code == _INT:
-            if type(value) is not int:
-                return None
-        elif code == _ENUM:
-            value = check.get(value) if type(value) is int else None
-            if value is None:
-                return None
-        elif type(value) is not str or (check and value not in check):
-            return None
-        values[name] = value
-    if not math.isfinite(total):
-        return None
-    for name in layout.left_out:
-        values[name] = None
-    msg = object.__new__(cls)
-    msg.__dict__.update(values)
-    return msg
-
-
-# -- decode, template path ----------------------------------------------------------------
-#
-# A stream of arrays sends payloads of one layout tick after tick: the same keys, strings,
-# shapes and msgpack types, only the numbers differ. After two payloads of one type and length
-# in a row, the second is kept as a template of that length: where each number's bytes lie (a
-# float's 8, an int's, an array's data) and the message's other values. A payload of that
-# length whose every other byte is the template's is read in place: its floats checked finite,
-# its ints of the template's msgpack type, its enum arrays checked, then the cross-field rules as
-# on any decode. Same bytes outside the numbers, and in them numbers of the same types and
-# lengths, is the same structure for the general path: the two give equal messages (fuzzed in
-# tests/wire/test_codec_template.py). A nil, a negative fixint or an older version is never a
-# slot, and a payload that differs goes the general way. Per-wrench types are left out: their
-# streams (one per whisker) take turns, and so would their layouts.
-
-_TEMPLATED = frozenset((WhiskerWrenchArray, ContactPointArray))
-_SLOT_FLOAT, _SLOT_INT, _SLOT_ARRAY = range(3)
-_BIG_DOUBLE = struct.Struct(">d")
-_UINT_MARKERS, _INT_MARKERS = frozenset((0xCC, 0xCD, 0xCE, 0xCF)), frozenset((0xD0, 0xD1, 0xD2, 0xD3))
-_MAX_TEMPLATE_BYTES = 1 << 16  # longer payloads (arrays of ~1 000 rows) go the general way:
-# their data, not the walk through their keys, is what their decode costs
-_MAX_LENGTHS = 16  # payload lengths with templates: what templates hold stays under 8 MB
-_PER_LENGTH = 4  # templates of one length: streams of equal length from different sources
-_RELEARN_AFTER = 64  # payloads of a length with all its templates taken that none fitted, before
-# the least used is replaced: more streams of one length than templates cost a walk per 64
-
-
-@dataclasses.dataclass(frozen=True)
-class _Template:
-    cls: type[Message]
-    fixed: tuple[tuple[int, bytes], ...]  # (offset, bytes) between the slots
-    # (field, kind, offset, check): float -> None; int -> (msgpack marker or None for a positive
-    # fixint, byte count, signed); array -> (dtype, shape, count, enum or None)
-    slots: tuple[tuple[str, int, int, Any], ...]
-    values: dict[str, Any]  # the other fields' values
-    copied: tuple[str, ...]  # those that are lists or maps: a copy per message
-
-
-_TEMPLATES: dict[int, list[_Template]] = {}  # by payload length, the last one fitted first
-_MISSES: dict[int, int] = {}  # by payload length, since its last template was made
-_last_decoded: list[tuple[type, int] | None] = [None]  # (type, length) of the last payload
-
-
-def _from_template(template: _Template, payload: bytes) -> Message | None:
-    """The message of ``payload`` read through ``template``, or None when it does not fit."""
-    for offset, want in template.fixed:
-        if not payload.startswith(want, offset):
-            return None
-    values = dict(template.values)
-    for name in template.copied:
-        values[name] = type(values[name])(values[name])
-    total = 0.0  # of every float: finite proves them all finite (overflow: the general path)
-    for name, kind, offset, check in template.slots:
-        if kind == _SLOT_FLOAT:
-            value = _BIG_DOUBLE.unpack_from(payload, offset)[0]
-            total += value
-        elif kind == _SLOT_INT:
-            marker, size, signed = check
-            first = payload[offset]
-            if marker is None:
-                if first >= 0x80:
-                    return None
-                value = first
-            elif first != marker:
-                return None
-            else:
-                value = int.from_bytes(payload[offset + 1:offset + size], "big", signed=signed)
-        else:
-            dtype, shape, count, enum_type = check
-            value = np.frombuffer(payload, dtype, count, offset)  # read-only: bytes
-            if len(shape) != 1:
-                value = value.reshape(shape)
-            if not _all_finite(value) or (enum_type is not None
-                                          and not enum_values_ok(enum_type, value)):
-                return None
-        values[name] = value
-    if not math.isfinite(total):
-        return None
-    msg = object.__new__(template.cls)
-    msg.__dict__.update(values)
-    _check_fields(msg)
-    return msg
-
-
-def _learn_template(payload: bytes, msg: Message) -> None:
-    """Keep ``payload`` (decoded the general way) as a template of its length when the one
-    decoded that way before it had the same type and length: a stream, not a one-off (the walk
-    costs about a decode)."""
-    size = len(payload)
-    key = (type(msg), size)
-    last, _last_decoded[0] = _last_decoded[0], key
-    templates = _TEMPLATES.get(size)
-    if templates is not None and len(templates) >= _PER_LENGTH:
-        _MISSES[size] = _MISSES.get(size, 0) + 1
-        if _MISSES[size] < _RELEARN_AFTER:
-            return
-    if last != key:
-        return
-    template = _make_template(payload, msg)
-    if template is None:
-        return
-    if templates is None:
-        if len(_TEMPLATES) >= _MAX_LENGTHS:
-            _TEMPLATES.clear()
-            _MISSES.clear()
-        templates = _TEMPLATES[size] = []
-    templates.insert(0, template)
-    del templates[_PER_LENGTH:]
-    _MISSES[size] = 0
-
-
-def _make_template(payload: bytes, msg: Message) -> _Template | None:
-    """The template of a payload that decoded to ``msg`` (None: one the codec upgraded, or a
-    layout without a place for its numbers)."""
-    cls = type(msg)
-    specs = dict(field_specs(cls))
-    unpacker = msgpack.Unpacker(raw=False, strict_map_key=True)
-    unpacker.feed(payload)
-    slots: list[tuple[str, int, int, Any]] = []
-    spans: list[tuple[int, int]] = []
-    try:
-        for _ in range(unpacker.read_map_header()):
-            name = unpacker.unpack()
-            start = unpacker.tell()
-            spec = specs.get(name)
-            if name == "_v":
-                if unpacker.unpack() != cls.VERSION:
-                    return None
-                continue
-            if spec is None or getattr(msg, name) is None:  # _type, a nil: fixed bytes
-                unpacker.skip()
-                continue
-            if spec.kind == FLOAT:
-                unpacker.skip()
-                if payload[start] != 0xCB:
-                    return None
-                slots.append((name, _SLOT_FLOAT, start + 1, None))
-                spans.append((start + 1, start + 9))
-            elif spec.kind == INT and spec.enum is None:
-                unpacker.skip()
-                size, first = unpacker.tell() - start, payload[start]
-                if first < 0x80:
-                    slots.append((name, _SLOT_INT, start, (None, 1, False)))
-                elif first in _UINT_MARKERS or first in _INT_MARKERS:
-                    slots.append((name, _SLOT_INT, start, (first, size, first in _INT_MARKERS)))
-                else:
-                    continue  # a negative fixint is its own marker: left in the fixed bytes
-                spans.append((start, start + size))
-            elif spec.kind == ARRAY:
-                array = getattr(msg, name)
-                for _ in range(unpacker.read_map_header()):
-                    if unpacker.unpack() != "data":
-                        unpacker.skip()
-                        continue
-                    data = unpacker.unpack()
-                    offset = unpacker.tell() - len(data)
-                    slots.append((name, _SLOT_ARRAY, offset,
-                                  (array.dtype, array.shape, array.size, spec.enum)))
-                    spans.append((offset, offset + len(data)))
-            else:
-                unpacker.skip()
-    except (ValueError, TypeError, msgpack.UnpackException):
-        return None
-    fixed: list[tuple[int, bytes]] = []
-    end = 0
-    for start, stop in sorted(spans):
-        if start > end:
-            fixed.append((end, payload[end:start]))
-        end = stop
-    if end < len(payload):
-        fixed.append((end, payload[end:]))
-    in_slots = {name for name, *_ in slots}
-    values = {name: value for name, value in msg.__dict__.items() if name not in in_slots}
-    copied = tuple(name for name, value in values.items() if isinstance(value, (list, dict)))
-    return _Template(cls, tuple(fixed), tuple(slots), values, copied)
-
-
-def _shaped_array(value: Any, check: tuple[str, tuple[int | str, ...], np.dtype[Any], Any],
-                  sizes: dict[str, int]) -> np.ndarray | None:
-    """The array of a wire map whose shape fits the pattern (symbols bound in ``sizes``)."""
-    dtype_str, pattern, dtype, _ = check
-    if type(value) is not dict or len(value) != 3:
-        return None
-    data, shape = value.get("data"), value.get("shape")
-    if (type(data) is not bytes or value.get("dtype") != dtype_str or type(shape) is not list
-            or len(shape) != len(pattern)):
-        return None
-    count = 1
-    for want, got in zip(pattern, shape, strict=True):
-        if type(got) is not int or got < 0:
-            return None
-        if want != got and (type(want) is not str or sizes.setdefault(want, got) != got):
-            return None
-        count *= got
-    if len(data) != count * dtype.itemsize:
-        return None
-    return np.frombuffer(data, dtype).reshape(shape)  # read-only: bytes are immutable
 
 
 def _type_error(type_name: str, field: str, want: str, value: Any) -> FieldTypeError:
@@ -759,15 +507,24 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
         raise ArrayDtypeError(f"{t}.{f}: dtype {dtype!r}, expected {spec.dtype_str!r}", t, f)
     if not isinstance(data, bytes) or not isinstance(shape, list):
         raise _type_error(t, f, "array shape list[int] and bytes data", value)
+    count = 1
     for n in shape:
         if type(n) is not int or n < 0:
             raise _type_error(t, f, "array shape list[int] and bytes data", value)
-    if tuple(shape) != spec.shape:  # fixed shapes match here; symbolic ones go on
+        count *= n
+    pattern = spec.shape
+    fits = len(shape) == len(pattern)
+    if fits:  # symbolic sizes bound at first use, as in check_shape
+        for want, got in zip(pattern, shape, strict=True):
+            if want != got and (type(want) is not str or sizes.setdefault(want, got) != got):
+                fits = False
+                break
+    if not fits:
         try:
-            check_shape(f"{t}.{f}", spec.shape, tuple(shape), sizes)
+            check_shape(f"{t}.{f}", pattern, tuple(shape), sizes)
         except ValueError as exc:
             raise ArrayShapeError(str(exc), t, f) from exc
-    if len(data) != math.prod(shape) * spec.dtype.itemsize:
+    if len(data) != count * spec.dtype.itemsize:
         raise ArrayShapeError(
             f"{t}.{f}: {len(data)} data bytes for shape {tuple(shape)} of {dtype}", t, f
         )
@@ -782,9 +539,9 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
 
 
 def _decode_str_list(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, int]) -> Any:
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+    if not isinstance(value, list) or not all(map(isinstance, value, repeat(str))):
         raise _type_error(t, f, "list[str]", value)
-    if spec.length:
+    if spec.length and sizes.setdefault(spec.length, len(value)) != len(value):
         try:
             check_shape(f"{t}.{f}", (spec.length,), (len(value),), sizes)
         except ValueError as exc:
@@ -805,13 +562,23 @@ def _decode_map(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, in
 _DECODERS: dict[str, Callable[[str, str, FieldSpec, Any, dict[str, int]], Any]] = {
     FLOAT: _decode_float,
     INT: _decode_int,
-    ENUM: _decode_int,
     STR: _decode_str,
     ARRAY: _decode_array,
     STR_LIST: _decode_str_list,
     STR_INT_MAP: _decode_map,
     STR_STR_MAP: _decode_map,
 }
+
+
+_SCHEMAS: dict[str, _Schema] = {
+    **{name: _schema(cls, cls.VERSION, field_specs(cls), cls.MAX_BYTES)
+       for name, cls in MESSAGE_TYPES.items()},
+    "vibrissa/WhiskerWrench": _schema(WhiskerWrenchArray, 2, _WRENCH_FIELDS, Message.MAX_BYTES,
+                                      _wrench_row),
+    "vibrissa/ContactPoint": _schema(ContactPointArray, 2, _CONTACT_FIELDS, Message.MAX_BYTES,
+                                     _contact_row),
+}
+"""Type name on the wire -> how its payloads decode."""
 
 
 # -- JSON (Foxglove export) ----------------------------------------------------------------
@@ -829,8 +596,6 @@ def to_jsonable(msg: Message) -> dict[str, Any]:
             out[name] = None
         elif spec.kind == ARRAY:
             out[name] = value.tolist()
-        elif spec.kind == ENUM:
-            out[name] = int(value)
         elif spec.kind in (STR_LIST, STR_INT_MAP, STR_STR_MAP):
             out[name] = type(value)(value)
         else:
@@ -867,10 +632,6 @@ def _json_property(spec: FieldSpec) -> dict[str, Any]:
         return {"type": "number"}
     if spec.kind == INT:
         return {"type": "integer"}
-    if spec.kind == ENUM:
-        assert spec.enum is not None
-        names = ", ".join(f"{m.name}={int(m.value)}" for m in spec.enum)
-        return {"type": "integer", "$comment": f"{spec.enum.__name__}: {names}"}
     if spec.kind == STR:
         if spec.choices:
             return {"type": "string", "enum": list(spec.choices)}

@@ -13,7 +13,7 @@ import enum
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -30,7 +30,6 @@ INT32 = np.dtype("<i4")
 FLOAT = "float"
 INT = "int"
 STR = "str"
-ENUM = "enum"
 ARRAY = "array"
 STR_LIST = "str_list"
 STR_INT_MAP = "str_int_map"
@@ -79,8 +78,6 @@ class FieldSpec:
             return None
         if self.kind == ARRAY:
             return np.ndarray
-        if self.kind == ENUM:
-            return self.enum
         if self.kind == STR:
             return str if not self.choices else None
         return {FLOAT: float, INT: int}.get(self.kind)
@@ -115,6 +112,8 @@ def enum_values_ok(enum_type: type[enum.IntEnum] | type[enum.IntFlag], values: A
     if array.size <= 64:  # a tick's rows: Python's ints cost less than numpy's calls
         items = array.ravel().tolist()
         if flags:
+            if array.dtype.kind in "iu" and not mask & (mask + 1):  # bits 0..k, all defined
+                return not items or (min(items) >= 0 and max(items) <= mask)
             return all(type(v) is int and v >= 0 and not v & ~mask for v in items)
         return members.issuperset(items)
     if flags:
@@ -211,6 +210,22 @@ class Message:
     def check_fields(self) -> None:
         """Rules across fields (``ValueError``); the codec runs them on decode too."""
 
+    def select_rows(self, keep: npt.ArrayLike) -> Self:
+        """This message with only the rows ``keep`` (a bool mask (N,) or row indices) of every
+        field sized by ``N``; the other fields as they are."""
+        rows = np.asarray(keep)
+        if rows.dtype == np.bool_:
+            rows = np.flatnonzero(rows)
+        values: dict[str, Any] = {}
+        for name, spec in field_specs(type(self)):
+            value = getattr(self, name)
+            if value is not None and spec.kind == ARRAY and spec.shape[:1] == ("N",):
+                value = value[rows]
+            elif value is not None and spec.kind == STR_LIST and spec.length == "N":
+                value = [value[i] for i in rows.tolist()]
+            values[name] = value
+        return type(self)(**values)
+
     def __eq__(self, other: object) -> bool:
         if type(other) is not type(self):
             return NotImplemented
@@ -246,10 +261,10 @@ def _coerce(cls: type, name: str, spec: FieldSpec, value: Any, sizes: dict[str, 
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
             raise TypeError(f"{where} expects a float, got {type(value).__name__}")
         return float(value)
-    if spec.kind in (INT, ENUM):
+    if spec.kind == INT:
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise TypeError(f"{where} expects an int, got {type(value).__name__}")
-        return enum_member(spec.enum, int(value)) if spec.enum is not None else int(value)
+        return int(value)
     if spec.kind == STR:
         if not isinstance(value, str):
             raise TypeError(f"{where} expects a str, got {type(value).__name__}")
@@ -293,79 +308,17 @@ def check_shape(
 
 
 @dataclass(frozen=True, eq=False)
-class WhiskerWrench(Message):
-    """One sample of a whisker's base force/torque sensor, in the whisker's clamp frame C.
-
-    A sensor measures in its own frame and does not know where it is: the clamp's pose comes
-    from the robot's pose stream and the robot description (``vibrissa.frame_buffer``). A
-    source that knows the pose (a simulation, a motion-capture rig) may send it along as
-    X_PC in ``pose_frame_id``: all three pose fields or none.
-
-    Version 1 carried the pose in every sample, with ``frame_id`` naming the pose's frame: it
-    decodes as version 2 with that frame as ``pose_frame_id`` and ``frame_id`` the clamp
-    frame ``<whisker_id>/clamp`` (``vibrissa.frames.clamp_frame``).
-    """
-
-    TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrench"
-    VERSION: ClassVar[int] = 2
-
-    stamp: float = _stamp()
-    seq: int = _count("the source's sample counter")
-    whisker_id: str = _text("which whisker the sample is from")
-    frame_id: str = _frame_id("the clamp frame C the wrench is measured in, e.g. 'w0/clamp'")
-    f0: FloatArray = _array((3,), "N", "force of the clamp on the rod, expressed in C")
-    m0: FloatArray = _array(
-        (3,), "N m", "moment of the clamp on the rod about C's origin, expressed in C"
-    )
-    pose_frame_id: str | None = _optional(
-        kind=STR, doc="frame P of the clamp pose, e.g. 'world'; omitted without a pose")
-    clamp_position: FloatArray | None = _optional(
-        kind=ARRAY, shape=(3,), unit="m", dtype=FLOAT64, doc="p_PC: C's origin in P, or omitted")
-    clamp_orientation: FloatArray | None = _optional(
-        kind=ARRAY, shape=(4,), dtype=FLOAT64,
-        doc="R_PC: unit quaternion (x, y, z, w) of C in P, z = rod axis, or omitted")
-
-    def check_fields(self) -> None:
-        _check_pose_fields(self)
-
-    @property
-    def has_pose(self) -> bool:
-        """Whether the clamp pose came with the sample."""
-        return self.pose_frame_id is not None
-
-
-@dataclass(frozen=True, eq=False)
-class ContactPoint(Message):
-    """Contact reconstructed from one WhiskerWrench."""
-
-    TYPE_NAME: ClassVar[str] = "vibrissa/ContactPoint"
-    VERSION: ClassVar[int] = 2
-
-    stamp: float = _stamp()
-    seq: int = _count("seq of the WhiskerWrench this contact was reconstructed from")
-    whisker_id: str = _text("which whisker touched")
-    frame_id: str = _frame_id()
-    point: FloatArray = _array((3,), "m", "contact point on the rod, in frame_id")
-    s1: float = _number("m", "arc length of the contact along the rod from the clamp")
-    phase: ContactPhase = _spec(kind=ENUM, enum=ContactPhase, doc="0 none, 1 tip, 2 tangential")
-    force: FloatArray = _array((3,), "N", "contact force on the rod, in frame_id")
-    status: ContactStatus = _spec(
-        kind=ENUM, enum=ContactStatus, doc="ContactStatus bit flags; 0 = OK"
-    )
-    covariance: FloatArray | None = _optional(
-        kind=ARRAY, shape=(3, 3), unit="m^2", dtype=FLOAT64,
-        doc="covariance of point from the wrench noise, in frame_id; omitted without a noise "
-        "model (version 1 has none)")
-
-
-@dataclass(frozen=True, eq=False)
 class WhiskerWrenchArray(Message):
-    """One tick of a multi-whisker array: the base wrench of each whisker in its clamp frame.
+    """The base wrench of each whisker of one tick, in its clamp frame; a single whisker's
+    sample is a batch of one row.
 
     Row i of every field belongs to whisker ``whisker_ids[i]``, measured in the clamp frame
-    ``frame_ids[i]``; all rows share ``stamp``. The clamp poses X_PC may come along, as in
-    WhiskerWrench: all three pose fields or none. Version 1 (poses in ``frame_id``) decodes as
-    version 2 with ``pose_frame_id`` = that frame and the clamp frames ``<whisker>/clamp``.
+    ``frame_ids[i]``; all rows share ``stamp``. A sensor measures in its own frame and does not
+    know where it is: the clamp poses come from the robot's pose stream and the robot
+    description (``vibrissa.frame_buffer``). A source that knows them (a simulation, a
+    motion-capture rig) may send them along as X_PC in ``pose_frame_id``: all three pose fields
+    or none. Version 1 (poses in ``frame_id``) decodes as version 2 with ``pose_frame_id`` =
+    that frame and the clamp frames ``<whisker>/clamp``.
     """
 
     TYPE_NAME: ClassVar[str] = "vibrissa/WhiskerWrenchArray"
@@ -399,7 +352,7 @@ class WhiskerWrenchArray(Message):
         return self.pose_frame_id is not None
 
 
-def _check_pose_fields(msg: WhiskerWrench | WhiskerWrenchArray) -> None:
+def _check_pose_fields(msg: WhiskerWrenchArray) -> None:
     present = [name for name in _POSE_FIELDS if getattr(msg, name) is not None]
     if present and len(present) != len(_POSE_FIELDS):
         missing = [name for name in _POSE_FIELDS if name not in present]
@@ -412,7 +365,8 @@ _POSE_FIELDS = ("pose_frame_id", "clamp_position", "clamp_orientation")
 
 @dataclass(frozen=True, eq=False)
 class ContactPointArray(Message):
-    """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact."""
+    """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact
+    (a single whisker's contact is a batch of one row)."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/ContactPointArray"
     MAX_BYTES: ClassVar[int] = 1 << 20  # some 6 000 whiskers with covariances
@@ -587,9 +541,7 @@ class Ping(Message):
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.TYPE_NAME: cls
     for cls in (
-        WhiskerWrench,
         WhiskerWrenchArray,
-        ContactPoint,
         ContactPointArray,
         ContactCloud,
         SurfaceMesh,

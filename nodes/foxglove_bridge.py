@@ -8,8 +8,8 @@ for it.
 
 Subscribes
 ----------
-``wrench_topics`` (default ``[/robot/wrench]``) : WhiskerWrench or WhiskerWrenchArray
-``contact_topics`` (default ``[/robot/contact]``) : ContactPoint or ContactPointArray
+``wrench_topics`` (default ``[/robot/wrench]``) : WhiskerWrenchArray
+``contact_topics`` (default ``[/robot/contact]``) : ContactPointArray
 ``pose_topic`` (default ``/robot/pose``) : RobotPose
 ``cloud_topic`` (default ``/contact_cloud``) : ContactCloud, the mapper's
 ``mesh_topic`` (default ``/surface_mesh``) : SurfaceMesh, the mapper's; its ``EndOfStream``
@@ -70,14 +70,12 @@ from vibrissa.formats.scene_file import load_robot
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform, clamp_frame
 from vibrissa.msgs import (
     ContactCloud,
-    ContactPoint,
     ContactPointArray,
     EndOfStream,
     Message,
     NodeStatus,
     RobotPose,
     SurfaceMesh,
-    WhiskerWrench,
     WhiskerWrenchArray,
     codec,
 )
@@ -251,12 +249,10 @@ class LiveView:
 
     def handle(self, topic: str, msg: Message, now: float) -> None:
         """Turn one message of the graph, received at ``now`` (s, wall clock), into output."""
-        if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray)):
+        if isinstance(msg, WhiskerWrenchArray):
             self._on_wrench(msg, now)
         elif isinstance(msg, ContactPointArray):
             self._on_contacts(msg.frame_id, msg.whisker_ids, msg.point)
-        elif isinstance(msg, ContactPoint):
-            self._on_contacts(msg.frame_id, [msg.whisker_id], msg.point[None, :])
         elif isinstance(msg, RobotPose):
             self.counters["poses"] += 1
             self._log(self._tf, self.fg.messages.FrameTransforms(transforms=[self._transform(
@@ -272,17 +268,14 @@ class LiveView:
         elif isinstance(msg, NodeStatus) and topic == STATUS_TOPIC:
             self._on_status(msg)
 
-    def _on_wrench(self, msg: WhiskerWrench | WhiskerWrenchArray, now: float) -> None:
-        if isinstance(msg, WhiskerWrench):
-            rows = [(msg.whisker_id, msg.frame_id, msg.f0, msg.m0)]
-        else:
-            rows = list(zip(msg.whisker_ids, msg.frame_ids, msg.f0, msg.m0, strict=True))
-        for whisker, frame_id, f0, m0 in rows:
+    def _on_wrench(self, msg: WhiskerWrenchArray, now: float) -> None:
+        for whisker, frame_id, f0, m0 in zip(msg.whisker_ids, msg.frame_ids, msg.f0, msg.m0,
+                                             strict=True):
             channel = self._wrench_channel(whisker)
             if channel is not None:
                 self._log(channel, {"stamp": msg.stamp, "seq": msg.seq, "frame_id": frame_id,
                                     "f0": _vec3(f0), "m0": _vec3(m0)}, now)
-        self.counters["wrenches"] += len(rows)
+        self.counters["wrenches"] += len(msg.whisker_ids)
 
     def _wrench_channel(self, whisker: str) -> Channel | None:
         """The wrench channel of ``whisker``, made on first use (None: no room for it).
@@ -429,9 +422,8 @@ class LiveView:
 def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
     """Serve until stopped, or ``hold_s`` after the mapper's end of stream."""
     mounts = ([(w.name, w.X_RC) for w in load_robot(params.robot)] if params.robot else [])
-    types: dict[str, Any] = {topic: (WhiskerWrench, WhiskerWrenchArray)
-                             for topic in params.wrench_topics}
-    types.update({topic: (ContactPoint, ContactPointArray) for topic in params.contact_topics})
+    types: dict[str, Any] = {topic: WhiskerWrenchArray for topic in params.wrench_topics}
+    types.update({topic: ContactPointArray for topic in params.contact_topics})
     types.update({params.pose_topic: RobotPose, params.cloud_topic: ContactCloud,
                   params.mesh_topic: SurfaceMesh, STATUS_TOPIC: NodeStatus})
     inputs = node.create_subscriber(types)

@@ -3,9 +3,9 @@
 
 Subscribes
 ----------
-``topics`` (default ``[contact]``) : ContactPoint or ContactPointArray
-    Points in SI (m, N), each in its ``frame_id``; each row of an array is a point of its
-    whisker; ``EndOfStream`` from every expected source ends the accumulation.
+``topics`` (default ``[contact]``) : ContactPointArray
+    Points in SI (m, N), each in its ``frame_id``; each row is a point of its whisker;
+    ``EndOfStream`` from every expected source ends the accumulation.
 
 Publishes
 ---------
@@ -88,7 +88,6 @@ from vibrissa.mapping import (
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
 from vibrissa.msgs import (
     ContactCloud,
-    ContactPoint,
     ContactPointArray,
     EndOfStream,
     SurfaceMesh,
@@ -120,7 +119,7 @@ class MapperParams:
     Attributes
     ----------
     topics
-        ContactPoint / ContactPointArray topics, relative to the namespace unless absolute.
+        ContactPointArray topics, relative to the namespace unless absolute.
     expected_sources
         How many distinct ``EndOfStream`` sources end the accumulation, or their node names
         (relative names resolve in the namespace).
@@ -264,13 +263,11 @@ PARAMS = MapperParams
 """The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
 
-def contact_batch(msg: ContactPoint | ContactPointArray) -> ContactBatch:
-    """The one conversion of an incoming contact message to the map's arrays (a ContactPoint is
-    a batch of one row)."""
-    whisker_ids = [msg.whisker_id] if isinstance(msg, ContactPoint) else msg.whisker_ids
+def contact_batch(msg: ContactPointArray) -> ContactBatch:
+    """An incoming contact message as the map's arrays."""
     return ContactBatch(
         msg.frame_id, np.reshape(msg.point, (-1, 3)), np.reshape(msg.force, (-1, 3)),
-        whisker_ids, msg.seq,
+        msg.whisker_ids, msg.seq,
         None if msg.covariance is None else np.reshape(msg.covariance, (-1, 3, 3)))
 
 
@@ -289,7 +286,7 @@ def _suffix(frame_id: str) -> str:
     return "" if frame_id == "world" else f"_{_file_part(frame_id)}"
 
 
-def receive(acc: Accumulator, msg: ContactPoint | ContactPointArray | EndOfStream) -> None:
+def receive(acc: Accumulator, msg: ContactPointArray | EndOfStream) -> None:
     """Hand an incoming message to the accumulator: an end of stream, or its contacts."""
     if isinstance(msg, EndOfStream):
         acc.end(msg.source)
@@ -398,7 +395,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
     acc = Accumulator(expected, params.max_points, params.max_frames)
     subscriber = node.create_subscriber(
-        {t: (ContactPoint, ContactPointArray) for t in params.topics}, hwm=200_000)
+        {t: ContactPointArray for t in params.topics}, hwm=200_000)
     cloud_pub = node.create_publisher(params.cloud_topic, ContactCloud, wait_for=params.wait_for)
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
     proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,

@@ -1,4 +1,4 @@
-"""ATI Net F/T driver node: one sensor's RDT stream over UDP as WhiskerWrench in its whisker's clamp frame.
+"""ATI Net F/T driver node: one sensor's RDT stream over UDP as WhiskerWrenchArray in its whisker's clamp frame.
 
 Subscribes
 ----------
@@ -8,9 +8,9 @@ Subscribes
 
 Publishes
 ---------
-``topic`` (default ``wrench``) : WhiskerWrench
-    One per record of the sensor, in order, never one older than a record already sent:
-    ``whisker_id`` = ``whisker``, ``frame_id`` = its clamp frame (``<whisker>/clamp``), no
+``topic`` (default ``wrench``) : WhiskerWrenchArray
+    One batch of one row per record of the sensor, in order, never one older than a record
+    already sent: ``whisker_ids`` = [``whisker``], ``frame_ids`` = [its clamp frame], no
     pose (the robot graph places it, as its other wrenches); ``f0`` N, ``m0`` N m the clamp's
     reaction on the rod about the clamp point (``vibrissa.calibration.sensor_to_clamp`` with
     the whisker's X_CS from ``robot``); ``stamp`` the record's sensor time on the host clock
@@ -44,7 +44,7 @@ import numpy.typing as npt
 from vibrissa.calibration import sensor_to_clamp
 from vibrissa.formats.scene_file import load_robot
 from vibrissa.frames import Transform, clamp_frame
-from vibrissa.msgs import SensorCommand, WhiskerWrench
+from vibrissa.msgs import SensorCommand, WhiskerWrenchArray
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.wire.netft import (
@@ -307,7 +307,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
         node.counters.update({renamed.get(k, k): v for k, v in counters.items()})
 
     report()
-    wrenches = node.create_publisher(params.topic, WhiskerWrench, wait_for=params.wait_for)
+    wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for)
     commands = node.create_subscriber({params.command_topic: SensorCommand})
     frame_id = clamp_frame(params.whisker)
     sensor = (socket.gethostbyname(params.address), params.port)
@@ -347,9 +347,10 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
         def publish(limit: int | None) -> None:
             nonlocal seq
             stamps, f0, m0 = reader.take(limit)
-            for stamp, f, m in zip(stamps.tolist(), f0, m0, strict=True):
-                wrenches.publish(WhiskerWrench(stamp=stamp, seq=seq, whisker_id=params.whisker,
-                                               frame_id=frame_id, f0=f, m0=m))
+            for i, stamp in enumerate(stamps.tolist()):
+                wrenches.publish(WhiskerWrenchArray(
+                    stamp=stamp, seq=seq, whisker_ids=[params.whisker], frame_ids=[frame_id],
+                    f0=f0[i:i + 1], m0=m0[i:i + 1]))
                 seq += 1
 
         while not node.stop_requested:

@@ -2,19 +2,18 @@
 
 Subscribes
 ----------
-``input_topic`` (default ``wrench``) : WhiskerWrench or WhiskerWrenchArray
-    SI: f0 N, m0 N m in the clamp frame C (``frame_id`` / ``frame_ids``), with or without
-    the clamp pose X_PC (``pose_frame_id``); an array holds one row per whisker of one tick.
+``input_topic`` (default ``wrench``) : WhiskerWrenchArray
+    SI: f0 N, m0 N m in the clamp frame C (``frame_ids``), with or without the clamp pose X_PC
+    (``pose_frame_id``); one row per whisker of one tick (a single whisker: one row).
 ``pose_topic`` (default ``/robot/pose``, only with ``robot``) : RobotPose
     The robot's poses, kept in a frame buffer (``vibrissa.frame_buffer``) with the mounts of
     the robot description.
 
 Publishes
 ---------
-``output_topic`` (default ``contact``) : ContactPoint or ContactPointArray
-    One ContactPoint per WhiskerWrench with a consistent contact (status OK or AXIAL_LOAD),
-    same ``stamp``, ``seq`` and ``whisker_id``; one ContactPointArray per WhiskerWrenchArray
-    (same ``stamp``, ``seq``) with the rows that have a consistent contact (possibly none);
+``output_topic`` (default ``contact``) : ContactPointArray
+    One per WhiskerWrenchArray (same ``stamp``, ``seq``) with the rows that have a consistent
+    contact (status OK or AXIAL_LOAD; possibly none);
     in the pose's frame when the wrench carried one, else in ``map_frame`` (the clamp pose
     interpolated at the wrench's stamp); then an ``EndOfStream`` of its own for every
     ``EndOfStream`` on ``input_topic`` (after the points of the wrenches before it).
@@ -36,24 +35,18 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TypeAlias
 
 from vibrissa.contact_detection import OFF_SIGMAS, ON_SIGMAS
 from vibrissa.formats.scene_file import load_robot
 from vibrissa.frame_buffer import DEFAULT_HISTORY_S
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
 from vibrissa.msgs import (
-    ContactPhase,
-    ContactPoint,
     ContactPointArray,
-    ContactStatus,
     EndOfStream,
     Message,
     RobotPose,
-    WhiskerWrench,
     WhiskerWrenchArray,
 )
 from vibrissa.reconstruct import TIP_SIGMAS
@@ -198,14 +191,11 @@ PARAMS = ReconstructorParams
 """The node's parameter dataclass: the launcher checks a launch file's values with it."""
 
 
-Wrenches: TypeAlias = WhiskerWrench | WhiskerWrenchArray
-
-
 def collect_batch(
     receive: Callable[[float], Received | None], timeout_s: float, max_batch: int,
     on_pose: Callable[[RobotPose], None] = lambda pose: None, end_topic: str | None = None,
     max_span_s: float = math.inf,
-) -> tuple[list[Wrenches], EndOfStream | None, bool]:
+) -> tuple[list[WhiskerWrenchArray], EndOfStream | None, bool]:
     """Wait up to ``timeout_s`` for one message, then drain what is already queued.
 
     Draining stops at ``max_batch`` messages (a WhiskerWrenchArray counts as one), once the
@@ -217,14 +207,14 @@ def collect_batch(
     the wrenches before it. A RobotPose goes to ``on_pose`` as it comes. Returns the batch, the
     EndOfStream, and whether draining stopped before the queue was empty (a backlog).
     """
-    batch: list[Wrenches] = []
+    batch: list[WhiskerWrenchArray] = []
     first, last = math.inf, -math.inf  # the stamps taken so far span [first, last]
     rx = receive(timeout_s)
     while rx is not None:
         msg: Message = rx.msg
         if isinstance(msg, EndOfStream) and end_topic in (None, rx.topic):
             return batch, msg, False
-        if isinstance(msg, (WhiskerWrench, WhiskerWrenchArray, RobotPose)):
+        if isinstance(msg, (WhiskerWrenchArray, RobotPose)):
             if isinstance(msg, RobotPose):
                 on_pose(msg)
             else:
@@ -259,7 +249,7 @@ class BatchCollector:
         self.limit = drain_limit
         self.drained = True
 
-    def collect(self, timeout_s: float) -> tuple[list[Wrenches], EndOfStream | None]:
+    def collect(self, timeout_s: float) -> tuple[list[WhiskerWrenchArray], EndOfStream | None]:
         """The next batch (see :func:`collect_batch`) and the limit for the one after."""
         batch, eos, backlog = collect_batch(self._receive, timeout_s, self.limit, self._on_pose,
                                             self._end_topic, self.max_span_s)
@@ -268,71 +258,30 @@ class BatchCollector:
         return batch, eos
 
 
-class _SingleWrenches:
-    """WhiskerWrench in, ContactPoint out, as long as the single message type lives: each
-    WhiskerWrench goes to the stream as a WhiskerWrenchArray of one row, and that row's point
-    comes back out as a ContactPoint (none without a contact). The only place the node tells
-    the two apart."""
-
-    def __init__(self) -> None:
-        self._single: deque[bool] = deque()  # per message handed to the stream, in order
-
-    def ticks(self, batch: list[Wrenches]) -> list[WhiskerWrenchArray]:
-        """The batch as ticks, in place: a WhiskerWrench as a tick of one row."""
-        for i, msg in enumerate(batch):
-            self._single.append(isinstance(msg, WhiskerWrench))
-            if isinstance(msg, WhiskerWrench):
-                batch[i] = WhiskerWrenchArray(
-                    stamp=msg.stamp, seq=msg.seq, whisker_ids=[msg.whisker_id],
-                    frame_ids=[msg.frame_id], f0=msg.f0[None], m0=msg.m0[None],
-                    pose_frame_id=msg.pose_frame_id,
-                    clamp_position=None if msg.clamp_position is None else msg.clamp_position[None],
-                    clamp_orientation=(None if msg.clamp_orientation is None
-                                       else msg.clamp_orientation[None]))
-        return batch  # type: ignore[return-value]  # every row replaced above
-
-    def contacts(self, contacts: ContactPointArray) -> ContactPoint | ContactPointArray | None:
-        """What to publish for the next outcome: its ContactPointArray, or for a
-        WhiskerWrench its ContactPoint (None without a contact)."""
-        if not self._single.popleft():
-            return contacts
-        if not contacts.whisker_ids:
-            return None
-        return ContactPoint(
-            stamp=contacts.stamp, seq=contacts.seq, whisker_id=contacts.whisker_ids[0],
-            frame_id=contacts.frame_id, point=contacts.point[0], s1=float(contacts.s1[0]),
-            phase=ContactPhase(int(contacts.phase[0])), force=contacts.force[0],
-            status=ContactStatus(int(contacts.status[0])),
-            covariance=None if contacts.covariance is None else contacts.covariance[0])
-
-
 def run(node: Node, params: ReconstructorParams) -> None:
     """Reconstruct until stopped (or the first ``EndOfStream`` with ``exit_on_eos``)."""
     settings = params.stream_settings()
     stream = Step2Stream(settings, Warnings(node.fqn, log), counts=node.counters)
-    topics: dict[str, object] = {params.input_topic: (WhiskerWrench, WhiskerWrenchArray)}
+    topics: dict[str, object] = {params.input_topic: WhiskerWrenchArray}
     if stream.frames is not None:
         topics[params.pose_topic] = RobotPose
     subscriber = node.create_subscriber(topics, hwm=params.receive_hwm)  # type: ignore[arg-type]
-    publisher = node.create_publisher(params.output_topic, (ContactPoint, ContactPointArray),
+    publisher = node.create_publisher(params.output_topic, ContactPointArray,
                                       wait_for=params.wait_for)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch,
                              stream.add_pose, resolve_topic(params.input_topic, node.namespace),
                              max_span_s=params.history_s / 2)
-    singles = _SingleWrenches()
     warm_up(settings)
     node.set_state("running")
     counters = node.counters
     ends: list[EndOfStream] = []  # held until the wrenches before them are out
     while not node.stop_requested:
         batch, eos = batches.collect(min(0.1, stream.wait_s()))
-        stream.add_wrenches(singles.ticks(batch))
+        stream.add_wrenches(batch)
         if eos is not None:
             ends.append(eos)
         for outcome in stream.take(batches.drained):
-            contacts = singles.contacts(outcome.contacts)
-            if contacts is not None:
-                publisher.publish(contacts)
+            publisher.publish(outcome.contacts)
         stream.apply_poses()  # the poses no wrench waited for, now that the points are out
         while ends and not len(stream):
             end = ends.pop(0)

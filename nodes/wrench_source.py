@@ -1,4 +1,4 @@
-"""Wrench source node: simulated sweeps (Step 1) as WhiskerWrench samples, or a recorded bag.
+"""Wrench source node: simulated sweeps (Step 1) as WhiskerWrenchArray samples, or a recorded bag.
 
 Subscribes
 ----------
@@ -6,9 +6,9 @@ nothing (besides the runtime's ``/vibrissa/status``).
 
 Publishes
 ---------
-``topic`` (default ``wrench``, relative: ``/<namespace>/wrench``) : WhiskerWrench
-    mode ``sim``: one sample per equilibrium of every sweep, in sweep order, then
-    ``EndOfStream``.
+``topic`` (default ``wrench``, relative: ``/<namespace>/wrench``) : WhiskerWrenchArray
+    mode ``sim``: one sample (a batch of one row) per equilibrium of every sweep, in sweep
+    order, then ``EndOfStream``.
 ``topic`` : WhiskerWrenchArray
     mode ``sim`` with ``array``: the trails are the whiskers of one rigid array moving together;
     one message per clamp step with a row per whisker, then ``EndOfStream``.
@@ -20,9 +20,10 @@ Publishes
     robot's pose X_WR (``world`` -> ``robot_frame``) at ``pose_rate_hz`` on the path's clock
     (and a last one at the path's end; 0: the path's own samples), each published
     ``pose_delay_s`` after its stamp in the stream; then ``EndOfStream`` on both.
-every WhiskerWrench, WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
+every WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
-    recorded order, each message with its own type (a topic may mix both), followed by the
+    recorded order (a retired single ``vibrissa/WhiskerWrench`` decodes as an array of one
+    row, ``vibrissa.msgs.codec.RETIRED_TYPES``), followed by the
     recorded ``EndOfStream`` (or one of its own when the bag has none, e.g. a cut-off bag).
 
 Units and frames (mode ``sim``): the sweep's world frame W is the message's ``frame_id``; the
@@ -47,7 +48,8 @@ import numpy.typing as npt
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.formats.scene_results import read_results
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
-from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench, WhiskerWrenchArray
+from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrenchArray
+from vibrissa.msgs.codec import decodes_as
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import (
     require,
@@ -70,7 +72,7 @@ log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 
-REPLAY_TYPES = (WhiskerWrench.TYPE_NAME, WhiskerWrenchArray.TYPE_NAME, RobotPose.TYPE_NAME)
+REPLAY_TYPES = (WhiskerWrenchArray, RobotPose)
 
 IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
 
@@ -238,8 +240,8 @@ def tick_messages(
     frame_id: str = "world",
     array: bool = False,
     clock: Callable[[], float] = lambda: 0.0,
-) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
-    """Each tick as a WhiskerWrenchArray (``array``) or each of its rows as a WhiskerWrench.
+) -> Iterator[WhiskerWrenchArray]:
+    """Each tick as a WhiskerWrenchArray (``array``) or each of its rows as one of one row.
 
     Row r of a tick is whisker ``whisker_ids[tick.whiskers[r]]``, measured in its clamp frame
     (`vibrissa.frames.clamp_frame`), with its clamp pose in ``frame_id``: the identity
@@ -258,10 +260,10 @@ def tick_messages(
             seq += 1
             continue
         for r in range(n):
-            yield WhiskerWrench(
-                stamp=clock(), seq=seq, whisker_id=ids[r], frame_id=clamp_frame(ids[r]),
-                f0=tick.f0_C_n[r], m0=tick.m0_C_nm[r], pose_frame_id=frame_id,
-                clamp_position=tick.p_WC_m[r], clamp_orientation=IDENTITY_QUATERNION)
+            yield WhiskerWrenchArray(
+                stamp=clock(), seq=seq, whisker_ids=[ids[r]], frame_ids=[clamp_frame(ids[r])],
+                f0=tick.f0_C_n[r:r + 1], m0=tick.m0_C_nm[r:r + 1], pose_frame_id=frame_id,
+                clamp_position=tick.p_WC_m[r:r + 1], clamp_orientation=IDENTITY_QUATERNION[None])
             seq += 1
 
 
@@ -273,7 +275,7 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
     """Simulate the sweeps and publish each sample as soon as it is solved (paced by
     ``rate_hz``); returns the number of messages sent, -1 when ``wait_for`` timed out."""
     publisher = node.create_publisher(
-        params.topic, WhiskerWrenchArray if params.array else WhiskerWrench,
+        params.topic, WhiskerWrenchArray,
         wait_for=params.wait_for, hwm=DEFAULT_HWM * 10)
     surface = parse_surface(params.surface)
     trails = [Trail(float(y0), params.mu) for y0 in params.y0]
@@ -421,13 +423,14 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
 
 
 def replay_topics(bag: str) -> dict[str, bool]:
-    """Wrench topics of ``bag`` (``REPLAY_TYPES``) -> whether it holds an EndOfStream on them."""
+    """Topics of ``bag`` whose payloads decode as ``REPLAY_TYPES`` -> whether it holds an
+    EndOfStream on them."""
     info = BagReader(bag).info()
     types: dict[str, set[str]] = {}
     for t in info.topics:
         types.setdefault(t.topic, set()).add(t.type_name)
     return {topic: EndOfStream.TYPE_NAME in names for topic, names in types.items()
-            if names.intersection(REPLAY_TYPES)}
+            if any(decodes_as(name) in REPLAY_TYPES for name in names)}
 
 
 def run_replay(node: Node, params: WrenchSourceParams) -> int:
@@ -435,7 +438,7 @@ def run_replay(node: Node, params: WrenchSourceParams) -> int:
     (``vibrissa.runtime.playback.play_bag_gated``); messages sent, -1 on failure."""
     topics = replay_topics(params.bag)
     if not topics:
-        log.error("%s: %s has no %s topic", node.fqn, params.bag, " or ".join(REPLAY_TYPES))
+        log.error("%s: %s has no %s topic", node.fqn, params.bag, " or ".join(t.TYPE_NAME for t in REPLAY_TYPES))
         return -1
     node.set_state("running", f"replaying {params.bag}")
     result, publishers = play_bag_gated(

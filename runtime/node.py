@@ -6,8 +6,8 @@ runs inside a ``Node``::
     args = NodeArgs.parse(argv)
     params = load_params(Params, args.params_file, args.params)
     with Node.from_args(args) as node:
-        wrenches = node.create_subscriber({"wrench": WhiskerWrench})
-        contacts = node.create_publisher("contact", ContactPoint, wait_for=["mapper"])
+        wrenches = node.create_subscriber({"wrench": WhiskerWrenchArray})
+        contacts = node.create_publisher("contact", ContactPointArray, wait_for=["mapper"])
         node.set_state("running")
         while not node.stop_requested:
             rx = wrenches.receive(0.1)

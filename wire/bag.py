@@ -702,8 +702,8 @@ def export_json(
     reader = BagReader(src, topics=topics)
     with BagWriter(dst, message_encoding=JSON_ENCODING, flush_interval_s=math.inf) as out:
         for rec in reader:
-            type_name, version = codec.peek_type(rec.payload)
-            msg = codec.decode(rec.payload)
+            msg = codec.decode(rec.payload)  # a retired type's payload: as the type it decodes to
+            type_name, version = msg.TYPE_NAME, msg.VERSION
             schema_id = out.register_schema(type_name, version, _schema_json(type_name, version))
             data = json.dumps(codec.to_jsonable(msg), allow_nan=False).encode()
             out._write(rec.topic, schema_id, data, rec.log_time_ns, rec.publish_time_ns,
@@ -780,10 +780,12 @@ def play_bag(
     result = PlayResult(published={t: 0 for t in counts})
     topic_types: dict[str, list[type[WireMessage]]] = {}
     for t in info.topics:
-        msg_type = codec.MESSAGE_TYPES.get(t.type_name)
+        msg_type = codec.decodes_as(t.type_name)  # a retired type: the one that replaced it
         if msg_type is None:
             raise ValueError(f"{path}: topic {t.topic} has unknown message type {t.type_name!r}")
-        topic_types.setdefault(t.topic, []).append(msg_type)
+        types = topic_types.setdefault(t.topic, [])
+        if msg_type not in types:
+            types.append(msg_type)
     own = make_publisher is None
 
     def default_publisher(topic: str, msg_type: MessageTypes, hwm: int) -> Publisher:

@@ -7,15 +7,17 @@ Export (:func:`export_ros2`) writes a rosbag2 folder (``metadata.yaml``, version
 ========================== ==================================== ==============================
 vibrissa                   ROS 2                                topic
 ========================== ==================================== ==============================
-WhiskerWrench              geometry_msgs/msg/WrenchStamped      the same
-WhiskerWrenchArray         one WrenchStamped per row            ``<topic>/<whisker>``
-ContactPoint(Array)        sensor_msgs/msg/PointCloud2          the same
+WhiskerWrenchArray         one WrenchStamped per row            ``<topic>/<whisker>`` (1)
+ContactPointArray          sensor_msgs/msg/PointCloud2          the same
 ContactCloud               sensor_msgs/msg/PointCloud2          the same
 RobotPose                  tf2_msgs/msg/TFMessage               ``/tf``
 robot description mounts   tf2_msgs/msg/TFMessage (latched)     ``/tf_static``
 SurfaceMesh                visualization_msgs/msg/Marker        the same
 whisker names              std_msgs/msg/String (latched)        ``/vibrissa/whiskers``
 ========================== ==================================== ==============================
+
+(1) A payload of the retired single type ``vibrissa/WhiskerWrench`` (``codec.RETIRED_TYPES``:
+it decodes as an array of one row) goes to ``<topic>`` itself, as it always did.
 
 Anything else (NodeStatus, EndOfStream, ...) is skipped and counted. Each message keeps its
 log time; ``header.stamp`` is the message's own ``stamp`` (float s -> sec, nanosec, rounded to
@@ -35,9 +37,10 @@ bag (and the robot description) holds, sorted, as a JSON list in the one std_msg
 ``/vibrissa/whiskers``, latched (transient local) like ``/tf_static``.
 
 Import (:func:`import_ros2`) reads WrenchStamped topics (one whisker each) and ``/tf`` of a
-ROS 2 bag into a vibrissa bag that ``wrench_source`` mode ``replay`` plays: a WhiskerWrench per
-sample on one topic (clamp frame = ``header.frame_id``, sign converted back) and a RobotPose per
-transform ``parent -> child`` on ``/tf`` (the reconstructor's ``map_frame``, ``robot_frame``).
+ROS 2 bag into a vibrissa bag that ``wrench_source`` mode ``replay`` plays: a
+WhiskerWrenchArray of one row per sample on one topic (clamp frame = ``header.frame_id``, sign
+converted back) and a RobotPose per transform ``parent -> child`` on ``/tf`` (the
+reconstructor's ``map_frame``, ``robot_frame``).
 """
 
 from __future__ import annotations
@@ -64,11 +67,9 @@ from rosbags.typesys.stores import ros2_jazzy as ros
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import (
     ContactCloud,
-    ContactPoint,
     ContactPointArray,
     RobotPose,
     SurfaceMesh,
-    WhiskerWrench,
     WhiskerWrenchArray,
     codec,
 )
@@ -163,15 +164,13 @@ def _cloud(stamp: float, frame_id: str, rows: npt.NDArray[Any]) -> Any:
         row_step=rows.dtype.itemsize * len(rows), data=data, is_dense=True)
 
 
-def _points(msg: ContactPoint | ContactPointArray, index: Mapping[str, int]) -> npt.NDArray[Any]:
-    single = isinstance(msg, ContactPoint)
-    names = [msg.whisker_id] if single else msg.whisker_ids
-    rows = np.zeros(len(names), POINT_DTYPE)
-    point = np.reshape(msg.point, (-1, 3))
+def _points(msg: ContactPointArray, index: Mapping[str, int]) -> npt.NDArray[Any]:
+    rows = np.zeros(len(msg.whisker_ids), POINT_DTYPE)
+    point = msg.point
     rows["x"], rows["y"], rows["z"] = point[:, 0], point[:, 1], point[:, 2]
-    rows["whisker"] = [index[n] for n in names]
-    rows["phase"] = np.reshape(np.asarray(msg.phase), -1)
-    rows["s1"] = np.reshape(np.asarray(msg.s1), -1)
+    rows["whisker"] = [index[n] for n in msg.whisker_ids]
+    rows["phase"] = msg.phase
+    rows["s1"] = msg.s1
     return rows
 
 
@@ -220,8 +219,6 @@ def _marker(msg: SurfaceMesh, marker_id: int) -> Any:
 
 
 def _whisker_names(msg: WireMessage) -> Iterable[str]:
-    if isinstance(msg, (WhiskerWrench, ContactPoint)):
-        return [msg.whisker_id]
     if isinstance(msg, (WhiskerWrenchArray, ContactPointArray)):
         return msg.whisker_ids
     if isinstance(msg, ContactCloud):
@@ -299,7 +296,7 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     start_ns: int | None = None
     for rec in reader:
         start_ns = rec.log_time_ns if start_ns is None else start_ns
-        if rec.type_name in _NAMED:
+        if codec.decodes_as(rec.type_name) in _NAMED:
             names.update(_whisker_names(codec.decode(rec.payload)))
     result = ExportResult(path=out, whiskers=sorted(names))
     index = {name: i for i, name in enumerate(result.whiskers)}
@@ -322,11 +319,12 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
                 transforms=mounts), t0, True)
         markers: dict[str, int] = {}
         for rec in BagReader(src, topics=topics):
-            if rec.type_name not in _EXPORTED:
+            if codec.decodes_as(rec.type_name) not in _EXPORTED:
                 result.skipped[rec.type_name] += 1
                 continue
+            row_topics = rec.type_name not in codec.RETIRED_TYPES
             for topic, msgtype, ros_msg in _convert(rec.topic, codec.decode(rec.payload), index,
-                                                     markers):
+                                                     markers, row_topics):
                 ros_out.write(topic, msgtype, ros_msg, rec.log_time_ns)
     finally:
         writer.close()
@@ -334,16 +332,16 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     return result
 
 
-def _convert(topic: str, msg: WireMessage, index: Mapping[str, int], markers: dict[str, int]
-             ) -> Iterator[tuple[str, str, Any]]:
-    """(ROS topic, ROS type, ROS message) for one vibrissa message of an exported type."""
-    if isinstance(msg, WhiskerWrench):
-        yield topic, WRENCH_STAMPED, _wrench(msg.stamp, msg.frame_id, msg.f0, msg.m0)
-    elif isinstance(msg, WhiskerWrenchArray):
+def _convert(topic: str, msg: WireMessage, index: Mapping[str, int], markers: dict[str, int],
+             row_topics: bool = True) -> Iterator[tuple[str, str, Any]]:
+    """(ROS topic, ROS type, ROS message) for one vibrissa message of an exported type; a
+    wrench row goes to ``<topic>/<whisker>``, or to ``topic`` without ``row_topics``."""
+    if isinstance(msg, WhiskerWrenchArray):
         for name, frame_id, f0, m0 in zip(msg.whisker_ids, msg.frame_ids, msg.f0, msg.m0,
                                           strict=True):
-            yield f"{topic.rstrip('/')}/{name}", WRENCH_STAMPED, _wrench(msg.stamp, frame_id, f0, m0)
-    elif isinstance(msg, (ContactPoint, ContactPointArray)):
+            row_topic = f"{topic.rstrip('/')}/{name}" if row_topics else topic
+            yield row_topic, WRENCH_STAMPED, _wrench(msg.stamp, frame_id, f0, m0)
+    elif isinstance(msg, ContactPointArray):
         yield topic, POINT_CLOUD2, _cloud(msg.stamp, msg.frame_id, _points(msg, index))
     elif isinstance(msg, ContactCloud):
         yield topic, POINT_CLOUD2, _cloud(msg.stamp, msg.frame_id, _cloud_points(msg, index))
@@ -355,15 +353,13 @@ def _convert(topic: str, msg: WireMessage, index: Mapping[str, int], markers: di
         yield topic, MARKER, _marker(msg, marker_id)
 
 
-_EXPORTED = frozenset(t.TYPE_NAME for t in (WhiskerWrench, WhiskerWrenchArray, ContactPoint,
-                                            ContactPointArray, ContactCloud, RobotPose, SurfaceMesh))
-_NAMED = frozenset(t.TYPE_NAME for t in (WhiskerWrench, WhiskerWrenchArray, ContactPoint,
-                                         ContactPointArray, ContactCloud))
+_EXPORTED = (WhiskerWrenchArray, ContactPointArray, ContactCloud, RobotPose, SurfaceMesh)
+_NAMED = (WhiskerWrenchArray, ContactPointArray, ContactCloud)
 
 
 @dataclass
 class ImportResult:
-    """What :func:`import_ros2` wrote: WhiskerWrench per whisker, RobotPose count, and the
+    """What :func:`import_ros2` wrote: wrench samples per whisker, RobotPose count, and the
     /tf transforms that were not the robot's pose (parent -> child: count)."""
 
     path: Path
@@ -384,7 +380,7 @@ class ImportResult:
         """One line: wrenches per whisker, poses, transforms and messages left out."""
         per = ", ".join(f"{w} {n}" for w, n in sorted(self.wrenches.items()))
         other = sum(self.other_transforms.values())
-        line = (f"wrote {sum(self.wrenches.values())} WhiskerWrench ({per}) and {self.poses} "
+        line = (f"wrote {sum(self.wrenches.values())} wrench sample(s) ({per}) and {self.poses} "
                 f"RobotPose to {self.path}; {other} other /tf transform(s) left out")
         if self.refused:
             line += "; refused by the codec (NaN, inf or a bad name): " + ", ".join(
@@ -441,7 +437,7 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
         The vibrissa ``.mcap`` bag to write (overwritten).
     wrench_topics
         ROS topic of geometry_msgs/msg/WrenchStamped -> name of its whisker. Each sample
-        becomes a WhiskerWrench on ``topic`` in the clamp frame ``header.frame_id``
+        becomes a WhiskerWrenchArray of one row on ``topic`` in the clamp frame ``header.frame_id``
         (``<whisker>/clamp`` when empty), stamped ``header.stamp``, f0 = -force, m0 = -torque.
     topic, pose_topic
         The vibrissa topics of the wrenches and of the robot's poses.
@@ -551,13 +547,13 @@ def _records(reader: AnyReader, connections: list[Any], path: Path, read: Counte
         yield record
 
 
-def _whisker_wrench(msg: Any, name: str, seq: int) -> WhiskerWrench:
+def _whisker_wrench(msg: Any, name: str, seq: int) -> WhiskerWrenchArray:
     w = msg.wrench
-    return WhiskerWrench(
+    return WhiskerWrenchArray(
         stamp=stamp_from_ros(msg.header.stamp.sec, msg.header.stamp.nanosec), seq=seq,
-        whisker_id=name, frame_id=msg.header.frame_id or clamp_frame(name),
-        f0=-np.array([w.force.x, w.force.y, w.force.z]),
-        m0=-np.array([w.torque.x, w.torque.y, w.torque.z]))
+        whisker_ids=[name], frame_ids=[msg.header.frame_id or clamp_frame(name)],
+        f0=-np.array([[w.force.x, w.force.y, w.force.z]]),
+        m0=-np.array([[w.torque.x, w.torque.y, w.torque.z]]))
 
 
 def _robot_pose(tf: Any) -> RobotPose:

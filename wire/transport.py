@@ -50,7 +50,7 @@ import msgpack
 import zmq
 
 from vibrissa.msgs import EndOfStream, Message, NodeStatus, Ping
-from vibrissa.msgs.codec import DecodeError, decode, encode, payload_limit, peek_type
+from vibrissa.msgs.codec import DecodeError, decode, decodes_as, encode, payload_limit, peek_type
 from vibrissa.msgs.messages import MAX_PAYLOAD_BYTES
 from vibrissa.wire.inbox import PIPE_HWM, Inbox
 from vibrissa.wire.security import Guard, Keys, KeysError
@@ -466,7 +466,7 @@ class Publisher(contextlib.AbstractContextManager["Publisher"]):
     def publish_raw(self, payload: bytes) -> None:
         """Send an already encoded payload (bag replay); its type must match the publisher's."""
         name, _ = peek_type(payload)
-        if name != EndOfStream.TYPE_NAME and all(t.TYPE_NAME != name for t in self.msg_types):
+        if name != EndOfStream.TYPE_NAME and decodes_as(name) not in self.msg_types:
             raise TypeError(
                 f"publisher on {self.topic} sends {self.type_name}, payload is {name}"
             )

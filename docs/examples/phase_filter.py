@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from vibrissa.msgs import ContactPhase, ContactPoint, EndOfStream
+from vibrissa.msgs import ContactPhase, ContactPointArray, EndOfStream
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 
 log = logging.getLogger("phase_filter")
@@ -35,8 +35,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     params = load_params(PhaseFilterParams, args.params_file, args.params)
     wanted = ContactPhase.TIP if params.phase == "tip" else ContactPhase.TANGENTIAL
     with Node.from_args(args) as node:  # heartbeat, Ctrl-C handling, sockets closed at the end
-        contacts = node.create_subscriber({params.input_topic: ContactPoint})
-        kept = node.create_publisher(params.output_topic, ContactPoint, wait_for=params.wait_for)
+        contacts = node.create_subscriber({params.input_topic: ContactPointArray})
+        kept = node.create_publisher(params.output_topic, ContactPointArray,
+                                     wait_for=params.wait_for)
         node.counters.update(kept=0, dropped=0)  # reported in the node's status
         node.set_state("running", f"keeping {params.phase} contacts")
         while not node.stop_requested:
@@ -46,11 +47,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             if isinstance(rx.msg, EndOfStream):  # the stream ended: end ours, then stop
                 kept.publish_end_of_stream(node.fqn)
                 break
-            if rx.msg.phase == wanted:
-                kept.publish(rx.msg)
-                node.counters["kept"] += 1
-            else:
-                node.counters["dropped"] += 1
+            # one message per tick, a row per whisker in contact (a single whisker: one row)
+            keep = rx.msg.phase == wanted
+            kept.publish(rx.msg.select_rows(keep))  # the same tick, its rows of that phase
+            node.counters["kept"] += int(keep.sum())
+            node.counters["dropped"] += int((~keep).sum())
         log.info("%s: kept %d %s contacts, dropped %d", node.fqn, node.counters["kept"],
                  params.phase, node.counters["dropped"])
     return 0

@@ -11,7 +11,7 @@ import pytest
 import zmq
 
 from vibrissa.cli.main import main as vibrissa_main
-from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrench
+from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.nodes.recorder import RecorderParams, RecordResult, record, subscription
 from vibrissa.wire import Endpoints, Publisher, Subscriber
@@ -20,11 +20,11 @@ from vibrissa.wire.bag import BagReader, BagWriter, play_bag
 TIMEOUT_S = 5.0
 
 
-def wrench(i: int) -> WhiskerWrench:
-    return WhiskerWrench(
-        stamp=0.01 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
-        clamp_position=[0.0, 0.0, 0.1 * i], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
-        f0=[0.0, 0.01 * i, 0.0], m0=[1e-3 * i, 0.0, 0.0],
+def wrench(i: int) -> WhiskerWrenchArray:
+    return WhiskerWrenchArray(
+        stamp=0.01 * i, seq=i, whisker_ids=["w0"], frame_ids=["w0/clamp"],
+        pose_frame_id="world", clamp_position=[[0.0, 0.0, 0.1 * i]],
+        clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=[[0.0, 0.01 * i, 0.0]], m0=[[1e-3 * i, 0.0, 0.0]],
     )
 
 
@@ -72,7 +72,7 @@ def test_record_then_read_back_bit_identical(
     params = RecorderParams(output=str(tmp_path / "rec.mcap"), stop_on_eos=True)
     rec = Recording(params, endpoints, context)
     sent: list[tuple[str, bytes]] = []
-    with Publisher("/w0/wrench", WhiskerWrench, endpoints, context) as pw, \
+    with Publisher("/w0/wrench", WhiskerWrenchArray, endpoints, context) as pw, \
             Publisher("/robot/pose", RobotPose, endpoints, context) as pp:
         connect(pw, rec.sub)
         connect(pp, rec.sub)
@@ -100,7 +100,7 @@ def test_record_only_named_topics_for_a_duration(
     params = RecorderParams(output=str(tmp_path / "rec.mcap"), topics=("/w0/wrench",),
                             duration_s=1.0)
     rec = Recording(params, endpoints, context)
-    with Publisher("/w0/wrench", WhiskerWrench, endpoints, context) as pw, \
+    with Publisher("/w0/wrench", WhiskerWrenchArray, endpoints, context) as pw, \
             Publisher("/robot/pose", RobotPose, endpoints, context) as pp:
         connect(pw, rec.sub)
         for i in range(20):

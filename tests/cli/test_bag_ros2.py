@@ -24,12 +24,10 @@ from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, 
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.formats.scene_file import load_robot, load_scene
 from vibrissa.msgs import (
-    ContactPoint,
     ContactPointArray,
     EndOfStream,
     NodeStatus,
     RobotPose,
-    WhiskerWrench,
     WhiskerWrenchArray,
     codec,
 )
@@ -232,18 +230,18 @@ def test_import_of_a_robot_bag_gives_wrenches_in_clamp_frames_and_poses(
                           "--wrench-topic", "/right/wrench", "--whisker", "wl",
                           "--whisker", "wr"]) == 0
     err = capsys.readouterr().err
-    assert "wrote 3 WhiskerWrench (wl 2, wr 1) and 1 RobotPose" in err
+    assert "wrote 3 wrench sample(s) (wl 2, wr 1) and 1 RobotPose" in err
     assert "1 other /tf transform(s) left out" in err
     got = [(r.topic, r.log_time_ns, codec.decode(r.payload)) for r in BagReader(out)]
     wrenches = [(t, m) for topic, t, m in got if topic == WRENCH]
-    assert [m.whisker_id for _, m in wrenches] == ["wl", "wr", "wl"]
+    assert [m.whisker_ids for _, m in wrenches] == [["wl"], ["wr"], ["wl"]]  # one row each
     assert [m.seq for _, m in wrenches] == [0, 0, 1]
     assert [m.stamp for _, m in wrenches] == [1.0, 1.005, 1.01]
     assert [t for t, _ in wrenches] == [_ns(1.0) + 7, _ns(1.005) + 7, _ns(1.01) + 7]
-    first: WhiskerWrench = wrenches[0][1]
-    assert first.frame_id == "left/clamp" and not first.has_pose
+    first: WhiskerWrenchArray = wrenches[0][1]
+    assert first.frame_ids == ["left/clamp"] and not first.has_pose
     # the sign back: f0 is the clamp's reaction on the rod, minus the sensor's reading
-    assert first.f0.tolist() == [-1.0, -2.0, 3.0] and first.m0.tolist() == [-0.1, -0.2, -0.3]
+    assert first.f0.tolist() == [[-1.0, -2.0, 3.0]] and first.m0.tolist() == [[-0.1, -0.2, -0.3]]
     (pose,) = [m for topic, _, m in got if topic == POSE]
     assert (pose.frame_id, pose.child_frame_id, pose.stamp) == ("world", "base_link", 1.0)
     assert pose.position.tolist() == [0.1, 0.2, 0.3]
@@ -284,7 +282,8 @@ def test_an_exported_bag_imports_and_replays_through_the_nodes_to_the_library_po
     # keys to the ns: a path time such as 2.5500000000000003 s comes back as the ns it rounds to
     expected = {(_ns(float(s)), str(n)): p for s, n, p, v in zip(t[ok], names[ok], rec.point_m, valid,
                                                              strict=True) if v}
-    got = {(_ns(p.stamp), p.whisker_id): p.point for p in points if isinstance(p, ContactPoint)}
+    got = {(_ns(p.stamp), w): point for p in points if isinstance(p, ContactPointArray)
+           for w, point in zip(p.whisker_ids, p.point, strict=True)}
     assert got.keys() == expected.keys() and len(got) > 1000
     lengths = {w.name: w.length_m for w in scene.whiskers}
     for key, point in got.items():
@@ -354,9 +353,9 @@ def test_export_refuses_an_existing_folder_and_a_bad_robot(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag = tmp_path / "b.mcap"
     with BagWriter(bag) as writer:
-        writer.write("/w/wrench", encode(WhiskerWrench(stamp=0.0, seq=0, whisker_id="w",
-                                                       frame_id="w/clamp", f0=[1, 2, 3],
-                                                       m0=[0, 0, 0])), 0)
+        writer.write("/w/wrench", encode(WhiskerWrenchArray(
+            stamp=0.0, seq=0, whisker_ids=["w"], frame_ids=["w/clamp"], f0=[[1, 2, 3]],
+            m0=[[0, 0, 0]])), 0)
     (tmp_path / "taken").mkdir()
     assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), str(tmp_path / "taken")]) == 2
     assert "exists" in capsys.readouterr().err
@@ -364,10 +363,35 @@ def test_export_refuses_an_existing_folder_and_a_bad_robot(
                           "--robot", str(bag)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("vibrissa bag export: error:") and len(err.strip().splitlines()) == 1
-    # and the single WhiskerWrench keeps its topic, with the sensor's sign
+    # and the row of one whisker goes to its row topic, with the sensor's sign
     assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), "-o", str(tmp_path / "ok")]) == 0
     ((topic, _, msg),) = [m for m in _mcap_ros2_messages(tmp_path / "ok") if m[0] != "/vibrissa/whiskers"]
-    assert topic == "/w/wrench" and (msg.wrench.force.x, msg.wrench.force.y) == (-1.0, -2.0)
+    assert topic == "/w/wrench/w" and (msg.wrench.force.x, msg.wrench.force.y) == (-1.0, -2.0)
+
+
+LEGACY = Path(__file__).parents[1] / "data" / "legacy_types"
+"""``legacy.mcap``, a bag of the retired single types WhiskerWrench and ContactPoint beside
+arrays, and ``ros2/``, its ROS 2 export written while those were live types."""
+
+
+def test_the_ros2_export_of_a_bag_of_the_retired_types_is_as_it_was(tmp_path: Path) -> None:
+    """A retired WhiskerWrench still goes to its own topic (an array's rows to
+    ``<topic>/<whisker>``), a ContactPoint to a PointCloud2 of one point: the same ROS 2 bag,
+    message for message and byte for byte."""
+    out = tmp_path / "ros2"
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(LEGACY / "legacy.mcap"),
+                          str(out)]) == 0
+
+    def messages(folder: Path) -> list[tuple[str, str, int, bytes]]:
+        with AnyReader([folder]) as reader:
+            return [(c.topic, c.msgtype, t, bytes(raw)) for c, t, raw in reader.messages()]
+
+    got, want = messages(out), messages(LEGACY / "ros2")
+    assert len(got) == 26 and got == want
+    assert {t for t, *_ in got} >= {"/w0/wrench", "/w1/wrench", "/w0/contact", "/w1/contact",
+                                    "/robot/wrench/a0", "/robot/wrench/a2"}
+    assert (out / "ros2.mcap").read_bytes() == (LEGACY / "ros2" / "ros2.mcap").read_bytes()
+    assert (out / "metadata.yaml").read_text() == (LEGACY / "ros2" / "metadata.yaml").read_text()
 
 
 def test_the_foxglove_export_has_the_live_views_channels_at_the_bags_times(
@@ -421,7 +445,7 @@ def test_import_counts_and_leaves_out_non_finite_samples(
     out = tmp_path / "imported.mcap"
     assert vibrissa_main(["bag", "import", str(src), str(out)]) == 0
     err = capsys.readouterr().err
-    assert "wrote 1 WhiskerWrench (w0 1) and 1 RobotPose" in err
+    assert "wrote 1 wrench sample(s) (w0 1) and 1 RobotPose" in err
     assert "refused by the codec (NaN, inf or a bad name): /robot/wrench/w0 2, /tf 1" in err
     assert len(list(BagReader(out))) == 2
 

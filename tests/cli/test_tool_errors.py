@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from vibrissa.cli.main import main as vibrissa_main
-from vibrissa.msgs import WhiskerWrench
+from vibrissa.msgs import WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.wire.bag import BagWriter
 
@@ -51,9 +51,10 @@ def test_bag_info_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
     bag = tmp_path / "many.mcap"
     with BagWriter(bag) as writer:
         for i in range(2000):  # a line per topic: more than a pipe holds (64 KiB)
-            msg = WhiskerWrench(stamp=0.0, seq=0, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
-                                clamp_position=[0, 0, 0], clamp_orientation=[0, 0, 0, 1],
-                                f0=[0, 0, 0], m0=[0, 0, 0])
+            msg = WhiskerWrenchArray(stamp=0.0, seq=0, whisker_ids=["w"], frame_ids=["w/clamp"],
+                                     pose_frame_id="world", clamp_position=[[0, 0, 0]],
+                                     clamp_orientation=[[0, 0, 0, 1]], f0=[[0, 0, 0]],
+                                     m0=[[0, 0, 0]])
             writer.write(f"/w{i}/wrench", encode(msg), i)
     result = subprocess.run(
         f"{sys.executable} -m vibrissa.cli.main bag info {bag} | head -1; "
@@ -101,8 +102,9 @@ def test_bag_export_never_writes_over_its_input_nor_silently_over_a_file(
         tmp_path: Path, fmt: str) -> None:
     bag = tmp_path / "rec.mcap"
     with BagWriter(bag) as out:
-        out.write("/w/wrench", encode(WhiskerWrench(
-            stamp=0.0, seq=0, whisker_id="w0", frame_id="w0/clamp", f0=[1, 0, 0], m0=[0, 0, 0])), 1)
+        out.write("/w/wrench", encode(WhiskerWrenchArray(
+            stamp=0.0, seq=0, whisker_ids=["w0"], frame_ids=["w0/clamp"], f0=[[1, 0, 0]],
+            m0=[[0, 0, 0]])), 1)
     before = bag.read_bytes()
     for target in (bag, tmp_path / "." / "rec.mcap"):  # the input by any path
         result = vibrissa("bag", "export", "--format", fmt, str(bag), str(target), "--overwrite")
@@ -152,9 +154,9 @@ def test_an_empty_file_is_no_bag(tmp_path: Path, capsys: pytest.CaptureFixture[s
 def wrench_bag(path: Path) -> Path:
     with BagWriter(path) as out:
         for i, topic in enumerate(("/w0/wrench", "/w1/wrench")):
-            out.write(topic, encode(WhiskerWrench(
-                stamp=0.0, seq=0, whisker_id=f"w{i}", frame_id=f"w{i}/clamp", f0=[1, 0, 0],
-                m0=[0, 0, 0])), 1 + i)
+            out.write(topic, encode(WhiskerWrenchArray(
+                stamp=0.0, seq=0, whisker_ids=[f"w{i}"], frame_ids=[f"w{i}/clamp"],
+                f0=[[1, 0, 0]], m0=[[0, 0, 0]])), 1 + i)
     return path
 
 

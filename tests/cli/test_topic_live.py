@@ -15,17 +15,17 @@ import zmq
 from vibrissa.cli import topic
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.cli.topic import RateMeter, echo, format_message, hz, survey
-from vibrissa.msgs import ContactPhase, ContactPoint, NodeStatus, WhiskerWrench
+from vibrissa.msgs import ContactPhase, ContactPointArray, NodeStatus, WhiskerWrenchArray
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher
 
 RATE_HZ = 50.0
 
 
-def wrench(i: int) -> WhiskerWrench:
-    return WhiskerWrench(
-        stamp=0.02 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
-        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
-        f0=[0.0, 0.01 * i, 0.0], m0=[0.0, 0.0, 0.0],
+def wrench(i: int) -> WhiskerWrenchArray:
+    return WhiskerWrenchArray(
+        stamp=0.02 * i, seq=i, whisker_ids=["w0"], frame_ids=["w0/clamp"], pose_frame_id="world",
+        clamp_position=[[0.0, 0.0, 0.1]], clamp_orientation=[[0.0, 0.0, 0.0, 1.0]],
+        f0=[[0.0, 0.01 * i, 0.0]], m0=[[0.0, 0.0, 0.0]],
     )
 
 
@@ -33,7 +33,7 @@ def wrench(i: int) -> WhiskerWrench:
 def talker(endpoints: Endpoints, context: zmq.Context[Any]) -> Iterator[Publisher]:
     """Publishes a wrench on /w0/wrench at RATE_HZ and a NodeStatus every 0.25 s."""
     stop = threading.Event()
-    pub = Publisher("/w0/wrench", WhiskerWrench, endpoints, context)
+    pub = Publisher("/w0/wrench", WhiskerWrenchArray, endpoints, context)
     status = Publisher(STATUS_TOPIC, NodeStatus, endpoints, context)
 
     def run() -> None:
@@ -47,9 +47,9 @@ def talker(endpoints: Endpoints, context: zmq.Context[Any]) -> Iterator[Publishe
                 status.publish(NodeStatus(
                     stamp=time.time(), node="/talker", state="running",
                     counters={"received": 0, "published": i, "rejected": 0, "lost": 0},
-                    publishes={"/w0/wrench": WhiskerWrench.TYPE_NAME,
-                               "/w0/mixed": "vibrissa/ContactPoint|vibrissa/ContactPointArray"},
-                    subscribes={"/w0/contact": ContactPoint.TYPE_NAME}, seen_topics=[]))
+                    publishes={"/w0/wrench": WhiskerWrenchArray.TYPE_NAME,
+                               "/w0/mixed": "vibrissa/ContactCloud|vibrissa/ContactPointArray"},
+                    subscribes={"/w0/contact": ContactPointArray.TYPE_NAME}, seen_topics=[]))
             i += 1
 
     thread = threading.Thread(target=run, daemon=True)
@@ -71,10 +71,10 @@ def test_echo_json_lines(endpoints: Endpoints, talker: Publisher,
     assert result == (3, False)
     rows = [json.loads(line) for line in out.getvalue().splitlines()]
     assert len(rows) == 3
-    assert all(r["topic"] == "/w0/wrench" and r["type"] == WhiskerWrench.TYPE_NAME for r in rows)
+    assert all(r["topic"] == "/w0/wrench" and r["type"] == WhiskerWrenchArray.TYPE_NAME for r in rows)
     seqs = [r["msg"]["seq"] for r in rows]
     assert seqs == list(range(seqs[0], seqs[0] + 3))
-    assert rows[0]["msg"]["clamp_orientation"] == [0.0, 0.0, 0.0, 1.0]
+    assert rows[0]["msg"]["clamp_orientation"] == [[0.0, 0.0, 0.0, 1.0]]
 
 
 def test_echo_cli_yaml(endpoints: Endpoints, talker: Publisher,
@@ -83,8 +83,8 @@ def test_echo_cli_yaml(endpoints: Endpoints, talker: Publisher,
                           "--pub", endpoints.pub, "--sub", endpoints.sub])
     assert code == 0
     text = capsys.readouterr().out
-    assert text.count("---") == 2 and "# /w0/wrench [vibrissa/WhiskerWrench]" in text
-    assert "clamp_orientation: [0.0, 0.0, 0.0, 1.0]" in text
+    assert text.count("---") == 2 and "# /w0/wrench [vibrissa/WhiskerWrenchArray]" in text
+    assert "clamp_orientation: [[0.0, 0.0, 0.0, 1.0]]" in text
 
 
 def test_echo_times_out_on_a_silent_topic(endpoints: Endpoints) -> None:
@@ -150,15 +150,15 @@ def test_list_from_status_and_traffic(endpoints: Endpoints, talker: Publisher,
                                       capsys: pytest.CaptureFixture[str]) -> None:
     topics = survey(endpoints, 1.0)
     assert topics["/w0/wrench"].publishers == {"/talker"}
-    assert topics["/w0/wrench"].types == {WhiskerWrench.TYPE_NAME}
-    assert topics["/w0/mixed"].types == {"vibrissa/ContactPoint", "vibrissa/ContactPointArray"}
+    assert topics["/w0/wrench"].types == {WhiskerWrenchArray.TYPE_NAME}
+    assert topics["/w0/mixed"].types == {"vibrissa/ContactCloud", "vibrissa/ContactPointArray"}
     assert topics["/w0/wrench"].messages > 10
     assert topics["/w0/contact"].subscribers == {"/talker"}
     assert STATUS_TOPIC in topics
     assert vibrissa_main(["topic", "list", "--listen", "0.8",
                           "--pub", endpoints.pub, "--sub", endpoints.sub]) == 0
     text = capsys.readouterr().out
-    assert "/w0/wrench" in text and "vibrissa/WhiskerWrench" in text and "/talker" in text
+    assert "/w0/wrench" in text and "vibrissa/WhiskerWrenchArray" in text and "/talker" in text
 
 
 def test_rate_meter_and_format() -> None:
@@ -170,8 +170,8 @@ def test_rate_meter_and_format() -> None:
     assert stats is not None and stats.window == 3
     assert stats.rate_hz == pytest.approx(3 / 0.4)
     assert stats.min_s == pytest.approx(0.1) and stats.max_s == pytest.approx(0.2)
-    contact = ContactPoint(stamp=1.0, seq=1, whisker_id="w0", frame_id="world",
-                           point=[0.0, 0.0, 0.1], s1=0.05, phase=ContactPhase.TIP,
-                           force=[0.0, 1.0, 0.0], status=0)
+    contact = ContactPointArray(stamp=1.0, seq=1, whisker_ids=["w0"], frame_id="world",
+                                point=[[0.0, 0.0, 0.1]], s1=[0.05], phase=[ContactPhase.TIP],
+                                force=[[0.0, 1.0, 0.0]], status=[0])
     text = format_message("/w0/contact", contact, as_json=False)
-    assert "phase: 1  # <ContactPhase.TIP: 1>" in text
+    assert 'whisker_ids: ["w0"]\n' in text and "phase: [1]\n" in text

@@ -10,7 +10,7 @@ import pytest
 
 from tests.nodes.test_nodes_logic import run_with_file_size_limit
 from vibrissa.mapping import Accumulator, ContactBatch, contact_normals, split_lines
-from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
+from vibrissa.msgs import ContactPointArray, EndOfStream
 from vibrissa.nodes.mapper import MapperParams, contact_batch, receive, write_outputs
 from vibrissa.surfaces import parse_surface
 
@@ -71,24 +71,22 @@ def test_a_batch_of_rows_that_do_not_match_is_refused() -> None:
                      covariances_m2=np.zeros((1, 3)))
 
 
-def test_the_node_converts_a_single_point_and_an_array_to_the_same_batch_rows() -> None:
-    """The mapper's one conversion: a ContactPoint is a batch of one row, as the same row of a
-    ContactPointArray; an end of stream ends its source."""
-    single = ContactPoint(stamp=0.0, seq=7, whisker_id="w", frame_id="arm", point=[0, 0, 1],
-                          s1=0.5, phase=1, force=[0, 0, 2], status=0,
-                          covariance=np.diag([1e-8, 2e-8, 3e-8]))
-    array = ContactPointArray(stamp=0.0, seq=7, frame_id="arm", whisker_ids=["w"],
-                              point=[[0, 0, 1]], s1=[0.5], phase=[1], force=[[0, 0, 2]],
-                              status=[0], covariance=[np.diag([1e-8, 2e-8, 3e-8])])
-    a, b = contact_batch(single), contact_batch(array)
-    assert (a.frame_id, list(a.whisker_ids), a.seq) == (b.frame_id, list(b.whisker_ids), b.seq)
-    for name in ("points_m", "forces_n", "covariances_m2"):
-        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
-    assert a.points_m.shape == (1, 3) and a.covariances_m2 is not None
+def test_the_node_converts_a_contact_message_to_the_batch_of_its_rows() -> None:
+    """The mapper's one conversion: every row with its whisker, the message's seq and the
+    covariance; an end of stream ends its source."""
+    array = ContactPointArray(stamp=0.0, seq=7, frame_id="arm", whisker_ids=["w", "v"],
+                              point=[[0, 0, 1], [0, 1, 0]], s1=[0.5, 0.4], phase=[1, 2],
+                              force=[[0, 0, 2], [0, 3, 0]], status=[0, 0],
+                              covariance=[np.diag([1e-8, 2e-8, 3e-8]), np.eye(3) * 1e-8])
+    batch = contact_batch(array)
+    assert (batch.frame_id, list(batch.whisker_ids), batch.seq) == ("arm", ["w", "v"], 7)
+    np.testing.assert_array_equal(batch.points_m, [[0, 0, 1], [0, 1, 0]])
+    np.testing.assert_array_equal(batch.forces_n, [[0, 0, 2], [0, 3, 0]])
+    assert batch.covariances_m2 is not None and batch.covariances_m2[1, 2, 2] == 1e-8
     acc = Accumulator(1)
-    receive(acc, single)
+    receive(acc, array)
     receive(acc, EndOfStream(stamp=0.0, source="/r", count=1))
-    assert acc.n_points == 1 and acc.done
+    assert acc.n_points == 2 and acc.done
 
 
 def _contact(i: int, point: list[float], frame_id: str = "world") -> ContactBatch:

@@ -35,7 +35,7 @@ from vibrissa.mapping import (
     is_covariance,
     whisker_lines,
 )
-from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream
+from vibrissa.msgs import ContactPointArray, EndOfStream
 from vibrissa.msgs.codec import decode, encode
 from vibrissa.nodes import mapper
 from vibrissa.nodes.mapper import MapperParams, receive
@@ -114,9 +114,9 @@ def messages(frame_id: str = "world") -> list[Any]:
             phase=np.full(len(ids), 2, dtype=np.int32), force=np.array([r[1] for r in rows]),
             status=np.zeros(len(ids), dtype=np.int32)))
     for i, point in enumerate(STRAYS):
-        out.append(ContactPoint(stamp=0.0, seq=i, whisker_id="w4", frame_id=frame_id,
-                                point=point, s1=0.03, phase=1, force=[0.0, 0.0, -0.02],
-                                status=0))
+        out.append(ContactPointArray(stamp=0.0, seq=i, whisker_ids=["w4"], frame_id=frame_id,
+                                     point=[point], s1=[0.03], phase=[1],
+                                     force=[[0.0, 0.0, -0.02]], status=[0]))
     out.append(EndOfStream(stamp=0.0, source="/reconstructor", count=len(out)))
     return out
 
@@ -320,14 +320,15 @@ def test_two_clusters_on_one_object_are_told_apart_or_joined(tmp_path: Path, joi
     makes two clusters, both on the ball, which the convex join makes one (the default)."""
     back = [(w, obj, polar, azimuths + np.pi) for w, obj, polar, azimuths in LINES
             if obj is BALL and w != "w1"]
-    msgs = [m for m in messages() if not isinstance(m, ContactPoint)]
+    msgs = [m for m in messages() if getattr(m, "whisker_ids", None) != ["w4"]]  # no strays
     acc = accumulate(msgs)
     for i, (_, obj, polar, azimuths) in enumerate(back):
         points = line_points(obj, polar, azimuths)
         for k, (point, normal) in enumerate(zip(points, obj.surface(1.0).normal(points),
                                                 strict=True)):
-            receive(acc, ContactPoint(stamp=0.0, seq=k, whisker_id=f"w{5 + i}", frame_id="world",
-                                 point=point, s1=0.03, phase=2, force=0.02 * normal, status=0))
+            receive(acc, ContactPointArray(
+                stamp=0.0, seq=k, whisker_ids=[f"w{5 + i}"], frame_id="world", point=[point],
+                s1=[0.03], phase=[2], force=[0.02 * normal], status=[0]))
     params = MapperParams(out_dir=str(tmp_path), scene=str(write_scene(tmp_path)),
                           cluster_eps_m=0.006, plot=False, join_convex=join)
     report, _ = write_outputs(acc, params, tmp_path)

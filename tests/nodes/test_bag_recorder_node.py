@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench
+from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.nodes.recorder import EndOfStreamTracker
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Header, Publisher, Received, Subscriber
@@ -22,11 +22,11 @@ from vibrissa.wire.bag import BagReader
 TIMEOUT_S = 20.0
 
 
-def wrench(i: int) -> WhiskerWrench:
-    return WhiskerWrench(
-        stamp=0.01 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
-        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
-        f0=[0.0, 0.01 * i, 0.0], m0=[0.0, 0.0, 0.0],
+def wrench(i: int) -> WhiskerWrenchArray:
+    return WhiskerWrenchArray(
+        stamp=0.01 * i, seq=i, whisker_ids=["w0"], frame_ids=["w0/clamp"],
+        pose_frame_id="world", clamp_position=[[0.0, 0.0, 0.1]],
+        clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=[[0.0, 0.01 * i, 0.0]], m0=[[0.0, 0.0, 0.0]],
     )
 
 
@@ -86,7 +86,7 @@ def test_recorder_node_process_stops_on_end_of_stream(tmp_path: Path,
     params.write_text(yaml.safe_dump({"output": str(out), "topics": ["wrench"],
                                       "stop_on_eos": True, "eos_grace_s": 0.2}))
     with recorder(params, endpoints, "--namespace", "/w0") as proc, \
-            Publisher("/w0/wrench", WhiskerWrench, endpoints) as pub, \
+            Publisher("/w0/wrench", WhiskerWrenchArray, endpoints) as pub, \
             Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
         seen(pub, status, "/w0/rec")
         sent = []
@@ -107,7 +107,7 @@ def test_recording_every_topic_reports_its_counters(tmp_path: Path, endpoints: E
     params = tmp_path / "rec.yaml"
     params.write_text(yaml.safe_dump({"output": str(out), "stop_on_eos": True, "eos_grace_s": 0.2}))
     with recorder(params, endpoints) as proc, \
-            Publisher("/w9/wrench", WhiskerWrench, endpoints) as pub, \
+            Publisher("/w9/wrench", WhiskerWrenchArray, endpoints) as pub, \
             Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as status:
         last = seen(pub, status, "/rec")
         deadline = time.monotonic() + TIMEOUT_S

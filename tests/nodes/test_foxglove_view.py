@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from vibrissa.frames import Transform
-from vibrissa.msgs import ContactPointArray, NodeStatus, WhiskerWrench
+from vibrissa.msgs import ContactPointArray, NodeStatus, WhiskerWrenchArray
 from vibrissa.nodes import foxglove_bridge
 from vibrissa.nodes.foxglove_bridge import FoxgloveBridgeParams, LiveView
 from vibrissa.wire import STATUS_TOPIC
@@ -29,9 +29,9 @@ def test_invented_names_and_a_long_cloud_keep_the_view_bounded(
     try:
         view = LiveView(fg, FoxgloveBridgeParams(max_cloud_points=50), [], counters, context)
         for k in range(20):  # 20 whiskers: 8 get a wrench channel, 12 are refused
-            view.handle("/robot/wrench", WhiskerWrench(
-                stamp=0.0, seq=0, whisker_id=f"w{k}", frame_id=f"w{k}/clamp",
-                f0=[1.0, 0.0, 0.0], m0=[0.0, 0.0, 0.0]), 0.0)
+            view.handle("/robot/wrench", WhiskerWrenchArray(
+                stamp=0.0, seq=0, whisker_ids=[f"w{k}"], frame_ids=[f"w{k}/clamp"],
+                f0=[[1.0, 0.0, 0.0]], m0=[[0.0, 0.0, 0.0]]), 0.0)
         for k in range(20):  # 20 nodes' statuses: 8 kept
             view.handle(STATUS_TOPIC, NodeStatus(stamp=0.0, node=f"/n{k}", state="running", counters={}, publishes={},
                 subscribes={}, seen_topics=[]), 0.0)
@@ -75,9 +75,9 @@ def test_a_client_sees_the_robot_descriptions_wrench_channels_before_any_wrench(
             ws.send(json.dumps({"op": "subscribe", "subscriptions": [
                 {"id": 7, "channelId": advertised["/whiskers/w1/wrench"]}]}))
             time.sleep(0.2)  # the server takes the subscription
-            view.handle("/robot/wrench", WhiskerWrench(
-                stamp=1.5, seq=4, whisker_id="w1", frame_id="w1/clamp", f0=[1.0, 0.0, 0.0],
-                m0=[0.0, 2.0, 0.0]), 10.0)
+            view.handle("/robot/wrench", WhiskerWrenchArray(
+                stamp=1.5, seq=4, whisker_ids=["w1"], frame_ids=["w1/clamp"], f0=[[1.0, 0.0, 0.0]],
+                m0=[[0.0, 2.0, 0.0]]), 10.0)
             frame = ws.recv(timeout=5.0)
             while isinstance(frame, str):  # skip control messages
                 frame = ws.recv(timeout=5.0)

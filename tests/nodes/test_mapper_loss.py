@@ -16,16 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vibrissa.msgs import ContactPhase, ContactPoint, ContactStatus, NodeStatus
+from vibrissa.msgs import ContactPhase, ContactPointArray, ContactStatus, NodeStatus
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 
 TOPIC = "/w/contact"
 
 
-def contact(i: int, frame_id: str = "world") -> ContactPoint:
-    return ContactPoint(stamp=0.0, seq=i, whisker_id="w", frame_id=frame_id,
-                        point=[0.01 * (i % 4), 0.01 * (i // 4), 0.5 + 0.001 * i], s1=0.5,
-                        phase=ContactPhase.TIP, force=[0.0, 0.0, 1.0], status=ContactStatus.OK)
+def contact(i: int, frame_id: str = "world") -> ContactPointArray:
+    return ContactPointArray(stamp=0.0, seq=i, whisker_ids=["w"], frame_id=frame_id,
+                             point=[[0.01 * (i % 4), 0.01 * (i // 4), 0.5 + 0.001 * i]], s1=[0.5],
+                             phase=[ContactPhase.TIP], force=[[0.0, 0.0, 1.0]],
+                             status=[ContactStatus.OK])
 
 
 def run_mapper(tmp_path: Path, endpoints: Endpoints, params: list[str],
@@ -40,7 +41,7 @@ def run_mapper(tmp_path: Path, endpoints: Endpoints, params: list[str],
         env={**os.environ, **endpoints.to_env()}, stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True)
     try:
-        with Publisher(TOPIC, ContactPoint, endpoints) as pub, \
+        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
                 Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
             deadline = time.monotonic() + 60
             while time.monotonic() < deadline:  # ping until the mapper hears the topic
@@ -128,10 +129,10 @@ def test_points_the_map_cannot_use_are_dropped_counted_and_the_map_still_written
     def send(pub: Publisher) -> None:
         for i in range(7):
             pub.publish(contact(i))
-        pub.publish(dataclasses.replace(contact(7), covariance=-1e-2 * np.eye(3)))
-        pub.publish(dataclasses.replace(contact(8), point=[1e300, 0.0, 0.5]))
+        pub.publish(dataclasses.replace(contact(7), covariance=[-1e-2 * np.eye(3)]))
+        pub.publish(dataclasses.replace(contact(8), point=[[1e300, 0.0, 0.5]]))
         for i, force in ((9, [0.0, 0.0, 0.0]), (10, [0.0, 2e303, 2e303])):
-            pub.publish(dataclasses.replace(contact(i), force=force))
+            pub.publish(dataclasses.replace(contact(i), force=[force]))
 
     rc, out, counters = run_mapper(tmp_path, endpoints, [], send)
     assert rc == 4 and "Traceback" not in out, out

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from vibrissa.msgs import NodeStatus, SensorCommand, WhiskerWrench
+from vibrissa.msgs import NodeStatus, SensorCommand, WhiskerWrenchArray
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 from vibrissa.wire.netft_device import NetFTDevice, SignalSpec
 
@@ -69,18 +69,18 @@ class Watch:
     """The driver's wrenches and its latest status counters."""
 
     def __init__(self, endpoints: Endpoints, context: Any) -> None:
-        self.wrenches = Subscriber({"/s/wrench": WhiskerWrench}, endpoints, context)
+        self.wrenches = Subscriber({"/s/wrench": WhiskerWrenchArray}, endpoints, context)
         self.status = Subscriber({STATUS_TOPIC: NodeStatus}, endpoints, context)
         self.counters: dict[str, int] = {}
         self.message = ""
 
-    def take(self, n: int) -> list[WhiskerWrench]:
-        got: list[WhiskerWrench] = []
+    def take(self, n: int) -> list[WhiskerWrenchArray]:
+        got: list[WhiskerWrenchArray] = []
         deadline = time.monotonic() + TIMEOUT_S
         while len(got) < n:
             assert time.monotonic() < deadline, f"only {len(got)} of {n} wrenches arrived"
             rx = self.wrenches.receive(0.2)
-            if rx is not None and isinstance(rx.msg, WhiskerWrench):
+            if rx is not None and isinstance(rx.msg, WhiskerWrenchArray):
                 got.append(rx.msg)
         return got
 
@@ -108,9 +108,9 @@ def watch(endpoints: Endpoints, context: Any) -> Iterator[Watch]:
     w.close()
 
 
-def rows_of(wrenches: list[WhiskerWrench]) -> np.ndarray:
+def rows_of(wrenches: list[WhiskerWrenchArray]) -> np.ndarray:
     # f0 = -f_S (the sensor frame is the clamp frame): row k has f0x = -k mN
-    return np.rint(-np.array([w.f0[0] for w in wrenches]) * 1e3).astype(int)
+    return np.rint(-np.array([w.f0[0, 0] for w in wrenches]) * 1e3).astype(int)
 
 
 def test_every_record_once_and_in_order(tmp_path: Path, endpoints: Endpoints, watch: Watch) -> None:
@@ -121,7 +121,8 @@ def test_every_record_once_and_in_order(tmp_path: Path, endpoints: Endpoints, wa
         rows = rows_of(got)
         assert np.all(np.diff(rows) == 1), "records skipped, repeated or out of order"
         assert [w.seq for w in got] == list(range(got[0].seq, got[0].seq + 500))
-        assert all(w.frame_id == "w0/clamp" and w.whisker_id == "w0" and not w.has_pose for w in got)
+        assert all(w.frame_ids == ["w0/clamp"] and w.whisker_ids == ["w0"] and not w.has_pose
+                   for w in got)  # one row each
         stamps = np.array([w.stamp for w in got])
         steps = np.diff(stamps)  # sensor time: the sensor's 1 ms, except where the offset to the
         assert np.all(steps >= 0) and np.all(steps < 1e-3 + 1e-6)  # host clock moves down
@@ -173,8 +174,8 @@ def test_bias_removes_a_constant_offset_exactly(tmp_path: Path, endpoints: Endpo
                      spec=SignalSpec(bias=offset)) as device, driver(tmp_path, endpoints, device), \
             Publisher("/s/sensor_command", SensorCommand, endpoints, context) as commands:
         before = watch.take(5)[-1]
-        np.testing.assert_array_equal(before.f0, -np.array(offset[:3]))  # counts are exact here
-        np.testing.assert_array_equal(before.m0, -np.array(offset[3:]))
+        np.testing.assert_array_equal(before.f0, -np.array([offset[:3]]))  # counts are exact here
+        np.testing.assert_array_equal(before.m0, -np.array([offset[3:]]))
         deadline = time.monotonic() + TIMEOUT_S
         while watch.counters.get("biases", 0) < 1:
             assert time.monotonic() < deadline
@@ -182,8 +183,8 @@ def test_bias_removes_a_constant_offset_exactly(tmp_path: Path, endpoints: Endpo
             watch.until(lambda c: True, timeout_s=1.0)
         time.sleep(0.1)
         after = watch.take(200)[-1]
-        np.testing.assert_array_equal(after.f0, np.zeros(3))
-        np.testing.assert_array_equal(after.m0, np.zeros(3))
+        np.testing.assert_array_equal(after.f0, np.zeros((1, 3)))
+        np.testing.assert_array_equal(after.m0, np.zeros((1, 3)))
         assert device.stats.biases >= 1
 
 
@@ -238,8 +239,8 @@ def test_the_first_bias_takes_a_large_offset_of_a_still_rod_and_refuses_a_moving
         _bias(commands, watch, "biases")
         time.sleep(0.1)
         after = watch.take(200)[-1]
-        np.testing.assert_array_equal(after.f0, np.zeros(3))
-        np.testing.assert_array_equal(after.m0, np.zeros(3))
+        np.testing.assert_array_equal(after.f0, np.zeros((1, 3)))
+        np.testing.assert_array_equal(after.m0, np.zeros((1, 3)))
         proc.terminate()
         _, err = proc.communicate(timeout=5)
         assert "bias refused: the rod is not free or not still" in err

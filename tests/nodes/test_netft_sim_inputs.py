@@ -19,7 +19,7 @@ from vibrissa.calibration import clamp_to_sensor, sensor_to_clamp
 from vibrissa.cli.main import main
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.formats.scene_results import read_results
-from vibrissa.msgs import WhiskerWrench
+from vibrissa.msgs import WhiskerWrenchArray
 from vibrissa.nodes.netft_sim import NetFTSimParams, open_device
 from vibrissa.wire import Endpoints
 
@@ -81,12 +81,12 @@ def sim_params(scene: Path, whisker: str, **values: Any) -> NetFTSimParams:
                           **values)
 
 
-def aligned_error(got: list[WhiskerWrench], expected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def aligned_error(got: list[WhiskerWrenchArray], expected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """|f0| and |m0| errors (M,) of the published wrenches against the rows of ``expected``
     that the device played for them: one row per record, looping, from an offset found here
     (the test subscribes after the stream has begun)."""
     assert [w.seq for w in got] == list(range(got[0].seq, got[0].seq + len(got))), "gaps"
-    wrench = np.array([np.concatenate([w.f0, w.m0]) for w in got])
+    wrench = np.array([np.concatenate([w.f0[0], w.m0[0]]) for w in got])  # one row each
     rows = (np.arange(len(expected))[:, None] + np.arange(len(got))) % len(expected)
     worst = np.abs(wrench[None] - expected[rows]).max(axis=(1, 2))
     error = wrench - expected[rows[int(np.argmin(worst))]]
@@ -110,7 +110,7 @@ def test_the_driver_publishes_the_step1_wrench_of_a_scene_whisker(
     with open_device(sim_params(scene, "late")) as device, \
             driver(tmp_path, endpoints, device, whisker="late", robot=str(scene)):
         got = watch.take(2 * SAMPLES)
-    assert all(w.frame_id == "late/clamp" for w in got)
+    assert all(w.frame_ids == ["late/clamp"] for w in got)
     df, dm = aligned_error(got, expected)
     max_f, max_m = bounds(scene, "late", 0.5)  # the device rounds to the nearest count
     assert df.max() <= max_f and dm.max() <= max_m, (df.max(), dm.max())

@@ -13,10 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from vibrissa.msgs import (
-    WhiskerWrench,
-    WhiskerWrenchArray,
-)
+from vibrissa.msgs import WhiskerWrenchArray
 from vibrissa.nodes.mapper import MapperParams
 from vibrissa.nodes.reconstructor import ReconstructorParams
 from vibrissa.nodes.wrench_source import WrenchSourceParams, tick_messages
@@ -30,7 +27,7 @@ UNIT_ROD = RodScale()
 
 
 def sweep_wrenches(run: SweepRun, whisker_id: str, frame_id: str, rod: RodScale
-                   ) -> Iterator[WhiskerWrench | WhiskerWrenchArray]:
+                   ) -> Iterator[WhiskerWrenchArray]:
     """The wrench source's one path, one whisker sweeping one sweep after the other."""
     return tick_messages(sequential_ticks(run, rod), [whisker_id] * len(run.trails), frame_id)
 
@@ -86,7 +83,7 @@ def test_a_full_disk_stops_the_recorder_with_one_error_and_a_readable_bag(
     bag = tmp_path / "rec.mcap"
     script = f"""
 import numpy as np
-from vibrissa.msgs import WhiskerWrench
+from vibrissa.msgs import WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.nodes.recorder import RecorderParams, record
 from vibrissa.wire.bag import BagReader
@@ -96,9 +93,10 @@ class Endless:
     seq = 0
     def receive(self, timeout_s):
         self.seq += 1
-        msg = WhiskerWrench(stamp=0.0, seq=self.seq, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
-                            clamp_position=np.random.rand(3), clamp_orientation=[0, 0, 0, 1],
-                            f0=np.random.rand(3), m0=np.random.rand(3))
+        msg = WhiskerWrenchArray(stamp=0.0, seq=self.seq, whisker_ids=["w"], frame_ids=["w/clamp"],
+                                 pose_frame_id="world", clamp_position=np.random.rand(1, 3),
+                                 clamp_orientation=[[0, 0, 0, 1]], f0=np.random.rand(1, 3),
+                                 m0=np.random.rand(1, 3))
         return Received("/w/wrench", msg, encode(msg), Header(1, self.seq), 0.0)
     def totals(self):
         return {{"lost": 0, "rejected": 0}}

@@ -1,5 +1,5 @@
 """The reconstructor node's side (socket-free): batches drained from the input queue, its
-parameters, a WhiskerWrench as a tick of one row."""
+parameters; a single whisker's wrench is a tick of one row."""
 
 from __future__ import annotations
 
@@ -9,34 +9,30 @@ from typing import Any
 import numpy as np
 import pytest
 
-from vibrissa.msgs import ContactPoint, ContactPointArray, EndOfStream, WhiskerWrench, WhiskerWrenchArray
-from vibrissa.msgs.codec import encode
-from vibrissa.nodes.reconstructor import (
-    BatchCollector,
-    ReconstructorParams,
-    _SingleWrenches,
-    collect_batch,
-)
+from vibrissa.msgs import EndOfStream, WhiskerWrenchArray
+from vibrissa.nodes.reconstructor import BatchCollector, ReconstructorParams, collect_batch
 from vibrissa.streaming import reconstruct_messages
 from vibrissa.units import RodScale
 from vibrissa.wire.transport import Header, Received
 
 
-def _wrenches(n: int = 5) -> list[WhiskerWrench]:
+def _wrenches(n: int = 5) -> list[WhiskerWrenchArray]:
+    """One whisker's samples, each a tick of one row."""
     rng = np.random.default_rng(3)
-    return [WhiskerWrench(stamp=float(i), seq=i, whisker_id="w", frame_id="w/clamp",
-                          pose_frame_id="world", clamp_position=rng.uniform(-1, 1, 3),
-                          clamp_orientation=[0.0, 0.0, 0.0, 1.0], f0=rng.normal(0, 1, 3),
-                          m0=rng.normal(0, 1, 3)) for i in range(n)]
+    return [WhiskerWrenchArray(stamp=float(i), seq=i, whisker_ids=["w"], frame_ids=["w/clamp"],
+                               pose_frame_id="world", clamp_position=rng.uniform(-1, 1, (1, 3)),
+                               clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=rng.normal(0, 1, (1, 3)),
+                               m0=rng.normal(0, 1, (1, 3))) for i in range(n)]
 
 
-def _tick(wrenches: list[WhiskerWrench], seq: int) -> WhiskerWrenchArray:
+def _tick(wrenches: list[WhiskerWrenchArray], seq: int) -> WhiskerWrenchArray:
+    """The samples as the rows of one tick, whisker ``w<seq>`` for each."""
     return WhiskerWrenchArray(
         stamp=2.5, seq=seq, pose_frame_id="world",
         frame_ids=[f"w{w.seq}/clamp" for w in wrenches], whisker_ids=[f"w{w.seq}" for w in wrenches],
-        clamp_position=np.stack([w.clamp_position for w in wrenches]),
-        clamp_orientation=np.stack([w.clamp_orientation for w in wrenches]),
-        f0=np.stack([w.f0 for w in wrenches]), m0=np.stack([w.m0 for w in wrenches]))
+        clamp_position=np.concatenate([w.clamp_position for w in wrenches]),
+        clamp_orientation=np.concatenate([w.clamp_orientation for w in wrenches]),
+        f0=np.concatenate([w.f0 for w in wrenches]), m0=np.concatenate([w.m0 for w in wrenches]))
 
 
 def _rx(msg: Any) -> Received:
@@ -62,7 +58,7 @@ def test_collect_batch_drains_up_to_max_and_stops_at_end_of_stream() -> None:
     assert collect_batch(receive, 0.1, max_batch=3) == ([], None, False)
 
 
-def test_arrays_are_drained_like_wrenches_in_arrival_order() -> None:
+def test_ticks_of_any_size_are_drained_in_arrival_order() -> None:
     wrenches = _wrenches(3)
     queue: list[Any] = [wrenches[0], _tick(wrenches[1:], seq=1), _tick(wrenches[1:], seq=2),
                         wrenches[2]]
@@ -71,7 +67,7 @@ def test_arrays_are_drained_like_wrenches_in_arrival_order() -> None:
         return _rx(queue.pop(0)) if queue else None
 
     batch, eos, _ = collect_batch(receive, 0.1, max_batch=3)
-    assert [type(m) for m in batch] == [WhiskerWrench, WhiskerWrenchArray, WhiskerWrenchArray]
+    assert [len(m.whisker_ids) for m in batch] == [1, 2, 2]
     assert [m.seq for m in batch] == [0, 1, 2] and eos is None
     assert collect_batch(receive, 0.1, max_batch=100)[0] == [wrenches[2]]
 
@@ -110,25 +106,19 @@ def test_a_bad_robot_description_is_a_parameter_error_naming_it(tmp_path: Path) 
         assert words in str(info.value) and "robot.yaml" in str(info.value)
 
 
-def test_a_wrench_goes_through_as_a_tick_of_one_row_and_comes_back_as_its_contact_point() -> None:
-    """The node's WhiskerWrench path: the same bytes as the same row of a larger tick."""
+def test_a_tick_of_one_row_gives_the_bytes_of_the_same_row_of_a_larger_tick() -> None:
+    """A single whisker is a batch of one: the same point, force, s1 and status, bit for bit."""
     wrenches = _wrenches(12)
-    batch: list[Any] = [*wrenches[:9], _tick(wrenches[9:], seq=99)]
-    singles = _SingleWrenches()
-    ticks = singles.ticks(list(batch))
-    assert all(isinstance(t, WhiskerWrenchArray) for t in ticks)
-    out = [singles.contacts(o.contacts) for o in reconstruct_messages(ticks, RodScale())]
+    singles = [o.contacts for o in reconstruct_messages(wrenches, RodScale())]
     whole = reconstruct_messages([_tick(wrenches, seq=0)], RodScale())[0].contacts
-    assert isinstance(out[9], ContactPointArray) and out[9].seq == 99
-    for i, contact in enumerate(out[:9]):
+    for i, contact in enumerate(singles):
         row = [k for k, w in enumerate(whole.whisker_ids) if w == f"w{i}"]
+        assert len(contact.whisker_ids) == len(row)
         if not row:
-            assert contact is None
             continue
-        assert isinstance(contact, ContactPoint)
-        assert (contact.seq, contact.whisker_id, contact.frame_id) == (i, "w", "world")
-        assert contact.point.tobytes() == whole.point[row[0]].tobytes()
-        assert contact.force.tobytes() == whole.force[row[0]].tobytes()
-        assert (contact.s1, int(contact.status)) == (whole.s1[row[0]], whole.status[row[0]])
-        encode(contact)
-    assert sum(c is not None for c in out[:9]) >= 2
+        assert (contact.seq, contact.whisker_ids, contact.frame_id) == (i, ["w"], "world")
+        assert contact.point.tobytes() == whole.point[row].tobytes()
+        assert contact.force.tobytes() == whole.force[row].tobytes()
+        assert contact.s1.tobytes() == whole.s1[row].tobytes()
+        assert contact.status.tobytes() == whole.status[row].tobytes()
+    assert sum(bool(c.whisker_ids) for c in singles) >= 2

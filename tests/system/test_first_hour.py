@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 import yaml
 
-from vibrissa.msgs import EndOfStream, WhiskerWrench
+from vibrissa.msgs import EndOfStream, WhiskerWrenchArray
 from vibrissa.nodes.wrench_source import PROGRESS_PERIOD_S
 from vibrissa.wire import Endpoints, Subscriber
 
@@ -101,7 +101,7 @@ def test_samples_stream_while_the_sweeps_are_solved(tmp_path: Path) -> None:
     arrivals: list[float] = []
     try:
         launch.wait_line(r"proxy: .*\(domain")
-        with Subscriber({"/whisker0/wrench": WhiskerWrench}, endpoints) as sub:
+        with Subscriber({"/whisker0/wrench": WhiskerWrenchArray}, endpoints) as sub:
             while True:
                 rx = sub.receive(60.0)
                 assert rx is not None, launch.text()

@@ -23,18 +23,18 @@ DOMAIN = 11000 + os.getpid() % 1500  # ports below the ephemeral ones (32768-609
 
 INTRUDER = r"""
 import sys, time
-from vibrissa.msgs import ContactPoint, EndOfStream, WhiskerWrench
+from vibrissa.msgs import ContactPointArray, EndOfStream, WhiskerWrenchArray
 from vibrissa.wire import Endpoints, Publisher
 endpoints = Endpoints.for_domain(int(sys.argv[1]))  # no keys
-wrench = Publisher("/whisker0/wrench", WhiskerWrench, endpoints)
-contact = Publisher("/whisker0/contact", ContactPoint, endpoints)
+wrench = Publisher("/whisker0/wrench", WhiskerWrenchArray, endpoints)
+contact = Publisher("/whisker0/contact", ContactPointArray, endpoints)
 deadline = time.monotonic() + float(sys.argv[2])
 while time.monotonic() < deadline:
-    wrench.publish(WhiskerWrench(stamp=0.0, seq=0, whisker_id="whisker0",
-                                 frame_id="whisker0/clamp", pose_frame_id="world",
-                                 clamp_position=[0.0, 0.0, 0.0],
-                                 clamp_orientation=[0.0, 0.0, 0.0, 1.0],
-                                 f0=[0.0, 1.0, 0.0], m0=[0.0, 0.0, 0.5]))
+    wrench.publish(WhiskerWrenchArray(stamp=0.0, seq=0, whisker_ids=["whisker0"],
+                                      frame_ids=["whisker0/clamp"], pose_frame_id="world",
+                                      clamp_position=[[0.0, 0.0, 0.0]],
+                                      clamp_orientation=[[0.0, 0.0, 0.0, 1.0]],
+                                      f0=[[0.0, 1.0, 0.0]], m0=[[0.0, 0.0, 0.5]]))
     contact.publish(EndOfStream(stamp=0.0, source="/whisker0/reconstructor", count=0))
     time.sleep(0.002)
 """
@@ -72,7 +72,7 @@ def test_without_the_key_nothing_gets_in_and_nothing_is_read(tmp_path: Path) -> 
     assert spy.returncode == 1 and spy_out == ""
     assert "launched with keys" in spy_err and "--keys" in spy_err
     assert client.returncode == 0, client_err
-    assert client_out.count('whisker_id: "whisker0"') == 3
+    assert client_out.count('whisker_ids: ["whisker0"]') == 3
 
     assert rc == 0, text
     published = int(re.search(r"wrench_source .* published (\d+)", text).group(1))  # type: ignore[union-attr]

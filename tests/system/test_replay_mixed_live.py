@@ -1,8 +1,10 @@
-"""A bag with WhiskerWrench and WhiskerWrenchArray on one topic, replayed by real processes.
+"""A bag with the retired single WhiskerWrench (versions 1 and 2) and WhiskerWrenchArray on one
+topic, replayed by real processes.
 
 The wrench source (mode ``replay``) and ``vibrissa bag play`` run as subprocesses on a proxy on
-free loopback ports; the test's node ``/probe`` receives. Every message must arrive byte for
-byte, in recorded order, decoded as its own type, with one publisher's seq from 0.
+free loopback ports; the test's node ``/probe``, which subscribes WhiskerWrenchArray only,
+receives. Every message must arrive byte for byte, in recorded order, a single wrench decoded as
+the array of its one row, with one publisher's seq from 0.
 """
 
 from __future__ import annotations
@@ -14,11 +16,12 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 
-from vibrissa.msgs import EndOfStream, Message, WhiskerWrench, WhiskerWrenchArray
-from vibrissa.msgs.codec import encode
+from vibrissa.msgs import EndOfStream, Message, WhiskerWrenchArray
+from vibrissa.msgs.codec import decode, encode
 from vibrissa.runtime import Node
 from vibrissa.wire import Endpoints, Received, Subscriber
 from vibrissa.wire.bag import BagReader, BagWriter
@@ -30,30 +33,42 @@ N = 60  # 0.59 s of bag time
 TIMEOUT_S = 30.0
 
 
-def message(i: int) -> Message:
-    """Every third message an array of 1-4 whiskers, the others single wrenches."""
+def _array(values: np.ndarray) -> dict[str, object]:
+    return {"dtype": "<f8", "shape": list(values.shape), "data": values.tobytes()}
+
+
+def payload(i: int) -> bytes:
+    """Every third message an array of 1-4 whiskers, the others a retired single WhiskerWrench
+    as it went on the wire (written out; every seventh of version 1, its pose's frame in
+    frame_id)."""
     rng = np.random.default_rng(i)
     if i % 3 == 0:
         n = 1 + i % 4
-        return WhiskerWrenchArray(
-            stamp=1.0 + 0.01 * i, seq=i // 3, pose_frame_id="world", frame_ids=[f"w{k}/clamp" for k in range(n)],
-            whisker_ids=[f"w{k}" for k in range(n)], clamp_position=rng.normal(size=(n, 3)),
+        return encode(WhiskerWrenchArray(
+            stamp=1.0 + 0.01 * i, seq=i // 3, pose_frame_id="world",
+            frame_ids=[f"w{k}/clamp" for k in range(n)], whisker_ids=[f"w{k}" for k in range(n)],
+            clamp_position=rng.normal(size=(n, 3)),
             clamp_orientation=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
-            f0=rng.normal(size=(n, 3)), m0=rng.normal(size=(n, 3)))
-    return WhiskerWrench(
-        stamp=1.0 + 0.01 * i, seq=i, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
-        clamp_position=rng.normal(size=3), clamp_orientation=np.array([0.0, 0.0, 0.0, 1.0]),
-        f0=rng.normal(size=3), m0=rng.normal(size=3))
+            f0=rng.normal(size=(n, 3)), m0=rng.normal(size=(n, 3))))
+    version = 1 if i % 7 == 0 else 2
+    frames = {"frame_id": "world"} if version == 1 else {"frame_id": "w0/clamp",
+                                                         "pose_frame_id": "world"}
+    return msgpack.packb({  # type: ignore[no-any-return]
+        "_type": "vibrissa/WhiskerWrench", "_v": version, "stamp": 1.0 + 0.01 * i, "seq": i,
+        "whisker_id": "w0", **frames, "f0": _array(rng.normal(size=3)),
+        "m0": _array(rng.normal(size=3)), "clamp_position": _array(rng.normal(size=3)),
+        "clamp_orientation": _array(np.array([0.0, 0.0, 0.0, 1.0]))})
 
 
 def write_mixed_bag(path: Path, end_of_stream: bool) -> list[tuple[type[Message], bytes]]:
-    """N mixed messages on ``WRENCH`` (and an EndOfStream); returns (type, payload) written."""
+    """N mixed messages on ``WRENCH`` (and an EndOfStream); returns (type decoded as, payload)
+    written."""
     written: list[tuple[type[Message], bytes]] = []
     with BagWriter(path) as bag:
         for i in range(N):
-            msg = message(i)
-            bag.write(WRENCH, encode(msg), T0_NS + i * DT_NS)
-            written.append((type(msg), encode(msg)))
+            data = payload(i)
+            bag.write(WRENCH, data, T0_NS + i * DT_NS)
+            written.append((type(decode(data)), data))
         if end_of_stream:
             eos = encode(EndOfStream(stamp=2.0, source="/recorded", count=N))
             bag.write(WRENCH, eos, T0_NS + N * DT_NS)
@@ -64,19 +79,19 @@ def write_mixed_bag(path: Path, end_of_stream: bool) -> list[tuple[type[Message]
 def test_bag_holds_both_types_on_one_topic(tmp_path: Path) -> None:
     path = tmp_path / "mixed.mcap"
     written = write_mixed_bag(path, end_of_stream=True)
-    assert [(r.type_name, r.payload) for r in BagReader(path)] == [
-        (t.TYPE_NAME, p) for t, p in written]
+    assert [r.payload for r in BagReader(path)] == [p for _, p in written]
     assert {t.type_name: t.count for t in BagReader(path).info().topics} == {
-        WhiskerWrench.TYPE_NAME: 40, WhiskerWrenchArray.TYPE_NAME: 20,
+        "vibrissa/WhiskerWrench": 40, WhiskerWrenchArray.TYPE_NAME: 20,
         EndOfStream.TYPE_NAME: 1}
+    assert {t for t, _ in written} == {WhiskerWrenchArray, EndOfStream}
 
 
 @pytest.fixture
 def probe(endpoints: Endpoints) -> Iterator[Subscriber]:
-    """The subscriber of the test's node ``/probe`` to ``WRENCH`` (both types): the node
-    reports it in its status, which the readiness gates wait for."""
+    """The subscriber of the test's node ``/probe`` to ``WRENCH`` (WhiskerWrenchArray): the
+    node reports it in its status, which the readiness gates wait for."""
     node = Node("probe", endpoints=endpoints, handle_signals=False)
-    yield node.create_subscriber({WRENCH: (WhiskerWrench, WhiskerWrenchArray)})
+    yield node.create_subscriber({WRENCH: WhiskerWrenchArray})
     node.close(drain_s=0.0)
 
 
@@ -110,8 +125,12 @@ def receive_until_end(sub: Subscriber, proc: subprocess.Popen[str]
 
 def check_replayed(got: list[Received], written: list[tuple[type[Message], bytes]],
                    out: str) -> None:
-    """Identical bytes, in order, each decoded as its own type, one publisher's seq 0, 1, ..."""
+    """Identical bytes, in order, each decoded as the array type (a single wrench: one row), one
+    publisher's seq 0, 1, ..."""
     assert [(type(rx.msg), rx.payload) for rx in got[:-1]] == written[:N], out
+    assert [rx.msg == decode(p) for rx, (_, p) in zip(got[:-1], written, strict=False)] == [True] * N
+    assert sum(len(rx.msg.whisker_ids) == 1 and rx.msg.frame_ids == ["w0/clamp"]  # type: ignore[attr-defined]
+               for rx in got[:-1]) >= 40
     assert [rx.header.seq for rx in got] == list(range(N + 1))
     assert len({rx.header.pub for rx in got}) == 1 and {rx.topic for rx in got} == {WRENCH}
     assert isinstance(got[-1].msg, EndOfStream)

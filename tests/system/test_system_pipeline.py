@@ -29,12 +29,10 @@ import zmq
 
 from vibrissa.frames import quaternion_matrices
 from vibrissa.msgs import (
-    ContactPoint,
     ContactPointArray,
     EndOfStream,
     NodeStatus,
     Ping,
-    WhiskerWrench,
     WhiskerWrenchArray,
 )
 from vibrissa.msgs.codec import encode
@@ -153,13 +151,9 @@ class Probe:
         self.status_sub = self.node.create_subscriber({STATUS_TOPIC: NodeStatus})
         self.statuses: dict[str, NodeStatus] = {}
 
-    def collect(self, timeout: float = TIMEOUT_S) -> tuple[list[ContactPoint], EndOfStream]:
-        """Contact points until the first EndOfStream."""
-        return self._until_end(ContactPoint, timeout)
-
-    def collect_arrays(self, timeout: float = TIMEOUT_S) -> list[ContactPointArray]:
+    def collect(self, timeout: float = TIMEOUT_S) -> tuple[list[ContactPointArray], EndOfStream]:
         """Contact point arrays until the first EndOfStream."""
-        return self._until_end(ContactPointArray, timeout)[0]
+        return self._until_end(ContactPointArray, timeout)
 
     def _until_end(self, kind: type[T], timeout: float) -> tuple[list[T], EndOfStream]:
         """Messages of type ``kind`` until the first EndOfStream (others are ignored)."""
@@ -230,7 +224,7 @@ def library_contacts() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def run_to_end(tmp: Path, launch_entries: list[dict[str, Any]], *words: str
-               ) -> tuple[int, list[ContactPoint], EndOfStream, Launch]:
+               ) -> tuple[int, list[ContactPointArray], EndOfStream, Launch]:
     """Launch, collect the contact points until their end of stream, wait for the launch to end;
     returns (exit status, points, end of stream, the ended launch)."""
     launch = Launch(tmp, launch_entries, *words)
@@ -260,15 +254,15 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
 
 def test_demo_matches_the_library(demo_run: dict[str, Any]) -> None:
     assert demo_run["rc"] == 0, demo_run["text"]
-    points: list[ContactPoint] = demo_run["points"]
+    points: list[ContactPointArray] = demo_run["points"]  # one per wrench, a row each
     ref_point, ref_s1, ref_force = library_contacts()
     assert [p.seq for p in points] == list(range(len(ref_point)))
     assert demo_run["eos"].count == len(points)
-    got = np.stack([p.point for p in points])
+    got = np.vstack([p.point for p in points])
     np.testing.assert_allclose(got, ref_point, rtol=0, atol=1e-12)
-    np.testing.assert_allclose([p.s1 for p in points], ref_s1, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(np.stack([p.force for p in points]), ref_force, rtol=0, atol=1e-12)
-    assert all(p.frame_id == "world" and p.whisker_id == "whisker0" for p in points)
+    np.testing.assert_allclose(np.concatenate([p.s1 for p in points]), ref_s1, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.vstack([p.force for p in points]), ref_force, rtol=0, atol=1e-12)
+    assert all(p.frame_id == "world" and p.whisker_ids == ["whisker0"] for p in points)
     # the mapper's files, announced on stdout
     out: Path = demo_run["out"]
     for name in ("cloud.ply", "mesh.ply", "map.png", "report.json", "report.txt"):
@@ -283,7 +277,7 @@ def test_demo_matches_the_library(demo_run: dict[str, Any]) -> None:
     assert len(frame["objects"][0]["next_sweeps"]) == 3
 
 
-def _replay(tmp: Path, bag: Path) -> tuple[int, list[ContactPoint], EndOfStream, str]:
+def _replay(tmp: Path, bag: Path) -> tuple[int, list[ContactPointArray], EndOfStream, str]:
     launch_entries = entries("replay_demo.yaml")
     set_param(node(launch_entries, "reconstructor"), "wait_for", ["/mapper", "/probe"])
     out = tmp / f"replay-{bag.stem}"
@@ -294,7 +288,7 @@ def _replay(tmp: Path, bag: Path) -> tuple[int, list[ContactPoint], EndOfStream,
 def test_replay_of_the_recorded_wrenches_gives_identical_points(
         demo_run: dict[str, Any]) -> None:
     bag: Path = demo_run["bag"]
-    n_wrenches = sum(1 for r in BagReader(bag) if r.type_name == WhiskerWrench.TYPE_NAME)
+    n_wrenches = sum(1 for r in BagReader(bag) if r.type_name == WhiskerWrenchArray.TYPE_NAME)
     assert n_wrenches == len(demo_run["points"])
     rc, points, _, text = _replay(demo_run["tmp"], bag)
     assert rc == 0, text
@@ -307,7 +301,7 @@ def test_a_cut_off_bag_replays_every_complete_message(demo_run: dict[str, Any]) 
     data = bag.read_bytes()
     cut.write_bytes(data[: int(len(data) * 0.6)])
     reader = BagReader(cut)
-    complete = [r for r in reader if r.type_name == WhiskerWrench.TYPE_NAME]
+    complete = [r for r in reader if r.type_name == WhiskerWrenchArray.TYPE_NAME]
     assert reader.truncated and 0 < len(complete) < len(demo_run["points"])
     rc, points, eos, text = _replay(demo_run["tmp"], cut)
     assert rc == 0, text
@@ -315,7 +309,7 @@ def test_a_cut_off_bag_replays_every_complete_message(demo_run: dict[str, Any]) 
     assert eos.count == len(complete)
 
 
-def _killed_reconstructor(tmp: Path, respawn: bool) -> tuple[Launch, list[ContactPoint]]:
+def _killed_reconstructor(tmp: Path, respawn: bool) -> tuple[Launch, list[ContactPointArray]]:
     """Run a slow (25 Hz) demo, kill -9 the reconstructor after 20 points; wait for the end."""
     launch_entries = small_demo(tmp / f"out-respawn-{respawn}")
     set_param(node(launch_entries, "wrench_source"), "y0", [0.3])
@@ -323,13 +317,13 @@ def _killed_reconstructor(tmp: Path, respawn: bool) -> tuple[Launch, list[Contac
     launch = Launch(tmp, launch_entries, f"out:={tmp}/out-{respawn}", f"step:={STEP}",
                     f"respawn:={'true' if respawn else 'false'}")
     probe = Probe(launch.endpoints(), [CONTACT])
-    points: list[ContactPoint] = []
+    points: list[ContactPointArray] = []
     try:
         pid = int(launch.wait_line(r"started 'reconstructor' \(pid (\d+)\)").group(1))
         deadline = time.monotonic() + 60
         while len(points) < 20 and time.monotonic() < deadline:
             rx = probe.sub.receive(0.2)
-            if rx is not None and isinstance(rx.msg, ContactPoint):
+            if rx is not None and isinstance(rx.msg, ContactPointArray):
                 points.append(rx.msg)
         assert len(points) >= 20, launch.text()
         os.kill(pid, signal.SIGKILL)
@@ -362,13 +356,14 @@ def test_killed_node_without_respawn_fails_the_launch_naming_it(tmp_path: Path) 
                      launch.text()), launch.text()
 
 
-def _good_wrench() -> WhiskerWrench:
+def _good_wrench() -> WhiskerWrenchArray:
     rng = np.random.default_rng(11)
     while True:
         p0, f0, m0 = rng.uniform(-1, 1, 3), rng.normal(size=3), rng.normal(size=3)
         if reconstruct(p0, f0, m0).valid[0]:
-            return WhiskerWrench(stamp=1.0, seq=42, whisker_id="w", frame_id="w/clamp", pose_frame_id="world",
-                                 clamp_position=p0, clamp_orientation=[0, 0, 0, 1], f0=f0, m0=m0)
+            return WhiskerWrenchArray(stamp=1.0, seq=42, whisker_ids=["w"], frame_ids=["w/clamp"],
+                                      pose_frame_id="world", clamp_position=[p0],
+                                      clamp_orientation=[[0, 0, 0, 1]], f0=[f0], m0=[m0])
 
 
 def _bad_payloads(good: bytes) -> dict[str, bytes]:
@@ -428,10 +423,11 @@ def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path:
         deadline = time.monotonic() + 30
         while rx is None and time.monotonic() < deadline:
             rx = probe.sub.receive(0.2)
-        assert rx is not None and isinstance(rx.msg, ContactPoint), launch.text()
-        assert rx.msg.seq == 42
-        ref = reconstruct(good_wrench.clamp_position, good_wrench.f0, good_wrench.m0)
-        np.testing.assert_allclose(rx.msg.point, ref.point[0], rtol=0, atol=1e-12)
+        assert rx is not None and isinstance(rx.msg, ContactPointArray), launch.text()
+        assert rx.msg.seq == 42 and rx.msg.whisker_ids == ["w"]
+        assert good_wrench.clamp_position is not None
+        ref = reconstruct(good_wrench.clamp_position[0], good_wrench.f0[0], good_wrench.m0[0])
+        np.testing.assert_allclose(rx.msg.point[0], ref.point[0], rtol=0, atol=1e-12)
         status = probe.status_of(fqn, lambda s: s.counters.get("contacts", 0) >= 1)
         assert status.state == "running"
         assert status.counters["rejected"] == len(bad), status.counters
@@ -488,7 +484,7 @@ def test_array_ticks_over_the_wire_match_the_library(tmp_path: Path) -> None:
         for tick in ticks:
             pub.publish(tick)
         pub.publish_end_of_stream(probe.node.fqn)
-        got = probe.collect_arrays(60.0)
+        got = probe.collect(60.0)[0]
         assert [a.seq for a in got] == [t.seq for t in ticks], launch.text()
         for tick, contacts in zip(ticks, got, strict=True):
             real = slice(0, len(tick.whisker_ids) - 1)  # the idle row has no contact
@@ -509,8 +505,7 @@ def test_array_ticks_over_the_wire_match_the_library(tmp_path: Path) -> None:
         assert status.counters["no_contact"] == len(ticks)
         assert status.counters["received"] == len(ticks) + 1  # and the EndOfStream
         assert status.counters["lost"] == 0
-        assert status.subscribes[WRENCH] == (
-            f"{WhiskerWrench.TYPE_NAME}|{WhiskerWrenchArray.TYPE_NAME}")
+        assert status.subscribes[WRENCH] == WhiskerWrenchArray.TYPE_NAME
     finally:
         probe.close()
         launch.kill()
@@ -528,7 +523,7 @@ def test_a_simulated_whisker_array_runs_through_the_nodes(tmp_path: Path) -> Non
                     f"mu:={MU}")
     probe = Probe(launch.endpoints(), [CONTACT])
     try:
-        got = probe.collect_arrays()
+        got = probe.collect()[0]
         assert launch.wait() == 0, launch.text()
     finally:
         probe.close()

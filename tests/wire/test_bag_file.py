@@ -6,27 +6,31 @@ import io
 import json
 import logging
 import tracemalloc
+from collections import Counter
 from pathlib import Path
+from typing import Any
 
+import msgpack
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from vibrissa.msgs import EndOfStream, WhiskerWrench
+from vibrissa.msgs import ContactPointArray, EndOfStream, WhiskerWrenchArray
 from vibrissa.msgs.codec import decode, encode, json_schema, to_jsonable
 from vibrissa.wire.bag import VERSION_KEY, BagDamage, BagReader, BagWriter, export_json
 
 T0_NS = 1_700_000_000_000_000_000
 
 
-def wrench(i: int) -> WhiskerWrench:
+def wrench(i: int) -> WhiskerWrenchArray:
     rng = np.random.default_rng(i)
-    return WhiskerWrench(
-        stamp=1.0 + 0.01 * i, seq=i, whisker_id=f"w{i % 2}", frame_id=f"w{i % 2}/clamp", pose_frame_id="world",
-        clamp_position=rng.normal(size=3), clamp_orientation=np.array([0.0, 0.0, 0.0, 1.0]),
-        f0=rng.normal(size=3), m0=rng.normal(size=3),
+    return WhiskerWrenchArray(
+        stamp=1.0 + 0.01 * i, seq=i, whisker_ids=[f"w{i % 2}"], frame_ids=[f"w{i % 2}/clamp"],
+        pose_frame_id="world", clamp_position=rng.normal(size=(1, 3)),
+        clamp_orientation=np.array([[0.0, 0.0, 0.0, 1.0]]), f0=rng.normal(size=(1, 3)),
+        m0=rng.normal(size=(1, 3)),
     )
 
 
@@ -56,7 +60,7 @@ def test_round_trip_is_bit_identical(tmp_path: Path) -> None:
     assert got == written
     assert not reader.truncated and reader.unreadable_bytes == 0
     first = next(iter(BagReader(path)))
-    assert first.type_name == "vibrissa/WhiskerWrench"
+    assert first.type_name == "vibrissa/WhiskerWrenchArray"
     assert first.publish_time_ns == first.log_time_ns
 
 
@@ -75,12 +79,12 @@ def test_schemas_registered_once_per_type(tmp_path: Path) -> None:
         summary = make_reader(f).get_summary()
     assert summary is not None
     names = sorted(s.name for s in summary.schemas.values())
-    assert names == ["vibrissa/EndOfStream", "vibrissa/WhiskerWrench"]
+    assert names == ["vibrissa/EndOfStream", "vibrissa/WhiskerWrenchArray"]
     for schema in summary.schemas.values():
         assert schema.encoding == "jsonschema"
         data = json.loads(schema.data)
-        assert data[VERSION_KEY] == (WhiskerWrench if "Wrench" in schema.name else EndOfStream).VERSION
-        assert data["properties"].keys() == json_schema(WhiskerWrench if "Wrench" in schema.name
+        assert data[VERSION_KEY] == (WhiskerWrenchArray if "Wrench" in schema.name else EndOfStream).VERSION
+        assert data["properties"].keys() == json_schema(WhiskerWrenchArray if "Wrench" in schema.name
                                                         else EndOfStream)["properties"].keys()
     channels = summary.channels.values()
     assert sorted(c.topic for c in channels) == ["/whisker0/wrench", "/whisker0/wrench",
@@ -94,7 +98,7 @@ def test_info_counts(tmp_path: Path) -> None:
     info = BagReader(path).info()
     assert info.message_count == 302
     assert info.topic_counts == {"/whisker0/wrench": 151, "/whisker1/wrench": 151}
-    assert info.types == {"vibrissa/WhiskerWrench": 300, "vibrissa/EndOfStream": 2}
+    assert info.types == {"vibrissa/WhiskerWrenchArray": 300, "vibrissa/EndOfStream": 2}
     assert info.start_ns == T0_NS and info.end_ns == T0_NS + 301 * 1_000_000
     assert info.duration_s == pytest.approx(0.301)
     assert not info.truncated and info.damaged_chunks == 0 and not info.damage
@@ -186,7 +190,7 @@ def test_export_json_opens_with_mcap_reader(tmp_path: Path) -> None:
         assert json.loads(schema.data)["title"] == schema.name
         assert json.loads(message.data) == to_jsonable(decode(payload))
     clamp = json.loads(rows[0][2].data)["clamp_position"]
-    assert isinstance(clamp, list) and len(clamp) == 3
+    assert isinstance(clamp, list) and len(clamp) == 1 and len(clamp[0]) == 3
 
 
 def test_writer_rejects_bad_sizes(tmp_path: Path) -> None:
@@ -261,3 +265,60 @@ def test_info_and_export_json_of_a_damaged_bag_count_only_what_reads(
     assert damage == BagDamage(damaged_chunks=1, truncated=False, unreadable_bytes=length)
     assert caplog.messages == [f"{path}: 1 damaged chunk(s) skipped; {length} unreadable bytes, "
                                "their messages not exported"]
+
+
+# -- a bag recorded with the retired single types ------------------------------------------
+
+LEGACY = Path(__file__).parents[1] / "data" / "legacy_types" / "legacy.mcap"
+"""WhiskerWrench (versions 1, 2) and ContactPoint (1, 2 with and without covariance) beside
+arrays, a pose and an EndOfStream (tests/data/legacy_types/make_legacy_bag.py)."""
+
+
+def _rows(obj: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
+    """The array fields of one retired payload, each as the one row of a batch."""
+    out = {}
+    for key in keys:
+        if obj.get(key) is not None:
+            entry = obj[key]
+            out[key] = np.frombuffer(entry["data"], entry["dtype"]).reshape(1, *entry["shape"])
+    return out
+
+
+def test_a_bag_of_the_retired_types_decodes_as_batches_of_one_row() -> None:
+    records = list(BagReader(LEGACY))
+    assert Counter(r.type_name for r in records) == {
+        "vibrissa/WhiskerWrench": 9, "vibrissa/WhiskerWrenchArray": 3, "vibrissa/ContactPoint": 7,
+        "vibrissa/ContactPointArray": 2, "vibrissa/RobotPose": 1, "vibrissa/EndOfStream": 1}
+    for rec in records:
+        msg = decode(rec.payload)
+        obj = msgpack.unpackb(rec.payload, raw=False)
+        if rec.type_name == "vibrissa/WhiskerWrench":
+            if obj["_v"] == 1:  # the pose's frame was frame_id; the wrench is in the clamp frame
+                obj = {**obj, "pose_frame_id": obj["frame_id"],
+                       "frame_id": f"{obj['whisker_id']}/clamp"}
+            want: Any = WhiskerWrenchArray(
+                stamp=obj["stamp"], seq=obj["seq"], whisker_ids=[obj["whisker_id"]],
+                frame_ids=[obj["frame_id"]], pose_frame_id=obj.get("pose_frame_id"),
+                **_rows(obj, ("f0", "m0", "clamp_position", "clamp_orientation")))
+        elif rec.type_name == "vibrissa/ContactPoint":
+            want = ContactPointArray(
+                stamp=obj["stamp"], seq=obj["seq"], frame_id=obj["frame_id"],
+                whisker_ids=[obj["whisker_id"]], s1=[obj["s1"]], phase=[obj["phase"]],
+                status=[obj["status"]], **_rows(obj, ("point", "force", "covariance")))
+        else:
+            assert type(msg).TYPE_NAME == rec.type_name
+            continue
+        assert type(msg) is type(want) and msg == want, rec
+    assert sum(isinstance(decode(r.payload), ContactPointArray)
+               and decode(r.payload).covariance is not None for r in records) == 3  # type: ignore[attr-defined]
+
+
+def test_the_json_export_of_retired_types_writes_the_array_type(tmp_path: Path) -> None:
+    info, damage = export_json(LEGACY, tmp_path / "out.mcap")
+    assert not damage and info.message_count == 23
+    assert info.types == {"vibrissa/WhiskerWrenchArray": 12, "vibrissa/ContactPointArray": 9,
+                          "vibrissa/RobotPose": 1, "vibrissa/EndOfStream": 1}
+    with open(tmp_path / "out.mcap", "rb") as f:
+        for schema, _, message in make_reader(f).iter_messages():
+            data = json.loads(message.data)
+            assert set(data) == set(json.loads(schema.data)["properties"]), schema.name

@@ -18,7 +18,7 @@ import pytest
 import zmq
 import zmq.auth
 
-from vibrissa.msgs import NodeStatus, WhiskerWrench
+from vibrissa.msgs import NodeStatus, WhiskerWrenchArray
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Publisher, Subscriber
 from vibrissa.wire.security import Guard, Keys, KeysError, create_keys
 
@@ -26,11 +26,11 @@ TOPIC = "/w0/wrench"
 LISTEN_S = 1.0
 
 
-def wrench(seq: int) -> WhiskerWrench:
-    return WhiskerWrench(
-        stamp=0.001 * seq, seq=seq, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
-        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
-        f0=[0.0, 0.01, 0.0], m0=[0.0, 0.0, 0.0],
+def wrench(seq: int) -> WhiskerWrenchArray:
+    return WhiskerWrenchArray(
+        stamp=0.001 * seq, seq=seq, whisker_ids=["w0"], frame_ids=["w0/clamp"],
+        pose_frame_id="world", clamp_position=[[0.0, 0.0, 0.1]], clamp_orientation=[[0.0, 0.0, 0.0, 1.0]],
+        f0=[[0.0, 0.01, 0.0]], m0=[[0.0, 0.0, 0.0]],
     )
 
 
@@ -66,17 +66,17 @@ def stranger_keys(tmp_path: Path, server_public: bytes) -> Keys:
     return Keys(tmp_path, "stranger", public, secret, server_public, frozenset())
 
 
-def heard(sub: Subscriber, timeout_s: float) -> list[WhiskerWrench]:
+def heard(sub: Subscriber, timeout_s: float) -> list[WhiskerWrenchArray]:
     got = []
     deadline = time.monotonic() + timeout_s
     while (left := deadline - time.monotonic()) > 0:
         rx = sub.receive(left)
-        if rx is not None and isinstance(rx.msg, WhiskerWrench):
+        if rx is not None and isinstance(rx.msg, WhiskerWrenchArray):
             got.append(rx.msg)
     return got
 
 
-def publish_while(pub: Publisher, sub: Subscriber, timeout_s: float) -> list[WhiskerWrench]:
+def publish_while(pub: Publisher, sub: Subscriber, timeout_s: float) -> list[WhiskerWrenchArray]:
     """Publish a wrench every 10 ms for ``timeout_s`` while listening with ``sub``."""
     got = []
     deadline = time.monotonic() + timeout_s
@@ -148,12 +148,12 @@ def test_members_and_allowed_clients_talk_intruders_read_nothing(
     plain = member.with_keys(None)
     stranger = member.with_keys(stranger_keys(tmp_path, member.keys.public))  # type: ignore[union-attr]
     readers = {
-        "laptop": Subscriber({TOPIC: WhiskerWrench}, laptop, contexts[1]),
-        "plain": Subscriber({TOPIC: WhiskerWrench}, plain, contexts[2]),
-        "stranger": Subscriber({TOPIC: WhiskerWrench}, stranger, contexts[3]),
+        "laptop": Subscriber({TOPIC: WhiskerWrenchArray}, laptop, contexts[1]),
+        "plain": Subscriber({TOPIC: WhiskerWrenchArray}, plain, contexts[2]),
+        "stranger": Subscriber({TOPIC: WhiskerWrenchArray}, stranger, contexts[3]),
     }
-    with Publisher(TOPIC, WhiskerWrench, member, contexts[0]) as pub:
-        got = {name: [] for name in readers}  # type: dict[str, list[WhiskerWrench]]
+    with Publisher(TOPIC, WhiskerWrenchArray, member, contexts[0]) as pub:
+        got = {name: [] for name in readers}  # type: dict[str, list[WhiskerWrenchArray]]
         deadline = time.monotonic() + 2 * LISTEN_S
         seq = 0
         while time.monotonic() < deadline:
@@ -176,10 +176,10 @@ def test_intruders_inject_nothing_and_are_counted(
     member = secured.endpoints
     stranger = member.with_keys(stranger_keys(tmp_path, member.keys.public))  # type: ignore[union-attr]
     with (caplog.at_level(logging.WARNING, "vibrissa.wire.security"),
-          Subscriber({TOPIC: WhiskerWrench, STATUS_TOPIC: NodeStatus}, member, contexts[0]) as sub,
-          Publisher(TOPIC, WhiskerWrench, member.with_keys(None), contexts[1]) as plain,
-          Publisher(TOPIC, WhiskerWrench, stranger, contexts[2]) as forged,
-          Publisher(TOPIC, WhiskerWrench, member, contexts[3]) as own):
+          Subscriber({TOPIC: WhiskerWrenchArray, STATUS_TOPIC: NodeStatus}, member, contexts[0]) as sub,
+          Publisher(TOPIC, WhiskerWrenchArray, member.with_keys(None), contexts[1]) as plain,
+          Publisher(TOPIC, WhiskerWrenchArray, stranger, contexts[2]) as forged,
+          Publisher(TOPIC, WhiskerWrenchArray, member, contexts[3]) as own):
         for pub in (plain, forged):
             assert publish_while(pub, sub, LISTEN_S) == []
         assert len(publish_while(own, sub, 0.3)) > 5  # the subscriber was listening
@@ -195,7 +195,7 @@ def test_direct_publishers_serve_with_the_graph_key(
     connects to it straight (bypassing the proxy) reads nothing; a member reads."""
     assert secured.endpoints is not None
     member = secured.endpoints
-    with Publisher(TOPIC, WhiskerWrench, member, contexts[1], direct=True) as pub:
+    with Publisher(TOPIC, WhiskerWrenchArray, member, contexts[1], direct=True) as pub:
         assert pub.endpoint is not None
         got = {}
         for name, keys, ctx in (("member", member.keys, contexts[0]),
@@ -228,12 +228,12 @@ def test_a_forged_announcement_cannot_send_subscribers_elsewhere(
     only to endpoints beside the proxy, never to another host."""
     elsewhere = "tcp://192.0.2.1:5555"
     with (caplog.at_level(logging.WARNING, "vibrissa.wire.transport"),
-          Subscriber({TOPIC: WhiskerWrench}, endpoints, context) as sub,
+          Subscriber({TOPIC: WhiskerWrenchArray}, endpoints, context) as sub,
           Publisher(STATUS_TOPIC, NodeStatus, endpoints, context) as status):
         deadline = time.monotonic() + 2.0
         while elsewhere not in caplog.text and time.monotonic() < deadline:
             status.publish(NodeStatus(stamp=0.0, node="/forger", state="running", counters={},
-                                      publishes={TOPIC: "vibrissa/WhiskerWrench"},
+                                      publishes={TOPIC: "vibrissa/WhiskerWrenchArray"},
                                       subscribes={}, seen_topics=[],
                                       endpoints={TOPIC: elsewhere}))
             sub.receive(0.05)

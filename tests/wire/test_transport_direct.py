@@ -11,7 +11,7 @@ import msgpack
 import pytest
 import zmq
 
-from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrench
+from vibrissa.msgs import EndOfStream, NodeStatus, WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.runtime import Node
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Proxy, Publisher, Subscriber
@@ -20,11 +20,11 @@ TIMEOUT_S = 5.0
 TOPIC = "/w0/wrench"
 
 
-def wrench(seq: int) -> WhiskerWrench:
-    return WhiskerWrench(
-        stamp=0.001 * seq, seq=seq, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
-        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
-        f0=[0.0, 0.01 * seq, 0.0], m0=[0.0, 0.0, 0.0],
+def wrench(seq: int) -> WhiskerWrenchArray:
+    return WhiskerWrenchArray(
+        stamp=0.001 * seq, seq=seq, whisker_ids=["w0"], frame_ids=["w0/clamp"],
+        pose_frame_id="world", clamp_position=[[0.0, 0.0, 0.1]], clamp_orientation=[[0.0, 0.0, 0.0, 1.0]],
+        f0=[[0.0, 0.01 * seq, 0.0]], m0=[[0.0, 0.0, 0.0]],
     )
 
 
@@ -85,9 +85,9 @@ def test_a_node_publisher_is_heard_in_one_hop_and_never_through_the_proxy(
     raw.setsockopt(zmq.LINGER, 0)
     raw.setsockopt(zmq.SUBSCRIBE, TOPIC.encode() + b"\0")
     raw.connect(endpoints.sub)
-    with Subscriber({TOPIC: WhiskerWrench}, endpoints, context) as sub, \
+    with Subscriber({TOPIC: WhiskerWrenchArray}, endpoints, context) as sub, \
             Node("talker", endpoints=endpoints, context=context, handle_signals=False) as node:
-        pub = node.create_publisher(TOPIC, WhiskerWrench)
+        pub = node.create_publisher(TOPIC, WhiskerWrenchArray)
         assert pub.endpoint is not None and pub.endpoint.startswith("tcp://127.0.0.1:")
         assert node.status().endpoints == {TOPIC: pub.endpoint}
         connect([pub], sub)
@@ -106,10 +106,10 @@ def test_direct_and_proxied_publishers_of_one_topic_arrive_once_each(
     endpoints: Endpoints, context: zmq.Context[Any]
 ) -> None:
     n = 300
-    with Subscriber({TOPIC: WhiskerWrench}, endpoints, context) as sub, \
+    with Subscriber({TOPIC: WhiskerWrenchArray}, endpoints, context) as sub, \
             Publisher(STATUS_TOPIC, NodeStatus, endpoints, context) as status, \
-            Publisher(TOPIC, WhiskerWrench, endpoints, context, direct=True) as direct, \
-            Publisher(TOPIC, WhiskerWrench, endpoints, context) as proxied:
+            Publisher(TOPIC, WhiskerWrenchArray, endpoints, context, direct=True) as direct, \
+            Publisher(TOPIC, WhiskerWrenchArray, endpoints, context) as proxied:
         assert proxied.endpoint is None
         announce(status, direct, sub)
         connect([direct, proxied], sub)
@@ -132,9 +132,9 @@ def test_exact_loss_count_on_the_direct_path(
 ) -> None:
     n = 20000
     with Proxy(Endpoints.free(), context=context) as proxy, \
-            Subscriber({"/fast": WhiskerWrench}, proxy.endpoints, context, hwm=hwm) as sub, \
+            Subscriber({"/fast": WhiskerWrenchArray}, proxy.endpoints, context, hwm=hwm) as sub, \
             Publisher(STATUS_TOPIC, NodeStatus, proxy.endpoints, context) as status, \
-            Publisher("/fast", WhiskerWrench, proxy.endpoints, context, hwm=hwm,
+            Publisher("/fast", WhiskerWrenchArray, proxy.endpoints, context, hwm=hwm,
                       direct=True) as pub:
         announce(status, pub, sub)
         for i in range(n):  # nobody is receiving: queues overflow, ZeroMQ drops
@@ -156,7 +156,7 @@ def test_a_publisher_that_cannot_bind_goes_through_the_proxy(
 ) -> None:
     elsewhere = Endpoints("tcp://192.0.2.1:7400", "tcp://192.0.2.1:7401")  # not this machine
     with caplog.at_level(logging.WARNING, logger="vibrissa.wire.transport"), \
-            Publisher(TOPIC, WhiskerWrench, elsewhere, context, direct=True) as pub:
+            Publisher(TOPIC, WhiskerWrenchArray, elsewhere, context, direct=True) as pub:
         assert pub.endpoint is None
     assert any("through the proxy" in r.getMessage() for r in caplog.records)
 
@@ -164,9 +164,9 @@ def test_a_publisher_that_cannot_bind_goes_through_the_proxy(
 def test_statuses_read_for_discovery_are_not_the_callers(
     endpoints: Endpoints, context: zmq.Context[Any]
 ) -> None:
-    with Subscriber({TOPIC: WhiskerWrench}, endpoints, context) as sub, \
+    with Subscriber({TOPIC: WhiskerWrenchArray}, endpoints, context) as sub, \
             Publisher(STATUS_TOPIC, NodeStatus, endpoints, context) as status, \
-            Publisher(TOPIC, WhiskerWrench, endpoints, context, direct=True) as pub:
+            Publisher(TOPIC, WhiskerWrenchArray, endpoints, context, direct=True) as pub:
         deadline = time.monotonic() + TIMEOUT_S
         while not sub.direct_endpoints:
             assert time.monotonic() < deadline
@@ -188,9 +188,9 @@ def test_ipc_socket_files_are_removed_at_close(tmp_path: Path, context: zmq.Cont
     requested = Endpoints(f"ipc://{tmp_path}/pub", f"ipc://{tmp_path}/sub")
     with Proxy(requested, context=context) as proxy:
         assert proxy.endpoints is not None
-        with Subscriber({TOPIC: WhiskerWrench}, proxy.endpoints, context) as sub, \
+        with Subscriber({TOPIC: WhiskerWrenchArray}, proxy.endpoints, context) as sub, \
                 Publisher(STATUS_TOPIC, NodeStatus, proxy.endpoints, context) as status, \
-                Publisher(TOPIC, WhiskerWrench, proxy.endpoints, context, direct=True) as pub:
+                Publisher(TOPIC, WhiskerWrenchArray, proxy.endpoints, context, direct=True) as pub:
             assert pub.endpoint == f"ipc://{tmp_path}/pub-{pub.pub_id:016x}"
             announce(status, pub, sub)  # the direct path works over ipc
             pub.publish(wrench(7))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import zmq
 
-from vibrissa.msgs import ContactCloud, ContactPoint, EndOfStream, NodeStatus, Ping, WhiskerWrench
+from vibrissa.msgs import ContactCloud, ContactPointArray, EndOfStream, NodeStatus, Ping, WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.wire import Endpoints, Proxy, Publisher, Subscriber
 from vibrissa.wire.transport import BUFFER_ENV, DEFAULT_MAX_BUFFERED_BYTES, MAX_PUBLISHERS
@@ -19,11 +19,11 @@ from vibrissa.wire.transport import BUFFER_ENV, DEFAULT_MAX_BUFFERED_BYTES, MAX_
 TIMEOUT_S = 2.0
 
 
-def wrench(seq: int) -> WhiskerWrench:
-    return WhiskerWrench(
-        stamp=0.001 * seq, seq=seq, whisker_id="w0", frame_id="w0/clamp", pose_frame_id="world",
-        clamp_position=[0.0, 0.0, 0.1], clamp_orientation=[0.0, 0.0, 0.0, 1.0],
-        f0=[0.0, 0.01 * seq, 0.0], m0=[0.0, 0.0, 0.0],
+def wrench(seq: int) -> WhiskerWrenchArray:
+    return WhiskerWrenchArray(
+        stamp=0.001 * seq, seq=seq, whisker_ids=["w0"], frame_ids=["w0/clamp"],
+        pose_frame_id="world", clamp_position=[[0.0, 0.0, 0.1]], clamp_orientation=[[0.0, 0.0, 0.0, 1.0]],
+        f0=[[0.0, 0.01 * seq, 0.0]], m0=[[0.0, 0.0, 0.0]],
     )
 
 
@@ -46,8 +46,8 @@ def test_proxy_reports_bound_free_ports(proxy: Proxy) -> None:
 
 def test_delivers_in_order_without_loss(proxy: Proxy, context: zmq.Context[Any]) -> None:
     n = 2000
-    with Publisher("/w0/wrench", WhiskerWrench, proxy.endpoints, context) as pub, \
-            Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context) as sub:
+    with Publisher("/w0/wrench", WhiskerWrenchArray, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
         connect(pub, sub)
         for i in range(n):
             pub.publish(wrench(i))
@@ -57,7 +57,7 @@ def test_delivers_in_order_without_loss(proxy: Proxy, context: zmq.Context[Any])
             if isinstance(rx.msg, EndOfStream):
                 assert rx.msg.count == n and rx.header.seq == n
                 break
-            assert isinstance(rx.msg, WhiskerWrench) and rx.topic == "/w0/wrench"
+            assert isinstance(rx.msg, WhiskerWrenchArray) and rx.topic == "/w0/wrench"
             assert rx.header.pub == pub.pub_id and rx.header.seq == rx.msg.seq
             assert rx.payload == encode(wrench(rx.msg.seq))
             seqs.append(rx.msg.seq)
@@ -73,8 +73,8 @@ def test_exact_loss_count_when_the_subscriber_falls_behind(
 ) -> None:
     n = 20000
     with Proxy(Endpoints.free(), context=context, hwm=hwm) as proxy, \
-            Publisher("/fast", WhiskerWrench, proxy.endpoints, context, hwm=hwm) as pub, \
-            Subscriber({"/fast": WhiskerWrench}, proxy.endpoints, context, hwm=hwm) as sub:
+            Publisher("/fast", WhiskerWrenchArray, proxy.endpoints, context, hwm=hwm) as pub, \
+            Subscriber({"/fast": WhiskerWrenchArray}, proxy.endpoints, context, hwm=hwm) as sub:
         connect(pub, sub)
         for i in range(n):  # nobody is receiving: queues overflow, ZeroMQ drops
             pub.publish(wrench(i))
@@ -102,28 +102,29 @@ def test_rejected_payloads_are_counted_and_delivery_goes_on(
 ) -> None:
     nan_payload = msgpack.unpackb(encode(wrench(1)))
     nan_payload["f0"]["data"] = np.array([0.0, np.nan, 0.0]).tobytes()
-    with Publisher("/w0/wrench", WhiskerWrench, proxy.endpoints, context) as pub, \
-            Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context) as sub:
+    with Publisher("/w0/wrench", WhiskerWrenchArray, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
         connect(pub, sub)
         with caplog.at_level(logging.WARNING, logger="vibrissa.wire.transport"):
             pub.publish_raw(encode(wrench(0))[:-5])  # truncated: peek passes, decode fails
             pub.publish_raw(msgpack.packb(nan_payload))
             pub.publish(wrench(2))
             rx = sub.receive(TIMEOUT_S)
-        assert rx is not None and isinstance(rx.msg, WhiskerWrench) and rx.msg.seq == 2
+        assert rx is not None and isinstance(rx.msg, WhiskerWrenchArray) and rx.msg.seq == 2
         counters = sub.counters["/w0/wrench"]
         assert (counters.received, counters.rejected, counters.lost) == (1, 2, 0)
         messages = [r.getMessage() for r in caplog.records]
         assert any("rejected" in m and "malformed" in m for m in messages)
-        assert any("rejected" in m and "WhiskerWrench.f0" in m for m in messages)
+        assert any("rejected" in m and "WhiskerWrenchArray.f0" in m for m in messages)
 
 
 def test_wrong_type_on_a_topic_is_rejected(proxy: Proxy, context: zmq.Context[Any]) -> None:
-    with Publisher("/t", ContactPoint, proxy.endpoints, context) as pub, \
-            Subscriber({"/t": WhiskerWrench}, proxy.endpoints, context) as sub:
+    with Publisher("/t", ContactPointArray, proxy.endpoints, context) as pub, \
+            Subscriber({"/t": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
         connect(pub, sub)
-        pub.publish(ContactPoint(stamp=0, seq=0, whisker_id="w", frame_id="world",
-                                 point=[0, 0, 0], s1=0.0, phase=0, force=[0, 0, 0], status=0))
+        pub.publish(ContactPointArray(stamp=0, seq=0, whisker_ids=["w"], frame_id="world",
+                                      point=[[0, 0, 0]], s1=[0.0], phase=[0], force=[[0, 0, 0]],
+                                      status=[0]))
         assert sub.receive(0.3) is None
         assert sub.counters["/t"].rejected == 1
 
@@ -152,20 +153,40 @@ def test_exact_topic_match_and_subscribe_all(proxy: Proxy, context: zmq.Context[
 
 def test_publisher_refuses_other_types(context: zmq.Context[Any]) -> None:
     endpoints = Endpoints("tcp://127.0.0.1:1", "tcp://127.0.0.1:2")  # connect is lazy
-    with Publisher("/w", WhiskerWrench, endpoints, context) as pub:
-        with pytest.raises(TypeError, match="WhiskerWrench"):
+    with Publisher("/w", WhiskerWrenchArray, endpoints, context) as pub:
+        with pytest.raises(TypeError, match="WhiskerWrenchArray"):
             pub.publish(Ping(stamp=0.0, sender="x"))
         with pytest.raises(TypeError, match="Ping"):
             pub.publish_raw(encode(Ping(stamp=0.0, sender="x")))
     with pytest.raises(ValueError, match="absolute"):
-        Publisher("relative", WhiskerWrench, endpoints, context)
+        Publisher("relative", WhiskerWrenchArray, endpoints, context)
+
+
+def test_a_retired_single_type_goes_raw_on_the_publisher_of_its_array(
+        proxy: Proxy, context: zmq.Context[Any]) -> None:
+    """A bag's WhiskerWrench bytes (a batch of one row) go out unchanged on a WhiskerWrenchArray
+    publisher, and arrive as a WhiskerWrenchArray; never on a ContactPointArray publisher."""
+    single = msgpack.packb({
+        "_type": "vibrissa/WhiskerWrench", "_v": 2, "stamp": 1.0, "seq": 3, "whisker_id": "w0",
+        "frame_id": "w0/clamp", **{k: {"dtype": "<f8", "shape": [3], "data": bytes(24)}
+                                   for k in ("f0", "m0")}})
+    with Publisher("/w0/wrench", WhiskerWrenchArray, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
+        connect(pub, sub)
+        pub.publish_raw(single)
+        rx = sub.receive(TIMEOUT_S)
+        assert rx is not None and rx.payload == single and isinstance(rx.msg, WhiskerWrenchArray)
+        assert rx.msg.whisker_ids == ["w0"] and rx.msg.seq == 3 and rx.msg.f0.shape == (1, 3)
+    with Publisher("/c", ContactPointArray, proxy.endpoints, context) as contacts, \
+            pytest.raises(TypeError, match="vibrissa/WhiskerWrench"):
+        contacts.publish_raw(single)
 
 
 def test_held_messages_are_sent_in_order_on_release(
     proxy: Proxy, context: zmq.Context[Any]
 ) -> None:
-    with Publisher("/h", WhiskerWrench, proxy.endpoints, context) as pub, \
-            Subscriber({"/h": WhiskerWrench}, proxy.endpoints, context) as sub:
+    with Publisher("/h", WhiskerWrenchArray, proxy.endpoints, context) as pub, \
+            Subscriber({"/h": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
         pub.hold()
         for i in range(5):
             pub.publish(wrench(i))
@@ -193,7 +214,7 @@ def test_forged_sequence_headers_stay_bounded_and_plausible(
                             payload])
 
     try:
-        with Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context,
+        with Subscriber({"/w0/wrench": WhiskerWrenchArray}, proxy.endpoints, context,
                         hwm=100_000) as sub:
             deadline = time.monotonic() + TIMEOUT_S
             while sub.receive(0.05) is None and time.monotonic() < deadline:
@@ -226,8 +247,8 @@ def test_the_proxy_drops_an_oversized_frame_and_its_sender_only(
     context: zmq.Context[Any],
 ) -> None:
     with Proxy(Endpoints.free(), context=context, max_message_bytes=1 << 20) as proxy, \
-            Publisher("/w0/wrench", WhiskerWrench, proxy.endpoints, context) as pub, \
-            Subscriber({"/w0/wrench": WhiskerWrench}, proxy.endpoints, context) as sub:
+            Publisher("/w0/wrench", WhiskerWrenchArray, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
         connect(pub, sub)
         big = context.socket(zmq.PUB)
         big.setsockopt(zmq.LINGER, 0)
@@ -239,7 +260,7 @@ def test_the_proxy_drops_an_oversized_frame_and_its_sender_only(
             time.sleep(0.3)
             pub.publish(wrench(0))
             rx = sub.receive(TIMEOUT_S)
-            assert rx is not None and isinstance(rx.msg, WhiskerWrench)  # still connected
+            assert rx is not None and isinstance(rx.msg, WhiskerWrenchArray)  # still connected
             assert sub.receive(0.3) is None  # and the 10 MB frame never came
             counters = sub.counters["/w0/wrench"]
             assert (counters.received, counters.rejected) == (1, 0)
@@ -252,10 +273,10 @@ def test_messages_lost_before_the_first_one_heard_count_at_the_end_of_the_stream
 ) -> None:
     """No seq gap shows messages sent before a subscriber heard the first one; the stream's
     EndOfStream (count = messages sent) does."""
-    with Publisher("/late", WhiskerWrench, proxy.endpoints, context) as pub:
+    with Publisher("/late", WhiskerWrenchArray, proxy.endpoints, context) as pub:
         for i in range(5):  # nobody hears these: no subscriber exists yet
             pub.publish(wrench(i))
-        sub = Subscriber({"/late": WhiskerWrench}, proxy.endpoints, context)
+        sub = Subscriber({"/late": WhiskerWrenchArray}, proxy.endpoints, context)
         connect(pub, sub)  # (the first ping it hears announces seq 5)
         for i in range(5, 8):
             pub.publish(wrench(i))
@@ -330,13 +351,13 @@ def test_the_byte_bound_comes_from_the_environment_when_not_given(
     proxy: Proxy, context: zmq.Context[Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv(BUFFER_ENV, str(3 << 20))
-    with Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context) as sub:
+    with Subscriber({"/a": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
         assert sub.max_buffered_bytes == 3 << 20
-    with Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context, max_buffered_bytes=5) as sub:
+    with Subscriber({"/a": WhiskerWrenchArray}, proxy.endpoints, context, max_buffered_bytes=5) as sub:
         assert sub.max_buffered_bytes == 5
     monkeypatch.setenv(BUFFER_ENV, "lots")
     with pytest.raises(ValueError, match="VIBRISSA_MAX_BUFFERED_BYTES='lots' is not an integer"):
-        Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context)
+        Subscriber({"/a": WhiskerWrenchArray}, proxy.endpoints, context)
     monkeypatch.delenv(BUFFER_ENV)
-    with Subscriber({"/a": WhiskerWrench}, proxy.endpoints, context) as sub:
+    with Subscriber({"/a": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
         assert sub.max_buffered_bytes == DEFAULT_MAX_BUFFERED_BYTES

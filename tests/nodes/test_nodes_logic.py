@@ -42,12 +42,12 @@ def test_sweep_wrenches_are_si_with_running_seq() -> None:
     n0, n1 = sweeps[0].n_steps, sweeps[1].n_steps
     assert n0 > 3 and n1 > 3
     assert [m.seq for m in msgs] == list(range(n0 + n1))
-    assert all(m.whisker_id == "w7" for m in msgs)
+    assert all(m.whisker_ids == ["w7"] for m in msgs)  # a batch of one row each
     last = msgs[n0 + 2]  # the third equilibrium of the second sweep
-    np.testing.assert_array_equal(last.clamp_orientation, [0, 0, 0, 1])
-    np.testing.assert_allclose(last.clamp_position, sweeps[1].p0[2] * length, rtol=1e-15)
-    np.testing.assert_allclose(last.f0, sweeps[1].f0[2] * ei / length**2, rtol=1e-15)
-    np.testing.assert_allclose(last.m0, sweeps[1].m0[2] * ei / length, rtol=1e-15)
+    np.testing.assert_array_equal(last.clamp_orientation, [[0, 0, 0, 1]])
+    np.testing.assert_allclose(last.clamp_position[0], sweeps[1].p0[2] * length, rtol=1e-15)
+    np.testing.assert_allclose(last.f0[0], sweeps[1].f0[2] * ei / length**2, rtol=1e-15)
+    np.testing.assert_allclose(last.m0[0], sweeps[1].m0[2] * ei / length, rtol=1e-15)
 
 
 @pytest.mark.parametrize("cls", [WrenchSourceParams, ReconstructorParams, MapperParams])

@@ -47,6 +47,12 @@ indexing past the vertices: counted, not shown), ``clouds``, ``statuses``. Undec
 rejected by the transport (``rejected``); input the bridge misses (it is a viewer, a launch
 gives it ``allow_loss``) is counted as ``lost``.
 
+Foxglove's WebSocket protocol has no authentication: any local user who reaches the port sees
+every channel. So on a graph with keys (``VIBRISSA_KEYS``) the bridge refuses to start (exit 2)
+unless ``allow_unauthenticated_view`` is true, and then says so in a warning: the keys protect
+the graph's sockets, not the view. Clients refused at the handshake (another subprotocol, not a
+WebSocket) are counted (``refused_clients``) and logged at most once per ``REFUSED_LOG_S``.
+
 With ``hold_s`` >= 0 the node ends (exit 0) ``hold_s`` seconds after the mapper's
 ``EndOfStream`` on ``mesh_topic``, so a launch that ends on it (``on_exit: shutdown``,
 ``launch/view.yaml``) shows the final map for that long; otherwise it serves until stopped.
@@ -79,9 +85,10 @@ from vibrissa.msgs import (
     WhiskerWrenchArray,
     codec,
 )
-from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
+from vibrissa.runtime import Node, NodeArgs, ParamError, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_parsed, require_positive
 from vibrissa.wire.bag import BagReader
+from vibrissa.wire.security import KEYS_ENV, Keys
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
 
 if TYPE_CHECKING:
@@ -125,6 +132,9 @@ class FoxgloveBridgeParams:
         The live contact cloud shows the newest this many points; the older ones leave the
         view (counted: ``cloud_aged_out``), so that a long run keeps the memory and each
         cloud message bounded.
+    allow_unauthenticated_view
+        Serve a graph that has keys although Foxglove clients are not authenticated (anyone
+        on the machine who reaches ``host:port`` sees the graph); false: refuse to start.
     """
 
     host: str = "127.0.0.1"
@@ -140,6 +150,7 @@ class FoxgloveBridgeParams:
     period_s: float = 0.2
     hold_s: float = -1.0
     max_cloud_points: int = 1_000_000
+    allow_unauthenticated_view: bool = False
 
     def __post_init__(self) -> None:
         require(bool(self.host), "host", self.host, "a host name or address")
@@ -158,6 +169,46 @@ class FoxgloveBridgeParams:
 
 PARAMS = FoxgloveBridgeParams
 """The node's parameter dataclass: the launcher checks a launch file's values with it."""
+
+
+REFUSED_LOG_S = 10.0
+"""Seconds between two log lines about refused clients (a client retrying in a loop)."""
+
+
+class RefusedClients(logging.Filter):
+    """Counts the Foxglove server's refused handshakes into ``counters["refused_clients"]`` and
+    lets one log line through per `REFUSED_LOG_S`, with the count since the last."""
+
+    def __init__(self, counters: dict[str, int], clock: Any = time.monotonic) -> None:
+        super().__init__()
+        self._counters = counters
+        self._clock = clock
+        self._last = -math.inf
+        self._logged = 0
+        counters.setdefault("refused_clients", 0)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if "handshake failed" not in record.getMessage():
+            return True
+        self._counters["refused_clients"] += 1
+        if self._clock() - self._last < REFUSED_LOG_S:
+            return False
+        self._last = self._clock()
+        refused = self._counters["refused_clients"]
+        record.msg, record.args = ("refused %d client(s) at the handshake (%d so far; the last: %s)",
+                                   (refused - self._logged, refused, record.getMessage()))
+        record.levelno, record.levelname = logging.WARNING, "WARNING"
+        self._logged = refused
+        return True
+
+
+def refuse_keyed_graph(params: FoxgloveBridgeParams, environ: Mapping[str, str]) -> None:
+    """`ParamError` if the graph has keys (``VIBRISSA_KEYS``) and the view would serve it to
+    unauthenticated clients without ``allow_unauthenticated_view``."""
+    if environ.get(KEYS_ENV) and not params.allow_unauthenticated_view:
+        raise ParamError("the graph has keys, but Foxglove clients are not authenticated: any "
+                         "local user could watch it; set allow_unauthenticated_view:=true to "
+                         "serve it anyway")
 
 
 def import_foxglove() -> ModuleType:
@@ -454,9 +505,10 @@ def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
                 view.tick(now)
     finally:
         server.stop()
-    log.info("%s: served %d wrench rows, %d contacts, %d poses, %d meshes", node.fqn,
-             node.counters["wrenches"], node.counters["contacts"], node.counters["poses"],
-             node.counters["meshes"])
+    log.info("%s: served %d wrench rows, %d contacts, %d poses, %d meshes; refused %d "
+             "client(s) at the handshake", node.fqn, node.counters["wrenches"],
+             node.counters["contacts"], node.counters["poses"], node.counters["meshes"],
+             node.counters.get("refused_clients", 0))
 
 
 def export_bag(bag: str | os.PathLike[str], output: str | os.PathLike[str],
@@ -500,8 +552,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = NodeArgs.parse(argv, prog="python -m vibrissa.nodes.foxglove_bridge")
     configure_logging()
     params = load_params(FoxgloveBridgeParams, args.params_file, args.params)
+    refuse_keyed_graph(params, os.environ)
     fg = import_foxglove()
     with Node.from_args(args) as node:
+        if params.allow_unauthenticated_view and Keys.from_env() is not None:
+            log.warning("%s: serving a graph with keys to unauthenticated Foxglove clients on "
+                        "%s:%d (allow_unauthenticated_view)", node.fqn, params.host, params.port)
+        logging.getLogger("foxglove.websocket.server").addFilter(RefusedClients(node.counters))
         run(node, params, fg)
     return 0
 

@@ -67,6 +67,7 @@ from vibrissa.launch.description import (
 from vibrissa.msgs import NodeStatus
 from vibrissa.runtime.node import DEBUG_ENV, EXIT_LOST_DATA
 from vibrissa.runtime.signals import SignalHandlers
+from vibrissa.runtime.traffic import Traffic
 from vibrissa.wire.security import Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC
 from vibrissa.wire.transport import BUFFER_ENV, DOMAIN_ENV, Endpoints, Proxy, Subscriber
@@ -635,47 +636,6 @@ class Launcher:
             return EXIT_LOST_DATA
         self.out.log("launch finished")
         return 0
-
-
-class Traffic:
-    """What the nodes' statuses say they moved: per node, the last counters of each of its
-    starts, summed (a respawned node counts from 0 again)."""
-
-    KEYS = ("published", "received", "lost", "rejected", "anomalies", "refused_peers")
-
-    def __init__(self) -> None:
-        self._banked: dict[str, dict[str, int]] = {}
-        self._current: dict[str, dict[str, int]] = {}
-        self._topics: dict[str, tuple[set[str], set[str]]] = {}  # fqn -> published, taken
-
-    def add(self, status: NodeStatus) -> None:
-        """Take a node's status."""
-        published, taken = self._topics.setdefault(status.node, (set(), set()))
-        published.update(status.publishes)
-        taken.update(status.subscribes)
-        counts = {key: int(status.counters.get(key, 0)) for key in self.KEYS}
-        current = self._current.get(status.node)
-        if current is not None and (counts["published"] < current["published"]
-                                    or counts["received"] < current["received"]):
-            banked = self._banked.setdefault(status.node, dict.fromkeys(self.KEYS, 0))
-            for key in self.KEYS:  # a new start: what the last one moved stays counted
-                banked[key] += current[key]
-        self._current[status.node] = counts
-
-    def publishes(self, fqn: str) -> set[str]:
-        """The topics the node said it publishes, in any of its starts."""
-        return self._topics.get(fqn, (set(), set()))[0]
-
-    def subscribes(self, fqn: str) -> set[str]:
-        """The topics the node said it takes, in any of its starts."""
-        return self._topics.get(fqn, (set(), set()))[1]
-
-    def of(self, fqn: str) -> dict[str, int] | None:
-        """The node's totals, or None if it never reported."""
-        if fqn not in self._current:
-            return None
-        banked = self._banked.get(fqn, dict.fromkeys(self.KEYS, 0))
-        return {key: banked[key] + self._current[fqn][key] for key in self.KEYS}
 
 
 PARAMS_DIR_PREFIX = "vibrissa-launch-"

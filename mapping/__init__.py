@@ -30,6 +30,7 @@ from vibrissa.mapping.report import (
     MapReport,
     NextSweep,
     ObjectResult,
+    UpstreamNode,
     WhiskerCount,
 )
 from vibrissa.mapping.settings import MapSettings
@@ -38,7 +39,7 @@ from vibrissa.mapping.truth import TrueObject, name_objects
 
 __all__ = [
     "Accumulator", "Clustering", "Clusters", "ContactBatch", "FrameCloud", "FrameMap",
-    "FrameResult", "InputStream", "MapReport", "MapSettings", "NextSweep", "ObjectResult",
+    "FrameResult", "InputStream", "MapReport", "MapSettings", "NextSweep", "ObjectResult", "UpstreamNode",
     "ObjectSurface", "Proposal", "TrueObject", "WhiskerCount", "cluster_points",
     "contact_normals", "estimate_surface", "fit_frame", "is_covariance", "join_convex",
     "line_spacing", "map_cloud", "name_objects", "propose_sections", "split_lines",

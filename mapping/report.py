@@ -143,13 +143,36 @@ class InputStream:
 
 
 @dataclass(frozen=True)
+class UpstreamNode:
+    """A node whose messages reach the map, as the graph's statuses tell: what it received,
+    lost and refused of its own input over all its starts, and what its producers sent it
+    (``sent_to_it``; None where their messages also went elsewhere)."""
+
+    node: str
+    received: int
+    lost: int
+    rejected: int
+    sent_to_it: int | None
+
+    @property
+    def short(self) -> int:
+        """Messages that never reached it: sent but not received by any of its starts (a
+        start killed, input sent before it listened, lost, refused); where what was sent is
+        not known, those it counted as lost or refused."""
+        if self.sent_to_it is None:
+            return self.lost + self.rejected
+        return max(0, self.sent_to_it - self.received)
+
+
+@dataclass(frozen=True)
 class MapReport:
     """The whole map: its frames, the truth it was measured against, and what was lost or
     dropped on the way (``dropped_points`` by reason, `vibrissa.mapping.Accumulator`).
 
     ``true_surface`` (a surface spec in units of ``rod_length_m``) or ``scene`` (a scene file
     with ``scene_objects``) name the truth; ``lost`` counts input messages lost, ``streams``
-    the input streams; ``files`` the report files written.
+    the input streams; ``upstream`` what the nodes before the map lost on the way;
+    ``files`` the report files written.
     """
 
     n_points: int
@@ -163,7 +186,13 @@ class MapReport:
     dropped_points: dict[str, int] = field(default_factory=dict)
     bad_covariance: int = 0
     streams: tuple[InputStream, ...] = ()
+    upstream: tuple[UpstreamNode, ...] = ()
     files: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def upstream_lost(self) -> int:
+        """Messages the nodes before the map lost, refused or never counted."""
+        return sum(u.short for u in self.upstream)
 
     @property
     def max_reconstruction_error_m(self) -> float | None:
@@ -186,6 +215,8 @@ class MapReport:
             "dropped_points": dict(self.dropped_points),
             "bad_covariance": self.bad_covariance,
             "streams": [asdict(stream) for stream in self.streams],
+            "upstream": [{**asdict(node), "short": node.short} for node in self.upstream],
+            "upstream_lost": self.upstream_lost,
             "files": dict(self.files),
         }
 
@@ -229,6 +260,15 @@ def _format_report(report: dict[str, Any]) -> str:
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
                      f"{stream['received']} received, {stream['lost']} lost")
+    if report.get("upstream_lost"):
+        lines.append(f"LOST UPSTREAM: {report['upstream_lost']} message(s) did not reach the "
+                     "nodes before the map, so the map may miss what they carried:")
+    for node in report.get("upstream", []):
+        if node["short"]:
+            sent = "" if node["sent_to_it"] is None else f" of the {node['sent_to_it']} sent to it"
+            lines.append(f"  {node['node']}: received {node['received']}{sent} (lost "
+                         f"{node['lost']}, refused {node['rejected']}; a start killed or input "
+                         "sent before it listened is short too)")
     for frame in report["frames"]:
         clustering = frame["clustering"]
         how = clustering["method"]

@@ -83,6 +83,7 @@ from vibrissa.mapping import (
     MapReport,
     MapSettings,
     TrueObject,
+    UpstreamNode,
     fit_frame,
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
@@ -90,6 +91,7 @@ from vibrissa.msgs import (
     ContactCloud,
     ContactPointArray,
     EndOfStream,
+    NodeStatus,
     SurfaceMesh,
     SweepProposal,
 )
@@ -97,10 +99,11 @@ from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.runtime.signals import default_actions
+from vibrissa.runtime.traffic import Traffic, Upstream
 from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
 from vibrissa.units import RodScale
-from vibrissa.wire.topics import resolve_topic, validate_name
+from vibrissa.wire.topics import STATUS_TOPIC, resolve_topic, validate_name
 from vibrissa.wire.transport import StreamEnd
 
 log = logging.getLogger(__name__)
@@ -296,12 +299,14 @@ def receive(acc: Accumulator, msg: ContactPointArray | EndOfStream) -> None:
 
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   streams: Sequence[StreamEnd] = (), lost: int = 0,
+                  upstream: Sequence[Upstream] = (),
                   ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
     """Map every frame (`vibrissa.mapping.fit_frame`), write PLYs, the pictures (PNG, HTML
     page) and the reports; returns (report, messages).
 
     ``streams`` are the input streams that ended (what each said was sent, what arrived,
-    what was lost) and ``lost`` the input messages lost in all, for the report.
+    what was lost), ``lost`` the input messages lost in all and ``upstream`` what the nodes
+    before the map moved (`vibrissa.runtime.traffic`), for the report.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     results: list[FrameResult] = []
@@ -379,6 +384,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         rod_length_m=params.rod_length_m, lost=lost, dropped_points=dict(acc.dropped),
         bad_covariance=acc.bad_covariance,
         streams=tuple(InputStream(**asdict(stream)) for stream in streams),
+        upstream=tuple(UpstreamNode(u.node, u.received, u.lost, u.rejected, u.sent_to_it)
+                       for u in upstream),
         files={"report_json": str(report_json), "report_txt": str(report_txt)})
     with whole_file(report_json) as partial:
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
@@ -395,7 +402,8 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
     acc = Accumulator(expected, params.max_points, params.max_frames)
     subscriber = node.create_subscriber(
-        {t: ContactPointArray for t in params.topics}, hwm=200_000)
+        {**{t: ContactPointArray for t in params.topics}, STATUS_TOPIC: NodeStatus}, hwm=200_000)
+    traffic = Traffic()  # what the nodes before the map moved, for the report
     cloud_pub = node.create_publisher(params.cloud_topic, ContactCloud, wait_for=params.wait_for)
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
     proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,
@@ -405,7 +413,9 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     last = time.monotonic()
     while not node.stop_requested and not acc.done:
         rx = subscriber.receive(0.1)
-        if rx is not None:
+        if rx is not None and isinstance(rx.msg, NodeStatus):
+            traffic.add(rx.msg)  # not input: the timeout of silence runs on
+        elif rx is not None:
             dropped, bad = acc.dropped.total(), acc.bad_covariance
             receive(acc, rx.msg)
             node.counters.update(acc.dropped, bad_covariance=acc.bad_covariance)
@@ -419,7 +429,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                             "symmetric positive semidefinite, mapped without it", node.fqn,
                             acc.bad_covariance)
             last = time.monotonic()
-        elif params.timeout_s > 0 and time.monotonic() - last > params.timeout_s:
+        if params.timeout_s > 0 and time.monotonic() - last > params.timeout_s:
             log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)", node.fqn,
                         params.timeout_s, sorted(acc.ended))
             break
@@ -432,10 +442,14 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     with default_actions():  # Open3D holds the interpreter while fitting: a stop ends us at once
         report, messages = write_outputs(acc, params, Path(params.out_dir),
                                          list(subscriber.ended_streams),
-                                         subscriber.totals()["lost"])
+                                         subscriber.totals()["lost"],
+                                         traffic.upstream_of(node.fqn))
     if report.lost:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")
+    if report.upstream_lost:
+        log.error("%s: %d message(s) did not reach the nodes before the map (%s)", node.fqn,
+                  report.upstream_lost, ", ".join(u.node for u in report.upstream if u.short))
     if report.dropped_points:
         log.error("%s: %d contact point(s) were dropped beyond the map's bounds: %s%s",
                   node.fqn, sum(report.dropped_points.values()), report.dropped_points,

@@ -4,6 +4,7 @@ EndOfStream and ended (real processes)."""
 
 from __future__ import annotations
 
+import json
 import queue
 import re
 import signal
@@ -61,3 +62,45 @@ def test_a_node_respawned_after_its_input_ended_ends_the_launch_with_the_loss(tm
     summary = re.search(r"reconstructor .* received (\d+)", err)
     source = re.search(r"wrench_source .* published (\d+)", err)
     assert summary and source and int(summary.group(1)) < int(source.group(1)), err
+
+
+def test_the_map_report_states_what_was_lost_before_the_map(tmp_path: Path) -> None:
+    """The reconstructor killed early and respawned while the stream goes on: the map is
+    written, and its own report says the reconstructor fell short, not only the launch."""
+    launch_file = tmp_path / "demo.yaml"
+    launch_file.write_text(DEMO.read_text().replace(
+        '      respawn: "$(var respawn)"\n', "      respawn: true\n      respawn_delay: 0.5\n"))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "vibrissa.cli.launch", str(launch_file),
+                             "rate:=400", f"out:={out}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr is not None
+    deadline = time.monotonic() + DEADLINE_S
+    seen: list[str] = []
+    killed = False
+    try:
+        reconstructor = None
+        for line in proc.stderr:
+            seen.append(line)
+            started = re.search(r"started 'reconstructor' \(pid (\d+)\)", line)
+            reconstructor = int(started.group(1)) if started else reconstructor
+            published = re.search(r"wrench_source.*?(\d+) published", line)
+            if not killed and published and int(published.group(1)) >= 500:
+                assert reconstructor is not None
+                subprocess.run(["kill", "-9", str(reconstructor)], check=True)
+                killed = True
+            assert time.monotonic() < deadline, "".join(seen)
+        rc = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = "".join(seen)
+    assert killed and rc == EXIT_LOST_DATA, err
+    report = json.loads((out / "report.json").read_text())
+    short = {u["node"]: u for u in report["upstream"]}
+    reconstructor_in = short["/whisker0/reconstructor"]
+    source = re.search(r"wrench_source .* published (\d+)", err)
+    assert source and reconstructor_in["sent_to_it"] == int(source.group(1)) > 0, err
+    assert 0 < reconstructor_in["short"] == reconstructor_in["sent_to_it"] - reconstructor_in["received"]
+    assert report["upstream_lost"] == reconstructor_in["short"]
+    assert "LOST UPSTREAM" in (out / "report.txt").read_text()

@@ -438,6 +438,11 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                     "points received, sources ended: %s)", node.fqn, acc.n_points,
                     ", ".join(sorted(acc.ended)) or "none")
         return None
+    settle = time.monotonic() + 2 * node.heartbeat_s  # every node's status after the ends
+    while time.monotonic() < settle and not node.stop_requested:
+        rx = subscriber.receive(0.05)
+        if rx is not None and isinstance(rx.msg, NodeStatus):
+            traffic.add(rx.msg)
     node.set_state("running", f"fitting {acc.n_points} points")
     with default_actions():  # Open3D holds the interpreter while fitting: a stop ends us at once
         report, messages = write_outputs(acc, params, Path(params.out_dir),

@@ -117,9 +117,9 @@ def register(subparsers: Any) -> None:
         "f0 = -force, m0 = -torque, in the clamp frame header.frame_id) becomes a "
         "WhiskerWrenchArray of one row on --topic; the /tf transform PARENT -> CHILD of "
         "--tf-frame becomes RobotPose on --pose-topic. Play the result with wrench_source mode "
-        "replay. Exit status: 0 done, 2 not a readable bag or a bad argument (nothing "
-        "written), 4 written, but messages the bag lists were damaged and are lost (counted "
-        "per topic).")
+        "replay. A damaged or cut-off MCAP bag is imported as far as it reads. Exit status: "
+        "0 done, 2 not a readable bag or a bad argument (nothing written), 4 written, but the "
+        "bag is damaged or messages it lists are lost (counted per topic).")
     p.add_argument("ros2_bag", metavar="ROS2_BAG", help="a rosbag2 folder")
     p.add_argument("output", metavar="OUT.mcap")
     p.add_argument("--wrench-topic", action="append", default=[], metavar="T",
@@ -317,4 +317,4 @@ def _import(args: argparse.Namespace) -> int:
         print(f"vibrissa bag import: error: {exc}", file=sys.stderr)
         return 2
     print(result.summary(), file=sys.stderr)
-    return EXIT_LOST_DATA if result.lost else 0
+    return EXIT_LOST_DATA if result.lost or result.damage else 0

@@ -20,11 +20,15 @@ Publishes
 The protocol and its books are ``vibrissa.wire.netft``; here are the socket, the stream's
 restarts, the free-rod check and the publishing. Counters in the node's status: the
 tracker's (``datagrams``, ``records`` and ``records_lost`` (its ``received`` and ``lost``:
-records, not the graph's messages), ``reordered``, ``duplicates``,
-``malformed``, ``stalls``, ``status_warnings``, ``status_faults``) and ``foreign`` (datagrams
-from another address), ``stale`` (records received but more than ``max_latency_s`` behind the
-newest received when their turn to be published came: not published), ``restarts`` (stream
-requests after the first), ``biases`` and ``bias_refused``.
+records, not the graph's messages), ``reordered``, ``duplicates``, ``malformed``,
+``sequence_anomalies``, ``ft_frozen``, ``stalls``, ``status_warnings``, ``status_faults``) and
+``foreign`` (datagrams from another address), ``stale`` (records received but more than
+``max_latency_s`` behind the newest received when their turn to be published came: not
+published), ``non_finite`` (records whose wrench is not finite: not published),
+``restarts`` (stream requests after the first), ``biases`` and ``bias_refused``. Records
+dropped for a sequence anomaly or a non-finite wrench are logged, at most a line per 10 s.
+A calibration outside ``vibrissa.wire.netft.CALIBRATION_RANGE`` (parameters or the sensor's
+``netftapi2.xml``) is refused at start (exit 2).
 """
 
 from __future__ import annotations
@@ -46,13 +50,20 @@ from vibrissa.formats.scene_file import load_robot
 from vibrissa.frames import Transform, clamp_frame
 from vibrissa.msgs import SensorCommand, WhiskerWrenchArray
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
-from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
+from vibrissa.runtime.params import (
+    ParamError,
+    require,
+    require_non_negative,
+    require_parsed,
+    require_positive,
+)
 from vibrissa.wire.netft import (
     RDT_PORT,
     Command,
     NetFTConfig,
     Records,
     StreamTracker,
+    calibration_error,
     pack_request,
     read_config,
     to_si,
@@ -80,7 +91,8 @@ class NetFTParams:
     local_port
         UDP port this node receives on (0: any free one).
     counts_per_force, counts_per_torque
-        Counts per N and per N m (the sensor's ``cfgcpf``/``cfgcpt`` in N and N m).
+        Counts per N and per N m (the sensor's ``cfgcpf``/``cfgcpt`` in N and N m), within
+        ``vibrissa.wire.netft.CALIBRATION_RANGE``.
     read_config, http_port
         Read the counts from the sensor's ``netftapi2.xml`` over HTTP at start instead.
     mode
@@ -145,9 +157,12 @@ class NetFTParams:
         for key in ("port", "http_port"):
             require(1 <= getattr(self, key) <= 65535, key, getattr(self, key), "a port 1-65535")
         require(0 <= self.local_port <= 65535, "local_port", self.local_port, "a port 0-65535")
-        for key in ("counts_per_force", "counts_per_torque", "ft_rate_hz", "stall_s", "restart_s",
-                    "free_force_n", "free_moment_nm"):
+        for key in ("ft_rate_hz", "stall_s", "restart_s", "free_force_n", "free_moment_nm"):
             require_positive(key, getattr(self, key))
+        for key, kind in (("counts_per_force", "force"), ("counts_per_torque", "torque")):
+            error = calibration_error(kind, getattr(self, key))
+            if error is not None:
+                raise ValueError(f"parameter {key!r}: {error}")
         require_non_negative("max_latency_s", self.max_latency_s)
         require(0 <= self.fault_mask < 1 << 32, "fault_mask", self.fault_mask, "a 32-bit mask")
         require(self.free_samples >= 1, "free_samples", self.free_samples, "an integer >= 1")
@@ -180,8 +195,9 @@ class NetFTReader:
     datagram); ``take(limit)`` returns the oldest ``limit`` records not yet taken as ``(stamp
     (N,), f0_C (N, 3) N, m0_C (N, 3) N m)``. Records more than ``max_latency_s`` (sensor time)
     behind the newest received are left out and counted ``stale``, whether they arrived
-    behind newer ones in one drain or waited too long to be taken: the backlog stays short,
-    and every record received is either taken or stale.
+    behind newer ones in one drain or waited too long to be taken: the backlog stays short.
+    Records whose wrench or stamp is not finite (what the codec refuses) are left out and
+    counted ``non_finite``: every record received is taken, stale or non-finite.
     """
 
     def __init__(self, params: NetFTParams, config: NetFTConfig) -> None:
@@ -190,7 +206,7 @@ class NetFTReader:
         self.tracker = StreamTracker(ft_rate_hz=params.ft_rate_hz, stall_s=params.stall_s,
                                      fault_mask=params.fault_mask)
         self.counters = self.tracker.counters
-        self.counters.update(stale=0)
+        self.counters.update(stale=0, non_finite=0)
         self._pending: list[Records] = []
         # calibrated, not yet taken: sensor time (N,), stamp (N,), f0 (N, 3), m0 (N, 3)
         self._t_sensor = np.zeros(0)
@@ -221,12 +237,17 @@ class NetFTReader:
             counts = np.concatenate([r.counts for r in pending])
             fresh = t_sensor >= t_sensor.max() - self.params.max_latency_s
             self.counters["stale"] += int(np.count_nonzero(~fresh))
-            f_S, m_S = to_si(counts[fresh], self.config.counts_per_force,
-                             self.config.counts_per_torque)
-            f0, m0 = sensor_to_clamp(f_S, m_S, self.params.X_CS)
-            self._window.extend(np.hstack([f0, m0])[-self.params.free_samples:])
+            with np.errstate(over="ignore", invalid="ignore"):  # counted below
+                f_S, m_S = to_si(counts[fresh], self.config.counts_per_force,
+                                 self.config.counts_per_torque)
+                f0, m0 = sensor_to_clamp(f_S, m_S, self.params.X_CS)
             stamp = t_sensor[fresh] if self.params.stamp == "sensor" else t_receive[fresh]
-            self._t_sensor = np.concatenate([self._t_sensor, t_sensor[fresh]])
+            # what the codec would refuse: a non-finite value
+            finite = np.isfinite(np.hstack([f0, m0, stamp[:, None]])).all(axis=1)
+            self.counters["non_finite"] += int(np.count_nonzero(~finite))
+            f0, m0, stamp = f0[finite], m0[finite], stamp[finite]
+            self._window.extend(np.hstack([f0, m0])[-self.params.free_samples:])
+            self._t_sensor = np.concatenate([self._t_sensor, t_sensor[fresh][finite]])
             self._stamp = np.concatenate([self._stamp, stamp])
             self._f0 = np.concatenate([self._f0, f0])
             self._m0 = np.concatenate([self._m0, m0])
@@ -283,10 +304,39 @@ class NetFTReader:
         self.tared = True
 
 
+class _AnomalyLog:
+    """A warning when records were dropped for what no sensor sends (implausible sequence
+    jumps, non-finite values), at most one line per ``every_s``, with the counts since the
+    last line: a hostile or broken sensor cannot flood the log."""
+
+    KINDS = {"sequence_anomalies": "with an implausible sequence jump",
+             "non_finite": "whose wrench is not finite"}
+
+    def __init__(self, fqn: str, every_s: float = 10.0) -> None:
+        self.fqn = fqn
+        self.every_s = every_s
+        self.logged = dict.fromkeys(self.KINDS, 0)
+        self.last = -np.inf
+
+    def check(self, counters: dict[str, int]) -> None:
+        now = time.monotonic()
+        if now - self.last < self.every_s or all(counters[k] == n for k, n in self.logged.items()):
+            return
+        what = [f"{counters[k] - self.logged[k]} record(s) {text}"
+                for k, text in self.KINDS.items() if counters[k] > self.logged[k]]
+        log.warning("%s: dropped %s (counted in its status; this line at most every %g s)",
+                    self.fqn, " and ".join(what), self.every_s)
+        self.logged = {k: counters[k] for k in self.KINDS}
+        self.last = now
+
+
 def sensor_config(params: NetFTParams) -> NetFTConfig:
     """The counts per N and N m: the parameters, or the sensor's netftapi2.xml."""
     if params.read_config:
-        config = read_config(params.address, port=params.http_port)
+        try:
+            config = read_config(params.address, port=params.http_port)
+        except ValueError as exc:  # the sensor's configuration refused: as a parameter is
+            raise ParamError(f"http://{params.address}:{params.http_port}/{exc}") from None
         log.info("counts from http://%s:%d/netftapi2.xml: %g per N, %g per N m (%s, %s)",
                  params.address, params.http_port, config.counts_per_force,
                  config.counts_per_torque, config.force_unit, config.torque_unit)
@@ -307,6 +357,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
         node.counters.update({renamed.get(k, k): v for k, v in counters.items()})
 
     report()
+    anomalies = _AnomalyLog(node.fqn)
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for)
     commands = node.create_subscriber({params.command_topic: SensorCommand})
     frame_id = clamp_frame(params.whisker)
@@ -360,6 +411,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
             if ready:
                 drain()
             publish(PUBLISH_SLICE)
+            anomalies.check(counters)
             now = clock()
             stalled = reader.tracker.check_stall(now)
             if stalled and not was_stalled:
@@ -412,6 +464,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
                 drain()
                 quiet_until = time.monotonic() + params.stall_s
         publish(None)
+        anomalies.check(counters)
         report()
     finally:
         sock.close()

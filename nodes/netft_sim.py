@@ -34,6 +34,7 @@ from vibrissa.runtime.params import require, require_non_negative, require_parse
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import simulate_sweep
 from vibrissa.units import RodScale
+from vibrissa.wire.netft import calibration_error
 from vibrissa.wire.netft_device import NetFTDevice, SignalSpec
 
 log = logging.getLogger(__name__)
@@ -90,9 +91,12 @@ class NetFTSimParams:
 
     def __post_init__(self) -> None:
         require(0 <= self.port <= 65535, "port", self.port, "a port 0-65535")
-        for key in ("rate_hz", "counts_per_force", "counts_per_torque", "step", "rod_length_m",
-                    "rod_ei_nm2"):
+        for key in ("rate_hz", "step", "rod_length_m", "rod_ei_nm2"):
             require_positive(key, getattr(self, key))
+        for key, kind in (("counts_per_force", "force"), ("counts_per_torque", "torque")):
+            error = calibration_error(kind, getattr(self, key))
+            if error is not None:
+                raise ValueError(f"parameter {key!r}: {error}")
         require(self.rate_hz <= 20000, "rate_hz", self.rate_hz, "at most 20000")
         for key in ("noise_force_n", "noise_moment_nm"):
             require_non_negative(key, getattr(self, key))

@@ -17,9 +17,9 @@ The protocol (ATI Net F/T manual, "Raw Data Transfer"; the same on Axia and OnRo
 `StreamTracker` turns datagrams into the records to publish and counts what happened on the
 way: every ``rdt_sequence`` (32 bits, rolling over) between the first and the newest is
 received, lost, or ``reordered`` (it came after a newer one: not published, the driver never
-goes back in time, and not lost); a datagram that is not whole records, or a record whose
-sequence lies outside any plausible window, is ``malformed``. Nothing here raises on bytes
-from the network.
+goes back in time, and not lost); a datagram that is not whole records is ``malformed``; a
+record whose sequences jump where no sensor's can is a ``sequence_anomalies`` (the stream
+resynchronises at once). Nothing here raises on bytes from the network.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "CALIBRATION_RANGE",
     "HEADER",
     "MAX_RECORDS_PER_DATAGRAM",
     "RDT_PORT",
@@ -45,6 +46,7 @@ __all__ = [
     "NetFTConfig",
     "Records",
     "StreamTracker",
+    "calibration_error",
     "pack_records",
     "pack_request",
     "parse_config",
@@ -148,22 +150,21 @@ def _delta(a: int, b: int) -> int:
 @dataclass
 class StreamTracker:
     """The bookkeeping of one RDT stream: which records to publish, what was lost, reordered,
-    malformed, whether the sensor stalled, what its status words said.
+    malformed or implausible, whether the sensor stalled, what its status words said.
 
     Parameters
     ----------
     ft_rate_hz
         Rate of the sensor's internal counter ``ft_sequence``, Hz: the sensor time of a record
-        is ``ft_sequence / ft_rate_hz`` (unwrapped), mapped onto the host clock (below).
+        is ``ft_sequence / ft_rate_hz`` (unwrapped), mapped onto the host clock (below). No
+        sensor sends records faster.
     stall_s
         The stream counts as stalled when no record arrived, or ``ft_sequence`` did not move,
         for this long, s.
     window
-        Records that may arrive late (after a newer one) and still be told from loss; also
-        the farthest plausible jump of ``rdt_sequence`` is ``max_gap``.
-    max_gap
-        A record more than this ahead of the newest is not plausible (garbage, another
-        stream): ``malformed``.
+        Records that may arrive late (after a newer one) and still be told from loss.
+    slack_s
+        How far, s, a record's sequences may run ahead of the host clock (below).
     fault_mask
         Status bits that mean a fault (the sensor's data are not to be used: the record is
         counted, not published); any other set bit is a warning (published, counted).
@@ -174,24 +175,36 @@ class StreamTracker:
     the sensor time at or below every receive time (the lower envelope of ``t_receive -
     ft/ft_rate``: a datagram is never received before it was measured): the stamps are as
     regular as the sensor's clock, on the host's time axis, and never in the future. When the
-    offset moves down, the stamps wait (repeat) rather than go back before those given out.
+    offset moves down, the stamps do not go back: they advance at half the sensor's pace until
+    they meet it again, so the stamps of published records strictly increase.
+
+    Implausible jumps. A record is measured before it is received, and the sensor makes at
+    most ``ft_rate_hz`` records a second: a newer record whose ``ft_sequence`` goes back, or
+    whose sensor time or ``rdt_sequence`` is ahead of what the time since the newest record
+    allows (``slack_s`` for latency and host-clock steps; plus ``window`` records), is not
+    the stream's. It is counted in ``sequence_anomalies`` and dropped; when the next record
+    follows on from it rather than from the stream, the sensor's counters did jump: the
+    stream resynchronises at that record (a new offset, the stamps still increasing), else
+    the stream goes on as if the wild record had not come (it counts as lost).
 
     Counters: ``received`` (records accepted, in order, to publish), ``lost`` (gaps in
     ``rdt_sequence`` not filled since), ``reordered`` (records that came after a newer one:
     dropped, not lost), ``duplicates`` (or older than the stream's first record),
-    ``malformed`` (datagrams that are not whole records, records outside the window),
-    ``stalls`` (times the stream stalled), ``status_warnings``
-    (records with a warning bit: published), ``status_faults`` (with a fault bit: dropped),
-    ``datagrams``. Over one stream (between two `restart` calls), with ``first`` and
-    ``newest`` its first and newest accepted ``rdt_sequence`` (unwrapped)::
+    ``malformed`` (datagrams that are not whole records), ``sequence_anomalies`` (records
+    with an implausible jump: dropped), ``ft_frozen`` (records whose ``ft_sequence`` did not
+    move: a stalled sensor's, dropped), ``stalls`` (times the stream stalled),
+    ``status_warnings`` (records with a warning bit: published), ``status_faults`` (with a
+    fault bit: dropped), ``datagrams``. Over one stream without jumps (between two `restart`
+    calls), with ``first`` and ``newest`` its first and newest accepted ``rdt_sequence``
+    (unwrapped)::
 
-        received + status_faults + lost + reordered == newest - first + 1
+        received + status_faults + ft_frozen + lost + reordered == newest - first + 1
     """
 
     ft_rate_hz: float = 7000.0
     stall_s: float = 0.2
     window: int = 4096
-    max_gap: int = 1 << 20
+    slack_s: float = 1.0
     fault_mask: int = 0x80000000
     max_records: int = MAX_RECORDS_PER_DATAGRAM
     counters: dict[str, int] = field(default_factory=dict)
@@ -201,12 +214,14 @@ class StreamTracker:
     _ft_last: int | None = None      # unwrapped ft_sequence of the newest record
     _ft_moved_at: float | None = None
     heard_at: float | None = None    # receive time of the newest accepted record
-    _offset: float | None = None
+    _offset: float = np.inf          # the stream's offset (lower envelope), s
+    _ft_stamped: int | None = None   # unwrapped ft_sequence of the last record stamped
     _last_stamp: float = -np.inf
+    _suspect: tuple[int, int, float] | None = None  # (rdt, ft, offset) of a wild record
     stalled: bool = False
 
     COUNTERS = ("datagrams", "received", "lost", "reordered", "duplicates", "malformed",
-                "stalls", "status_warnings", "status_faults")
+                "sequence_anomalies", "ft_frozen", "stalls", "status_warnings", "status_faults")
 
     def __post_init__(self) -> None:
         for name in self.COUNTERS:
@@ -217,11 +232,27 @@ class StreamTracker:
         the sequences, keep the counters and a stall (it ends with the first moving record);
         the stall clock starts at ``now``."""
         self._newest = None
-        self._missing.clear()
-        self._ft_last = None
-        self._offset = None
+        self._suspect = None
         self.heard_at = None
         self._ft_moved_at = now
+
+    def _rebase(self, rdt: int, ft: int | None, offset: float) -> None:
+        """Take ``rdt``, ``ft`` as the stream's newest record, with the sensor time's
+        ``offset``: the sequences start again there (the stamps go on increasing)."""
+        self._newest, self._ft_last, self._offset = rdt, ft, offset
+        self._missing.clear()
+        self._ft_stamped = None
+        self._suspect = None
+
+    def _follows(self, d_rdt: int, ft_ref: int, ft_u: int, offset: float, t_receive: float
+                 ) -> bool:
+        """Whether a record ``d_rdt`` after a reference record (``ft_sequence`` ``ft_ref``,
+        its sensor time's ``offset``), with ``ft_sequence`` ``ft_u`` (unwrapped, not behind
+        ``ft_ref``), received at ``t_receive``, can be the same stream's (see the class doc)."""
+        rate = self.ft_rate_hz
+        since_s = t_receive - (ft_ref / rate + offset) + self.slack_s  # since ft_ref, at most
+        ahead_s = ft_u / rate + offset - t_receive  # how far the record is after its receipt
+        return 0 < d_rdt <= self.window + since_s * rate and ahead_s <= self.slack_s
 
     def feed(self, data: bytes, t_receive: float) -> Records:
         """The records of one datagram to publish, in order (maybe none); counts the rest.
@@ -232,9 +263,9 @@ class StreamTracker:
         """The records of datagrams received together (in arrival order, at ``t_receive``) to
         publish, in order (maybe none); counts the rest, as `feed` of each in turn would.
 
-        The bytes of the whole datagrams are joined and parsed in one ``frombuffer``, and the
-        stamps computed for the batch with numpy: the per-datagram cost of a realtime stream
-        (a record per datagram) is then a few list operations, not a dozen numpy calls."""
+        The bytes of the whole datagrams are joined and parsed in one ``frombuffer``: the
+        per-datagram cost of a realtime stream (a record per datagram) is a few list and
+        float operations, not a dozen numpy calls."""
         c = self.counters
         c["datagrams"] += len(datagrams)
         whole: list[bytes] = []
@@ -249,20 +280,34 @@ class StreamTracker:
         if not whole:
             return _EMPTY
         records = np.frombuffer(b"".join(whole), dtype=_RECORD_DTYPE)
+        rate = self.ft_rate_hz
         keep: list[int] = []
-        ft_out: list[int] = []
-        starts: list[int] = []  # where in ``keep`` each datagram's kept records start
-        last_group = -1
+        stamps: list[float] = []
+        # kept records of the current datagram: (sensor time, floor step) until its offset is known
+        waiting: list[tuple[float, float]] = []
+        last_group = 0
+
+        def stamp() -> None:
+            """Stamp the datagram's waiting records with the offset after its last record
+            (every record of a datagram gets its datagram's offset)."""
+            last = self._last_stamp
+            for t_ft, step in waiting:
+                last = max(t_ft + self._offset, last + step)
+                stamps.append(last)
+            self._last_stamp = last
+            waiting.clear()
+
         for i, (rdt, ft, status) in enumerate(zip(records["rdt"].tolist(), records["ft"].tolist(),
                                                   records["status"].tolist(), strict=True)):
-            if self._newest is None:
-                self._newest = rdt
+            if group[i] != last_group:
+                stamp()
+                last_group = group[i]
+            if self._newest is None:  # the stream's first record
+                self._rebase(rdt, None, np.inf)
+                ft_u = ft
             else:
                 d = _delta(rdt, self._newest % _MOD)
-                if d > self.max_gap or d < -self.window:
-                    c["malformed"] += 1
-                    continue
-                if d <= 0:  # older than the newest: late (reordered) or a duplicate
+                if -self.window <= d <= 0:  # older than the newest: late (reordered) or a duplicate
                     late = self._newest + d
                     if late in self._missing:
                         del self._missing[late]
@@ -271,6 +316,23 @@ class StreamTracker:
                     else:
                         c["duplicates"] += 1
                     continue
+                assert self._ft_last is not None
+                ft_u = self._ft_last + _delta(ft, self._ft_last % _MOD)
+                if ft_u < self._ft_last or not self._follows(d, self._ft_last, ft_u, self._offset,
+                                                             t_receive):
+                    suspect = self._suspect
+                    d_s = 0 if suspect is None else _delta(rdt, suspect[0])
+                    ft_s = 0 if suspect is None else _delta(ft, suspect[1])
+                    if suspect is None or ft_s <= 0 or not self._follows(
+                            d_s, suspect[1], suspect[1] + ft_s, suspect[2], t_receive):
+                        c["sequence_anomalies"] += 1
+                        self._suspect = (rdt, ft, t_receive - ft / rate)
+                        continue
+                    # it follows on from the wild record: the sensor's counters jumped
+                    stamp()
+                    self._rebase(suspect[0], suspect[1], suspect[2])
+                    d, ft_u = d_s, suspect[1] + ft_s
+                self._suspect = None
                 if d > 1:
                     self._missing.update(dict.fromkeys(range(self._newest + 1, self._newest + d)))
                     while len(self._missing) > self.window:
@@ -278,42 +340,34 @@ class StreamTracker:
                     c["lost"] += d - 1
                 self._newest += d
             self.heard_at = t_receive
-            ft_u = ft if self._ft_last is None else self._ft_last + _delta(ft, self._ft_last % _MOD)
             if ft_u != self._ft_last:
                 self._ft_moved_at = t_receive
                 self.stalled = False
+            else:  # the same sample again: a stalled sensor's
+                c["ft_frozen"] += 1
+                continue
             self._ft_last = ft_u
+            self._offset = min(self._offset, t_receive - ft_u / rate)
             self.last_status = status
             if status & self.fault_mask:
                 c["status_faults"] += 1
                 continue
             if status:
                 c["status_warnings"] += 1
-            if group[i] != last_group:
-                last_group = group[i]
-                starts.append(len(keep))
+            step = 0.5 / rate * (1 if self._ft_stamped is None else ft_u - self._ft_stamped)
+            self._ft_stamped = ft_u
+            waiting.append((ft_u / rate, step))
             keep.append(i)
-            ft_out.append(ft_u)
+        stamp()
         n = len(keep)
         c["received"] += n
         if not n:
             return _EMPTY
         kept = records[keep]
-        t_ft = np.asarray(ft_out, dtype=np.float64) / self.ft_rate_hz
-        # Each datagram moves the offset down to its newest record's (as fed one by one);
-        # every record of a datagram gets its datagram's offset.
-        offset_g = np.minimum.accumulate(t_receive - np.maximum.reduceat(t_ft, starts))
-        if self._offset is not None:
-            offset_g = np.minimum(offset_g, self._offset)
-        self._offset = float(offset_g[-1])
-        offset = np.repeat(offset_g, np.diff([*starts, n]))
-        # a lower offset must not send the stamps back before those already given out
-        t_sensor = np.maximum.accumulate(np.maximum(t_ft + offset, self._last_stamp))
-        self._last_stamp = float(t_sensor[-1])
         return Records(
             rdt=kept["rdt"].astype(np.int64), ft=kept["ft"].astype(np.int64),
             status=kept["status"].astype(np.int64), counts=kept["counts"].astype(np.int64),
-            t_receive=np.full(n, t_receive), t_sensor=t_sensor)
+            t_receive=np.full(n, t_receive), t_sensor=np.array(stamps))
 
     def check_stall(self, now: float) -> bool:
         """Whether the stream is stalled at ``now`` (no record, or ``ft_sequence`` frozen, for
@@ -329,6 +383,30 @@ class StreamTracker:
 
 _EMPTY = Records(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
                  np.zeros((0, 6), dtype=np.int64), np.zeros(0), np.zeros(0))
+
+
+CALIBRATION_RANGE = {"force": (0.1, 3e9), "torque": (0.1, 4e11)}
+"""Plausible counts per N (``force``) and per N m (``torque``) of a Net F/T calibration.
+
+A count is a 32-bit integer (at most 2^31, about 2.1e9) that must reach the transducer's
+full scale, and a count is finer than its resolution. ATI's smallest full scales are about
+8 N and 0.05 N m (Nano17 Titanium): at most 2.1e9 / 8 = 2.7e8 counts per N and 2.1e9 / 0.05
+= 4.3e10 per N m; its largest (Omega331) are tens of kN and kN m resolved to about 1 N and
+1 N m: at least about 1 count per N and per N m. ATI's usual metric calibration is 1e6 per N
+and per N m. The ranges hold those bounds with a factor of 10 to spare; a value outside (a
+typo, a corrupted configuration: 1e-300 makes a full-scale count 2e309 N, inf makes every
+force 0) is refused."""
+
+
+def calibration_error(kind: str, counts_per_unit: float) -> str | None:
+    """Why ``counts_per_unit`` (counts per N for ``kind`` ``force``, per N m for
+    ``torque``) is not a plausible calibration (`CALIBRATION_RANGE`), or ``None``."""
+    low, high = CALIBRATION_RANGE[kind]
+    if low <= counts_per_unit <= high:  # also False for NaN
+        return None
+    unit = "N" if kind == "force" else "N m"
+    return (f"{counts_per_unit!r} counts per {unit} is not a plausible {kind} calibration "
+            f"(a Net F/T's lie within {low:g} to {high:g} counts per {unit})")
 
 
 @dataclass(frozen=True)
@@ -354,8 +432,9 @@ def parse_config(xml_text: str | bytes) -> NetFTConfig:
     Raises
     ------
     ValueError
-        Not XML, a missing or non-positive ``cfgcpf``/``cfgcpt``, or a unit other than N,
-        kN, mN and N m, N mm, kN m (lbf and lbf-in sensors: set the counts by hand).
+        Not XML, a missing or implausible ``cfgcpf``/``cfgcpt`` (`CALIBRATION_RANGE`), or a
+        unit other than N, kN, mN and N m, N mm, kN m (lbf and lbf-in sensors: set the
+        counts by hand).
     """
     try:
         root = ET.fromstring(xml_text)
@@ -384,9 +463,15 @@ def parse_config(xml_text: str | bytes) -> NetFTConfig:
     except ValueError:
         rate = 0.0
     # counts per unit -> counts per N: a count of 1 unit is 1 / cpf unit = to_si / cpf N.
-    return NetFTConfig(values["cfgcpf"] / _TO_NEWTON[force_unit],
-                       values["cfgcpt"] / _TO_NEWTON_METRE[torque_unit],
-                       force_unit, torque_unit, rate)
+    config = NetFTConfig(values["cfgcpf"] / _TO_NEWTON[force_unit],
+                         values["cfgcpt"] / _TO_NEWTON_METRE[torque_unit],
+                         force_unit, torque_unit, rate)
+    for tag, kind, per_si, unit in (("cfgcpf", "force", config.counts_per_force, force_unit),
+                                    ("cfgcpt", "torque", config.counts_per_torque, torque_unit)):
+        error = calibration_error(kind, per_si)
+        if error is not None:
+            raise ValueError(f"netftapi2.xml: {tag} {text(tag)} per {unit}: {error}")
+    return config
 
 
 def read_config(address: str, timeout_s: float = 2.0, port: int = 80) -> NetFTConfig:

@@ -5,8 +5,10 @@ The signal is what the sensor measures, in its frame S (N, N m; see
 ``vibrissa.calibration.clamp_to_sensor`` for a simulated whisker's). The device knows what it
 did to the stream (``DeviceStats``: records made, dropped, sent late), so that a test can
 compare the driver's counts with the truth. Faults on demand: ``freeze_ft`` (records keep
-coming, ``ft_sequence`` stops: a stalled sensor), ``mute`` (nothing sent), ``send_raw`` (any
-datagram to the client), ``close`` and a new device on the same port (a reboot).
+coming, ``ft_sequence`` stops: a stalled sensor), ``glitch`` (one record with wild
+sequences), ``jump_ft`` (``ft_sequence`` jumps and runs on from there), ``mute`` (nothing
+sent), ``send_raw`` (any datagram to the client), ``close`` and a new device on the same port
+(a reboot). Counts saturate at the 32-bit limits, as a real sensor's.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ import numpy.typing as npt
 from vibrissa.wire.netft import Command, pack_records, parse_request
 
 __all__ = ["DeviceStats", "NetFTDevice", "SignalSpec"]
+
+_INT32_MIN, _INT32_MAX = -(1 << 31), (1 << 31) - 1
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,7 @@ class NetFTDevice:
         self._t0 = 0.0
         self._made_in_stream = 0
         self._held: bytes | None = None
+        self._glitch = (0, 0)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
         self.sock.settimeout(0.0005)
@@ -115,6 +120,17 @@ class NetFTDevice:
         self._thread.start()
 
     # -- control -------------------------------------------------------------------------
+
+    def glitch(self, rdt: int = 0, ft: int = 0) -> None:
+        """The next record goes out with its ``rdt_sequence`` and ``ft_sequence`` off by
+        these (once; the record after it is the sensor's own again)."""
+        with self._lock:
+            self._glitch = (rdt, ft)
+
+    def jump_ft(self, delta: int) -> None:
+        """``ft_sequence`` jumps by ``delta`` (back when negative) and runs on from there."""
+        with self._lock:
+            self._ft += delta
 
     def send_raw(self, data: bytes) -> None:
         """Send any datagram to the streaming client (a malformed one, for tests)."""
@@ -202,15 +218,19 @@ class NetFTDevice:
         sigma = np.array([spec.noise[0]] * 3 + [spec.noise[1]] * 3)
         load = (self.wrench_S[rows] + np.asarray(spec.bias) + np.outer(t, spec.drift)
                 + self._rng.normal(size=(n, 6)) * sigma)
-        raw = np.rint(load * self.scale).astype(np.int64)
+        raw = np.clip(np.rint(load * self.scale), _INT32_MIN, _INT32_MAX).astype(np.int64)
         self._last_raw = raw[-1]
-        counts = raw - self._bias_counts
+        counts = np.clip(raw - self._bias_counts, _INT32_MIN, _INT32_MAX)
         rdt = self._rdt + np.arange(n)
         if not self.freeze_ft:
             ft = self._ft + self.ft_step * (np.arange(n) + 1)
             self._ft = int(ft[-1])
         else:
             ft = np.full(n, self._ft)
+        if self._glitch != (0, 0):
+            rdt[0] += self._glitch[0]
+            ft[0] += self._glitch[1]
+            self._glitch = (0, 0)
         self._rdt += n
         self._made_in_stream += n
         self.stats.made += n

@@ -53,11 +53,14 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from fractions import Fraction
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+import yaml
+from mcap.records import Channel as McapChannel
+from mcap.stream_reader import StreamReader
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
@@ -360,7 +363,8 @@ _NAMED = (WhiskerWrenchArray, ContactPointArray, ContactCloud)
 @dataclass
 class ImportResult:
     """What :func:`import_ros2` wrote: wrench samples per whisker, RobotPose count, and the
-    /tf transforms that were not the robot's pose (parent -> child: count)."""
+    /tf transforms that were not the robot's pose (parent -> child: count); what was left out
+    or lost per topic, and what of the bag's MCAP files did not read (``damage``)."""
 
     path: Path
     wrenches: Counter[str] = field(default_factory=Counter)
@@ -369,6 +373,7 @@ class ImportResult:
     refused: Counter[str] = field(default_factory=Counter)  # topic -> messages left out
     undecodable: Counter[str] = field(default_factory=Counter)  # topic -> bad payloads
     unread: Counter[str] = field(default_factory=Counter)  # topic -> listed, never read
+    damage: BagDamage = field(default_factory=BagDamage)  # what of the bag's files did not read
 
     @property
     def lost(self) -> int:
@@ -391,6 +396,8 @@ class ImportResult:
         if self.unread:
             line += "; LOST, listed in the bag's metadata but not readable: " + ", ".join(
                 f"{t} {n}" for t, n in sorted(self.unread.items()))
+        if self.damage:
+            line += f"; DAMAGED bag: {self.damage.note('imported')}"
         return line
 
 
@@ -404,10 +411,12 @@ def wrench_topics_of(src: str | os.PathLike[str]) -> list[str]:
 
 
 @contextmanager
-def _open_reader(src: str | os.PathLike[str]) -> Iterator[AnyReader]:
+def _open_reader(src: str | os.PathLike[str]) -> Iterator[AnyReader | _DamagedMcap]:
     """The ROS 2 bag ``src`` open; `FileNotFoundError` when nothing is there, `ValueError`
     naming it when its files do not read (any error of the reader on their bytes: a damaged
-    or hostile file can make it raise anything from ``KeyError`` to ``MemoryError``)."""
+    or hostile file can make it raise anything from ``KeyError`` to ``MemoryError``). An MCAP
+    bag that rosbags refuses (cut off, its summary damaged) is read as far as it reads:
+    `_DamagedMcap`."""
     path = Path(src)
     if not path.exists():
         raise FileNotFoundError(f"no ROS 2 bag at {path}")
@@ -415,12 +424,131 @@ def _open_reader(src: str | os.PathLike[str]) -> Iterator[AnyReader]:
     try:
         reader.open()
     except Exception as exc:  # noqa: BLE001 - see above
-        raise ValueError(f"{path} is not a readable ROS 2 bag: "
-                         f"{(str(exc).splitlines() or [type(exc).__name__])[0]}") from None
+        why = (str(exc).splitlines() or [type(exc).__name__])[0]
+        damaged = _DamagedMcap.of(path, why)
+        if damaged is None:
+            raise ValueError(f"{path} is not a readable ROS 2 bag: {why}") from None
+        yield damaged
+        return
     try:
         yield reader
     finally:
         reader.close()
+
+
+@dataclass(frozen=True)
+class _Listed:
+    """A topic as a bag's metadata.yaml lists it."""
+
+    topic: str
+    msgtype: str
+    msgcount: int
+
+
+class _DamagedMcap:
+    """A rosbag2 folder of uncompressed MCAP files that rosbags does not open, read as
+    `vibrissa.wire.bag.BagReader` reads a bag: the files' records in order up to the damage
+    (complete chunks, damaged chunks skipped); the topics from metadata.yaml. The reader
+    interface of ``AnyReader`` that `import_ros2` uses, and ``damage`` after `messages`."""
+
+    def __init__(self, files: list[Path], connections: list[_Listed]) -> None:
+        self.files = files
+        self.connections = connections
+        self.damage = BagDamage()
+
+    @classmethod
+    def of(cls, path: Path, why: str) -> _DamagedMcap | None:
+        """The bag at ``path`` if its metadata.yaml reads and names uncompressed MCAP files
+        that start with an MCAP header, else None; `ValueError` for a file cut inside its
+        header (nothing in it can be read)."""
+        try:
+            info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+            if info["storage_identifier"] != "mcap" or (info.get("compression_mode") or "none").lower() != "none":
+                return None
+            files = [path / PurePath(name).name for name in info["relative_file_paths"]]
+            connections = [_Listed(str(t["topic_metadata"]["name"]), str(t["topic_metadata"]["type"]),
+                                   int(t["message_count"])) for t in info["topics_with_message_count"]]
+        except Exception:  # noqa: BLE001 - metadata.yaml damaged too: the bag does not read
+            return None
+        for file in files:
+            if not file.is_file():
+                return None
+            size = file.stat().st_size
+            with open(file, "rb") as f:
+                head = f.read(_MCAP_HEADER_AT)
+            if head[:len(_MCAP_MAGIC)] != _MCAP_MAGIC[:len(head)]:
+                return None
+            whole = (len(head) == _MCAP_HEADER_AT and head[len(_MCAP_MAGIC)] == _MCAP_HEADER_OP
+                     and size >= _MCAP_HEADER_AT + int.from_bytes(head[-8:], "little"))
+            if not whole:
+                raise ValueError(f"{path} is not a readable ROS 2 bag: {file.name} is cut off "
+                                 f"inside its MCAP header ({size} bytes; {why})")
+        return cls(files, connections)
+
+    def messages(self, connections: Sequence[_Listed]) -> Iterator[tuple[_Listed, int, bytes]]:
+        """(connection, log time ns, CDR bytes) of ``connections``' readable messages."""
+        by_topic = {c.topic: c for c in connections}
+        damaged_chunks = unreadable = 0
+        truncated = False
+        for file in self.files:
+            reader = BagReader(file, topics=by_topic)
+            for record in reader:
+                yield by_topic[record.topic], record.log_time_ns, record.payload
+            damaged_chunks += reader.damaged_chunks
+            truncated = truncated or reader.truncated
+            unreadable += reader.unreadable_bytes
+            if reader.truncated:  # the messages of an uncompressed chunk cut off
+                for topic, t_ns, payload in _cut_chunk(file, reader.unreadable_bytes):
+                    if topic in by_topic:
+                        yield by_topic[topic], t_ns, payload
+        self.damage = BagDamage(damaged_chunks, truncated, unreadable)
+
+    @staticmethod
+    def deserialize(raw: bytes, msgtype: str) -> Any:
+        return TYPESTORE.deserialize_cdr(raw, msgtype)
+
+
+def _cut_chunk(file: Path, unreadable: int) -> list[tuple[str, int, bytes]]:
+    """(topic, log time ns, payload) of the whole messages in the uncompressed chunk that the
+    file's last ``unreadable`` bytes begin with (rosbags writes uncompressed chunks of 1 MiB:
+    a cut in one loses only what follows the cut), in log-time order; none for anything else.
+    The channels are those of the file's records that read."""
+    channels: dict[int, str] = {}
+    with open(file, "rb") as f:
+        try:
+            for record in StreamReader(f, emit_chunks=False, validate_crcs=False).records:
+                if isinstance(record, McapChannel):
+                    channels[record.id] = record.topic
+        except Exception:  # noqa: BLE001 - the damage: the channels up to it are what counts
+            pass
+        f.seek(file.stat().st_size - unreadable)
+        tail = f.read()
+    # chunk: opcode, length u64, start u64, end u64, uncompressed size u64, crc u32,
+    # compression (u32 length + bytes), records length u64, records
+    if len(tail) < 41 or tail[0] != _MCAP_CHUNK_OP or tail[37:41] != b"\0\0\0\0":
+        return []
+    out: list[tuple[str, int, bytes]] = []
+    at = 49
+    while at + 9 <= len(tail):
+        op, length = tail[at], int.from_bytes(tail[at + 1:at + 9], "little")
+        body = tail[at + 9:at + 9 + length]
+        if len(body) < length:
+            break
+        if op == _MCAP_CHANNEL_OP and len(body) >= 8:
+            n = int.from_bytes(body[4:8], "little")
+            channels[int.from_bytes(body[:2], "little")] = body[8:8 + n].decode(errors="replace")
+        elif op == _MCAP_MESSAGE_OP and len(body) >= 22:
+            topic = channels.get(int.from_bytes(body[:2], "little"))
+            if topic is not None:
+                out.append((topic, int.from_bytes(body[6:14], "little"), body[22:]))
+        at += 9 + length
+    return sorted(out, key=lambda m: m[1])
+
+
+_MCAP_CHUNK_OP, _MCAP_CHANNEL_OP, _MCAP_MESSAGE_OP = 0x06, 0x04, 0x05
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_MCAP_HEADER_OP = 0x01
+_MCAP_HEADER_AT = len(_MCAP_MAGIC) + 9  # the magic, the header's opcode and length
 
 
 def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
@@ -432,7 +560,9 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
     Parameters
     ----------
     src
-        A rosbag2 folder (any storage rosbags reads: mcap, sqlite3).
+        A rosbag2 folder (any storage rosbags reads: mcap, sqlite3); an MCAP bag cut off or
+        damaged is read as far as it reads (its complete chunks, in order), the damage in the
+        result's ``damage``.
     dst
         The vibrissa ``.mcap`` bag to write (overwritten).
     wrench_topics
@@ -456,9 +586,10 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
     FileNotFoundError
         Nothing at ``src``.
     ValueError
-        ``src`` is not a readable ROS 2 bag (nor are its records from some point on: nothing is
-        written then), a wrench topic is missing or of another type, /tf is of another type,
-        or it has transforms but none ``map_frame -> robot_frame``.
+        ``src`` is not a readable ROS 2 bag (an MCAP file cut inside its header; records of
+        another storage that do not read from some point on: nothing is written then), a
+        wrench topic is missing or of another type, /tf is of another type, or it has
+        transforms but none ``map_frame -> robot_frame``.
     """
     path = Path(src)
     if not wrench_topics:
@@ -515,6 +646,8 @@ def import_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str],
                     seq[name] += 1
                     result.wrenches[name] += 1
             result.unread = +(listed - read)
+            if isinstance(reader, _DamagedMcap):
+                result.damage = reader.damage
     except _Damaged as exc:
         Path(dst).unlink(missing_ok=True)
         raise ValueError(str(exc)) from None
@@ -530,7 +663,8 @@ class _Damaged(Exception):
     """The bag's records cannot be read on from some point."""
 
 
-def _records(reader: AnyReader, connections: list[Any], path: Path, read: Counter[str]
+def _records(reader: AnyReader | _DamagedMcap, connections: list[Any], path: Path,
+             read: Counter[str]
              ) -> Iterator[tuple[Any, int, bytes]]:
     """``reader.messages(connections)``; a damaged record (any error of the reader on the
     file's bytes) ends it with `_Damaged`, naming how far it got."""

@@ -497,3 +497,37 @@ def test_a_damaged_ros2_bag_is_refused_or_its_losses_are_counted(
         assert accounted >= 12, (topic, result)
     assert result.lost == sum(result.undecodable.values()) + sum(result.unread.values())
     assert sum(1 for r in BagReader(out)) == sum(result.wrenches.values()) + result.poses
+
+
+@pytest.mark.parametrize("keep", [0.999, 0.5, 20 / 1e9])
+def test_a_cut_ros2_bag_is_imported_as_far_as_it_reads(
+        demo: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        keep: float) -> None:
+    """The exported demo's .mcap cut at 99.9 % and 50 %: what was before the cut arrives as the
+    uncut import has it, the summary names the damage, exit 4 (the whole bag was refused:
+    "File end magic is invalid"). Cut inside its header (20 bytes): one line, exit 2."""
+    ros2 = tmp_path / "ros2"
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(demo["bag"]), str(ros2)]) == 0
+    whole = tmp_path / "whole.mcap"
+    assert vibrissa_main(["bag", "import", str(ros2), str(whole)]) == 0
+    (mcap,) = ros2.glob("*.mcap")
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:max(20, int(len(data) * keep))])
+    capsys.readouterr()
+    out = tmp_path / "cut.mcap"
+    status = vibrissa_main(["bag", "import", str(ros2), str(out)])
+    err = capsys.readouterr().err
+    if keep < 1e-6:
+        assert status == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+        assert err.startswith(f"vibrissa bag import: error: {ros2} is not a readable ROS 2 bag: "
+                              f"{mcap.name} is cut off inside its MCAP header (20 bytes"), err
+        assert not out.exists()
+        return
+    assert status == 4, err
+    assert "DAMAGED bag: cut off at the end;" in err and "unreadable bytes" in err, err
+    expected = [(r.topic, r.log_time_ns, r.payload) for r in BagReader(whole)]
+    got = [(r.topic, r.log_time_ns, r.payload) for r in BagReader(out)]
+    assert got == expected[:len(got)]
+    assert len(got) > (0.98 if keep > 0.9 else 0.3) * len(expected)
+    if len(got) < len(expected):
+        assert "LOST, listed in the bag's metadata but not readable" in err

@@ -78,3 +78,16 @@ def test_every_record_received_is_taken_or_stale_exactly_once() -> None:
     received = r.counters["received"]
     assert received > 0 and r.counters["stale"] > 0
     assert taken + r.counters["stale"] == received
+
+
+def test_records_that_convert_to_a_non_finite_wrench_are_counted_not_taken() -> None:
+    # a calibration the driver refuses (1e-300 counts per N) makes a full-scale count inf N:
+    # such a record is counted non_finite and left out, the others are taken
+    params = NetFTParams(ft_rate_hz=RATE_HZ, max_latency_s=1.0, stall_s=10.0)
+    r = NetFTReader(params, NetFTConfig(1e-300, CPF))
+    counts = np.zeros((3, 6), dtype=np.int64)
+    counts[1, 0] = (1 << 31) - 1
+    r.read(pack_records([1, 2, 3], [1, 2, 3], [0] * 3, counts), t_receive=1.0)
+    stamp, f0, m0 = r.take()
+    assert len(stamp) == 2 and np.isfinite(f0).all() and np.isfinite(m0).all()
+    assert r.counters["non_finite"] == 1 and r.counters["received"] == 3

@@ -131,8 +131,83 @@ def test_malformed_datagrams_are_counted() -> None:
         assert len(tracker.feed(bad, 0.0)) == 0
     far = records(1 + (1 << 21), 1)[0]  # a plausible size, an implausible sequence
     assert len(tracker.feed(far, 0.0)) == 0
-    assert tracker.counters["malformed"] == 6
+    assert tracker.counters["malformed"] == 5 and tracker.counters["sequence_anomalies"] == 1
     assert tracker.feed(good[1], 0.0).rdt.tolist() == [2]  # the stream goes on
+
+
+def _stream(tracker: StreamTracker, rdt: np.ndarray, ft: np.ndarray, t0: float = 100.0,
+            period_s: float = 1e-3) -> tuple[list[int], list[float]]:
+    """Feed records (rdt, ft) one a datagram, received ``period_s`` apart from ``t0`` (a
+    measured latency of 0.5 ms); the rdt and stamps published."""
+    rdt_out: list[int] = []
+    stamps: list[float] = []
+    for k, (r, f) in enumerate(zip(rdt.tolist(), ft.tolist(), strict=True)):
+        out = tracker.feed(pack_records([r], [f], [0], np.zeros((1, 6))), t0 + k * period_s + 5e-4)
+        rdt_out += out.rdt.tolist()
+        stamps += out.t_sensor.tolist()
+    return rdt_out, stamps
+
+
+@pytest.mark.parametrize("what", ["ft+2^30", "ft-2^30", "rdt+2^20", "rdt-2^20"])
+def test_one_wild_record_is_an_anomaly_and_the_stream_goes_on(what: str) -> None:
+    # one record of 3000 (1 kHz) with a wild sequence, in place of the sensor's own: it is
+    # counted as an anomaly and dropped (its place counts as lost), nothing else changes; the
+    # stamps keep the sensor's 1 ms (before: 1000 identical stamps after ft+2^30, or
+    # 1 048 575 records lost and every later one malformed after rdt+2^20)
+    rdt, ft = np.arange(1, 3001), np.arange(5000, 8000)
+    field, jump = what[:-5].rstrip("+-"), (1 if "+" in what else -1) << int(what[-2:])
+    (rdt if field == "rdt" else ft)[1000] += jump
+    tracker = StreamTracker(ft_rate_hz=1000.0)
+    got, stamps = _stream(tracker, rdt % (1 << 32), ft % (1 << 32))
+    c = tracker.counters
+    assert (c["sequence_anomalies"], c["lost"], c["malformed"], c["received"]) == (1, 1, 0, 2999)
+    assert got == [k for k in range(1, 3001) if k != 1001]
+    steps = np.diff(stamps)
+    assert np.all(steps > 0)
+    assert np.abs(np.delete(steps, 999) - 1e-3).max() < 1e-9  # 2 ms across the dropped one
+
+
+@pytest.mark.parametrize("jump", [-(1 << 30), -5000, 1 << 30, 5000])
+def test_sequences_that_jump_for_good_resynchronise_at_once(jump: int) -> None:
+    # the sensor's ft_sequence jumps and runs on from there (a counter reset, or garbage):
+    # one anomaly, one record dropped, then the stream is back with stamps that follow the
+    # sensor's 1 ms again, strictly increasing throughout (before: backwards jumps froze the
+    # stamps until the host clock caught up, 5 s or 12 days here)
+    rdt, ft = np.arange(1, 3001), np.arange(5000, 8000)
+    ft[1000:] += jump
+    tracker = StreamTracker(ft_rate_hz=1000.0)
+    got, stamps = _stream(tracker, rdt, ft % (1 << 32))
+    c = tracker.counters
+    assert (c["sequence_anomalies"], c["lost"], c["received"]) == (1, 0, 2999)
+    assert got == [k for k in range(1, 3001) if k != 1001]
+    steps = np.diff(stamps)
+    assert np.all(steps > 0)
+    assert np.abs(steps[1000:] - 1e-3).max() < 1e-9  # on the sensor's clock again at once
+    assert stamps[-1] <= 100.0 + 2999e-3 + 5e-4  # and never after a record's receipt
+
+
+def test_stamps_strictly_increase_when_the_offset_moves_down() -> None:
+    # a latency of 5 ms, then 0.5 ms: the offset moves down 4.5 ms; the stamps do not repeat,
+    # they advance at half the sensor's pace (0.5 ms a record) until they meet it (before:
+    # nine identical stamps)
+    tracker = StreamTracker(ft_rate_hz=1000.0)
+    stamps = []
+    for k in range(40):
+        latency = 5e-3 if k < 20 else 5e-4
+        stamps += tracker.feed(records(k + 1, 1)[0], 10.0 + k * 1e-3 + latency).t_sensor.tolist()
+    steps = np.diff(stamps)
+    assert np.all(steps >= 0.5e-3 - 1e-12)
+    np.testing.assert_allclose(steps[19:28], 0.5e-3, atol=1e-12)
+    np.testing.assert_allclose(steps[28:], 1e-3, atol=1e-12)
+    assert stamps[-1] == pytest.approx(10.0 + 39e-3 + 5e-4, abs=1e-12)
+
+
+def test_records_of_a_frozen_ft_sequence_are_counted_not_published() -> None:
+    tracker = StreamTracker(ft_rate_hz=1000.0)
+    frozen = pack_records(np.arange(1, 6), [7, 8, 8, 8, 9], np.zeros(5), np.zeros((5, 6)))
+    out = tracker.feed(frozen, 1.0)
+    assert out.ft.tolist() == [7, 8, 9] and np.all(np.diff(out.t_sensor) > 0)
+    assert tracker.counters["ft_frozen"] == 2 and tracker.counters["lost"] == 0
 
 
 @FUZZ
@@ -145,15 +220,22 @@ def test_malformed_datagrams_are_counted() -> None:
 def test_any_datagrams_never_raise_and_keep_the_books(datagrams: list[bytes], _: int) -> None:
     tracker = StreamTracker()
     published: list[int] = []
+    stamps: list[float] = []
     for i, data in enumerate(datagrams):
-        published += tracker.feed(data, float(i)).rdt.tolist()
+        out = tracker.feed(data, float(i))
+        published += out.rdt.tolist()
+        stamps += out.t_sensor.tolist()
         tracker.check_stall(float(i))
     c = tracker.counters
     assert c["datagrams"] == len(datagrams)
     assert all(v >= 0 for v in c.values())
-    # what is published is strictly increasing (modulo 2^32 near the start)
-    assert all(0 < (b - a) % (1 << 32) < (1 << 31) for a, b in zip(published, published[1:], strict=False))
-    assert len(published) == c["received"]
+    # what is published is strictly increasing (modulo 2^32 near the start), in sensor time
+    # always, in rdt_sequence unless the stream resynchronised to a jump
+    assert np.all(np.diff(stamps) > 0)
+    if not c["sequence_anomalies"]:
+        assert all(0 < (b - a) % (1 << 32) < (1 << 31)
+                   for a, b in zip(published, published[1:], strict=False))
+    assert len(published) == len(stamps) == c["received"]
 
 
 @FUZZ

@@ -1,6 +1,6 @@
 """The docs stay true where a machine can check them: the README's length, every relative link,
-the keys of scene and launch files, the packaged launch files' arguments, the nodes'
-parameters, and the scene-file example."""
+every module path and repository file they name, the keys of scene and launch files, the
+packaged launch files' arguments, the nodes' parameters, and the scene-file example."""
 
 from __future__ import annotations
 
@@ -75,6 +75,74 @@ def test_relative_links_point_to_files(page: Path) -> None:
         if not (page.parent / target.split("#")[0]).exists():
             missing.append(target)
     assert not missing, f"{page.name} links to missing files: {missing}"
+
+
+_DOTTED = re.compile(r"(?<![\w./-])vibrissa(?:\.[A-Za-z_]\w*)+")
+_PLACEHOLDERS = {"vibrissa.nodes.NAME"}  # the node command line's pattern (NODES.md)
+_FOLDERS = ("vibrissa", "msgs", "wire", "formats", "mapping", "streaming", "figures", "runtime",
+            "launch", "nodes", "cli", "tests", "benchmarks", "scripts", "docs")
+_FILE = re.compile(rf"`((?:{'|'.join(_FOLDERS)})/[\w./-]+\.(?:py|yaml|json|md|csv))`")
+
+
+def resolve(dotted: str) -> object:
+    """The object a dotted name names: its longest importable module prefix, then attributes
+    (``vibrissa.msgs.codec.RETIRED_TYPES``). ImportError or AttributeError when it names
+    nothing."""
+    parts = dotted.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            found: object = importlib.import_module(".".join(parts[:cut]))
+        except ModuleNotFoundError as exc:
+            if exc.name is None or not ".".join(parts[:cut]).startswith(exc.name):
+                raise  # a module that exists but fails to import
+            continue
+        for attribute in parts[cut:]:
+            found = getattr(found, attribute)
+        return found
+    raise ImportError(dotted)
+
+
+def dotted_names(text: str) -> set[str]:
+    """Every ``vibrissa.x.y`` path in ``text`` (not a file path, not a placeholder; a trailing
+    full stop is the sentence's)."""
+    return {name.rstrip(".") for name in _DOTTED.findall(text)} - _PLACEHOLDERS
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_every_module_path_named_imports(page: Path) -> None:
+    missing = []
+    for name in sorted(dotted_names(page.read_text(encoding="utf-8"))):
+        try:
+            resolve(name)
+        except (ImportError, AttributeError) as exc:
+            missing.append(f"{name} ({exc})")
+    assert not missing, f"{page.name} names what does not exist: {missing}"
+
+
+def test_a_stale_module_path_is_caught() -> None:
+    text = ("`vibrissa.mapping.fit_frame`, `vibrissa.msgs.codec.RETIRED_TYPES`; the stale "
+            "`vibrissa.gp_surface`, `vibrissa.nodes.surface_fit` and `vibrissa.msgs.encode`.")
+    names = dotted_names(text)
+    assert names == {"vibrissa.mapping.fit_frame", "vibrissa.msgs.codec.RETIRED_TYPES",
+                     "vibrissa.gp_surface", "vibrissa.nodes.surface_fit", "vibrissa.msgs.encode"}
+    for stale in ("vibrissa.gp_surface", "vibrissa.nodes.surface_fit", "vibrissa.msgs.encode"):
+        with pytest.raises((ImportError, AttributeError)):
+            resolve(stale)
+    resolve("vibrissa.mapping.fit_frame")
+    resolve("vibrissa.msgs.codec.RETIRED_TYPES")
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_every_repository_file_named_exists(page: Path) -> None:
+    missing = sorted({path for path in _FILE.findall(page.read_text(encoding="utf-8"))
+                      if not (ROOT / path).exists()})
+    assert not missing, f"{page.name} names files that do not exist: {missing}"
+
+
+def test_a_stale_file_path_is_caught() -> None:
+    assert _FILE.findall("`vibrissa/gp_surface.py` and `mapping/gp_surface.py`") == [
+        "vibrissa/gp_surface.py", "mapping/gp_surface.py"]
+    assert not (ROOT / "vibrissa/gp_surface.py").exists()
 
 
 # -- scene files -----------------------------------------------------------------------------

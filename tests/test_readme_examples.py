@@ -11,8 +11,8 @@ README = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
 BLOCKS = re.findall(r"```python\n(.*?)```", README, flags=re.DOTALL)
 
 
-def test_the_readme_has_a_python_example() -> None:
-    assert len(BLOCKS) >= 1
+def test_the_readme_has_its_python_examples() -> None:
+    assert len(BLOCKS) >= 2
 
 
 @pytest.mark.parametrize("index", range(len(BLOCKS)))

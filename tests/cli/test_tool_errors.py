@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -238,21 +237,38 @@ def test_counts_and_waits_that_mean_nothing_are_refused(
     assert capsys.readouterr().err.splitlines()[-1].endswith(message)
 
 
-@pytest.mark.parametrize("delay_s", [0.01, 0.05])  # the import takes 0.3 s here
-def test_ctrl_c_while_the_package_loads_ends_quietly_with_130(delay_s: float) -> None:
+# The child waits inside the import of GATE, as if that import were slow, until the signal comes.
+GATE = """\
+import sys, time
+
+class Gate:
+    def find_spec(self, name, path=None, target=None):
+        if name == {module!r}:
+            sys.meta_path.remove(self)
+            print("ready", flush=True)
+            time.sleep(120)  # until SIGINT
+        return None
+
+sys.meta_path.insert(0, Gate())
+sys.argv = ["vibrissa", "sweep", "--help"]
+from _vibrissa_entry import main
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("module", ["vibrissa", "numba"])  # the package's first module, one deep in
+def test_ctrl_c_while_the_package_loads_ends_quietly_with_130(module: str) -> None:
     """The command's entry point (``vibrissa`` runs ``_vibrissa_entry:main``) catches a Ctrl-C
     during the package's import (numpy, scipy, numba: 0.3-0.5 s), which the interpreter would
-    otherwise end with a traceback of the import. The signal comes at least 10 ms after
-    ``ready``, once the child is inside the entry point's ``try`` (a few bytecodes after it)."""
+    otherwise end with a traceback of the import. The child says ``ready`` from inside the
+    import of ``module`` (within the entry point's ``try``) and waits there for the signal, so
+    that the signal lands during the import however slowly the child or the test is scheduled."""
     (script,) = [ep for ep in entry_points(group="console_scripts") if ep.name == "vibrissa"]
     assert script.value == "_vibrissa_entry:main"
-    code = ("import sys; sys.argv = ['vibrissa', 'sweep', '--help']; "
-            "from _vibrissa_entry import main; print('ready', flush=True); sys.exit(main())")
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", GATE.format(module=module)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stdout.readline() == "ready\n"
-    time.sleep(delay_s)
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=240)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err
     assert proc.returncode == 130

@@ -22,7 +22,7 @@ from vibrissa.msgs import NodeStatus, SensorCommand, WhiskerWrench
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 from vibrissa.wire.netft_device import NetFTDevice, SignalSpec
 
-TIMEOUT_S = 10.0
+TIMEOUT_S = 60.0  # a deadline, not a wait: a driver starts (imports) in ~10 s at a load of 20
 FQN = "/s/netft"
 CPF = 1e6
 

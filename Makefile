@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.vibrissa-installed
 OUT ?= out
 
-.PHONY: setup demo study test lint bench clean
+.PHONY: setup demo study test check lint bench clean
 
 setup: $(STAMP)
 
@@ -36,6 +36,13 @@ test: setup
 	$(PY) -m ruff check vibrissa msgs wire formats runtime launch nodes cli _vibrissa_entry.py tests benchmarks scripts docs/examples
 	$(PY) -m mypy vibrissa msgs wire formats runtime launch nodes cli _vibrissa_entry.py scripts docs/examples
 	$(PY) -m pytest -p no:dash -n auto
+
+# The fast loop: lint, types and the tests that start no process and open no socket (the tests
+# not marked `live`, see tests/conftest.py): the core and its physics, formats, the codec, node logic.
+check: setup
+	$(PY) -m ruff check vibrissa msgs wire formats runtime launch nodes cli _vibrissa_entry.py tests benchmarks scripts docs/examples
+	$(PY) -m mypy vibrissa msgs wire formats runtime launch nodes cli _vibrissa_entry.py scripts docs/examples
+	$(PY) -m pytest -p no:dash -n auto -m "not live"
 
 bench: setup
 	$(PY) benchmarks/bench_mechanics.py

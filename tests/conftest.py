@@ -44,7 +44,7 @@ PAPER_MU = (0.0, 0.1, 0.2, 0.3, 0.4)
 LIVE_FIXTURES = frozenset({"context", "proxy", "endpoints"})
 # names (globals or attributes) that start a process or open a socket
 LIVE_NAMES = frozenset({"subprocess", "Popen", "executable", "multiprocessing", "socket", "zmq",
-                        "Proxy", "Publisher", "Subscriber"})
+                        "Proxy", "Publisher", "Subscriber", "websockets", "start_server"})
 TESTS = Path(__file__).parent
 
 T = TypeVar("T")

@@ -4,7 +4,8 @@ Fixtures: the paper's 25 sweeps (``paper_sweeps``), computed once per run even w
 pytest-xdist runs the tests in several workers (:func:`computed_once`); per test, a ZeroMQ
 ``context``, a running ``proxy`` on free loopback ports and its ``endpoints``.
 
-Marker ``live``: the test starts a process or opens a socket (ZeroMQ, UDP, TCP). It is set
+Marker ``live``: the test starts a process or opens a socket (ZeroMQ, UDP, TCP); a pool of the
+core's worker processes (``simulate(scene, workers=2)``, forked) is no such process. It is set
 here, at collection, on every test that uses the ``context``, ``proxy`` or ``endpoints``
 fixture, or whose code names one of :data:`LIVE_NAMES` (``subprocess``, ``zmq``, ``socket``,
 ``sys.executable``, ...): the test function's own code and, followed from it, the functions,
@@ -19,7 +20,6 @@ node logic without sockets); ``make test`` runs all: no test is in neither.
 from __future__ import annotations
 
 import inspect
-import multiprocessing.process
 import os
 import pickle
 import socket
@@ -43,8 +43,8 @@ PAPER_MU = (0.0, 0.1, 0.2, 0.3, 0.4)
 
 LIVE_FIXTURES = frozenset({"context", "proxy", "endpoints"})
 # names (globals or attributes) that start a process or open a socket
-LIVE_NAMES = frozenset({"subprocess", "Popen", "executable", "multiprocessing", "socket", "zmq",
-                        "Proxy", "Publisher", "Subscriber", "websockets", "start_server"})
+LIVE_NAMES = frozenset({"subprocess", "Popen", "executable", "socket", "zmq", "Proxy", "Publisher",
+                        "Subscriber", "websockets", "start_server"})
 TESTS = Path(__file__).parent
 
 T = TypeVar("T")
@@ -128,8 +128,6 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         return
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(subprocess.Popen, "_execute_child", _refuse("starts a process"))
-        patch.setattr(os, "fork", _refuse("forks"))
-        patch.setattr(multiprocessing.process.BaseProcess, "start", _refuse("starts a process"))
         patch.setattr(socket.socket, "__init__", _refuse("opens a socket"))
         patch.setattr(zmq.Context, "socket", _refuse("opens a ZeroMQ socket"))
         yield

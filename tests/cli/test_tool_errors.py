@@ -157,6 +157,7 @@ def wrench_bag(path: Path) -> Path:
     return path
 
 
+@pytest.mark.live  # bag play, in process, opens ZeroMQ sockets
 def test_bag_topics_in_any_order_and_the_ones_a_bag_lacks_are_named(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """--topics takes topics comma-separated, repeated or several after it, and never
@@ -207,6 +208,7 @@ def test_bag_topics_in_any_order_and_the_ones_a_bag_lacks_are_named(
                              f"on domain {domain} ")
 
 
+@pytest.mark.live  # bag play, in process, opens ZeroMQ sockets
 def test_a_play_whose_nodes_never_come_says_so_and_exits_1(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """--wait-for a node that never comes: status 1 and why, not Ctrl-C's 130."""

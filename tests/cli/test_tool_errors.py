@@ -240,8 +240,11 @@ def test_counts_and_waits_that_mean_nothing_are_refused(
 
 
 # The child waits inside the import of GATE, as if that import were slow, until the signal comes.
+# SIGINT as a shell leaves it: a test run may have left it ignored in the worker, the child's parent.
 GATE = """\
-import sys, time
+import signal, sys, time
+
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 class Gate:
     def find_spec(self, name, path=None, target=None):

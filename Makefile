@@ -5,8 +5,10 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.vibrissa-installed
 OUT ?= out
+# The packages' folders (pyproject.toml's package-dir) and the entry point
+SRC := vibrissa msgs wire formats mapping figures streaming runtime launch nodes cli _vibrissa_entry.py
 
-.PHONY: setup demo study test lint bench clean
+.PHONY: setup demo study test check lint bench clean
 
 setup: $(STAMP)
 
@@ -20,7 +22,7 @@ $(STAMP): pyproject.toml
 	# The package's bytecode, once, as pip compiles a regular install's: an editable install's
 	# sources are otherwise compiled at every start where PYTHONDONTWRITEBYTECODE is set
 	# (0.2-0.3 s of each command on a 2-core machine; a changed file is recompiled as usual).
-	$(PY) -m compileall -q vibrissa msgs wire formats mapping figures streaming runtime launch nodes cli _vibrissa_entry.py
+	$(PY) -m compileall -q $(SRC)
 	# numba's cache of compiled kernels, once (~30 s), so that a first command is not late by it
 	$(PY) scripts/warm_up.py
 	touch $(STAMP)
@@ -33,9 +35,16 @@ study: setup
 
 test: setup
 	bash scripts/ensure_test_deps.sh
-	$(PY) -m ruff check vibrissa msgs wire formats mapping figures streaming runtime launch nodes cli _vibrissa_entry.py tests benchmarks scripts docs/examples
-	$(PY) -m mypy vibrissa msgs wire formats mapping figures streaming runtime launch nodes cli _vibrissa_entry.py scripts docs/examples
+	$(PY) -m ruff check $(SRC) tests benchmarks scripts docs/examples
+	$(PY) -m mypy $(SRC) scripts docs/examples
 	$(PY) -m pytest -p no:dash -n auto
+
+# The fast loop: lint, types and the tests that start no process and open no socket (the tests
+# not marked `live`, see tests/conftest.py): the core and its physics, formats, the codec, node logic.
+check: setup
+	$(PY) -m ruff check $(SRC) tests benchmarks scripts docs/examples
+	$(PY) -m mypy $(SRC) scripts docs/examples
+	$(PY) -m pytest -p no:dash -n auto -m "not live"
 
 bench: setup
 	$(PY) benchmarks/bench_mechanics.py

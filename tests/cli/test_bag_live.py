@@ -17,7 +17,7 @@ from vibrissa.nodes.recorder import RecorderParams, RecordResult, record, subscr
 from vibrissa.wire import Endpoints, Publisher, Subscriber
 from vibrissa.wire.bag import BagReader, BagWriter, play_bag
 
-TIMEOUT_S = 5.0
+TIMEOUT_S = 30.0  # a deadline (thread joins, receives until n arrived) on a loaded machine
 
 
 def wrench(i: int) -> WhiskerWrenchArray:

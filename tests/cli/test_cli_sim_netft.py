@@ -18,7 +18,7 @@ import pytest
 from vibrissa.cli.main import main
 from vibrissa.nodes.netft_sim import NetFTSimParams, sensor_signal
 
-TIMEOUT_S = 10.0
+TIMEOUT_S = 60.0  # a deadline: the simulator process starts (imports) in over 10 s at a load of 20
 RECORD = struct.Struct(">III6i")  # rdt_sequence, ft_sequence, status, Fx Fy Fz Tx Ty Tz counts
 BIAS = (0.01, -0.02, 0.003, 0.0004, -0.0005, 0.0006)
 

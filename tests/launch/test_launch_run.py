@@ -73,7 +73,7 @@ def launch(path: Path, *words: str, **kwargs: Any) -> tuple[int, str, str]:
     return finish(start(path, *words, **kwargs))
 
 
-def wait_for(predicate: Callable[[], bool], what: str, timeout: float = 10.0) -> None:
+def wait_for(predicate: Callable[[], bool], what: str, timeout: float = TIMEOUT_S) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if predicate():
@@ -268,7 +268,7 @@ def test_signal_stops_all_children_at_once_and_escalates_per_node(
 
     assert rc == 128 + signum
     children = pids(pid_file) + pids(grandchild_file)
-    wait_for(lambda: not any(alive(pid) for pid in children), "no child left", timeout=5)
+    wait_for(lambda: not any(alive(pid) for pid in children), "no child left")
     assert "'stubborn' still running 0.5 s after SIGINT; escalating" in err
     assert "[second] second interrupted" in out and "[first] first interrupted" in out
     assert "stopped by launcher (killed by SIGTERM)" in err  # stubborn
@@ -330,7 +330,7 @@ def test_nodes_die_with_a_killed_launcher_and_the_next_launch_cleans_up(tmp_path
         assert len(left) == 1
         proc.kill()  # SIGKILL: the launcher cleans up nothing
         proc.communicate(timeout=TIMEOUT_S)
-        wait_for(lambda: not alive(node_pid), "the node to die with its launcher", timeout=5.0)
+        wait_for(lambda: not alive(node_pid), "the node to die with its launcher")
         assert left[0].exists()  # nobody removed it yet
         assert str(left[0]) in remove_orphaned_params_dirs()  # what the next launch does first
         assert not left[0].exists()

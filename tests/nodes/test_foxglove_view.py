@@ -72,9 +72,14 @@ def test_a_client_sees_the_robot_descriptions_wrench_channels_before_any_wrench(
                     advertised.update({c["topic"]: c["id"] for c in op["channels"]})
             assert {t for t in advertised if t.startswith("/whiskers/")} == {
                 "/whiskers/w0/wrench", "/whiskers/w1/wrench", "/whiskers/w2/wrench"}
+            channel = view._wrench["w1"]
+            assert not channel.has_sinks()
             ws.send(json.dumps({"op": "subscribe", "subscriptions": [
                 {"id": 7, "channelId": advertised["/whiskers/w1/wrench"]}]}))
-            time.sleep(0.2)  # the server takes the subscription
+            deadline = time.monotonic() + 60.0
+            while not channel.has_sinks():  # until the server has taken the subscription
+                assert time.monotonic() < deadline, "the server never took the subscription"
+                time.sleep(0.01)
             view.handle("/robot/wrench", WhiskerWrenchArray(
                 stamp=1.5, seq=4, whisker_ids=["w1"], frame_ids=["w1/clamp"], f0=[[1.0, 0.0, 0.0]],
                 m0=[[0.0, 2.0, 0.0]]), 10.0)

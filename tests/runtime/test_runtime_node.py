@@ -19,7 +19,7 @@ from vibrissa.runtime import Node
 from vibrissa.runtime.node import NodeError
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Subscriber
 
-TIMEOUT_S = 3.0
+TIMEOUT_S = 30.0  # a deadline: heartbeat threads starved on a loaded machine
 
 
 def node(name: str, endpoints: Endpoints, namespace: str = "/w0", **kw: Any) -> Node:

@@ -283,6 +283,7 @@ def test_config_from_netftapi2_xml() -> None:
             parse_config(bad)
 
 
+@pytest.mark.live  # an HTTP server on loopback
 def test_config_read_over_http() -> None:
     class Handler(http.server.BaseHTTPRequestHandler):
         def do_GET(self) -> None:  # noqa: N802 - the http.server API
@@ -332,6 +333,7 @@ def test_a_drain_fed_at_once_is_the_datagrams_fed_in_turn(order: list[int], drop
     np.testing.assert_allclose([t for _, t in batched], [t for _, t in singly], atol=1e-12)
 
 
+@pytest.mark.live  # UDP sockets
 def test_a_second_device_on_a_taken_port_is_refused() -> None:
     # two simulated sensors on one port would split the driver's stream between them
     from vibrissa.wire.netft_device import NetFTDevice

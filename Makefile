@@ -40,11 +40,12 @@ test: setup
 	$(PY) -m pytest -p no:dash -n auto
 
 # The fast loop: lint, types and the tests that start no process and open no socket (the tests
-# not marked `live`, see tests/conftest.py): the core and its physics, formats, the codec, node logic.
+# not marked `live`, see tests/conftest.py) and are not long batteries (`slow`): the core and
+# its physics, formats, the codec, node logic.
 check: setup
 	$(PY) -m ruff check $(SRC) tests benchmarks scripts docs/examples
 	$(PY) -m mypy $(SRC) scripts docs/examples
-	$(PY) -m pytest -p no:dash -n auto -m "not live"
+	$(PY) -m pytest -p no:dash -n auto -m "not live and not slow"
 
 bench: setup
 	$(PY) benchmarks/bench_mechanics.py

@@ -53,6 +53,8 @@ T = TypeVar("T")
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "live: starts a process or opens a socket (set by "
                             "tests/conftest.py; `make check` leaves these out)")
+    config.addinivalue_line("markers", "slow: a long physics battery or scene (seconds of CPU "
+                            "each); `make check` leaves these out, `make test` runs them")
 
 
 def _names(code: types.CodeType) -> Iterator[str]:

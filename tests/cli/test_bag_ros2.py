@@ -463,6 +463,7 @@ def small_ros2_bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, byte
     return src, mcap.read_bytes()
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(cut=st.one_of(st.none(), st.integers(0, 94)),
        edits=st.lists(st.tuples(st.integers(0, 10**9), st.binary(min_size=1, max_size=40)),
@@ -499,6 +500,7 @@ def test_a_damaged_ros2_bag_is_refused_or_its_losses_are_counted(
     assert sum(1 for r in BagReader(out)) == sum(result.wrenches.values()) + result.poses
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("keep", [0.999, 0.5, 20 / 1e9])
 def test_a_cut_ros2_bag_is_imported_as_far_as_it_reads(
         demo: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str],

@@ -52,6 +52,7 @@ def _outward_normal(p_W: np.ndarray, obj: dict[str, Any]) -> np.ndarray:
     return np.asarray(n_W / np.linalg.norm(n_W))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "landings"), [("n", 1), ("k", 1), ("m", 4)])
 def test_a_rod_that_snaps_off_inside_an_object_lands_on_it(name: str, landings: int) -> None:
     scene = load_scene(DATA / f"scene_{name}.yaml")

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.core.test_random_scenes_rod import check_against_the_rod
 from vibrissa.formats.scene_file import load_scene
@@ -20,6 +21,7 @@ from vibrissa.scene import SamplePhase, simulate_whisker
 DATA = Path(__file__).parents[1] / "data" / "tip_jump"
 
 
+@pytest.mark.slow
 def test_a_tip_that_can_hold_does_not_jump() -> None:
     runs = {}
     for sampling in ("x1", "x4"):

@@ -63,6 +63,7 @@ def test_no_proposal_without_a_range_along_the_axis(two_lines):
         propose_sections(surface, mesh.vertices, points, [0.0, 0.0, 0.0], 1)
 
 
+@pytest.mark.slow
 def test_on_the_demo_object_three_proposals_beat_three_evenly_spaced_trails():
     # the demo's 5 trails (launch/demo.yaml), then 3 more: proposed, or evenly spaced over
     # the same range; the error of each map over the reachable surface (true points in the

@@ -182,9 +182,12 @@ def field_specs(cls: type) -> tuple[tuple[str, FieldSpec], ...]:
     return specs  # type: ignore[no-any-return]
 
 
-@functools.cache
 def _field_names(cls: type) -> frozenset[str]:
-    return frozenset(name for name, _ in field_specs(cls))
+    names = cls.__dict__.get("_FIELD_NAMES")
+    if names is None:
+        names = frozenset(name for name, _ in field_specs(cls))
+        cls._FIELD_NAMES = names  # type: ignore[attr-defined]
+    return names  # type: ignore[no-any-return]
 
 
 MAX_PAYLOAD_BYTES = 64 << 20

@@ -4,8 +4,9 @@ published for each, with its counts, so that a faster Step 2 can be held to the 
 
 Run once from the repository root: ``.venv/bin/python tests/data/live_tick/make_live_tick.py``.
 Three streams: clamp poses on the wire (a rod of its own, rows without contact and a zero
-quaternion among them, then a tick whose every row is a contact), a robot description with its poses (an unknown whisker and a row in
-the wrong frame among them), and a noise model (free rows, an axial load without covariance).
+quaternion among them, then a tick whose every row is a contact), a robot description with its
+poses (an unknown whisker and a row in the wrong frame among them), and a noise model (free
+rows, an axial load without covariance).
 """
 
 from __future__ import annotations

@@ -291,8 +291,7 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
     # Every field is now checked at least as strictly as Message.__post_init__ would (dtype,
     # shape incl. shared sizes, read-only arrays, enums), so build the frozen instance
     # without running the checks twice: a third of the decode time otherwise.
-    msg = object.__new__(cls)
-    msg.__dict__.update(values)
+    msg = cls.unchecked(**values)
     try:
         msg.check_fields()
     except ValueError as exc:  # a retired type's payload: named as it came

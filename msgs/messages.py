@@ -182,6 +182,14 @@ def field_specs(cls: type) -> tuple[tuple[str, FieldSpec], ...]:
     return specs  # type: ignore[no-any-return]
 
 
+def _field_names(cls: type) -> frozenset[str]:
+    names = cls.__dict__.get("_FIELD_NAMES")
+    if names is None:
+        names = frozenset(name for name, _ in field_specs(cls))
+        cls._FIELD_NAMES = names  # type: ignore[attr-defined]
+    return names  # type: ignore[no-any-return]
+
+
 MAX_PAYLOAD_BYTES = 64 << 20
 """The largest payload of any type (a cloud of 2.8 M points), bytes."""
 
@@ -209,6 +217,25 @@ class Message:
 
     def check_fields(self) -> None:
         """Rules across fields (``ValueError``); the codec runs them on decode too."""
+
+    @classmethod
+    def unchecked(cls, **values: Any) -> Self:
+        """A message of ``values`` (every field, by name) taken as they are, without the checks
+        of construction or ``check_fields``.
+
+        Only for values that already are what construction would make of them: read-only
+        arrays of the field's dtype and shape, sizes that agree, enum members, lists of str
+        of their own. The codec's decode builds its checked fields with it, and code that
+        builds its own output from what it made (Step 2's points) may too; anything from
+        outside (the wire, a file, a caller) goes through the constructor. ``encode`` still
+        refuses non-finite values.
+        """
+        if values.keys() != _field_names(cls):
+            raise TypeError(f"{cls.__name__}.unchecked takes every field by name: "
+                            f"{', '.join(sorted(_field_names(cls)))}")
+        msg = object.__new__(cls)
+        msg.__dict__.update(values)
+        return msg
 
     def select_rows(self, keep: npt.ArrayLike) -> Self:
         """This message with only the rows ``keep`` (a bool mask (N,) or row indices) of every

@@ -236,8 +236,9 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
             length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
                         else rods[:, 0])
             covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
-        covariance.flags.writeable = False
-    for value in (point, s1, phase, force, status):
+    fields = (point, s1, phase, force, status) if covariance is None else (
+        point, s1, phase, force, status, covariance)
+    for value in fields:
         value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
     outcomes = []
     first = 0
@@ -245,20 +246,29 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         n = int(np.count_nonzero(part.placed))
         rows = slice(first, first + n)
         good = int(np.count_nonzero(result.pose_ok[rows]))
-        kept = int(np.count_nonzero(valid[rows]))
+        valid_rows = valid[rows]
+        kept = int(np.count_nonzero(valid_rows))
         whisker_ids = msg.whisker_ids
-        rows_kept: slice | npt.NDArray[np.intp] = rows
-        if kept < len(whisker_ids):
-            valid_rows = valid[rows]
+        if kept == len(whisker_ids):  # every row of the message: views of the call's arrays
+            kept_fields = [value[rows] for value in fields]
+            whisker_ids = list(whisker_ids)
+        else:
             in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
             in_message[part.placed] = valid_rows
             whisker_ids = list(compress(whisker_ids, in_message.tolist()))
             rows_kept = first + np.flatnonzero(valid_rows)
-        contacts = ContactPointArray(
+            kept_fields = [value[rows_kept] for value in fields]
+            for value in kept_fields:
+                value.flags.writeable = False
+        # Step 2's own output, as construction would make it: read-only arrays of the fields'
+        # dtypes, sized alike, phases and statuses its kernel wrote, finite where valid; the
+        # whisker ids of a decoded message (tests/streaming/test_step2.py: the same bytes as
+        # the checked constructor)
+        contacts = ContactPointArray.unchecked(
             stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
-            point=point[rows_kept], s1=s1[rows_kept], phase=phase[rows_kept],
-            force=force[rows_kept], status=status[rows_kept],
-            covariance=None if covariance is None else covariance[rows_kept])
+            point=kept_fields[0], s1=kept_fields[1], phase=kept_fields[2],
+            force=kept_fields[3], status=kept_fields[4],
+            covariance=None if covariance is None else kept_fields[5])
         outcomes.append(Reconstructed(
             contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
             unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,

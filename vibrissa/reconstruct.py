@@ -309,28 +309,29 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
             and len(q) == len(p) == len(f0) == len(m0)):
         raise ValueError(f"q_WC_xyzw (N, 4), p_WC_m, f0_C_n, m0_C_nm (N, 3) must have the same "
                          f"number of rows, got {q.shape}, {p.shape}, {f0.shape}, {m0.shape}")
+    n = len(q)
     if isinstance(rod, RodScale):
-        length_m, force_n, moment_nm = (np.full(len(q), value, dtype=float) for value in
-                                        (rod.length_m, rod.force_n, rod.moment_nm))
+        units = np.array([[rod.length_m, rod.force_n, rod.moment_nm]])  # one for every row
     else:
-        units = rod if isinstance(rod, np.ndarray) else rod_units(rod)
-        if units.shape != (len(q), 3):
-            raise ValueError(f"rod: {len(units)} rods for {len(q)} rows")
-        length_m, force_n, moment_nm = np.array(units.T, dtype=float, order="C")
+        units = _kernel_array(rod if isinstance(rod, np.ndarray) else rod_units(rod))
+        if units.shape != (n, 3):
+            raise ValueError(f"rod: {len(units)} rods for {n} rows")
     if wrench_cov is None:
         cov = _NO_COVARIANCE
     else:
         cov = np.asarray(wrench_cov, dtype=float)
-        if cov.shape not in ((6, 6), (len(q), 6, 6)):
-            raise ValueError(f"wrench_cov must have shape (6, 6) or ({len(q)}, 6, 6), got "
+        if cov.shape not in ((6, 6), (n, 6, 6)):
+            raise ValueError(f"wrench_cov must have shape (6, 6) or ({n}, 6, 6), got "
                              f"{cov.shape}")
         cov = np.ascontiguousarray(cov.reshape(-1, 6, 6))
         if not (tip_sigmas >= 0.0 and math.isfinite(tip_sigmas)):
             raise ValueError(f"tip_sigmas must be a finite number >= 0, got {tip_sigmas}")
-    pose_ok, point, s1, phase, force, status, covariance = _rows_si(
-        q, p, f0, m0, length_m, force_n, moment_nm, cov, float(tip_sigmas))
-    return ReconstructionSI(pose_ok, point, s1, phase, force, status,
-                            None if wrench_cov is None else covariance)
+    floats, ints = _rows_si(q, p, f0, m0, units, cov, float(tip_sigmas))
+    # the kernel's two blocks (`_rows_si`), each field a contiguous view of its part
+    return ReconstructionSI(
+        ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n], ints[:n],
+        floats[3 * n:6 * n].reshape(n, 3), ints[n:2 * n],
+        None if wrench_cov is None else floats[7 * n:].reshape(n, 3, 3))
 
 
 _NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
@@ -388,25 +389,29 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
 
 @compiled
 def _rows_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
-             m0: NDArray[np.float64], length_m: NDArray[np.float64], force_n: NDArray[np.float64],
-             moment_nm: NDArray[np.float64], cov: NDArray[np.float64], tip_sigmas: float
-             ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64],
-                        NDArray[np.int32], NDArray[np.float64], NDArray[np.int32],
-                        NDArray[np.float64]]:
-    """:func:`_row_si` of every row (N, ...), each with its rod's units (N,) and the wrench
-    covariance ``cov`` (0 rows: none; 1: every row's; N)."""
+             m0: NDArray[np.float64], units: NDArray[np.float64], cov: NDArray[np.float64],
+             tip_sigmas: float) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """:func:`_row_si` of every row (N, ...), each with its rod's units (``units``: 1 row for
+    every row, or N; L, EI/L^2, EI/L) and the wrench covariance ``cov`` (0 rows: none; 1:
+    every row's; N). Returns two blocks, so that a call hands two arrays back to Python
+    instead of seven: floats (7 N, or 16 N with ``cov``) = point (N, 3), force (N, 3), s1 (N),
+    then the covariances (N, 3, 3); int32 (3 N) = phase, status, pose_ok (N each)."""
     n = q_xyzw.shape[0]
-    pose_ok = np.empty(n, dtype=np.bool_)
-    point, force, s1 = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
-    phase, status = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
-    covariance = np.full((n if cov.shape[0] > 0 else 0, 3, 3), math.nan)
-    per_row = cov.shape[0] > 1
+    with_cov = cov.shape[0] > 0
+    floats = np.empty(n * (16 if with_cov else 7))
+    ints = np.empty(3 * n, dtype=np.int32)
+    point, force = floats[:3 * n].reshape((n, 3)), floats[3 * n:6 * n].reshape((n, 3))
+    covariance = floats[7 * n:].reshape((n if with_cov else 0, 3, 3))
+    covariance[:] = math.nan
+    per_row_cov, per_row_rod = cov.shape[0] > 1, units.shape[0] > 1
     row_cov, row_out = np.empty((0, 6)), np.empty((0, 3))
     work = np.empty((19, 6))
     for i in range(n):
-        if cov.shape[0] > 0:
-            row_cov, row_out = cov[i if per_row else 0], covariance[i]
-        pose_ok[i], s1[i], phase[i], status[i] = _row_si(
-            q_xyzw[i], p0[i], f0[i], m0[i], length_m[i], force_n[i], moment_nm[i], row_cov,
-            tip_sigmas, point[i], force[i], row_out, work)
-    return pose_ok, point, s1, phase, force, status, covariance
+        if with_cov:
+            row_cov, row_out = cov[i if per_row_cov else 0], covariance[i]
+        rod = units[i if per_row_rod else 0]
+        pose_ok, floats[6 * n + i], ints[i], ints[n + i] = _row_si(
+            q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
+            point[i], force[i], row_out, work)
+        ints[2 * n + i] = pose_ok
+    return floats, ints

@@ -407,3 +407,35 @@ def test_the_noise_path_takes_any_finite_wrench_and_publishes_only_encodable_poi
     assert decode(encode(contacts)) is not None
     if len(contacts.whisker_ids):
         assert contacts.covariance is not None and np.isfinite(contacts.covariance).all()
+
+
+def test_step2_builds_its_points_unchecked_as_the_checked_constructor_would() -> None:
+    # ContactPointArray.unchecked: the same message and bytes as the constructor's checks make
+    # of the same values, for ticks of every row, of some rows, and with covariances
+    rod = RodScale(0.05, 2e-5)
+    rng = np.random.default_rng(4)
+    n = 6
+    f0 = np.tile([0.1 * rod.force_n, 0.0, 0.0], (n, 1)) * rng.uniform(0.5, 1.5, (n, 1))
+    m0 = np.tile([0.0, 0.05 * rod.moment_nm, 0.0], (n, 1)) * rng.uniform(0.5, 1.5, (n, 1))
+    partial_f0 = f0.copy()
+    partial_f0[2] = 0.0
+    partial_m0 = m0.copy()
+    partial_m0[2] = 0.0
+    ticks = [WhiskerWrenchArray(
+        stamp=0.5 * k, seq=k, whisker_ids=[f"w{j}" for j in range(n)],
+        frame_ids=[f"w{j}/clamp" for j in range(n)], f0=f, m0=m, pose_frame_id="world",
+        clamp_position=rng.uniform(-0.1, 0.1, (n, 3)),
+        clamp_orientation=Rotation.random(n, random_state=k).as_quat())
+        for k, (f, m) in enumerate([(f0, m0), (partial_f0, partial_m0)])]
+    detector = ContactDetector(wrench_covariance(1e-6, 1e-8))
+    outcomes = [*reconstruct_messages(ticks[:1], rod), *reconstruct_messages(ticks, rod),
+                *reconstruct_messages(ticks, rod, detector=detector)]
+    assert [len(o.contacts.whisker_ids) for o in outcomes] == [n, n, n - 1, n, n - 1]
+    for outcome in outcomes:
+        contacts = outcome.contacts
+        checked = ContactPointArray(**vars(contacts))
+        assert checked == contacts and encode(checked) == encode(contacts)
+        for name, value in vars(contacts).items():
+            if isinstance(value, np.ndarray):
+                assert not value.flags.writeable, name
+                assert value.dtype == getattr(checked, name).dtype, name

@@ -871,3 +871,17 @@ def test_a_payload_over_its_types_size_is_refused_before_it_is_read() -> None:
     cloud = ContactCloud(stamp=0.0, frame_id="world", points=rng.normal(size=(50_000, 3)),
                          normals=np.zeros((50_000, 3)))
     assert decode(encode(cloud), ContactCloud) == cloud  # large types keep their room
+
+
+@pytest.mark.parametrize("msg", samples(), ids=lambda m: type(m).__name__)
+def test_unchecked_takes_checked_values_as_they_are_and_needs_every_field(msg: Message) -> None:
+    values = vars(msg)
+    built = type(msg).unchecked(**values)
+    assert built == msg and encode(built) == encode(msg)
+    assert all(getattr(built, name) is value for name, value in values.items())
+    missing = dict(values)
+    missing.pop(next(iter(missing)))
+    with pytest.raises(TypeError, match="every field"):
+        type(msg).unchecked(**missing)
+    with pytest.raises(TypeError, match="every field"):
+        type(msg).unchecked(**values, extra=1)

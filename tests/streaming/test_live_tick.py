@@ -1,0 +1,44 @@
+"""A recorded live stream (tests/data/live_tick) gives the same ContactPointArray bytes and
+counts as when it was recorded: a faster Step 2 publishes the same bytes."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import msgpack
+import pytest
+
+DATA = Path(__file__).parents[1] / "data" / "live_tick"
+
+
+def _recorder() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("make_live_tick", DATA / "make_live_tick.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+RECORD = msgpack.unpackb((DATA / "live_tick.msgpack").read_bytes())
+
+
+@pytest.mark.parametrize("name", sorted(RECORD))
+def test_a_recorded_stream_gives_the_recorded_bytes_and_counts(name: str) -> None:
+    recorded = RECORD[name]
+    published = _recorder().run(name, recorded["input"])
+    assert len(published) == len(recorded["output"])
+    for (payload, counts), (want_payload, want_counts) in zip(published, recorded["output"],
+                                                              strict=True):
+        assert payload == want_payload
+        assert counts == want_counts
+
+
+def test_the_record_holds_full_and_partial_ticks() -> None:
+    # the test above can fail: rows with and without contact, in every stream
+    contacts = {name: [counts["contacts"] for _, counts in r["output"]]
+                for name, r in RECORD.items()}
+    assert contacts["poses"][-1] - contacts["poses"][-2] == 32  # a tick of contacts only
+    assert all(c[-1] > 0 for c in contacts.values())
+    assert RECORD["noise"]["output"][-1][1]["free"] > 0

@@ -238,6 +238,7 @@ def test_reconstruct_bad_surface_exit_2(sweep_csv: Path, tmp_path: Path,
     assert "--surface" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_study_paper_no_figures(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["study", "paper", "--no-figures", "--step", "0.01", "-o", str(tmp_path)]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
@@ -259,6 +260,7 @@ def test_study_paper_no_figures(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert "25/25" in err
 
 
+@pytest.mark.slow
 def test_study_figures_small_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The figure path on a coarse study with only the four sweeps of Fig. 6."""
 

@@ -431,6 +431,7 @@ def wrench_rows(n: int) -> list[str]:
             for i in range(n)]
 
 
+@pytest.mark.slow
 def test_reconstruct_streams_in_chunks_to_the_same_bytes_and_writes_all_or_nothing(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Rows are read, reconstructed and written a chunk at a time: the same file whatever the

@@ -55,6 +55,7 @@ def _straight_rod_inside_m(raw: dict[str, Any], path: np.ndarray, row: int, obj:
     ("scene.yaml", "snap-off", True),
     ("scene_slide_off.yaml", "detachment", False),
 ])
+@pytest.mark.slow
 def test_a_detachment_leaves_the_straight_rod_on_its_way_out(scene_file: str, end: str,
                                                               deeper: bool) -> None:
     scene = load_scene(DATA / scene_file)

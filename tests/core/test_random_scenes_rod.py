@@ -26,6 +26,8 @@ from vibrissa.formats.scene_file import load_scene
 from vibrissa.frames import Transform
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate_whisker
 
+pytestmark = pytest.mark.slow  # random scenes' batteries: make test runs them, make check not
+
 
 def rod_in_clamp_frame(f0_L: np.ndarray, m0_L: np.ndarray, s1_L: float) -> tuple[np.ndarray,
                                                                                 np.ndarray]:

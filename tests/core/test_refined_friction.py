@@ -30,6 +30,7 @@ def runs() -> dict[str, tuple[Scene, WhiskerResult]]:
 
 
 @pytest.mark.parametrize("sampling", ["coarse", "fine"])
+@pytest.mark.slow
 def test_a_tip_on_a_ball_slides_on_to_a_smooth_detachment(
         runs: dict[str, tuple[Scene, WhiskerResult]], sampling: str) -> None:
     scene, result = runs[sampling]

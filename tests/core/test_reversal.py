@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.core.test_random_scenes_rod import check_against_the_rod
 from vibrissa.formats.scene_file import load_scene
@@ -19,6 +20,7 @@ from vibrissa.scene import SamplePhase, simulate_whisker
 DATA = Path(__file__).parents[1] / "data" / "reversal"
 
 
+@pytest.mark.slow
 def test_a_tangential_contact_holds_while_its_friction_turns_back() -> None:
     scene = load_scene(DATA / "scene.yaml")
     whisker = scene.whiskers[0]

@@ -252,6 +252,7 @@ def test_newest_rows_is_the_oldest_of_the_known_frames() -> None:
     assert buffer.newest_rows("world", ["w0/clamp", "other"]) is None  # not joined to world
 
 
+@pytest.mark.slow
 def test_a_flood_of_poses_or_of_frame_names_keeps_the_buffer_bounded() -> None:
     buffer = FrameBuffer(history_s=1e9)
     stamps = np.arange(MAX_POSES + 500) * 1e-6

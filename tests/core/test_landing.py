@@ -120,6 +120,7 @@ def _mirrored(X: Transform) -> Transform:
 @pytest.mark.xfail(reason="the tip's hold after a transition is decided by round-off on some "
                           "CPUs (docs/LIMITS.md)", strict=False)
 @pytest.mark.parametrize("name", ["k", "m"])
+@pytest.mark.slow
 def test_a_mirrored_scene_lands_in_the_mirror_image(name: str) -> None:
     """Symmetry: the scene reflected across W's xz-plane (objects, mounts and path; the objects
     are symmetric in their own y) gives the same episodes, landings included, with every

@@ -66,6 +66,7 @@ def known_vertices(mesh):
 
 
 @pytest.mark.parametrize("cloud, limit_m", [("paraboloid", 5e-3), ("sphere", 10e-3)])
+@pytest.mark.slow
 def test_touched_region_is_within_the_limit_and_known(cloud, limit_m, request):
     # the targets: 5 mm on the demo's paraboloid, 10 mm on the 0.3 m sphere (L = 1 m)
     points, normals, _, truth = request.getfixturevalue(cloud)

@@ -449,6 +449,7 @@ def array_scene(samples: int) -> Scene:
 
 
 @pytest.mark.parametrize(("samples", "rule"), [(600, "line extent"), (200, "line spacing")])
+@pytest.mark.slow
 def test_the_default_eps_separates_the_objects_a_simulated_robot_touched(
     samples: int, rule: str
 ) -> None:
@@ -543,6 +544,7 @@ def test_a_covariance_is_symmetric_positive_semidefinite_up_to_rounding(
     assert is_covariance(covariance[None]).tolist() == [accepted]
 
 
+@pytest.mark.slow
 def test_points_whose_covariance_is_not_one_are_counted_and_mapped_as_without(
         tmp_path: Path) -> None:
     """-1e-2 I, -1e-300 I and diag(-1e-4, 1e-4, 1e-4) (the fit took n^T C n as a point's
@@ -576,6 +578,7 @@ def test_names_are_short_in_the_figure() -> None:
     assert short_name("a\nb\tc\x00") == "a b c "
 
 
+@pytest.mark.slow
 def test_the_figure_draws_wire_names_short_and_as_text(tmp_path: Path) -> None:
     """A 10 kB whisker id was a legend label across the figure, a frame id the title; a ``$``
     in a name made matplotlib parse it as mathtext, and fail."""

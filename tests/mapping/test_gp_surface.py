@@ -80,6 +80,7 @@ def test_touched_region_is_within_the_limit_and_known(cloud, limit_m, request):
 
 
 @pytest.mark.parametrize("cloud", ["paraboloid", "sphere", "one_line"])
+@pytest.mark.slow
 def test_true_surface_is_inside_three_sigma(cloud, request):
     points, normals, _, truth = request.getfixturevalue(cloud)
     surface, mesh = fitted(request.getfixturevalue(cloud))

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
@@ -41,6 +42,7 @@ def moved_scene(folder: Path) -> Path:
     return folder / "scene.yaml"
 
 
+@pytest.mark.slow
 def test_a_scene_moved_far_from_the_origin_gives_the_same_samples_moved(tmp_path: Path) -> None:
     (here,) = simulate(load_scene(DATA / "scene.yaml"), workers=1)
     (there,) = simulate(load_scene(moved_scene(tmp_path)), workers=1)

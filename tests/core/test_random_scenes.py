@@ -13,6 +13,8 @@ from vibrissa.frames import Transform
 from vibrissa.reconstruct import reconstruct_si
 from vibrissa.scene import Scene, SceneObject, Whisker, WhiskerResult, robot_path, simulate_whisker
 
+pytestmark = pytest.mark.slow  # random scenes' batteries: make test runs them, make check not
+
 
 def random_scene(rng: np.random.Generator) -> tuple[Scene, str]:
     L = rng.uniform(0.03, 0.08)

@@ -25,6 +25,8 @@ from vibrissa.surfaces import parse_surface
 
 FIELDS = ("t", "phase", "s1_m", "f0_n", "m0_nm", "p_W_m", "object")
 
+pytestmark = pytest.mark.slow  # batched against alone, scene by scene: make test runs them, make check not
+
 
 def random_scene(rng: np.random.Generator) -> Scene:
     """1-3 posed spheres, ellipsoids and paraboloids; 2-5 whiskers of their own L (30-80 mm),

@@ -38,10 +38,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from vibrissa.contact_detection import OFF_SIGMAS, ON_SIGMAS
 from vibrissa.formats.scene_file import load_robot
-from vibrissa.frame_buffer import DEFAULT_HISTORY_S
-from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME
 from vibrissa.msgs import (
     ContactPointArray,
     EndOfStream,
@@ -49,7 +46,6 @@ from vibrissa.msgs import (
     RobotPose,
     WhiskerWrenchArray,
 )
-from vibrissa.reconstruct import TIP_SIGMAS
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.streaming import Step2Stream, StreamSettings, Warnings, warm_up
@@ -136,16 +132,17 @@ class ReconstructorParams:
     rod_ei_nm2: float = 1.0
     robot: str = ""
     pose_topic: str = "/robot/pose"
-    map_frame: str = WORLD_FRAME
-    robot_frame: str = ROBOT_FRAME
-    pose_timeout_s: float = 0.5
-    history_s: float = DEFAULT_HISTORY_S
-    max_pose_gap_s: float = 1.0
-    noise_force_n: float = 0.0
-    noise_moment_nm: float = 0.0
-    contact_on_sigmas: float = ON_SIGMAS
-    contact_off_sigmas: float = OFF_SIGMAS
-    tip_sigmas: float = TIP_SIGMAS
+    # the defaults of the stream's settings, one definition (vibrissa.streaming.StreamSettings)
+    map_frame: str = StreamSettings.map_frame
+    robot_frame: str = StreamSettings.robot_frame
+    pose_timeout_s: float = StreamSettings.pose_timeout_s
+    history_s: float = StreamSettings.history_s
+    max_pose_gap_s: float = StreamSettings.max_pose_gap_s
+    noise_force_n: float = StreamSettings.noise_force_n
+    noise_moment_nm: float = StreamSettings.noise_moment_nm
+    contact_on_sigmas: float = StreamSettings.contact_on_sigmas
+    contact_off_sigmas: float = StreamSettings.contact_off_sigmas
+    tip_sigmas: float = StreamSettings.tip_sigmas
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:

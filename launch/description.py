@@ -38,6 +38,7 @@ import importlib
 import importlib.metadata
 import os
 import shlex
+import stat
 import sys
 import typing
 from collections.abc import Callable, Mapping, Sequence
@@ -271,6 +272,9 @@ def _load_yaml(text: str, source: str) -> Any:
 # ---------------------------------------------------------------------------------------------
 # Parsing helpers
 
+
+MAX_LAUNCH_FILE_BYTES = 16 << 20
+"""A launch file is a few kB; a larger one is not a launch file."""
 
 MAX_RESPAWN_DELAY_S = 3600.0
 """A respawn waits at most an hour: a longer delay is a typo (1e300 s would hang the launch)."""
@@ -773,6 +777,10 @@ def load_launch_file(
     """
     source = os.fspath(path)
     try:
+        if not stat.S_ISREG(os.stat(source).st_mode):  # a device or a pipe: read without end
+            raise LaunchFileError(source, "", "not a regular file")
+        if os.stat(source).st_size > MAX_LAUNCH_FILE_BYTES:
+            raise LaunchFileError(source, "", f"larger than {MAX_LAUNCH_FILE_BYTES} bytes")
         data = Path(source).read_bytes()
     except OSError as exc:
         raise LaunchFileError(source, "", f"cannot read: {exc.strerror or exc}") from None

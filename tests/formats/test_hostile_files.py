@@ -77,3 +77,13 @@ def test_a_missing_path_names_the_scene_file_and_key(tmp_path: Path) -> None:
     (tmp_path / "scene.yaml").write_text(SCENE.replace("{path}", "nopath.csv"))
     with pytest.raises(SceneError, match=r"scene.yaml: path: .*nopath.csv: cannot read \(No such file"):
         load_scene(tmp_path / "scene.yaml")
+
+
+def test_a_launch_file_on_a_device_or_a_pipe_is_refused(tmp_path: Path) -> None:
+    from vibrissa.launch.description import LaunchFileError, load_launch_file
+
+    fifo = tmp_path / "graph.yaml"
+    os.mkfifo(fifo)
+    for path in ("/dev/zero", str(fifo)):
+        with pytest.raises(LaunchFileError, match="not a regular file"):
+            load_launch_file(path)

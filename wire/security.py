@@ -327,7 +327,7 @@ class Guard:
         now = time.monotonic()
         if now - self._last_log >= _LOG_EVERY_S:
             self._last_log = now
-            log.warning("refused %d connection(s) without an allowed key on %s (%d refused so far)",
-                        self.refused - self._logged, event["endpoint"].decode(errors="replace"),
-                        self.refused)
+            log.warning("refused %d peer(s) without an allowed key on %s since the last line "
+                        "(%d so far)", self.refused - self._logged,
+                        event["endpoint"].decode(errors="replace"), self.refused)
             self._logged = self.refused

@@ -130,6 +130,9 @@ def test_samples_stream_while_the_sweeps_are_solved(tmp_path: Path) -> None:
 def test_ctrl_c_during_the_simulation_stops_every_node_within_a_second(tmp_path: Path) -> None:
     launch = Launch(LAUNCH / "demo.yaml", f"out:={tmp_path / 'map'}", "step:=0.0002",
                     domain=DOMAIN + 40)
+    # every node past its start (a node still importing ends by SIGINT's default action): the
+    # mapper listens once the reconstructor's output is ready for it
+    launch.wait_line(r"\['/mapper'\] ready on /whisker0/contact")
     launch.wait_line(r"wrench_source\] .*sweeps ended 0/5")  # mid-simulation
     sent = time.monotonic()
     launch.proc.send_signal(signal.SIGINT)

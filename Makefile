@@ -23,7 +23,8 @@ $(STAMP): pyproject.toml
 	# sources are otherwise compiled at every start where PYTHONDONTWRITEBYTECODE is set
 	# (0.2-0.3 s of each command on a 2-core machine; a changed file is recompiled as usual).
 	$(PY) -m compileall -q $(SRC)
-	# numba's cache of compiled kernels, once (~30 s), so that a first command is not late by it
+	# numba's cache of compiled kernels, once (30-75 s on a 2-core VM, idle to loaded; it prints
+	# each step), so that a first command is not late by it
 	$(PY) scripts/warm_up.py
 	touch $(STAMP)
 

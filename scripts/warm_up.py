@@ -13,11 +13,14 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import io
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 SCENE = """\
 mu: 0.3
@@ -56,31 +59,52 @@ def _wrenches(simulated: Path, names: tuple[str, ...], out: Path) -> None:
     out.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
+def _command(vibrissa: Callable[[list[str]], int], argv: list[str], out: Path) -> int:
+    """Run ``vibrissa argv`` quietly; its output only when it fails."""
+    if argv[0] == "reconstruct" and "--scene" in argv:
+        _wrenches(out / "sim", ("a", "b"), out / "wrenches.csv")
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+        status = vibrissa(argv)
+    if status != 0:
+        print(f"{said.getvalue()}warm-up: vibrissa {' '.join(argv)} exited {status}",
+              file=sys.stderr)
+    return status
+
+
+def _stream(settings: Any) -> int:
+    from vibrissa.streaming import warm_up
+
+    warm_up(settings)
+    return 0
+
+
 def main() -> int:
     from vibrissa.cli.main import main as vibrissa
-    from vibrissa.streaming import StreamSettings, warm_up
+    from vibrissa.streaming import StreamSettings
 
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
         scene = _write_inputs(out)
-        for argv in (["sweep", "--y0", "0.2", "--mu", "0.3", "--step", "0.05",
-                      "-o", str(out / "sweep.csv")],
-                     ["reconstruct", str(out / "sweep.csv"), "-o", str(out / "rcp.csv")],
-                     ["simulate", str(scene), "-o", str(out / "sim"), "--workers", "1"],
-                     ["reconstruct", str(out / "wrenches.csv"), "--scene", str(scene),
-                      "-o", str(out / "points.csv")]):
-            if argv[0] == "reconstruct" and "--scene" in argv:
-                _wrenches(out / "sim", ("a", "b"), out / "wrenches.csv")
-            said = io.StringIO()
-            with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-                status = vibrissa(argv)
+        commands = (["sweep", "--y0", "0.2", "--mu", "0.3", "--step", "0.05",
+                     "-o", str(out / "sweep.csv")],
+                    ["reconstruct", str(out / "sweep.csv"), "-o", str(out / "rcp.csv")],
+                    ["simulate", str(scene), "-o", str(out / "sim"), "--workers", "1"],
+                    ["reconstruct", "--scene", str(scene), str(out / "wrenches.csv"),
+                     "-o", str(out / "points.csv")])
+        steps: list[tuple[str, Callable[[], int]]] = [
+            (f"vibrissa {' '.join(argv[:2 if argv[1] == '--scene' else 1])}",
+             functools.partial(_command, vibrissa, argv, out)) for argv in commands]
+        steps += [("the Step 2 stream", lambda: _stream(StreamSettings())),
+                  ("the Step 2 stream with a noise model",
+                   lambda: _stream(StreamSettings(noise_force_n=1e-3, noise_moment_nm=1e-3)))]
+        for i, (what, step) in enumerate(steps, 1):
+            print(f"warm-up {i}/{len(steps)}: {what} ({time.perf_counter() - start:.0f} s so far)",
+                  flush=True)
+            status = step()
             if status != 0:
-                print(f"{said.getvalue()}warm-up: vibrissa {' '.join(argv)} exited {status}",
-                      file=sys.stderr)
                 return status
-        warm_up(StreamSettings())
-        warm_up(StreamSettings(noise_force_n=1e-3, noise_moment_nm=1e-3))
     print(f"numba's cache of compiled kernels is warm ({time.perf_counter() - start:.0f} s)")
     return 0
 

@@ -58,7 +58,7 @@ from vibrissa.runtime.params import (
     require_positive,
 )
 from vibrissa.runtime.playback import play_bag_gated
-from vibrissa.scene import SamplePhase, Scene, WhiskerResult, simulate
+from vibrissa.scene import SamplePhase, Scene, SimulationStopped, WhiskerResult, simulate
 from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import CLAMP_TOUCH_L, SweepRun, Trail, first_contact
@@ -392,7 +392,14 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
         results = read_results(params.simulated, scene)
     else:
         node.set_state("running", f"simulating {len(scene.whiskers)} whisker(s) along the path")
-        results = simulate(scene, workers=params.workers or None)
+        try:
+            results = simulate(scene, workers=params.workers or None,
+                               stop=lambda: node.stop_requested)
+        except SimulationStopped as exc:
+            log.info("%s: %s while simulating", node.fqn, exc)
+            wrenches.publish_end_of_stream(node.fqn)
+            poses.publish_end_of_stream(node.fqn)
+            return 0
     size = f"{len(results)} whisker(s) x {len(scene.path.t)} path samples"
     how = f"read {size} from {params.simulated}" if params.simulated else f"simulated {size}"
     log.info("%s: %s in %.1f s: %s", node.fqn, how, time.monotonic() - t0,

@@ -32,10 +32,11 @@ its whisker's L, and its own step), with the same bits as each whisker alone
 from __future__ import annotations
 
 import enum
+import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -274,15 +275,22 @@ PAUSE_L = 1e-12
 sample before is a pause: it repeats that sample."""
 
 
+class SimulationStopped(Exception):
+    """`simulate` ended early because its ``stop()`` said so."""
+
+
 def simulate(scene: Scene, workers: int | None = None,
              progress: Callable[[int, int], None] | None = None,
-             sample_progress: SampleProgress | None = None) -> list[WhiskerResult]:
+             sample_progress: SampleProgress | None = None,
+             stop: Callable[[], bool] | None = None) -> list[WhiskerResult]:
     """Step 1 of every whisker of ``scene`` along its path. The whiskers are dealt round robin
     into ``workers`` groups (default: all cores), one process each (1: in this process); a
     group's whiskers are solved together, one step of all those in contact per batched attempt
     (`simulate_group`). ``progress(done, total)`` as whiskers finish (from worker processes:
     as groups finish); ``sample_progress`` (picklable, for the worker processes) every 2 s of a
-    group's work, for each of its whiskers in contact."""
+    group's work, for each of its whiskers in contact. ``stop()``, asked after every step (in
+    this process) or every `STOP_POLL_S` (while worker processes compute, which it then ends),
+    raises `SimulationStopped` when true. Worker processes ignore SIGINT (the caller decides)."""
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -298,15 +306,32 @@ def simulate(scene: Scene, workers: int | None = None,
             done += 1
             if progress:
                 progress(done, total)
-        return simulate_group(scene, groups[0], sample_progress, finished)
+        return simulate_group(scene, groups[0], sample_progress, finished, stop)
     by_name: dict[str, WhiskerResult] = {}
-    with ProcessPoolExecutor(len(groups)) as pool:
-        futures = [pool.submit(simulate_group, scene, group, sample_progress) for group in groups]
-        for future in as_completed(futures):
-            by_name.update((result.name, result) for result in future.result())
-            if progress:
-                progress(len(by_name), total)
+    with multiprocessing.Pool(len(groups), initializer=_worker_signals) as pool:  # terminates
+        pending = [pool.apply_async(simulate_group, (scene, group, sample_progress))
+                   for group in groups]
+        while pending:
+            if stop and stop():
+                raise SimulationStopped(f"stopped with {len(by_name)} of {total} whisker(s) done")
+            pending[0].wait(STOP_POLL_S)
+            for job in [job for job in pending if job.ready()]:
+                by_name.update((result.name, result) for result in job.get())
+                pending.remove(job)
+                if progress:
+                    progress(len(by_name), total)
     return [by_name[whisker.name] for whisker in scene.whiskers]
+
+
+STOP_POLL_S = 0.05
+"""How often `simulate` asks its ``stop()`` while worker processes compute, s."""
+
+
+def _worker_signals() -> None:
+    """A worker process of `simulate`: SIGINT ignored (a terminal's Ctrl-C reaches the whole
+    process group; the parent decides), SIGTERM ends it (`multiprocessing.Pool.terminate`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def simulate_whisker(scene: Scene, whisker: Whisker,
@@ -318,18 +343,22 @@ def simulate_whisker(scene: Scene, whisker: Whisker,
 
 def simulate_group(scene: Scene, whiskers: Sequence[Whisker],
                    progress: SampleProgress | None = None,
-                   finished: Callable[[WhiskerResult], None] | None = None
-                   ) -> list[WhiskerResult]:
+                   finished: Callable[[WhiskerResult], None] | None = None,
+                   stop: Callable[[], bool] | None = None) -> list[WhiskerResult]:
     """Step 1 of ``whiskers`` of ``scene`` along the path, solved together: every iteration
     advances each whisker in an episode by one step, all in one batched attempt
     (`vibrissa.sweep.advance_together`), and moves the others on (past unresolved samples, to
     their next touch, or to their end). A whisker's results are the same bits as alone.
     ``progress(name, sample, samples)`` every 2 s of work, for each whisker in an episode;
-    ``finished(result)`` as each whisker ends."""
+    ``finished(result)`` as each whisker ends; `SimulationStopped` when ``stop()`` (asked
+    before every step) is true."""
     pending = [_WhiskerSteps(scene, whisker) for whisker in whiskers]
     results: dict[str, WhiskerResult] = {}
     next_report = time.monotonic() + PROGRESS_PERIOD_S
     while pending:
+        if stop and stop():
+            raise SimulationStopped(f"stopped with {len(results)} of {len(whiskers)} "
+                                    "whisker(s) done")
         for steps in pending:
             if steps.run is None:
                 steps.start_episode()

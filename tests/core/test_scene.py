@@ -3,6 +3,8 @@ episodes along the path, checked by physics and by Step 2 (round trip in the wor
 
 from __future__ import annotations
 
+import multiprocessing
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -10,7 +12,16 @@ from scipy.spatial.transform import Rotation
 from vibrissa.equilibrium import NEWTON_TOL
 from vibrissa.frames import Transform
 from vibrissa.reconstruct import reconstruct_si
-from vibrissa.scene import RobotPath, SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate
+from vibrissa.scene import (
+    RobotPath,
+    SamplePhase,
+    Scene,
+    SceneObject,
+    SimulationStopped,
+    Whisker,
+    robot_path,
+    simulate,
+)
 
 L0 = 0.05
 CUP = SceneObject("cup", "paraboloid", {"a_per_m": 0.5 / L0, "b_per_m": 1 / L0, "h_m": 0.4 * L0})
@@ -158,6 +169,22 @@ def test_long_work_reports_how_far_along_the_path_it_is(monkeypatch: pytest.Monk
     assert len(samples) > 100 and samples == sorted(samples)
     contact = np.flatnonzero(result.phase != SamplePhase.NONE)
     assert contact[0] <= samples[0] and samples[-1] <= contact[-1] + 1
+
+
+@pytest.mark.parametrize("workers", [1, 3])
+def test_a_stop_ends_the_simulation_and_its_worker_processes(workers: int) -> None:
+    asked = 0
+
+    def stop() -> bool:
+        nonlocal asked
+        asked += 1
+        return asked > 3
+
+    scene = Scene(0.2, (CUP, BALL), (PLAIN, TILTED, ASIDE), STRAIGHT)
+    with pytest.raises(SimulationStopped, match=r"stopped with [01] of 3 whisker\(s\) done"):
+        simulate(scene, workers=workers, stop=stop)
+    assert asked == 4
+    assert multiprocessing.active_children() == []
 
 
 def test_a_pause_repeats_the_sample_before_it_and_changes_nothing_else() -> None:

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 
@@ -146,6 +147,32 @@ def test_ctrl_c_during_the_simulation_stops_every_node_within_a_second(tmp_path:
     assert elapsed < 3.0, text  # three nodes, one after the other, each well within 1 s
     assert "no map written" in text
     assert "Traceback" not in text
+
+
+def test_ctrl_c_while_the_robot_scene_is_simulated_stops_its_worker_processes(
+        tmp_path: Path) -> None:
+    # the robot's wrench source simulates its scene (8 whiskers, worker processes) before it
+    # plays it: several seconds of Step 1 that a Ctrl-C must not wait for (it did, past the
+    # launcher's grace, and the source was killed)
+    scene = yaml.safe_load((LAUNCH / "robot" / "scene.yaml").read_text(encoding="utf-8"))
+    scene["path"] = "path.csv"  # the robot's path, 10 times as finely sampled: a long Step 1
+    (tmp_path / "scene.yaml").write_text(yaml.safe_dump(scene), encoding="utf-8")
+    path = np.loadtxt(LAUNCH / "robot" / "path.csv", delimiter=",", skiprows=1)
+    s = np.linspace(0.0, len(path) - 1.0, 10 * len(path) - 9)
+    fine = np.column_stack([np.interp(s, np.arange(len(path)), column) for column in path.T])
+    fine[:, 4:] /= np.linalg.norm(fine[:, 4:], axis=1, keepdims=True)
+    np.savetxt(tmp_path / "path.csv", fine, delimiter=",", header="t,x,y,z,qx,qy,qz,qw",
+               comments="", fmt="%.17g")
+    launch = Launch(LAUNCH / "robot.yaml", f"out:={tmp_path / 'map'}",
+                    f"scene:={tmp_path / 'scene.yaml'}", domain=DOMAIN + 100)
+    launch.wait_line(r"\['/mapper'\] ready on /robot/contact")
+    launch.proc.send_signal(signal.SIGINT)
+    rc = launch.wait(60)
+    text = launch.text()
+    assert rc == 128 + signal.SIGINT, text
+    assert re.search(r"stopped with \d of 8 whisker\(s\) done while simulating", text), text
+    assert "escalating" not in text and "Traceback" not in text, text
+    assert re.search(r"wrench_source\s+stopped by launcher \(exit 0\)", text), text
 
 
 def test_ctrl_c_while_the_nodes_still_start_is_quiet(tmp_path: Path) -> None:

@@ -16,17 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-SCENE = """\
-mu: 0.3
-objects:
-  - {name: ball, shape: sphere, radius_m: 0.02, position_m: [0.0, -0.062, 0.004]}
-whiskers:
-  - {name: a, length_m: 0.05, ei_nm2: 1.0e-4,
-     mount: {position_m: [0.01, -0.01, 0.0], quaternion_xyzw: [0.704416, 0.061628, 0.061628, 0.704416]}}
-  - {name: b, length_m: 0.045, ei_nm2: 4.0e-5,
-     mount: {position_m: [-0.01, -0.01, 0.002], quaternion_xyzw: [0.766044, 0.0, 0.0, 0.642788]}}
-path: path.csv
-"""
+from tests.streaming.test_scene_poses import SCENE  # two rods past a ball
 
 SCRIPT = r'''
 import json, sys

@@ -5,6 +5,7 @@ EndOfStream and ended (real processes)."""
 from __future__ import annotations
 
 import json
+import os
 import queue
 import re
 import signal
@@ -18,6 +19,23 @@ from vibrissa.runtime.node import EXIT_LOST_DATA
 
 DEMO = Path(__file__).parents[2] / "launch" / "demo.yaml"
 DEADLINE_S = 300.0  # generous: the demo takes 10-20 s idle, minutes at load 20
+
+
+class ReconstructorKiller:
+    """Reads the launch's log lines; SIGKILLs the reconstructor it started once the wrench
+    source said it published ``at`` messages or more."""
+
+    def __init__(self, at: int) -> None:
+        self.at, self.pid, self.killed = at, 0, False
+
+    def see(self, line: str) -> None:
+        started = re.search(r"started 'reconstructor' \(pid (\d+)\)", line)
+        self.pid = int(started.group(1)) if started else self.pid
+        published = re.search(r"wrench_source.*?(\d+) published", line)
+        if not self.killed and published and int(published.group(1)) >= self.at:
+            assert self.pid, line
+            os.kill(self.pid, signal.SIGKILL)
+            self.killed = True
 
 
 def test_a_node_respawned_after_its_input_ended_ends_the_launch_with_the_loss(tmp_path: Path) -> None:
@@ -39,24 +57,18 @@ def test_a_node_respawned_after_its_input_ended_ends_the_launch_with_the_loss(tm
     threading.Thread(target=read, daemon=True).start()
     deadline = time.monotonic() + DEADLINE_S
     seen: list[str] = []
-    reconstructor, killed = None, False
+    killer = ReconstructorKiller(at=5000)
     try:
         while (line := lines.get(timeout=max(0.1, deadline - time.monotonic()))) is not None:
             seen.append(line)
-            started = re.search(r"started 'reconstructor' \(pid (\d+)\)", line)
-            reconstructor = int(started.group(1)) if started else reconstructor
-            published = re.search(r"wrench_source.*?(\d+) published", line)
-            if not killed and published and int(published.group(1)) >= 5000:
-                assert reconstructor is not None
-                subprocess.run(["kill", "-9", str(reconstructor)], check=True)
-                killed = True
+            killer.see(line)
         rc = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
     err = "".join(seen)
-    assert killed, err
+    assert killer.killed, err
     assert rc == EXIT_LOST_DATA, err
     assert "data did not arrive in full" in err
     summary = re.search(r"reconstructor .* received (\d+)", err)
@@ -77,25 +89,18 @@ def test_the_map_report_states_what_was_lost_before_the_map(tmp_path: Path) -> N
     assert proc.stderr is not None
     deadline = time.monotonic() + DEADLINE_S
     seen: list[str] = []
-    killed = False
+    killer = ReconstructorKiller(at=500)
     try:
-        reconstructor = None
         for line in proc.stderr:
             seen.append(line)
-            started = re.search(r"started 'reconstructor' \(pid (\d+)\)", line)
-            reconstructor = int(started.group(1)) if started else reconstructor
-            published = re.search(r"wrench_source.*?(\d+) published", line)
-            if not killed and published and int(published.group(1)) >= 500:
-                assert reconstructor is not None
-                subprocess.run(["kill", "-9", str(reconstructor)], check=True)
-                killed = True
+            killer.see(line)
             assert time.monotonic() < deadline, "".join(seen)
         rc = proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
     err = "".join(seen)
-    assert killed and rc == EXIT_LOST_DATA, err
+    assert killer.killed and rc == EXIT_LOST_DATA, err
     report = json.loads((out / "report.json").read_text())
     short = {u["node"]: u for u in report["upstream"]}
     reconstructor_in = short["/whisker0/reconstructor"]

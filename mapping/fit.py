@@ -89,8 +89,8 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
     with np.errstate(over="ignore", invalid="ignore"):
         normal_var = np.einsum("ni,nij,nj->n", normals, covariances, normals)
     normal_var[given & ~np.isfinite(normal_var)] = np.inf
-    spacing = line_spacing(points, lines) if len(points) else float("inf")
     if settings.one_object:  # the frame is one object (its truth, when known)
+        spacing = line_spacing(points, lines) if len(points) else float("inf")
         labels = np.zeros(len(points), dtype=np.int64)
         named: list[tuple[str, TrueObject | None, float | None]] = [
             ("object0", truth[0] if truth else None, None)]
@@ -102,6 +102,7 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
                                       settings.join_normal_tol_rad) if settings.join_convex
                           else (clusters.labels, []))
         named = name_objects(points, labels, truth)
+        spacing = clusters.line_spacing
         clustering = Clustering("dbscan", clusters.eps, clusters.eps_rule, clusters.min_points,
                                 clusters.n_clusters, joined,
                                 spacing if np.isfinite(spacing) else None, clusters.line_extent)
@@ -114,7 +115,8 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
         inside = np.flatnonzero(labels == k)
         surface = estimate_surface(points[inside], normals[inside], settings, normal_var[inside])
         vertices, triangles, std = surface.part(known=True)
-        own_spacing = line_spacing(points[inside], lines[inside])
+        own_spacing = (spacing if len(inside) == len(points)  # the frame's, measured once
+                       else line_spacing(points[inside], lines[inside]))
         cloud_stats: tuple[float | None, float | None] = (None, None)
         mesh_stats: tuple[float | None, float | None] = (None, None)
         nearer_other: dict[str, int] = {}

@@ -109,6 +109,24 @@ def test_stall_from_frozen_ft_sequence_and_from_silence() -> None:
     assert tracker.stalled and tracker.counters["stalls"] == 2
 
 
+def test_the_old_streams_records_after_a_restart_are_not_the_new_ones_duplicates() -> None:
+    """A stream requested again (after a stall): records the sensor sent before the request
+    arrived follow the old stream and are published; the new stream (rdt_sequence from 1, the
+    sensor's ft_sequence running on) begins at its first record, none taken for a duplicate."""
+    seq = np.arange(1, 301)
+    old = [pack_records(seq[i:i + 1], seq[i:i + 1], [0], np.zeros((1, 6))) for i in range(300)]
+    new = [pack_records(seq[i:i + 1], seq[i:i + 1] + 300, [0], np.zeros((1, 6)))
+           for i in range(300)]
+    tracker = StreamTracker(ft_rate_hz=1000.0)
+    got = [tracker.feed(d, 100.0 + 1e-3 * i).rdt.tolist() for i, d in enumerate(old[:200])]
+    tracker.restart(100.3)
+    got += [tracker.feed(d, 100.3).rdt.tolist() for d in old[200:]]  # sent before the request
+    got += [tracker.feed(d, 100.3 + 1e-3 * i).rdt.tolist() for i, d in enumerate(new)]
+    assert sum(got, []) == list(range(1, 301)) * 2
+    c = tracker.counters
+    assert (c["received"], c["duplicates"], c["lost"], c["sequence_anomalies"]) == (600, 0, 0, 0)
+
+
 def test_sensor_time_follows_ft_sequence_on_the_host_clock() -> None:
     tracker = StreamTracker(ft_rate_hz=1000.0)
     delays = [0.001, 0.003, 0.002, 0.004, 0.0005]  # network jitter: the least sets the offset

@@ -463,6 +463,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
         next_command = 0.0
         was_stalled = False
         started: float | None = None  # when the sensor first answered
+        heard_last = 0.0  # when it last did
         next_health = np.inf
         ended = False
         asked_again = False
@@ -482,7 +483,9 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
                     continue
                 datagrams.append(data)
             if datagrams:
-                reader.read_many(datagrams, clock())
+                nonlocal heard_last
+                heard_last = clock()
+                reader.read_many(datagrams, heard_last)
 
         def publish(limit: int | None) -> None:
             nonlocal seq
@@ -578,7 +581,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
     finally:
         sock.close()
     log.info("%s: %s", node.fqn, ", ".join(f"{k} {v}" for k, v in counters.items()))
-    line = health(counters, clock() - started if started is not None else 0.0, loopback)
+    line = health(counters, heard_last - started if started is not None else 0.0, loopback)
     (log.info if line.startswith("health: normal") else log.warning)("%s: %s", node.fqn, line)
     return 0
 

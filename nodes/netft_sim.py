@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -40,7 +41,7 @@ from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, Transform
 from vibrissa.msgs import RobotPose
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.scene import simulate_whisker
+from vibrissa.scene import RobotPath, simulate_whisker
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import simulate_sweep
 from vibrissa.units import RodScale
@@ -181,6 +182,35 @@ def open_device(params: NetFTSimParams,
                        host=params.host, port=params.port, emitted=emitted)
 
 
+class PosePlayer:
+    """The robot's pose of each record the device made, on ``params.pose_topic``."""
+
+    def __init__(self, node: Node, params: NetFTSimParams, path: RobotPath) -> None:
+        self.publisher = node.create_publisher(params.pose_topic, RobotPose,
+                                               wait_for=params.wait_for)
+        self.loop = params.loop
+        self.p_WR, self.q_WR = path.p_WR, path.R_WR.as_quat()
+        self.last_row: int | None = None  # of the newest pose, until a stream's end
+
+    def _publish(self, row: int, stamp: float) -> None:
+        self.publisher.publish(RobotPose(stamp=stamp, frame_id=WORLD_FRAME,
+                                         child_frame_id=ROBOT_FRAME, position=self.p_WR[row],
+                                         orientation=self.q_WR[row]))
+
+    def play(self, emitted: collections.deque[tuple[int, float]], streaming: bool) -> None:
+        """Publish the poses of ``emitted`` (taken off it); after a stream's end, the robot
+        still at its last pose, stamped now (the driver's stamp of the last record, a moment
+        after it was measured, falls before it)."""
+        n = len(self.p_WR)
+        while emitted:
+            row, stamp = emitted.popleft()
+            self.last_row = row % n if self.loop else min(row, n - 1)
+            self._publish(self.last_row, stamp)
+        if self.last_row is not None and not streaming:
+            self._publish(self.last_row, time.time())
+            self.last_row = None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = NodeArgs.parse(argv, prog="netft_sim")
     configure_logging()
@@ -188,23 +218,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     emitted: collections.deque[tuple[int, float]] = collections.deque()
     with Node.from_args(args) as node:
         path = load_scene(params.scene).path if params.scene and params.pose_topic else None
-        poses = (node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for)
-                 if path else None)
-        q_WR = path.R_WR.as_quat() if path else None
         if params.scene:
             node.set_state("running", "simulating the whisker along the path"
                            if not params.simulated else f"reading {params.simulated}")
-        with open_device(params, emitted if poses else None) as device:
+        with open_device(params, emitted if path else None) as device:
             log.info("%s: Net F/T on udp://%s:%d, %d samples at %g Hz", node.fqn,
                      *device.address, len(device.wrench_S), params.rate_hz)
             node.set_state("running", f"udp://{device.address[0]}:{device.address[1]}")
+            poses = None if path is None else PosePlayer(node, params, path)
             while node.sleep(0.01):
-                while poses is not None and path is not None and q_WR is not None and emitted:
-                    row, stamp = emitted.popleft()
-                    row = min(row, len(path.t) - 1) if not params.loop else row % len(path.t)
-                    poses.publish(RobotPose(
-                        stamp=stamp, frame_id=WORLD_FRAME, child_frame_id=ROBOT_FRAME,
-                        position=path.p_WR[row], orientation=q_WR[row]))
+                if poses is not None:
+                    poses.play(emitted, device.streaming)
                 stats = device.stats
                 node.counters.update(made=stats.made, dropped=stats.dropped, late=stats.late,
                                      biases=stats.biases, behind=stats.behind,

@@ -15,7 +15,8 @@ Publishes
     reaction on the rod about the clamp point (``vibrissa.calibration.sensor_to_clamp`` with
     the whisker's X_CS from ``robot``); ``stamp`` the record's sensor time on the host clock
     (``stamp: sensor``, from ``ft_sequence``; see ``vibrissa.wire.netft.StreamTracker``) or
-    its receive time (``stamp: receive``); ``seq`` counts the published samples.
+    its receive time (``stamp: receive``); ``seq`` counts the published samples. With
+    ``samples``: ``EndOfStream`` once the sensor has sent that many records, and the node exits.
 
 The protocol and its books are ``vibrissa.wire.netft``; here are the socket, the stream's
 restarts, the free-rod check and the publishing. Counters in the node's status: the
@@ -28,7 +29,8 @@ published), ``non_finite`` (records whose wrench is not finite: not published),
 ``restarts`` (stream requests after the first), ``biases`` and ``bias_refused``. Records
 dropped for a sequence anomaly or a non-finite wrench are logged, at most a line per 10 s.
 A calibration outside ``vibrissa.wire.netft.CALIBRATION_RANGE`` (parameters or the sensor's
-``netftapi2.xml``) is refused at start (exit 2).
+``netftapi2.xml``) is refused at start (exit 2). Every ``health_every_s`` and at the end the log
+says whether these counts are normal (`health`).
 """
 
 from __future__ import annotations

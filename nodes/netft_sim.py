@@ -16,9 +16,7 @@ whisker's sensor reads: the clamp-frame wrenches of Step 1 (a ``vibrissa simulat
 the scene simulated on start, or one sweep of the paper's trail) turned into the load on a
 sensor at the whisker's X_CS (``vibrissa.calibration.clamp_to_sensor``), plus noise, bias and
 drift, with loss and reordering (``vibrissa.wire.netft_device``); one record per path sample.
-Counters in its status: ``made``, ``dropped``, ``late`` (records), ``biases``, ``behind``
-(times its thread got the CPU too late to send on time: the host is busy) and ``skipped``
-(records not made then).
+Counters in its status: ``made``, ``dropped``, ``late`` (records), ``biases``.
 
 Run next to a driver: ``vibrissa launch launch/netft.yaml`` (both), or by hand
 ``python -m vibrissa.nodes.netft_sim --name sensor --param port:=49152``.
@@ -231,8 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     poses.play(emitted, device.streaming)
                 stats = device.stats
                 node.counters.update(made=stats.made, dropped=stats.dropped, late=stats.late,
-                                     biases=stats.biases, behind=stats.behind,
-                                     skipped=stats.skipped)
+                                     biases=stats.biases)
     return 0
 
 

@@ -51,23 +51,13 @@ class DeviceStats:
     """What the device did: records made (``made``, by ``rdt_sequence``), records dropped
     and records sent after a newer one (``late``; one held back when the device closes is
     neither sent nor late, but counted here until then), requests by command, bias requests
-    applied; ``behind``: times the device's thread ran more than ``BEHIND_S`` late (starved of
-    the CPU: a real sensor never is), ``skipped``: the records it did not make then."""
+    applied."""
 
     made: int = 0
     dropped: int = 0
     late: int = 0
-    behind: int = 0
-    skipped: int = 0
     requests: dict[str, int] = field(default_factory=dict)
     biases: int = 0
-
-
-BEHIND_S = 0.02
-"""When the device's thread gets the CPU this late for a record, it skips the records due
-since (``ft_sequence`` runs on, ``rdt_sequence`` does not skip, the signal does not advance)
-rather than send them in a burst: a real sensor sends each record when it is measured, and a
-burst of old records would reach the driver late (stale) for what is the host's fault."""
 
 
 class NetFTDevice:
@@ -220,14 +210,6 @@ class NetFTDevice:
                 return
             due = int((time.monotonic() - self._t0) * self.rate_hz) + 1 - self._made_in_stream
             per = self.per_datagram if self._buffered else 1
-            if due > per + BEHIND_S * self.rate_hz:  # starved: the backlog is not made
-                skip = due - per
-                self._made_in_stream += skip
-                if not self.freeze_ft:
-                    self._ft += self.ft_step * skip
-                self.stats.behind += 1
-                self.stats.skipped += skip
-                due = per
             while due >= per:
                 n = per if not self._limited else min(per, self._remaining)
                 if n <= 0:

@@ -364,44 +364,33 @@ def test_a_second_device_on_a_taken_port_is_refused() -> None:
         first.close()
 
 
-def test_a_starved_device_skips_its_backlog_and_its_ft_sequence_runs_on() -> None:
-    """A simulated sensor whose thread did not get the CPU for 0.3 s does not send the 300
-    records due meanwhile in one burst (they would reach the driver 0.3 s late: stale); its
-    ft_sequence runs on with the time, also between two streams, as a real sensor's does."""
+def test_the_devices_ft_sequence_runs_on_between_two_streams() -> None:
+    """A sensor's internal counter runs whether it streams or not: a stream requested again
+    after 0.3 s begins with rdt_sequence 1 and an ft_sequence 0.3 s on (the driver's sensor
+    time, and the simulated robot's poses stamped from it, stay on the host's clock)."""
     import socket
     import time
 
-    from vibrissa.wire.netft_device import BEHIND_S, NetFTDevice
+    from vibrissa.wire.netft_device import NetFTDevice
 
-    def receive(sock: socket.socket, until: float) -> list[tuple[int, int, float]]:
-        """(rdt, ft, receive time) of every record until ``until`` (monotonic)."""
+    def receive(sock: socket.socket, until: float) -> list[tuple[int, int]]:
+        """(rdt, ft) of every record until ``until`` (monotonic)."""
         got = []
         while time.monotonic() < until:
             try:
                 data = sock.recv(65536)
             except TimeoutError:
                 continue
-            got += [(int(r["rdt"]), int(r["ft"]), time.monotonic())
-                    for r in parse_datagram(data)]
+            got += [(int(r["rdt"]), int(r["ft"])) for r in parse_datagram(data)]
         return got
 
     with NetFTDevice(np.zeros((1, 6)), rate_hz=1000) as device, \
             socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.settimeout(0.01)
         sock.sendto(pack_request(Command.REALTIME), device.address)
-        before = receive(sock, time.monotonic() + 0.2)
-        with device._lock:  # the device's thread waits here: starved
-            time.sleep(0.3)
-        after = receive(sock, time.monotonic() + 0.2)
-        # in the next 0.2 s: 200 records due, BEHIND_S of catching up and what was queued
-        # before; not the 300 due during the pause on top
-        assert len(after) < 200 + BEHIND_S * 1000 + 60
-        assert device.stats.behind >= 1 and device.stats.skipped >= 250
-        rdt, ft = np.array([r[:2] for r in before + after]).T
-        assert np.all(np.diff(rdt) == 1)  # rdt_sequence counts the records sent
-        assert np.diff(ft).max() >= 250  # ft_sequence counted the time
+        first = receive(sock, time.monotonic() + 0.2)
         sock.sendto(pack_request(Command.STOP), device.address)
-        tail = after + receive(sock, time.monotonic() + 0.3)  # in flight; then the sensor idles
+        first += receive(sock, time.monotonic() + 0.3)  # in flight; then the sensor idles
         sock.sendto(pack_request(Command.REALTIME), device.address)
         again = receive(sock, time.monotonic() + 0.1)
-        assert again[0][0] == 1 and again[0][1] - tail[-1][1] >= 250
+        assert again[0][0] == 1 and again[0][1] - first[-1][1] >= 250

@@ -387,7 +387,7 @@ def test_an_implausible_calibration_is_refused_in_one_line(tmp_path: Path, endpo
 def test_a_sensor_that_comes_up_late_is_neither_a_stall_nor_a_restart(
         tmp_path: Path, endpoints: Endpoints, watch: Watch) -> None:
     """The simulated sensor of a launch computes its signal before it listens: the driver asks
-    until it answers, and its books start then (before: a stall and a restart per restart_s)."""
+    until it answers, and its books start then: no stall, no restart."""
     absent = NetFTDevice(ramp(10), rate_hz=1000, counts_per_force=CPF)
     port = absent.address[1]
     absent.close()

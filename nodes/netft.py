@@ -366,14 +366,13 @@ def health(counters: Mapping[str, int], elapsed_s: float, loopback: bool) -> str
     limit = LOOPBACK_LOSS if loopback else NETWORK_LOSS
     busy = ("this machine is too busy to run the simulated sensor and the driver on time"
             if loopback else "the driver is starved of the CPU, or the network is congested")
+    why = ("loopback loses and reorders nothing: the simulated sensor's loss or reorder "
+           "parameters, or " + busy if loopback else "the network drops or reorders datagrams")
     problems = []
-    for key, text in (
-            ("lost", f"records lost (gaps in rdt_sequence): {busy}" if loopback else
-             "records lost (gaps in rdt_sequence): the network dropped datagrams"),
-            ("reordered", "records came after a newer one (not published): "
-             + (busy if loopback else "the network reorders datagrams"))):
+    for key, what in (("lost", "records lost (gaps in rdt_sequence)"),
+                      ("reordered", "records came after a newer one (not published)")):
         if c[key] > limit * max(sent, 1):
-            problems.append(f"{c[key]} {text} ({c[key] / max(sent, 1):.2%} of {sent})")
+            problems.append(f"{c[key]} of {sent} {what}, {c[key] / max(sent, 1):.2%}: {why}")
     for key, text in (
             ("stale", "records dropped as stale (more than max_latency_s behind the newest "
              f"when their turn came): {busy}"),

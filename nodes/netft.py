@@ -15,7 +15,8 @@ Publishes
     reaction on the rod about the clamp point (``vibrissa.calibration.sensor_to_clamp`` with
     the whisker's X_CS from ``robot``); ``stamp`` the record's sensor time on the host clock
     (``stamp: sensor``, from ``ft_sequence``; see ``vibrissa.wire.netft.StreamTracker``) or
-    its receive time (``stamp: receive``); ``seq`` counts the published samples.
+    its receive time (``stamp: receive``); ``seq`` counts the published samples. With
+    ``samples``: ``EndOfStream`` once the sensor has sent that many records, and the node exits.
 
 The protocol and its books are ``vibrissa.wire.netft``; here are the socket, the stream's
 restarts, the free-rod check and the publishing. Counters in the node's status: the
@@ -28,17 +29,19 @@ published), ``non_finite`` (records whose wrench is not finite: not published),
 ``restarts`` (stream requests after the first), ``biases`` and ``bias_refused``. Records
 dropped for a sequence anomaly or a non-finite wrench are logged, at most a line per 10 s.
 A calibration outside ``vibrissa.wire.netft.CALIBRATION_RANGE`` (parameters or the sensor's
-``netftapi2.xml``) is refused at start (exit 2).
+``netftapi2.xml``) is refused at start (exit 2). Every ``health_every_s`` and at the end the log
+says whether these counts are normal (`health`).
 """
 
 from __future__ import annotations
 
 import collections
+import ipaddress
 import logging
 import select
 import socket
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -123,6 +126,13 @@ class NetFTParams:
         The socket's receive buffer (SO_RCVBUF).
     wait_for
         Nodes that must subscribe to ``topic`` first (buffered until then).
+    samples
+        Records to request (the RDT sample count): once the sensor has sent that many (counted
+        across restarts; lost ones included), the stream ends: ``EndOfStream`` on ``topic``
+        and the node exits. 0: stream until stopped.
+    health_every_s
+        The health line (`health`) in the log this often while streaming (and at the end), s;
+        0: at the end only.
     """
 
     whisker: str = "whisker0"
@@ -149,6 +159,8 @@ class NetFTParams:
     free_moment_nm: float = 0.005
     receive_buffer_bytes: int = 1 << 20
     wait_for: tuple[str, ...] = ()
+    samples: int = 0
+    health_every_s: float = 30.0
     X_CS: Transform = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -163,7 +175,8 @@ class NetFTParams:
             error = calibration_error(kind, getattr(self, key))
             if error is not None:
                 raise ValueError(f"parameter {key!r}: {error}")
-        require_non_negative("max_latency_s", self.max_latency_s)
+        for key in ("max_latency_s", "health_every_s", "samples"):
+            require_non_negative(key, getattr(self, key))
         require(0 <= self.fault_mask < 1 << 32, "fault_mask", self.fault_mask, "a 32-bit mask")
         require(self.free_samples >= 1, "free_samples", self.free_samples, "an integer >= 1")
         require(self.receive_buffer_bytes >= 4096, "receive_buffer_bytes", self.receive_buffer_bytes,
@@ -330,6 +343,65 @@ class _AnomalyLog:
         self.last = now
 
 
+LOOPBACK_LOSS = 0.0
+"""Fraction of records a loopback link loses when the machine keeps up: none."""
+
+NETWORK_LOSS = 1e-3
+"""Fraction of records lost or reordered above which a wired network link is not healthy."""
+
+
+def health(counters: Mapping[str, int], elapsed_s: float, loopback: bool) -> str:
+    """One line on whether the stream's counts are normal: ``health: normal (...)``, or
+    ``health: ABNORMAL: ...`` naming each count that is not, with what it means.
+
+    ``counters`` are the driver's (`StreamTracker` names: ``received``, ``lost``, ...; and
+    ``stale``, ``restarts``, ``foreign``, ``non_finite``), over ``elapsed_s`` of streaming;
+    ``loopback``: the sensor is on this machine (a simulated one), where nothing is lost,
+    reordered or late unless the machine is too busy to run the sensor and the driver."""
+    c = {k: counters.get(k, 0) for k in (
+        "received", "lost", "reordered", "duplicates", "malformed", "sequence_anomalies",
+        "ft_frozen", "stalls", "status_warnings", "status_faults", "stale", "non_finite",
+        "foreign", "restarts")}
+    sent = c["received"] + c["lost"] + c["reordered"] + c["status_faults"] + c["ft_frozen"]
+    limit = LOOPBACK_LOSS if loopback else NETWORK_LOSS
+    busy = ("this machine is too busy to run the simulated sensor and the driver on time"
+            if loopback else "the driver is starved of the CPU, or the network is congested")
+    why = ("loopback loses and reorders nothing: the simulated sensor's loss or reorder "
+           "parameters, or " + busy if loopback else "the network drops or reorders datagrams")
+    problems = []
+    for key, what in (("lost", "records lost (gaps in rdt_sequence)"),
+                      ("reordered", "records came after a newer one (not published)")):
+        if c[key] > limit * max(sent, 1):
+            problems.append(f"{c[key]} of {sent} {what}, {c[key] / max(sent, 1):.2%}: {why}")
+    for key, text in (
+            ("stale", "records dropped as stale (more than max_latency_s behind the newest "
+             f"when their turn came): {busy}"),
+            ("stalls", "stalls (no records, or ft_sequence frozen, for stall_s): the sensor "
+             f"stopped sending, or {busy}"),
+            ("restarts", "stream requests after the first (after a stall): the sensor starts "
+             "its rdt_sequence anew, and records around the restart may be lost"),
+            ("duplicates", "records that came twice: another client requested this sensor's "
+             "stream, or the network duplicates datagrams"),
+            ("malformed", "datagrams from the sensor's address that are not RDT records: "
+             "another program sends from that address and port"),
+            ("sequence_anomalies", "records with an implausible sequence jump: a rebooted "
+             "sensor or a corrupted stream"),
+            ("ft_frozen", "records whose ft_sequence did not move: the sensor's sampling "
+             "stopped"),
+            ("status_faults", "records with a fault bit in the status word (not published)"),
+            ("status_warnings", "records with a warning bit in the status word"),
+            ("non_finite", "records whose wrench is not finite (not published)"),
+            ("foreign", "datagrams from another address (ignored)")):
+        if c[key]:
+            problems.append(f"{c[key]} {text}")
+    rate = c["received"] / elapsed_s if elapsed_s > 0 else 0.0
+    what = f"{c['received']} records in {elapsed_s:.1f} s ({rate:.0f} per s)"
+    if problems:
+        return f"health: ABNORMAL: {'; '.join(problems)} ({what})"
+    return (f"health: normal ({what}; none lost, stale, reordered, duplicated or malformed, "
+            "no stalls or restarts)")
+
+
 def sensor_config(params: NetFTParams) -> NetFTConfig:
     """The counts per N and N m: the parameters, or the sensor's netftapi2.xml."""
     if params.read_config:
@@ -345,7 +417,10 @@ def sensor_config(params: NetFTParams) -> NetFTConfig:
 
 
 def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time) -> int:
-    """Stream from the sensor until the node is asked to stop."""
+    """Stream from the sensor until the node is asked to stop, or until the sensor has sent
+    ``samples`` records (then ``EndOfStream``). Until the sensor first answers (a simulated
+    one may still be starting), the stream is requested every ``restart_s``: neither a stall
+    nor a restart."""
     reader = NetFTReader(params, sensor_config(params))
     counters = reader.counters
     counters.update(foreign=0, restarts=0, biases=0, bias_refused=0)
@@ -362,21 +437,37 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
     commands = node.create_subscriber({params.command_topic: SensorCommand})
     frame_id = clamp_frame(params.whisker)
     sensor = (socket.gethostbyname(params.address), params.port)
-    stream = pack_request(Command.BUFFERED if params.mode == "buffered" else Command.REALTIME, 0)
+    loopback = ipaddress.ip_address(sensor[0]).is_loopback
+
+    def sent() -> int:
+        """Records the sensor sent, as far as the books tell (lost ones included)."""
+        return sum(counters[k] for k in ("received", "lost", "reordered", "status_faults",
+                                         "ft_frozen"))
+
+    def stream() -> bytes:
+        """The stream's request, for the records still wanted."""
+        count = max(params.samples - sent(), 1) if params.samples else 0
+        return pack_request(Command.BUFFERED if params.mode == "buffered" else Command.REALTIME,
+                            count)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, params.receive_buffer_bytes)
         sock.bind(("", params.local_port))
         sock.setblocking(False)
-        sock.sendto(stream, sensor)
+        sock.sendto(stream(), sensor)
         reader.tracker.restart(clock())  # the tracker's times are all on ``clock``
         log.info("%s: streaming from %s:%d (%s) as %s", node.fqn, *sensor, params.mode, frame_id)
         node.set_state("running", f"streaming from {sensor[0]}:{sensor[1]}")
         seq = 0
         bias_wanted = params.bias_at_start
-        next_restart = 0.0
+        next_restart = clock() + params.restart_s
         next_command = 0.0
         was_stalled = False
+        started: float | None = None  # when the sensor first answered
+        heard_last = 0.0  # when it last did
+        next_health = np.inf
+        ended = False
+        asked_again = False
         def drain() -> None:
             """Everything queued now into the reader, so nothing waits behind stale data."""
             datagrams = []
@@ -393,7 +484,9 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
                     continue
                 datagrams.append(data)
             if datagrams:
-                reader.read_many(datagrams, clock())
+                nonlocal heard_last
+                heard_last = clock()
+                reader.read_many(datagrams, heard_last)
 
         def publish(limit: int | None) -> None:
             nonlocal seq
@@ -413,7 +506,23 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
             publish(PUBLISH_SLICE)
             anomalies.check(counters)
             now = clock()
-            stalled = reader.tracker.check_stall(now)
+            if params.samples and sent() >= params.samples:
+                ended = True
+                break
+            if started is None and counters["datagrams"]:
+                started = now
+                next_health = now + (params.health_every_s or np.inf)
+            elif started is None and now >= next_restart:  # the sensor is not there yet
+                if not asked_again:
+                    log.info("%s: no answer from %s:%d yet; asking again every %g s", node.fqn,
+                             *sensor, params.restart_s)
+                    asked_again = True
+                sock.sendto(stream(), sensor)
+                next_restart = now + params.restart_s
+            if started is not None and now >= next_health:
+                log.info("%s: %s", node.fqn, health(counters, now - started, loopback))
+                next_health = now + params.health_every_s
+            stalled = started is not None and reader.tracker.check_stall(now)
             if stalled and not was_stalled:
                 log.warning("%s: the sensor stalled: %s for %.2f s; requesting the stream again",
                             node.fqn, "ft_sequence frozen" if reader.tracker.heard_at is not None
@@ -428,7 +537,7 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
             if stalled and now >= next_restart:
                 drain()  # what the old stream queued goes in its own books, not the new one's
                 sock.sendto(pack_request(Command.STOP), sensor)
-                sock.sendto(stream, sensor)
+                sock.sendto(stream(), sensor)
                 reader.tracker.restart(now)
                 counters["restarts"] += 1
                 next_restart = now + params.restart_s
@@ -464,11 +573,17 @@ def run(node: Node, params: NetFTParams, clock: Callable[[], float] = time.time)
                 drain()
                 quiet_until = time.monotonic() + params.stall_s
         publish(None)
+        if ended:
+            wrenches.publish_end_of_stream(node.fqn)
+            log.info("%s: the sensor sent the %d records requested; EndOfStream on %s",
+                     node.fqn, params.samples, wrenches.topic)
         anomalies.check(counters)
         report()
     finally:
         sock.close()
     log.info("%s: %s", node.fqn, ", ".join(f"{k} {v}" for k, v in counters.items()))
+    line = health(counters, heard_last - started if started is not None else 0.0, loopback)
+    (log.info if line.startswith("health: normal") else log.warning)("%s: %s", node.fqn, line)
     return 0
 
 

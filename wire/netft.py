@@ -218,6 +218,7 @@ class StreamTracker:
     _ft_stamped: int | None = None   # unwrapped ft_sequence of the last record stamped
     _last_stamp: float = -np.inf
     _suspect: tuple[int, int, float] | None = None  # (rdt, ft, offset) of a wild record
+    _restarted: bool = False         # a new stream requested, its first record not yet here
     stalled: bool = False
 
     COUNTERS = ("datagrams", "received", "lost", "reordered", "duplicates", "malformed",
@@ -228,10 +229,12 @@ class StreamTracker:
             self.counters.setdefault(name, 0)
 
     def restart(self, now: float) -> None:
-        """A new stream was requested (the sensor starts ``rdt_sequence`` again at 1): forget
-        the sequences, keep the counters and a stall (it ends with the first moving record);
-        the stall clock starts at ``now``."""
-        self._newest = None
+        """A new stream was requested (the sensor starts ``rdt_sequence`` again at 1): keep
+        the counters and a stall (it ends with the first moving record); the stall clock starts
+        at ``now``. Records that follow on from the old stream's newest are the old stream's,
+        sent before the request arrived (in order: published); the first that does not (an
+        ``rdt_sequence`` at or below the old newest) begins the new stream."""
+        self._restarted = self._newest is not None
         self._suspect = None
         self.heard_at = None
         self._ft_moved_at = now
@@ -302,8 +305,10 @@ class StreamTracker:
             if group[i] != last_group:
                 stamp()
                 last_group = group[i]
-            if self._newest is None:  # the stream's first record
-                self._rebase(rdt, None, np.inf)
+            if self._newest is None or (
+                    self._restarted and _delta(rdt, self._newest % _MOD) <= 0):
+                self._rebase(rdt, None, np.inf)  # the stream's first record
+                self._restarted = False
                 ft_u = ft
             else:
                 d = _delta(rdt, self._newest % _MOD)

@@ -13,6 +13,7 @@ sent), ``send_raw`` (any datagram to the client), ``close`` and a new device on 
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import socket
 import threading
@@ -74,14 +75,20 @@ class NetFTDevice:
     per_datagram
         Records per datagram in buffered mode (command 0x0003).
     ft_step
-        ``ft_sequence`` advance per record (the sensor's internal rate / RDT rate).
+        ``ft_sequence`` advance per record (the sensor's internal rate / RDT rate); it runs on
+        between streams, as the sensor's internal counter does.
+    emitted
+        When given, each record made appends ``(row of wrench_S, time it was measured on
+        time.time())`` to it (whether sent, dropped or muted): what a simulated world (the
+        robot's poses) needs to go with the records.
     """
 
     def __init__(self, wrench_S: npt.ArrayLike, rate_hz: float = 1000.0, *,
                  counts_per_force: float = 1e6, counts_per_torque: float = 1e6,
                  spec: SignalSpec = SignalSpec(), per_datagram: int = 10, ft_step: int = 1,
                  loop: bool = False, host: str = "127.0.0.1", port: int = 0,
-                 first_rdt: int = 1, first_ft: int = 0) -> None:
+                 first_rdt: int = 1, first_ft: int = 0,
+                 emitted: collections.deque[tuple[int, float]] | None = None) -> None:
         self.wrench_S = np.asarray(wrench_S, dtype=float).reshape(-1, 6)
         if not len(self.wrench_S):
             raise ValueError("wrench_S must have at least one row of 6")
@@ -108,6 +115,9 @@ class NetFTDevice:
         self._index = 0              # row of wrench_S of the next record
         self._rdt = first_rdt
         self._t0 = 0.0
+        self._t0_wall = 0.0
+        self._last_made: float | None = None  # monotonic time the newest record was measured
+        self.emitted = emitted
         self._made_in_stream = 0
         self._held: bytes | None = None
         self._glitch = (0, 0)
@@ -189,7 +199,9 @@ class NetFTDevice:
                 self._buffered = command is Command.BUFFERED
                 self._limited, self._remaining = count > 0, count
                 self._rdt = self._first_rdt  # rdt_sequence starts again with each request
-                self._t0 = time.monotonic()
+                self._t0, self._t0_wall = time.monotonic(), time.time()
+                if self._last_made is not None and not self.freeze_ft:  # the sensor's counter ran
+                    self._ft += self.ft_step * int((self._t0 - self._last_made) * self.rate_hz)
                 self._made_in_stream = 0
 
     def _stream(self) -> None:
@@ -232,6 +244,9 @@ class NetFTDevice:
             ft[0] += self._glitch[1]
             self._glitch = (0, 0)
         self._rdt += n
+        self._last_made = self._t0 + (self._made_in_stream + n - 1) / self.rate_hz
+        if self.emitted is not None:
+            self.emitted.extend(zip(rows.tolist(), (self._t0_wall + t).tolist(), strict=True))
         self._made_in_stream += n
         self.stats.made += n
         data = pack_records(rdt, ft, np.full(n, self.status), counts)

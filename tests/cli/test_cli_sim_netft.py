@@ -75,7 +75,7 @@ def test_streams_the_nodes_signal_and_stops_on_a_signal(stop: signal.Signals) ->
     (["--rate-hz", "0"], "parameter 'rate_hz' must be a finite number > 0, got 0.0"),
     (["--noise-force-n=-1e-3"], "parameter 'noise_force_n' must be a finite number >= 0"),
     (["--surface", "cube:a=1"], "parameter 'surface': "),
-    (["--scene", "scene.yaml"], "parameter 'simulated/whisker' must be a results folder"),
+    (["--scene", "scene.yaml"], "parameter 'whisker' must be a whisker with 'scene'"),
     (["--drift", "0", "0", "0", "0", "0", "[1"], "parameter 'drift': '[1' is not a value"),
 ])
 def test_a_bad_value_is_one_line_and_status_2(capsys: pytest.CaptureFixture[str], options: list[str],

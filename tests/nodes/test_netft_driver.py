@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from vibrissa.msgs import NodeStatus, SensorCommand, WhiskerWrenchArray
+from vibrissa.msgs import EndOfStream, NodeStatus, SensorCommand, WhiskerWrenchArray
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 from vibrissa.wire.netft_device import NetFTDevice, SignalSpec
 
@@ -382,3 +382,52 @@ def test_an_implausible_calibration_is_refused_in_one_line(tmp_path: Path, endpo
     assert f"{float(value)!r} counts per N is not a plausible force calibration" in lines[0]
     assert "within 0.1 to 3e+09 counts per N" in lines[0]
     assert ("cfgcpf" in lines[0]) == source.startswith("xml")
+
+
+def test_a_sensor_that_comes_up_late_is_neither_a_stall_nor_a_restart(
+        tmp_path: Path, endpoints: Endpoints, watch: Watch) -> None:
+    """The simulated sensor of a launch computes its signal before it listens: the driver asks
+    until it answers, and its books start then: no stall, no restart."""
+    absent = NetFTDevice(ramp(10), rate_hz=1000, counts_per_force=CPF)
+    port = absent.address[1]
+    absent.close()
+    with driver(tmp_path, endpoints, absent, stall_s=0.2):
+        watch.until(lambda c: "records" in c)  # the driver runs and asks
+        away_until = time.monotonic() + 1.5  # the sensor stays away this long
+        while time.monotonic() < away_until:
+            watch.until(lambda c: True)
+        with NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF, port=port) as device:
+            got = watch.take(300)
+            assert np.all(np.diff(rows_of(got)) == 1)
+            counters = watch.until(lambda c: c["records"] >= 300)
+            assert (counters["stalls"], counters["restarts"]) == (0, 0)
+            assert device.stats.requests["REALTIME"] >= 1
+
+
+def test_samples_end_the_stream_with_end_of_stream_and_a_health_line(
+        tmp_path: Path, endpoints: Endpoints, context: Any) -> None:
+    """``samples``: the driver requests that many records (RDT's sample count), publishes
+    them, then EndOfStream, says whether the counts are normal and exits 0."""
+    wrenches = Subscriber({"/s/wrench": None}, endpoints, context)
+    try:
+        with NetFTDevice(ramp(100_000), rate_hz=1000, counts_per_force=CPF) as device, \
+                driver(tmp_path, endpoints, device, samples=500) as proc:
+            got: list[WhiskerWrenchArray] = []
+            deadline = time.monotonic() + TIMEOUT_S
+            eos = None
+            while eos is None:
+                assert time.monotonic() < deadline, f"{len(got)} wrenches, no EndOfStream"
+                rx = wrenches.receive(0.2)
+                if rx is not None and isinstance(rx.msg, WhiskerWrenchArray):
+                    got.append(rx.msg)
+                elif rx is not None and isinstance(rx.msg, EndOfStream):
+                    eos = rx.msg
+            assert proc.wait(TIMEOUT_S) == 0
+            assert proc.stderr is not None
+            err = proc.stderr.read()
+            rows = rows_of(got)  # the first may be missed while the subscription propagates
+            assert np.all(np.diff(rows) == 1) and rows[-1] == 499
+            assert eos.count == 500 and device.stats.made == 500
+            assert re.search(r"health: normal \(500 records in [\d.]+ s", err), err
+    finally:
+        wrenches.close()

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vibrissa.nodes.netft import NetFTParams, NetFTReader
-from vibrissa.wire.netft import NetFTConfig, pack_records
+from vibrissa.nodes.netft import NetFTParams, NetFTReader, health
+from vibrissa.wire.netft import NetFTConfig, StreamTracker, pack_records
 
 RATE_HZ = 1000.0  # ft_sequence rate: record k is measured at k ms
 CPF = 1000.0  # counts per N and per N m
@@ -91,3 +91,21 @@ def test_records_that_convert_to_a_non_finite_wrench_are_counted_not_taken() -> 
     stamp, f0, m0 = r.take()
     assert len(stamp) == 2 and np.isfinite(f0).all() and np.isfinite(m0).all()
     assert r.counters["non_finite"] == 1 and r.counters["received"] == 3
+
+
+def test_the_health_line_says_normal_or_names_what_is_not() -> None:
+    clean = dict.fromkeys(StreamTracker.COUNTERS, 0) | {"received": 1700, "stale": 0,
+                                                      "restarts": 0, "foreign": 0}
+    line = health(clean, 1.7, loopback=True)
+    assert line.startswith("health: normal (1700 records in 1.7 s (1000 per s)")
+    busy = clean | {"stale": 21, "lost": 3, "received": 1697}
+    line = health(busy, 1.7, loopback=True)
+    assert line.startswith("health: ABNORMAL: 3 of 1700 records lost (gaps in rdt_sequence), "
+                           "0.18%: loopback loses and reorders nothing")
+    assert "21 records dropped as stale" in line
+    assert line.count("this machine is too busy") == 2
+    # on a network a little loss is normal; duplicates and restarts never are
+    assert health(clean | {"lost": 1, "received": 1699}, 1.7, loopback=False).startswith(
+        "health: normal")
+    line = health(clean | {"duplicates": 5, "restarts": 2}, 1.7, loopback=False)
+    assert "5 records that came twice" in line and "2 stream requests after the first" in line

@@ -109,6 +109,24 @@ def test_stall_from_frozen_ft_sequence_and_from_silence() -> None:
     assert tracker.stalled and tracker.counters["stalls"] == 2
 
 
+def test_the_old_streams_records_after_a_restart_are_not_the_new_ones_duplicates() -> None:
+    """A stream requested again (after a stall): records the sensor sent before the request
+    arrived follow the old stream and are published; the new stream (rdt_sequence from 1, the
+    sensor's ft_sequence running on) begins at its first record, none taken for a duplicate."""
+    seq = np.arange(1, 301)
+    old = [pack_records(seq[i:i + 1], seq[i:i + 1], [0], np.zeros((1, 6))) for i in range(300)]
+    new = [pack_records(seq[i:i + 1], seq[i:i + 1] + 300, [0], np.zeros((1, 6)))
+           for i in range(300)]
+    tracker = StreamTracker(ft_rate_hz=1000.0)
+    got = [tracker.feed(d, 100.0 + 1e-3 * i).rdt.tolist() for i, d in enumerate(old[:200])]
+    tracker.restart(100.3)
+    got += [tracker.feed(d, 100.3).rdt.tolist() for d in old[200:]]  # sent before the request
+    got += [tracker.feed(d, 100.3 + 1e-3 * i).rdt.tolist() for i, d in enumerate(new)]
+    assert sum(got, []) == list(range(1, 301)) * 2
+    c = tracker.counters
+    assert (c["received"], c["duplicates"], c["lost"], c["sequence_anomalies"]) == (600, 0, 0, 0)
+
+
 def test_sensor_time_follows_ft_sequence_on_the_host_clock() -> None:
     tracker = StreamTracker(ft_rate_hz=1000.0)
     delays = [0.001, 0.003, 0.002, 0.004, 0.0005]  # network jitter: the least sets the offset
@@ -344,3 +362,35 @@ def test_a_second_device_on_a_taken_port_is_refused() -> None:
             NetFTDevice(np.zeros((1, 6)), port=first.address[1])
     finally:
         first.close()
+
+
+def test_the_devices_ft_sequence_runs_on_between_two_streams() -> None:
+    """A sensor's internal counter runs whether it streams or not: a stream requested again
+    after 0.3 s begins with rdt_sequence 1 and an ft_sequence 0.3 s on (the driver's sensor
+    time, and the simulated robot's poses stamped from it, stay on the host's clock)."""
+    import socket
+    import time
+
+    from vibrissa.wire.netft_device import NetFTDevice
+
+    def receive(sock: socket.socket, until: float) -> list[tuple[int, int]]:
+        """(rdt, ft) of every record until ``until`` (monotonic)."""
+        got = []
+        while time.monotonic() < until:
+            try:
+                data = sock.recv(65536)
+            except TimeoutError:
+                continue
+            got += [(int(r["rdt"]), int(r["ft"])) for r in parse_datagram(data)]
+        return got
+
+    with NetFTDevice(np.zeros((1, 6)), rate_hz=1000) as device, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.settimeout(0.01)
+        sock.sendto(pack_request(Command.REALTIME), device.address)
+        first = receive(sock, time.monotonic() + 0.2)
+        sock.sendto(pack_request(Command.STOP), device.address)
+        first += receive(sock, time.monotonic() + 0.3)  # in flight; then the sensor idles
+        sock.sendto(pack_request(Command.REALTIME), device.address)
+        again = receive(sock, time.monotonic() + 0.1)
+        assert again[0][0] == 1 and again[0][1] - first[-1][1] >= 250

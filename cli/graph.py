@@ -12,10 +12,13 @@ from vibrissa.cli.arg_types import folder
 from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire.security import KEYS_ENV, Keys
 from vibrissa.wire.topics import validate_name
-from vibrissa.wire.transport import DOMAIN_ENV, Endpoints
-
-SCANNED_DOMAINS = range(32)
-"""Domains probed for running graphs when a tool hears nothing on its own."""
+from vibrissa.wire.transport import (
+    DOMAIN_ENV,
+    SCANNED_DOMAINS,
+    Endpoints,
+    running_graphs,
+    which_graph,
+)
 
 
 def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
@@ -127,6 +130,15 @@ def where(args: argparse.Namespace, endpoints: Endpoints) -> str:
     return f"domain {_domain(args)} ({endpoints.sub})"
 
 
+def graph_note(args: argparse.Namespace) -> str | None:
+    """`which_graph` for a tool run without ``--domain`` (or ``--pub/--sub``); None when the
+    graph was named."""
+    if args.domain is not None or args.pub or args.sub:
+        return None
+    note = which_graph(_domain(args))
+    return None if note is None else f"{note}; pass --domain N (or {DOMAIN_ENV}=N) for another"
+
+
 def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """What to tell a user whose tool heard no graph: where it looked, and where graphs run
     (domains 0-31 and the 32 from the tool's own, where a launch moves when its is taken)."""
@@ -142,10 +154,13 @@ def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
                 f"of {endpoints.keys.folder} (is it a client folder of that graph's "
                 "`vibrissa keys FOLDER --client NAME`?), or it runs without keys")
     text = f"no running graph heard on {here}"
-    others = [d for d in running if Endpoints.for_domain(d).sub != endpoints.sub]
+    records = {record.domain: record for record in running_graphs()}
+    others = [d for d in sorted({*running, *records})
+              if Endpoints.for_domain(d).sub != endpoints.sub]
     if others:
         listed = ", ".join(str(d) for d in others)
         text += f"; graphs are running on domain {listed}: pass --domain N (or {DOMAIN_ENV}=N)"
+        text += "".join(f"; {records[d].describe()}" for d in others if d in records)
     else:
         text += ("; start one (`vibrissa launch demo`), or point at yours with --domain N "
                  f"({DOMAIN_ENV}=N) or --pub/--sub")

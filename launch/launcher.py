@@ -372,7 +372,7 @@ class Launcher:
             if domain != candidates[0]:
                 self.out.log(f"domain {candidates[0]} is in use by another graph; this graph "
                              f"runs on domain {domain}")
-                self._reach = f" (domain {domain}; tools: --domain {domain} or {DOMAIN_ENV}={domain})"
+                self._reach = f" domain {domain} (tools: --domain {domain} or {DOMAIN_ENV}={domain})"
             tools = ("tools find it without flags" if domain == 0 and DOMAIN_ENV not in os.environ
                      else f"tools: --domain {domain} or {DOMAIN_ENV}={domain}")
             self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
@@ -604,7 +604,7 @@ class Launcher:
         outcomes = [node.outcome for node in self.nodes]
         width = max(len(o.name) for o in outcomes)
         result_width = max(len(o.describe()) for o in outcomes)
-        self.out.log(f"summary{self._reach}:")
+        self.out.log(f"summary:{self._reach}")
         shortfalls: list[tuple[bool, str]] = []
         refused_peers = self.refused_peers
         for node, o in zip(self.nodes, outcomes, strict=True):

@@ -14,9 +14,9 @@ from vibrissa.wire.security import KEYS_ENV, Keys
 from vibrissa.wire.topics import validate_name
 from vibrissa.wire.transport import (
     DOMAIN_ENV,
-    SCANNED_DOMAINS,
     Endpoints,
     running_graphs,
+    scanned_domains,
     which_graph,
 )
 
@@ -143,8 +143,7 @@ def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """What to tell a user whose tool heard no graph: where it looked, and where graphs run
     (domains 0-31 and the 32 from the tool's own, where a launch moves when its is taken)."""
     domain = _domain(args)
-    nearby = range(domain, min(domain + len(SCANNED_DOMAINS), Endpoints.MAX_DOMAIN + 1))
-    running = Endpoints.domains_in_use(sorted(set(SCANNED_DOMAINS) | set(nearby)))
+    running = Endpoints.domains_in_use(scanned_domains(domain))
     here = where(args, endpoints)
     if not (args.pub or args.sub) and domain in running:
         if endpoints.keys is None:

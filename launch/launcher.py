@@ -300,9 +300,10 @@ class Launcher:
                 return 1
             proxy, domain_env = started
             assert proxy.endpoints is not None
-            record = (register_graph(GraphRecord.of_this_process(int(domain_env[DOMAIN_ENV]),
-                                                                 self.description.source))
-                      if domain_env else None)
+            record = None
+            if domain_env:  # on a domain: the tools of every user can name the graph
+                record = register_graph(GraphRecord.of_this_process(
+                    int(domain_env[DOMAIN_ENV]), os.path.abspath(self.description.source)))
             self._statuses = Subscriber({STATUS_TOPIC: NodeStatus}, proxy.endpoints)
             transport = self.description.transport or TransportSpec()
             self._env = {"PYTHONUNBUFFERED": "1", **proxy.endpoints.to_env(), **domain_env,

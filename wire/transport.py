@@ -83,6 +83,7 @@ __all__ = [
     "joined_graph_note",
     "register_graph",
     "running_graphs",
+    "scanned_domains",
     "which_graph",
 ]
 
@@ -319,13 +320,20 @@ SCANNED_DOMAINS = range(32)
 """Domains probed for running graphs (besides those with a `GraphRecord`)."""
 
 
+def scanned_domains(domain: int) -> list[int]:
+    """The domains probed for graphs by a process on ``domain``: `SCANNED_DOMAINS` and the
+    32 from its own (where a launch moves when its domain is taken)."""
+    nearby = range(domain, min(domain + len(SCANNED_DOMAINS), Endpoints.MAX_DOMAIN + 1))
+    return sorted({*SCANNED_DOMAINS, *nearby})
+
+
 def which_graph(domain: int) -> str | None:
     """Which graph a process that joins ``domain`` by default talks to, when more than one
     runs on this machine: its record (launch file, start, user) and the others' (each with
     its domain), for a line that goes on with how to choose another; None when at most one
     runs."""
     records = {record.domain: record for record in running_graphs()}
-    running = set(records) | set(Endpoints.domains_in_use(sorted({*SCANNED_DOMAINS, domain})))
+    running = set(records) | set(Endpoints.domains_in_use(scanned_domains(domain)))
     if len(running) < 2:
         return None
 

@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -41,6 +42,9 @@ def test_a_live_launchers_record_of_a_bound_domain_counts(temp_dir: Path) -> Non
     assert running_graphs() == []  # nothing bound on its domain
     with Proxy(Endpoints.for_domain(DOMAIN)):
         assert running_graphs() == [record]
+    deadline = time.monotonic() + 20.0  # ZeroMQ closes the listening socket in its I/O thread
+    while running_graphs() and time.monotonic() < deadline:
+        time.sleep(0.05)
     assert running_graphs() == []
 
 

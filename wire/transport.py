@@ -33,11 +33,11 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
+import getpass
 import itertools
 import json
 import logging
 import os
-import pwd
 import socket
 import stat
 import tempfile
@@ -45,7 +45,7 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from datetime import datetime
 from pathlib import Path
 from types import TracebackType
@@ -69,8 +69,8 @@ __all__ = [
     "DOMAIN_ENV",
     "MAX_PUBLISHERS",
     "MAX_SEQ_GAP",
-    "Endpoints",
     "SCANNED_DOMAINS",
+    "Endpoints",
     "GraphRecord",
     "Header",
     "MessageTypes",
@@ -251,8 +251,8 @@ class GraphRecord:
     def of_this_process(cls, domain: int, launch_file: str) -> GraphRecord:
         """The record of a graph this process starts now on ``domain``."""
         try:
-            user = pwd.getpwuid(os.getuid()).pw_name
-        except KeyError:  # a uid without a passwd entry (a container)
+            user = getpass.getuser()
+        except (KeyError, OSError):  # a uid without a name (a container)
             user = f"uid {os.getuid()}"
         return cls(domain, launch_file, datetime.now().astimezone().isoformat(timespec="seconds"),
                    user, os.getpid())
@@ -278,7 +278,7 @@ def register_graph(record: GraphRecord) -> Path | None:
             return None  # somebody else's folder (or a link) under our name: write nothing there
         path = folder / f"domain-{record.domain}-{record.pid}.json"
         partial = path.with_suffix(".part")
-        partial.write_text(json.dumps(record.__dict__))
+        partial.write_text(json.dumps(asdict(record)))
         partial.chmod(0o644)
         partial.replace(path)
     except OSError:
@@ -309,8 +309,8 @@ def running_graphs() -> list[GraphRecord]:
                 if int(uid_text) == os.getuid():
                     path.unlink(missing_ok=True)
                 continue
-            newer = found.get(record.domain)
-            if (newer is None or newer.started < record.started) and \
+            kept = found.get(record.domain)  # a launcher whose pid a new process took
+            if (kept is None or kept.started < record.started) and \
                     Endpoints.domains_in_use([record.domain]):
                 found[record.domain] = record
     return [found[domain] for domain in sorted(found)]

@@ -118,7 +118,7 @@ def endpoints_from(args: argparse.Namespace) -> Endpoints:
     return Endpoints(args.pub or base.pub, args.sub or base.sub, keys)
 
 
-def _domain(args: argparse.Namespace) -> int:
+def domain_of(args: argparse.Namespace) -> int:
     """The domain a tool looks at: ``--domain``, else the environment's."""
     return args.domain if args.domain is not None else Endpoints.env_domain()
 
@@ -127,7 +127,7 @@ def where(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """The graph a tool looked at, for messages: ``domain 0 (tcp://...)``."""
     if args.pub or args.sub:
         return f"--pub {endpoints.pub} --sub {endpoints.sub}"
-    return f"domain {_domain(args)} ({endpoints.sub})"
+    return f"domain {domain_of(args)} ({endpoints.sub})"
 
 
 def graph_note(args: argparse.Namespace) -> str | None:
@@ -135,14 +135,14 @@ def graph_note(args: argparse.Namespace) -> str | None:
     graph was named."""
     if args.domain is not None or args.pub or args.sub:
         return None
-    note = which_graph(_domain(args))
+    note = which_graph(domain_of(args))
     return None if note is None else f"{note}; pass --domain N (or {DOMAIN_ENV}=N) for another"
 
 
 def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """What to tell a user whose tool heard no graph: where it looked, and where graphs run
     (domains 0-31 and the 32 from the tool's own, where a launch moves when its is taken)."""
-    domain = _domain(args)
+    domain = domain_of(args)
     running = Endpoints.domains_in_use(scanned_domains(domain))
     here = where(args, endpoints)
     if not (args.pub or args.sub) and domain in running:
@@ -170,7 +170,7 @@ def no_graph(args: argparse.Namespace, endpoints: Endpoints) -> str | None:
     """`nothing_heard` when no graph runs on the tool's domain (nothing listens on its proxy's
     port, so nobody received what it published); None when one does, or when ``--pub/--sub``
     name the proxy."""
-    if args.pub or args.sub or Endpoints.domains_in_use([_domain(args)]):
+    if args.pub or args.sub or Endpoints.domains_in_use([domain_of(args)]):
         return None
     return nothing_heard(args, endpoints)
 

@@ -18,6 +18,7 @@ import numpy as np
 from vibrissa.cli.arg_types import count, seconds
 from vibrissa.cli.graph import (
     add_endpoint_flags,
+    domain_of,
     endpoints_from,
     graph_note,
     nothing_heard,
@@ -27,7 +28,7 @@ from vibrissa.cli.graph import (
 from vibrissa.msgs import EndOfStream, Message, NodeStatus
 from vibrissa.msgs.codec import to_jsonable
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
-from vibrissa.wire.transport import Endpoints, Received, Subscriber
+from vibrissa.wire.transport import Endpoints, Received, Subscriber, running_graphs
 
 _ARRAY_ITEMS_SHOWN = 12  # longer arrays are summarised in the YAML-ish echo
 
@@ -201,13 +202,15 @@ def echo(
     endpoints: Endpoints, topic: str, *, count: int = 0, as_json: bool = False,
     timeout_s: float = 0.0, stop: threading.Event | None = None, out: TextIO | None = None,
     context: Any = None, on_silence: SilenceHint | None = None, err: TextIO | None = None,
+    on_late: SilenceHint | None = None,
 ) -> EchoResult:
     """Print messages on ``topic``.
 
     Stops after ``count`` messages (0: no limit), after ``timeout_s`` s without a message
     (0: never) or when ``stop`` is set; prints what ``on_silence`` finds on ``err`` (default
     stderr) once when nothing has come `SILENCE_HINT_S` after the start, or at the timeout
-    (unless a message came while it was found).
+    (unless a message came while it was found), and what ``on_late`` says before the first
+    message that comes after that hint.
     """
     validate_name(topic)
     out = out if out is not None else sys.stdout
@@ -217,6 +220,7 @@ def echo(
     with Subscriber({topic: None}, endpoints=endpoints, context=context) as sub:
         last = start = time.monotonic()
         hinted = on_silence is None
+        late = False
         while not stop.is_set() and (count <= 0 or printed < count):
             rx = sub.receive(0.1)
             if rx is None and not (hinted or printed) and (
@@ -225,10 +229,14 @@ def echo(
                 hinted = True
                 assert on_silence is not None
                 rx = _hint_unless_heard(sub, on_silence, err)
+                late = rx is None  # the hint went out: a message now would belie it
             if rx is None:
                 if timeout_s > 0 and time.monotonic() - last > timeout_s:
                     return EchoResult(printed, timed_out=True)
                 continue
+            if late and on_late is not None:
+                print(on_late(), file=err, flush=True)
+            late = False
             last = time.monotonic()
             print(format_message(rx.topic, rx.msg, as_json), file=out, flush=True)
             printed += 1
@@ -239,6 +247,15 @@ def _silence_hint(tool: str, args: argparse.Namespace, endpoints: Endpoints) -> 
     """The line that says why nothing came (`_why_silent`)."""
     return lambda: (f"vibrissa topic {tool}: nothing on {args.topic} yet: "
                     f"{_why_silent(args, endpoints)}")
+
+
+def _came_after_all(args: argparse.Namespace, endpoints: Endpoints) -> str:
+    """What ``echo`` says when a message follows its silence hint: the graph it came from, when
+    a launcher recorded it (it may have started since)."""
+    records = [] if args.pub or args.sub else running_graphs()
+    source = next((r.describe() for r in records if r.domain == domain_of(args)),
+                  where(args, endpoints))
+    return f"vibrissa topic echo: a message on {args.topic} came after all, from {source}"
 
 
 def _why_silent(args: argparse.Namespace, endpoints: Endpoints) -> str:
@@ -262,7 +279,8 @@ def _echo(args: argparse.Namespace) -> int:
     with stop_on_signals() as stop:
         result = echo(endpoints, args.topic, count=args.count, as_json=args.json,
                       timeout_s=args.timeout, stop=stop,
-                      on_silence=_silence_hint("echo", args, endpoints))
+                      on_silence=_silence_hint("echo", args, endpoints),
+                      on_late=lambda: _came_after_all(args, endpoints))
     if result.timed_out:
         print(f"vibrissa topic echo: no message on {args.topic} for {args.timeout:g} s "
               f"({result.printed} printed)", file=sys.stderr)

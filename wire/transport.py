@@ -340,9 +340,11 @@ def which_graph(domain: int) -> str | None:
     def named(d: int) -> str:
         return records[d].describe() if d in records else f"domain {d}"
 
-    this = named(domain) if domain in running else f"domain {domain}, where no graph runs"
     others = "; ".join(named(d) for d in sorted(running - {domain}))
-    return f"{len(running)} graphs run on this machine; talking to the one on {this} (others: {others})"
+    if domain not in running:
+        return f"{len(running)} graphs run on this machine, none on domain {domain}: {others}"
+    return (f"{len(running)} graphs run on this machine; talking to the one on {named(domain)} "
+            f"(others: {others})")
 
 
 def joined_graph_note(environ: Mapping[str, str] | None = None) -> str | None:

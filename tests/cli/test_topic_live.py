@@ -147,6 +147,40 @@ def test_no_silence_hint_when_a_message_came_while_it_was_found(
     assert err.getvalue() == ""
 
 
+def test_a_message_after_the_silence_hint_is_said_to_have_come_after_all(
+        endpoints: Endpoints, context: zmq.Context[Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A graph that starts after the hint ("no running graph heard") went out: the message
+    that follows it comes with a line that says so, not as a contradiction."""
+    monkeypatch.setattr(topic, "SILENCE_HINT_S", 0.3)
+    hinted, done = threading.Event(), threading.Event()
+
+    class Err(io.StringIO):
+        def write(self, text: str) -> int:
+            hinted.set()  # the talker starts once the hint is out
+            return super().write(text)
+
+    def talk() -> None:
+        with Publisher("/w0/wrench", WhiskerWrenchArray, endpoints, context) as pub:
+            hinted.wait(30.0)
+            while not done.is_set():
+                pub.publish(wrench(1))
+                done.wait(0.05)
+
+    talker = threading.Thread(target=talk)
+    talker.start()
+    out, err = io.StringIO(), Err()
+    try:
+        result = echo(endpoints, "/w0/wrench", count=1, timeout_s=30.0, out=out, err=err,
+                      context=context, on_silence=lambda: "nothing yet",
+                      on_late=lambda: "came after all")
+    finally:
+        done.set()
+        talker.join(10.0)
+    assert result == (1, False)
+    assert err.getvalue() == "nothing yet\ncame after all\n"
+    assert out.getvalue().startswith("# /w0/wrench [vibrissa/WhiskerWrenchArray]")
+
+
 def test_a_topic_no_node_publishes_is_said_so_with_the_ones_they_do(
         endpoints: Endpoints, talker: Publisher, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:

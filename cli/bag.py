@@ -38,7 +38,7 @@ _TOPICS_HELP = "only these topics (several, comma-separated or not, or --topics 
 
 def register(subparsers: Any) -> None:
     """Add ``bag`` with its subcommands ``record``, ``play``, ``info``, ``export``, ``import``."""
-    bag = subparsers.add_parser("bag", help="record, play, inspect and export MCAP bags")
+    bag = subparsers.add_parser("bag", help="record, play, inspect, export and import bags (MCAP; ROS 2)")
     sub = bag.add_subparsers(dest="bag_command", required=True, metavar="SUBCOMMAND")
 
     p = sub.add_parser("record", help="record topics to an MCAP bag")

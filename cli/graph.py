@@ -12,10 +12,13 @@ from vibrissa.cli.arg_types import folder
 from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.wire.security import KEYS_ENV, Keys
 from vibrissa.wire.topics import validate_name
-from vibrissa.wire.transport import DOMAIN_ENV, Endpoints
-
-SCANNED_DOMAINS = range(32)
-"""Domains probed for running graphs when a tool hears nothing on its own."""
+from vibrissa.wire.transport import (
+    DOMAIN_ENV,
+    Endpoints,
+    running_graphs,
+    scanned_domains,
+    which_graph,
+)
 
 
 def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
@@ -115,7 +118,7 @@ def endpoints_from(args: argparse.Namespace) -> Endpoints:
     return Endpoints(args.pub or base.pub, args.sub or base.sub, keys)
 
 
-def _domain(args: argparse.Namespace) -> int:
+def domain_of(args: argparse.Namespace) -> int:
     """The domain a tool looks at: ``--domain``, else the environment's."""
     return args.domain if args.domain is not None else Endpoints.env_domain()
 
@@ -124,15 +127,23 @@ def where(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """The graph a tool looked at, for messages: ``domain 0 (tcp://...)``."""
     if args.pub or args.sub:
         return f"--pub {endpoints.pub} --sub {endpoints.sub}"
-    return f"domain {_domain(args)} ({endpoints.sub})"
+    return f"domain {domain_of(args)} ({endpoints.sub})"
+
+
+def graph_note(args: argparse.Namespace) -> str | None:
+    """`which_graph` for a tool run without ``--domain`` (or ``--pub/--sub``); None when the
+    graph was named."""
+    if args.domain is not None or args.pub or args.sub:
+        return None
+    note = which_graph(domain_of(args))
+    return None if note is None else f"{note}; pass --domain N (or {DOMAIN_ENV}=N) for another"
 
 
 def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
     """What to tell a user whose tool heard no graph: where it looked, and where graphs run
     (domains 0-31 and the 32 from the tool's own, where a launch moves when its is taken)."""
-    domain = _domain(args)
-    nearby = range(domain, min(domain + len(SCANNED_DOMAINS), Endpoints.MAX_DOMAIN + 1))
-    running = Endpoints.domains_in_use(sorted(set(SCANNED_DOMAINS) | set(nearby)))
+    domain = domain_of(args)
+    running = Endpoints.domains_in_use(scanned_domains(domain))
     here = where(args, endpoints)
     if not (args.pub or args.sub) and domain in running:
         if endpoints.keys is None:
@@ -142,10 +153,13 @@ def nothing_heard(args: argparse.Namespace, endpoints: Endpoints) -> str:
                 f"of {endpoints.keys.folder} (is it a client folder of that graph's "
                 "`vibrissa keys FOLDER --client NAME`?), or it runs without keys")
     text = f"no running graph heard on {here}"
-    others = [d for d in running if Endpoints.for_domain(d).sub != endpoints.sub]
+    records = {record.domain: record for record in running_graphs()}
+    others = [d for d in sorted({*running, *records})
+              if Endpoints.for_domain(d).sub != endpoints.sub]
     if others:
         listed = ", ".join(str(d) for d in others)
         text += f"; graphs are running on domain {listed}: pass --domain N (or {DOMAIN_ENV}=N)"
+        text += "".join(f"; {records[d].describe()}" for d in others if d in records)
     else:
         text += ("; start one (`vibrissa launch demo`), or point at yours with --domain N "
                  f"({DOMAIN_ENV}=N) or --pub/--sub")
@@ -156,7 +170,7 @@ def no_graph(args: argparse.Namespace, endpoints: Endpoints) -> str | None:
     """`nothing_heard` when no graph runs on the tool's domain (nothing listens on its proxy's
     port, so nobody received what it published); None when one does, or when ``--pub/--sub``
     name the proxy."""
-    if args.pub or args.sub or Endpoints.domains_in_use([_domain(args)]):
+    if args.pub or args.sub or Endpoints.domains_in_use([domain_of(args)]):
         return None
     return nothing_heard(args, endpoints)
 

@@ -35,9 +35,20 @@ def parse_command_line(parser: argparse.ArgumentParser, argv: Sequence[str]) -> 
             flag = next((e for e in extras if e.startswith("--") and ":=" not in e), None)
             hint = (f" (a launch argument is NAME:=VALUE: {flag[2:].split('=')[0]}:=...)"
                     if anywhere and flag else "")
-            parser.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+            _chosen(parser, args).error(f"unrecognized arguments: {' '.join(extras)}{hint}")
         args.overrides = [*args.overrides, *extras]
     return args
+
+
+def _chosen(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The parser of the (sub)command that ``args`` ran (``topic hz``), whose usage an error
+    in its arguments shows."""
+    for action in parser._actions:  # argparse keeps its subparsers nowhere public
+        if isinstance(action, argparse._SubParsersAction):
+            chosen = action.choices.get(getattr(args, action.dest or "", None) or "")
+            if isinstance(chosen, argparse.ArgumentParser):
+                return _chosen(chosen, args)
+    return parser
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:

@@ -18,7 +18,9 @@ import numpy as np
 from vibrissa.cli.arg_types import count, seconds
 from vibrissa.cli.graph import (
     add_endpoint_flags,
+    domain_of,
     endpoints_from,
+    graph_note,
     nothing_heard,
     stop_on_signals,
     where,
@@ -26,7 +28,7 @@ from vibrissa.cli.graph import (
 from vibrissa.msgs import EndOfStream, Message, NodeStatus
 from vibrissa.msgs.codec import to_jsonable
 from vibrissa.wire.topics import STATUS_TOPIC, validate_name
-from vibrissa.wire.transport import Endpoints, Subscriber
+from vibrissa.wire.transport import Endpoints, Received, Subscriber, running_graphs
 
 _ARRAY_ITEMS_SHOWN = 12  # longer arrays are summarised in the YAML-ish echo
 
@@ -119,8 +121,16 @@ def survey(endpoints: Endpoints, listen_s: float, context: Any = None) -> dict[s
     return topics
 
 
+def _say_which_graph(tool: str, args: argparse.Namespace) -> None:
+    """`graph_note` on stderr, when more than one graph runs and none was named."""
+    note = graph_note(args)
+    if note is not None:
+        print(f"vibrissa topic {tool}: {note}", file=sys.stderr, flush=True)
+
+
 def _list(args: argparse.Namespace) -> int:
     endpoints = endpoints_from(args)
+    _say_which_graph("list", args)
     topics = survey(endpoints, args.listen)
     if not topics:
         print(f"vibrissa topic list: {nothing_heard(args, endpoints)}", file=sys.stderr)
@@ -172,51 +182,80 @@ class EchoResult(NamedTuple):
 SILENCE_HINT_S = 3.0
 """After this long with nothing received, ``echo`` and ``hz`` say once why that may be, s."""
 
+SilenceHint = Callable[[], str]
+"""What ``echo`` and ``hz`` say on stderr when nothing came: one line, found while they wait
+(it may take a second; it is dropped if a message came meanwhile)."""
+
+
+def _hint_unless_heard(sub: Subscriber, on_silence: SilenceHint, err: TextIO
+                       ) -> Received | None:
+    """Find the silence hint; print it unless a message arrived while it was found, which is
+    returned instead (a hint then would contradict the message that follows it)."""
+    text = on_silence()
+    rx = sub.receive(0.1)  # a message the proxy was forwarding as the hint was found
+    if rx is None:
+        print(text, file=err, flush=True)
+    return rx
+
 
 def echo(
     endpoints: Endpoints, topic: str, *, count: int = 0, as_json: bool = False,
     timeout_s: float = 0.0, stop: threading.Event | None = None, out: TextIO | None = None,
-    context: Any = None, on_silence: Callable[[], None] = lambda: None,
+    context: Any = None, on_silence: SilenceHint | None = None, err: TextIO | None = None,
+    on_late: SilenceHint | None = None,
 ) -> EchoResult:
     """Print messages on ``topic``.
 
     Stops after ``count`` messages (0: no limit), after ``timeout_s`` s without a message
-    (0: never) or when ``stop`` is set; calls ``on_silence`` once when nothing has come
-    `SILENCE_HINT_S` after the start.
+    (0: never) or when ``stop`` is set; prints what ``on_silence`` finds on ``err`` (default
+    stderr) once when nothing has come `SILENCE_HINT_S` after the start, or at the timeout
+    (unless a message came while it was found), and what ``on_late`` says before the first
+    message that comes after that hint.
     """
     validate_name(topic)
     out = out if out is not None else sys.stdout
+    err = err if err is not None else sys.stderr
     stop = stop if stop is not None else threading.Event()
     printed = 0
     with Subscriber({topic: None}, endpoints=endpoints, context=context) as sub:
         last = start = time.monotonic()
-        hinted = False
+        hinted = on_silence is None
+        late = False
         while not stop.is_set() and (count <= 0 or printed < count):
             rx = sub.receive(0.1)
+            if rx is None and not (hinted or printed) and (
+                    time.monotonic() - start > SILENCE_HINT_S
+                    or (timeout_s > 0 and time.monotonic() - last > timeout_s)):
+                hinted = True
+                assert on_silence is not None
+                rx = _hint_unless_heard(sub, on_silence, err)
+                late = rx is None  # the hint went out: a message now would belie it
             if rx is None:
                 if timeout_s > 0 and time.monotonic() - last > timeout_s:
                     return EchoResult(printed, timed_out=True)
-                if not (hinted or printed) and time.monotonic() - start > SILENCE_HINT_S:
-                    hinted = True
-                    on_silence()
                 continue
+            if late and on_late is not None:
+                print(on_late(), file=err, flush=True)
+            late = False
             last = time.monotonic()
             print(format_message(rx.topic, rx.msg, as_json), file=out, flush=True)
             printed += 1
     return EchoResult(printed, timed_out=False)
 
 
-def _silence_hint(tool: str, args: argparse.Namespace, endpoints: Endpoints
-                  ) -> Callable[[], None]:
-    """Say on stderr, once, what ``nothing_heard`` finds (a graph with keys, another domain)."""
-    said: list[bool] = []
+def _silence_hint(tool: str, args: argparse.Namespace, endpoints: Endpoints) -> SilenceHint:
+    """The line that says why nothing came (`_why_silent`)."""
+    return lambda: (f"vibrissa topic {tool}: nothing on {args.topic} yet: "
+                    f"{_why_silent(args, endpoints)}")
 
-    def hint() -> None:
-        if not said:
-            said.append(True)
-            print(f"vibrissa topic {tool}: nothing on {args.topic} yet: "
-                  f"{_why_silent(args, endpoints)}", file=sys.stderr, flush=True)
-    return hint
+
+def _came_after_all(args: argparse.Namespace, endpoints: Endpoints) -> str:
+    """What ``echo`` says when a message follows its silence hint: the graph it came from, when
+    a launcher recorded it (it may have started since)."""
+    records = [] if args.pub or args.sub else running_graphs()
+    source = next((r.describe() for r in records if r.domain == domain_of(args)),
+                  where(args, endpoints))
+    return f"vibrissa topic echo: a message on {args.topic} came after all, from {source}"
 
 
 def _why_silent(args: argparse.Namespace, endpoints: Endpoints) -> str:
@@ -236,15 +275,15 @@ def _why_silent(args: argparse.Namespace, endpoints: Endpoints) -> str:
 
 def _echo(args: argparse.Namespace) -> int:
     endpoints = endpoints_from(args)
-    hint = _silence_hint("echo", args, endpoints)
+    _say_which_graph("echo", args)
     with stop_on_signals() as stop:
         result = echo(endpoints, args.topic, count=args.count, as_json=args.json,
-                      timeout_s=args.timeout, stop=stop, on_silence=hint)
+                      timeout_s=args.timeout, stop=stop,
+                      on_silence=_silence_hint("echo", args, endpoints),
+                      on_late=lambda: _came_after_all(args, endpoints))
     if result.timed_out:
         print(f"vibrissa topic echo: no message on {args.topic} for {args.timeout:g} s "
               f"({result.printed} printed)", file=sys.stderr)
-        if result.printed == 0:
-            hint()
         return 1
     return 1 if args.count > 0 and result.printed < args.count else 0
 
@@ -302,16 +341,18 @@ class RateMeter:
 def hz(
     endpoints: Endpoints, topic: str, *, window: int = 100, duration_s: float = 0.0,
     interval_s: float = 1.0, stop: threading.Event | None = None, out: TextIO | None = None,
-    context: Any = None, on_silence: Callable[[], None] = lambda: None,
+    context: Any = None, on_silence: SilenceHint | None = None, err: TextIO | None = None,
 ) -> RateStats | None:
     """Report the rate of ``topic`` every ``interval_s`` s; returns the last statistics.
 
-    ``EndOfStream`` is not counted as a sample; lost messages come from ``seq`` gaps. Calls
-    ``on_silence`` once at the first report `SILENCE_HINT_S` after the start with nothing
-    received.
+    ``EndOfStream`` is not counted as a sample; lost messages come from ``seq`` gaps. Prints
+    what ``on_silence`` finds on ``err`` (default stderr) once, at the first report
+    `SILENCE_HINT_S` after the start (or at the end) with nothing received, unless a message
+    came while it was found.
     """
     validate_name(topic)
     out = out if out is not None else sys.stdout
+    err = err if err is not None else sys.stderr
     stop = stop if stop is not None else threading.Event()
     meter = RateMeter(window)
     last: RateStats | None = None
@@ -319,27 +360,34 @@ def hz(
     with Subscriber({topic: None}, endpoints=endpoints, context=context) as sub:
         start = time.monotonic()
         next_report = start + interval_s
-        heard = hinted = False
-        while not stop.is_set() and (now := time.monotonic()) < t_end:
-            rx = sub.receive(max(0.0, min(next_report, t_end) - now))
+        heard = False
+        hinted = on_silence is None
+
+        def take(rx: Received | None) -> None:
+            nonlocal heard
             heard = heard or rx is not None
             if rx is not None and not isinstance(rx.msg, EndOfStream):
                 meter.add(rx.receive_time)
+
+        while not stop.is_set() and (now := time.monotonic()) < t_end:
+            take(sub.receive(max(0.0, min(next_report, t_end) - now)))
             if time.monotonic() >= next_report:
                 next_report += interval_s
                 last = meter.stats(sub.counters[topic].lost) or last
                 print(last.format() if last else "no new messages", file=out, flush=True)
                 if not (heard or hinted) and time.monotonic() - start >= SILENCE_HINT_S:
                     hinted = True
-                    on_silence()
-        stats = meter.stats(sub.counters[topic].lost) or last
+                    assert on_silence is not None
+                    take(_hint_unless_heard(sub, on_silence, err))
         if not (heard or hinted):
-            on_silence()
-        return stats
+            assert on_silence is not None
+            take(_hint_unless_heard(sub, on_silence, err))
+        return meter.stats(sub.counters[topic].lost) or last
 
 
 def _hz(args: argparse.Namespace) -> int:
     endpoints = endpoints_from(args)
+    _say_which_graph("hz", args)
     with stop_on_signals() as stop:
         stats = hz(endpoints, args.topic, window=args.window, duration_s=args.duration,
                    interval_s=args.interval, stop=stop,

@@ -70,7 +70,15 @@ from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.runtime.traffic import Traffic
 from vibrissa.wire.security import Keys, KeysError
 from vibrissa.wire.topics import STATUS_TOPIC
-from vibrissa.wire.transport import BUFFER_ENV, DOMAIN_ENV, Endpoints, Proxy, Subscriber
+from vibrissa.wire.transport import (
+    BUFFER_ENV,
+    DOMAIN_ENV,
+    Endpoints,
+    GraphRecord,
+    Proxy,
+    Subscriber,
+    register_graph,
+)
 
 __all__ = [
     "DEFAULT_GRACE_S",
@@ -273,6 +281,7 @@ class Launcher:
         self._params_dir: str | None = None
         self._statuses: Subscriber | None = None
         self._stranded: list[str] = []  # nodes whose input can no longer arrive, and why
+        self._reach = ""  # how tools reach a graph that moved off its preferred domain
         self.traffic = Traffic()
 
     # -- the run -------------------------------------------------------------------------------
@@ -291,6 +300,10 @@ class Launcher:
                 return 1
             proxy, domain_env = started
             assert proxy.endpoints is not None
+            record = None
+            if domain_env:  # on a domain: the tools of every user can name the graph
+                record = register_graph(GraphRecord.of_this_process(
+                    int(domain_env[DOMAIN_ENV]), os.path.abspath(self.description.source)))
             self._statuses = Subscriber({STATUS_TOPIC: NodeStatus}, proxy.endpoints)
             transport = self.description.transport or TransportSpec()
             self._env = {"PYTHONUNBUFFERED": "1", **proxy.endpoints.to_env(), **domain_env,
@@ -309,6 +322,8 @@ class Launcher:
                 self.refused_peers = proxy.refused
                 with contextlib.suppress(Exception):
                     proxy.stop()
+                if record is not None:
+                    record.unlink(missing_ok=True)
                 shutil.rmtree(self._params_dir, ignore_errors=True)
         return self._finish()
 
@@ -358,6 +373,7 @@ class Launcher:
             if domain != candidates[0]:
                 self.out.log(f"domain {candidates[0]} is in use by another graph; this graph "
                              f"runs on domain {domain}")
+                self._reach = f" domain {domain} (tools: --domain {domain} or {DOMAIN_ENV}={domain})"
             tools = ("tools find it without flags" if domain == 0 and DOMAIN_ENV not in os.environ
                      else f"tools: --domain {domain} or {DOMAIN_ENV}={domain}")
             self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
@@ -589,7 +605,7 @@ class Launcher:
         outcomes = [node.outcome for node in self.nodes]
         width = max(len(o.name) for o in outcomes)
         result_width = max(len(o.describe()) for o in outcomes)
-        self.out.log("summary:")
+        self.out.log(f"summary:{self._reach}")
         shortfalls: list[tuple[bool, str]] = []
         refused_peers = self.refused_peers
         for node, o in zip(self.nodes, outcomes, strict=True):

@@ -67,7 +67,7 @@ from vibrissa.wire import (
     resolve_topic,
 )
 from vibrissa.wire.security import Guard
-from vibrissa.wire.transport import MessageTypes
+from vibrissa.wire.transport import MessageTypes, joined_graph_note
 from vibrissa.wire.waiting import wait_event
 
 log = logging.getLogger(__name__)
@@ -175,6 +175,8 @@ class Node:
         self.namespace = namespace
         self.remaps = dict(remaps or {})
         self.endpoints = endpoints if endpoints is not None else Endpoints.from_env()
+        if endpoints is None and (note := joined_graph_note()) is not None:
+            log.warning("%s: %s", self.fqn, note)
         self._own_context = context is None
         self.context: zmq.Context[Any] = zmq.Context() if context is None else context
         self.heartbeat_s = heartbeat_s

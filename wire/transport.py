@@ -33,15 +33,20 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
+import getpass
 import itertools
+import json
 import logging
 import os
 import socket
+import stat
+import tempfile
 import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
+from datetime import datetime
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar, TypeAlias
@@ -64,7 +69,9 @@ __all__ = [
     "DOMAIN_ENV",
     "MAX_PUBLISHERS",
     "MAX_SEQ_GAP",
+    "SCANNED_DOMAINS",
     "Endpoints",
+    "GraphRecord",
     "Header",
     "MessageTypes",
     "Proxy",
@@ -73,6 +80,11 @@ __all__ = [
     "StreamEnd",
     "Subscriber",
     "TopicCounters",
+    "joined_graph_note",
+    "register_graph",
+    "running_graphs",
+    "scanned_domains",
+    "which_graph",
 ]
 
 log = logging.getLogger(__name__)
@@ -216,6 +228,146 @@ class Endpoints:
     def addresses(self) -> tuple[str, str]:
         """``(pub, sub)``, without the keys."""
         return self.pub, self.sub
+
+
+GRAPHS_DIR_PREFIX = "vibrissa-graphs-"
+"""Graph records: ``<temp dir>/vibrissa-graphs-<uid>/domain-<N>-<pid>.json``, one folder per
+user, readable by every user (a tool names another user's graph too)."""
+
+
+@dataclass(frozen=True)
+class GraphRecord:
+    """Who runs the graph on a domain: its launch file, when and by whom it was started (local
+    time, ISO 8601) and the launcher's pid. A launcher writes it beside its proxy
+    (`register_graph`); the tools read it (`running_graphs`) to say which graph they talk to."""
+
+    domain: int
+    launch_file: str
+    started: str
+    user: str
+    pid: int
+
+    @classmethod
+    def of_this_process(cls, domain: int, launch_file: str) -> GraphRecord:
+        """The record of a graph this process starts now on ``domain``."""
+        try:
+            user = getpass.getuser()
+        except (KeyError, OSError):  # a uid without a name (a container)
+            user = f"uid {os.getuid()}"
+        return cls(domain, launch_file, datetime.now().astimezone().isoformat(timespec="seconds"),
+                   user, os.getpid())
+
+    def describe(self) -> str:
+        """``domain 2 (launch/view.yaml, started 2026-11-28T23:59:01+00:00 by ana, pid 4242)``."""
+        return (f"domain {self.domain} ({self.launch_file}, started {self.started} by "
+                f"{self.user}, pid {self.pid})")
+
+
+def _graphs_dir(uid: int) -> Path:
+    return Path(tempfile.gettempdir()) / f"{GRAPHS_DIR_PREFIX}{uid}"
+
+
+def register_graph(record: GraphRecord) -> Path | None:
+    """Write ``record`` for the tools of every user; its path (remove it when the graph ends),
+    or None when the user's record folder cannot be used (then the graph runs unnamed)."""
+    folder = _graphs_dir(os.getuid())
+    try:
+        folder.mkdir(mode=0o755, exist_ok=True)
+        info = folder.lstat()
+        if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid():
+            return None  # somebody else's folder (or a link) under our name: write nothing there
+        path = folder / f"domain-{record.domain}-{record.pid}.json"
+        partial = path.with_suffix(".part")
+        partial.write_text(json.dumps(asdict(record)))
+        partial.chmod(0o644)
+        partial.replace(path)
+    except OSError:
+        return None
+    return path
+
+
+def running_graphs() -> list[GraphRecord]:
+    """The records of the graphs running on this machine, by domain: a record counts when its
+    file and folder belong to the user it names by uid, its launcher is alive and its domain's
+    port is in use. The records of the user's launchers that are gone are removed."""
+    found: dict[int, GraphRecord] = {}
+    for folder in Path(tempfile.gettempdir()).glob(f"{GRAPHS_DIR_PREFIX}*"):
+        uid_text = folder.name.removeprefix(GRAPHS_DIR_PREFIX)
+        for path in folder.glob("domain-*.json"):
+            try:
+                if not (uid_text.isdigit() and folder.lstat().st_uid == int(uid_text)
+                        == path.lstat().st_uid):
+                    continue
+                record = GraphRecord(**json.loads(path.read_text()))
+            except (OSError, ValueError, TypeError):
+                continue
+            if not (type(record.domain) is int and 0 <= record.domain <= Endpoints.MAX_DOMAIN
+                    and type(record.pid) is int and isinstance(record.launch_file, str)
+                    and isinstance(record.started, str) and isinstance(record.user, str)):
+                continue
+            if not _alive(record.pid):
+                if int(uid_text) == os.getuid():
+                    path.unlink(missing_ok=True)
+                continue
+            kept = found.get(record.domain)  # a launcher whose pid a new process took
+            if (kept is None or kept.started < record.started) and \
+                    Endpoints.domains_in_use([record.domain]):
+                found[record.domain] = record
+    return [found[domain] for domain in sorted(found)]
+
+
+SCANNED_DOMAINS = range(32)
+"""Domains probed for running graphs (besides those with a `GraphRecord`)."""
+
+
+def scanned_domains(domain: int) -> list[int]:
+    """The domains probed for graphs by a process on ``domain``: `SCANNED_DOMAINS` and the
+    32 from its own (where a launch moves when its domain is taken)."""
+    nearby = range(domain, min(domain + len(SCANNED_DOMAINS), Endpoints.MAX_DOMAIN + 1))
+    return sorted({*SCANNED_DOMAINS, *nearby})
+
+
+def which_graph(domain: int) -> str | None:
+    """Which graph a process that joins ``domain`` by default talks to, when more than one
+    runs on this machine: its record (launch file, start, user) and the others' (each with
+    its domain), for a line that goes on with how to choose another; None when at most one
+    runs."""
+    records = {record.domain: record for record in running_graphs()}
+    running = set(records) | set(Endpoints.domains_in_use(scanned_domains(domain)))
+    if len(running) < 2:
+        return None
+
+    def named(d: int) -> str:
+        return records[d].describe() if d in records else f"domain {d}"
+
+    others = "; ".join(named(d) for d in sorted(running - {domain}))
+    if domain not in running:
+        return f"{len(running)} graphs run on this machine, none on domain {domain}: {others}"
+    return (f"{len(running)} graphs run on this machine; talking to the one on {named(domain)} "
+            f"(others: {others})")
+
+
+def joined_graph_note(environ: Mapping[str, str] | None = None) -> str | None:
+    """`which_graph` for a process whose endpoints come from the environment's domain, not
+    from endpoints it was handed (a node started by hand, not by a launcher)."""
+    env = os.environ if environ is None else environ
+    if env.get(_ENV_PUB) or env.get(_ENV_SUB):
+        return None
+    note = which_graph(Endpoints.env_domain(env))
+    return None if note is None else f"{note}; start it with {DOMAIN_ENV}=N for another"
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs (of any user)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's
+    except (OverflowError, ValueError):
+        return False
+    return True
 
 
 def _remove_socket_file(endpoint: str) -> None:

@@ -16,7 +16,7 @@ from vibrissa.cli import topic
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.cli.topic import RateMeter, echo, format_message, hz, survey
 from vibrissa.msgs import ContactPhase, ContactPointArray, NodeStatus, WhiskerWrenchArray
-from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 
 RATE_HZ = 50.0
 
@@ -102,17 +102,83 @@ def test_a_silent_topic_is_explained_once_by_echo_and_hz(
     calls: list[str] = []
     stop = threading.Event()
     threading.Timer(1.2, stop.set).start()
-    result = echo(endpoints, "/nobody", count=1, stop=stop, context=context,
-                  on_silence=lambda: calls.append("echo"))
+    err = io.StringIO()
+    result = echo(endpoints, "/nobody", count=1, stop=stop, context=context, err=err,
+                  on_silence=lambda: calls.append("echo") or "hint of echo")
     assert result.printed == 0 and calls == ["echo"]
-    assert hz(endpoints, "/nobody", duration_s=1.0, interval_s=0.1, out=io.StringIO(),
-              context=context, on_silence=lambda: calls.append("hz")) is None
+    assert hz(endpoints, "/nobody", duration_s=1.0, interval_s=0.1, out=io.StringIO(), err=err,
+              context=context, on_silence=lambda: calls.append("hz") or "hint of hz") is None
     assert calls == ["echo", "hz"]
+    assert err.getvalue() == "hint of echo\nhint of hz\n"
     code = vibrissa_main(["topic", "hz", "/nobody", "--duration", "0.5", "--interval", "0.1",
                           "--pub", endpoints.pub, "--sub", endpoints.sub])
     err = capsys.readouterr().err
     assert code == 1
     assert err.count("vibrissa topic hz: nothing on /nobody yet: ") == 1, err
+
+
+@pytest.mark.parametrize("tool", ["echo", "hz"])
+def test_no_silence_hint_when_a_message_came_while_it_was_found(
+        endpoints: Endpoints, context: zmq.Context[Any], monkeypatch: pytest.MonkeyPatch,
+        tool: str) -> None:
+    """Finding the hint takes a second (a survey, a domain scan); a message that arrives
+    meanwhile is printed, and the hint ("nothing on it yet: no running graph heard") that
+    it would contradict is not."""
+    monkeypatch.setattr(topic, "SILENCE_HINT_S", 0.3)
+    out, err = io.StringIO(), io.StringIO()
+    with Publisher("/w0/wrench", WhiskerWrenchArray, endpoints, context) as pub:
+
+        def hint_while_a_message_comes() -> str:
+            pub.publish(wrench(1))
+            deadline = time.monotonic() + 10.0  # until the message has reached the proxy
+            while probe.receive(0.05) is None and time.monotonic() < deadline:
+                pub.publish(wrench(1))
+            return "nothing on /w0/wrench yet: no running graph heard"
+
+        with Subscriber({"/w0/wrench": None}, endpoints=endpoints, context=context) as probe:
+            if tool == "echo":
+                result = echo(endpoints, "/w0/wrench", count=1, timeout_s=20.0, out=out,
+                              err=err, context=context, on_silence=hint_while_a_message_comes)
+                assert result == (1, False)
+                assert out.getvalue().startswith("# /w0/wrench [vibrissa/WhiskerWrenchArray]")
+            else:
+                hz(endpoints, "/w0/wrench", duration_s=1.0, interval_s=0.5, out=out, err=err,
+                   context=context, on_silence=hint_while_a_message_comes)
+    assert err.getvalue() == ""
+
+
+def test_a_message_after_the_silence_hint_is_said_to_have_come_after_all(
+        endpoints: Endpoints, context: zmq.Context[Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A graph that starts after the hint ("no running graph heard") went out: the message
+    that follows it comes with a line that says so, not as a contradiction."""
+    monkeypatch.setattr(topic, "SILENCE_HINT_S", 0.3)
+    hinted, done = threading.Event(), threading.Event()
+
+    class Err(io.StringIO):
+        def write(self, text: str) -> int:
+            hinted.set()  # the talker starts once the hint is out
+            return super().write(text)
+
+    def talk() -> None:
+        with Publisher("/w0/wrench", WhiskerWrenchArray, endpoints, context) as pub:
+            hinted.wait(30.0)
+            while not done.is_set():
+                pub.publish(wrench(1))
+                done.wait(0.05)
+
+    talker = threading.Thread(target=talk)
+    talker.start()
+    out, err = io.StringIO(), Err()
+    try:
+        result = echo(endpoints, "/w0/wrench", count=1, timeout_s=30.0, out=out, err=err,
+                      context=context, on_silence=lambda: "nothing yet",
+                      on_late=lambda: "came after all")
+    finally:
+        done.set()
+        talker.join(10.0)
+    assert result == (1, False)
+    assert err.getvalue() == "nothing yet\ncame after all\n"
+    assert out.getvalue().startswith("# /w0/wrench [vibrissa/WhiskerWrenchArray]")
 
 
 def test_a_topic_no_node_publishes_is_said_so_with_the_ones_they_do(

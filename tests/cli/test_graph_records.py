@@ -1,0 +1,76 @@
+"""The records by which tools name the graphs of a machine: only a live launcher's record of a
+bound domain counts; a record of a launcher that is gone is removed."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from vibrissa.cli.graph import graph_note
+from vibrissa.wire.transport import (
+    Endpoints,
+    GraphRecord,
+    Proxy,
+    register_graph,
+    running_graphs,
+    which_graph,
+)
+
+DOMAIN = 5100 + os.getpid() % 600  # away from the system tests' ranges
+
+
+@pytest.fixture
+def temp_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A temporary folder of the tests' own as the machine's temp dir."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    return tmp_path
+
+
+def test_a_live_launchers_record_of_a_bound_domain_counts(temp_dir: Path) -> None:
+    record = GraphRecord.of_this_process(DOMAIN, "/srv/view.yaml")
+    path = register_graph(record)
+    assert path == temp_dir / f"vibrissa-graphs-{os.getuid()}" / f"domain-{DOMAIN}-{os.getpid()}.json"
+    assert path.stat().st_mode & 0o777 == 0o644  # other users' tools read it
+    assert running_graphs() == []  # nothing bound on its domain
+    with Proxy(Endpoints.for_domain(DOMAIN)):
+        assert running_graphs() == [record]
+    deadline = time.monotonic() + 20.0  # ZeroMQ closes the listening socket in its I/O thread
+    while running_graphs() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert running_graphs() == []
+
+
+def test_a_record_of_a_launcher_that_is_gone_is_removed(temp_dir: Path) -> None:
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    record = GraphRecord(DOMAIN, "/srv/view.yaml", "2026-01-01T00:00:00+00:00", "ana",
+                         int(gone.stdout))
+    path = register_graph(record)
+    assert path is not None
+    broken = path.with_name(f"domain-{DOMAIN}-1.json")
+    broken.write_text(json.dumps({"domain": "zero"}))  # not a record: passed over
+    with Proxy(Endpoints.for_domain(DOMAIN)):
+        assert running_graphs() == []
+    assert not path.exists() and broken.exists()
+
+
+def test_the_note_names_this_graph_and_the_others(temp_dir: Path) -> None:
+    this = GraphRecord.of_this_process(DOMAIN, "/srv/a.yaml")
+    register_graph(this)
+    with Proxy(Endpoints.for_domain(DOMAIN)), Proxy(Endpoints.for_domain(DOMAIN + 1)):
+        note = which_graph(DOMAIN)
+        assert note is not None
+        assert f"talking to the one on {this.describe()} (others: " in note
+        assert f"domain {DOMAIN + 1})" in note or f"domain {DOMAIN + 1};" in note
+        args = argparse.Namespace(domain=None, pub=None, sub=None)
+        assert graph_note(args) is not None  # the default domain (0) or the environment's
+        args.domain = DOMAIN
+        assert graph_note(args) is None  # a graph the user named

@@ -214,7 +214,8 @@ class NodeSpec:
 
 @dataclass(frozen=True)
 class LaunchDescription:
-    """A parsed launch file: declared arguments, their resolved values, transport, nodes."""
+    """A parsed launch file with what it includes: declared arguments, their resolved values,
+    transport, nodes."""
 
     source: str
     args: tuple[LaunchArg, ...] = ()

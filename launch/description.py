@@ -23,6 +23,16 @@ The format follows ROS 2's YAML launch files where it fits::
           on_exit: shutdown
           if: "$(equals $(var mode) live)" # or unless: ...; a node whose condition fails is
                                           # left out (its entry is still checked)
+          ready_before: [wrench_source]   # these nodes of the launch wait for this one too
+      - include:
+          file: robot.yaml                # a path (relative: to this file's folder), else a
+                                          # packaged launch file
+          arg: [{name: out, value: "$(var out)"}]
+
+An included file's arguments take, in order, the include's ``arg`` value, the including file's
+value of the same name (its own arguments and what it was given, as ROS 2's launch
+configurations), its default. Its nodes, transport and arguments join the launch as if written
+in place; ``NAME:=VALUE`` on the command line may name an argument of any file of the launch.
 
 Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)``,
 ``$(equals A B)`` and ``$(not-equals A B)`` (``true`` or ``false``), ``$(dirname)`` (the launch
@@ -34,6 +44,7 @@ error is a `LaunchFileError` whose message names the file and the key path, e.g.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import importlib.metadata
 import os
@@ -44,6 +55,7 @@ import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
+from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -52,7 +64,7 @@ import yaml
 
 from vibrissa.formats import yaml_numbers
 from vibrissa.runtime.args import expand_home
-from vibrissa.runtime.params import ParamError, check_params, takes_text
+from vibrissa.runtime.params import ParamError, check_params, did_you_mean, takes_text
 from vibrissa.units import finite_number
 from vibrissa.wire.topics import node_fqn, validate_name, validate_namespace, validate_token
 from vibrissa.wire.transport import DEFAULT_MAX_MESSAGE_BYTES, Endpoints
@@ -71,6 +83,7 @@ __all__ = [
     "node_params",
     "parse_arg_overrides",
     "parse_launch",
+    "resolve_launch_file",
 ]
 
 ON_EXIT_ACTIONS = ("shutdown",)
@@ -163,7 +176,8 @@ def node_module(pkg: str, executable: str) -> str:
     if not known:
         raise ValueError(f"no installed package {pkg!r} registers nodes ({NODE_ENTRY_POINTS!r} "
                          "entry points)")
-    raise ValueError(f"package {pkg!r} has no node {executable!r} (known: {', '.join(sorted(known))})")
+    raise ValueError(f"package {pkg!r} has no node {executable!r}{did_you_mean(executable, known)} "
+                     f"(known: {', '.join(sorted(known))})")
 
 
 @dataclass(frozen=True)
@@ -200,7 +214,8 @@ class NodeSpec:
 
 @dataclass(frozen=True)
 class LaunchDescription:
-    """A parsed launch file: declared arguments, their resolved values, transport, nodes."""
+    """A parsed launch file with what it includes: declared arguments, their resolved values,
+    transport, nodes."""
 
     source: str
     args: tuple[LaunchArg, ...] = ()
@@ -335,9 +350,8 @@ class _Parser:
         if kind == "var" and len(rest) == 1:
             if rest[0] not in self.args:
                 known = ", ".join(sorted(self.args)) or "none"
-                raise self.error(
-                    path, f"unknown launch argument in $(var {rest[0]}) (known: {known})"
-                )
+                raise self.error(path, f"unknown launch argument in $(var {rest[0]})"
+                                 f"{did_you_mean(rest[0], self.args)} (known: {known})")
             return self.args[rest[0]]
         if kind == "env" and len(rest) >= 1:
             value = self.env.get(rest[0])
@@ -380,7 +394,9 @@ class _Parser:
         for key in value:
             if key not in required and key not in optional:
                 allowed = ", ".join([*required, *optional])
-                raise self.error(f"{path}.{key}", f"unknown key (allowed: {allowed})")
+                raise self.error(f"{path}.{key}", f"unknown key"
+                                 f"{did_you_mean(str(key), [*required, *optional])} "
+                                 f"(allowed: {allowed})")
         for key in required:
             if key not in value:
                 raise self.error(f"{path}.{key}", "missing required key")
@@ -437,6 +453,19 @@ class _Parser:
             bound = f"in [{minimum}, {maximum}]" if maximum is not None else f">= {minimum}"
             raise self.error(path, f"expected an int {bound}, got {_show(value)}")
         return value
+
+    def param_value(self, text: str, path: str) -> Any:
+        """What a parameter's substituted text reads as: a YAML flow list of scalars when it is
+        in brackets (``y0:=[-0.2, 0, 0.2]``), else a plain scalar (`yaml_numbers.scalar`)."""
+        if not (text.startswith("[") and text.endswith("]")):
+            return yaml_numbers.scalar(text)
+        try:
+            items = yaml_numbers.load_strict(text)
+        except yaml.YAMLError:
+            items = None
+        if not isinstance(items, list) or any(isinstance(v, (list, dict)) for v in items):
+            raise self.error(path, f"expected a list of scalars like [1, 2], got {_show(text)}")
+        return items
 
     def deep(self, value: Any, path: str) -> Any:
         """Substitute recursively inside a parameter value (lists, mappings, strings)."""
@@ -504,10 +533,35 @@ class _Parser:
             return not self.boolean(value["unless"], f"{path}.unless")
         return True
 
+    def ready_before(self, value: Any, path: str) -> list[str]:
+        """A node entry's ``ready_before``: names of the launch's nodes (``name`` or full name)
+        that hold their output until this node hears it."""
+        items = self.list_of(value.get("ready_before", []), f"{path}.ready_before")
+        return [self.string(v, f"{path}.ready_before[{i}]", check=validate_name)
+                for i, v in enumerate(items)]
+
+    def include(self, value: Any, path: str) -> tuple[str, dict[str, str]]:
+        """An ``include`` entry: the file it names (`resolve_launch_file` from this file's
+        folder) and the arguments it gives."""
+        body = self.mapping(value, path, ("file",), ("arg", "if", "unless"))
+        name = self.string(body["file"], f"{path}.file")
+        if not name:
+            raise self.error(f"{path}.file", "an empty file name")
+        args: dict[str, str] = {}
+        for i, entry in enumerate(self.list_of(body.get("arg", []), f"{path}.arg")):
+            where = f"{path}.arg[{i}]"
+            item = self.mapping(entry, where, ("name", "value"), ())
+            aname = self.string(item["name"], f"{where}.name",
+                                partial(validate_token, what="argument name"))
+            if aname in args:
+                raise self.error(f"{where}.name", f"argument {aname!r} given twice")
+            args[aname] = self.text(item["value"], f"{where}.value")
+        return resolve_launch_file(name, self.dirname), args
+
     def node(self, value: Any, path: str) -> NodeSpec:
         keys = ("pkg", "exec", "cmd", "args", "name", "namespace", "param", "remap", "env",
                 "respawn", "respawn_delay", "respawn_max", "required", "finite", "allow_loss",
-                "on_exit", "if", "unless")
+                "on_exit", "if", "unless", "ready_before")
         body = self.mapping(value, path, (), keys)
         has_exec, has_cmd = "exec" in body, "cmd" in body
         if has_exec == has_cmd:
@@ -570,7 +624,7 @@ class _Parser:
             value = item["value"]
             if isinstance(value, str) and "$(" in value:
                 text = self.substitute(value, f"{where}.value")
-                params.append(Param(pname, yaml_numbers.scalar(text), text))
+                params.append(Param(pname, self.param_value(text, f"{where}.value"), text))
             else:
                 params.append(Param(pname, self.deep(value, f"{where}.value")))
 
@@ -650,50 +704,31 @@ def parse_arg_overrides(items: Sequence[str], source: str = "command line") -> d
     return overrides
 
 
-def parse_launch(
-    document: Any,
-    source: str,
-    overrides: Mapping[str, str] | None = None,
-    *,
-    dirname: str | None = None,
-    environ: Mapping[str, str] | None = None,
-) -> LaunchDescription:
-    """Validate a loaded launch document and resolve its substitutions.
+@dataclass
+class _Launch:
+    """What the files of one launch declare, gathered while they are read."""
 
-    Parameters
-    ----------
-    document : Any
-        The YAML document, ``{"launch": [...]}``.
-    source : str
-        The file name used in error messages.
-    overrides : mapping of str to str, optional
-        Launch argument values from the command line; an unknown name is an error.
-    dirname : str, optional
-        Value of ``$(dirname)``; defaults to the directory of ``source``.
-    environ : mapping of str to str, optional
-        Environment for ``$(env ...)``; defaults to `os.environ`.
+    environ: Mapping[str, str]
+    args: list[LaunchArg] = field(default_factory=list)
+    values: dict[str, str] = field(default_factory=dict)
+    transport: TransportSpec | None = None
+    nodes: list[NodeSpec] = field(default_factory=list)
+    ready: list[tuple[NodeSpec, list[str], str, str]] = field(default_factory=list)
+    """Each ``ready_before``: the node, the names it lists, its file and key path."""
 
-    Returns
-    -------
-    LaunchDescription
 
-    Raises
-    ------
-    LaunchFileError
-        Naming the file and the key path of the first problem.
-    """
-    overrides = dict(overrides or {})
-    if dirname is None:
-        dirname = str(Path(source).resolve().parent)
-    p = _Parser(source, dirname, os.environ if environ is None else environ)
+def _parse_file(document: Any, source: str, dirname: str, context: Mapping[str, str],
+                files: tuple[str, ...], out: _Launch) -> set[str]:
+    """Read one file of a launch into ``out``, its includes first where they stand; its
+    arguments take their values from ``context`` else their defaults. ``files``: the real
+    paths of the files including it (a cycle is an error). Returns the names it declares."""
+    p = _Parser(source, dirname, out.environ)
     if document is None:
         raise p.error("", "empty file; expected a mapping with a 'launch' list")
     body = p.mapping(document, "", ("launch",), ())
     entries = p.list_of(body["launch"], "launch")
 
-    kinds: dict[str, Callable[[Any, str], Any]] = {
-        "arg": p.arg, "node": p.node, "transport": p.transport,
-    }
+    kinds = ("arg", "include", "node", "transport")
     shapes: list[tuple[str, str, Any]] = []
     for i, entry in enumerate(entries):
         path = f"launch[{i}]"
@@ -702,7 +737,8 @@ def parse_launch(
                           f"got {_show(entry)}")
         ((kind, value),) = entry.items()
         if kind not in kinds:
-            raise p.error(f"{path}.{kind}", f"unknown entry (allowed: {', '.join(kinds)})")
+            raise p.error(f"{path}.{kind}", f"unknown entry{did_you_mean(str(kind), kinds)} "
+                          f"(allowed: {', '.join(kinds)})")
         shapes.append((f"{path}.{kind}", kind, value))
 
     # Arguments first, in order: a default may use $(var ...) of an earlier argument.
@@ -714,39 +750,179 @@ def parse_launch(
         if any(a.name == arg.name for a in declared):
             raise p.error(f"{path}.name", f"duplicate argument {arg.name!r}")
         declared.append(arg)
-        if arg.name in overrides:
-            p.args[arg.name] = overrides[arg.name]
+        if arg.name in context:
+            p.args[arg.name] = context[arg.name]
         elif arg.default is not None:
             p.args[arg.name] = arg.default
         else:
             raise p.error(path, f"argument {arg.name!r} has no default; give it on the command "
                           f"line as {arg.name}:=VALUE")
-    unknown = sorted(set(overrides) - {a.name for a in declared})
-    if unknown:
-        known = ", ".join(a.name for a in declared) or "none"
-        raise p.error("", f"unknown launch argument {', '.join(map(repr, unknown))} "
-                      f"(known: {known})")
+    for arg in declared:
+        if all(a.name != arg.name for a in out.args):
+            out.args.append(arg)
+            out.values[arg.name] = p.args[arg.name]
 
-    transport: TransportSpec | None = None
-    nodes: list[NodeSpec] = []
     for path, kind, value in shapes:
         if kind == "transport":
-            if transport is not None:
+            if out.transport is not None:
                 raise p.error(path, "only one transport entry is allowed")
-            transport = p.transport(value, path)
+            out.transport = p.transport(value, path)
+        elif kind == "include":
+            file, given = p.include(value, path)
+            if p.included(value, path):
+                _include(p, path, file, {**context, **p.args, **given}, given, files, out)
         elif kind == "node":
             node = p.node(value, path)  # checked even when left out
+            ready_before = p.ready_before(value, path)
             if not p.included(value, path):
                 continue
-            if any(n.name == node.name for n in nodes):
+            if any(n.name == node.name for n in out.nodes):
                 raise p.error(f"{path}.name", f"duplicate node name {node.name!r} (node names "
                               "label the output and must be unique in a launch)")
-            nodes.append(node)
-    if not nodes:
-        raise p.error("launch", "no node entries")
-    return LaunchDescription(source=source, args=tuple(declared),
-                             arg_values=MappingProxyType(dict(p.args)), transport=transport,
+            out.nodes.append(node)
+            if ready_before:
+                out.ready.append((node, ready_before, source, f"{path}.ready_before"))
+    return {a.name for a in declared}
+
+
+def _include(p: _Parser, path: str, file: str, context: Mapping[str, str],
+             given: Mapping[str, str], files: tuple[str, ...], out: _Launch) -> None:
+    """Read the file an ``include`` entry (at ``path`` of ``p``'s file) names into ``out``."""
+    real = os.path.realpath(file)
+    if real in files:
+        chain = " -> ".join(Path(f).name for f in (*files[files.index(real):], real))
+        raise p.error(f"{path}.file", f"include cycle: {chain}")
+    if not os.path.isfile(file):
+        raise p.error(f"{path}.file", f"no launch file {file!r} (a path, relative to "
+                      f"{p.dirname}, or a packaged launch file)")
+    try:
+        declared = _parse_file(_read_document(file), file, str(Path(file).resolve().parent),
+                               context, (*files, real), out)
+    except LaunchFileError as exc:  # where in the including file, too
+        raise LaunchFileError(exc.source, exc.key_path,
+                              f"{exc.message} (included by {p.source}: {path})") from None
+    for name in given:
+        if name not in declared:
+            raise p.error(f"{path}.arg", f"{Path(file).name} has no argument {name!r}"
+                          f"{did_you_mean(name, declared)} (its arguments: "
+                          f"{', '.join(sorted(declared)) or 'none'})")
+
+
+def _wait_also_for(spec: NodeSpec, fqn: str) -> NodeSpec:
+    """``spec`` with node ``fqn`` added to its ``wait_for`` parameter. ValueError when its
+    parameter dataclass has no ``wait_for``, or its value is not a list."""
+    if spec.executable is not None:
+        params_class = getattr(importlib.import_module(node_module(spec.pkg, spec.executable)),
+                               "PARAMS", None)
+        if params_class is not None and all(
+                f.name != "wait_for" for f in dataclasses.fields(params_class)):
+            raise ValueError(f"node {spec.name!r} ({spec.executable}) has no 'wait_for' "
+                             "parameter: it cannot wait for another node")
+    params = list(spec.params)
+    index = next((i for i, p in enumerate(params) if p.name == "wait_for"), None)
+    if index is None:
+        params.append(Param("wait_for", [fqn]))
+    else:
+        waits = params[index].value
+        if not isinstance(waits, list):
+            raise ValueError(f"node {spec.name!r}: its 'wait_for' is {_show(waits)}, not a list")
+        if fqn not in waits:
+            params[index] = Param("wait_for", [*waits, fqn])
+    return replace(spec, params=tuple(params))
+
+
+def parse_launch(
+    document: Any,
+    source: str,
+    overrides: Mapping[str, str] | None = None,
+    *,
+    dirname: str | None = None,
+    environ: Mapping[str, str] | None = None,
+) -> LaunchDescription:
+    """Validate a loaded launch document, read its includes and resolve its substitutions.
+
+    Parameters
+    ----------
+    document : Any
+        The YAML document, ``{"launch": [...]}``.
+    source : str
+        The file name used in error messages.
+    overrides : mapping of str to str, optional
+        Launch argument values from the command line; a name that no file of the launch
+        declares is an error.
+    dirname : str, optional
+        Value of ``$(dirname)`` (and the folder of relative includes); defaults to the
+        directory of ``source``.
+    environ : mapping of str to str, optional
+        Environment for ``$(env ...)``; defaults to `os.environ`.
+
+    Returns
+    -------
+    LaunchDescription
+        Arguments, nodes and transport of the file and of what it includes, in file order;
+        each node a ``ready_before`` names waits for that node too (its ``wait_for``).
+
+    Raises
+    ------
+    LaunchFileError
+        Naming the file and the key path of the first problem.
+    """
+    overrides = dict(overrides or {})
+    if dirname is None:
+        dirname = str(Path(source).resolve().parent)
+    out = _Launch(os.environ if environ is None else environ)
+    _parse_file(document, source, dirname, overrides, (os.path.realpath(source),), out)
+    known = [a.name for a in out.args]
+    unknown = sorted(set(overrides) - set(known))
+    if unknown:
+        hint = did_you_mean(unknown[0], known) if len(unknown) == 1 else ""
+        raise LaunchFileError(source, "", f"unknown launch argument "
+                              f"{', '.join(map(repr, unknown))}{hint} "
+                              f"(known: {', '.join(known) or 'none'})")
+    if not out.nodes:
+        raise LaunchFileError(source, "launch", "no node entries")
+    nodes = out.nodes
+    for consumer, targets, where, path in out.ready:
+        for j, target in enumerate(targets):
+            index = next((i for i, n in enumerate(nodes) if target in (n.name, n.fqn)), None)
+            if index is None:
+                raise LaunchFileError(where, f"{path}[{j}]", f"no node {target!r} in the launch"
+                                      f"{did_you_mean(target, [n.name for n in nodes])}")
+            try:
+                nodes[index] = _wait_also_for(nodes[index], consumer.fqn)
+            except ValueError as exc:
+                raise LaunchFileError(where, f"{path}[{j}]", str(exc)) from None
+    return LaunchDescription(source=source, args=tuple(out.args),
+                             arg_values=MappingProxyType(out.values), transport=out.transport,
                              nodes=tuple(nodes))
+
+
+def resolve_launch_file(name: str, folder: str | None = None) -> str:
+    """Find a launch file: a path (relative to ``folder``, default the working directory),
+    else a file shipped in the `vibrissa.launch` package.
+
+    Parameters
+    ----------
+    name : str
+        ``path/to/file.yaml``, or ``demo``/``demo.yaml`` for a packaged file.
+    folder : str, optional
+        Where a relative path starts (an including file's folder).
+
+    Returns
+    -------
+    str
+        A readable path (the path of ``name`` itself when nothing better is found, so that
+        the error names what the user typed).
+    """
+    path = name if folder is None else os.path.join(folder, name)
+    if os.path.exists(path) or os.sep in name:
+        return path
+    package = resources.files("vibrissa.launch")
+    for candidate in (name, f"{name}.yaml"):
+        entry = package / candidate
+        if entry.is_file():
+            return str(entry)
+    return path
 
 
 def load_launch_file(
@@ -776,6 +952,11 @@ def load_launch_file(
         The file cannot be read, is not valid YAML, or does not validate.
     """
     source = os.fspath(path)
+    return parse_launch(_read_document(source), source, overrides, environ=environ)
+
+
+def _read_document(source: str) -> Any:
+    """The YAML document of launch file ``source``; LaunchFileError when it cannot be read."""
     try:
         if not stat.S_ISREG(os.stat(source).st_mode):  # a device or a pipe: read without end
             raise LaunchFileError(source, "", "not a regular file")
@@ -791,4 +972,4 @@ def load_launch_file(
         column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
         raise LaunchFileError(source, f"line {line}, column {column}",
                               f"not UTF-8 text (byte 0x{data[exc.start]:02x})") from None
-    return parse_launch(_load_yaml(text, source), source, overrides, environ=environ)
+    return _load_yaml(text, source)

@@ -52,7 +52,6 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib import resources
 from typing import IO
 
 import yaml
@@ -63,6 +62,7 @@ from vibrissa.launch.description import (
     TransportSpec,
     node_module,
     node_params,
+    resolve_launch_file,
 )
 from vibrissa.msgs import NodeStatus
 from vibrissa.runtime.node import DEBUG_ENV, EXIT_LOST_DATA
@@ -707,27 +707,3 @@ def _has_exited(proc: subprocess.Popen[bytes] | None) -> bool:
     except ChildProcessError:
         return True
     return info is not None
-
-
-def resolve_launch_file(name: str) -> str:
-    """Find a launch file: a path, else a file shipped in the `vibrissa.launch` package.
-
-    Parameters
-    ----------
-    name : str
-        ``path/to/file.yaml``, or ``demo``/``demo.yaml`` for a packaged file.
-
-    Returns
-    -------
-    str
-        A readable path (``name`` itself when nothing better is found, so that the error
-        names what the user typed).
-    """
-    if os.path.exists(name) or os.sep in name:
-        return name
-    package = resources.files("vibrissa.launch")
-    for candidate in (name, f"{name}.yaml"):
-        entry = package / candidate
-        if entry.is_file():
-            return str(entry)
-    return name

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import enum
 import math
 import types
 import typing
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -63,6 +64,13 @@ def load_params(
     if overrides:
         values.update(_typed_values(cls, overrides, "--param", from_text=True))
     return _build(cls, values, source)
+
+
+def did_you_mean(word: str, known: Iterable[str]) -> str:
+    """``": did you mean 'pose_delay'?"`` for the known name closest to a mistyped ``word``
+    (`difflib.get_close_matches`), or an empty text when none is close."""
+    close = difflib.get_close_matches(word, list(known), n=1)
+    return f": did you mean {close[0]!r}?" if close else ""
 
 
 def takes_text(hint: Any) -> bool:
@@ -131,8 +139,8 @@ def _typed_values(cls: type, data: Mapping[Any, object], source: str, from_text:
         name = f"{prefix}{key}"
         if key not in known:
             raise ParamError(
-                f"{source}: unknown parameter {name!r} for {cls.__name__} "
-                f"(known: {', '.join(sorted(known))})"
+                f"{source}: unknown parameter {name!r} for {cls.__name__}"
+                f"{did_you_mean(str(key), known)} (known: {', '.join(sorted(known))})"
             )
         hint = hints[key]
         if from_text and isinstance(value, str) and not takes_text(hint):

@@ -208,7 +208,7 @@ def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
         ("  - node: {cmd: [x], name: a/b}\n", "launch[0].node.name: invalid node name 'a/b'"),
         # unknown and missing keys
         ("  - node: {cmd: [x], name: n, respwan: true}\n",
-         "launch[0].node.respwan: unknown key (allowed: pkg, exec, cmd"),
+         "launch[0].node.respwan: unknown key: did you mean 'respawn'? (allowed: pkg, exec, cmd"),
         ("  - node: {cmd: [x], name: n, param: [{name: a, value: 1, type: int}]}\n",
          "launch[0].node.param[0].type: unknown key (allowed: name, value)"),
         ("  - node: {cmd: [x]}\n",
@@ -222,7 +222,8 @@ def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
         ("  - node: {cmd: [x], name: n, respawn_delay: 1}\n",
          "launch[0].node.respawn_delay: has no effect without 'respawn: true'"),
         ("  - nodes: {cmd: [x]}\n",
-         "launch[0].nodes: unknown entry (allowed: arg, node, transport)"),
+         "launch[0].nodes: unknown entry: did you mean 'node'? (allowed: arg, include, node, "
+         "transport)"),
         ("  - arg: {name: a, value: 1}\n  - node: {cmd: [x], name: n}\n",
          "launch[0].arg.value: unknown key (allowed: name, default, description)"),
         ("  - arg: {default: 1}\n  - node: {cmd: [x], name: n}\n",
@@ -232,7 +233,7 @@ def test_substituted_bool_is_retyped(tmp_path: Path) -> None:
         ("  - arg: {name: a, default: 1}\n  - arg: {name: a, default: 2}\n"
          "  - node: {cmd: [x], name: n}\n", "launch[1].arg.name: duplicate argument 'a'"),
         ("  - node: {cmd: [x], name: n}\n    extra: 1\n",
-         "launch[0]: expected a mapping with one key (arg, node, transport)"),
+         "launch[0]: expected a mapping with one key (arg, include, node, transport)"),
         # substitutions
         ("  - node: {cmd: [x, '$(var nope)'], name: n}\n",
          "launch[0].node.cmd[1]: unknown launch argument in $(var nope) (known: none)"),

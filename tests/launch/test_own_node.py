@@ -27,6 +27,7 @@ def code_blocks(language: str) -> list[str]:
 def test_the_page_prints_the_example_files_verbatim() -> None:
     assert (DOCS / "examples" / "phase_filter.py").read_text() in code_blocks("python")
     assert (DOCS / "examples" / "tip_map.yaml").read_text() in code_blocks("yaml")
+    assert (DOCS / "examples" / "demo_plus_filter.yaml").read_text() in code_blocks("yaml")
 
 
 def test_the_example_node_filters_the_demo_stream_into_a_map(tmp_path: Path) -> None:
@@ -67,5 +68,7 @@ def test_the_format_reference_names_every_key_the_parser_accepts() -> None:
         {"launch": [{"node": {"cmd": ["x"], "name": "n", "bogus": 1}}]})
     assert documented_keys("### `arg`") == allowed_keys(
         {"launch": [{"arg": {"name": "a", "bogus": 1}}]})
+    assert documented_keys("### `include`") == allowed_keys(
+        {"launch": [{"include": {"file": "x.yaml", "bogus": 1}}]})
     assert documented_keys("### `transport`") == allowed_keys(
         {"launch": [{"transport": {"bogus": 1}}]})

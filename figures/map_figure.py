@@ -396,8 +396,8 @@ def draw_map(layers: MapLayers) -> Figure:
         for true, grid_m in zip(layers.true_objects, grids, strict=True):
             grid_W = grid_m * MM
             ax.plot_wireframe(*grid_W, color="0.5", linewidth=0.4, alpha=0.7, zorder=1)
-            top.plot(grid_W[0], grid_W[1], color="0.7", linewidth=0.3)
-            top.plot(grid_W[0].T, grid_W[1].T, color="0.7", linewidth=0.3)
+            top.plot(grid_W[0], grid_W[1], color="0.7", linewidth=0.3, zorder=0.6)
+            top.plot(grid_W[0].T, grid_W[1].T, color="0.7", linewidth=0.3, zorder=0.6)
             at = grid_W.reshape(3, -1)
             ax.text(at[0].mean(), at[1].mean(), at[2].max(), short_name(true.name),
                     color="0.3", fontsize=9, ha="center", va="bottom", parse_math=False,
@@ -473,10 +473,13 @@ def draw_map(layers: MapLayers) -> Figure:
         v = np.asarray(mesh.vertices) * MM
         value_mm = np.asarray(mesh.values, dtype=np.float64) * MM
         cells, cell_mm = subdivided(v, np.asarray(mesh.triangles), value_mm, SUBDIVISIONS)
-        ax.add_collection3d(Poly3DCollection(cells, facecolors=cmap(norm(cell_mm)),
-                                             edgecolors="none", alpha=0.8, zorder=3))
+        rgba = cmap(norm(cell_mm))  # opaque, edged in their own colour: no seams
+        ax.add_collection3d(Poly3DCollection(cells, facecolors=rgba, edgecolors=rgba,
+                                             linewidths=0.3, zorder=3))
+        # opaque (a translucent one darkens its triangles' seams), over the grid and the true
+        # objects, under the contacts and the robot
         top.tripcolor(Triangulation(v[:, 0], v[:, 1], mesh.triangles), value_mm,
-                      shading="gouraud", cmap=cmap, norm=norm, alpha=0.5)
+                      shading="gouraud", cmap=cmap, norm=norm, zorder=0.8)
     known = sum(len(mesh.triangles) for mesh in layers.meshes)
     if known:
         handles.append(Patch(facecolor=cmap(0.6), alpha=0.8,
@@ -524,6 +527,7 @@ def draw_map(layers: MapLayers) -> Figure:
     top.set_xlabel("x [mm]")
     top.set_ylabel("y [mm]")
     top.grid(True, linewidth=0.3, alpha=0.5)
+    top.set_axisbelow(True)
     top.set_title("top view (looking down z)", fontsize=10)
     legend = key.legend(handles=handles, loc="upper center", fontsize=8, frameon=False,
                         borderaxespad=0.0, ncols=2 if len(handles) > 12 else 1)

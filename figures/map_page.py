@@ -30,10 +30,10 @@ from vibrissa.figures.map_figure import (
     SCALE_PERCENTILE,
     FloatArray,
     MapLayers,
+    bounding_box,
     colour_scale,
     mounts,
     thousands,
-    view_box,
     whisker_colours,
     wireframe,
 )
@@ -112,14 +112,13 @@ def page_data(layers: MapLayers) -> dict[str, Any]:
                            for w, p_WC, tip in clamps]}
         robot = [p_WR, *[a for _, p_WC, tip in clamps for a in (p_WC, tip)]]
 
-    # The initial view: that of map.png's 3D view (the objects: contacts in an object, meshes,
-    # true objects; the robot near them).
+    # The initial view: the objects (contacts in an object, meshes, true objects) and all of
+    # the robot's path and mounts, as map.png's top view (its 3D view cuts the path).
     focus: list[FloatArray] = [points[labels >= 0] if np.any(labels >= 0) else points]
     focus += [np.asarray(mesh.vertices).reshape(-1, 3) for mesh in layers.meshes]
     focus += [g.reshape(3, -1).T for g in grids]
-    focus = [f for f in focus if len(f)]
-    lo, hi = (view_box(focus, robot, layers.whiskers) if focus
-              else (np.full(3, -0.05), np.full(3, 0.05)))
+    focus = [f for f in [*focus, *robot] if len(f)]
+    lo, hi = bounding_box(focus, 0.05) if focus else (np.full(3, -0.05), np.full(3, 0.05))
     return {
         "title": layers.title,
         "subtitle": layers.subtitle,

@@ -1,15 +1,19 @@
 """The map's figure: one PNG of a frame's map that a person reads at a glance (matplotlib).
 
 What it shows, in mm: a 3D view and a top view (x, y) of the true objects (grey wireframes,
-named) when known, the robot path with the whisker mounts at its start, middle and end (a
-clamp origin X_WR X_RC and a short segment along the clamp's +z, the rod's axis at the clamp,
-in the whisker's colour), the contacts coloured by whisker, the noise points (black crosses),
-each object's known mesh coloured by its distance to the true surface when that is known and
-by its predicted std otherwise (one colour bar in mm), and the unknown part of the meshes in
+named; in the top view beside their outline, with a line to it) when known, the robot path
+with the whisker mounts at its start, middle and end (a clamp origin X_WR X_RC and a short
+segment along the clamp's +z, the rod's axis at the clamp, in the whisker's colour), the
+contacts coloured by whisker, the noise points (black crosses), each object's known mesh
+coloured by its distance to the true surface when that is known and by its predicted std
+otherwise, per vertex and interpolated (one colour bar in mm, to a percentile of the vertices'
+values; it states the largest, the header's maximum), and the unknown part of the meshes in
 faint grey; a legend for every layer. Names from the wire (whiskers, objects, frames) are drawn
 as ``short_name`` gives them, and no text is read as matplotlib's mathtext (a ``$`` in a name).
-The 3D view is cut to the objects (contacts, meshes, true objects) with equal scales on its
-axes, so that the shapes are true; the top view shows the whole path.
+The 3D view is cut to the objects (contacts, meshes, true objects) and the robot within a
+whisker's length of them (`view_box`), with equal scales on its axes, so that the shapes are
+true, and draws the contacts and the robot over the meshes; the top view shows the whole
+path.
 
 The layers (`MapLayers`) come from a frame's map (`map_layers`), once for this figure and the
 page (`vibrissa.figures.map_page`). Drawn on a ``matplotlib.figure.Figure`` with the Agg canvas,

@@ -5,15 +5,16 @@ pictures): the contacts coloured by whisker (the figure's palette), the noise po
 (black crosses), each object's known mesh in the figure's colours (``viridis`` of its distance
 to the true surface or of its std, the same scale), the unknown part in faint grey, the true
 objects as grey wireframes (`map_figure.wireframe`), the robot path and the whisker mounts; a
-legend with a switch per layer (the legend folds away: "hide key", or ``map.html#nokey``), the
-figure's title, axes in mm.
+legend with a switch per layer beside the scene (it folds away, and the scene takes its place:
+"hide key", or ``map.html#nokey``), the figure's title, axes in mm. The view opens on the
+objects and all of the robot's path and mounts.
 
 No network and no library: the data is JSON in the page (lengths in mm rounded to 1 um), drawn
 by a small viewer in plain JavaScript on a 2D canvas (no GPU needed, so a headless browser
-draws it too): an orthographic view, triangles flat-shaded and drawn back to front with the
-points and lines (painter's algorithm). Drag to rotate, wheel to zoom, shift-drag to pan,
-double-click to reset. Once drawn, the page sets ``data-drawn`` on ``<body>`` to the number of
-things drawn (a test in a browser reads it).
+draws it too): an orthographic view, triangles flat-shaded (the mean of their vertices' values)
+and drawn back to front with the points and lines (painter's algorithm). Drag to rotate, wheel
+to zoom, shift-drag to pan, double-click to reset. Once drawn, the page sets ``data-drawn`` on
+``<body>`` to the number of things drawn (a test in a browser reads it).
 """
 
 from __future__ import annotations

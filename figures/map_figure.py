@@ -1,15 +1,19 @@
 """The map's figure: one PNG of a frame's map that a person reads at a glance (matplotlib).
 
 What it shows, in mm: a 3D view and a top view (x, y) of the true objects (grey wireframes,
-named) when known, the robot path with the whisker mounts at its start, middle and end (a
-clamp origin X_WR X_RC and a short segment along the clamp's +z, the rod's axis at the clamp,
-in the whisker's colour), the contacts coloured by whisker, the noise points (black crosses),
-each object's known mesh coloured by its distance to the true surface when that is known and
-by its predicted std otherwise (one colour bar in mm), and the unknown part of the meshes in
+named; in the top view beside their outline, with a line to it) when known, the robot path
+with the whisker mounts at its start, middle and end (a clamp origin X_WR X_RC and a short
+segment along the clamp's +z, the rod's axis at the clamp, in the whisker's colour), the
+contacts coloured by whisker, the noise points (black crosses), each object's known mesh
+coloured by its distance to the true surface when that is known and by its predicted std
+otherwise, per vertex and interpolated (one colour bar in mm, to a percentile of the vertices'
+values; it states the largest, the header's maximum), and the unknown part of the meshes in
 faint grey; a legend for every layer. Names from the wire (whiskers, objects, frames) are drawn
 as ``short_name`` gives them, and no text is read as matplotlib's mathtext (a ``$`` in a name).
-The 3D view is cut to the objects (contacts, meshes, true objects) with equal scales on its
-axes, so that the shapes are true; the top view shows the whole path.
+The 3D view is cut to the objects (contacts, meshes, true objects) and the robot within a
+whisker's length of them (`view_box`), with equal scales on its axes, so that the shapes are
+true, and draws the contacts and the robot over the meshes; the top view shows the whole
+path.
 
 The layers (`MapLayers`) come from a frame's map (`map_layers`), once for this figure and the
 page (`vibrissa.figures.map_page`). Drawn on a ``matplotlib.figure.Figure`` with the Agg canvas,
@@ -51,6 +55,17 @@ MM = 1e3
 
 MAX_NAME_CHARS = 32
 """The most characters of a name drawn (``short_name``)."""
+
+SCALE_PERCENTILE = 99.0
+"""The colour scale ends at this percentile of the known vertices' values: a few far vertices
+do not flatten the rest; the values above it show its top colour."""
+
+SUBDIVISIONS = 3
+"""Each known triangle of the 3D view is cut into this many squared, each coloured by its vertex
+values interpolated at its centre (matplotlib's 3D axes shade a polygon in one colour)."""
+
+LABEL_GAP = 0.04
+"""Distance of an object's label from its box in the top view, as a fraction of the view."""
 
 
 def short_name(name: str) -> str:
@@ -252,6 +267,19 @@ def bounding_box(parts: Sequence[FloatArray], margin: float) -> tuple[FloatArray
     return lo - grow, hi + grow
 
 
+def view_box(focus: Sequence[FloatArray], robot: Sequence[FloatArray],
+             whiskers: Sequence[Whisker]) -> tuple[FloatArray, FloatArray]:
+    """Corners (3,) of the 3D view, m: the objects ``focus`` (each (K, 3)) and the part of the
+    robot (path and mounts, each (K, 3)) within a whisker's length of them in x and y (a
+    quarter of their size without whiskers), grown by 5 %: the robot that touched them, not
+    all of its path."""
+    lo, hi = bounding_box(focus, 0.0)
+    reach = max([0.25 * float(np.max(hi[:2] - lo[:2])), *(w.length_m for w in whiskers)])
+    near = [p[np.all((p[:, :2] >= lo[:2] - reach) & (p[:, :2] <= hi[:2] + reach), axis=1)]
+            for p in robot]
+    return bounding_box([*focus, *near], 0.05)
+
+
 def _densified(p: FloatArray, n: int = 600) -> FloatArray:
     """The polyline ``p`` (K, 3) resampled at ``n`` points evenly along its length (at least
     its own points)."""
@@ -268,6 +296,54 @@ def _clipped(p: FloatArray, lo: FloatArray, hi: FloatArray) -> FloatArray:
     return np.where(inside[:, None], p, np.nan)
 
 
+def colour_scale(meshes: Sequence[MeshLayer]) -> tuple[float, float]:
+    """The meshes' colour scale, mm: its end (the `SCALE_PERCENTILE` of the known vertices'
+    values; 1 without any, or when all are 0) and the largest value (0 without any), the
+    maximum that the report and the figure's header give."""
+    every = np.concatenate([np.asarray(mesh.values, dtype=np.float64)[np.unique(mesh.triangles)]
+                            for mesh in meshes] or [np.zeros(0)]) * MM
+    if not len(every):
+        return 1.0, 0.0
+    end = float(np.percentile(every, SCALE_PERCENTILE))
+    return (end if end > 0 else 1.0), float(every.max())
+
+
+def subdivided(vertices: FloatArray, triangles: IntArray, values: FloatArray, n: int
+               ) -> tuple[FloatArray, FloatArray]:
+    """Each triangle cut into ``n``**2 (its edges in ``n`` equal parts): their corners
+    (T n**2, 3, 3) and the ``values`` (per vertex) interpolated linearly at their centres
+    (T n**2,)."""
+    corners, i_j = [], [(i, j) for i in range(n) for j in range(n - i)]
+    for i, j in i_j:  # barycentric corners of the triangles pointing up, then down
+        corners.append([(i, j), (i + 1, j), (i, j + 1)])
+        if i + j + 1 < n:
+            corners.append([(i + 1, j), (i + 1, j + 1), (i, j + 1)])
+    ij = np.asarray(corners, dtype=np.float64) / n  # (n**2, 3, 2)
+    weights = np.concatenate([1.0 - ij.sum(axis=2, keepdims=True), ij], axis=2)  # (n**2, 3, 3)
+    p = np.einsum("skc,tcd->tskd", weights, vertices[triangles]).reshape(-1, 3, 3)
+    centre = np.einsum("sc,tc->ts", weights.mean(axis=1), values[triangles]).reshape(-1)
+    return p, centre
+
+
+def label_places(boxes: Sequence[tuple[FloatArray, FloatArray]], data: FloatArray, gap: float
+                 ) -> list[tuple[FloatArray, str, str]]:
+    """Where each object's label goes in a 2D view, off the data: beside its box ``(lo, hi)``
+    (2,) by ``gap``, above, below, left or right, on the side whose spot is furthest from the
+    points ``data`` (K, 2) and from the other labels. Each: (the spot (2,), ha, va)."""
+    out: list[tuple[FloatArray, str, str]] = []
+    for lo, hi in boxes:
+        mid = 0.5 * (lo + hi)
+        sides = [(np.array([mid[0], hi[1] + gap]), "center", "bottom"),
+                 (np.array([mid[0], lo[1] - gap]), "center", "top"),
+                 (np.array([lo[0] - gap, mid[1]]), "right", "center"),
+                 (np.array([hi[0] + gap, mid[1]]), "left", "center")]
+        taken = np.concatenate([data.reshape(-1, 2), *[[at] for at, _, _ in out]])
+        clearance = [float(np.min(np.linalg.norm(taken - at, axis=1))) if len(taken) else 0.0
+                     for at, _, _ in sides]
+        out.append(sides[int(np.argmax(clearance))])
+    return out
+
+
 def plot_map(path: str | Path, layers: MapLayers) -> None:
     """Write the figure of ``layers`` to ``path`` (PNG)."""
     draw_map(layers).savefig(path, dpi=100, format="png")
@@ -277,11 +353,11 @@ def draw_map(layers: MapLayers) -> Figure:
     """The figure of ``layers`` (Agg canvas)."""
     import matplotlib
     from matplotlib.cm import ScalarMappable
-    from matplotlib.collections import PolyCollection
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
+    from matplotlib.tri import Triangulation
     from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 - registers the 3d projection
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
@@ -290,7 +366,9 @@ def draw_map(layers: MapLayers) -> Figure:
     grid = fig.add_gridspec(2, 2, width_ratios=[1.35, 1.0], height_ratios=[1.0, 0.8],
                             left=0.02, right=0.98, bottom=0.06, top=0.91 - 0.016 * notes,
                             wspace=0.2, hspace=0.15)
-    ax: Any = fig.add_subplot(grid[:, 0], projection="3d")
+    # Drawn in a fixed order, not sorted by depth: the contacts on a surface stay in front of
+    # its mesh, the path and the mounts in front of the objects.
+    ax: Any = fig.add_subplot(grid[:, 0], projection="3d", computed_zorder=False)
     top: Any = fig.add_subplot(grid[0, 1])
     key: Any = fig.add_subplot(grid[1, 1])
     key.axis("off")
@@ -310,15 +388,10 @@ def draw_map(layers: MapLayers) -> Figure:
     grids = [wireframe(true, points[shown][near_of == i])
              for i, true in enumerate(layers.true_objects)]
     focus += [g.reshape(3, -1).T for g in grids]
-    lo, hi = bounding_box(focus, 0.0)
     clamps = mounts(layers.path, layers.whiskers) if layers.path is not None else []
     robot = [layers.path.p_WR] if layers.path is not None else []
     robot += [a for _, p_WC, tip in clamps for a in (p_WC, tip)]
-    # The robot under (or beside) the objects belongs in the 3D view, not all of its path.
-    reach = 0.25 * float(np.max(hi[:2] - lo[:2]))
-    near = [p[np.all((p[:, :2] >= lo[:2] - reach) & (p[:, :2] <= hi[:2] + reach), axis=1)]
-            for p in robot]
-    lo, hi = bounding_box(focus + near, 0.05)
+    lo, hi = view_box(focus, robot, layers.whiskers)
     extent += [*focus, points, *robot]
 
     colour = whisker_colours(layers)
@@ -326,14 +399,13 @@ def draw_map(layers: MapLayers) -> Figure:
     if layers.true_objects:
         for true, grid_m in zip(layers.true_objects, grids, strict=True):
             grid_W = grid_m * MM
-            ax.plot_wireframe(*grid_W, color="0.5", linewidth=0.4, alpha=0.7)
-            top.plot(grid_W[0], grid_W[1], color="0.7", linewidth=0.3)
-            top.plot(grid_W[0].T, grid_W[1].T, color="0.7", linewidth=0.3)
+            ax.plot_wireframe(*grid_W, color="0.5", linewidth=0.4, alpha=0.7, zorder=1)
+            top.plot(grid_W[0], grid_W[1], color="0.7", linewidth=0.3, zorder=0.6)
+            top.plot(grid_W[0].T, grid_W[1].T, color="0.7", linewidth=0.3, zorder=0.6)
             at = grid_W.reshape(3, -1)
             ax.text(at[0].mean(), at[1].mean(), at[2].max(), short_name(true.name),
-                    color="0.3", fontsize=9, ha="center", va="bottom", parse_math=False)
-            top.text(at[0].mean(), at[1].mean(), short_name(true.name), color="0.3",
-                     fontsize=9, ha="center", va="center", style="italic", parse_math=False)
+                    color="0.3", fontsize=9, ha="center", va="bottom", parse_math=False,
+                    zorder=8)
         handles.append(Line2D([], [], color="0.5", linewidth=0.8,
                               label=f"true {'objects' if len(layers.true_objects) > 1 else 'object'}"
                               f" ({', '.join(short_name(t.name) for t in layers.true_objects[:6])}"
@@ -342,9 +414,9 @@ def draw_map(layers: MapLayers) -> Figure:
     if layers.path is not None:
         p = layers.path.p_WR * MM
         cut = _clipped(_densified(layers.path.p_WR), lo, hi) * MM
-        ax.plot(cut[:, 0], cut[:, 1], cut[:, 2], color="k", linewidth=1.2)
+        ax.plot(cut[:, 0], cut[:, 1], cut[:, 2], color="k", linewidth=1.2, zorder=4)
         if np.all(np.isfinite(_clipped(layers.path.p_WR[:1], lo, hi))):
-            ax.scatter(*p[0], color="k", s=25, marker="o", depthshade=False)
+            ax.scatter(*p[0], color="k", s=25, marker="o", depthshade=False, zorder=4)
         top.plot(p[:, 0], p[:, 1], color="k", linewidth=1.2)
         top.plot(p[0, 0], p[0, 1], "ko", markersize=5)
         handles.append(Line2D([], [], color="k", linewidth=1.2, marker="o", markersize=4,
@@ -354,10 +426,11 @@ def draw_map(layers: MapLayers) -> Figure:
             in_view = np.all(np.isfinite(_clipped(p_WC, lo, hi)), axis=1)
             for a, b, seen in zip(c, t, in_view, strict=True):
                 if seen:
-                    ax.plot(*np.stack([a, b]).T, color=colour[whisker.name], linewidth=1.6)
+                    ax.plot(*np.stack([a, b]).T, color=colour[whisker.name], linewidth=1.6,
+                            zorder=5)
                 top.plot([a[0], b[0]], [a[1], b[1]], color=colour[whisker.name], linewidth=1.6)
             ax.scatter(c[in_view, 0], c[in_view, 1], c[in_view, 2], color="k", s=8,
-                       depthshade=False)
+                       depthshade=False, zorder=5)
             top.plot(c[:, 0], c[:, 1], "k.", markersize=4)
         if layers.whiskers:
             handles.append(Line2D([], [], color="0.3", linewidth=1.6, marker=".",
@@ -371,7 +444,8 @@ def draw_map(layers: MapLayers) -> Figure:
         count = int(np.sum(ids == name))
         if len(mine):
             q = points[mine] * MM
-            ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=2.0, color=colour[name], depthshade=False)
+            ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=2.0, color=colour[name], depthshade=False,
+                       zorder=6)
             top.scatter(q[:, 0], q[:, 1], s=2.5, color=colour[name], linewidths=0)
         whisker_handles.append(Line2D([], [], linestyle="", marker="o", markersize=5,
                                       color=colour[name],
@@ -382,33 +456,34 @@ def draw_map(layers: MapLayers) -> Figure:
         q = points[noise] * MM
         cut = _clipped(points[noise], lo, hi) * MM
         ax.scatter(cut[:, 0], cut[:, 1], cut[:, 2], s=14, color="k", marker="x",
-                   depthshade=False)
+                   depthshade=False, zorder=7)
         top.scatter(q[:, 0], q[:, 1], s=14, color="k", marker="x", linewidths=0.8)
         handles.append(Line2D([], [], linestyle="", marker="x", color="k",
                               label=f"noise: {thousands(int(np.sum(labels < 0)))} points "
                                     "in no object"))
 
-    values = [np.asarray(mesh.values)[mesh.triangles].mean(axis=1) * MM
-              for mesh in layers.meshes]  # per triangle, mm
-    every = np.concatenate(values or [np.zeros(0)])
-    top_mm = float(np.percentile(every, 99)) if len(every) else 1.0  # the colour scale's end
+    top_mm, largest_mm = colour_scale(layers.meshes)
     norm = Normalize(0.0, top_mm, clip=True)
     cmap = matplotlib.colormaps["viridis"]
     unknown = 0
-    for mesh, face in zip(layers.meshes, values, strict=True):
+    for mesh in layers.meshes:
         if len(mesh.unknown_triangles):
             u = np.asarray(mesh.unknown_vertices) * MM
             ax.add_collection3d(Poly3DCollection(u[mesh.unknown_triangles], facecolors="0.85",
-                                                 edgecolors="none", alpha=0.15))
+                                                 edgecolors="none", alpha=0.15, zorder=2))
             unknown += len(mesh.unknown_triangles)
         if len(mesh.triangles) == 0:
             continue
         v = np.asarray(mesh.vertices) * MM
-        ax.add_collection3d(Poly3DCollection(v[mesh.triangles], facecolors=cmap(norm(face)),
-                                             edgecolors="none", alpha=0.8))
-        top.add_collection(PolyCollection(list(v[mesh.triangles][:, :, :2]),
-                                          facecolors=cmap(norm(face)), alpha=0.5,
-                                          edgecolors="none"))
+        value_mm = np.asarray(mesh.values, dtype=np.float64) * MM
+        cells, cell_mm = subdivided(v, np.asarray(mesh.triangles), value_mm, SUBDIVISIONS)
+        rgba = cmap(norm(cell_mm))  # opaque, edged in their own colour: no seams
+        ax.add_collection3d(Poly3DCollection(cells, facecolors=rgba, edgecolors=rgba,
+                                             linewidths=0.3, zorder=3))
+        # opaque (a translucent one darkens its triangles' seams), over the grid and the true
+        # objects, under the contacts and the robot
+        top.tripcolor(Triangulation(v[:, 0], v[:, 1], mesh.triangles), value_mm,
+                      shading="gouraud", cmap=cmap, norm=norm, zorder=0.8)
     known = sum(len(mesh.triangles) for mesh in layers.meshes)
     if known:
         handles.append(Patch(facecolor=cmap(0.6), alpha=0.8,
@@ -420,12 +495,13 @@ def draw_map(layers: MapLayers) -> Figure:
         std = ("" if not limits else f"std above {limits[0]:g} mm, " if len(limits) == 1 else
                f"std above {limits[0]:g}-{limits[-1]:g} mm by object, ")  # one line for any number
         handles.append(Patch(facecolor="0.85", alpha=0.5, label=f"unknown: {std}not on the map"))
-    if known:  # the scale ends at the 99th percentile: the triangles above show its top colour
-        above = float(every.max()) > top_mm
+    if known:  # the scale ends at a percentile: the vertices above show its top colour
+        above = largest_mm > top_mm
         bar = fig.colorbar(ScalarMappable(norm, cmap), ax=[ax], shrink=0.5, pad=0.02,
                            location="left", extend="max" if above else "neither")
-        bar.set_label(f"{layers.colour_by} [mm]" + (
-            f"\n(triangles up to {every.max():.2g}: the arrow)" if above else ""))
+        bar.set_label(f"{layers.colour_by} [mm], per vertex\n" + (
+            f"top: {SCALE_PERCENTILE:g}th percentile; arrow: up to {largest_mm:.2g}" if above
+            else f"top: the largest, {largest_mm:.2g}"))
 
     ax.set_xlim(lo[0] * MM, hi[0] * MM)
     ax.set_ylim(lo[1] * MM, hi[1] * MM)
@@ -436,12 +512,26 @@ def draw_map(layers: MapLayers) -> Figure:
     ax.set_zlabel("z [mm]")
     ax.set_title("3D view", fontsize=10)
     lo, hi = bounding_box(extent, 0.05)
+    # Each object's name beside it, off the contacts and the path, with a line to it.
+    outlines = [g.reshape(3, -1)[:2].T for g in grids]
+    data = np.concatenate([points[shown][:, :2], *[r[:, :2] for r in robot],
+                           *outlines, np.zeros((0, 2))])
+    places = label_places([(o.min(axis=0), o.max(axis=0)) for o in outlines], data,
+                          LABEL_GAP * float(np.max(hi[:2] - lo[:2])))
+    for true, outline, (at, ha, va) in zip(layers.true_objects, outlines, places, strict=True):
+        end = outline[np.argmin(np.linalg.norm(outline - at, axis=1))]
+        top.annotate(short_name(true.name), xy=end * MM, xytext=at * MM, ha=ha, va=va,
+                     color="0.3", fontsize=9, style="italic", parse_math=False,
+                     arrowprops={"arrowstyle": "-", "color": "0.45", "linewidth": 0.6})
+    if places:
+        lo, hi = bounding_box([*extent, np.array([[*at, lo[2]] for at, _, _ in places])], 0.05)
     top.set_xlim(lo[0] * MM, hi[0] * MM)
     top.set_ylim(lo[1] * MM, hi[1] * MM)
     top.set_aspect("equal", adjustable="box")
     top.set_xlabel("x [mm]")
     top.set_ylabel("y [mm]")
     top.grid(True, linewidth=0.3, alpha=0.5)
+    top.set_axisbelow(True)
     top.set_title("top view (looking down z)", fontsize=10)
     legend = key.legend(handles=handles, loc="upper center", fontsize=8, frameon=False,
                         borderaxespad=0.0, ncols=2 if len(handles) > 12 else 1)

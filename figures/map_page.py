@@ -5,15 +5,16 @@ pictures): the contacts coloured by whisker (the figure's palette), the noise po
 (black crosses), each object's known mesh in the figure's colours (``viridis`` of its distance
 to the true surface or of its std, the same scale), the unknown part in faint grey, the true
 objects as grey wireframes (`map_figure.wireframe`), the robot path and the whisker mounts; a
-legend with a switch per layer (the legend folds away: "hide key", or ``map.html#nokey``), the
-figure's title, axes in mm.
+legend with a switch per layer beside the scene (it folds away, and the scene takes its place:
+"hide key", or ``map.html#nokey``), the figure's title, axes in mm. The view opens on the
+objects and all of the robot's path and mounts.
 
 No network and no library: the data is JSON in the page (lengths in mm rounded to 1 um), drawn
 by a small viewer in plain JavaScript on a 2D canvas (no GPU needed, so a headless browser
-draws it too): an orthographic view, triangles flat-shaded and drawn back to front with the
-points and lines (painter's algorithm). Drag to rotate, wheel to zoom, shift-drag to pan,
-double-click to reset. Once drawn, the page sets ``data-drawn`` on ``<body>`` to the number of
-things drawn (a test in a browser reads it).
+draws it too): an orthographic view, triangles flat-shaded (the mean of their vertices' values)
+and drawn back to front with the points and lines (painter's algorithm). Drag to rotate, wheel
+to zoom, shift-drag to pan, double-click to reset. Once drawn, the page sets ``data-drawn`` on
+``<body>`` to the number of things drawn (a test in a browser reads it).
 """
 
 from __future__ import annotations
@@ -27,9 +28,11 @@ import numpy as np
 from vibrissa.figures.map_figure import (
     MAX_POINTS_SHOWN,
     MM,
+    SCALE_PERCENTILE,
     FloatArray,
     MapLayers,
     bounding_box,
+    colour_scale,
     mounts,
     thousands,
     whisker_colours,
@@ -69,12 +72,11 @@ def page_data(layers: MapLayers) -> dict[str, Any]:
     contact = shown[labels[shown] >= 0]
     noise = shown[labels[shown] < 0]
 
-    # The figure's colour scale: viridis from 0 to the 99th percentile of the triangles' values.
+    # The figure's colour scale: viridis from 0 to a percentile of the vertices' values; a
+    # triangle in the colour of its vertices' mean.
+    top, largest = colour_scale(layers.meshes)
     values = [np.asarray(mesh.values)[mesh.triangles].mean(axis=1) * MM
               for mesh in layers.meshes]  # per triangle, mm
-    every = np.concatenate(values or [np.zeros(0)])
-    top = float(np.percentile(every, 99)) if len(every) else 1.0
-    top = top if top > 0 else 1.0
     cmap = matplotlib.colormaps["viridis"]
     lut = [_hex(cmap(i / (LUT_SIZE - 1))) for i in range(LUT_SIZE)]
     meshes = []
@@ -98,22 +100,26 @@ def page_data(layers: MapLayers) -> dict[str, Any]:
     true = [{"name": t.name, "shape": list(g.shape[1:]), "p": _mm(np.moveaxis(g, 0, -1))}
             for t, g in zip(layers.true_objects, grids, strict=True)]
 
-    # The initial view: the objects (contacts in an object, meshes, true objects).
-    focus: list[FloatArray] = [points[labels >= 0] if np.any(labels >= 0) else points]
-    focus += [np.asarray(mesh.vertices).reshape(-1, 3) for mesh in layers.meshes]
-    focus += [g.reshape(3, -1).T for g in grids]
-    focus = [f for f in focus if len(f)]
-    lo, hi = bounding_box(focus, 0.05) if focus else (np.full(3, -0.05), np.full(3, 0.05))
-
     path: dict[str, Any] | None = None
+    robot: list[FloatArray] = []
     if layers.path is not None:
         p_WR = layers.path.p_WR
         rows = np.unique(np.r_[np.arange(0, len(p_WR), max(1, -(-len(p_WR)
                                                                   // MAX_PATH_SAMPLES))),
                                len(p_WR) - 1])
+        clamps = mounts(layers.path, layers.whiskers)
         path = {"p": _mm(p_WR[rows]),
                 "mounts": [{"w": index[w.name], "clamp": _mm(p_WC), "tip": _mm(tip)}
-                           for w, p_WC, tip in mounts(layers.path, layers.whiskers)]}
+                           for w, p_WC, tip in clamps]}
+        robot = [p_WR, *[a for _, p_WC, tip in clamps for a in (p_WC, tip)]]
+
+    # The initial view: the objects (contacts in an object, meshes, true objects) and all of
+    # the robot's path and mounts, as map.png's top view (its 3D view cuts the path).
+    focus: list[FloatArray] = [points[labels >= 0] if np.any(labels >= 0) else points]
+    focus += [np.asarray(mesh.vertices).reshape(-1, 3) for mesh in layers.meshes]
+    focus += [g.reshape(3, -1).T for g in grids]
+    focus = [f for f in [*focus, *robot] if len(f)]
+    lo, hi = bounding_box(focus, 0.05) if focus else (np.full(3, -0.05), np.full(3, 0.05))
     return {
         "title": layers.title,
         "subtitle": layers.subtitle,
@@ -128,6 +134,8 @@ def page_data(layers: MapLayers) -> dict[str, Any]:
         "lut": lut,
         "colour_by": layers.colour_by,
         "colour_max_mm": round(top, 6),
+        "largest_mm": round(largest, 6),
+        "colour_percentile": SCALE_PERCENTILE,
         "true": true,
         "path": path,
         "box": [_mm(lo), _mm(hi)],
@@ -156,7 +164,9 @@ _PAGE = """<!DOCTYPE html>
 <style>
 html, body { margin: 0; height: 100%; overflow: hidden; background: #fff;
   font: 13px/1.35 system-ui, sans-serif; color: #222; }
-#view { position: absolute; left: 0; top: 0; width: 100%; height: 100%; cursor: grab; }
+#view { position: absolute; left: 0; top: 0; width: calc(100% - 330px); height: 100%;
+  cursor: grab; }
+body.nokey #view { width: 100%; }
 #head { position: absolute; left: 12px; top: 8px; right: 340px; pointer-events: none; }
 #head h1 { font-size: 17px; margin: 0 0 4px 0; font-weight: 600; }
 #head pre { margin: 0; font: 11px/1.3 system-ui, sans-serif; color: #444; white-space: pre-wrap; }
@@ -187,6 +197,7 @@ const D = JSON.parse(document.getElementById("map-data").textContent);
 const canvas = document.getElementById("view");
 const ctx = canvas.getContext("2d");
 const show = {contacts: true, noise: true, known: true, unknown: true, truth: true, path: true};
+let drawn = false;  // the scene is built and drawn once (then a fold of the key redraws it)
 
 function el(tag, text, cls) {
   const e = document.createElement(tag);
@@ -219,7 +230,10 @@ function toggle(name, label, swatch, square) {
 // the key can fold away from what it covers (the robot path runs beyond the objects' box)
 const fold = el("button", "hide key"); fold.id = "fold";
 fold.addEventListener("click", () => {
-  fold.textContent = key.classList.toggle("folded") ? "show key" : "hide key";
+  const folded = key.classList.toggle("folded");
+  fold.textContent = folded ? "show key" : "hide key";
+  document.body.classList.toggle("nokey", folded);  // the scene takes the key's place
+  if (drawn) redraw();
 });
 key.append(fold, el("h2", "layers"));
 if (location.hash === "#nokey") fold.click();  // a link to the page without its key
@@ -254,9 +268,13 @@ if (nKnown) {
   stops.push(D.lut[D.lut.length - 1]);
   bar.style.background = "linear-gradient(to right, " + stops.join(", ") + ")";
   const ticks = el("div"); ticks.id = "bar-ticks";
+  const above = D.largest_mm > D.colour_max_mm;
   ticks.append(el("span", "0"), el("span", (D.colour_max_mm / 2).toPrecision(2)),
-               el("span", D.colour_max_mm.toPrecision(2) + "+"));
-  key.append(bar, ticks);
+               el("span", D.colour_max_mm.toPrecision(2) + (above ? "+" : "")));
+  key.append(bar, ticks, el("div", above
+    ? "the end: " + D.colour_percentile + "th percentile of the vertices; the largest " +
+      D.largest_mm.toPrecision(2)
+    : "the end: the largest", "hint"));
 }
 key.append(el("div", "drag: rotate, wheel: zoom, shift-drag: pan, double-click: reset",
               "hint"));
@@ -370,8 +388,8 @@ function draw() {
   const d = [Math.cos(e) * Math.cos(a), Math.cos(e) * Math.sin(a), Math.sin(e)];  // to viewer
   const r = [-Math.sin(a), Math.cos(a), 0];  // screen right
   const u = [-Math.sin(e) * Math.cos(a), -Math.sin(e) * Math.sin(a), Math.cos(e)];  // up
-  const scale = zoom * 0.95 * Math.min(W - 330, H - 60) / diagonal;
-  const cx = (W - 330) / 2 + pan[0], cy = H / 2 + 20 + pan[1];
+  const scale = zoom * 0.95 * Math.min(W, H - 60) / diagonal;
+  const cx = W / 2 + pan[0], cy = H / 2 + 20 + pan[1];
   for (let i = 0; i < N; i++) {
     const x = P[3*i] - centre[0], y = P[3*i+1] - centre[1], z = P[3*i+2] - centre[2];
     SX[i] = cx + scale * (x * r[0] + y * r[1]);
@@ -478,6 +496,7 @@ canvas.addEventListener("wheel", ev => {
 canvas.addEventListener("dblclick", () => { reset(); redraw(); });
 window.addEventListener("resize", redraw);
 document.body.dataset.drawn = String(draw());
+drawn = true;
 </script>
 </body></html>
 """

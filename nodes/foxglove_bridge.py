@@ -50,8 +50,11 @@ gives it ``allow_loss``) is counted as ``lost``.
 Foxglove's WebSocket protocol has no authentication: any local user who reaches the port sees
 every channel. So on a graph with keys (``VIBRISSA_KEYS``) the bridge refuses to start (exit 2)
 unless ``allow_unauthenticated_view`` is true, and then says so in a warning: the keys protect
-the graph's sockets, not the view. Clients refused at the handshake (another subprotocol, not a
-WebSocket) are counted (``refused_clients``) and logged at most once per ``REFUSED_LOG_S``.
+the graph's sockets, not the view. The view speaks the subprotocol ``foxglove.sdk.v1`` only
+(`SUBPROTOCOL`: foxglove-sdk's server takes no other); a client that offers only
+``foxglove.websocket.v1`` (an older Foxglove app) is refused with HTTP 400. Clients refused at
+the handshake (another subprotocol, not a WebSocket) are counted (``refused_clients``) and
+logged at most once per ``REFUSED_LOG_S``, with that hint.
 
 With ``hold_s`` >= 0 the node ends (exit 0) ``hold_s`` seconds after the mapper's
 ``EndOfStream`` on ``mesh_topic``, so a launch that ends on it (``on_exit: shutdown``,
@@ -100,6 +103,16 @@ log = logging.getLogger(__name__)
 
 EXTRA = "view"
 """The optional extra that installs what the node needs (``pip install 'vibrissa[view]'``)."""
+
+SUBPROTOCOL = "foxglove.sdk.v1"
+"""The WebSocket subprotocol the view accepts, the only one foxglove-sdk's server takes (it has
+no setting for another): a client that offers only ``foxglove.websocket.v1`` (the same
+protocol under its older name: older Foxglove apps, ws-protocol clients) is refused with HTTP
+400 at the handshake."""
+
+REFUSED_HINT = (f"the view speaks the WebSocket subprotocol {SUBPROTOCOL} only: a client that "
+                "offers only foxglove.websocket.v1 (an older Foxglove app) is refused")
+"""Said when the view starts and with each line about refused clients."""
 
 REPUBLISH_S = 1.0
 """Period of the state sent again for clients that connect late (mounts, cloud, map), s."""
@@ -195,8 +208,9 @@ class RefusedClients(logging.Filter):
             return False
         self._last = self._clock()
         refused = self._counters["refused_clients"]
-        record.msg, record.args = ("refused %d client(s) at the handshake (%d so far; the last: %s)",
-                                   (refused - self._logged, refused, record.getMessage()))
+        record.msg, record.args = ("refused %d client(s) at the handshake (%d so far; the last: "
+                                   "%s; %s)", (refused - self._logged, refused,
+                                               record.getMessage(), REFUSED_HINT))
         record.levelno, record.levelname = logging.WARNING, "WARNING"
         self._logged = refused
         return True
@@ -484,8 +498,8 @@ def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
     try:
         url = f"ws://{params.host}:{server.port}"
         log.info("%s: serving the graph to Foxglove on %s (Foxglove app: Open connection -> "
-                 "Foxglove WebSocket -> %s; layout: launch/foxglove_layout.json)",
-                 node.fqn, url, url)
+                 "Foxglove WebSocket -> %s; layout: launch/foxglove_layout.json; %s)",
+                 node.fqn, url, url, REFUSED_HINT)
         node.set_state("running", f"serving {url}")
         end_at = float("inf")
         next_tick = 0.0

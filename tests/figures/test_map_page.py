@@ -135,11 +135,16 @@ def test_a_browser_draws_the_scene(page: dict[str, Any], tmp_path: Path) -> None
     assert drawn is not None and int(drawn.group(1)) > known + 280
 
     # the screenshot, and one of the same page with the contacts and the known meshes off:
-    # what those two layers add is in their colours
-    scene = screenshot(page["path"], tmp_path)
+    # what those two layers add is in their colours; both zoomed in twice on the objects (the
+    # view opens on the robot too: its path runs 100 mm beside them)
+    zoomed = page["html"].replace("zoom = 1;", "zoom = 2;", 1)
+    assert zoomed != page["html"]
+    scene_page = tmp_path / "scene.html"
+    scene_page.write_text(zoomed)
+    scene = screenshot(scene_page, tmp_path)
     bare_page = tmp_path / "bare.html"
-    bare_page.write_text(page["html"].replace("contacts: true, noise: true, known: true",
-                                              "contacts: false, noise: true, known: false", 1))
+    bare_page.write_text(zoomed.replace("contacts: true, noise: true, known: true",
+                                        "contacts: false, noise: true, known: false", 1))
     bare = screenshot(bare_page, tmp_path)
     # not blank: many colours, a fair share of the window not background white
     codes = scene.astype(np.int64) @ np.array([1 << 16, 1 << 8, 1])
@@ -184,3 +189,31 @@ def test_the_key_folds_away_from_what_it_covers(page: dict[str, Any], tmp_path: 
     assert ">hide key</button>" in shown.stdout
     assert 'id="key" class="folded"' in folded.stdout and ">show key</button>" in folded.stdout
     assert re.search(r'data-drawn="[1-9]', folded.stdout), folded.stderr[-2000:]
+
+
+def test_at_1200x900_the_key_covers_no_part_of_the_robot_path(page: dict[str, Any],
+                                                              tmp_path: Path) -> None:
+    import matplotlib.image
+
+    # the robot path alone (black): all of it in the window left of the key, clear of its edges
+    only_path = tmp_path / "path.html"
+    only_path.write_text(page["html"].replace(
+        "{contacts: true, noise: true, known: true, unknown: true, truth: true, path: true}",
+        "{contacts: false, noise: false, known: false, unknown: false, truth: false, "
+        "path: true}", 1))
+    shot = tmp_path / "path.png"
+    run = browse(only_path, tmp_path, f"--screenshot={shot}")
+    assert run.returncode == 0, run.stderr[-2000:]
+    pixels = (matplotlib.image.imread(shot)[:, :, :3] * 255).astype(np.int64)
+    scene = pixels[:, : WINDOW[0] - KEY_WIDTH]
+    rows, cols = np.nonzero(scene.max(axis=2) < 40)  # black: the path and the mount dots
+    head = rows > 80  # below the title
+    rows, cols = rows[head], cols[head]
+    assert len(cols) > 300, len(cols)
+    margin = 8  # px
+    assert cols.min() >= margin and cols.max() < WINDOW[0] - KEY_WIDTH - margin, (
+        cols.min(), cols.max())
+    assert rows.max() < WINDOW[1] - margin
+    # the key's column is not part of the scene: below the key (this one ends above 500 px)
+    # it is blank, nothing of the robot runs on past the window's scene part
+    assert np.all(pixels[500:, WINDOW[0] - KEY_WIDTH:] == 255), "the robot is drawn under the key"

@@ -89,7 +89,9 @@ def register(subparsers: Any) -> None:
         "clamp: force = -f0, torque = -m0 in the clamp frame; contact points -> "
         "sensor_msgs/PointCloud2 (x, y, z, whisker, phase, s1; whisker indexes the JSON list "
         f"of names on {WHISKERS_TOPIC}); RobotPose -> /tf; the --robot mounts -> /tf_static; "
-        "SurfaceMesh -> visualization_msgs/Marker; other types are skipped and counted.")
+        "SurfaceMesh -> visualization_msgs/Marker; other types are skipped and counted. Each "
+        "message is logged at its header stamp, the sensor's time (the names and mounts at the "
+        "first stamp), so `ros2 bag play --clock` plays on the stamps' clock at their pace.")
     p.add_argument("bag", nargs="?", metavar="BAG.mcap")  # also after --topics (Names)
     p.add_argument("outdir", nargs="?", metavar="OUT",
                    help="output: OUT.mcap for json, a new folder for ros2 (or -o)")

@@ -36,9 +36,11 @@ in place; ``NAME:=VALUE`` on the command line may name an argument of any file o
 
 Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)``,
 ``$(equals A B)`` and ``$(not-equals A B)`` (``true`` or ``false``), ``$(dirname)`` (the launch
-file's directory) and ``$(python)`` (the interpreter running the launch, for ``cmd`` nodes
-written in Python); they nest, innermost first, and a value is never read again as one. Every
-error is a `LaunchFileError` whose message names the file and the key path, e.g.
+file's directory), ``$(python)`` (the interpreter running the launch, for ``cmd`` nodes
+written in Python) and ``$(launch_time)`` (when the launch file was read, s since the Unix
+epoch, one value for the whole file: the default ``epoch`` of a simulated source); they nest,
+innermost first, and a value is never read again as one. Every error is a `LaunchFileError`
+whose message names the file and the key path, e.g.
 ``demo.yaml: launch[2].node.respawn: expected bool``.
 """
 
@@ -51,6 +53,7 @@ import os
 import shlex
 import stat
 import sys
+import time
 import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -312,6 +315,7 @@ class _Parser:
         self.source = source
         self.dirname = dirname
         self.env = env
+        self.launch_time = time.time()
         self.args: dict[str, str] = {}
 
     def error(self, path: str, message: str) -> LaunchFileError:
@@ -368,10 +372,13 @@ class _Parser:
             return self.dirname
         if kind == "python" and not rest:
             return sys.executable
+        if kind == "launch_time" and not rest:
+            return repr(self.launch_time)
         raise self.error(
             path,
             f"bad substitution {_show('$(' + body + ')')}; expected $(var NAME), $(env NAME), "
-            "$(env NAME default), $(equals A B), $(not-equals A B), $(dirname) or $(python)",
+            "$(env NAME default), $(equals A B), $(not-equals A B), $(dirname), $(python) or "
+            "$(launch_time)",
         )
 
     def retyped(self, value: Any, path: str) -> Any:

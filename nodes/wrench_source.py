@@ -8,7 +8,7 @@ Publishes
 ---------
 ``topic`` (default ``wrench``, relative: ``/<namespace>/wrench``) : WhiskerWrenchArray
     mode ``sim``: one sample (a batch of one row) per equilibrium of every sweep, in sweep
-    order, then ``EndOfStream``.
+    order, stamped from ``epoch_s`` as they go out (`clock_from`), then ``EndOfStream``.
 ``topic`` : WhiskerWrenchArray
     mode ``sim`` with ``array``: the trails are the whiskers of one rigid array moving together;
     one message per clamp step with a row per whisker, then ``EndOfStream``.
@@ -16,10 +16,11 @@ Publishes
     mode ``scene``: a robot's whiskers along its path (``vibrissa simulate`` of ``scene``: read
     from its output folder ``simulated``, or run on start when that is empty): one array per
     path sample with a row per whisker that has a wrench there (an ``unresolved`` sample has
-    none), each row in its clamp frame with no pose, stamped with the path's time; and the
-    robot's pose X_WR (``world`` -> ``robot_frame``) at ``pose_rate_hz`` on the path's clock
+    none), each row in its clamp frame with no pose, stamped ``epoch_s`` + the path's time; and
+    the robot's pose X_WR (``world`` -> ``robot_frame``) at ``pose_rate_hz`` on the path's clock
     (and a last one at the path's end; 0: the path's own samples), each published
-    ``pose_delay_s`` after its stamp in the stream; then ``EndOfStream`` on both.
+    ``pose_delay_s`` after its stamp in the stream (stamped as the wrenches); then
+    ``EndOfStream`` on both.
 every WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order (a retired single ``vibrissa/WhiskerWrench`` decodes as an array of one
@@ -40,6 +41,7 @@ import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from typing import Literal
 
 import numpy as np
@@ -83,6 +85,9 @@ MAX_POSES = 10_000_000
 """Most robot poses mode ``scene`` makes of a path at ``pose_rate_hz`` (28 h at 100 Hz): a rate
 beyond it is refused rather than filling the memory with poses."""
 
+MAX_EPOCH_S = 2.0**31
+"""Largest ``epoch_s`` (the year 2038, excluded): a ROS 2 time holds its seconds as an int32."""
+
 
 @dataclass(frozen=True)
 class WrenchSourceParams:
@@ -110,6 +115,12 @@ class WrenchSourceParams:
     pose_delay_s
         Mode ``scene``: each pose goes out this long after its stamp in the stream (a
         localisation that lags), s.
+    epoch_s
+        Modes ``sim`` and ``scene``: the stamp of the simulated stream's start, s since the
+        Unix epoch: path time 0 (``scene``: every wrench and pose is stamped ``epoch_s`` + its
+        path time), the first sample (``sim``: ``epoch_s`` + the time since it went out). The
+        launch files pass their ``epoch`` argument, by default the time the launch started;
+        0: the path's own clock.
     noise_force_n, noise_moment_nm, seed
         Mode ``scene``: standard deviation of Gaussian noise added to each wrench component
         (N, N m), and the seed of the noise.
@@ -179,6 +190,7 @@ class WrenchSourceParams:
     robot_frame: str = ROBOT_FRAME
     pose_rate_hz: float = 100.0
     pose_delay_s: float = 0.0
+    epoch_s: float = 0.0
     noise_force_n: float = 0.0
     noise_moment_nm: float = 0.0
     seed: int = 0
@@ -192,6 +204,8 @@ class WrenchSourceParams:
         require_non_negative("rate_hz", self.rate_hz)
         require_non_negative("replay_rate", self.replay_rate)
         require_non_negative("wait_timeout_s", self.wait_timeout_s)
+        require(0 <= self.epoch_s < MAX_EPOCH_S, "epoch_s", self.epoch_s,
+                f"s since the Unix epoch in [0, {MAX_EPOCH_S:.0f})")
         require_parsed("topic", self.topic, validate_name)
         for name in self.wait_for:
             require_parsed("wait_for", name, validate_name)
@@ -246,7 +260,7 @@ def tick_messages(
     Row r of a tick is whisker ``whisker_ids[tick.whiskers[r]]``, measured in its clamp frame
     (`vibrissa.frames.clamp_frame`), with its clamp pose in ``frame_id``: the identity
     orientation (C parallel to W). ``seq`` counts messages from 0; ``stamp`` is ``clock()``
-    when the message is made (e.g. ``time.time``, the publish time, as for a live sensor).
+    when the message is made (the node's: `clock_from` its epoch, as a live sensor's).
     """
     seq = 0
     for tick in ticks:
@@ -265,6 +279,20 @@ def tick_messages(
                 f0=tick.f0_C_n[r:r + 1], m0=tick.m0_C_nm[r:r + 1], pose_frame_id=frame_id,
                 clamp_position=tick.p_WC_m[r:r + 1], clamp_orientation=IDENTITY_QUATERNION[None])
             seq += 1
+
+
+def clock_from(epoch_s: float) -> Callable[[], float]:
+    """A clock that reads ``epoch_s`` on its first call, then ``epoch_s`` plus the time since
+    (`time.monotonic`), s: mode ``sim``'s stamps, from the stated epoch at the pace they go out."""
+    start: list[float] = []
+
+    def clock() -> float:
+        now = time.monotonic()
+        if not start:
+            start.append(now)
+        return epoch_s + (now - start[0])
+
+    return clock
 
 
 PROGRESS_PERIOD_S = 2.0
@@ -294,13 +322,15 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
     ):
         return -1
     node.set_state("running", f"simulating {len(trails)} sweep(s) past {surface.spec}")
+    _say_epoch(node, params, "the first sample")
     if x_grid is None:  # one whisker, its sweeps one after the other
         ticks = sequential_ticks(run, params.rod)
         whisker_ids = [params.whisker_id] * len(trails)
     else:
         ticks = array_ticks(run, params.rod)
         whisker_ids = params.array_whisker_ids
-    messages = tick_messages(ticks, whisker_ids, params.frame_id, params.array, clock=time.time)
+    messages = tick_messages(ticks, whisker_ids, params.frame_id, params.array,
+                             clock=clock_from(params.epoch_s))
     period = 1.0 / params.rate_hz if params.rate_hz > 0 else 0.0
     t_start = time.monotonic()
     next_report = t_start + PROGRESS_PERIOD_S
@@ -325,6 +355,12 @@ def run_sim(node: Node, params: WrenchSourceParams) -> int:
     return count
 
 
+def _say_epoch(node: Node, params: WrenchSourceParams, what: str) -> None:
+    """Log the epoch the stream is stamped from (``epoch_s``), as s and as UTC."""
+    utc = datetime.fromtimestamp(params.epoch_s, timezone.utc).isoformat(timespec="milliseconds")
+    log.info("%s: stamps from the epoch %.6f s (%s) at %s", node.fqn, params.epoch_s, utc, what)
+
+
 def _progress(run: SweepRun, sent: int, elapsed_s: float) -> str:
     """``sweeps ended 2/5 (detachment, snap-off), 4310 published in 4.1 s``; ``no-equilibrium
     at the clamp``: the object met the clamp itself (``SweepProgress.s_touch``)."""
@@ -340,7 +376,8 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
     """The messages of mode ``scene`` in publishing order, each with its time in the stream
     (the path's clock): a WhiskerWrenchArray per path sample at its time, and the robot's
     poses at ``pose_rate_hz`` (and at the path's end; 0: the path's samples), each
-    ``pose_delay_s`` after its stamp; a pose goes before a wrench of the same stream time."""
+    ``pose_delay_s`` after its path time; a pose goes before a wrench of the same stream time.
+    Every message is stamped ``params.epoch_s`` + its path time."""
     t = scene.path.t
     names = [r.name for r in results]
     frame_ids = [clamp_frame(name) for name in names]
@@ -365,7 +402,7 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
             j += 1
         rows = np.flatnonzero(has[k])
         yield stamp, WhiskerWrenchArray(
-            stamp=stamp, seq=k, whisker_ids=[names[i] for i in rows],
+            stamp=params.epoch_s + stamp, seq=k, whisker_ids=[names[i] for i in rows],
             frame_ids=[frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])
     for rest in range(j, len(pose_t)):
         yield (float(pose_t[rest] + params.pose_delay_s),
@@ -373,7 +410,7 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
 
 
 def _pose(params: WrenchSourceParams, stamp: float, p: FloatArray, q: FloatArray) -> RobotPose:
-    return RobotPose(stamp=float(stamp), frame_id=params.map_frame,
+    return RobotPose(stamp=params.epoch_s + float(stamp), frame_id=params.map_frame,
                      child_frame_id=params.robot_frame, position=p, orientation=q)
 
 
@@ -409,6 +446,7 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
                                                              params.wait_timeout_s):
             return -1
     node.set_state("running", f"playing {params.scene}")
+    _say_epoch(node, params, "path time 0")
     t = scene.path.t
     wall_per_s = (len(t) - 1) / (params.rate_hz * (t[-1] - t[0])) if params.rate_hz else 0.0
     start = time.monotonic()

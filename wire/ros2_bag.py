@@ -19,10 +19,18 @@ whisker names              std_msgs/msg/String (latched)        ``/vibrissa/whis
 (1) A payload of the retired single type ``vibrissa/WhiskerWrench`` (``codec.RETIRED_TYPES``:
 it decodes as an array of one row) goes to ``<topic>`` itself, as it always did.
 
-Anything else (NodeStatus, EndOfStream, ...) is skipped and counted. Each message keeps its
-log time; ``header.stamp`` is the message's own ``stamp`` (float s -> sec, nanosec, rounded to
-the nearest ns; :func:`stamp_from_ros` gives the float back exactly for stamps that are the
-float nearest a whole number of ns, such as a 500 Hz clock's).
+Anything else (NodeStatus, EndOfStream, ...) is skipped and counted. ``header.stamp`` is the
+message's own ``stamp`` (float s -> sec, nanosec, rounded to the nearest ns;
+:func:`stamp_from_ros` gives the float back exactly for stamps that are the float nearest a
+whole number of ns, such as a 500 Hz clock's).
+
+**Times.** Each ROS message's log time is its ``header.stamp``, the sensor's time, not the time
+the vibrissa bag recorded it: the messages are written in stamp order (held in memory for
+that), so ``ros2 bag play --clock`` publishes the stamps' clock and plays at the sensor's pace
+(rate 1: a simulated path at path speed, whatever the speed of its recording). The two
+messages without a stamp of their own, the whisker names and the ``/tf_static`` mounts, are
+logged (and the mounts stamped) at the first stamp, so the bag spans its stamps and nothing
+else; the recording's clock (log times, NodeStatus) is not carried.
 
 **Sign of the wrench.** vibrissa's ``f0``, ``m0`` are the clamp's reaction on the rod
 (docs/ARCHITECTURE.md); a WrenchStamped holds what a force/torque sensor at the clamp reads,
@@ -256,13 +264,14 @@ class _Ros2Out:
         self.result = result
         self.connections: dict[tuple[str, str], Any] = {}
 
-    def write(self, topic: str, msgtype: str, msg: Any, t_ns: int, latched: bool = False) -> None:
+    def write(self, topic: str, msgtype: str, cdr: memoryview, t_ns: int,
+              latched: bool = False) -> None:
         key = (topic, msgtype)
         if key not in self.connections:
             self.connections[key] = self.writer.add_connection(
                 topic, msgtype, typestore=TYPESTORE,
                 offered_qos_profiles=[LATCHED_QOS] if latched else [])
-        self.writer.write(self.connections[key], t_ns, TYPESTORE.serialize_cdr(msg, msgtype))
+        self.writer.write(self.connections[key], t_ns, cdr)
         self.result.written[topic] += 1
 
 
@@ -280,7 +289,7 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         The rosbag2 folder to create.
     whiskers
         The robot description: each whisker's mount X_RC goes to ``/tf_static`` as
-        ``robot_frame -> <whisker>/clamp`` at the bag's first log time.
+        ``robot_frame -> <whisker>/clamp`` at the first stamp.
     robot_frame
         The parent frame of the mounts.
     topics
@@ -289,20 +298,34 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     Raises
     ------
     FileNotFoundError, ValueError
-        ``src`` is no bag, or ``dst`` exists.
+        ``src`` is no bag, ``dst`` exists, or a stamp is before 1970 (a log time cannot be).
     """
     reader = BagReader(src, topics=topics)
     out = Path(dst)
     if out.exists():
         raise ValueError(f"{out} exists; a ROS 2 bag is written to a new folder")
     names = {w.name for w in whiskers}
-    start_ns: int | None = None
     for rec in reader:
-        start_ns = rec.log_time_ns if start_ns is None else start_ns
         if codec.decodes_as(rec.type_name) in _NAMED:
             names.update(_whisker_names(codec.decode(rec.payload)))
     result = ExportResult(path=out, whiskers=sorted(names))
     index = {name: i for i, name in enumerate(result.whiskers)}
+    converted: list[tuple[int, str, str, memoryview]] = []  # (log time = stamp ns, topic, type, CDR)
+    markers: dict[str, int] = {}
+    for rec in BagReader(src, topics=topics):
+        if codec.decodes_as(rec.type_name) not in _EXPORTED:
+            result.skipped[rec.type_name] += 1
+            continue
+        row_topics = rec.type_name not in codec.RETIRED_TYPES
+        for topic, msgtype, ros_msg in _convert(rec.topic, codec.decode(rec.payload), index,
+                                                 markers, row_topics):
+            converted.append((_stamp_ns(ros_msg), topic, msgtype,
+                              TYPESTORE.serialize_cdr(ros_msg, msgtype)))
+    converted.sort(key=lambda m: m[0])  # stable: one stamp keeps the recorded order
+    if converted and converted[0][0] < 0:
+        _, topic, msgtype, _ = converted[0]
+        raise ValueError(f"a {msgtype} on {topic} is stamped {converted[0][0] / _NS:g} s, before "
+                         "1970: its stamp cannot be the log time of a ROS 2 bag")
     writer = Writer(out, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
     try:
         writer.open()
@@ -310,29 +333,30 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         raise ValueError(str(exc)) from None
     ros_out = _Ros2Out(writer, result)
     try:
-        t0 = start_ns or 0
+        t0 = converted[0][0] if converted else 0
         if result.whiskers:
-            ros_out.write(WHISKERS_TOPIC, STRING,
-                          ros.std_msgs__msg__String(data=json.dumps(result.whiskers)), t0, True)
+            names_msg = ros.std_msgs__msg__String(data=json.dumps(result.whiskers))
+            ros_out.write(WHISKERS_TOPIC, STRING, TYPESTORE.serialize_cdr(names_msg, STRING), t0,
+                          True)
         if whiskers:
-            stamp = t0 / _NS
+            stamp = stamp_from_ros(*divmod(t0, _NS))
             mounts = [_transform(stamp, robot_frame, clamp_frame(w.name), w.X_RC.translation,
                                  w.X_RC.rotation.as_quat()) for w in whiskers]
-            ros_out.write(TF_STATIC_TOPIC, TF_MESSAGE, ros.tf2_msgs__msg__TFMessage(
-                transforms=mounts), t0, True)
-        markers: dict[str, int] = {}
-        for rec in BagReader(src, topics=topics):
-            if codec.decodes_as(rec.type_name) not in _EXPORTED:
-                result.skipped[rec.type_name] += 1
-                continue
-            row_topics = rec.type_name not in codec.RETIRED_TYPES
-            for topic, msgtype, ros_msg in _convert(rec.topic, codec.decode(rec.payload), index,
-                                                     markers, row_topics):
-                ros_out.write(topic, msgtype, ros_msg, rec.log_time_ns)
+            static = ros.tf2_msgs__msg__TFMessage(transforms=mounts)
+            ros_out.write(TF_STATIC_TOPIC, TF_MESSAGE, TYPESTORE.serialize_cdr(static, TF_MESSAGE),
+                          t0, True)
+        for t_ns, topic, msgtype, cdr in converted:
+            ros_out.write(topic, msgtype, cdr, t_ns)
     finally:
         writer.close()
     result.damage = reader.report_damage("exported")
     return result
+
+
+def _stamp_ns(ros_msg: Any) -> int:
+    """The ROS message's stamp in ns: its header's (a TFMessage's: its first transform's)."""
+    header = ros_msg.transforms[0].header if hasattr(ros_msg, "transforms") else ros_msg.header
+    return int(header.stamp.sec) * _NS + int(header.stamp.nanosec)
 
 
 def _convert(topic: str, msg: WireMessage, index: Mapping[str, int], markers: dict[str, int],

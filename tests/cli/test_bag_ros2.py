@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap_ros2.reader import read_ros2_messages
@@ -20,6 +21,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys.stores import ros2_jazzy as ros
 
+from tests.system.test_export_stamps import ros2_times
 from tests.system.test_system_pipeline import LAUNCH, TIMEOUT_S, Launch, Probe, entries, node, set_param
 from vibrissa.cli.main import main as vibrissa_main
 from vibrissa.formats.scene_file import load_robot, load_scene
@@ -158,7 +160,8 @@ def test_both_decoders_read_the_wrenches_poses_mounts_and_points_back(
     # the contact points: float32 x, y, z, the whisker's index, phase, s1
     ((t_ns, cloud),) = by_topic["/robot/contact"]
     contacts: ContactPointArray = demo["contacts"]
-    assert t_ns == 5_000_000_000 and cloud.header.frame_id == "world"
+    # logged at its stamp, not when it was recorded (5 s)
+    assert t_ns == 123_456_789 and cloud.header.frame_id == "world"
     assert (cloud.header.stamp.sec, cloud.header.stamp.nanosec) == (0, 123456789)
     names_dtype = {f.name: f.offset for f in cloud.fields}
     assert list(names_dtype) == ["x", "y", "z", "whisker", "phase", "s1"]
@@ -172,6 +175,58 @@ def test_both_decoders_read_the_wrenches_poses_mounts_and_points_back(
     assert [whiskers[i] for i in cloud_rows["whisker"]] == contacts.whisker_ids
     assert cloud_rows["phase"].tolist() == [1, 2]
     assert np.array_equal(cloud_rows["s1"], contacts.s1.astype(np.float32))
+
+
+def test_a_scene_recorded_fast_exports_at_its_stamps_spanning_the_path_from_the_epoch(
+        demo: dict[str, Any], tmp_path: Path) -> None:
+    """The robot's stream stamped from an epoch and recorded as fast as it was made (within
+    a few ms of the recording clock, statuses between): in the ROS 2 bag every message is logged
+    at its stamp, poses a ``pose_delay`` late sorted in among the wrenches, so the bag spans
+    the path's 3.4 s from the epoch, and the mounts and names are at the epoch."""
+    epoch = 1_767_225_600.25
+    scene = demo["scene"]
+    t = scene.path.t
+    params = WrenchSourceParams(mode="scene", scene=str(SCENE), pose_rate_hz=100.0,
+                                pose_delay_s=0.05, epoch_s=epoch)
+    stream = [msg for _, msg in scene_stream(scene, demo["results"], params)]
+    wrenches = [m for m in stream if isinstance(m, WhiskerWrenchArray)]
+    poses = [m for m in stream if isinstance(m, RobotPose)]
+    assert [m.stamp for m in wrenches] == [epoch + s for s in t.tolist()]
+    assert (poses[0].stamp, poses[-1].stamp) == (epoch, epoch + t[-1])
+    bag = tmp_path / "robot.mcap"
+    recording_ns = 1_795_000_000_000_000_000  # the recorder's clock, 2026-11-18
+    with BagWriter(bag) as writer:
+        for k, msg in enumerate(stream):
+            writer.write(POSE if isinstance(msg, RobotPose) else WRENCH, encode(msg),
+                         recording_ns + 1000 * k)
+            if k % 1000 == 0:
+                writer.write("/vibrissa/status", encode(NodeStatus(
+                    stamp=recording_ns / 1e9, node="/r", state="running", counters={},
+                    publishes={}, subscribes={}, seen_topics=[])), recording_ns + 1000 * k)
+    out = tmp_path / "ros2"
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), str(out),
+                          "--robot", str(SCENE)]) == 0
+    stamped, unstamped = ros2_times(out)
+    assert all(t_ns == stamp_ns for _, t_ns, stamp_ns in stamped)
+    assert len(stamped) == sum(len(m.whisker_ids) for m in wrenches) + len(poses) + len(scene.whiskers)
+    assert {t_ns for topic, t_ns, _ in stamped if topic == "/tf_static"} == {_ns(epoch)}
+    assert unstamped == [_ns(epoch)]
+    with AnyReader([out]) as reader:
+        assert reader.start_time == _ns(epoch)
+        assert reader.end_time - 1 == _ns(epoch + t[-1])
+        assert abs((reader.end_time - 1 - reader.start_time) / 1e9 - (t[-1] - t[0])) < 1e-6
+
+
+def test_a_stamp_before_1970_is_refused_as_a_log_time(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    bag = tmp_path / "old.mcap"
+    with BagWriter(bag) as writer:
+        writer.write(WRENCH, encode(WhiskerWrenchArray(
+            stamp=-0.5, seq=0, whisker_ids=["w"], frame_ids=["w/clamp"], f0=np.zeros((1, 3)),
+            m0=np.zeros((1, 3)))), 1_000)
+    assert vibrissa_main(["bag", "export", "--format", "ros2", str(bag), str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "is stamped -0.5 s, before 1970" in err and not (tmp_path / "o").exists()
 
 
 def test_stamps_go_to_the_nanosecond_and_back_exactly() -> None:
@@ -376,8 +431,9 @@ arrays, and ``ros2/``, its ROS 2 export written while those were live types."""
 
 def test_the_ros2_export_of_a_bag_of_the_retired_types_is_as_it_was(tmp_path: Path) -> None:
     """A retired WhiskerWrench still goes to its own topic (an array's rows to
-    ``<topic>/<whisker>``), a ContactPoint to a PointCloud2 of one point: the same ROS 2 bag,
-    message for message and byte for byte."""
+    ``<topic>/<whisker>``), a ContactPoint to a PointCloud2 of one point: the same ROS 2
+    messages byte for byte, in the same order, on the same topics; only their log times are now
+    their stamps (the recording's clock is not carried)."""
     out = tmp_path / "ros2"
     assert vibrissa_main(["bag", "export", "--format", "ros2", str(LEGACY / "legacy.mcap"),
                           str(out)]) == 0
@@ -386,12 +442,21 @@ def test_the_ros2_export_of_a_bag_of_the_retired_types_is_as_it_was(tmp_path: Pa
         with AnyReader([folder]) as reader:
             return [(c.topic, c.msgtype, t, bytes(raw)) for c, t, raw in reader.messages()]
 
+    def untimed(metadata: Path) -> dict[str, Any]:
+        info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+        for record in (info, *info["files"]):
+            del record["starting_time"], record["duration"]
+        return info  # type: ignore[no-any-return]
+
     got, want = messages(out), messages(LEGACY / "ros2")
-    assert len(got) == 26 and got == want
+    assert len(got) == 26
+    assert [(c, ty, raw) for c, ty, _, raw in got] == [(c, ty, raw) for c, ty, _, raw in want]
     assert {t for t, *_ in got} >= {"/w0/wrench", "/w1/wrench", "/w0/contact", "/w1/contact",
                                     "/robot/wrench/a0", "/robot/wrench/a2"}
-    assert (out / "ros2.mcap").read_bytes() == (LEGACY / "ros2" / "ros2.mcap").read_bytes()
-    assert (out / "metadata.yaml").read_text() == (LEGACY / "ros2" / "metadata.yaml").read_text()
+    stamped, unstamped = ros2_times(out)
+    assert all(t_ns == stamp_ns for _, t_ns, stamp_ns in stamped)
+    assert unstamped == [10_000_000_000]  # the first stamp, 10 s
+    assert untimed(out / "metadata.yaml") == untimed(LEGACY / "ros2" / "metadata.yaml")
 
 
 def test_the_foxglove_export_has_the_live_views_channels_at_the_bags_times(

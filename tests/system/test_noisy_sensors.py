@@ -26,7 +26,7 @@ def test_noise_of_1e_3_gives_no_free_points_and_points_within_3_sigma(tmp_path: 
     launch = entries("robot.yaml")
     set_param(node(launch, "reconstructor"), "wait_for", ["/mapper", "/probe"])
     rc, arrays, eos, ended, counters = _run(
-        tmp_path, launch, f"out:={tmp_path / 'out'}", f"scene:={SCENE}",
+        tmp_path, launch, f"out:={tmp_path / 'out'}", f"scene:={SCENE}", "epoch:=0",
         f"noise_force:={1e-3 * peak_f!r}", f"noise_moment:={1e-3 * peak_m!r}")
     assert rc == 0, ended.text()
     truth = {(float(t), r.name): (phase, p) for r in results

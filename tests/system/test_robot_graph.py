@@ -55,8 +55,9 @@ def robot_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, An
     launch.insert(len(launch) - 1, {"node": {
         "pkg": "vibrissa", "exec": "recorder", "name": "recorder",
         "param": [{"name": "output", "value": str(bag)}, {"name": "topics", "value": [WRENCH, POSE]}]}})
+    # epoch:=0: stamped with the path's own clock, the library's keys
     rc, arrays, eos, ended, counters = _run(tmp, launch, f"out:={tmp / 'out'}", "pose_delay:=0.05",
-                                            f"scene:={SCENE}")
+                                            f"scene:={SCENE}", "epoch:=0")
     yield {"rc": rc, "arrays": arrays, "eos": eos, "text": ended.text(), "tmp": tmp, "bag": bag,
            "counters": counters, "out": tmp / "out"}
 

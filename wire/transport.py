@@ -54,6 +54,7 @@ from typing import Any, ClassVar, TypeAlias
 import msgpack
 import zmq
 
+from vibrissa.formats.files import read_text
 from vibrissa.msgs import EndOfStream, Message, NodeStatus, Ping
 from vibrissa.msgs.codec import DecodeError, decode, decodes_as, encode, payload_limit, peek_type
 from vibrissa.msgs.messages import MAX_PAYLOAD_BYTES
@@ -267,6 +268,11 @@ def _graphs_dir(uid: int) -> Path:
     return Path(tempfile.gettempdir()) / f"{GRAPHS_DIR_PREFIX}{uid}"
 
 
+MAX_RECORD_CHARS = 4096
+"""Characters of a graph record at most (a record is about 150): what a folder holds besides
+records (a pipe, a huge file) is passed over, never waited for."""
+
+
 def register_graph(record: GraphRecord) -> Path | None:
     """Write ``record`` for the tools of every user; its path (remove it when the graph ends),
     or None when the user's record folder cannot be used (then the graph runs unnamed)."""
@@ -298,7 +304,7 @@ def running_graphs() -> list[GraphRecord]:
                 if not (uid_text.isdigit() and folder.lstat().st_uid == int(uid_text)
                         == path.lstat().st_uid):
                     continue
-                record = GraphRecord(**json.loads(path.read_text()))
+                record = GraphRecord(**json.loads(read_text(path, MAX_RECORD_CHARS)))
             except (OSError, ValueError, TypeError):
                 continue
             if not (type(record.domain) is int and 0 <= record.domain <= Endpoints.MAX_DOMAIN

@@ -62,6 +62,23 @@ def test_a_record_of_a_launcher_that_is_gone_is_removed(temp_dir: Path) -> None:
     assert not path.exists() and broken.exists()
 
 
+def test_a_pipe_or_a_huge_file_in_a_record_folder_is_passed_over(temp_dir: Path) -> None:
+    # a user's own record folder may hold anything: a pipe without a writer (read, it waits
+    # forever: every tool of every user would hang) or a file of gigabytes
+    record = GraphRecord.of_this_process(DOMAIN, "/srv/view.yaml")
+    path = register_graph(record)
+    assert path is not None
+    os.mkfifo(path.with_name(f"domain-{DOMAIN + 1}-{os.getpid()}.json"))
+    with path.with_name(f"domain-{DOMAIN + 2}-{os.getpid()}.json").open("wb") as huge:
+        huge.truncate(1 << 30)  # sparse: 1 GiB read as text would take seconds and the memory
+    code = ("import tempfile, sys; tempfile.tempdir = sys.argv[1]\n"
+            "from vibrissa.wire.transport import running_graphs; print(len(running_graphs()))")
+    with Proxy(Endpoints.for_domain(DOMAIN)):
+        done = subprocess.run([sys.executable, "-c", code, str(temp_dir)], capture_output=True,
+                              text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "1", done.stderr
+
+
 def test_the_note_names_this_graph_and_the_others(temp_dir: Path) -> None:
     this = GraphRecord.of_this_process(DOMAIN, "/srv/a.yaml")
     register_graph(this)
@@ -71,6 +88,7 @@ def test_the_note_names_this_graph_and_the_others(temp_dir: Path) -> None:
         assert f"talking to the one on {this.describe()} (others: " in note
         assert f"domain {DOMAIN + 1})" in note or f"domain {DOMAIN + 1};" in note
         args = argparse.Namespace(domain=None, pub=None, sub=None)
-        assert graph_note(args) is not None  # the default domain (0) or the environment's
+        register_graph(GraphRecord.of_this_process(DOMAIN + 1, "/srv/b.yaml"))  # both named:
+        assert graph_note(args) is not None  # seen from any domain, the default one (0) too
         args.domain = DOMAIN
         assert graph_note(args) is None  # a graph the user named

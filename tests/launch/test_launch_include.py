@@ -236,7 +236,7 @@ def test_the_demos_array_is_shaped_by_launch_arguments() -> None:
     with pytest.raises(LaunchFileError, match=r"'whisker_ids' must be one name per y0 \(3\)"):
         check_node_params(load_launch_file(LAUNCH / "demo.yaml", {
             "y0": "[-0.3, 0, 0.25]", "whisker_ids": "[left, right]"}))
-    with pytest.raises(LaunchFileError, match=r"launch\[9\]\.node\.param\[2\]\.value: expected "
+    with pytest.raises(LaunchFileError, match=r"launch\[\d+\]\.node\.param\[2\]\.value: expected "
                                               r"a list of scalars like \[1, 2\], got '\[-0.3, \[0\]\]'"):
         load_launch_file(LAUNCH / "demo.yaml", {"y0": "[-0.3, [0]]"})
 

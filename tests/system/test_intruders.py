@@ -50,7 +50,7 @@ def tool(domain: int, *words: str) -> subprocess.Popen[str]:
 def test_without_the_key_nothing_gets_in_and_nothing_is_read(tmp_path: Path) -> None:
     keys = tmp_path / "keys"
     create_keys(keys, ("laptop",))
-    launch = Launch(demo_with(tmp_path, y0=[0.0], rate_hz=250), f"out:={tmp_path / 'map'}",
+    launch = Launch(demo_with(tmp_path, y0=[0.0], rate_hz=100), f"out:={tmp_path / 'map'}",
                     "--keys", str(keys), domain=DOMAIN)
     try:
         launch.wait_line(r"wrench_source\] .*sweeps ended")  # the graph is streaming

@@ -156,7 +156,7 @@ def test_a_killed_reconstructor_respawns_and_the_loss_is_counted(robot_run: dict
     set_param(node(launch_entries, "reconstructor"), "wait_for", ["/mapper", "/probe"])
     samples = len(load_scene(SCENE).path.t)
     launch = Launch(tmp, launch_entries, f"out:={tmp / 'respawn'}", f"scene:={SCENE}",
-                    "rate:=200", "respawn:=true")  # 200 path samples/s: 8 s, room to respawn
+                    "rate:=100", "respawn:=true")  # 100 path samples/s: 17 s, room to respawn
     probe = Probe(launch.endpoints(), [CONTACT])
     arrays: list[ContactPointArray] = []
     try:

@@ -12,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from tests.launch.test_own_node import run_phase_filter
 from vibrissa.cli.launch import main as launch_main
 from vibrissa.launch.description import (
     LaunchDescription,
@@ -23,9 +24,6 @@ from vibrissa.launch.description import (
 )
 from vibrissa.nodes.wrench_source import WrenchSourceParams
 from vibrissa.runtime.params import ParamError, check_params
-from vibrissa.status import ContactPhase
-from vibrissa.surfaces import parse_surface
-from vibrissa.sweep import Trail, simulate_sweeps
 
 LAUNCH = Path(__file__).parents[2] / "launch"
 EXAMPLES = Path(__file__).parents[2] / "docs" / "examples"
@@ -305,20 +303,7 @@ def test_the_added_node_hears_every_message_of_the_included_graph(tmp_path: Path
     """docs/examples/demo_plus_filter.yaml: demo.yaml included as it is, the example node of
     docs/WRITING_NODES.md added with ``ready_before: [reconstructor]``; it receives every
     contact message the reconstructor publishes, the first ones included."""
-    step = 0.004
-    result = subprocess.run(
-        [sys.executable, "-m", "vibrissa.cli.main", "launch",
-         str(EXAMPLES / "demo_plus_filter.yaml"), f"out:={tmp_path / 'map'}", f"step:={step}"],
-        capture_output=True, text=True, timeout=600)
-    text = result.stdout + result.stderr
-    assert result.returncode == 0, text
-    match = re.search(r"\[phase_filter\] .*kept (\d+) tip contacts, dropped (\d+)", text)
-    assert match, text
-    kept, dropped = int(match.group(1)), int(match.group(2))
-    sweeps = simulate_sweeps(parse_surface("paraboloid:a=0.5,b=1,h=0.4"),
-                             [Trail(y, 0.2) for y in (-0.4, -0.2, 0.0, 0.2, 0.4)], step)
-    tips = sum(int((s.phase == ContactPhase.TIP).sum()) for s in sweeps)
-    assert (kept, kept + dropped) == (tips, sum(s.n_steps for s in sweeps))
+    text, _, _ = run_phase_filter(EXAMPLES / "demo_plus_filter.yaml", tmp_path / "map", 0.004)
     published = re.search(r"^\S*\s*reconstructor\s+.*published (\d+)", text, flags=re.M)
     received = re.search(r"^\S*\s*phase_filter\s+exit 0 .*received (\d+)(.*)$", text, flags=re.M)
     assert published and received, text

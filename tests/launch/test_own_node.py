@@ -30,21 +30,28 @@ def test_the_page_prints_the_example_files_verbatim() -> None:
     assert (DOCS / "examples" / "demo_plus_filter.yaml").read_text() in code_blocks("yaml")
 
 
-def test_the_example_node_filters_the_demo_stream_into_a_map(tmp_path: Path) -> None:
+def run_phase_filter(launch_file: Path, out: Path, step: float) -> tuple[str, int, int]:
+    """Launch ``launch_file`` (the demo with the example node) at ``step``: its output, and
+    how many contacts the node kept and dropped, checked against the same sweeps in the
+    library (the filter keeps exactly the tip-phase equilibria)."""
     result = subprocess.run(
-        [sys.executable, "-m", "vibrissa.cli.main", "launch", str(DOCS / "examples" / "tip_map.yaml"),
-         f"out:={tmp_path / 'map'}", f"step:={STEP}"],
-        capture_output=True, text=True, timeout=240)
+        [sys.executable, "-m", "vibrissa.cli.main", "launch", str(launch_file), f"out:={out}",
+         f"step:={step}"], capture_output=True, text=True, timeout=600)
     text = result.stdout + result.stderr
     assert result.returncode == 0, text
     match = re.search(r"\[phase_filter\] .*kept (\d+) tip contacts, dropped (\d+)", text)
     assert match, text
     kept, dropped = int(match.group(1)), int(match.group(2))
-    # The same sweeps in the library: the filter kept exactly the tip-phase equilibria.
     sweeps = simulate_sweeps(parse_surface("paraboloid:a=0.5,b=1,h=0.4"),
-                             [Trail(y, 0.2) for y in (-0.4, -0.2, 0.0, 0.2, 0.4)], STEP)
+                             [Trail(y, 0.2) for y in (-0.4, -0.2, 0.0, 0.2, 0.4)], step)
     tips = sum(int((s.phase == ContactPhase.TIP).sum()) for s in sweeps)
     assert (kept, kept + dropped) == (tips, sum(s.n_steps for s in sweeps))
+    return text, kept, dropped
+
+
+def test_the_example_node_filters_the_demo_stream_into_a_map(tmp_path: Path) -> None:
+    text, kept, dropped = run_phase_filter(DOCS / "examples" / "tip_map.yaml", tmp_path / "map",
+                                           STEP)
     assert 0 < kept < kept + dropped
     assert f"map of {kept} contact points written to" in text
     for name in ("wrench_source", "phase_filter", "mapper"):

@@ -5,6 +5,8 @@ are counted and logged a line per interval, not a line each (real processes)."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
 import queue
 import re
 import signal
@@ -12,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -37,10 +40,13 @@ def test_a_keyed_graph_is_not_served_to_unauthenticated_viewers(tmp_path: Path) 
     assert "serving the graph to Foxglove" not in done.stderr
 
 
-def test_refused_clients_are_counted_and_logged_once_per_interval() -> None:
+@contextlib.contextmanager
+def bridge_process() -> Iterator[tuple[str, list[str]]]:
+    """A real bridge process on a graph of its own: (its ws:// address, its stderr lines so
+    far). Leaving stops it with SIGINT and collects every line it wrote."""
     with Proxy(Endpoints.free()) as proxy:
         assert proxy.endpoints is not None
-        env = {**__import__("os").environ, **proxy.endpoints.to_env()}
+        env = {**os.environ, **proxy.endpoints.to_env()}
         bridge = subprocess.Popen([sys.executable, "-m", "vibrissa.nodes.foxglove_bridge",
                                    "--name", "foxglove_bridge", "--param", "port:=0"],
                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -62,20 +68,9 @@ def test_refused_clients_are_counted_and_logged_once_per_interval() -> None:
                 line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
                 assert line is not None, "".join(seen)
                 seen.append(line)
-                found = re.search(r"serving the graph to Foxglove on (ws://\S+)", line)
+                found = re.search(r"serving the graph to Foxglove on (ws://[^\s;)]+)", line)
                 url = found.group(1) if found else None
-
-            async def knock(n: int) -> int:
-                refused = 0
-                for _ in range(n):
-                    try:
-                        async with websockets.connect(url, subprotocols=["bogus"], open_timeout=30):
-                            pass
-                    except websockets.exceptions.InvalidStatus:
-                        refused += 1
-                return refused
-
-            assert asyncio.run(knock(200)) == 200
+            yield url, seen
             bridge.send_signal(signal.SIGINT)
             bridge.wait(timeout=DEADLINE_S)
         finally:
@@ -83,6 +78,22 @@ def test_refused_clients_are_counted_and_logged_once_per_interval() -> None:
                 bridge.kill()
         while (line := lines.get(timeout=30)) is not None:
             seen.append(line)
+
+
+def test_refused_clients_are_counted_and_logged_once_per_interval() -> None:
+    with bridge_process() as (url, seen):
+
+        async def knock(n: int) -> int:
+            refused = 0
+            for _ in range(n):
+                try:
+                    async with websockets.connect(url, subprotocols=["bogus"], open_timeout=30):
+                        pass
+                except websockets.exceptions.InvalidStatus:
+                    refused += 1
+            return refused
+
+        assert asyncio.run(knock(200)) == 200
     err = "".join(seen)
     assert "refused 200 client(s) at the handshake" in err, err
     knocks = [line for line in seen if "handshake" in line]

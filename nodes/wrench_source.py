@@ -144,8 +144,8 @@ class WrenchSourceParams:
         Mode ``scene``: drive the path forth and back until stopped (``passes`` is then
         unused; ``simulated`` must be empty). One cycle (forth and back) is simulated and
         played again and again, time and ``seq`` running on: exact when every whisker is free
-        at the path's start (`vibrissa.scene.free_at_both_ends`: the state after a cycle is
-        then the state before it); a scene where one is not is refused at start (exit 1).
+        at both ends of the path (`vibrissa.scene.free_at_both_ends`: the state after a cycle
+        is then the state before it); a scene where one is not is refused at start (exit 1).
     workers
         Mode ``scene``: processes of the simulation on start (0: one per core; unused with
         ``simulated``).
@@ -240,13 +240,13 @@ class WrenchSourceParams:
         if self.mode == "scene":
             require(bool(self.scene), "scene", self.scene, "a scene file in mode 'scene'")
             scene = require_parsed("scene", self.scene, load_scene)
-            if self.simulated:
-                require_parsed("simulated", self.simulated,
-                               lambda folder: read_results(folder, scene))
             require(self.passes >= 1, "passes", self.passes, "a count of legs >= 1")
             require(not self.simulated or (self.passes == 1 and not self.loop), "simulated",
                     self.simulated, "empty with passes > 1 or loop (the return legs are "
                     "simulated on start)")
+            if self.simulated:
+                require_parsed("simulated", self.simulated,
+                               lambda folder: read_results(folder, scene))
             require_parsed("pose_topic", self.pose_topic, validate_name)
             for key in ("pose_rate_hz", "pose_delay_s", "noise_force_n", "noise_moment_nm",
                         "workers"):
@@ -494,8 +494,8 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
              "; ".join(f"{r.name} {r.counts()}" for r in results))
     held = free_at_both_ends(results) if params.loop else []
     if held:
-        log.error("%s: loop: %s not free at the path's start: a cycle does not end in the "
-                  "state it began with, and repeating it would not be the robot's stream",
+        log.error("%s: loop: %s not free at both ends of the path: a cycle does not end in "
+                  "the state it began with, and repeating it would not be the robot's stream",
                   node.fqn, ", ".join(held))
         wrenches.publish_end_of_stream(node.fqn)
         poses.publish_end_of_stream(node.fqn)

@@ -14,6 +14,7 @@ from vibrissa.scene import (
     Scene,
     SceneObject,
     Whisker,
+    WhiskerResult,
     back_and_forth,
     free_at_both_ends,
     robot_path,
@@ -49,7 +50,7 @@ def test_the_legs_run_forth_and_back_with_time_running_on() -> None:
 
 
 @pytest.fixture(scope="module")
-def legs() -> dict[float, tuple[Scene, object]]:
+def legs() -> dict[float, tuple[Scene, WhiskerResult]]:
     out = {}
     for mu in (0.0, 0.3):
         scene = Scene(mu, (CUP,), (PLAIN,), back_and_forth(PATH, 3))

@@ -1,4 +1,5 @@
-"""Contact points gathered per frame, within bounds (`Accumulator`), from plain arrays."""
+"""Contact points gathered per frame, within bounds, repeats merged (`Accumulator`), from plain
+arrays."""
 
 from __future__ import annotations
 

@@ -252,10 +252,12 @@ class WrenchSourceParams:
                         "workers"):
                 require_non_negative(key, getattr(self, key))
             t = scene.path.t
+            legs = 2 if self.loop else self.passes  # the poses of one simulated stream
             # Python floats: a product past the float range is inf, without numpy's warning
-            require(float(t[-1] - t[0]) * self.pose_rate_hz <= MAX_POSES, "pose_rate_hz",
+            require(float(t[-1] - t[0]) * legs * self.pose_rate_hz <= MAX_POSES, "pose_rate_hz",
                     self.pose_rate_hz, f"a rate of at most {MAX_POSES:.0e} poses over the "
-                    f"path's {t[-1] - t[0]:g} s (0: one at each of its {len(t)} samples)")
+                    f"path's {t[-1] - t[0]:g} s x {legs} leg(s) (0: one at each of its "
+                    f"{len(t)} samples)")
             return
         require_parsed("surface", self.surface, parse_surface)
         require(len(self.y0) > 0 and all(math.isfinite(y) for y in self.y0), "y0", self.y0,

@@ -17,7 +17,7 @@ from tests.nodes.test_scene_results import write_scene as write_scene_with_a_bur
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.msgs import RobotPose, WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
-from vibrissa.nodes.wrench_source import WrenchSourceParams, run_scene, scene_stream
+from vibrissa.nodes.wrench_source import MAX_POSES, WrenchSourceParams, run_scene, scene_stream
 from vibrissa.scene import back_and_forth, simulate
 
 N = 200
@@ -143,3 +143,12 @@ def test_a_loop_is_refused_where_a_cycle_does_not_end_as_it_began(
     assert sent == -1
     assert "buried not free at both ends of the path" in caplog.text
     assert node.publishers["wrench"].sent == ["EOS"]
+
+
+def test_the_pose_bound_counts_every_leg(scene_file: Path) -> None:
+    duration_s = 0.01 * (N - 1)
+    rate = 0.6 * MAX_POSES / duration_s  # within the bound for one leg, beyond it for two
+    assert params(scene_file, pose_rate_hz=rate).pose_rate_hz == rate
+    for kwargs in ({"passes": 2}, {"loop": True}):
+        with pytest.raises(ValueError, match=r"poses over the path's 1.99 s x 2 leg\(s\)"):
+            params(scene_file, pose_rate_hz=rate, **kwargs)

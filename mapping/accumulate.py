@@ -1,7 +1,9 @@
-"""Contact points gathered per frame, within bounds (`Accumulator`), from plain arrays."""
+"""Contact points gathered per frame, within bounds, repeats merged (`Accumulator`), from plain
+arrays."""
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -16,6 +18,10 @@ MAX_POINTS = 10_000_000
 """Default bound of the points kept (all frames): a point takes about 200 bytes."""
 MAX_FRAMES = 64
 """Default bound of the frames kept."""
+MERGE_RESOLUTION_M = 1e-5
+"""Default edge of the cells in which a repeated point is merged, m (`Accumulator`): far below
+what a contact point's position is known to on the demos (its noise, 0.1 mm and up) and a mesh
+cell of the map (about 1 mm), so that a merged point adds nothing the map can show."""
 MAX_POSITION_M = 1e7
 """The largest coordinate of a contact point the map takes, m: a scene file's positions
 (``vibrissa.formats.scene_file.LIMITS``; tests/mapping checks that the two agree)."""
@@ -100,6 +106,16 @@ class FrameCloud:
                 np.concatenate([np.empty((0, 3, 3)), *self.covariances])[order])
 
 
+def _rows(batch: ContactBatch, rows: npt.NDArray[np.bool_]) -> ContactBatch:
+    """The batch of the ``rows`` of ``batch``."""
+    return ContactBatch(
+        batch.frame_id, np.reshape(batch.points_m, (-1, 3))[rows],
+        np.reshape(batch.forces_n, (-1, 3))[rows],
+        list(compress(batch.whisker_ids, rows.tolist())), batch.seq,
+        None if batch.covariances_m2 is None
+        else np.reshape(batch.covariances_m2, (-1, 3, 3))[rows])
+
+
 def is_covariance(covariances: FloatArray) -> npt.NDArray[np.bool_]:
     """Whether each of ``covariances`` (k, 3, 3) is a covariance: finite, symmetric and
     positive semidefinite, to `COVARIANCE_RTOL`."""
@@ -126,13 +142,35 @@ class Accumulator:
     whose covariance is not one (`is_covariance`) is kept as a point without a covariance and
     counted in ``bad_covariance``. ``expected`` is how many sources (or which) must
     ``end`` before ``done``.
+
+    A point that repeats one kept before is merged into it: counted in ``merged``, not kept,
+    neither lost nor dropped, and not held against the bounds, so that a robot driving the
+    same path again and again keeps its memory bounded and the bounds bite only on new data.
+    A point repeats when a point of the same whisker and frame from an earlier contact line
+    lies in the same cell of a grid of edge ``merge_resolution_m`` (cells aligned with the
+    frame's origin; so within sqrt(3) x that distance). A whisker's contact line is a run of
+    its points in consecutive batches (``seq`` n, n + 1, ...; a batch without a point of it
+    ends the run). Points of one line are never merged: a single pass of a path (a stick
+    phase, whose contact point stays put, included) is mapped as it came; a whisker that rests
+    in contact is bounded by ``max_points`` only. Driving the same path again, memory is
+    bounded by the cells its lines cross, whatever the number of passes. 0: nothing is merged.
     """
 
     def __init__(self, expected: int | Sequence[str] = 1, max_points: int = MAX_POINTS,
-                 max_frames: int = MAX_FRAMES) -> None:
+                 max_frames: int = MAX_FRAMES,
+                 merge_resolution_m: float = MERGE_RESOLUTION_M) -> None:
+        if not (math.isfinite(merge_resolution_m) and merge_resolution_m >= 0):
+            raise ValueError(f"merge_resolution_m must be finite and >= 0, got "
+                             f"{merge_resolution_m}")
         self.expected = expected
         self.max_points = max_points
         self.max_frames = max_frames
+        self.merge_resolution_m = merge_resolution_m
+        self.merged = 0
+        # per (frame, whisker): its current line (number, last seq) and, per grid cell, the
+        # first line that left a point there
+        self._lines: dict[tuple[str, str], tuple[int, int]] = {}
+        self._cells: dict[tuple[str, str], dict[tuple[int, int, int], int]] = {}
         self.frames: dict[str, FrameCloud] = {}
         self.ended: set[str] = set()
         self.n_points = 0
@@ -141,6 +179,15 @@ class Accumulator:
 
     def add(self, batch: ContactBatch) -> None:
         """Take a batch of contact points (one without points changes nothing)."""
+        if not len(batch.whisker_ids):
+            return
+        cells: list[tuple[tuple[str, str], tuple[int, int, int], int] | None] = []
+        if self.merge_resolution_m:
+            new, cells = self._lines_and_cells(batch)
+            if not new.all():
+                self.merged += int(np.count_nonzero(~new))
+                batch = _rows(batch, new)
+                cells = list(compress(cells, new.tolist()))
         rows = len(batch.whisker_ids)
         if not rows:
             return
@@ -155,6 +202,37 @@ class Accumulator:
                 self.frames.setdefault(batch.frame_id, FrameCloud()).add(
                     batch, keep, self._covariances(batch, keep, kept))
                 self.n_points += kept
+            for r, cell in enumerate(cells):  # a later line's repeat of a kept point merges
+                if cell is not None and (keep is None or keep[r]):
+                    key, where, line = cell
+                    self._cells.setdefault(key, {}).setdefault(where, line)
+
+    def _lines_and_cells(self, batch: ContactBatch) -> tuple[
+            npt.NDArray[np.bool_],
+            list[tuple[tuple[str, str], tuple[int, int, int], int] | None]]:
+        """Which rows of ``batch`` are not repeats, and each row's (frame and whisker, cell,
+        line) (None: a point off the grid, left to `_usable`); moves each whisker's line on."""
+        points = np.reshape(batch.points_m, (-1, 3))
+        with np.errstate(invalid="ignore", over="ignore"):
+            scaled = np.floor(points / self.merge_resolution_m)
+        grid = np.asarray(np.isfinite(scaled).all(axis=1) & (np.abs(scaled) < 2.0**62).all(axis=1))
+        on_grid = [bool(b) for b in grid]
+        where: list[list[int]] = np.where(grid[:, None], scaled, 0.0).astype(np.int64).tolist()
+        new = np.ones(len(where), dtype=bool)
+        cells: list[tuple[tuple[str, str], tuple[int, int, int], int] | None] = []
+        for r, whisker in enumerate(batch.whisker_ids):
+            key = (batch.frame_id, whisker)
+            line, last = self._lines.get(key, (-1, batch.seq - 2))
+            if batch.seq not in (last, last + 1):
+                line += 1  # a new contact line
+            self._lines[key] = (line, batch.seq)
+            if not on_grid[r]:
+                cells.append(None)
+                continue
+            cell = (where[r][0], where[r][1], where[r][2])
+            new[r] = self._cells.get(key, {}).get(cell, line) == line
+            cells.append((key, cell, line))
+        return new, cells
 
     def end(self, source: str) -> None:
         """Note that ``source`` has ended its stream."""

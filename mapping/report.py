@@ -167,7 +167,8 @@ class UpstreamNode:
 @dataclass(frozen=True)
 class MapReport:
     """The whole map: its frames, the truth it was measured against, and what was lost or
-    dropped on the way (``dropped_points`` by reason, `vibrissa.mapping.Accumulator`).
+    dropped on the way (``dropped_points`` by reason, `vibrissa.mapping.Accumulator`), and the
+    points merged into ones kept before (``merged_points``: repeats, neither lost nor dropped).
 
     ``true_surface`` (a surface spec in units of ``rod_length_m``) or ``scene`` (a scene file
     with ``scene_objects``) name the truth; ``lost`` counts input messages lost, ``streams``
@@ -185,6 +186,7 @@ class MapReport:
     lost: int = 0
     dropped_points: dict[str, int] = field(default_factory=dict)
     bad_covariance: int = 0
+    merged_points: int = 0
     streams: tuple[InputStream, ...] = ()
     upstream: tuple[UpstreamNode, ...] = ()
     files: dict[str, str] = field(default_factory=dict)
@@ -214,6 +216,7 @@ class MapReport:
             "lost": self.lost,
             "dropped_points": dict(self.dropped_points),
             "bad_covariance": self.bad_covariance,
+            "merged_points": self.merged_points,
             "streams": [asdict(stream) for stream in self.streams],
             "upstream": [{**asdict(node), "short": node.short} for node in self.upstream],
             "upstream_lost": self.upstream_lost,
@@ -253,6 +256,9 @@ def _format_report(report: dict[str, Any]) -> str:
         lines.append(f"LOST: {report['lost']} contact message(s) never arrived")
     for bound, n in report.get("dropped_points", {}).items():
         lines.append(f"DROPPED: {n} contact point(s) {_DROPPED.get(bound, 'beyond ' + bound)}")
+    if report.get("merged_points"):
+        lines.append(f"merged: {report['merged_points']} contact point(s) repeating one kept "
+                     "before (the same whisker, an earlier contact line), not kept again")
     if report["bad_covariance"]:
         lines.append(f"BAD COVARIANCE: {report['bad_covariance']} contact point(s) with a "
                      "covariance that is not symmetric positive semidefinite, mapped as points "

@@ -20,7 +20,9 @@ Publishes
     the robot's pose X_WR (``world`` -> ``robot_frame``) at ``pose_rate_hz`` on the path's clock
     (and a last one at the path's end; 0: the path's own samples), each published
     ``pose_delay_s`` after its stamp in the stream (stamped as the wrenches); then
-    ``EndOfStream`` on both.
+    ``EndOfStream`` on both. With ``passes`` N the path is driven N legs forth and back
+    (`vibrissa.scene.back_and_forth`, one simulation: the return legs differ by friction);
+    with ``loop`` forth and back until stopped (one cycle simulated, played again and again).
 every WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order (a retired single ``vibrissa/WhiskerWrench`` decodes as an array of one
@@ -36,11 +38,13 @@ are the paper's dimensionless values, L = ``rod_length_m`` and EI = ``rod_ei_nm2
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import logging
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Literal
 
@@ -60,7 +64,15 @@ from vibrissa.runtime.params import (
     require_positive,
 )
 from vibrissa.runtime.playback import play_bag_gated
-from vibrissa.scene import SamplePhase, Scene, SimulationStopped, WhiskerResult, simulate
+from vibrissa.scene import (
+    SamplePhase,
+    Scene,
+    SimulationStopped,
+    WhiskerResult,
+    back_and_forth,
+    free_at_both_ends,
+    simulate,
+)
 from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import CLAMP_TOUCH_L, SweepRun, Trail, first_contact
@@ -124,6 +136,16 @@ class WrenchSourceParams:
     noise_force_n, noise_moment_nm, seed
         Mode ``scene``: standard deviation of Gaussian noise added to each wrench component
         (N, N m), and the seed of the noise.
+    passes
+        Mode ``scene``: legs of the path, driven forth and back (1: the path once; 3: forth,
+        back, forth), simulated as one path so that each whisker's contact state carries over
+        the turns; then ``EndOfStream``. More than 1 needs ``simulated`` empty.
+    loop
+        Mode ``scene``: drive the path forth and back until stopped (``passes`` is then
+        unused; ``simulated`` must be empty). One cycle (forth and back) is simulated and
+        played again and again, time and ``seq`` running on: exact when every whisker is free
+        at both ends of the path (`vibrissa.scene.free_at_both_ends`: the state after a cycle
+        is then the state before it); a scene where one is not is refused at start (exit 1).
     workers
         Mode ``scene``: processes of the simulation on start (0: one per core; unused with
         ``simulated``).
@@ -194,6 +216,8 @@ class WrenchSourceParams:
     noise_force_n: float = 0.0
     noise_moment_nm: float = 0.0
     seed: int = 0
+    passes: int = 1
+    loop: bool = False
     workers: int = 0
     rod: RodScale = field(init=False, repr=False, compare=False)
 
@@ -216,6 +240,10 @@ class WrenchSourceParams:
         if self.mode == "scene":
             require(bool(self.scene), "scene", self.scene, "a scene file in mode 'scene'")
             scene = require_parsed("scene", self.scene, load_scene)
+            require(self.passes >= 1, "passes", self.passes, "a count of legs >= 1")
+            require(not self.simulated or (self.passes == 1 and not self.loop), "simulated",
+                    self.simulated, "empty with passes > 1 or loop (the return legs are "
+                    "simulated on start)")
             if self.simulated:
                 require_parsed("simulated", self.simulated,
                                lambda folder: read_results(folder, scene))
@@ -224,10 +252,12 @@ class WrenchSourceParams:
                         "workers"):
                 require_non_negative(key, getattr(self, key))
             t = scene.path.t
+            legs = 2 if self.loop else self.passes  # the poses of one simulated stream
             # Python floats: a product past the float range is inf, without numpy's warning
-            require(float(t[-1] - t[0]) * self.pose_rate_hz <= MAX_POSES, "pose_rate_hz",
+            require(float(t[-1] - t[0]) * legs * self.pose_rate_hz <= MAX_POSES, "pose_rate_hz",
                     self.pose_rate_hz, f"a rate of at most {MAX_POSES:.0e} poses over the "
-                    f"path's {t[-1] - t[0]:g} s (0: one at each of its {len(t)} samples)")
+                    f"path's {t[-1] - t[0]:g} s x {legs} leg(s) (0: one at each of its "
+                    f"{len(t)} samples)")
             return
         require_parsed("surface", self.surface, parse_surface)
         require(len(self.y0) > 0 and all(math.isfinite(y) for y in self.y0), "y0", self.y0,
@@ -371,42 +401,61 @@ def _progress(run: SweepRun, sent: int, elapsed_s: float) -> str:
             + f", {sent} published in {elapsed_s:.1f} s")
 
 
-def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchSourceParams
+def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchSourceParams,
+                 repeat: bool = False
                  ) -> Iterator[tuple[float, WhiskerWrenchArray | RobotPose]]:
     """The messages of mode ``scene`` in publishing order, each with its time in the stream
     (the path's clock): a WhiskerWrenchArray per path sample at its time, and the robot's
     poses at ``pose_rate_hz`` (and at the path's end; 0: the path's samples), each
     ``pose_delay_s`` after its path time; a pose goes before a wrench of the same stream time.
-    Every message is stamped ``params.epoch_s`` + its path time."""
+    Every message is stamped ``params.epoch_s`` + its path time.
+
+    ``repeat``: the path (one that ends where it starts) again and again without end, each
+    time from its second sample and pose (its first is the previous one's last), shifted by
+    the path's duration; ``seq`` runs on and the noise is drawn anew each time."""
     t = scene.path.t
     names = [r.name for r in results]
     frame_ids = [clamp_frame(name) for name in names]
-    f0 = np.stack([r.f0_n for r in results], axis=1)  # (samples, whiskers, 3)
-    m0 = np.stack([r.m0_nm for r in results], axis=1)
+    f0_clean = np.stack([r.f0_n for r in results], axis=1)  # (samples, whiskers, 3)
+    m0_clean = np.stack([r.m0_nm for r in results], axis=1)
     has = np.stack([r.phase != SamplePhase.UNRESOLVED for r in results], axis=1)
     rng = np.random.default_rng(params.seed)
-    if params.noise_force_n:
-        f0 = f0 + rng.normal(0.0, params.noise_force_n, f0.shape)
-    if params.noise_moment_nm:
-        m0 = m0 + rng.normal(0.0, params.noise_moment_nm, m0.shape)
     if params.pose_rate_hz:
         pose_t = np.append(np.arange(t[0], t[-1], 1.0 / params.pose_rate_hz), t[-1])
         _, p_WR, R_WR = scene.path.at(pose_t)
     else:
         pose_t, p_WR, R_WR = t, scene.path.p_WR, scene.path.R_WR
     q_WR = R_WR.as_quat()
-    j = 0
-    for k, stamp in enumerate(t.tolist()):
-        while j < len(pose_t) and pose_t[j] + params.pose_delay_s <= stamp:
-            yield float(pose_t[j] + params.pose_delay_s), _pose(params, pose_t[j], p_WR[j], q_WR[j])
-            j += 1
-        rows = np.flatnonzero(has[k])
-        yield stamp, WhiskerWrenchArray(
-            stamp=params.epoch_s + stamp, seq=k, whisker_ids=[names[i] for i in rows],
-            frame_ids=[frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])
-    for rest in range(j, len(pose_t)):
-        yield (float(pose_t[rest] + params.pose_delay_s),
-               _pose(params, pose_t[rest], p_WR[rest], q_WR[rest]))
+    duration = float(t[-1] - t[0])
+
+    def passes() -> Iterable[int]:
+        return itertools.count() if repeat else range(1)
+
+    def wrenches() -> Iterator[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
+        seq = 0
+        for n in passes():
+            f0, m0 = f0_clean, m0_clean
+            if params.noise_force_n:
+                f0 = f0 + rng.normal(0.0, params.noise_force_n, f0.shape)
+            if params.noise_moment_nm:
+                m0 = m0 + rng.normal(0.0, params.noise_moment_nm, m0.shape)
+            for k in range(1 if n else 0, len(t)):
+                stamp = float(t[k]) + n * duration
+                rows = np.flatnonzero(has[k])
+                yield stamp, 1, WhiskerWrenchArray(
+                    stamp=params.epoch_s + stamp, seq=seq, whisker_ids=[names[i] for i in rows],
+                    frame_ids=[frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])
+                seq += 1
+
+    def poses() -> Iterator[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
+        for n in passes():
+            for j in range(1 if n else 0, len(pose_t)):
+                at = float(pose_t[j]) + n * duration
+                yield at + params.pose_delay_s, 0, _pose(params, at, p_WR[j], q_WR[j])
+
+    # by stream time, a pose before a wrench of the same time
+    for stream_t, _, msg in heapq.merge(poses(), wrenches(), key=lambda e: (e[0], e[1])):
+        yield stream_t, msg
 
 
 def _pose(params: WrenchSourceParams, stamp: float, p: FloatArray, q: FloatArray) -> RobotPose:
@@ -415,14 +464,18 @@ def _pose(params: WrenchSourceParams, stamp: float, p: FloatArray, q: FloatArray
 
 
 def run_scene(node: Node, params: WrenchSourceParams) -> int:
-    """Read the scene's results from ``simulated`` (or simulate it), then play them (paced by
-    ``rate_hz``: path samples per second); returns the number of messages sent, -1 when
-    ``wait_for`` timed out."""
+    """Read the scene's results from ``simulated`` (or simulate it: ``passes`` legs forth and
+    back, or with ``loop`` one cycle), then play them (paced by ``rate_hz``: path samples per
+    second; with ``loop`` until stopped); returns the number of messages sent, -1 when
+    ``wait_for`` timed out or a ``loop`` cannot repeat exactly."""
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
                                      hwm=DEFAULT_HWM * 10)
     poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
                                   hwm=DEFAULT_HWM * 10)
     scene = load_scene(params.scene)
+    legs = 2 if params.loop else params.passes
+    if legs > 1:
+        scene = replace(scene, path=back_and_forth(scene.path, legs))
     t0 = time.monotonic()
     if params.simulated:
         node.set_state("running", f"reading the results in {params.simulated}")
@@ -441,6 +494,14 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     how = f"read {size} from {params.simulated}" if params.simulated else f"simulated {size}"
     log.info("%s: %s in %.1f s: %s", node.fqn, how, time.monotonic() - t0,
              "; ".join(f"{r.name} {r.counts()}" for r in results))
+    held = free_at_both_ends(results) if params.loop else []
+    if held:
+        log.error("%s: loop: %s not free at both ends of the path: a cycle does not end in "
+                  "the state it began with, and repeating it would not be the robot's stream",
+                  node.fqn, ", ".join(held))
+        wrenches.publish_end_of_stream(node.fqn)
+        poses.publish_end_of_stream(node.fqn)
+        return -1
     for topic in (params.topic, params.pose_topic):
         if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,
                                                              params.wait_timeout_s):
@@ -451,7 +512,7 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     wall_per_s = (len(t) - 1) / (params.rate_hz * (t[-1] - t[0])) if params.rate_hz else 0.0
     start = time.monotonic()
     count = 0
-    for stream_t, msg in scene_stream(scene, results, params):
+    for stream_t, msg in scene_stream(scene, results, params, repeat=params.loop):
         if node.stop_requested:
             break
         if wall_per_s:

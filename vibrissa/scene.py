@@ -179,6 +179,30 @@ class RobotPath:
         return covered, p, Rotation.from_quat(q)
 
 
+def back_and_forth(path: RobotPath, legs: int) -> RobotPath:
+    """``path`` driven ``legs`` times, forth and back: leg 0 is ``path``, leg 1 the same poses
+    in reverse order, leg 2 forward again, and so on; time runs on.
+
+    The robot turns at an end without stopping: a leg starts at the second sample of its own
+    order (its first is the previous leg's last, the same pose), and the sample intervals of a
+    reversed leg are the forward leg's in reverse, so that a reversed leg takes as long as the
+    forward one and every pose is at the same time from the turn on either side. One path of
+    all legs is simulated at once (`simulate`): each whisker's state (its contact, stick or
+    slip) carries over a turn. ``legs`` 1 gives ``path`` itself; ValueError below 1.
+    """
+    if legs < 1:
+        raise ValueError(f"legs must be >= 1, got {legs}")
+    n = len(path.t)
+    forth, back = np.arange(n), np.arange(n - 1, -1, -1)
+    duration = float(path.t[-1] - path.t[0])
+    rows = [forth] + [(back if leg % 2 else forth)[1:] for leg in range(1, legs)]
+    t = [path.t] + [path.t[0] + leg * duration
+                    + ((path.t[-1] - path.t[::-1]) if leg % 2 else (path.t - path.t[0]))[1:]
+                    for leg in range(1, legs)]
+    index = np.concatenate(rows)
+    return RobotPath(np.concatenate(t), path.p_WR[index], path.R_WR[index])
+
+
 @dataclass(frozen=True)
 class Scene:
     """Objects in W, whiskers on the robot, the robot's path, one friction ``mu``."""
@@ -244,6 +268,17 @@ class WhiskerResult:
     def counts(self) -> dict[str, int]:
         """Samples per phase."""
         return {phase.label: int(np.sum(self.phase == phase)) for phase in SamplePhase}
+
+
+def free_at_both_ends(results: Sequence[WhiskerResult]) -> list[str]:
+    """The whiskers of ``results`` that are not free (`SamplePhase.NONE`: no contact, the
+    straight rod outside every object) at both the first and the last sample of their path,
+    by name. On a path that ends where it starts (`back_and_forth` with an even number of
+    legs) a whisker free at both ends is in the same state at the end as at the start: Step 1
+    keeps no state between contact episodes and does not depend on time, so driving the path
+    again gives the same results, sample for sample."""
+    return [r.name for r in results
+            if not (r.phase[0] == SamplePhase.NONE and r.phase[-1] == SamplePhase.NONE)]
 
 
 SampleProgress = Callable[[str, int, int], None]

@@ -1,0 +1,65 @@
+"""The robot demo forth and back with real processes (launch/robot.yaml): ``passes:=3`` ends
+by itself with every stamp after the one before, ``loop:=true`` streams until Ctrl-C."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+from pathlib import Path
+
+import numpy as np
+
+from tests.system.test_first_hour import Launch
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.msgs import EndOfStream, WhiskerWrenchArray
+from vibrissa.msgs.codec import decode
+from vibrissa.wire import Endpoints, Subscriber
+from vibrissa.wire.bag import BagReader
+
+LAUNCH = Path(__file__).parents[2] / "launch"
+DOMAIN = 8260 + os.getpid() % 12 * 128  # beside test_first_hour's domains
+SAMPLES = len(load_scene(LAUNCH / "robot" / "scene.yaml").path.t)
+
+
+def test_three_passes_end_by_themselves_with_stamps_running_on(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    launch = Launch(LAUNCH / "robot.yaml", f"out:={out}", "passes:=3", "epoch:=0",
+                    domain=DOMAIN)
+    assert launch.wait(900) == 0, launch.text()
+    wrenches = [decode(r.payload) for r in BagReader(out / "robot.mcap")
+                if r.topic == "/robot/wrench"]
+    assert isinstance(wrenches[-1], EndOfStream), launch.text()
+    stamps = np.array([w.stamp for w in wrenches[:-1]])
+    assert len(stamps) == 3 * SAMPLES - 2
+    assert np.all(np.diff(stamps) > 0)
+    assert [w.seq for w in wrenches[:-1]] == list(range(len(stamps)))
+    assert f"simulated 8 whisker(s) x {3 * SAMPLES - 2} path samples" in launch.text()
+    assert (out / "report.json").exists()
+
+
+def test_a_loop_streams_until_ctrl_c(tmp_path: Path) -> None:
+    launch = Launch(LAUNCH / "robot.yaml", f"out:={tmp_path / 'out'}", "loop:=true",
+                    "rate:=4000", domain=DOMAIN + 2)
+    cycle = 2 * SAMPLES - 2
+    stamps: list[float] = []
+    try:
+        launch.wait_line(r"proxy: .*\(domain")
+        with Subscriber({"/robot/wrench": WhiskerWrenchArray}, Endpoints.for_domain(DOMAIN + 2)
+                        ) as sub:
+            while len(stamps) < 2 * cycle + 100:  # into the third cycle
+                rx = sub.receive(300.0)
+                assert rx is not None and not isinstance(rx.msg, EndOfStream), launch.text()
+                stamps.append(rx.msg.stamp)
+        assert launch.proc.poll() is None, launch.text()
+        launch.proc.send_signal(signal.SIGINT)
+        rc = launch.wait(120)
+    finally:
+        if launch.proc.poll() is None:
+            launch.proc.kill()
+    text = launch.text()
+    assert np.all(np.diff(stamps) > 0)
+    assert rc == 128 + signal.SIGINT, text
+    assert re.search(r"wrench_source\] .*\d+ messages and EndOfStream", text), text
+    assert re.search(r"wrench_source\s+stopped by launcher \(exit 0\)", text), text
+    assert "Traceback" not in text

@@ -13,6 +13,7 @@ docs/MAPPING.md has the choice of the method.
 
 from vibrissa.mapping.accumulate import Accumulator, ContactBatch, FrameCloud, is_covariance
 from vibrissa.mapping.fit import FrameMap, fit_frame, map_cloud
+from vibrissa.mapping.live import LiveMap, LiveSettings
 from vibrissa.mapping.next_sweep import Proposal, propose_sections
 from vibrissa.mapping.objects import (
     Clusters,
@@ -39,7 +40,8 @@ from vibrissa.mapping.truth import TrueObject, name_objects
 
 __all__ = [
     "Accumulator", "Clustering", "Clusters", "ContactBatch", "FrameCloud", "FrameMap",
-    "FrameResult", "InputStream", "MapReport", "MapSettings", "NextSweep", "ObjectResult", "UpstreamNode",
+    "FrameResult", "InputStream", "LiveMap", "LiveSettings", "MapReport", "MapSettings",
+    "NextSweep", "ObjectResult", "UpstreamNode",
     "ObjectSurface", "Proposal", "TrueObject", "WhiskerCount", "cluster_points",
     "contact_normals", "estimate_surface", "fit_frame", "is_covariance", "join_convex",
     "line_spacing", "map_cloud", "name_objects", "propose_sections", "split_lines",

@@ -69,7 +69,8 @@ class FrameObjects:
     ``points``, ``normals`` (N, 3), ``whisker_ids`` (N,), ``lines`` (N,) and ``normal_var``
     (N,) (each point's variance along its normal, m^2; NaN: none) in line order; ``labels``
     (N,) the object of each point (-1: noise); ``named`` each object's name, true object and
-    median distance to it; ``spacing`` the frame's line spacing, m.
+    median distance to it; ``spacing`` the frame's line spacing and ``spacings`` each object's,
+    m (inf: one line).
     """
 
     points: FloatArray
@@ -81,15 +82,17 @@ class FrameObjects:
     named: list[tuple[str, TrueObject | None, float | None]]
     spacing: float
     clustering: Clustering
+    spacings: list[float]
 
     def inside(self, k: int) -> IntArray:
         """Indices (n,) of the points of object ``k``, in line order."""
         return np.flatnonzero(self.labels == k)
 
 
-def frame_objects(cloud: FrameCloud, settings: MapSettings,
-                  truth: tuple[TrueObject, ...]) -> FrameObjects:
-    """The contacts of a frame in line order, their normals and objects (see `fit_frame`)."""
+def frame_contacts(cloud: FrameCloud) -> tuple[FloatArray, FloatArray, list[str], IntArray,
+                                                FloatArray]:
+    """A frame's contact points (N, 3) m in line order, their outward normals (N, 3), whiskers
+    (N,), lines (N,) and variances along the normals (N,) m^2."""
     points, forces, whisker_ids, covariances = cloud.ordered()
     lines = whisker_lines(points, whisker_ids)
     normals = contact_normals(points, forces, lines)
@@ -99,6 +102,19 @@ def frame_objects(cloud: FrameCloud, settings: MapSettings,
     with np.errstate(over="ignore", invalid="ignore"):
         normal_var = np.einsum("ni,nij,nj->n", normals, covariances, normals)
     normal_var[given & ~np.isfinite(normal_var)] = np.inf
+    return points, normals, whisker_ids, lines, normal_var
+
+
+def frame_objects(cloud: FrameCloud, settings: MapSettings,
+                  truth: tuple[TrueObject, ...]) -> FrameObjects:
+    """The contacts of a frame in line order, their normals and objects (see `fit_frame`)."""
+    return contact_objects(frame_contacts(cloud), settings, truth)
+
+
+def contact_objects(contacts: tuple[FloatArray, FloatArray, list[str], IntArray, FloatArray],
+                    settings: MapSettings, truth: tuple[TrueObject, ...]) -> FrameObjects:
+    """`frame_objects` of a frame's `frame_contacts`."""
+    points, normals, whisker_ids, lines, normal_var = contacts
     if settings.one_object:  # the frame is one object (its truth, when known)
         spacing = line_spacing(points, lines) if len(points) else float("inf")
         labels = np.zeros(len(points), dtype=np.int64)
@@ -116,8 +132,13 @@ def frame_objects(cloud: FrameCloud, settings: MapSettings,
         clustering = Clustering("dbscan", clusters.eps, clusters.eps_rule, clusters.min_points,
                                 clusters.n_clusters, joined,
                                 spacing if np.isfinite(spacing) else None, clusters.line_extent)
+    spacings = []
+    for k in range(len(named)):
+        inside = np.flatnonzero(labels == k)
+        spacings.append(spacing if len(inside) == len(points)  # the frame's, measured once
+                        else line_spacing(points[inside], lines[inside]))
     return FrameObjects(points, normals, whisker_ids, lines, normal_var, labels, named, spacing,
-                        clustering)
+                        clustering, spacings)
 
 
 def object_proposals(surface: ObjectSurface, points: FloatArray,
@@ -161,8 +182,7 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
               proposals: Sequence[list[Proposal]], truth: tuple[TrueObject, ...]) -> FrameMap:
     """The map of a frame's ``objects`` with a surface and proposals per object: its report,
     errors against ``truth`` and the known part of the meshes in one."""
-    points, lines, whisker_ids, labels = (objects.points, objects.lines, objects.whisker_ids,
-                                          objects.labels)
+    points, whisker_ids, labels = objects.points, objects.whisker_ids, objects.labels
     spacing, clustering = objects.spacing, objects.clustering
     results: list[ObjectResult] = []
     cloud_distance: list[FloatArray] = []
@@ -171,8 +191,7 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
         inside = objects.inside(k)
         surface = surfaces[k]
         vertices, triangles, std = surface.part(known=True)
-        own_spacing = (spacing if len(inside) == len(points)  # the frame's, measured once
-                       else line_spacing(points[inside], lines[inside]))
+        own_spacing = objects.spacings[k]
         cloud_stats: tuple[float | None, float | None] = (None, None)
         mesh_stats: tuple[float | None, float | None] = (None, None)
         nearer_other: dict[str, int] = {}

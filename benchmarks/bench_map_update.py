@@ -8,7 +8,7 @@ first ``--base`` points are one object (10^4 by default), then ``--new`` more ar
   hyperparameters, the mesh and its std, the next sweeps): the baseline of the ratio.
 * ``update``: ``LiveMap.update`` with the same points, after an update with the first ``base``
   (not timed): the object grew, so its GP is conditioned on the new points and meshed on
-  ``LiveSettings.cells``; its next sweeps are kept.
+  ``LiveSettings.cells`` (``--cells``); its next sweeps are kept.
 * ``final``: ``LiveMap.final`` after that update: the full fit of the grown object.
 
 Each time is the median of ``--repeat`` runs after one warm-up run (numba's compilation and
@@ -16,7 +16,8 @@ Open3D's import excluded), in one process; ``x full`` is the full fit's median o
 One BLAS thread (``OPENBLAS_NUM_THREADS`` etc. set to 1 unless already set), as the mapper runs.
 Not a test.
 
-Usage: ``python benchmarks/bench_map_update.py [--base 10000] [--new 1000] [--repeat 5]``
+Usage: ``python benchmarks/bench_map_update.py [--base 10000] [--new 1000] [--repeat 5]
+[--cells 32]``
 """
 
 from __future__ import annotations
@@ -34,7 +35,13 @@ from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from vibrissa.mapping import ContactBatch, FrameCloud, LiveMap, fit_frame  # noqa: E402
+from vibrissa.mapping import (  # noqa: E402
+    ContactBatch,
+    FrameCloud,
+    LiveMap,
+    LiveSettings,
+    fit_frame,
+)
 from vibrissa.surfaces import parse_surface  # noqa: E402
 from vibrissa.sweep import Trail, contact_lines, simulate_sweeps  # noqa: E402
 
@@ -66,6 +73,8 @@ def main() -> None:
     parser.add_argument("--base", type=int, default=10_000)
     parser.add_argument("--new", type=int, default=1000)
     parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--cells", type=int, default=LiveSettings.cells,
+                        help="LiveSettings.cells: the grid of a conditioned object's mesh")
     args = parser.parse_args()
     points, forces, _ = contact_lines(simulate_sweeps(
         parse_surface(PARABOLOID), [Trail(y0, MU) for y0 in TRAILS], STEP))
@@ -76,7 +85,7 @@ def main() -> None:
         points[:total], forces[:total])
     times: dict[str, list[float]] = {"full": [], "update": [], "final": []}
     for run in range(args.repeat + 1):
-        live = LiveMap()
+        live = LiveMap(LiveSettings(cells=args.cells))
         live.update(FRAME, before)
         update = timed(partial(live.update, FRAME, after))
         final = timed(partial(live.final, FRAME, after))
@@ -85,7 +94,7 @@ def main() -> None:
             for name, value in (("full", full), ("update", update), ("final", final)):
                 times[name].append(value)
     median = {name: statistics.median(values) for name, values in times.items()}
-    print(f"{args.base} points + {args.new} new, {args.repeat} runs, load average "
+    print(f"{args.base} points + {args.new} new, {args.cells} cells, {args.repeat} runs, load average "
           f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; fits of the last run: "
           f"{dict(live.fits)}")
     print(f"{'':8} {'median s':>9} {'min s':>7} {'max s':>7} {'x full':>7}")

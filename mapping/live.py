@@ -102,7 +102,8 @@ class _Object:
 
 def _keys(points: FloatArray) -> list[bytes]:
     """Each point's (N, 3) bytes: a point is the same point when its coordinates are."""
-    return [row.tobytes() for row in np.ascontiguousarray(points)]
+    rows = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    return list(rows.view(np.dtype((np.void, rows.itemsize * 3))).ravel().tolist())
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,9 @@ A library without processes, messages or files (numpy, scipy, numba, scikit-imag
 `Accumulator` gathers `ContactBatch` es per frame within bounds, `fit_frame` maps a frame's
 cloud with `MapSettings` (or `map_cloud` maps one cloud of arrays), measured against
 `TrueObject` s when they are known; the result (`FrameMap`) holds the points, contact
-normals, objects, meshes and the typed report (`FrameResult`, `MapReport`). The steps, each
-usable alone: `objects` (contact lines, contact normals, DBSCAN clustering, ``join_convex``),
+normals, objects, meshes and the typed report (`FrameResult`, `MapReport`); `LiveMap` maps a
+growing cloud update by update, refitting only what changed. The steps, each usable alone:
+`objects` (contact lines, contact normals, DBSCAN clustering, ``join_convex``),
 `surface` (one object's surface), `gp_surface` (the Gaussian-process implicit surface and its
 mesh), `next_sweep` (where to sweep next), `truth` (distances to the true objects).
 docs/MAPPING.md has the choice of the method.

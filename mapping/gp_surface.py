@@ -30,7 +30,10 @@ of the cloud moves the surface with it)
 Cost: the fit is exact on at most ``max_active`` points (4 observations each), taken along the
 lines at a fixed path length (``select_active``): the lines are far denser than the surface's
 curvature needs. A 10^5-point cloud costs what a 10^4-point cloud does but for the selection.
-The trend is solved for apart from the Cholesky factor of the rest (``_Solution``).
+The trend is solved for apart from the Cholesky factor of the rest (``_Solution``). More
+contacts on a fitted surface (a growing map) cost less than a new fit: :func:`extended` adds
+some of them to the active points with the hyperparameters kept, extending the factor by a
+block.
 
 Prediction: the mean f(x) and its gradient (a compiled loop over the active points, the query
 points shared out over the cores) and the standard deviation sd_f(x) (triangular solves, chunks
@@ -302,6 +305,8 @@ class GPSurface:
         RMS of f at the contact points the fit did not use, m: its error near the data,
         measured on points it has not seen (at most ``HELD_OUT`` of them), added to
         :meth:`std` in quadrature.
+    n_points
+        The points given to :func:`fit` and to each :func:`extended` since.
     """
 
     center: FloatArray
@@ -319,7 +324,7 @@ class GPSurface:
     _n: FloatArray  # the active points' unit normals
     _solution: _Solution
     _alpha_se: FloatArray  # sigma^2 alpha: the weights of the SE covariances in the mean
-    n_points: int = 0  # the points given to :func:`fit` and to each :func:`extended`
+    n_points: int = 0
     _order: IntArray | None = None  # the observations (:func:`_design`'s rows) in the order
     # of ``_solution``'s factor; None: that order (:func:`extended` appends blocks)
 

@@ -27,6 +27,7 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -103,7 +104,7 @@ class _Object:
 def _keys(points: FloatArray) -> list[bytes]:
     """Each point's (N, 3) bytes: a point is the same point when its coordinates are."""
     rows = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    return list(rows.view(np.dtype((np.void, rows.itemsize * 3))).ravel().tolist())
+    return cast(list[bytes], rows.view(np.dtype((np.void, rows.itemsize * 3))).ravel().tolist())
 
 
 @dataclass(frozen=True)

@@ -125,11 +125,14 @@ def _grown_objects(last: FrameObjects, contacts: tuple[FloatArray, FloatArray, l
     new since ``last`` all lie within its DBSCAN radius of one object and of no other object
     or noise point: they join it, and the rest keeps its objects (DBSCAN on the whole would put
     them there too, but for points that only chain together); None otherwise (a merge, a
-    split, a new object or noise: cluster again). The line spacings are the last ones."""
+    split, a new object or noise, or points of ``last`` gone: cluster again). The line
+    spacings are the last ones."""
     points = contacts[0]
     label_of = dict(zip(_keys(last.points), last.labels.tolist(), strict=True))
     labels = np.array([label_of.get(key, NEW) for key in keys], dtype=np.int64)
     new = np.flatnonzero(labels == NEW)
+    if len(keys) - len(new) != len(last.points):  # some of the last points are gone
+        return None
     if len(new) and last.clustering.eps_m is None:  # one object: theirs
         labels[new] = 0
     elif len(new):

@@ -176,3 +176,18 @@ def test_an_update_without_new_points_keeps_everything() -> None:
     again = live.update("world", cloud, SETTINGS)
     assert live.fits == {"clustered": 1, "full": 1, "joined": 1, "kept": 1}
     assert again.surfaces[0] is first.surfaces[0]
+
+
+def test_points_gone_since_the_last_update_mean_a_new_clustering_and_fit() -> None:
+    """A cloud that lost points (merged away upstream) is not the last one grown: the frame is
+    clustered again and the object fitted in full, as the single fit does."""
+    lines = [ball_line(CENTRES_M[0], polar, f"w{k}") for k, polar in enumerate((1.0, 1.3, 1.6))]
+    live = LiveMap()
+    for kept in (lines, lines[1:]):
+        cloud = FrameCloud()
+        for line in kept:
+            cloud.add(line, None, np.full((80, 3, 3), np.nan))
+        fits = live.fits.copy()
+        fewer = live.update("world", cloud, SETTINGS)
+    assert live.fits - fits == {"clustered": 1, "full": 1}
+    assert_same_map(fewer, fit_frame("world", cloud, SETTINGS))

@@ -4,8 +4,9 @@ A library without processes, messages or files (numpy, scipy, numba, scikit-imag
 `Accumulator` gathers `ContactBatch` es per frame within bounds, `fit_frame` maps a frame's
 cloud with `MapSettings` (or `map_cloud` maps one cloud of arrays), measured against
 `TrueObject` s when they are known; the result (`FrameMap`) holds the points, contact
-normals, objects, meshes and the typed report (`FrameResult`, `MapReport`). The steps, each
-usable alone: `objects` (contact lines, contact normals, DBSCAN clustering, ``join_convex``),
+normals, objects, meshes and the typed report (`FrameResult`, `MapReport`); `LiveMap` maps a
+growing cloud update by update, refitting only what changed. The steps, each usable alone:
+`objects` (contact lines, contact normals, DBSCAN clustering, ``join_convex``),
 `surface` (one object's surface), `gp_surface` (the Gaussian-process implicit surface and its
 mesh), `next_sweep` (where to sweep next), `truth` (distances to the true objects).
 docs/MAPPING.md has the choice of the method.
@@ -13,6 +14,7 @@ docs/MAPPING.md has the choice of the method.
 
 from vibrissa.mapping.accumulate import Accumulator, ContactBatch, FrameCloud, is_covariance
 from vibrissa.mapping.fit import FrameMap, fit_frame, map_cloud
+from vibrissa.mapping.live import LiveMap, LiveSettings
 from vibrissa.mapping.next_sweep import Proposal, propose_sections
 from vibrissa.mapping.objects import (
     Clusters,
@@ -39,7 +41,8 @@ from vibrissa.mapping.truth import TrueObject, name_objects
 
 __all__ = [
     "Accumulator", "Clustering", "Clusters", "ContactBatch", "FrameCloud", "FrameMap",
-    "FrameResult", "InputStream", "MapReport", "MapSettings", "NextSweep", "ObjectResult", "UpstreamNode",
+    "FrameResult", "InputStream", "LiveMap", "LiveSettings", "MapReport", "MapSettings",
+    "NextSweep", "ObjectResult", "UpstreamNode",
     "ObjectSurface", "Proposal", "TrueObject", "WhiskerCount", "cluster_points",
     "contact_normals", "estimate_surface", "fit_frame", "is_covariance", "join_convex",
     "line_spacing", "map_cloud", "name_objects", "propose_sections", "split_lines",

@@ -62,24 +62,37 @@ def _stats(distance: FloatArray) -> tuple[float | None, float | None]:
     return float(distance.max()), float(distance.mean())
 
 
-def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = None,
-              truth: Sequence[TrueObject] = ()) -> FrameMap:
-    """Objects, normals, surface estimates, next sweeps and errors of one frame.
+@dataclass(frozen=True)
+class FrameObjects:
+    """A frame's contacts split into objects, before their surfaces (`frame_objects`).
 
-    Parameters
-    ----------
-    frame_id
-        The frame of the points.
-    cloud
-        Its contact points (`vibrissa.mapping.Accumulator.frames`).
-    settings
-        How to separate objects, fit and mesh them (default `MapSettings()`).
-    truth
-        The true objects in this frame, m: the objects are named after them and measured
-        against them; with ``settings.one_object``, the first is the frame's one object.
+    ``points``, ``normals`` (N, 3), ``whisker_ids`` (N,), ``lines`` (N,) and ``normal_var``
+    (N,) (each point's variance along its normal, m^2; NaN: none) in line order; ``labels``
+    (N,) the object of each point (-1: noise); ``named`` each object's name, true object and
+    median distance to it; ``spacing`` the frame's line spacing and ``spacings`` each object's,
+    m (inf: one line).
     """
-    settings = settings or MapSettings()
-    truth = tuple(truth)
+
+    points: FloatArray
+    normals: FloatArray
+    whisker_ids: list[str]
+    lines: IntArray
+    normal_var: FloatArray
+    labels: IntArray
+    named: list[tuple[str, TrueObject | None, float | None]]
+    spacing: float
+    clustering: Clustering
+    spacings: list[float]
+
+    def inside(self, k: int) -> IntArray:
+        """Indices (n,) of the points of object ``k``, in line order."""
+        return np.flatnonzero(self.labels == k)
+
+
+def frame_contacts(cloud: FrameCloud) -> tuple[FloatArray, FloatArray, list[str], IntArray,
+                                                FloatArray]:
+    """A frame's contact points (N, 3) m in line order, their outward normals (N, 3), whiskers
+    (N,), lines (N,) and variances along the normals (N,) m^2."""
     points, forces, whisker_ids, covariances = cloud.ordered()
     lines = whisker_lines(points, whisker_ids)
     normals = contact_normals(points, forces, lines)
@@ -89,6 +102,19 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
     with np.errstate(over="ignore", invalid="ignore"):
         normal_var = np.einsum("ni,nij,nj->n", normals, covariances, normals)
     normal_var[given & ~np.isfinite(normal_var)] = np.inf
+    return points, normals, whisker_ids, lines, normal_var
+
+
+def frame_objects(cloud: FrameCloud, settings: MapSettings,
+                  truth: tuple[TrueObject, ...]) -> FrameObjects:
+    """The contacts of a frame in line order, their normals and objects (see `fit_frame`)."""
+    return contact_objects(frame_contacts(cloud), settings, truth)
+
+
+def contact_objects(contacts: tuple[FloatArray, FloatArray, list[str], IntArray, FloatArray],
+                    settings: MapSettings, truth: tuple[TrueObject, ...]) -> FrameObjects:
+    """`frame_objects` of a frame's `frame_contacts`."""
+    points, normals, whisker_ids, lines, normal_var = contacts
     if settings.one_object:  # the frame is one object (its truth, when known)
         spacing = line_spacing(points, lines) if len(points) else float("inf")
         labels = np.zeros(len(points), dtype=np.int64)
@@ -106,17 +132,66 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
         clustering = Clustering("dbscan", clusters.eps, clusters.eps_rule, clusters.min_points,
                                 clusters.n_clusters, joined,
                                 spacing if np.isfinite(spacing) else None, clusters.line_extent)
-    objects: list[ObjectResult] = []
+    spacings = []
+    for k in range(len(named)):
+        inside = np.flatnonzero(labels == k)
+        spacings.append(spacing if len(inside) == len(points)  # the frame's, measured once
+                        else line_spacing(points[inside], lines[inside]))
+    return FrameObjects(points, normals, whisker_ids, lines, normal_var, labels, named, spacing,
+                        clustering, spacings)
+
+
+def object_proposals(surface: ObjectSurface, points: FloatArray,
+                     settings: MapSettings) -> list[Proposal]:
+    """The next sweeps of an object with ``surface`` and contact ``points`` (n, 3), m."""
+    if surface.gp is None or surface.mesh is None or not settings.proposals:
+        return []
+    return propose_sections(surface.gp, surface.mesh.vertices, points,
+                            np.array(settings.proposal_axis), settings.proposals)
+
+
+def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = None,
+              truth: Sequence[TrueObject] = ()) -> FrameMap:
+    """Objects, normals, surface estimates, next sweeps and errors of one frame.
+
+    Parameters
+    ----------
+    frame_id
+        The frame of the points.
+    cloud
+        Its contact points (`vibrissa.mapping.Accumulator.frames`).
+    settings
+        How to separate objects, fit and mesh them (default `MapSettings()`).
+    truth
+        The true objects in this frame, m: the objects are named after them and measured
+        against them; with ``settings.one_object``, the first is the frame's one object.
+    """
+    settings = settings or MapSettings()
+    objects = frame_objects(cloud, settings, tuple(truth))
     surfaces: list[ObjectSurface] = []
     proposals: list[list[Proposal]] = []
+    for k in range(len(objects.named)):
+        inside = objects.inside(k)
+        surfaces.append(estimate_surface(objects.points[inside], objects.normals[inside],
+                                         settings, objects.normal_var[inside]))
+        proposals.append(object_proposals(surfaces[-1], objects.points[inside], settings))
+    return frame_map(frame_id, objects, surfaces, proposals, tuple(truth))
+
+
+def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSurface],
+              proposals: Sequence[list[Proposal]], truth: tuple[TrueObject, ...]) -> FrameMap:
+    """The map of a frame's ``objects`` with a surface and proposals per object: its report,
+    errors against ``truth`` and the known part of the meshes in one."""
+    points, whisker_ids, labels = objects.points, objects.whisker_ids, objects.labels
+    spacing, clustering = objects.spacing, objects.clustering
+    results: list[ObjectResult] = []
     cloud_distance: list[FloatArray] = []
     mesh_distance: list[FloatArray] = []
-    for k, (name, true, median) in enumerate(named):
-        inside = np.flatnonzero(labels == k)
-        surface = estimate_surface(points[inside], normals[inside], settings, normal_var[inside])
+    for k, (name, true, median) in enumerate(objects.named):
+        inside = objects.inside(k)
+        surface = surfaces[k]
         vertices, triangles, std = surface.part(known=True)
-        own_spacing = (spacing if len(inside) == len(points)  # the frame's, measured once
-                       else line_spacing(points[inside], lines[inside]))
+        own_spacing = objects.spacings[k]
         cloud_stats: tuple[float | None, float | None] = (None, None)
         mesh_stats: tuple[float | None, float | None] = (None, None)
         nearer_other: dict[str, int] = {}
@@ -128,11 +203,7 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
             nearer_other = dict(sorted(Counter(
                 truth[j].name for j in np.argmin(to_each, axis=0)[nearer]).items()))
             cloud_stats, mesh_stats = _stats(cloud_distance[-1]), _stats(mesh_distance[-1])
-        proposals.append([] if surface.gp is None or surface.mesh is None or not settings.proposals
-                         else propose_sections(surface.gp, surface.mesh.vertices,
-                                               points[inside], np.array(settings.proposal_axis),
-                                               settings.proposals))
-        objects.append(ObjectResult(
+        results.append(ObjectResult(
             name, len(inside), whisker_counts([whisker_ids[i] for i in inside]),
             surface.method, len(vertices), len(triangles),
             own_spacing if np.isfinite(own_spacing) else None,
@@ -143,16 +214,15 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
             true_object=true.name if true is not None else None, true_object_median_m=median,
             next_sweeps=tuple(
                 NextSweep(p.offset_m, p.axis.tolist(), len(p.line), p.std_on_line_m,
-                          p.std_max_before_m, p.std_max_after_m) for p in proposals[-1]),
+                          p.std_max_before_m, p.std_max_after_m) for p in proposals[k]),
             points_nearer_other=nearer_other, cloud_to_surface_max=cloud_stats[0],
             cloud_to_surface_mean=cloud_stats[1], mesh_to_surface_max=mesh_stats[0],
             mesh_to_surface_mean=mesh_stats[1]))
-        surfaces.append(surface)
     noise = np.flatnonzero(labels < 0)
-    if len(objects) == 1:
-        method = objects[0].method
-    elif objects:
-        method = "; ".join(f"{obj.name}: {obj.method}" for obj in objects)
+    if len(results) == 1:
+        method = results[0].method
+    elif results:
+        method = "; ".join(f"{obj.name}: {obj.method}" for obj in results)
     else:
         method = "none: " + (too_little_for_a_surface(points) or (
             f"no object: all {len(points)} points are noise (DBSCAN eps "
@@ -174,13 +244,13 @@ def fit_frame(frame_id: str, cloud: FrameCloud, settings: MapSettings | None = N
         frame_id, len(points), method, len(vertices), len(triangles),
         spacing if np.isfinite(spacing) else None,
         clustering=clustering, noise_points=len(noise),
-        noise_whiskers=whisker_counts([whisker_ids[i] for i in noise]), objects=tuple(objects),
+        noise_whiskers=whisker_counts([whisker_ids[i] for i in noise]), objects=tuple(results),
         cloud_to_surface_max=cloud_stats[0], cloud_to_surface_mean=cloud_stats[1],
         mesh_to_surface_max=mesh_stats[0], mesh_to_surface_mean=mesh_stats[1],
         noise_to_surface_max=noise_max)
     std = np.concatenate([s for _, _, s in parts] or [np.zeros(0)])
-    return FrameMap(result, points, normals, whisker_ids, labels, surfaces, vertices, triangles,
-                    std, proposals, truth)
+    return FrameMap(result, points, objects.normals, whisker_ids, labels, list(surfaces),
+                    vertices, triangles, std, [list(p) for p in proposals], truth)
 
 
 def map_cloud(points_m: FloatArray, forces_n: FloatArray, whisker_ids: Sequence[str],

@@ -30,7 +30,10 @@ of the cloud moves the surface with it)
 Cost: the fit is exact on at most ``max_active`` points (4 observations each), taken along the
 lines at a fixed path length (``select_active``): the lines are far denser than the surface's
 curvature needs. A 10^5-point cloud costs what a 10^4-point cloud does but for the selection.
-The trend is solved for apart from the Cholesky factor of the rest (``_Solution``).
+The trend is solved for apart from the Cholesky factor of the rest (``_Solution``). More
+contacts on a fitted surface (a growing map) cost less than a new fit: :func:`extended` adds
+some of them to the active points with the hyperparameters kept, extending the factor by a
+block.
 
 Prediction: the mean f(x) and its gradient (a compiled loop over the active points, the query
 points shared out over the cores) and the standard deviation sd_f(x) (triangular solves, chunks
@@ -180,17 +183,23 @@ def _cross_se(q: FloatArray, a: FloatArray, ell: float) -> FloatArray:
 def _prior(a: FloatArray, ell: float) -> FloatArray:
     """SE prior covariance of the observations of active points a (M, 3) for sigma = 1:
     (4M, 4M), rows and columns as in :func:`_design`."""
-    m = len(a)
-    d = a[:, None, :] - a[None, :, :]
+    return _prior_cross(a, a, ell)
+
+
+def _prior_cross(a: FloatArray, b: FloatArray, ell: float) -> FloatArray:
+    """SE prior covariance of the observations of points a (Ma, 3) with those of points b
+    (Mb, 3) for sigma = 1: (4Ma, 4Mb), rows and columns as in :func:`_design`."""
+    ma, mb = len(a), len(b)
+    d = a[:, None, :] - b[None, :, :]
     k = np.exp(-np.einsum("pqi,pqi->pq", d, d) / (2 * ell * ell))
-    fg = k[..., None] * d / (ell * ell)  # cov(f(a_p), d_j f(a_q))
+    fg = k[..., None] * d / (ell * ell)  # cov(f(a_p), d_j f(b_q))
     gg = k[..., None, None] * (np.eye(3) / (ell * ell) - d[..., :, None] * d[..., None, :]
-                               / ell**4)  # cov(d_i f(a_p), d_j f(a_q))
-    K = np.empty((4 * m, 4 * m))
-    K[:m, :m] = k
-    K[:m, m:] = fg.reshape(m, 3 * m)
-    K[m:, :m] = K[:m, m:].T
-    K[m:, m:] = gg.transpose(0, 2, 1, 3).reshape(3 * m, 3 * m)
+                               / ell**4)  # cov(d_i f(a_p), d_j f(b_q))
+    K = np.empty((4 * ma, 4 * mb))
+    K[:ma, :mb] = k
+    K[:ma, mb:] = fg.reshape(ma, 3 * mb)
+    K[ma:, :mb] = -fg.transpose(0, 2, 1).reshape(3 * ma, mb)  # cov(d_i f(a_p), f(b_q))
+    K[ma:, mb:] = gg.transpose(0, 2, 1, 3).reshape(3 * ma, 3 * mb)
     return K
 
 
@@ -286,7 +295,8 @@ class GPSurface:
     center, scale
         c (3,) and s: u = (x - c) / s.
     active
-        Indices (M,) of the points the fit used, into the cloud given to :func:`fit`.
+        Indices (M,) of the points the fit used, into the cloud given to :func:`fit` followed
+        by the points given to each :func:`extended`.
     length_scale, sigma, normal_std, quadric_std
         The selected ``ell`` and ``sigma`` (units of s), ``tau`` (rad), and q.
     log_likelihood
@@ -295,6 +305,8 @@ class GPSurface:
         RMS of f at the contact points the fit did not use, m: its error near the data,
         measured on points it has not seen (at most ``HELD_OUT`` of them), added to
         :meth:`std` in quadrature.
+    n_points
+        The points given to :func:`fit` and to each :func:`extended` since.
     """
 
     center: FloatArray
@@ -312,6 +324,9 @@ class GPSurface:
     _n: FloatArray  # the active points' unit normals
     _solution: _Solution
     _alpha_se: FloatArray  # sigma^2 alpha: the weights of the SE covariances in the mean
+    n_points: int = 0
+    _order: IntArray | None = None  # the observations (:func:`_design`'s rows) in the order
+    # of ``_solution``'s factor; None: that order (:func:`extended` appends blocks)
 
     def evaluate(self, points: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Mean f (N,) in m (> 0 outside; about the signed distance near the data) and its
@@ -336,8 +351,10 @@ class GPSurface:
         """Posterior std (Q,) of f at normalised points q (Q, 3), units of s."""
         solution, s2 = self._solution, self.sigma**2
         phi, _ = _quadric(q)
-        v = solve_triangular(solution.chol, s2 * _cross_se(q, self._u, self.length_scale).T,
-                             lower=True, check_finite=False)
+        cross = _cross_se(q, self._u, self.length_scale)
+        if self._order is not None:
+            cross = cross[:, self._order]
+        v = solve_triangular(solution.chol, s2 * cross.T, lower=True, check_finite=False)
         # the trend's share: R^T M^-1 R with R = phi - A^T v (eq. 2.42)
         r = solve_triangular(solution.chol_beta, phi.T - solution.basis.T @ v, lower=True,
                              check_finite=False)
@@ -361,7 +378,7 @@ class _Solution:
     # triangle is left over: triangular solves do not read it)
     basis: FloatArray  # A = L^-1 G (4M, 10), G the trend's design
     chol_beta: FloatArray  # lower Cholesky factor of M = I / q^2 + A^T A (10, 10)
-    alpha: FloatArray  # K_y^-1 (y - G beta)
+    alpha: FloatArray  # K_y^-1 (y - G beta), in the factor's order
     beta: FloatArray  # the trend's posterior mean coefficients (10,)
     loglik: float  # log marginal likelihood per observation
 
@@ -370,6 +387,11 @@ def _solve(K_y: FloatArray, G: FloatArray, q: float, y: FloatArray) -> _Solution
     """GP regression of observations y (n,) with covariance K_y (n, n) and the quadric trend
     of design G (n, 10) and coefficient std q."""
     chol, _ = cho_factor(K_y, lower=True, check_finite=False)
+    return _regress(chol, G, q, y)
+
+
+def _regress(chol: FloatArray, G: FloatArray, q: float, y: FloatArray) -> _Solution:
+    """:func:`_solve` given the lower Cholesky factor ``chol`` of K_y."""
     A = solve_triangular(chol, G, lower=True, check_finite=False)
     w = solve_triangular(chol, y, lower=True, check_finite=False)
     chol_beta, _ = cho_factor(np.eye(G.shape[1]) / (q * q) + A.T @ A, lower=True,
@@ -423,13 +445,7 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None,
     u_all = (points - center) / scale
     n_all = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     point_std = max(params.point_std_m / scale, MIN_POINT_STD)
-    stds = np.full(len(points), point_std)
-    if point_var_m2 is not None:
-        var = np.asarray(point_var_m2, dtype=np.float64).reshape(-1)
-        if var.shape != (len(points),):
-            raise ValueError(f"point_var_m2 must have shape ({len(points)},), got {var.shape}")
-        var = np.nan_to_num(var, nan=0.0, posinf=scale * scale, neginf=0.0)
-        stds = np.maximum(np.sqrt(np.clip(var, 0.0, scale * scale)) / scale, point_std)
+    stds = _point_stds(points, point_var_m2, scale, point_std)
 
     def solve(u: FloatArray, n: FloatArray, stds: FloatArray, K_se: FloatArray, sigma: float,
               tau: float) -> _Solution:
@@ -454,7 +470,7 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None,
     solution = solve(u, n, stds[active], _prior(u, ell), sigma, tau)
     surface = GPSurface(center, scale, active, ell, sigma, tau, params.quadric_std,
                         solution.loglik, 0.0, point_std, stds[active], u, n, solution,
-                        sigma * sigma * solution.alpha)
+                        sigma * sigma * solution.alpha, len(points))
     unused = np.setdiff1d(np.arange(len(points)), active)
     unused = unused[::max(1, len(unused) // HELD_OUT)]
     if not len(unused):
@@ -480,7 +496,78 @@ def conditioned(surface: GPSurface, points: FloatArray, normals: FloatArray) -> 
                       + _noise(n, stds, surface.normal_std), _design(u),
                       surface.quadric_std, _targets(n))
     return replace(surface, log_likelihood=solution.loglik, _point_std=stds, _u=u, _n=n,
-                   _solution=solution, _alpha_se=sigma * sigma * solution.alpha)
+                   _solution=solution, _alpha_se=sigma * sigma * solution.alpha, _order=None)
+
+
+def _point_stds(points: FloatArray, point_var_m2: FloatArray | None, scale: float,
+                point_std: float) -> FloatArray:
+    """Each point's std of f (N,), units of s: from its variance along the normal (m^2; NaN:
+    none), floored at ``point_std`` and capped at the cloud's radius (:func:`fit`)."""
+    if point_var_m2 is None:
+        return np.full(len(points), point_std)
+    var = np.asarray(point_var_m2, dtype=np.float64).reshape(-1)
+    if var.shape != (len(points),):
+        raise ValueError(f"point_var_m2 must have shape ({len(points)},), got {var.shape}")
+    var = np.nan_to_num(var, nan=0.0, posinf=scale * scale, neginf=0.0)
+    return np.maximum(np.sqrt(np.clip(var, 0.0, scale * scale)) / scale, point_std)
+
+
+@_one_blas_thread
+def extended(surface: GPSurface, points: FloatArray, normals: FloatArray, count: int,
+             point_var_m2: FloatArray | None = None) -> GPSurface:
+    """The surface conditioned on more contacts, its hyperparameters, centre and scale kept.
+
+    At most ``count`` of ``points`` (K, 3), m, in line order, with outward ``normals`` (K, 3)
+    and variances ``point_var_m2`` (K,) m^2 (as in :func:`fit`), are taken along them
+    (:func:`select_active`) and join the active set. The GP regression on the union is exact:
+    the Cholesky factor of the old observations is kept and extended by a block (the new
+    observations' rows: L21 = C^T L^-T, L22 L22^T = D - L21 L21^T), O(n^2 m) for n old and m
+    new observations against the O((n + m)^3) of a new factor; the factor then holds the
+    observations in another order than :func:`_design` (``_order``). ``residual_std`` is the
+    old fit's.
+    """
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    if normals.shape != points.shape or not len(points):
+        raise ValueError(f"points and normals must have one shape (K >= 1, 3), got "
+                         f"{points.shape} and {normals.shape}")
+    stds_all = _point_stds(points, point_var_m2, surface.scale, surface.point_std)
+    u_all = (points - surface.center) / surface.scale
+    chosen = select_active(u_all, count)
+    m_old, m_new = len(surface._u), len(chosen)
+    m = m_old + m_new
+    u = np.ascontiguousarray(np.concatenate([surface._u, u_all[chosen]]))
+    n = np.concatenate([surface._n, normals[chosen] / np.linalg.norm(
+        normals[chosen], axis=1, keepdims=True)])
+    stds = np.concatenate([surface._point_std, stds_all[chosen]])
+    # the old observations (f of each point, then its gradient) in :func:`_design`'s rows of
+    # the union, in the old factor's order; then the new ones
+    old = np.arange(4 * m_old) if surface._order is None else surface._order
+    old = np.where(old < m_old, old, old + m_new)
+    order = np.concatenate([old, m_old + np.arange(m_new), m + 3 * m_old + np.arange(3 * m_new)])
+    sigma, ell = surface.sigma, surface.length_scale
+    # K_y's new columns: C with the old observations (in the factor's order), D with themselves
+    C = sigma * sigma * _prior_cross(surface._u, u[m_old:], ell)
+    if surface._order is not None:
+        C = C[surface._order]
+    D = sigma * sigma * _prior(u[m_old:], ell) + _noise(n[m_old:], stds[m_old:],
+                                                       surface.normal_std)
+    k = 4 * m_old
+    L21 = solve_triangular(surface._solution.chol, C, lower=True, check_finite=False).T
+    L22, _ = cho_factor(D - L21 @ L21.T, lower=True, check_finite=False)
+    chol = np.zeros((4 * m, 4 * m))
+    chol[:k, :k] = surface._solution.chol
+    chol[k:, :k] = L21
+    chol[k:, k:] = np.tril(L22)
+    solution = _regress(chol, _design(u)[order], surface.quadric_std, _targets(n)[order])
+    alpha = np.empty_like(solution.alpha)
+    alpha[order] = solution.alpha
+    return replace(surface, active=np.concatenate([surface.active, surface.n_points + chosen]),
+                   n_points=surface.n_points + len(points),
+                   log_likelihood=solution.loglik, _point_std=stds, _u=u, _n=n,
+                   _solution=solution, _alpha_se=sigma * sigma * alpha, _order=order)
 
 
 def _targets(normals: FloatArray) -> FloatArray:

@@ -75,13 +75,19 @@ def estimate_surface(points: FloatArray, normals: FloatArray,
     if too_little is not None:
         return ObjectSurface(f"none: {too_little}")
     gp = gp_surface.fit(points, normals, GPParams(point_std_m=settings.point_std_m), point_var_m2)
+    return meshed_surface(gp, points, settings)
+
+
+def meshed_surface(gp: GPSurface, points: FloatArray, settings: MapSettings,
+                   cells: int = 0) -> ObjectSurface:
+    """The surface ``gp`` of an object's contact ``points`` (N, 3), m, meshed over its box:
+    the points' box grown by ``settings.margin``, on a grid of ``cells`` along its longest side
+    (0: ``settings.cells``)."""
     pad = settings.margin * float(np.linalg.norm(np.ptp(points, axis=0)))
     mesh = gp_surface.mesh(gp, points.min(axis=0) - pad, points.max(axis=0) + pad,
-                           settings.cells, settings.max_std_m)
+                           cells or settings.cells, settings.max_std_m)
     method = (f"gp implicit surface (quadric trend + SE: ell {gp.length_scale * gp.scale:.3g} m, "
               f"sigma {gp.sigma * gp.scale:.3g} m; normal std {gp.normal_std:.3g} rad; "
               f"{len(gp.active)} of {len(points)} points; known where std <= "
               f"{mesh.max_std:.3g} m)")
     return ObjectSurface(method, gp, mesh)
-
-

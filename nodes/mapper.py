@@ -78,6 +78,7 @@ from vibrissa.formats.scene_file import load_scene
 from vibrissa.mapping import (
     Accumulator,
     ContactBatch,
+    FrameMap,
     FrameResult,
     InputStream,
     MapReport,
@@ -98,7 +99,7 @@ from vibrissa.msgs import (
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.signals import default_actions
+from vibrissa.runtime.signals import SignalHandlers, default_actions
 from vibrissa.runtime.traffic import Traffic, Upstream
 from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
@@ -152,7 +153,11 @@ class MapperParams:
         a fifth of the prior std), the std of a contact point (m); see
         `vibrissa.mapping.MapSettings`.
     timeout_s
-        Fit what has arrived after this long without a message, s (0 = wait for the ends).
+        Write the final map of what has arrived after this long without a message, s (0 =
+        wait for the ends).
+    map_period_s, write_period_s
+        While the streams go on, map (and publish the map) at most every ``map_period_s``
+        and rewrite the files at most every ``write_period_s``, s.
     max_points, max_frames
         The most points (all frames) and frames kept: the memory's bound (a point takes about
         200 bytes). A message beyond either is dropped, counted in the report and logged, and
@@ -194,6 +199,8 @@ class MapperParams:
     max_std_m: float = MapSettings.max_std_m
     point_std_m: float = MapSettings.point_std_m
     timeout_s: float = 0.0
+    map_period_s: float = 1.0
+    write_period_s: float = 5.0
     max_points: int = MAX_POINTS
     max_frames: int = MAX_FRAMES
     plot: bool = True
@@ -247,6 +254,8 @@ class MapperParams:
             raise ValueError(f"parameter {exc}") from None
         object.__setattr__(self, "settings", settings)
         require_non_negative("timeout_s", self.timeout_s)
+        require_positive("map_period_s", self.map_period_s)
+        require_positive("write_period_s", self.write_period_s)
         require(self.max_points >= 1, "max_points", self.max_points, "a count >= 1")
         require(self.max_frames >= 1, "max_frames", self.max_frames, "a count >= 1")
 
@@ -297,24 +306,64 @@ def receive(acc: Accumulator, msg: ContactPointArray | EndOfStream) -> None:
         acc.add(contact_batch(msg))
 
 
-def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
-                  streams: Sequence[StreamEnd] = (), lost: int = 0,
-                  upstream: Sequence[Upstream] = (),
-                  ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
-    """Map every frame (`vibrissa.mapping.fit_frame`), write PLYs, the pictures (PNG, HTML
-    page) and the reports; returns (report, messages).
-
-    ``streams`` are the input streams that ended (what each said was sent, what arrived,
-    what was lost), ``lost`` the input messages lost in all and ``upstream`` what the nodes
-    before the map moved (`vibrissa.runtime.traffic`), for the report.
-    """
-    out_dir.mkdir(parents=True, exist_ok=True)
-    results: list[FrameResult] = []
-    messages: list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]] = []
+def fit_frames(acc: Accumulator, params: MapperParams) -> list[FrameMap]:
+    """Map every frame of ``acc`` in frame order: the full fit (`vibrissa.mapping.fit_frame`)
+    on all its points."""
+    frames = []
     for frame_id, cloud in sorted(acc.frames.items()):
         t0 = time.monotonic()
         frame = fit_frame(frame_id, cloud, params.settings, params.truth(frame_id))
         result = frame.result
+        log.info("mapped %s: %d points -> %s (%d noise points), %d triangles in %.1f s",
+                 frame_id, result.n_points,
+                 ", ".join(f"{o.name} ({o.n_points})" for o in result.objects) or "no object",
+                 result.noise_points, result.n_triangles, time.monotonic() - t0)
+        frames.append(frame)
+    return frames
+
+
+def map_messages(frame: FrameMap) -> tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]:
+    """The messages of a mapped frame: its cloud, its known mesh and its next sweeps."""
+    result = frame.result
+    stamp = time.time()
+    return (
+        ContactCloud(stamp=stamp, frame_id=result.frame_id, points=frame.points,
+                     normals=frame.normals, whisker_ids=frame.whisker_ids),
+        SurfaceMesh(stamp=stamp, frame_id=result.frame_id, vertices=frame.vertices,
+                    triangles=frame.triangles.astype(np.int32), method=result.method,
+                    n_points=result.n_points,
+                    cloud_to_surface_max=result.cloud_to_surface_max,
+                    cloud_to_surface_mean=result.cloud_to_surface_mean,
+                    mesh_to_surface_max=result.mesh_to_surface_max,
+                    mesh_to_surface_mean=result.mesh_to_surface_mean),
+        [SweepProposal(stamp=stamp, frame_id=result.frame_id, object=obj.name, rank=rank,
+                       axis=p.axis, offset=p.offset_m, line=p.line,
+                       std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
+                       std_max_after=p.std_max_after_m)
+         for obj, proposals in zip(result.objects, frame.proposals, strict=True)
+         for rank, p in enumerate(proposals, start=1)],
+    )
+
+
+def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
+                  streams: Sequence[StreamEnd] = (), lost: int = 0,
+                  upstream: Sequence[Upstream] = (), frames: Sequence[FrameMap] | None = None,
+                  *, final: bool = True, ended_by: str | None = "streams", updates: int = 1,
+                  ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
+    """Write the map of ``acc``: PLYs, the pictures (PNG, HTML page) and the reports, each file
+    whole (`vibrissa.formats.files.whole_file`); returns (report, messages).
+
+    ``frames`` are its frames mapped (default: `fit_frames` now). ``streams`` are the input
+    streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
+    input messages lost in all and ``upstream`` what the nodes before the map moved
+    (`vibrissa.runtime.traffic`), for the report; ``final``, ``ended_by`` and ``updates`` go
+    into it as they are (`vibrissa.mapping.MapReport`).
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    frames = fit_frames(acc, params) if frames is None else frames
+    results: list[FrameResult] = []
+    for frame in frames:
+        frame_id, result = frame.result.frame_id, frame.result
         sfx = _suffix(frame_id)
         files = {"cloud": out_dir / f"cloud{sfx}.ply"}
         with whole_file(files["cloud"]) as partial:
@@ -324,14 +373,14 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
             with whole_file(files["mesh"]) as partial:
                 write_ply(str(partial), frame.vertices, frame.triangles,
                           scalars={"std_m": frame.std})
-        else:
+        elif final:
             log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
                         result.method.removeprefix("none: "))
         objects = list(result.objects)
         for k, (obj, surface) in enumerate(zip(result.objects, frame.surfaces, strict=True)):
             vertices, triangles, std = surface.part(known=True)
             if not len(triangles):
-                if len(result.objects) > 1:
+                if len(result.objects) > 1 and final:
                     log.warning("no surface for object %r of frame %r: %s", obj.name, frame_id,
                                 obj.method.removeprefix("none: ") if surface.mesh is None
                                 else "nowhere known")
@@ -349,31 +398,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
             files["html"] = out_dir / f"map{sfx}.html"
             with whole_file(files["html"]) as partial:
                 write_page(partial, layers)
-        result = replace(result, objects=tuple(objects),
-                         files={k: str(v) for k, v in files.items()})
-        results.append(result)
-        stamp = time.time()
-        messages.append((
-            ContactCloud(stamp=stamp, frame_id=frame_id, points=frame.points,
-                         normals=frame.normals, whisker_ids=frame.whisker_ids),
-            SurfaceMesh(stamp=stamp, frame_id=frame_id, vertices=frame.vertices,
-                        triangles=frame.triangles.astype(np.int32), method=result.method,
-                        n_points=result.n_points,
-                        cloud_to_surface_max=result.cloud_to_surface_max,
-                        cloud_to_surface_mean=result.cloud_to_surface_mean,
-                        mesh_to_surface_max=result.mesh_to_surface_max,
-                        mesh_to_surface_mean=result.mesh_to_surface_mean),
-            [SweepProposal(stamp=stamp, frame_id=frame_id, object=obj.name, rank=rank,
-                           axis=p.axis, offset=p.offset_m, line=p.line,
-                           std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
-                           std_max_after=p.std_max_after_m)
-             for obj, proposals in zip(result.objects, frame.proposals, strict=True)
-             for rank, p in enumerate(proposals, start=1)],
-        ))
-        log.info("mapped %s: %d points -> %s (%d noise points), %d triangles in %.1f s",
-                 frame_id, result.n_points,
-                 ", ".join(f"{o.name} ({o.n_points})" for o in result.objects) or "no object",
-                 result.noise_points, result.n_triangles, time.monotonic() - t0)
+        results.append(replace(result, objects=tuple(objects),
+                               files={k: str(v) for k, v in files.items()}))
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
     report = MapReport(
@@ -386,17 +412,20 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         streams=tuple(InputStream(**asdict(stream)) for stream in streams),
         upstream=tuple(UpstreamNode(u.node, u.received, u.lost, u.rejected, u.sent_to_it)
                        for u in upstream),
-        files={"report_json": str(report_json), "report_txt": str(report_txt)})
+        files={"report_json": str(report_json), "report_txt": str(report_txt)},
+        final=final, ended_by=ended_by, updates=updates)
     with whole_file(report_json) as partial:
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
     with whole_file(report_txt) as partial:
         partial.write_text(report.text())
-    return report, messages
+    return report, [map_messages(frame) for frame in frames]
 
 
 def run(node: Node, params: MapperParams) -> MapReport | None:
-    """Accumulate until every source ended (or ``timeout_s`` idle), then map; the report
-    (``None`` when stopped before the streams ended: nothing is fitted or written)."""
+    """Accumulate and map while the streams go on (an update at most every ``map_period_s``,
+    its files at most every ``write_period_s``), then write the final map when every source
+    ended, after ``timeout_s`` of silence or on a stop; the final report (``None`` when stopped
+    before a single contact point: nothing is written)."""
     expected: int | list[str] = (
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
@@ -408,47 +437,103 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
     proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,
                                          wait_for=params.wait_for)
+
+    def publish(messages: list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]) -> None:
+        for cloud, mesh, proposals in messages:
+            cloud_pub.publish(cloud)
+            mesh_pub.publish(mesh)
+            for proposal in proposals:
+                proposal_pub.publish(proposal)
+
+    def write(frames: list[FrameMap] | None, final: bool, ended_by: str | None,
+              ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
+        return write_outputs(acc, params, Path(params.out_dir), list(subscriber.ended_streams),
+                             subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames,
+                             final=final, ended_by=ended_by, updates=updates)
+
     node.counters["bad_covariance"] = 0
     node.set_state("running", f"waiting for {expected} source(s) to end")
     last = time.monotonic()
-    while not node.stop_requested and not acc.done:
-        rx = subscriber.receive(0.1)
-        if rx is not None and isinstance(rx.msg, NodeStatus):
-            traffic.add(rx.msg)  # not input: the timeout of silence runs on
-        elif rx is not None:
-            dropped, bad = acc.dropped.total(), acc.bad_covariance
-            receive(acc, rx.msg)
-            node.counters.update(acc.dropped, bad_covariance=acc.bad_covariance)
-            if acc.dropped.total() > dropped and _power_of_ten(acc.dropped.total(), dropped):
-                log.warning("%s: %d contact point(s) dropped so far, beyond the map's bounds "
-                            "(max_points %d, max_frames %d) or not usable: %s", node.fqn,
-                            acc.dropped.total(), params.max_points, params.max_frames,
-                            dict(acc.dropped))
-            if acc.bad_covariance > bad and _power_of_ten(acc.bad_covariance, bad):
-                log.warning("%s: %d contact point(s) so far with a covariance that is not "
-                            "symmetric positive semidefinite, mapped without it", node.fqn,
-                            acc.bad_covariance)
-            last = time.monotonic()
-        if params.timeout_s > 0 and time.monotonic() - last > params.timeout_s:
-            log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)", node.fqn,
-                        params.timeout_s, sorted(acc.ended))
-            break
-    if node.stop_requested:
-        log.warning("%s: stopped before the end of the streams: no map written (%d contact "
-                    "points received, sources ended: %s)", node.fqn, acc.n_points,
-                    ", ".join(sorted(acc.ended)) or "none")
-        return None
-    settle = time.monotonic() + 2 * node.heartbeat_s  # every node's status after the ends
-    while time.monotonic() < settle and not node.stop_requested:
-        rx = subscriber.receive(0.05)
-        if rx is not None and isinstance(rx.msg, NodeStatus):
-            traffic.add(rx.msg)
-    node.set_state("running", f"fitting {acc.n_points} points")
-    with default_actions():  # Open3D holds the interpreter while fitting: a stop ends us at once
-        report, messages = write_outputs(acc, params, Path(params.out_dir),
-                                         list(subscriber.ended_streams),
-                                         subscriber.totals()["lost"],
-                                         traffic.upstream_of(node.fqn))
+    ended_by = "streams"
+    frames: list[FrameMap] = []  # the last update's map
+    fitted = 0  # the points it holds
+    updates = 0
+    fit_start = written = -np.inf  # monotonic times of the last update and files
+    pending = np.inf  # monotonic time of the first point since the last update
+    # a stop during an update is seen when it returns: the first signal asks to stop, a second
+    # one ends the process at once (Open3D holds the interpreter while it works)
+    with SignalHandlers(lambda signum: node.request_stop(), once=True):
+        while not node.stop_requested and not acc.done:
+            rx = subscriber.receive(0.1)
+            took = rx is not None and not isinstance(rx.msg, NodeStatus)
+            if rx is not None and isinstance(rx.msg, NodeStatus):
+                traffic.add(rx.msg)  # not input: the timeout of silence runs on
+            elif rx is not None:
+                dropped, bad = acc.dropped.total(), acc.bad_covariance
+                receive(acc, rx.msg)
+                node.counters.update(acc.dropped, bad_covariance=acc.bad_covariance)
+                if acc.dropped.total() > dropped and _power_of_ten(acc.dropped.total(), dropped):
+                    log.warning("%s: %d contact point(s) dropped so far, beyond the map's "
+                                "bounds (max_points %d, max_frames %d) or not usable: %s",
+                                node.fqn, acc.dropped.total(), params.max_points,
+                                params.max_frames, dict(acc.dropped))
+                if acc.bad_covariance > bad and _power_of_ten(acc.bad_covariance, bad):
+                    log.warning("%s: %d contact point(s) so far with a covariance that is not "
+                                "symmetric positive semidefinite, mapped without it", node.fqn,
+                                acc.bad_covariance)
+                last = time.monotonic()
+            now = time.monotonic()
+            if acc.n_points > fitted:
+                pending = min(pending, now)
+            if not took and params.timeout_s > 0 and now - last > params.timeout_s:
+                log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)",
+                            node.fqn, params.timeout_s, sorted(acc.ended))
+                ended_by = "timeout"
+                break
+            # an update once map_period_s passed since the last one began, after the input
+            # queued meanwhile was taken in (the queue ran dry or map_period_s since the first
+            # new point)
+            if (acc.n_points > fitted and not acc.done and now - fit_start >= params.map_period_s
+                    and (not took or now - pending >= params.map_period_s)):
+                fit_start = now
+                node.set_state("running", f"mapping {acc.n_points} points (update "
+                                          f"{updates + 1})")
+                frames, fitted, pending = fit_frames(acc, params), acc.n_points, np.inf
+                updates += 1
+                fit_end = time.monotonic()
+                if fit_end - written >= params.write_period_s:
+                    written = fit_end
+                    _, messages = write(frames, False, None)
+                else:
+                    messages = [map_messages(frame) for frame in frames]
+                publish(messages)
+                node.set_state("running", f"map of {fitted} points (update {updates}) in "
+                                          f"{fit_end - fit_start:.1f} s; waiting for "
+                                          f"{expected} source(s) to end")
+        if node.stop_requested:
+            ended_by = "stop"
+            if acc.n_points == 0:
+                log.warning("%s: stopped before a single contact point: no map written "
+                            "(sources ended: %s)", node.fqn, ", ".join(sorted(acc.ended))
+                            or "none")
+                return None
+            log.warning("%s: stopped before the end of the streams: writing the final map of "
+                        "the %d contact points received (sources ended: %s)", node.fqn,
+                        acc.n_points, ", ".join(sorted(acc.ended)) or "none")
+        else:  # every node's status after the ends
+            settle = time.monotonic() + 2 * node.heartbeat_s
+            while time.monotonic() < settle and not node.stop_requested:
+                rx = subscriber.receive(0.05)
+                if rx is not None and isinstance(rx.msg, NodeStatus):
+                    traffic.add(rx.msg)
+        # the final map: the last update when no point came since (the same fit on the same
+        # points), else a fit of them all; a stop now ends the process at once
+        node.set_state("running", f"final map of {acc.n_points} points")
+        with default_actions():
+            if fitted != acc.n_points or not updates:
+                frames = fit_frames(acc, params)
+                updates += 1
+            report, messages = write(frames, True, ended_by)
     if report.lost:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")
@@ -459,11 +544,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         log.error("%s: %d contact point(s) were dropped beyond the map's bounds: %s%s",
                   node.fqn, sum(report.dropped_points.values()), report.dropped_points,
                   " (allowed: allow_loss)" if params.allow_loss else "")
-    for cloud, mesh, proposals in messages:
-        cloud_pub.publish(cloud)
-        mesh_pub.publish(mesh)
-        for proposal in proposals:
-            proposal_pub.publish(proposal)
+    publish(messages)
     for publisher in (cloud_pub, mesh_pub, proposal_pub):
         publisher.publish_end_of_stream(node.fqn)
     if report.n_points == 0:

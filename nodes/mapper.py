@@ -345,15 +345,60 @@ def map_messages(frame: FrameMap) -> tuple[ContactCloud, SurfaceMesh, list[Sweep
     )
 
 
+def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
+                      final: bool = True) -> FrameResult:
+    """Write a mapped frame's PLYs and pictures (PNG, HTML page), each file whole
+    (`vibrissa.formats.files.whole_file`); its result with the files and each object's mesh
+    file. A frame or object without a surface is logged in the ``final`` map only."""
+    frame_id, result = frame.result.frame_id, frame.result
+    sfx = _suffix(frame_id)
+    files = {"cloud": out_dir / f"cloud{sfx}.ply"}
+    with whole_file(files["cloud"]) as partial:
+        write_ply(str(partial), frame.points, normals=frame.normals)
+    if len(frame.vertices):
+        files["mesh"] = out_dir / f"mesh{sfx}.ply"
+        with whole_file(files["mesh"]) as partial:
+            write_ply(str(partial), frame.vertices, frame.triangles,
+                      scalars={"std_m": frame.std})
+    elif final:
+        log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
+                    result.method.removeprefix("none: "))
+    objects = list(result.objects)
+    for k, (obj, surface) in enumerate(zip(result.objects, frame.surfaces, strict=True)):
+        vertices, triangles, std = surface.part(known=True)
+        if not len(triangles):
+            if len(result.objects) > 1 and final:
+                log.warning("no surface for object %r of frame %r: %s", obj.name, frame_id,
+                            obj.method.removeprefix("none: ") if surface.mesh is None
+                            else "nowhere known")
+            continue
+        target = out_dir / f"mesh_{_file_part(obj.name)}{sfx}.ply"
+        with whole_file(target) as partial:
+            write_ply(str(partial), vertices, triangles, scalars={"std_m": std})
+        files[f"mesh_{obj.name}"] = target
+        objects[k] = replace(obj, files={"mesh": str(target)})
+    if params.plot:
+        layers = map_layers(frame, params.world if frame_id == SCENE_FRAME else None)
+        files["png"] = out_dir / f"map{sfx}.png"
+        with whole_file(files["png"]) as partial:
+            plot_map(partial, layers)
+        files["html"] = out_dir / f"map{sfx}.html"
+        with whole_file(files["html"]) as partial:
+            write_page(partial, layers)
+    return replace(result, objects=tuple(objects), files={k: str(v) for k, v in files.items()})
+
+
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   streams: Sequence[StreamEnd] = (), lost: int = 0,
                   upstream: Sequence[Upstream] = (), frames: Sequence[FrameMap] | None = None,
-                  *, final: bool = True, ended_by: str | None = "streams", updates: int = 1,
+                  *, written: Sequence[FrameResult] | None = None, final: bool = True,
+                  ended_by: str | None = "streams", updates: int = 1,
                   ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
-    """Write the map of ``acc``: PLYs, the pictures (PNG, HTML page) and the reports, each file
-    whole (`vibrissa.formats.files.whole_file`); returns (report, messages).
+    """Write the map of ``acc``: its frames' files (`write_frame_files`) and the reports, each
+    file whole; returns (report, messages).
 
-    ``frames`` are its frames mapped (default: `fit_frames` now). ``streams`` are the input
+    ``frames`` are its frames mapped (default: `fit_frames` now); ``written`` their results
+    when their files are written already (then only the reports are). ``streams`` are the input
     streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
     input messages lost in all and ``upstream`` what the nodes before the map moved
     (`vibrissa.runtime.traffic`), for the report; ``final``, ``ended_by`` and ``updates`` go
@@ -361,45 +406,9 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = fit_frames(acc, params) if frames is None else frames
-    results: list[FrameResult] = []
-    for frame in frames:
-        frame_id, result = frame.result.frame_id, frame.result
-        sfx = _suffix(frame_id)
-        files = {"cloud": out_dir / f"cloud{sfx}.ply"}
-        with whole_file(files["cloud"]) as partial:
-            write_ply(str(partial), frame.points, normals=frame.normals)
-        if len(frame.vertices):
-            files["mesh"] = out_dir / f"mesh{sfx}.ply"
-            with whole_file(files["mesh"]) as partial:
-                write_ply(str(partial), frame.vertices, frame.triangles,
-                          scalars={"std_m": frame.std})
-        elif final:
-            log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
-                        result.method.removeprefix("none: "))
-        objects = list(result.objects)
-        for k, (obj, surface) in enumerate(zip(result.objects, frame.surfaces, strict=True)):
-            vertices, triangles, std = surface.part(known=True)
-            if not len(triangles):
-                if len(result.objects) > 1 and final:
-                    log.warning("no surface for object %r of frame %r: %s", obj.name, frame_id,
-                                obj.method.removeprefix("none: ") if surface.mesh is None
-                                else "nowhere known")
-                continue
-            target = out_dir / f"mesh_{_file_part(obj.name)}{sfx}.ply"
-            with whole_file(target) as partial:
-                write_ply(str(partial), vertices, triangles, scalars={"std_m": std})
-            files[f"mesh_{obj.name}"] = target
-            objects[k] = replace(obj, files={"mesh": str(target)})
-        if params.plot:
-            layers = map_layers(frame, params.world if frame_id == SCENE_FRAME else None)
-            files["png"] = out_dir / f"map{sfx}.png"
-            with whole_file(files["png"]) as partial:
-                plot_map(partial, layers)
-            files["html"] = out_dir / f"map{sfx}.html"
-            with whole_file(files["html"]) as partial:
-                write_page(partial, layers)
-        results.append(replace(result, objects=tuple(objects),
-                               files={k: str(v) for k, v in files.items()}))
+    t0 = time.monotonic()
+    results = (list(written) if written is not None else
+               [write_frame_files(frame, params, out_dir, final) for frame in frames])
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
     report = MapReport(
@@ -418,6 +427,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
     with whole_file(report_txt) as partial:
         partial.write_text(report.text())
+    log.info("wrote the %s map (%s) in %.1f s", "final" if final else "periodic",
+             "reports" if written is not None else "files and reports", time.monotonic() - t0)
     return report, [map_messages(frame) for frame in frames]
 
 
@@ -445,11 +456,11 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
             for proposal in proposals:
                 proposal_pub.publish(proposal)
 
-    def write(frames: list[FrameMap] | None, final: bool, ended_by: str | None,
+    def write(written: Sequence[FrameResult] | None, final: bool, ended_by: str | None,
               ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
         return write_outputs(acc, params, Path(params.out_dir), list(subscriber.ended_streams),
                              subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames,
-                             final=final, ended_by=ended_by, updates=updates)
+                             written=written, final=final, ended_by=ended_by, updates=updates)
 
     node.counters["bad_covariance"] = 0
     node.set_state("running", f"waiting for {expected} source(s) to end")
@@ -457,8 +468,9 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     ended_by = "streams"
     frames: list[FrameMap] = []  # the last update's map
     fitted = 0  # the points it holds
+    written: list[FrameResult] | None = None  # its frames' results once its files are written
     updates = 0
-    fit_start = written = -np.inf  # monotonic times of the last update and files
+    fit_start = files_time = -np.inf  # monotonic times of the last update and files
     pending = np.inf  # monotonic time of the first point since the last update
     # a stop during an update is seen when it returns: the first signal asks to stop, a second
     # one ends the process at once (Open3D holds the interpreter while it works)
@@ -501,9 +513,11 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 frames, fitted, pending = fit_frames(acc, params), acc.n_points, np.inf
                 updates += 1
                 fit_end = time.monotonic()
-                if fit_end - written >= params.write_period_s:
-                    written = fit_end
-                    _, messages = write(frames, False, None)
+                written = None
+                if fit_end - files_time >= params.write_period_s:
+                    files_time = fit_end
+                    report, messages = write(None, False, None)
+                    written = list(report.frames)
                 else:
                     messages = [map_messages(frame) for frame in frames]
                 publish(messages)
@@ -527,13 +541,14 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 if rx is not None and isinstance(rx.msg, NodeStatus):
                     traffic.add(rx.msg)
         # the final map: the last update when no point came since (the same fit on the same
-        # points), else a fit of them all; a stop now ends the process at once
+        # points; only the reports are written again when its files are), else a fit of them
+        # all; a stop now ends the process at once
         node.set_state("running", f"final map of {acc.n_points} points")
         with default_actions():
             if fitted != acc.n_points or not updates:
-                frames = fit_frames(acc, params)
+                frames, written = fit_frames(acc, params), None
                 updates += 1
-            report, messages = write(frames, True, ended_by)
+            report, messages = write(written, True, ended_by)
     if report.lost:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")

@@ -99,7 +99,7 @@ from vibrissa.msgs import (
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.signals import SignalHandlers, default_actions
+from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.runtime.traffic import Traffic, Upstream
 from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
@@ -472,8 +472,8 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     updates = 0
     fit_start = files_time = -np.inf  # monotonic times of the last update and files
     pending = np.inf  # monotonic time of the first point since the last update
-    # a stop during an update is seen when it returns: the first signal asks to stop, a second
-    # one ends the process at once (Open3D holds the interpreter while it works)
+    # a stop during an update is seen when it returns: a signal asks to stop, the same signal
+    # again ends the process at once (Open3D holds the interpreter while it works)
     with SignalHandlers(lambda signum: node.request_stop(), once=True):
         while not node.stop_requested and not acc.done:
             rx = subscriber.receive(0.1)
@@ -542,13 +542,12 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                     traffic.add(rx.msg)
         # the final map: the last update when no point came since (the same fit on the same
         # points; only the reports are written again when its files are), else a fit of them
-        # all; a stop now ends the process at once
+        # all; a stop now changes nothing, the same signal again ends the process at once
         node.set_state("running", f"final map of {acc.n_points} points")
-        with default_actions():
-            if fitted != acc.n_points or not updates:
-                frames, written = fit_frames(acc, params), None
-                updates += 1
-            report, messages = write(written, True, ended_by)
+        if fitted != acc.n_points or not updates:
+            frames, written = fit_frames(acc, params), None
+            updates += 1
+        report, messages = write(written, True, ended_by)
     if report.lost:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")

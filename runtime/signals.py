@@ -29,9 +29,10 @@ bag in well under one)."""
 
 class SignalHandlers:
     """Calls ``on_signal(signum)`` on ``signums`` between :meth:`install` and :meth:`restore`
-    (or inside a ``with`` block), then puts the previous handlers back. With ``once``, after the
-    first signal they take their default action: a second one ends the process at once, even
-    in a native call that holds the interpreter."""
+    (or inside a ``with`` block), then puts the previous handlers back. With ``once``, a signal
+    takes its default action after its first time: the same signal again ends the process at
+    once, even in a native call that holds the interpreter (another of ``signums`` calls
+    ``on_signal`` again: the launcher's SIGTERM after its grace for a SIGINT)."""
 
     def __init__(self, on_signal: Callable[[int], None],
                  signums: Sequence[signal.Signals] = STOP_SIGNALS, once: bool = False) -> None:
@@ -57,8 +58,7 @@ class SignalHandlers:
             signal.signal(signal.SIGALRM, signal.SIG_DFL)
             signal.alarm(ORPHAN_GRACE_S)
         if self._once:
-            for other in self._signums:
-                signal.signal(other, signal.SIG_DFL)
+            signal.signal(signum, signal.SIG_DFL)
         self._on_signal(signum)
 
     def __enter__(self) -> SignalHandlers:

@@ -176,3 +176,21 @@ def test_the_end_of_the_streams_writes_the_final_map_ended_by_streams(
     assert final is not None
     assert (final["final"], final["ended_by"], final["n_points"]) == (True, "streams", 40)
     assert final["updates"] >= 1
+
+
+def test_a_signal_again_ends_at_once_and_the_launchers_sigterm_after_a_sigint_does_not() -> None:
+    """The mapper's handlers (`SignalHandlers` with ``once``): SIGINT asks to stop, the
+    launcher's SIGTERM after its grace asks again, a second SIGINT ends the process at once."""
+    code = ("import os, signal, sys\n"
+            "from vibrissa.runtime.signals import SignalHandlers\n"
+            "seen = []\n"
+            "with SignalHandlers(seen.append, once=True):\n"
+            "    for signum in (signal.SIGINT, signal.SIGTERM):\n"
+            "        os.kill(os.getpid(), signum)\n"
+            "    print(seen, flush=True)\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    print('survived', flush=True)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == -signal.SIGINT, done
+    assert done.stdout == f"[{signal.SIGINT.value}, {signal.SIGTERM.value}]\n", done

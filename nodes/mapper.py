@@ -1,5 +1,5 @@
-"""Mapper node: accumulates contact points and, at end of stream, maps them with
-`vibrissa.mapping` (objects, a surface per object, next sweeps), then writes the map.
+"""Mapper node: accumulates contact points and maps them with `vibrissa.mapping` (objects, a
+surface per object, next sweeps) while they arrive, then writes the final map.
 
 Subscribes
 ----------
@@ -10,7 +10,8 @@ Subscribes
 Publishes
 ---------
 ``cloud_topic`` (default ``contact_cloud``) : ContactCloud
-    Every point with its contact normal, one message per ``frame_id``, then ``EndOfStream``.
+    Every point with its contact normal, one message per ``frame_id`` and update, then
+    ``EndOfStream``.
 ``proposal_topic`` (default ``next_sweep``) : SweepProposal
     Where to sweep next: ``proposals`` sections per object, best first
     (`vibrissa.mapping.next_sweep`), then ``EndOfStream``; also in the report.
@@ -29,9 +30,25 @@ demo launch ends on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) wh
 ended without a single contact point (only the reports are written, and they say so), or
 ``EXIT_LOST_DATA`` (4) when input messages were lost (the report lists every input stream: sent,
 received, lost) or points were dropped beyond ``max_points`` / ``max_frames``, unless
-``allow_loss``. Stopped (SIGINT, SIGTERM) before the streams end, it
-writes nothing and exits 0; a stop during the fit ends the process at once (Open3D and LAPACK do
-not return to Python until they are done).
+``allow_loss``.
+
+The live map: from the first contact point on, an update (`fit_frames`: the full fit of every
+point so far) is due at most every ``map_period_s`` and every twice the last update's time
+(fit and files: mapping takes at most half of the node's time); it waits until the input queued
+meanwhile is taken in. Each update is published (cloud, mesh, proposals) and its files are
+rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
+(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) is the last update when
+no point came since (the same call on the same points: a finite stream's final map is the one
+of a single fit; then only the reports are rewritten when its files are written), else a fit of
+every point received. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
+the input, ``hwm`` 200 000), not in a worker thread: Open3D holds the interpreter, and a fit in
+a thread would only race the final one for the 2 cores. A SIGINT or SIGTERM is therefore seen
+when the update under way returns; the node then takes no more input and writes the final map
+of every point received (stopped before a single one, it writes nothing), and exits 0. Its
+handlers (`vibrissa.runtime.signals.SignalHandlers` with ``once``) give a signal its default
+action after its first time: the same signal again (a second Ctrl-C) ends the process at once,
+even inside the fit, while the launcher's SIGTERM after its grace for a SIGINT leaves the final
+map the launcher's second grace before its SIGKILL. Nothing of the fit is skipped to be faster.
 
 Points dropped are counted by reason (`vibrissa.mapping.Accumulator`; the report's ``dropped_points``): beyond
 the bounds (``max_points``, ``max_frames``) or not usable (``out_of_range``,
@@ -471,12 +488,17 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     written: list[FrameResult] | None = None  # its frames' results once its files are written
     updates = 0
     fit_start = files_time = -np.inf  # monotonic times of the last update and files
-    pending = np.inf  # monotonic time of the first point since the last update
+    update_s = 0.0  # how long the last update took
     # a stop during an update is seen when it returns: a signal asks to stop, the same signal
     # again ends the process at once (Open3D holds the interpreter while it works)
     with SignalHandlers(lambda signum: node.request_stop(), once=True):
         while not node.stop_requested and not acc.done:
-            rx = subscriber.receive(0.1)
+            # an update is due once map_period_s passed since the last one began, and twice
+            # its time (fit and files: the map takes at most half of the node's time); it waits
+            # until the input queued meanwhile is taken in (no input waiting)
+            due = (acc.n_points > fitted and time.monotonic() - fit_start
+                   >= max(params.map_period_s, 2 * update_s))
+            rx = subscriber.receive(0.0 if due else 0.1)
             took = rx is not None and not isinstance(rx.msg, NodeStatus)
             if rx is not None and isinstance(rx.msg, NodeStatus):
                 traffic.add(rx.msg)  # not input: the timeout of silence runs on
@@ -495,22 +517,16 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                                 acc.bad_covariance)
                 last = time.monotonic()
             now = time.monotonic()
-            if acc.n_points > fitted:
-                pending = min(pending, now)
             if not took and params.timeout_s > 0 and now - last > params.timeout_s:
                 log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)",
                             node.fqn, params.timeout_s, sorted(acc.ended))
                 ended_by = "timeout"
                 break
-            # an update once map_period_s passed since the last one began, after the input
-            # queued meanwhile was taken in (the queue ran dry or map_period_s since the first
-            # new point)
-            if (acc.n_points > fitted and not acc.done and now - fit_start >= params.map_period_s
-                    and (not took or now - pending >= params.map_period_s)):
+            if due and not took and not acc.done:
                 fit_start = now
                 node.set_state("running", f"mapping {acc.n_points} points (update "
                                           f"{updates + 1})")
-                frames, fitted, pending = fit_frames(acc, params), acc.n_points, np.inf
+                frames, fitted = fit_frames(acc, params), acc.n_points
                 updates += 1
                 fit_end = time.monotonic()
                 written = None
@@ -521,9 +537,10 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 else:
                     messages = [map_messages(frame) for frame in frames]
                 publish(messages)
+                update_s = time.monotonic() - fit_start
                 node.set_state("running", f"map of {fitted} points (update {updates}) in "
-                                          f"{fit_end - fit_start:.1f} s; waiting for "
-                                          f"{expected} source(s) to end")
+                                          f"{update_s:.1f} s; waiting for {expected} "
+                                          "source(s) to end")
         if node.stop_requested:
             ended_by = "stop"
             if acc.n_points == 0:

@@ -128,7 +128,7 @@ def test_the_map_is_written_while_the_stream_goes_on_and_sigint_writes_the_final
     assert last["n_points"] <= final["n_points"] <= i
     assert final["updates"] >= last["updates"]
     assert "final map (ended by stop)" in (tmp_path / "report.txt").read_text()
-    assert (tmp_path / "cloud.ply").is_file() and (tmp_path / "mesh.ply").is_file()
+    assert final["n_points"] > 0 and (tmp_path / "cloud.ply").is_file()
     # the updates go out at most every map_period_s (the times they arrived here jitter)
     span = mesh_times[-1] - mesh_times[0]
     assert (len(mesh_times) - 1) * MAP_PERIOD_S <= span + 0.5, mesh_times

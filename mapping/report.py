@@ -173,7 +173,10 @@ class MapReport:
     ``true_surface`` (a surface spec in units of ``rod_length_m``) or ``scene`` (a scene file
     with ``scene_objects``) name the truth; ``lost`` counts input messages lost, ``streams``
     the input streams; ``upstream`` what the nodes before the map lost on the way;
-    ``files`` the report files written.
+    ``files`` the report files written. ``final``: the last map of the run (else a periodic
+    one, written while the streams go on); ``ended_by`` (final only) what ended the run:
+    ``streams`` (every source ended), ``stop`` (SIGINT or SIGTERM) or ``timeout`` (silence);
+    ``updates`` the map updates (fits) so far.
     """
 
     n_points: int
@@ -190,6 +193,9 @@ class MapReport:
     streams: tuple[InputStream, ...] = ()
     upstream: tuple[UpstreamNode, ...] = ()
     files: dict[str, str] = field(default_factory=dict)
+    final: bool = True
+    ended_by: str | None = "streams"
+    updates: int = 1
 
     @property
     def upstream_lost(self) -> int:
@@ -221,6 +227,9 @@ class MapReport:
             "upstream": [{**asdict(node), "short": node.short} for node in self.upstream],
             "upstream_lost": self.upstream_lost,
             "files": dict(self.files),
+            "final": self.final,
+            "ended_by": self.ended_by,
+            "updates": self.updates,
         }
 
     def text(self) -> str:
@@ -247,7 +256,10 @@ def _format_report(report: dict[str, Any]) -> str:
     truth = (f"scene {report['scene']} ({', '.join(report['scene_objects']) or 'no objects'})"
              if report.get("scene") else
              f"{report['true_surface'] or 'not given'} (L = {report['rod_length_m']} m)")
-    lines = [f"contact points: {report['n_points']}{empty} (sources: "
+    state = (f"final map (ended by {report['ended_by']})" if report["final"]
+             else "map so far (the streams go on)")
+    lines = [f"{state}, {report['updates']} update(s)",
+             f"contact points: {report['n_points']}{empty} (sources: "
              f"{', '.join(report['sources_ended']) or 'none ended'})",
              f"true surface: {truth}",
              f"max reconstruction error (cloud -> true surface): "

@@ -1,5 +1,5 @@
-"""Mapper node: accumulates contact points and, at end of stream, maps them with
-`vibrissa.mapping` (objects, a surface per object, next sweeps), then writes the map.
+"""Mapper node: accumulates contact points and maps them with `vibrissa.mapping` (objects, a
+surface per object, next sweeps) while they arrive, then writes the final map.
 
 Subscribes
 ----------
@@ -10,7 +10,8 @@ Subscribes
 Publishes
 ---------
 ``cloud_topic`` (default ``contact_cloud``) : ContactCloud
-    Every point with its contact normal, one message per ``frame_id``, then ``EndOfStream``.
+    Every point with its contact normal, one message per ``frame_id`` and update, then
+    ``EndOfStream``.
 ``proposal_topic`` (default ``next_sweep``) : SweepProposal
     Where to sweep next: ``proposals`` sections per object, best first
     (`vibrissa.mapping.next_sweep`), then ``EndOfStream``; also in the report.
@@ -29,9 +30,25 @@ demo launch ends on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) wh
 ended without a single contact point (only the reports are written, and they say so), or
 ``EXIT_LOST_DATA`` (4) when input messages were lost (the report lists every input stream: sent,
 received, lost) or points were dropped beyond ``max_points`` / ``max_frames``, unless
-``allow_loss``. Stopped (SIGINT, SIGTERM) before the streams end, it
-writes nothing and exits 0; a stop during the fit ends the process at once (Open3D and LAPACK do
-not return to Python until they are done).
+``allow_loss``.
+
+The live map: from the first contact point on, an update (`fit_frames`: the full fit of every
+point so far) is due at most every ``map_period_s`` and every twice the last update's time
+(fit and files: mapping takes at most half of the node's time); it waits until the input queued
+meanwhile is taken in. Each update is published (cloud, mesh, proposals) and its files are
+rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
+(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) is the last update when
+no point came since (the same call on the same points: a finite stream's final map is the one
+of a single fit; then only the reports are rewritten when its files are written), else a fit of
+every point received. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
+the input, ``hwm`` 200 000), not in a worker thread: Open3D holds the interpreter, and a fit in
+a thread would only race the final one for the 2 cores. A SIGINT or SIGTERM is therefore seen
+when the update under way returns; the node then takes no more input and writes the final map
+of every point received (stopped before a single one, it writes nothing), and exits 0. Its
+handlers (`vibrissa.runtime.signals.SignalHandlers` with ``once``) give a signal its default
+action after its first time: the same signal again (a second Ctrl-C) ends the process at once,
+even inside the fit, while the launcher's SIGTERM after its grace for a SIGINT leaves the final
+map the launcher's second grace before its SIGKILL. Nothing of the fit is skipped to be faster.
 
 Points dropped are counted by reason (`vibrissa.mapping.Accumulator`; the report's ``dropped_points``): beyond
 the bounds (``max_points``, ``max_frames``) or not usable (``out_of_range``,
@@ -78,6 +95,7 @@ from vibrissa.formats.scene_file import load_scene
 from vibrissa.mapping import (
     Accumulator,
     ContactBatch,
+    FrameMap,
     FrameResult,
     InputStream,
     MapReport,
@@ -98,7 +116,7 @@ from vibrissa.msgs import (
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
-from vibrissa.runtime.signals import default_actions
+from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.runtime.traffic import Traffic, Upstream
 from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
@@ -152,7 +170,11 @@ class MapperParams:
         a fifth of the prior std), the std of a contact point (m); see
         `vibrissa.mapping.MapSettings`.
     timeout_s
-        Fit what has arrived after this long without a message, s (0 = wait for the ends).
+        Write the final map of what has arrived after this long without a message, s (0 =
+        wait for the ends).
+    map_period_s, write_period_s
+        While the streams go on, map (and publish the map) at most every ``map_period_s``
+        and rewrite the files at most every ``write_period_s``, s.
     max_points, max_frames
         The most points (all frames) and frames kept: the memory's bound (a point takes about
         200 bytes). A message beyond either is dropped, counted in the report and logged, and
@@ -194,6 +216,8 @@ class MapperParams:
     max_std_m: float = MapSettings.max_std_m
     point_std_m: float = MapSettings.point_std_m
     timeout_s: float = 0.0
+    map_period_s: float = 1.0
+    write_period_s: float = 5.0
     max_points: int = MAX_POINTS
     max_frames: int = MAX_FRAMES
     plot: bool = True
@@ -247,6 +271,8 @@ class MapperParams:
             raise ValueError(f"parameter {exc}") from None
         object.__setattr__(self, "settings", settings)
         require_non_negative("timeout_s", self.timeout_s)
+        require_positive("map_period_s", self.map_period_s)
+        require_positive("write_period_s", self.write_period_s)
         require(self.max_points >= 1, "max_points", self.max_points, "a count >= 1")
         require(self.max_frames >= 1, "max_frames", self.max_frames, "a count >= 1")
 
@@ -297,83 +323,109 @@ def receive(acc: Accumulator, msg: ContactPointArray | EndOfStream) -> None:
         acc.add(contact_batch(msg))
 
 
-def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
-                  streams: Sequence[StreamEnd] = (), lost: int = 0,
-                  upstream: Sequence[Upstream] = (),
-                  ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
-    """Map every frame (`vibrissa.mapping.fit_frame`), write PLYs, the pictures (PNG, HTML
-    page) and the reports; returns (report, messages).
-
-    ``streams`` are the input streams that ended (what each said was sent, what arrived,
-    what was lost), ``lost`` the input messages lost in all and ``upstream`` what the nodes
-    before the map moved (`vibrissa.runtime.traffic`), for the report.
-    """
-    out_dir.mkdir(parents=True, exist_ok=True)
-    results: list[FrameResult] = []
-    messages: list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]] = []
+def fit_frames(acc: Accumulator, params: MapperParams) -> list[FrameMap]:
+    """Map every frame of ``acc`` in frame order: the full fit (`vibrissa.mapping.fit_frame`)
+    on all its points."""
+    frames = []
     for frame_id, cloud in sorted(acc.frames.items()):
         t0 = time.monotonic()
         frame = fit_frame(frame_id, cloud, params.settings, params.truth(frame_id))
         result = frame.result
-        sfx = _suffix(frame_id)
-        files = {"cloud": out_dir / f"cloud{sfx}.ply"}
-        with whole_file(files["cloud"]) as partial:
-            write_ply(str(partial), frame.points, normals=frame.normals)
-        if len(frame.vertices):
-            files["mesh"] = out_dir / f"mesh{sfx}.ply"
-            with whole_file(files["mesh"]) as partial:
-                write_ply(str(partial), frame.vertices, frame.triangles,
-                          scalars={"std_m": frame.std})
-        else:
-            log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
-                        result.method.removeprefix("none: "))
-        objects = list(result.objects)
-        for k, (obj, surface) in enumerate(zip(result.objects, frame.surfaces, strict=True)):
-            vertices, triangles, std = surface.part(known=True)
-            if not len(triangles):
-                if len(result.objects) > 1:
-                    log.warning("no surface for object %r of frame %r: %s", obj.name, frame_id,
-                                obj.method.removeprefix("none: ") if surface.mesh is None
-                                else "nowhere known")
-                continue
-            target = out_dir / f"mesh_{_file_part(obj.name)}{sfx}.ply"
-            with whole_file(target) as partial:
-                write_ply(str(partial), vertices, triangles, scalars={"std_m": std})
-            files[f"mesh_{obj.name}"] = target
-            objects[k] = replace(obj, files={"mesh": str(target)})
-        if params.plot:
-            layers = map_layers(frame, params.world if frame_id == SCENE_FRAME else None)
-            files["png"] = out_dir / f"map{sfx}.png"
-            with whole_file(files["png"]) as partial:
-                plot_map(partial, layers)
-            files["html"] = out_dir / f"map{sfx}.html"
-            with whole_file(files["html"]) as partial:
-                write_page(partial, layers)
-        result = replace(result, objects=tuple(objects),
-                         files={k: str(v) for k, v in files.items()})
-        results.append(result)
-        stamp = time.time()
-        messages.append((
-            ContactCloud(stamp=stamp, frame_id=frame_id, points=frame.points,
-                         normals=frame.normals, whisker_ids=frame.whisker_ids),
-            SurfaceMesh(stamp=stamp, frame_id=frame_id, vertices=frame.vertices,
-                        triangles=frame.triangles.astype(np.int32), method=result.method,
-                        n_points=result.n_points,
-                        cloud_to_surface_max=result.cloud_to_surface_max,
-                        cloud_to_surface_mean=result.cloud_to_surface_mean,
-                        mesh_to_surface_max=result.mesh_to_surface_max,
-                        mesh_to_surface_mean=result.mesh_to_surface_mean),
-            [SweepProposal(stamp=stamp, frame_id=frame_id, object=obj.name, rank=rank,
-                           axis=p.axis, offset=p.offset_m, line=p.line,
-                           std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
-                           std_max_after=p.std_max_after_m)
-             for obj, proposals in zip(result.objects, frame.proposals, strict=True)
-             for rank, p in enumerate(proposals, start=1)],
-        ))
         log.info("mapped %s: %d points -> %s (%d noise points), %d triangles in %.1f s",
                  frame_id, result.n_points,
                  ", ".join(f"{o.name} ({o.n_points})" for o in result.objects) or "no object",
                  result.noise_points, result.n_triangles, time.monotonic() - t0)
+        frames.append(frame)
+    return frames
+
+
+def map_messages(frame: FrameMap) -> tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]:
+    """The messages of a mapped frame: its cloud, its known mesh and its next sweeps."""
+    result = frame.result
+    stamp = time.time()
+    return (
+        ContactCloud(stamp=stamp, frame_id=result.frame_id, points=frame.points,
+                     normals=frame.normals, whisker_ids=frame.whisker_ids),
+        SurfaceMesh(stamp=stamp, frame_id=result.frame_id, vertices=frame.vertices,
+                    triangles=frame.triangles.astype(np.int32), method=result.method,
+                    n_points=result.n_points,
+                    cloud_to_surface_max=result.cloud_to_surface_max,
+                    cloud_to_surface_mean=result.cloud_to_surface_mean,
+                    mesh_to_surface_max=result.mesh_to_surface_max,
+                    mesh_to_surface_mean=result.mesh_to_surface_mean),
+        [SweepProposal(stamp=stamp, frame_id=result.frame_id, object=obj.name, rank=rank,
+                       axis=p.axis, offset=p.offset_m, line=p.line,
+                       std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
+                       std_max_after=p.std_max_after_m)
+         for obj, proposals in zip(result.objects, frame.proposals, strict=True)
+         for rank, p in enumerate(proposals, start=1)],
+    )
+
+
+def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
+                      final: bool = True) -> FrameResult:
+    """Write a mapped frame's PLYs and pictures (PNG, HTML page), each file whole
+    (`vibrissa.formats.files.whole_file`); its result with the files and each object's mesh
+    file. A frame or object without a surface is logged in the ``final`` map only."""
+    frame_id, result = frame.result.frame_id, frame.result
+    sfx = _suffix(frame_id)
+    files = {"cloud": out_dir / f"cloud{sfx}.ply"}
+    with whole_file(files["cloud"]) as partial:
+        write_ply(str(partial), frame.points, normals=frame.normals)
+    if len(frame.vertices):
+        files["mesh"] = out_dir / f"mesh{sfx}.ply"
+        with whole_file(files["mesh"]) as partial:
+            write_ply(str(partial), frame.vertices, frame.triangles,
+                      scalars={"std_m": frame.std})
+    elif final:
+        log.warning("no surface for frame %r: %s (the cloud is written)", frame_id,
+                    result.method.removeprefix("none: "))
+    objects = list(result.objects)
+    for k, (obj, surface) in enumerate(zip(result.objects, frame.surfaces, strict=True)):
+        vertices, triangles, std = surface.part(known=True)
+        if not len(triangles):
+            if len(result.objects) > 1 and final:
+                log.warning("no surface for object %r of frame %r: %s", obj.name, frame_id,
+                            obj.method.removeprefix("none: ") if surface.mesh is None
+                            else "nowhere known")
+            continue
+        target = out_dir / f"mesh_{_file_part(obj.name)}{sfx}.ply"
+        with whole_file(target) as partial:
+            write_ply(str(partial), vertices, triangles, scalars={"std_m": std})
+        files[f"mesh_{obj.name}"] = target
+        objects[k] = replace(obj, files={"mesh": str(target)})
+    if params.plot:
+        layers = map_layers(frame, params.world if frame_id == SCENE_FRAME else None)
+        files["png"] = out_dir / f"map{sfx}.png"
+        with whole_file(files["png"]) as partial:
+            plot_map(partial, layers)
+        files["html"] = out_dir / f"map{sfx}.html"
+        with whole_file(files["html"]) as partial:
+            write_page(partial, layers)
+    return replace(result, objects=tuple(objects), files={k: str(v) for k, v in files.items()})
+
+
+def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
+                  streams: Sequence[StreamEnd] = (), lost: int = 0,
+                  upstream: Sequence[Upstream] = (), frames: Sequence[FrameMap] | None = None,
+                  *, written: Sequence[FrameResult] | None = None, final: bool = True,
+                  ended_by: str | None = "streams", updates: int = 1,
+                  ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
+    """Write the map of ``acc``: its frames' files (`write_frame_files`) and the reports, each
+    file whole; returns (report, messages).
+
+    ``frames`` are its frames mapped (default: `fit_frames` now); ``written`` their results
+    when their files are written already (then only the reports are). ``streams`` are the input
+    streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
+    input messages lost in all and ``upstream`` what the nodes before the map moved
+    (`vibrissa.runtime.traffic`), for the report; ``final``, ``ended_by`` and ``updates`` go
+    into it as they are (`vibrissa.mapping.MapReport`).
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    frames = fit_frames(acc, params) if frames is None else frames
+    t0 = time.monotonic()
+    results = (list(written) if written is not None else
+               [write_frame_files(frame, params, out_dir, final) for frame in frames])
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
     report = MapReport(
@@ -386,17 +438,22 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         streams=tuple(InputStream(**asdict(stream)) for stream in streams),
         upstream=tuple(UpstreamNode(u.node, u.received, u.lost, u.rejected, u.sent_to_it)
                        for u in upstream),
-        files={"report_json": str(report_json), "report_txt": str(report_txt)})
+        files={"report_json": str(report_json), "report_txt": str(report_txt)},
+        final=final, ended_by=ended_by, updates=updates)
     with whole_file(report_json) as partial:
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
     with whole_file(report_txt) as partial:
         partial.write_text(report.text())
-    return report, messages
+    log.info("wrote the %s map (%s) in %.1f s", "final" if final else "periodic",
+             "reports" if written is not None else "files and reports", time.monotonic() - t0)
+    return report, [map_messages(frame) for frame in frames]
 
 
 def run(node: Node, params: MapperParams) -> MapReport | None:
-    """Accumulate until every source ended (or ``timeout_s`` idle), then map; the report
-    (``None`` when stopped before the streams ended: nothing is fitted or written)."""
+    """Accumulate and map while the streams go on (an update at most every ``map_period_s``,
+    its files at most every ``write_period_s``), then write the final map when every source
+    ended, after ``timeout_s`` of silence or on a stop; the final report (``None`` when stopped
+    before a single contact point: nothing is written)."""
     expected: int | list[str] = (
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
@@ -408,47 +465,106 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
     proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,
                                          wait_for=params.wait_for)
+
+    def publish(messages: list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]) -> None:
+        for cloud, mesh, proposals in messages:
+            cloud_pub.publish(cloud)
+            mesh_pub.publish(mesh)
+            for proposal in proposals:
+                proposal_pub.publish(proposal)
+
+    def write(written: Sequence[FrameResult] | None, final: bool, ended_by: str | None,
+              ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
+        return write_outputs(acc, params, Path(params.out_dir), list(subscriber.ended_streams),
+                             subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames,
+                             written=written, final=final, ended_by=ended_by, updates=updates)
+
     node.counters["bad_covariance"] = 0
     node.set_state("running", f"waiting for {expected} source(s) to end")
     last = time.monotonic()
-    while not node.stop_requested and not acc.done:
-        rx = subscriber.receive(0.1)
-        if rx is not None and isinstance(rx.msg, NodeStatus):
-            traffic.add(rx.msg)  # not input: the timeout of silence runs on
-        elif rx is not None:
-            dropped, bad = acc.dropped.total(), acc.bad_covariance
-            receive(acc, rx.msg)
-            node.counters.update(acc.dropped, bad_covariance=acc.bad_covariance)
-            if acc.dropped.total() > dropped and _power_of_ten(acc.dropped.total(), dropped):
-                log.warning("%s: %d contact point(s) dropped so far, beyond the map's bounds "
-                            "(max_points %d, max_frames %d) or not usable: %s", node.fqn,
-                            acc.dropped.total(), params.max_points, params.max_frames,
-                            dict(acc.dropped))
-            if acc.bad_covariance > bad and _power_of_ten(acc.bad_covariance, bad):
-                log.warning("%s: %d contact point(s) so far with a covariance that is not "
-                            "symmetric positive semidefinite, mapped without it", node.fqn,
-                            acc.bad_covariance)
-            last = time.monotonic()
-        if params.timeout_s > 0 and time.monotonic() - last > params.timeout_s:
-            log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)", node.fqn,
-                        params.timeout_s, sorted(acc.ended))
-            break
-    if node.stop_requested:
-        log.warning("%s: stopped before the end of the streams: no map written (%d contact "
-                    "points received, sources ended: %s)", node.fqn, acc.n_points,
-                    ", ".join(sorted(acc.ended)) or "none")
-        return None
-    settle = time.monotonic() + 2 * node.heartbeat_s  # every node's status after the ends
-    while time.monotonic() < settle and not node.stop_requested:
-        rx = subscriber.receive(0.05)
-        if rx is not None and isinstance(rx.msg, NodeStatus):
-            traffic.add(rx.msg)
-    node.set_state("running", f"fitting {acc.n_points} points")
-    with default_actions():  # Open3D holds the interpreter while fitting: a stop ends us at once
-        report, messages = write_outputs(acc, params, Path(params.out_dir),
-                                         list(subscriber.ended_streams),
-                                         subscriber.totals()["lost"],
-                                         traffic.upstream_of(node.fqn))
+    ended_by = "streams"
+    frames: list[FrameMap] = []  # the last update's map
+    fitted = 0  # the points it holds
+    written: list[FrameResult] | None = None  # its frames' results once its files are written
+    updates = 0
+    fit_start = files_time = -np.inf  # monotonic times of the last update and files
+    update_s = 0.0  # how long the last update took
+    # a stop during an update is seen when it returns: a signal asks to stop, the same signal
+    # again ends the process at once (Open3D holds the interpreter while it works)
+    with SignalHandlers(lambda signum: node.request_stop(), once=True):
+        while not node.stop_requested and not acc.done:
+            # an update is due once map_period_s passed since the last one began, and twice
+            # its time (fit and files: the map takes at most half of the node's time); it waits
+            # until the input queued meanwhile is taken in (no input waiting)
+            due = (acc.n_points > fitted and time.monotonic() - fit_start
+                   >= max(params.map_period_s, 2 * update_s))
+            rx = subscriber.receive(0.0 if due else 0.1)
+            took = rx is not None and not isinstance(rx.msg, NodeStatus)
+            if rx is not None and isinstance(rx.msg, NodeStatus):
+                traffic.add(rx.msg)  # not input: the timeout of silence runs on
+            elif rx is not None:
+                dropped, bad = acc.dropped.total(), acc.bad_covariance
+                receive(acc, rx.msg)
+                node.counters.update(acc.dropped, bad_covariance=acc.bad_covariance)
+                if acc.dropped.total() > dropped and _power_of_ten(acc.dropped.total(), dropped):
+                    log.warning("%s: %d contact point(s) dropped so far, beyond the map's "
+                                "bounds (max_points %d, max_frames %d) or not usable: %s",
+                                node.fqn, acc.dropped.total(), params.max_points,
+                                params.max_frames, dict(acc.dropped))
+                if acc.bad_covariance > bad and _power_of_ten(acc.bad_covariance, bad):
+                    log.warning("%s: %d contact point(s) so far with a covariance that is not "
+                                "symmetric positive semidefinite, mapped without it", node.fqn,
+                                acc.bad_covariance)
+                last = time.monotonic()
+            now = time.monotonic()
+            if not took and params.timeout_s > 0 and now - last > params.timeout_s:
+                log.warning("%s: nothing for %.1f s; mapping what arrived (ended: %s)",
+                            node.fqn, params.timeout_s, sorted(acc.ended))
+                ended_by = "timeout"
+                break
+            if due and not took and not acc.done:
+                fit_start = now
+                node.set_state("running", f"mapping {acc.n_points} points (update "
+                                          f"{updates + 1})")
+                frames, fitted = fit_frames(acc, params), acc.n_points
+                updates += 1
+                fit_end = time.monotonic()
+                written = None
+                if fit_end - files_time >= params.write_period_s:
+                    files_time = fit_end
+                    report, messages = write(None, False, None)
+                    written = list(report.frames)
+                else:
+                    messages = [map_messages(frame) for frame in frames]
+                publish(messages)
+                update_s = time.monotonic() - fit_start
+                node.set_state("running", f"map of {fitted} points (update {updates}) in "
+                                          f"{update_s:.1f} s; waiting for {expected} "
+                                          "source(s) to end")
+        if node.stop_requested:
+            ended_by = "stop"
+            if acc.n_points == 0:
+                log.warning("%s: stopped before a single contact point: no map written "
+                            "(sources ended: %s)", node.fqn, ", ".join(sorted(acc.ended))
+                            or "none")
+                return None
+            log.warning("%s: stopped before the end of the streams: writing the final map of "
+                        "the %d contact points received (sources ended: %s)", node.fqn,
+                        acc.n_points, ", ".join(sorted(acc.ended)) or "none")
+        else:  # every node's status after the ends
+            settle = time.monotonic() + 2 * node.heartbeat_s
+            while time.monotonic() < settle and not node.stop_requested:
+                rx = subscriber.receive(0.05)
+                if rx is not None and isinstance(rx.msg, NodeStatus):
+                    traffic.add(rx.msg)
+        # the final map: the last update when no point came since (the same fit on the same
+        # points; only the reports are written again when its files are), else a fit of them
+        # all; a stop now changes nothing, the same signal again ends the process at once
+        node.set_state("running", f"final map of {acc.n_points} points")
+        if fitted != acc.n_points or not updates:
+            frames, written = fit_frames(acc, params), None
+            updates += 1
+        report, messages = write(written, True, ended_by)
     if report.lost:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")
@@ -459,11 +575,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         log.error("%s: %d contact point(s) were dropped beyond the map's bounds: %s%s",
                   node.fqn, sum(report.dropped_points.values()), report.dropped_points,
                   " (allowed: allow_loss)" if params.allow_loss else "")
-    for cloud, mesh, proposals in messages:
-        cloud_pub.publish(cloud)
-        mesh_pub.publish(mesh)
-        for proposal in proposals:
-            proposal_pub.publish(proposal)
+    publish(messages)
     for publisher in (cloud_pub, mesh_pub, proposal_pub):
         publisher.publish_end_of_stream(node.fqn)
     if report.n_points == 0:

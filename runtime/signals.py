@@ -29,12 +29,16 @@ bag in well under one)."""
 
 class SignalHandlers:
     """Calls ``on_signal(signum)`` on ``signums`` between :meth:`install` and :meth:`restore`
-    (or inside a ``with`` block), then puts the previous handlers back."""
+    (or inside a ``with`` block), then puts the previous handlers back. With ``once``, a signal
+    takes its default action after its first time: the same signal again ends the process at
+    once, even in a native call that holds the interpreter (another of ``signums`` calls
+    ``on_signal`` again: the launcher's SIGTERM after its grace for a SIGINT)."""
 
     def __init__(self, on_signal: Callable[[int], None],
-                 signums: Sequence[signal.Signals] = STOP_SIGNALS) -> None:
+                 signums: Sequence[signal.Signals] = STOP_SIGNALS, once: bool = False) -> None:
         self._on_signal = on_signal
         self._signums = tuple(signums)
+        self._once = once
         self._previous: dict[int, Any] = {}  # what signal.signal returned
         self._parent = os.getppid()
 
@@ -53,6 +57,8 @@ class SignalHandlers:
         if signum == signal.SIGTERM and os.getppid() != self._parent:  # orphaned
             signal.signal(signal.SIGALRM, signal.SIG_DFL)
             signal.alarm(ORPHAN_GRACE_S)
+        if self._once:
+            signal.signal(signum, signal.SIG_DFL)
         self._on_signal(signum)
 
     def __enter__(self) -> SignalHandlers:

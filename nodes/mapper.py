@@ -434,7 +434,7 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         scene_objects=(tuple(obj.name for obj in params.world.objects)
                        if params.world is not None else None),
         rod_length_m=params.rod_length_m, lost=lost, dropped_points=dict(acc.dropped),
-        bad_covariance=acc.bad_covariance,
+        bad_covariance=acc.bad_covariance, merged_points=acc.merged,
         streams=tuple(InputStream(**asdict(stream)) for stream in streams),
         upstream=tuple(UpstreamNode(u.node, u.received, u.lost, u.rejected, u.sent_to_it)
                        for u in upstream),

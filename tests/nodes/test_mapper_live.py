@@ -135,38 +135,19 @@ def test_the_map_is_written_while_the_stream_goes_on_and_sigint_writes_the_final
     assert "Traceback" not in out
 
 
-def test_silence_past_timeout_s_writes_the_final_map_ended_by_timeout(
-    tmp_path: Path, endpoints: Endpoints
+@pytest.mark.parametrize(("params", "ended_by"), [(("timeout_s:=3",), "timeout"), ((), "streams")])
+def test_silence_or_the_end_of_the_streams_writes_the_final_map_ended_by_it(
+    tmp_path: Path, endpoints: Endpoints, params: tuple[str, ...], ended_by: str
 ) -> None:
-    mapper = start_mapper(tmp_path, endpoints, "timeout_s:=3")
+    mapper = start_mapper(tmp_path, endpoints, *params)
     try:
         with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
                 Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
             wait_heard(pub, statuses)
             for i in range(40):
                 pub.publish(contact(i))
-            rc, out = finish(mapper)  # no end of stream: the silence ends it
-    finally:
-        if mapper.poll() is None:
-            mapper.kill()
-    assert rc == 0, out
-    final = read_report(tmp_path / "report.json")
-    assert final is not None
-    assert (final["final"], final["ended_by"], final["n_points"]) == (True, "timeout", 40)
-    assert final["updates"] >= 1
-
-
-def test_the_end_of_the_streams_writes_the_final_map_ended_by_streams(
-    tmp_path: Path, endpoints: Endpoints
-) -> None:
-    mapper = start_mapper(tmp_path, endpoints)
-    try:
-        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
-                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
-            wait_heard(pub, statuses)
-            for i in range(40):
-                pub.publish(contact(i))
-            pub.publish_end_of_stream("/test")
+            if ended_by == "streams":  # else no end of stream: the silence ends it
+                pub.publish_end_of_stream("/test")
             rc, out = finish(mapper)
     finally:
         if mapper.poll() is None:
@@ -174,7 +155,7 @@ def test_the_end_of_the_streams_writes_the_final_map_ended_by_streams(
     assert rc == 0, out
     final = read_report(tmp_path / "report.json")
     assert final is not None
-    assert (final["final"], final["ended_by"], final["n_points"]) == (True, "streams", 40)
+    assert (final["final"], final["ended_by"], final["n_points"]) == (True, ended_by, 40)
     assert final["updates"] >= 1
 
 

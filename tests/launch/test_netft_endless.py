@@ -11,8 +11,6 @@ from pathlib import Path
 
 from tests.launch.test_netft_launch import LAUNCH, free_udp_port
 from tests.system.test_first_hour import Launch
-from vibrissa.msgs import EndOfStream, WhiskerWrenchArray
-from vibrissa.wire import Endpoints, Subscriber
 
 DOMAIN = 8280 + os.getpid() % 12 * 128
 PATH_RECORDS = 1700
@@ -21,20 +19,8 @@ PATH_RECORDS = 1700
 def test_samples_0_streams_past_the_path_until_ctrl_c(tmp_path: Path) -> None:
     launch = Launch(LAUNCH, f"out:={tmp_path / 'out'}", f"port:={free_udp_port()}",
                     "samples:=0", domain=DOMAIN)
-    rows = 0
-    try:
-        launch.wait_line(r"proxy: .*\(domain")
-        with Subscriber({"/w0/wrench": WhiskerWrenchArray}, Endpoints.for_domain(DOMAIN)) as sub:
-            while rows < 2 * PATH_RECORDS:  # twice the path: past its end
-                rx = sub.receive(300.0)
-                assert rx is not None and not isinstance(rx.msg, EndOfStream), launch.text()
-                rows += len(rx.msg.whisker_ids)
-        assert launch.proc.poll() is None, launch.text()
-        launch.proc.send_signal(signal.SIGINT)
-        rc = launch.wait(120)
-    finally:
-        if launch.proc.poll() is None:
-            launch.proc.kill()
+    _, rc = launch.stream_then_stop(  # twice the path: past its end
+        "/w0/wrench", DOMAIN, lambda got: sum(len(m.whisker_ids) for m in got) >= 2 * PATH_RECORDS)
     text = launch.text()
     assert rc == 128 + signal.SIGINT, text
     assert re.search(r"netft\s+stopped by launcher \(exit 0\)", text), text

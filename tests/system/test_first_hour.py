@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +76,25 @@ class Launch:
         for reader in self._readers:
             reader.join(5)
         return rc
+
+    def stream_then_stop(self, topic: str, domain: int, enough: Callable[[list[Any]], bool]
+                         ) -> tuple[list[Any], int]:
+        """Messages of ``topic`` (none an EndOfStream: the stream goes on) until
+        ``enough(messages)``, then SIGINT; (the messages, the launch's exit status)."""
+        messages: list[Any] = []
+        try:
+            self.wait_line(r"proxy: .*\(domain")
+            with Subscriber({topic: WhiskerWrenchArray}, Endpoints.for_domain(domain)) as sub:
+                while not enough(messages):
+                    rx = sub.receive(300.0)
+                    assert rx is not None and not isinstance(rx.msg, EndOfStream), self.text()
+                    messages.append(rx.msg)
+            assert self.proc.poll() is None, self.text()
+            self.proc.send_signal(signal.SIGINT)
+            return messages, self.wait(120)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
 
 
 def demo_with(tmp_path: Path, **wrench_params: Any) -> Path:

@@ -12,9 +12,8 @@ import numpy as np
 
 from tests.system.test_first_hour import Launch
 from vibrissa.formats.scene_file import load_scene
-from vibrissa.msgs import EndOfStream, WhiskerWrenchArray
+from vibrissa.msgs import EndOfStream
 from vibrissa.msgs.codec import decode
-from vibrissa.wire import Endpoints, Subscriber
 from vibrissa.wire.bag import BagReader
 
 LAUNCH = Path(__file__).parents[2] / "launch"
@@ -42,21 +41,9 @@ def test_a_loop_streams_until_ctrl_c(tmp_path: Path) -> None:
     launch = Launch(LAUNCH / "robot.yaml", f"out:={tmp_path / 'out'}", "loop:=true",
                     "rate:=4000", domain=DOMAIN + 2)
     cycle = 2 * SAMPLES - 2
-    stamps: list[float] = []
-    try:
-        launch.wait_line(r"proxy: .*\(domain")
-        with Subscriber({"/robot/wrench": WhiskerWrenchArray}, Endpoints.for_domain(DOMAIN + 2)
-                        ) as sub:
-            while len(stamps) < 2 * cycle + 100:  # into the third cycle
-                rx = sub.receive(300.0)
-                assert rx is not None and not isinstance(rx.msg, EndOfStream), launch.text()
-                stamps.append(rx.msg.stamp)
-        assert launch.proc.poll() is None, launch.text()
-        launch.proc.send_signal(signal.SIGINT)
-        rc = launch.wait(120)
-    finally:
-        if launch.proc.poll() is None:
-            launch.proc.kill()
+    arrays, rc = launch.stream_then_stop(  # into the third cycle
+        "/robot/wrench", DOMAIN + 2, lambda got: len(got) >= 2 * cycle + 100)
+    stamps = [array.stamp for array in arrays]
     text = launch.text()
     assert np.all(np.diff(stamps) > 0)
     assert rc == 128 + signal.SIGINT, text

@@ -1,9 +1,11 @@
 """A map that grows with its stream (`LiveMap`): each update refits only what new points changed.
 
-Every update splits the frame's whole cloud into objects again (contact normals, DBSCAN,
-``join_convex``: a few tenths of a second for 10^4 points, and the only way a merge or a split
-is seen as the data decide it), then matches each object to the object of the previous update
-that holds its points:
+An update first finds the frame's objects: when every point new since the last update lies
+within the DBSCAN radius of one object and of nothing else, no point is gone and the frame has
+grown by less than ``LiveSettings.refit_growth`` since its last clustering, the new points join
+that object; otherwise the whole cloud is clustered again (contact normals, DBSCAN,
+``join_convex``), the only way a merge or a split is seen as the data decide it. Then each
+object is matched to the object of the previous update that holds its points:
 
 * **unchanged** (the same points, normals and variances in the same order): its surface, mesh
   and next sweeps are kept;

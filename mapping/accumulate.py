@@ -53,6 +53,8 @@ class ContactBatch:
     covariances_m2 : ndarray, shape (N, 3, 3), optional
         Each point's position covariance, m^2; None: none (the points get
         ``MapSettings.point_std_m``).
+    stamp
+        When the points were measured, s (the message's stamp).
     """
 
     frame_id: str
@@ -61,6 +63,7 @@ class ContactBatch:
     whisker_ids: Sequence[str]
     seq: int = 0
     covariances_m2: FloatArray | None = None
+    stamp: float = 0.0
 
     def __post_init__(self) -> None:
         n = len(self.whisker_ids)
@@ -74,8 +77,10 @@ class ContactBatch:
 
 @dataclass
 class FrameCloud:
-    """Contact points of one frame, in arrival order, one block of arrays per batch."""
+    """Contact points of one frame, in arrival order, one block of arrays per batch, and the
+    newest ``stamp`` of the batches it took (s; -inf before the first)."""
 
+    stamp: float = -math.inf
     whisker_ids: list[str] = field(default_factory=list)
     seqs: list[int] = field(default_factory=list)
     points: list[FloatArray] = field(default_factory=list)  # (k, 3) per batch
@@ -95,6 +100,7 @@ class FrameCloud:
         self.points.append(np.reshape(batch.points_m, (-1, 3))[rows])
         self.forces.append(np.reshape(batch.forces_n, (-1, 3))[rows])
         self.covariances.append(covariances)
+        self.stamp = max(self.stamp, batch.stamp)
 
     def ordered(self) -> tuple[FloatArray, FloatArray, list[str], FloatArray]:
         """Points (N, 3), forces (N, 3), whisker ids and covariances (N, 3, 3; NaN where
@@ -113,7 +119,7 @@ def _rows(batch: ContactBatch, rows: npt.NDArray[np.bool_]) -> ContactBatch:
         np.reshape(batch.forces_n, (-1, 3))[rows],
         list(compress(batch.whisker_ids, rows.tolist())), batch.seq,
         None if batch.covariances_m2 is None
-        else np.reshape(batch.covariances_m2, (-1, 3, 3))[rows])
+        else np.reshape(batch.covariances_m2, (-1, 3, 3))[rows], batch.stamp)
 
 
 def is_covariance(covariances: FloatArray) -> npt.NDArray[np.bool_]:

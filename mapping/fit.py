@@ -227,12 +227,7 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
         method = "none: " + (too_little_for_a_surface(points) or (
             f"no object: all {len(points)} points are noise (DBSCAN eps "
             f"{clustering.eps_m:.4g} m, min_points {clustering.min_points})"))
-    parts = [surface.part(known=True) for surface in surfaces]
-    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts])[:-1]
-    vertices = np.concatenate([v for v, _, _ in parts] or [np.zeros((0, 3))])
-    triangles = np.concatenate(
-        [t + offset for (_, t, _), offset in zip(parts, offsets, strict=True)]
-        or [np.zeros((0, 3), dtype=np.int64)])
+    vertices, triangles, std = joined_part(surfaces, known=True)
     cloud_stats, mesh_stats, noise_max = (None, None), (None, None), None
     if truth:
         cloud_stats = _stats(np.concatenate(cloud_distance or [np.zeros(0)]))
@@ -248,9 +243,21 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
         cloud_to_surface_max=cloud_stats[0], cloud_to_surface_mean=cloud_stats[1],
         mesh_to_surface_max=mesh_stats[0], mesh_to_surface_mean=mesh_stats[1],
         noise_to_surface_max=noise_max)
-    std = np.concatenate([s for _, _, s in parts] or [np.zeros(0)])
     return FrameMap(result, points, objects.normals, whisker_ids, labels, list(surfaces),
                     vertices, triangles, std, [list(p) for p in proposals], truth)
+
+
+def joined_part(surfaces: Sequence[ObjectSurface], known: bool = True,
+                ) -> tuple[FloatArray, IntArray, FloatArray]:
+    """The known (or unknown) part of every surface's mesh in one: vertices (V, 3) m, triangles
+    (T, 3) and position std (V,) m."""
+    parts = [surface.part(known) for surface in surfaces]
+    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts])[:-1]
+    vertices = np.concatenate([v for v, _, _ in parts] or [np.zeros((0, 3))])
+    triangles = np.concatenate(
+        [t + offset for (_, t, _), offset in zip(parts, offsets, strict=True)]
+        or [np.zeros((0, 3), dtype=np.int64)])
+    return vertices, triangles, np.concatenate([s for _, _, s in parts] or [np.zeros(0)])
 
 
 def map_cloud(points_m: FloatArray, forces_n: FloatArray, whisker_ids: Sequence[str],

@@ -111,13 +111,19 @@ def _keys(points: FloatArray) -> list[bytes]:
 
 @dataclass(frozen=True)
 class _Frame:
-    """A frame's last update: its settings, objects and their fits, and the points of its last
-    full clustering."""
+    """A frame's last update: its settings, truth, cloud and how many points it held, the map,
+    its objects and their fits, the points of its last full clustering, and whether the map is
+    the single fit's (clustered on these points, every object's surface a full fit)."""
 
     settings: MapSettings
+    truth: tuple[TrueObject, ...]
+    cloud: FrameCloud
+    n_points: int
+    map: FrameMap
     objects: FrameObjects
     tracked: list[_Object]
     clustered: int
+    exact: bool
 
 
 def _grown_objects(last: FrameObjects, contacts: tuple[FloatArray, FloatArray, list[str],
@@ -158,8 +164,9 @@ class LiveMap:
     """The maps of a stream's frames, updated as points arrive (see module).
 
     ``fits`` counts what the updates did: objects fitted in ``"full"``, ``"conditioned"`` on
-    new points and ``"kept"``; frames ``"clustered"`` again and whose new points were
-    ``"joined"`` to an object.
+    new points and ``"kept"``; frames ``"clustered"`` again, whose new points were ``"joined"``
+    to an object, and ``"unchanged"`` (no point since the last update, which is returned as it
+    was: a frame's cloud only grows, as `Accumulator` keeps it).
     """
 
     def __init__(self, live: LiveSettings | None = None) -> None:
@@ -183,8 +190,12 @@ class LiveMap:
     def _map(self, frame_id: str, cloud: FrameCloud, settings: MapSettings,
              truth: tuple[TrueObject, ...], final: bool) -> FrameMap:
         last = self._frames.get(frame_id)
-        if last is not None and last.settings != settings:
+        if last is not None and (last.settings != settings or last.truth != truth):
             last = None
+        if (last is not None and last.cloud is cloud and last.n_points == len(cloud.seqs)
+                and (last.exact or not final)):
+            self.fits["unchanged"] += 1
+            return last.map
         contacts = frame_contacts(cloud)
         keys = _keys(contacts[0])
         objects = None
@@ -194,16 +205,21 @@ class LiveMap:
         if objects is None:
             self.fits["clustered"] += 1
             objects, clustered = contact_objects(contacts, settings, truth), len(keys)
+            exact = True
         else:
+            exact = False
             self.fits["joined"] += 1
             clustered = last.clustered if last is not None else len(keys)
         before = last.tracked if last is not None else []
         owner = {key: j for j, obj in enumerate(before) for key in _keys(obj.points)}
         tracked = [self._object(objects, k, [keys[i] for i in objects.inside(k)], before, owner,
                                 settings, final) for k in range(len(objects.named))]
-        self._frames[frame_id] = _Frame(settings, objects, tracked, clustered)
-        return frame_map(frame_id, objects, [obj.surface for obj in tracked],
-                         [obj.proposals for obj in tracked], truth)
+        mapped = frame_map(frame_id, objects, [obj.surface for obj in tracked],
+                           [obj.proposals for obj in tracked], truth)
+        self._frames[frame_id] = _Frame(settings, truth, cloud, len(cloud.seqs), mapped,
+                                        objects, tracked, clustered,
+                                        exact and all(obj.exact for obj in tracked))
+        return mapped
 
     def _object(self, objects: FrameObjects, k: int, keys: list[bytes], last: list[_Object],
                 owner: dict[bytes, int], settings: MapSettings, final: bool) -> _Object:

@@ -176,7 +176,9 @@ class MapReport:
     ``files`` the report files written. ``final``: the last map of the run (else a periodic
     one, written while the streams go on); ``ended_by`` (final only) what ended the run:
     ``streams`` (every source ended), ``stop`` (SIGINT or SIGTERM) or ``timeout`` (silence);
-    ``updates`` the map updates (fits) so far.
+    ``updates`` the map updates (fits) so far and ``update_fits`` what they did
+    (`vibrissa.mapping.LiveMap.fits`: objects fitted in ``full``, ``conditioned`` on new points
+    or ``kept``; frames ``clustered``, ``joined`` or ``unchanged``).
     """
 
     n_points: int
@@ -196,6 +198,7 @@ class MapReport:
     final: bool = True
     ended_by: str | None = "streams"
     updates: int = 1
+    update_fits: dict[str, int] = field(default_factory=dict)
 
     @property
     def upstream_lost(self) -> int:
@@ -230,6 +233,7 @@ class MapReport:
             "final": self.final,
             "ended_by": self.ended_by,
             "updates": self.updates,
+            "update_fits": dict(sorted(self.update_fits.items())),
         }
 
     def text(self) -> str:
@@ -258,7 +262,8 @@ def _format_report(report: dict[str, Any]) -> str:
              f"{report['true_surface'] or 'not given'} (L = {report['rod_length_m']} m)")
     state = (f"final map (ended by {report['ended_by']})" if report["final"]
              else "map so far (the streams go on)")
-    lines = [f"{state}, {report['updates']} update(s)",
+    fits = ", ".join(f"{n} {what}" for what, n in report.get("update_fits", {}).items())
+    lines = [f"{state}, {report['updates']} update(s)" + (f" ({fits})" if fits else ""),
              f"contact points: {report['n_points']}{empty} (sources: "
              f"{', '.join(report['sources_ended']) or 'none ended'})",
              f"true surface: {truth}",

@@ -9,6 +9,9 @@ Subscribes
 
 Publishes
 ---------
+Each message of an update is stamped with the newest stamp of the contact points it holds
+(its data's time, as tf2 stamps a transform).
+
 ``cloud_topic`` (default ``contact_cloud``) : ContactCloud
     Every point with its contact normal, one message per ``frame_id`` and update, then
     ``EndOfStream``.
@@ -18,8 +21,11 @@ Publishes
 ``mesh_topic`` (default ``surface_mesh``) : SurfaceMesh
     The known part of the meshes of a ``frame_id``, all objects in one mesh (``method`` names
     the method and its fitted parameters, per object when there are several; the distance
-    fields are filled when the truth is known: ``true_surface`` or ``scene``), then
-    ``EndOfStream``.
+    fields are filled when the truth is known: ``true_surface`` or ``scene``), one message
+    per ``frame_id`` and update (possibly without a triangle), then ``EndOfStream``.
+``unknown_mesh_topic`` (default ``surface_mesh_unknown``) : SurfaceMesh
+    The unknown part of the same meshes (the triangles whose std exceeds ``max_std_m``),
+    with each known part, then ``EndOfStream``: a live view draws the two apart.
 
 Files in ``out_dir`` (for frame ``world``; another frame F gets the suffix ``_F``):
 ``cloud.ply`` (points + normals), ``mesh.ply`` (every object's known mesh, with each vertex's
@@ -32,15 +38,16 @@ ended without a single contact point (only the reports are written, and they say
 received, lost) or points were dropped beyond ``max_points`` / ``max_frames``, unless
 ``allow_loss``.
 
-The live map: from the first contact point on, an update (`fit_frames`: the full fit of every
-point so far) is due at most every ``map_period_s`` and every twice the last update's time
+The live map: from the first contact point on, an update (`vibrissa.mapping.LiveMap.update`:
+only the objects that received points are fitted again, a grown object's surface conditioned on
+its new points) is due at most every ``map_period_s`` and every twice the last update's time
 (fit and files: mapping takes at most half of the node's time); it waits until the input queued
-meanwhile is taken in. Each update is published (cloud, mesh, proposals) and its files are
+meanwhile is taken in. Each update is published (cloud, meshes, proposals) and its files are
 rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
-(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) is the last update when
-no point came since (the same call on the same points: a finite stream's final map is the one
-of a single fit; then only the reports are rewritten when its files are written), else a fit of
-every point received. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
+(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) is the one of a single
+fit on every point received (`LiveMap.final`, bit for bit): the last update when it is that
+already (then only the reports are rewritten when its files are written), else the objects
+that changed fitted again. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
 the input, ``hwm`` 200 000), not in a worker thread: Open3D holds the interpreter, and a fit in
 a thread would only race the final one for the 2 cores. A SIGINT or SIGTERM is therefore seen
 when the update under way returns; the node then takes no more input and writes the final map
@@ -84,6 +91,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -98,6 +106,7 @@ from vibrissa.mapping import (
     FrameMap,
     FrameResult,
     InputStream,
+    LiveMap,
     MapReport,
     MapSettings,
     TrueObject,
@@ -105,6 +114,7 @@ from vibrissa.mapping import (
     fit_frame,
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
+from vibrissa.mapping.fit import joined_part
 from vibrissa.msgs import (
     ContactCloud,
     ContactPointArray,
@@ -188,7 +198,7 @@ class MapperParams:
         How many next sweeps to propose per object (0: none) and the normal of their section
         planes in the points' frame (the paper's trails: y, the lateral offset); see
         `vibrissa.mapping.next_sweep`.
-    cloud_topic, mesh_topic, proposal_topic
+    cloud_topic, mesh_topic, unknown_mesh_topic, proposal_topic
         Output topics.
     wait_for
         Nodes that must subscribe to the outputs before they go out (default: nobody).
@@ -226,6 +236,7 @@ class MapperParams:
     proposal_axis: tuple[float, float, float] = MapSettings.proposal_axis
     cloud_topic: str = "contact_cloud"
     mesh_topic: str = "surface_mesh"
+    unknown_mesh_topic: str = "surface_mesh_unknown"
     proposal_topic: str = "next_sweep"
     wait_for: tuple[str, ...] = ()
     rod: RodScale = field(init=False, repr=False, compare=False)
@@ -238,8 +249,10 @@ class MapperParams:
         require(len(self.topics) > 0, "topics", self.topics, "one or more topic names")
         for topic in self.topics:
             require_parsed("topics", topic, validate_name)
-        for name in (self.cloud_topic, self.mesh_topic, self.proposal_topic):
-            require_parsed("cloud_topic/mesh_topic/proposal_topic", name, validate_name)
+        for name in (self.cloud_topic, self.mesh_topic, self.unknown_mesh_topic,
+                     self.proposal_topic):
+            require_parsed("cloud_topic/mesh_topic/unknown_mesh_topic/proposal_topic", name,
+                           validate_name)
         for name in self.wait_for:
             require_parsed("wait_for", name, validate_name)
         if isinstance(self.expected_sources, int):
@@ -297,7 +310,7 @@ def contact_batch(msg: ContactPointArray) -> ContactBatch:
     return ContactBatch(
         msg.frame_id, np.reshape(msg.point, (-1, 3)), np.reshape(msg.force, (-1, 3)),
         msg.whisker_ids, msg.seq,
-        None if msg.covariance is None else np.reshape(msg.covariance, (-1, 3, 3)))
+        None if msg.covariance is None else np.reshape(msg.covariance, (-1, 3, 3)), msg.stamp)
 
 
 def _file_part(text: str) -> str:
@@ -323,13 +336,22 @@ def receive(acc: Accumulator, msg: ContactPointArray | EndOfStream) -> None:
         acc.add(contact_batch(msg))
 
 
-def fit_frames(acc: Accumulator, params: MapperParams) -> list[FrameMap]:
+def fit_frames(acc: Accumulator, params: MapperParams, live: LiveMap | None = None,
+               final: bool = True) -> list[FrameMap]:
     """Map every frame of ``acc`` in frame order: the full fit (`vibrissa.mapping.fit_frame`)
-    on all its points."""
+    on all its points, or with ``live`` its update (`vibrissa.mapping.LiveMap.update`: only
+    what changed is fitted again) or, ``final``, its final map (`LiveMap.final`: the full
+    fit's)."""
     frames = []
     for frame_id, cloud in sorted(acc.frames.items()):
         t0 = time.monotonic()
-        frame = fit_frame(frame_id, cloud, params.settings, params.truth(frame_id))
+        truth = params.truth(frame_id)
+        if live is None:
+            frame = fit_frame(frame_id, cloud, params.settings, truth)
+        elif final:
+            frame = live.final(frame_id, cloud, params.settings, truth)
+        else:
+            frame = live.update(frame_id, cloud, params.settings, truth)
         result = frame.result
         log.info("mapped %s: %d points -> %s (%d noise points), %d triangles in %.1f s",
                  frame_id, result.n_points,
@@ -339,20 +361,33 @@ def fit_frames(acc: Accumulator, params: MapperParams) -> list[FrameMap]:
     return frames
 
 
-def map_messages(frame: FrameMap) -> tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]:
-    """The messages of a mapped frame: its cloud, its known mesh and its next sweeps."""
+class MapMessages(NamedTuple):
+    """The messages of one frame's map update."""
+
+    cloud: ContactCloud
+    mesh: SurfaceMesh
+    unknown_mesh: SurfaceMesh
+    proposals: list[SweepProposal]
+
+
+def map_messages(frame: FrameMap, stamp: float) -> MapMessages:
+    """The messages of a mapped frame: its cloud, the known and the unknown part of its meshes
+    and its next sweeps, each stamped ``stamp`` (the newest stamp of the points it holds)."""
     result = frame.result
-    stamp = time.time()
-    return (
+    unknown_vertices, unknown_triangles, _ = joined_part(frame.surfaces, known=False)
+    errors = {"cloud_to_surface_max": result.cloud_to_surface_max,
+              "cloud_to_surface_mean": result.cloud_to_surface_mean}
+    return MapMessages(
         ContactCloud(stamp=stamp, frame_id=result.frame_id, points=frame.points,
                      normals=frame.normals, whisker_ids=frame.whisker_ids),
         SurfaceMesh(stamp=stamp, frame_id=result.frame_id, vertices=frame.vertices,
                     triangles=frame.triangles.astype(np.int32), method=result.method,
-                    n_points=result.n_points,
-                    cloud_to_surface_max=result.cloud_to_surface_max,
-                    cloud_to_surface_mean=result.cloud_to_surface_mean,
+                    n_points=result.n_points, **errors,
                     mesh_to_surface_max=result.mesh_to_surface_max,
                     mesh_to_surface_mean=result.mesh_to_surface_mean),
+        SurfaceMesh(stamp=stamp, frame_id=result.frame_id, vertices=unknown_vertices,
+                    triangles=unknown_triangles.astype(np.int32), method=result.method,
+                    n_points=result.n_points, **errors),
         [SweepProposal(stamp=stamp, frame_id=result.frame_id, object=obj.name, rank=rank,
                        axis=p.axis, offset=p.offset_m, line=p.line,
                        std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
@@ -410,7 +445,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   upstream: Sequence[Upstream] = (), frames: Sequence[FrameMap] | None = None,
                   *, written: Sequence[FrameResult] | None = None, final: bool = True,
                   ended_by: str | None = "streams", updates: int = 1,
-                  ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
+                  update_fits: dict[str, int] | None = None,
+                  ) -> tuple[MapReport, list[MapMessages]]:
     """Write the map of ``acc``: its frames' files (`write_frame_files`) and the reports, each
     file whole; returns (report, messages).
 
@@ -419,7 +455,7 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
     input messages lost in all and ``upstream`` what the nodes before the map moved
     (`vibrissa.runtime.traffic`), for the report; ``final``, ``ended_by`` and ``updates`` go
-    into it as they are (`vibrissa.mapping.MapReport`).
+    into it as they are, and ``update_fits`` (`vibrissa.mapping.MapReport`).
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = fit_frames(acc, params) if frames is None else frames
@@ -439,14 +475,15 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         upstream=tuple(UpstreamNode(u.node, u.received, u.lost, u.rejected, u.sent_to_it)
                        for u in upstream),
         files={"report_json": str(report_json), "report_txt": str(report_txt)},
-        final=final, ended_by=ended_by, updates=updates)
+        final=final, ended_by=ended_by, updates=updates, update_fits=dict(update_fits or {}))
     with whole_file(report_json) as partial:
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
     with whole_file(report_txt) as partial:
         partial.write_text(report.text())
     log.info("wrote the %s map (%s) in %.1f s", "final" if final else "periodic",
              "reports" if written is not None else "files and reports", time.monotonic() - t0)
-    return report, [map_messages(frame) for frame in frames]
+    return report, [map_messages(frame, acc.frames[frame.result.frame_id].stamp)
+                    for frame in frames]
 
 
 def run(node: Node, params: MapperParams) -> MapReport | None:
@@ -466,18 +503,25 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     proposal_pub = node.create_publisher(params.proposal_topic, SweepProposal,
                                          wait_for=params.wait_for)
 
-    def publish(messages: list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]) -> None:
-        for cloud, mesh, proposals in messages:
+    unknown_pub = node.create_publisher(params.unknown_mesh_topic, SurfaceMesh,
+                                        wait_for=params.wait_for)
+    publishers = (cloud_pub, mesh_pub, unknown_pub, proposal_pub)
+    live = LiveMap()
+
+    def publish(messages: list[MapMessages]) -> None:
+        for cloud, mesh, unknown_mesh, proposals in messages:
             cloud_pub.publish(cloud)
             mesh_pub.publish(mesh)
+            unknown_pub.publish(unknown_mesh)
             for proposal in proposals:
                 proposal_pub.publish(proposal)
 
     def write(written: Sequence[FrameResult] | None, final: bool, ended_by: str | None,
-              ) -> tuple[MapReport, list[tuple[ContactCloud, SurfaceMesh, list[SweepProposal]]]]:
+              ) -> tuple[MapReport, list[MapMessages]]:
         return write_outputs(acc, params, Path(params.out_dir), list(subscriber.ended_streams),
                              subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames,
-                             written=written, final=final, ended_by=ended_by, updates=updates)
+                             written=written, final=final, ended_by=ended_by, updates=updates,
+                             update_fits=live.fits)
 
     node.counters["bad_covariance"] = 0
     node.set_state("running", f"waiting for {expected} source(s) to end")
@@ -526,7 +570,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 fit_start = now
                 node.set_state("running", f"mapping {acc.n_points} points (update "
                                           f"{updates + 1})")
-                frames, fitted = fit_frames(acc, params), acc.n_points
+                frames, fitted = fit_frames(acc, params, live, final=False), acc.n_points
                 updates += 1
                 fit_end = time.monotonic()
                 written = None
@@ -535,7 +579,8 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                     report, messages = write(None, False, None)
                     written = list(report.frames)
                 else:
-                    messages = [map_messages(frame) for frame in frames]
+                    messages = [map_messages(frame, acc.frames[frame.result.frame_id].stamp)
+                                for frame in frames]
                 publish(messages)
                 update_s = time.monotonic() - fit_start
                 node.set_state("running", f"map of {fitted} points (update {updates}) in "
@@ -557,12 +602,14 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 rx = subscriber.receive(0.05)
                 if rx is not None and isinstance(rx.msg, NodeStatus):
                     traffic.add(rx.msg)
-        # the final map: the last update when no point came since (the same fit on the same
-        # points; only the reports are written again when its files are), else a fit of them
-        # all; a stop now changes nothing, the same signal again ends the process at once
+        # the final map (the full fit's): the last update when it is that already (only the
+        # reports are written again when its files are), else the objects that changed fitted
+        # again; a stop now changes nothing, the same signal again ends the process at once
         node.set_state("running", f"final map of {acc.n_points} points")
-        if fitted != acc.n_points or not updates:
-            frames, written = fit_frames(acc, params), None
+        final = fit_frames(acc, params, live, final=True)
+        if not updates or len(final) != len(frames) or any(
+                a is not b for a, b in zip(final, frames, strict=False)):
+            frames, written = final, None
             updates += 1
         report, messages = write(written, True, ended_by)
     if report.lost:
@@ -576,7 +623,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                   node.fqn, sum(report.dropped_points.values()), report.dropped_points,
                   " (allowed: allow_loss)" if params.allow_loss else "")
     publish(messages)
-    for publisher in (cloud_pub, mesh_pub, proposal_pub):
+    for publisher in publishers:
         publisher.publish_end_of_stream(node.fqn)
     if report.n_points == 0:
         log.error("%s: the map is empty: no contact point arrived (sources ended: %s); the "

@@ -115,8 +115,9 @@ def test_too_little_for_a_surface_is_a_report_line_and_the_cloud_is_written(
     assert not (tmp_path / "mesh.ply").exists()
     assert (tmp_path / "cloud.ply").stat().st_size > 0
     assert f"method: none: {why}" in (tmp_path / "report.txt").read_text()
-    cloud, mesh, _ = messages[0]
+    cloud, mesh, unknown_mesh = messages[0].cloud, messages[0].mesh, messages[0].unknown_mesh
     assert len(cloud.points) == len(points) and len(mesh.vertices) == 0
+    assert len(unknown_mesh.vertices) == 0
 
 
 def test_frame_ids_that_collide_or_are_long_get_files_of_their_own(tmp_path: Path) -> None:

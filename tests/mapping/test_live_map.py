@@ -173,9 +173,17 @@ def test_an_update_without_new_points_keeps_everything() -> None:
     cloud.add(ball_line(CENTRES_M[0], 1.3, "w1"), None, np.full((80, 3, 3), np.nan))
     live = LiveMap()
     first = live.update("world", cloud, SETTINGS)
-    again = live.update("world", cloud, SETTINGS)
-    assert live.fits == {"clustered": 1, "full": 1, "joined": 1, "kept": 1}
-    assert again.surfaces[0] is first.surfaces[0]
+    again = live.update("world", cloud, SETTINGS)  # the same cloud, not grown: the same map
+    assert live.fits == {"clustered": 1, "full": 1, "unchanged": 1} and again is first
+    copy = FrameCloud()  # another cloud of the same points: its objects joined, each kept
+    for k in range(2):
+        copy.add(ball_line(CENTRES_M[0], (1.0, 1.3)[k], f"w{k}"), None,
+                 np.full((80, 3, 3), np.nan))
+    other = live.update("world", copy, SETTINGS)
+    assert live.fits == {"clustered": 1, "full": 1, "unchanged": 1, "joined": 1, "kept": 1}
+    assert other.surfaces[0] is first.surfaces[0]
+    assert live.final("world", copy, SETTINGS) is not other  # joined: not the single fit's
+    assert live.fits["clustered"] == 2
 
 
 def test_points_gone_since_the_last_update_mean_a_new_clustering_and_fit() -> None:

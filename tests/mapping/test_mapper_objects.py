@@ -207,8 +207,13 @@ def test_two_objects_are_found_named_counted_and_fitted(scene_map: dict[str, Any
     assert frame["clustering"]["method"] == "dbscan" and frame["clustering"]["min_points"] == 4
     assert report["scene_objects"] == ["ball", "egg", "pebble"]
     # the message carries every object's mesh, and the report.json what write_outputs returned
-    cloud, mesh, _ = scene_map["sent"][0]
+    cloud, mesh, unknown_mesh = (scene_map["sent"][0].cloud, scene_map["sent"][0].mesh,
+                                 scene_map["sent"][0].unknown_mesh)
     assert len(cloud.points) == 282 and len(mesh.vertices) == frame["n_vertices"]
+    # the unknown part goes apart, with the same stamp: the newest of the points (messages())
+    assert len(unknown_mesh.triangles) == sum(o["unknown_triangles"] for o in frame["objects"])
+    assert unknown_mesh.stamp == mesh.stamp == cloud.stamp == max(
+        m.stamp for m in messages() if isinstance(m, ContactPointArray))
     assert json.loads((out / "report.json").read_text()) == report
     text = (out / "report.txt").read_text()
     assert "frame world: 282 points, 2 object(s), 2 noise point(s)" in text
@@ -221,7 +226,7 @@ def test_two_objects_are_found_named_counted_and_fitted(scene_map: dict[str, Any
 def test_each_object_gets_next_sweeps_in_the_report_and_as_messages(
         scene_map: dict[str, Any]) -> None:
     [frame] = scene_map["report"]["frames"]
-    _, _, proposals = scene_map["sent"][0]
+    proposals = scene_map["sent"][0].proposals
     assert [(p.object, p.rank) for p in proposals] == [
         (obj["name"], rank) for obj in frame["objects"] for rank in (1, 2, 3)]
     text = (scene_map["out"] / "report.txt").read_text()
@@ -398,7 +403,7 @@ def test_a_true_surface_is_one_object_as_before(tmp_path: Path) -> None:
     assert np.max(np.abs(on_ball)) < 1e-12
     assert frame["cloud_to_surface_max"] == pytest.approx(
         float(np.max(np.abs(BALL.surface(1.0).signed_distance(STRAYS)))), rel=1e-9)
-    assert sent[0][1].method == frame["method"] and sent[0][1].n_points == 282
+    assert sent[0].mesh.method == frame["method"] and sent[0].mesh.n_points == 282
     assert "true surface: sphere:r=0.3,cx=0.6,cy=0,cz=0.8 (L = 0.05 m)" in (
         tmp_path / "report.txt").read_text()
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import pytest
 
+from vibrissa.mapping import Accumulator
 from vibrissa.msgs import (
     ContactPhase,
     ContactPointArray,
@@ -23,6 +24,7 @@ from vibrissa.msgs import (
     NodeStatus,
     SurfaceMesh,
 )
+from vibrissa.nodes.mapper import MapperParams, receive, write_outputs
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 
 TOPIC = "/w/contact"
@@ -85,6 +87,7 @@ def test_the_map_is_written_while_the_stream_goes_on_and_sigint_writes_the_final
     mapper = start_mapper(tmp_path, endpoints)
     periodic: list[dict[str, Any]] = []
     mesh_times: list[float] = []
+    mesh_stamps: list[float] = []
     try:
         with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
                 Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses, \
@@ -101,6 +104,7 @@ def test_the_map_is_written_while_the_stream_goes_on_and_sigint_writes_the_final
                 rx = meshes.receive(0.05)
                 while rx is not None:
                     mesh_times.append(time.monotonic())
+                    mesh_stamps.append(rx.msg.stamp)
                     rx = meshes.receive(0.0)
                 report = read_report(tmp_path / "report.json")
                 if report is not None and (not periodic or report != periodic[-1]):
@@ -132,7 +136,21 @@ def test_the_map_is_written_while_the_stream_goes_on_and_sigint_writes_the_final
     # the updates go out at most every map_period_s (the times they arrived here jitter)
     span = mesh_times[-1] - mesh_times[0]
     assert (len(mesh_times) - 1) * MAP_PERIOD_S <= span + 0.5, mesh_times
+    # each stamped with the newest of its points (contact i: stamp i), so never going back
+    assert all(0 <= b - a for a, b in zip(mesh_stamps, mesh_stamps[1:], strict=False))
+    assert all(stamp == int(stamp) < i for stamp in mesh_stamps)
     assert "Traceback" not in out
+    # the final map is a single fit's on the same points (the first n: ZeroMQ keeps their
+    # order, and none repeats another), whatever the updates before it refitted
+    assert final["merged_points"] == 0 and sum(final["update_fits"].values()) >= final["updates"]
+    acc = Accumulator(1)
+    for k in range(final["n_points"]):
+        receive(acc, contact(k))
+    single, _ = write_outputs(acc, MapperParams(out_dir=str(tmp_path / "single"), plot=False,
+                                                cells=16), tmp_path / "single")
+    assert (tmp_path / "cloud.ply").read_bytes() == (tmp_path / "single" / "cloud.ply").read_bytes()
+    assert ([dict(f, files=None) for f in final["frames"]]
+            == [dict(f, files=None) for f in single.as_dict()["frames"]])
 
 
 @pytest.mark.parametrize(("params", "ended_by"), [(("timeout_s:=3",), "timeout"), ((), "streams")])

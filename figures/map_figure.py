@@ -8,7 +8,8 @@ contacts coloured by whisker, the noise points (black crosses), each object's kn
 coloured by its distance to the true surface when that is known and by its predicted std
 otherwise, per vertex and interpolated (one colour bar in mm, to a percentile of the vertices'
 values; it states the largest, the header's maximum), and the unknown part of the meshes in
-faint grey; a legend for every layer. Names from the wire (whiskers, objects, frames) are drawn
+faint grey; a legend for every layer; under the title, the map's status line when given
+(which update of a live stream or the final map, when). Names from the wire (whiskers, objects, frames) are drawn
 as ``short_name`` gives them, and no text is read as matplotlib's mathtext (a ``$`` in a name).
 The 3D view is cut to the objects (contacts, meshes, true objects) and the robot within a
 whisker's length of them (`view_box`), with equal scales on its axes, so that the shapes are
@@ -68,10 +69,15 @@ LABEL_GAP = 0.04
 """Distance of an object's label from its box in the top view, as a fraction of the view."""
 
 
+def printable(text: str) -> str:
+    """``text`` with its control characters (a line break too) as spaces."""
+    return "".join(c if c.isprintable() else " " for c in text)
+
+
 def short_name(name: str) -> str:
-    """``name`` as the figure draws it: control characters as spaces, and a name longer than
-    `MAX_NAME_CHARS` cut to that length in its middle (``…``), so that both ends show."""
-    name = "".join(c if c.isprintable() else " " for c in name)
+    """``name`` as the figure draws it: `printable`, and a name longer than `MAX_NAME_CHARS`
+    cut to that length in its middle (``…``), so that both ends show."""
+    name = printable(name)
     if len(name) <= MAX_NAME_CHARS:
         return name
     head = MAX_NAME_CHARS // 2
@@ -100,6 +106,9 @@ class MapLayers:
     ----------
     title, subtitle
         Above the figure; the subtitle may have several lines.
+    status
+        One line under the title on the map's state (which update of which stream, how many
+        points, when); empty: none.
     points : ndarray, shape (N, 3)
         Contact points.
     whisker_ids : sequence of str, length N
@@ -128,6 +137,7 @@ class MapLayers:
     path: RobotPath | None = None
     whiskers: Sequence[Whisker] = ()
     subtitle: str = ""
+    status: str = ""
 
 
 def wireframe(true: TrueObject, near: FloatArray) -> FloatArray:
@@ -203,11 +213,11 @@ def _plural(n: int, word: str) -> str:
     return f"{thousands(n)} {word}{'' if n == 1 else 's'}"
 
 
-def map_layers(frame: FrameMap, scene: Scene | None = None) -> MapLayers:
+def map_layers(frame: FrameMap, scene: Scene | None = None, status: str = "") -> MapLayers:
     """What the pictures of a frame show: the contacts, the meshes (coloured by their distance
     to the true surface when it is known, else by their std), the truth when known
-    (``frame.truth``), and the robot path and whisker mounts of ``scene`` (in the frame's
-    frame) when given."""
+    (``frame.truth``), the robot path and whisker mounts of ``scene`` (in the frame's frame)
+    when given, and the map's ``status`` line (`MapLayers.status`)."""
     result = frame.result
     whiskers = sorted(set(frame.whisker_ids))
     title = (f"{short_name(result.frame_id)} map: {_plural(len(result.objects), 'object')}, "
@@ -245,7 +255,7 @@ def map_layers(frame: FrameMap, scene: Scene | None = None) -> MapLayers:
         whisker_ids=frame.whisker_ids, labels=frame.labels, meshes=meshes,
         colour_by="distance to the true surface" if truth else "predicted std of the surface",
         true_objects=truth, path=scene.path if scene is not None else None,
-        whiskers=scene.whiskers if scene is not None else ())
+        whiskers=scene.whiskers if scene is not None else (), status=status)
 
 
 def _capped(entries: list[Any], more: str, handle: Any) -> list[Any]:
@@ -538,6 +548,9 @@ def draw_map(layers: MapLayers) -> Figure:
     for text in legend.get_texts():
         text.set_parse_math(False)
     fig.suptitle(layers.title, fontsize=13, y=0.98, parse_math=False)
+    if layers.status:  # between the title and the subtitle, in one line
+        fig.text(0.5, 0.955, printable(layers.status), ha="center", va="top", fontsize=9,
+                 style="italic", color="0.15", parse_math=False)
     if layers.subtitle:
         fig.text(0.5, 0.925, layers.subtitle, ha="center", va="top", fontsize=8, color="0.25",
                  parse_math=False)

@@ -6,7 +6,7 @@ pictures): the contacts coloured by whisker (the figure's palette), the noise po
 to the true surface or of its std, the same scale), the unknown part in faint grey, the true
 objects as grey wireframes (`map_figure.wireframe`), the robot path and the whisker mounts; a
 legend with a switch per layer beside the scene (it folds away, and the scene takes its place:
-"hide key", or ``map.html#nokey``), the figure's title, axes in mm. The view opens on the
+"hide key", or ``map.html#nokey``), the figure's title and status line, axes in mm. The view opens on the
 objects and all of the robot's path and mounts.
 
 No network and no library: the data is JSON in the page (lengths in mm rounded to 1 um), drawn
@@ -123,6 +123,7 @@ def page_data(layers: MapLayers) -> dict[str, Any]:
     return {
         "title": layers.title,
         "subtitle": layers.subtitle,
+        "status": layers.status,
         "whiskers": [{"name": name, "colour": _hex(colour),
                       "count": thousands(int(np.sum(ids == name)))}
                      for name, colour in zip(names, colours, strict=True)],
@@ -156,7 +157,7 @@ def write_page(path: str | Path, layers: MapLayers) -> None:
     Path(path).write_text(html, encoding="utf-8")
 
 
-# The title element is filled by the script (textContent: names are text, never markup).
+# The title and status elements are filled by the script (textContent: names are text, never markup).
 _PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
@@ -169,6 +170,8 @@ html, body { margin: 0; height: 100%; overflow: hidden; background: #fff;
 body.nokey #view { width: 100%; }
 #head { position: absolute; left: 12px; top: 8px; right: 340px; pointer-events: none; }
 #head h1 { font-size: 17px; margin: 0 0 4px 0; font-weight: 600; }
+#head p { margin: 0 0 4px 0; font-size: 12px; font-style: italic; color: #333; }
+#head p:empty { display: none; }
 #head pre { margin: 0; font: 11px/1.3 system-ui, sans-serif; color: #444; white-space: pre-wrap; }
 #key { position: absolute; right: 8px; top: 8px; width: 310px; max-height: calc(100% - 16px);
   overflow-y: auto; background: rgba(255,255,255,0.92); border: 1px solid #ccc;
@@ -188,7 +191,7 @@ body.nokey #view { width: 100%; }
 </style></head>
 <body>
 <canvas id="view"></canvas>
-<div id="head"><h1 id="title"></h1><pre id="subtitle"></pre></div>
+<div id="head"><h1 id="title"></h1><p id="status"></p><pre id="subtitle"></pre></div>
 <div id="key"></div>
 <script type="application/json" id="map-data">/*DATA*/</script>
 <script>
@@ -213,6 +216,7 @@ function plural(n, word) { return n + " " + word + (n === 1 ? "" : "s"); }
 
 // --- the legend: title, a switch per layer, whisker colours, the colour bar ---
 document.getElementById("title").textContent = D.title;
+document.getElementById("status").textContent = D.status;
 document.getElementById("subtitle").textContent = D.subtitle;
 document.title = D.title;
 const key = document.getElementById("key");

@@ -12,8 +12,10 @@ Subscribes
 ``contact_topics`` (default ``[/robot/contact]``) : ContactPointArray
 ``pose_topic`` (default ``/robot/pose``) : RobotPose
 ``cloud_topic`` (default ``/contact_cloud``) : ContactCloud, the mapper's
-``mesh_topic`` (default ``/surface_mesh``) : SurfaceMesh, the mapper's; its ``EndOfStream``
-    starts the ``hold_s`` countdown
+``mesh_topic`` (default ``/surface_mesh``) : SurfaceMesh, the mapper's map of a frame, its
+    known part; its ``EndOfStream`` starts the ``hold_s`` countdown
+``unknown_mesh_topic`` (default ``/surface_mesh_unknown``) : SurfaceMesh, the unknown part of
+    the mapper's map of a frame (its triangles whose std is above the mapper's limit)
 ``/vibrissa/status`` : NodeStatus of every node
 
 Serves (Foxglove channels)
@@ -32,7 +34,10 @@ Serves (Foxglove channels)
 ``/map/cloud`` : foxglove.PointCloud
     The mapper's cloud (x, y, z, nx, ny, nz float32: points and contact normals).
 ``/meshes`` : foxglove.SceneUpdate
-    One entity per mesh frame (``mesh/<frame_id>``) with a TriangleListPrimitive.
+    Two entities per mesh frame, each a TriangleListPrimitive: the known part
+    (``mesh/<frame_id>``, blue) and the unknown part (``mesh_unknown/<frame_id>``, grey and
+    translucent). Each SurfaceMesh replaces its part's entity, so the surface grows with the
+    mapper's updates; one with no triangles deletes it.
 ``/health`` : JSON ``{stamp, nodes: [{node, state, received, published, lost, rejected,
     received_hz, published_hz, message}]}``
     Every node's last status, the rates from its last two statuses.
@@ -42,8 +47,8 @@ go out again every ``REPUBLISH_S``. Every Foxglove message is stamped with the b
 clock at arrival (one clock for the 3D panel's frame lookups and the plots); the graph's own
 stamp is the JSON's ``stamp``. Contacts in a frame other than ``map_frame`` are counted
 (``other_frame``), not shown. Counters in the node's status: ``wrenches`` (rows),
-``contacts`` (points), ``other_frame``, ``poses``, ``meshes``, ``bad_meshes`` (a triangle
-indexing past the vertices: counted, not shown), ``clouds``, ``statuses``. Undecodable input is
+``contacts`` (points), ``other_frame``, ``poses``, ``meshes`` (both parts), ``bad_meshes`` (a
+triangle indexing past the vertices: counted, not shown), ``clouds``, ``statuses``. Undecodable input is
 rejected by the transport (``rejected``); input the bridge misses (it is a viewer, a launch
 gives it ``allow_loss``) is counted as ``lost``.
 
@@ -92,7 +97,7 @@ from vibrissa.runtime import Node, NodeArgs, ParamError, configure_logging, load
 from vibrissa.runtime.params import require, require_parsed, require_positive
 from vibrissa.wire.bag import BagReader
 from vibrissa.wire.security import KEYS_ENV, Keys
-from vibrissa.wire.topics import STATUS_TOPIC, validate_name
+from vibrissa.wire.topics import STATUS_TOPIC, resolve_topic, validate_name
 
 if TYPE_CHECKING:
     from foxglove import Channel
@@ -130,7 +135,7 @@ class FoxgloveBridgeParams:
 
     host, port
         Where the WebSocket server listens; port 0: a free port (logged).
-    wrench_topics, contact_topics, pose_topic, cloud_topic, mesh_topic
+    wrench_topics, contact_topics, pose_topic, cloud_topic, mesh_topic, unknown_mesh_topic
         The graph's topics to show (see the module docstring).
     robot
         Robot description (a scene file) for the mount frames; empty: no mounts.
@@ -157,6 +162,7 @@ class FoxgloveBridgeParams:
     pose_topic: str = "/robot/pose"
     cloud_topic: str = "/contact_cloud"
     mesh_topic: str = "/surface_mesh"
+    unknown_mesh_topic: str = "/surface_mesh_unknown"
     robot: str = ""
     map_frame: str = WORLD_FRAME
     robot_frame: str = ROBOT_FRAME
@@ -169,8 +175,10 @@ class FoxgloveBridgeParams:
         require(bool(self.host), "host", self.host, "a host name or address")
         require(0 <= self.port <= 65535, "port", self.port, "a port in [0, 65535] (0: any free)")
         for topic in (*self.wrench_topics, *self.contact_topics, self.pose_topic,
-                      self.cloud_topic, self.mesh_topic):
+                      self.cloud_topic, self.mesh_topic, self.unknown_mesh_topic):
             require_parsed("topics", topic, validate_name)
+        require(self.unknown_mesh_topic != self.mesh_topic, "unknown_mesh_topic",
+                self.unknown_mesh_topic, "a topic other than mesh_topic")
         if self.robot:
             require_parsed("robot", self.robot, load_robot)
         for key in ("map_frame", "robot_frame"):
@@ -258,6 +266,14 @@ HEALTH_SCHEMA: dict[str, Any] = {
 }
 
 
+MESH_PARTS: dict[bool, tuple[str, tuple[float, float, float, float]]] = {
+    True: ("mesh", (0.35, 0.6, 0.9, 0.8)),
+    False: ("mesh_unknown", (0.6, 0.6, 0.6, 0.25)),
+}
+"""Each part of a frame's map (known: True), as a scene entity: the prefix of its id
+(``<prefix>/<frame_id>``) and its colour (r, g, b, a)."""
+
+
 def _vec3(v: FloatArray) -> dict[str, float]:
     return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
 
@@ -277,12 +293,18 @@ class LiveView:
         Where the counts go (the node's status counters).
     context : foxglove.Context, optional
         The channels' context (its sinks); the SDK's global one by default.
+    unknown_mesh_topic : str, optional
+        The topic (fully qualified) whose SurfaceMesh are the unknown part of a map (those of
+        any other topic are the known part); by default ``params.unknown_mesh_topic`` in the
+        root namespace (a bag's topics).
     """
 
     def __init__(self, fg: ModuleType, params: FoxgloveBridgeParams,
                  mounts: Sequence[tuple[str, Transform]], counters: dict[str, int],
-                 context: Any = None) -> None:
+                 context: Any = None, unknown_mesh_topic: str | None = None) -> None:
         self.fg, self.params, self.counters, self._context = fg, params, counters, context
+        self._unknown_mesh_topic = (resolve_topic(params.unknown_mesh_topic)
+                                    if unknown_mesh_topic is None else unknown_mesh_topic)
         for key in ("wrenches", "contacts", "other_frame", "poses", "meshes", "bad_meshes",
                     "clouds", "statuses", "refused_names", "cloud_aged_out"):
             counters.setdefault(key, 0)
@@ -305,7 +327,7 @@ class LiveView:
         self._cloud_sent_rows = 0  # an empty cloud does not go out
         self._cloud_msg: PointCloud | None = None
         self._map_cloud_msgs: dict[str, PointCloud] = {}
-        self._mesh_msgs: dict[str, SceneUpdate] = {}
+        self._mesh_msgs: dict[str, SceneUpdate] = {}  # by entity id
         self._nodes: dict[str, dict[str, Any]] = {}
         self._health_dirty = False
         self._next_republish = 0.0
@@ -329,7 +351,7 @@ class LiveView:
             self._map_cloud_msgs[msg.frame_id] = self._map_cloud_msg(msg, now)
             self._log(self._map_cloud, self._map_cloud_msgs[msg.frame_id], now)
         elif isinstance(msg, SurfaceMesh):
-            self._on_mesh(msg, now)
+            self._on_mesh(msg, topic != self._unknown_mesh_topic, now)
         elif isinstance(msg, NodeStatus) and topic == STATUS_TOPIC:
             self._on_status(msg)
 
@@ -372,26 +394,35 @@ class LiveView:
         self._cloud_rows += len(rows)
         self.counters["contacts"] += len(rows)
 
-    def _on_mesh(self, msg: SurfaceMesh, now: float) -> None:
+    def _on_mesh(self, msg: SurfaceMesh, known: bool, now: float) -> None:
+        """Replace the entity of ``msg``'s part (``known``) of its frame's map; a mesh with no
+        triangles deletes it (and it goes out no more with the state)."""
         if len(msg.triangles) and (msg.triangles.min() < 0
                                    or msg.triangles.max() >= len(msg.vertices)):
             self.counters["bad_meshes"] += 1
             return
         self.counters["meshes"] += 1
-        if not self._room(self._mesh_msgs, msg.frame_id):
+        prefix, (r, g, b, a) = MESH_PARTS[known]
+        entity_id = f"{prefix}/{msg.frame_id}"
+        if not self._room(self._mesh_msgs, entity_id):
             return
         m = self.fg.messages
+        stamp = m.Timestamp.from_epoch_secs(now)
+        if not len(msg.triangles):
+            self._mesh_msgs.pop(entity_id, None)
+            self._log(self._meshes, m.SceneUpdate(deletions=[m.SceneEntityDeletion(
+                timestamp=stamp, type=m.SceneEntityDeletionType.MatchingId, id=entity_id)]), now)
+            return
         triangles = m.TriangleListPrimitive(
             points=[m.Point3(x=float(x), y=float(y), z=float(z)) for x, y, z in msg.vertices],
-            indices=msg.triangles.reshape(-1).tolist(),
-            color=m.Color(r=0.35, g=0.6, b=0.9, a=0.8))
+            indices=msg.triangles.reshape(-1).tolist(), color=m.Color(r=r, g=g, b=b, a=a))
         entity = m.SceneEntity(
-            timestamp=m.Timestamp.from_epoch_secs(now), frame_id=msg.frame_id,
-            id=f"mesh/{msg.frame_id}", triangles=[triangles],
-            metadata=[m.KeyValuePair(key="method", value=msg.method),
+            timestamp=stamp, frame_id=msg.frame_id, id=entity_id, triangles=[triangles],
+            metadata=[m.KeyValuePair(key="part", value="known" if known else "unknown"),
+                      m.KeyValuePair(key="method", value=msg.method),
                       m.KeyValuePair(key="n_points", value=str(msg.n_points))])
-        self._mesh_msgs[msg.frame_id] = m.SceneUpdate(entities=[entity])
-        self._log(self._meshes, self._mesh_msgs[msg.frame_id], now)
+        self._mesh_msgs[entity_id] = m.SceneUpdate(entities=[entity])
+        self._log(self._meshes, self._mesh_msgs[entity_id], now)
 
     def _on_status(self, msg: NodeStatus) -> None:
         self.counters["statuses"] += 1
@@ -490,10 +521,13 @@ def run(node: Node, params: FoxgloveBridgeParams, fg: ModuleType) -> None:
     types: dict[str, Any] = {topic: WhiskerWrenchArray for topic in params.wrench_topics}
     types.update({topic: ContactPointArray for topic in params.contact_topics})
     types.update({params.pose_topic: RobotPose, params.cloud_topic: ContactCloud,
-                  params.mesh_topic: SurfaceMesh, STATUS_TOPIC: NodeStatus})
+                  params.mesh_topic: SurfaceMesh, params.unknown_mesh_topic: SurfaceMesh,
+                  STATUS_TOPIC: NodeStatus})
     inputs = node.create_subscriber(types)
     mesh_topic = node.resolve(params.mesh_topic)
-    view = LiveView(fg, params, mounts, node.counters)  # its channels before any client
+    # its channels before any client
+    view = LiveView(fg, params, mounts, node.counters,
+                    unknown_mesh_topic=node.resolve(params.unknown_mesh_topic))
     server = fg.start_server(name=f"vibrissa {node.fqn}", host=params.host, port=params.port)
     try:
         url = f"ws://{params.host}:{server.port}"

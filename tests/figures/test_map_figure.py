@@ -5,6 +5,7 @@ robot's path and mounts in the 3D view of any scene, the contacts over the meshe
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ from vibrissa.figures.map_figure import (
     colour_scale,
     draw_map,
     map_layers,
+    plot_map,
     subdivided,
 )
 from vibrissa.frames import Transform
@@ -183,3 +185,29 @@ def test_the_colour_bar_ends_at_the_largest_when_nothing_is_above() -> None:
     [bar] = [ax for ax in figure.axes if ax.get_label() == "<colorbar>"]
     assert "top: the largest, 0.002" in bar.get_ylabel()
     assert bar.get_ylim()[1] == pytest.approx(2e-3)
+
+
+STATUS = "periodic map, update 7 of a live stream, 12 345 points <at> $x$, 2026-11-29 03:12:04 UTC"
+
+
+def test_the_status_line_is_under_the_title_of_map_png(fitted: tuple[Any, MapLayers],
+                                                       tmp_path: Path) -> None:
+    frame, layers = fitted
+    assert layers.status == "" and map_layers(frame, status=STATUS).status == STATUS
+    live = dataclasses.replace(layers, status=STATUS)
+    figure = draw_map(live)
+    [line] = [t for t in figure.texts if t.get_text() == STATUS]
+    assert not line.get_parse_math()  # drawn as written: no mathtext of "$x$"
+    [title] = [t for t in figure.texts if t.get_text() == layers.title]
+    [notes] = [t for t in figure.texts if t.get_text() == layers.subtitle]
+    assert notes.get_position()[1] < line.get_position()[1] < title.get_position()[1]
+    # without a status nothing is added; with it, map.png differs in the header only
+    assert len(draw_map(layers).texts) == len(figure.texts) - 1
+    plot_map(tmp_path / "plain.png", layers)
+    plot_map(tmp_path / "live.png", live)
+    import matplotlib.image
+
+    plain, shown = (matplotlib.image.imread(tmp_path / f"{name}.png") for name in ("plain", "live"))
+    assert plain.shape == shown.shape
+    differs = np.flatnonzero(np.any(plain != shown, axis=(1, 2)))
+    assert len(differs) and differs.max() < 0.1 * len(plain)  # in the top tenth: the header

@@ -217,3 +217,25 @@ def test_at_1200x900_the_key_covers_no_part_of_the_robot_path(page: dict[str, An
     # the key's column is not part of the scene: below the key (this one ends above 500 px)
     # it is blank, nothing of the robot runs on past the window's scene part
     assert np.all(pixels[500:, WINDOW[0] - KEY_WIDTH:] == 255), "the robot is drawn under the key"
+
+
+def test_the_status_line_is_text_under_the_title(tmp_path: Path) -> None:
+    status = f"final map (ended by stop), 282 points, {HOSTILE}, 2026-11-29 03:12:04 UTC"
+    points = np.array([[0.0, 0.0, 0.0], [0.001, 0.0, 0.0]])
+    plain, live = tmp_path / "plain.html", tmp_path / "live.html"
+    write_page(plain, MapLayers(title="world map", points=points, whisker_ids=["w0", "w1"],
+                                labels=np.array([0, 0])))
+    write_page(live, MapLayers(title="world map", points=points, whisker_ids=["w0", "w1"],
+                               labels=np.array([0, 0]), status=status))
+    html = live.read_text(encoding="utf-8")
+    assert page_data(html)["status"] == status and page_data(plain.read_text())["status"] == ""
+    assert HOSTILE not in html and html.count("</script>") == 2
+    # in the browser: the line under the title, as text; none without a status
+    shown = browse(live, tmp_path, "--dump-dom")
+    assert shown.returncode == 0 and re.search(r'data-drawn="[1-9]', shown.stdout), shown.stderr
+    found = re.search(r'<h1 id="title">world map</h1><p id="status">(.*?)</p>', shown.stdout)
+    assert found is not None, shown.stdout[:3000]
+    assert found.group(1) == status.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    assert "<title>owned</title>" not in shown.stdout
+    bare = browse(plain, tmp_path, "--dump-dom")
+    assert '<p id="status"></p>' in bare.stdout, bare.stderr[-2000:]

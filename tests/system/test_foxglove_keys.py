@@ -41,12 +41,15 @@ def test_a_keyed_graph_is_not_served_to_unauthenticated_viewers(tmp_path: Path) 
 
 
 @contextlib.contextmanager
-def bridge_process() -> Iterator[tuple[str, list[str]]]:
-    """A real bridge process on a graph of its own: (its ws:// address, its stderr lines so
-    far). Leaving stops it with SIGINT and collects every line it wrote."""
-    with Proxy(Endpoints.free()) as proxy:
-        assert proxy.endpoints is not None
-        env = {**os.environ, **proxy.endpoints.to_env()}
+def bridge_process(endpoints: Endpoints | None = None) -> Iterator[tuple[str, list[str]]]:
+    """A real bridge process on the graph of ``endpoints`` (default: a graph of its own): (its
+    ws:// address, its stderr lines so far). Leaving stops it with SIGINT and collects every
+    line it wrote."""
+    with contextlib.ExitStack() as stack:
+        if endpoints is None:
+            endpoints = stack.enter_context(Proxy(Endpoints.free())).endpoints
+        assert endpoints is not None
+        env = {**os.environ, **endpoints.to_env()}
         bridge = subprocess.Popen([sys.executable, "-m", "vibrissa.nodes.foxglove_bridge",
                                    "--name", "foxglove_bridge", "--param", "port:=0"],
                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,

@@ -398,10 +398,11 @@ def map_messages(frame: FrameMap, stamp: float) -> MapMessages:
 
 
 def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
-                      final: bool = True) -> FrameResult:
-    """Write a mapped frame's PLYs and pictures (PNG, HTML page), each file whole
-    (`vibrissa.formats.files.whole_file`); its result with the files and each object's mesh
-    file. A frame or object without a surface is logged in the ``final`` map only."""
+                      final: bool = True, status: str = "") -> FrameResult:
+    """Write a mapped frame's PLYs and pictures (PNG, HTML page, with the line ``status``),
+    each file whole (`vibrissa.formats.files.whole_file`); its result with the files and each
+    object's mesh file. A frame or object without a surface is logged in the ``final`` map
+    only."""
     frame_id, result = frame.result.frame_id, frame.result
     sfx = _suffix(frame_id)
     files = {"cloud": out_dir / f"cloud{sfx}.ply"}
@@ -430,7 +431,7 @@ def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
         files[f"mesh_{obj.name}"] = target
         objects[k] = replace(obj, files={"mesh": str(target)})
     if params.plot:
-        layers = map_layers(frame, params.world if frame_id == SCENE_FRAME else None)
+        layers = map_layers(frame, params.world if frame_id == SCENE_FRAME else None, status)
         files["png"] = out_dir / f"map{sfx}.png"
         with whole_file(files["png"]) as partial:
             plot_map(partial, layers)
@@ -438,6 +439,15 @@ def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
         with whole_file(files["html"]) as partial:
             write_page(partial, layers)
     return replace(result, objects=tuple(objects), files={k: str(v) for k, v in files.items()})
+
+
+def map_status(final: bool, ended_by: str | None, updates: int, n_points: int) -> str:
+    """The pictures' line saying which map they show: the final one and what ended it, or a
+    map so far with the time it was written (UTC)."""
+    if final:
+        return f"final map (ended by {ended_by}): {n_points} contact points, {updates} update(s)"
+    return (f"map so far (the streams go on): update {updates}, {n_points} contact points, "
+            f"written {time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime())} UTC")
 
 
 def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
@@ -461,7 +471,9 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     frames = fit_frames(acc, params) if frames is None else frames
     t0 = time.monotonic()
     results = (list(written) if written is not None else
-               [write_frame_files(frame, params, out_dir, final) for frame in frames])
+               [write_frame_files(frame, params, out_dir, final,
+                                  map_status(final, ended_by, updates, acc.n_points))
+                for frame in frames])
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
     report = MapReport(

@@ -3,6 +3,7 @@ by itself with every stamp after the one before, ``loop:=true`` streams until Ct
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -38,11 +39,19 @@ def test_three_passes_end_by_themselves_with_stamps_running_on(tmp_path: Path) -
 
 
 def test_a_loop_streams_until_ctrl_c(tmp_path: Path) -> None:
-    launch = Launch(LAUNCH / "robot.yaml", f"out:={tmp_path / 'out'}", "loop:=true",
+    out = tmp_path / "out"
+    launch = Launch(LAUNCH / "robot.yaml", f"out:={out}", "loop:=true",
                     "rate:=4000", domain=DOMAIN + 2)
     cycle = 2 * SAMPLES - 2
-    arrays, rc = launch.stream_then_stop(  # into the third cycle
-        "/robot/wrench", DOMAIN + 2, lambda got: len(got) >= 2 * cycle + 100)
+
+    def page_so_far() -> str:
+        """map.html while the streams go on ("" before it is written; each write is whole)."""
+        page = out / "map.html"
+        return page.read_text() if page.exists() else ""
+
+    arrays, rc = launch.stream_then_stop(  # into the third cycle, and a map page written
+        "/robot/wrench", DOMAIN + 2,
+        lambda got: len(got) >= 2 * cycle + 100 and "map so far" in page_so_far())
     stamps = [array.stamp for array in arrays]
     text = launch.text()
     assert np.all(np.diff(stamps) > 0)
@@ -50,3 +59,7 @@ def test_a_loop_streams_until_ctrl_c(tmp_path: Path) -> None:
     assert re.search(r"wrench_source\] .*\d+ messages and EndOfStream", text), text
     assert re.search(r"wrench_source\s+stopped by launcher \(exit 0\)", text), text
     assert "Traceback" not in text
+    report = json.loads((out / "report.json").read_text())
+    assert (report["final"], report["ended_by"]) == (True, "stop")
+    assert f"final map (ended by stop): {report['n_points']} contact points" in (
+        out / "map.html").read_text()

@@ -112,6 +112,17 @@ class FrameCloud:
                 np.concatenate([np.empty((0, 3, 3)), *self.covariances])[order])
 
 
+Cell = tuple[int, int, int, int]
+"""A merge cell: its grid's level (edge ``merge_resolution_m`` x 2**level) and its index."""
+
+
+def _coarser(cell: Cell, level: int) -> Cell:
+    """The cell of grid ``level`` that holds ``cell`` of the finest grid (level 0): grids of
+    power-of-two edges aligned at the origin nest, floor(floor(x / r) / 2**k) being
+    floor(x / (r 2**k))."""
+    return (level, cell[1] >> level, cell[2] >> level, cell[3] >> level)
+
+
 def _rows(batch: ContactBatch, rows: npt.NDArray[np.bool_]) -> ContactBatch:
     """The batch of the ``rows`` of ``batch``."""
     return ContactBatch(
@@ -154,7 +165,11 @@ class Accumulator:
     same path again and again keeps its memory bounded and the bounds bite only on new data.
     A point repeats when a point of the same whisker and frame from an earlier contact line
     lies in the same cell of a grid of edge ``merge_resolution_m`` (cells aligned with the
-    frame's origin; so within sqrt(3) x that distance). A whisker's contact line is a run of
+    frame's origin; so within sqrt(3) x that distance), or, for a point whose position std
+    (the square root of its covariance's largest eigenvalue) exceeds that edge, of a grid whose
+    edge is the next power-of-two multiple of it at or above the std (a noisy repeat adds
+    nothing its first measurement within its own noise did not; memory is then bounded by the
+    cells within a few stds of the lines). A whisker's contact line is a run of
     its points in consecutive batches (``seq`` n, n + 1, ...; a batch without a point of it
     ends the run). Points of one line are never merged: a single pass of a path (a stick
     phase, whose contact point stays put, included) is mapped as it came; a whisker that rests
@@ -173,10 +188,12 @@ class Accumulator:
         self.max_frames = max_frames
         self.merge_resolution_m = merge_resolution_m
         self.merged = 0
-        # per (frame, whisker): its current line (number, last seq) and, per grid cell, the
-        # first line that left a point there
+        # per (frame, whisker): its current line (number, last seq) and, per grid cell (level,
+        # index), the
         self._lines: dict[tuple[str, str], tuple[int, int]] = {}
-        self._cells: dict[tuple[str, str], dict[tuple[int, int, int], int]] = {}
+        # first line that left a point there; and which grid levels it uses
+        self._cells: dict[tuple[str, str], dict[Cell, int]] = {}
+        self._grids: dict[tuple[str, str], set[int]] = {}
         self.frames: dict[str, FrameCloud] = {}
         self.ended: set[str] = set()
         self.n_points = 0
@@ -187,7 +204,7 @@ class Accumulator:
         """Take a batch of contact points (one without points changes nothing)."""
         if not len(batch.whisker_ids):
             return
-        cells: list[tuple[tuple[str, str], tuple[int, int, int], int] | None] = []
+        cells: list[tuple[tuple[str, str], Cell, int] | None] = []
         if self.merge_resolution_m:
             new, cells = self._lines_and_cells(batch)
             if not new.all():
@@ -211,21 +228,40 @@ class Accumulator:
             for r, cell in enumerate(cells):  # a later line's repeat of a kept point merges
                 if cell is not None and (keep is None or keep[r]):
                     key, where, line = cell
-                    self._cells.setdefault(key, {}).setdefault(where, line)
+                    held = self._cells.setdefault(key, {})
+                    for level in self._grids.get(key, {0}):
+                        held.setdefault(_coarser(where, level), line)
+
+    def _levels(self, batch: ContactBatch) -> npt.NDArray[np.int64]:
+        """Each row's merge grid: its edge is ``merge_resolution_m`` x 2**level, the smallest
+        at or above the row's position std (level 0 without a covariance, or with one that is
+        not a covariance)."""
+        levels = np.zeros(len(batch.whisker_ids), dtype=np.int64)
+        if batch.covariances_m2 is None:
+            return levels
+        covariances = np.reshape(batch.covariances_m2, (-1, 3, 3))
+        good = is_covariance(covariances)
+        if good.any():
+            std = np.sqrt(np.maximum(np.linalg.eigvalsh(covariances[good])[:, -1], 0.0))
+            with np.errstate(divide="ignore"):
+                level = np.ceil(np.log2(np.maximum(std / self.merge_resolution_m, 1.0)))
+            levels[good] = np.minimum(level, 1000).astype(np.int64)
+        return levels
 
     def _lines_and_cells(self, batch: ContactBatch) -> tuple[
-            npt.NDArray[np.bool_],
-            list[tuple[tuple[str, str], tuple[int, int, int], int] | None]]:
-        """Which rows of ``batch`` are not repeats, and each row's (frame and whisker, cell,
-        line) (None: a point off the grid, left to `_usable`); moves each whisker's line on."""
+            npt.NDArray[np.bool_], list[tuple[tuple[str, str], Cell, int] | None]]:
+        """Which rows of ``batch`` are not repeats, and each row's (frame and whisker, cell of
+        the finest grid, line) (None: a point off the grid, left to `_usable`); moves each
+        whisker's line on."""
         points = np.reshape(batch.points_m, (-1, 3))
         with np.errstate(invalid="ignore", over="ignore"):
             scaled = np.floor(points / self.merge_resolution_m)
         grid = np.asarray(np.isfinite(scaled).all(axis=1) & (np.abs(scaled) < 2.0**62).all(axis=1))
         on_grid = [bool(b) for b in grid]
         where: list[list[int]] = np.where(grid[:, None], scaled, 0.0).astype(np.int64).tolist()
+        levels: list[int] = self._levels(batch).tolist()
         new = np.ones(len(where), dtype=bool)
-        cells: list[tuple[tuple[str, str], tuple[int, int, int], int] | None] = []
+        cells: list[tuple[tuple[str, str], Cell, int] | None] = []
         for r, whisker in enumerate(batch.whisker_ids):
             key = (batch.frame_id, whisker)
             line, last = self._lines.get(key, (-1, batch.seq - 2))
@@ -235,10 +271,24 @@ class Accumulator:
             if not on_grid[r]:
                 cells.append(None)
                 continue
-            cell = (where[r][0], where[r][1], where[r][2])
-            new[r] = self._cells.get(key, {}).get(cell, line) == line
+            cell = (0, where[r][0], where[r][1], where[r][2])
+            level = levels[r]
+            self._use_level(key, level)
+            new[r] = self._cells.get(key, {}).get(_coarser(cell, level), line) == line
             cells.append((key, cell, line))
         return new, cells
+
+    def _use_level(self, key: tuple[str, str], level: int) -> None:
+        """Make the grid ``level`` hold every point of ``key`` kept so far (from its cells of
+        the finest grid, each with its earliest line), once."""
+        used = self._grids.setdefault(key, {0})
+        if level in used:
+            return
+        used.add(level)
+        cells = self._cells.setdefault(key, {})
+        for cell, line in list(cells.items()):
+            if cell[0] == 0:
+                cells.setdefault(_coarser(cell, level), line)
 
     def end(self, source: str) -> None:
         """Note that ``source`` has ended its stream."""

@@ -118,6 +118,20 @@ def test_a_dropped_point_is_not_one_to_merge_with() -> None:
     assert (acc.n_points, acc.merged, dict(acc.dropped)) == (10, 10, {"max_points": 40})
 
 
+def test_a_repeat_with_a_covariance_merges_with_a_point_kept_without_one() -> None:
+    """A grid coarser than the finest, first used by a noisy point, holds the points kept
+    before on the finest one."""
+    acc = Accumulator(1)
+    seq = _pass(acc, 0, {"w0": _line(5)})
+    near = _line(5)[2] + 3 * RES  # 3 cells away on the finest grid, within its std of 10 cells
+    acc.add(ContactBatch("world", near[None], np.array([[0.0, 0, 1]]), ["w0"], seq=seq + 5,
+                         covariances_m2=(10 * RES) ** 2 * np.eye(3)[None]))
+    assert (acc.n_points, acc.merged) == (5, 1)
+    acc.add(ContactBatch("world", near[None] + 40 * RES, np.array([[0.0, 0, 1]]), ["w0"],
+                         seq=seq + 7, covariances_m2=(10 * RES) ** 2 * np.eye(3)[None]))
+    assert (acc.n_points, acc.merged) == (6, 1)  # beyond its cell: kept
+
+
 def test_a_mixed_batch_keeps_its_new_rows() -> None:
     acc = Accumulator(1)
     seq = _pass(acc, 0, {"w0": _line(5)})
@@ -136,3 +150,33 @@ def test_the_report_counts_merged_points(tmp_path: Path) -> None:
     assert json.loads(json.dumps(report.as_dict()))["merged_points"] == 7
     assert "merged: 7 contact point(s)" in report.text()
     assert MapReport(n_points=3, sources_ended=(), frames=()).as_dict()["merged_points"] == 0
+
+
+def test_noisy_repeats_merge_within_their_std_and_memory_stays_bounded() -> None:
+    """The same line again and again, each point measured anew with noise of std 0.2 mm, which
+    its covariance states: repeats within their std merge and the points kept stop growing;
+    without the covariance (cells of 10 um) nearly every repeat would be kept."""
+    std = 20 * RES
+    line = np.column_stack([np.arange(200) * 2 * std, np.zeros(200), np.zeros(200)])
+    rng = np.random.default_rng(7)
+
+    def run(passes: int, with_covariance: bool) -> list[int]:
+        acc, kept = Accumulator(1), []
+        for p in range(passes):
+            points = line + rng.normal(0.0, std, line.shape)
+            for k, point in enumerate(points):
+                acc.add(ContactBatch("world", point[None], np.array([[0.0, 0.0, 1.0]]), ["w0"],
+                                     seq=p * 1000 + k, covariances_m2=(
+                                         std**2 * np.eye(3)[None] if with_covariance else None)))
+            kept.append(acc.n_points)
+        assert acc.n_points + acc.merged == 200 * passes and not acc.dropped
+        return kept
+
+    noisy = run(90, with_covariance=True)
+    assert noisy[0] == 200  # one line is never merged with itself
+    # the points kept grow as the noise's tails are reached, ever more slowly (the log of the
+    # passes): the last 30 passes keep less than a tenth of their points
+    assert noisy[-1] - noisy[59] < 0.1 * 30 * 200
+    assert noisy[-1] - noisy[59] < noisy[29] - noisy[0]
+    plain = run(10, with_covariance=False)
+    assert plain[-1] > 0.9 * 10 * 200

@@ -87,7 +87,8 @@ def short_name(name: str) -> str:
 @dataclass(frozen=True)
 class MeshLayer:
     """One object's mesh, m: the known part with a value per vertex (the colour, m), the
-    unknown part, and the largest std of a known triangle."""
+    unknown part, and the largest std of a known triangle; ``uncertainty`` False for a mesh
+    without a std (Open3D's, `vibrissa.mapping.MapSettings.method`)."""
 
     name: str
     vertices: FloatArray
@@ -96,6 +97,7 @@ class MeshLayer:
     unknown_vertices: FloatArray
     unknown_triangles: IntArray
     max_std_m: float = 0.0
+    uncertainty: bool = True
 
 
 @dataclass(frozen=True)
@@ -215,9 +217,9 @@ def _plural(n: int, word: str) -> str:
 
 def map_layers(frame: FrameMap, scene: Scene | None = None, status: str = "") -> MapLayers:
     """What the pictures of a frame show: the contacts, the meshes (coloured by their distance
-    to the true surface when it is known, else by their std), the truth when known
-    (``frame.truth``), the robot path and whisker mounts of ``scene`` (in the frame's frame)
-    when given, and the map's ``status`` line (`MapLayers.status`)."""
+    to the true surface when it is known, else by their std, or in one colour without one),
+    the truth when known (``frame.truth``), the robot path and whisker mounts of ``scene`` (in
+    the frame's frame) when given, and the map's ``status`` line (`MapLayers.status`)."""
     result = frame.result
     whiskers = sorted(set(frame.whisker_ids))
     title = (f"{short_name(result.frame_id)} map: {_plural(len(result.objects), 'object')}, "
@@ -228,7 +230,9 @@ def map_layers(frame: FrameMap, scene: Scene | None = None, status: str = "") ->
         note = f"{short_name(obj.name)}: {_plural(obj.n_points, 'point')}, "
         note += (f"surface known over {_plural(obj.n_triangles, 'triangle')}"
                  f" ({obj.n_triangles / (obj.n_triangles + obj.unknown_triangles):.0%})"
-                 if obj.n_triangles else obj.method.removeprefix("none: "))
+                 if obj.n_triangles and obj.uncertainty else
+                 f"{obj.method.split(' (')[0]} surface, {_plural(obj.n_triangles, 'triangle')}"
+                 ", no uncertainty" if obj.n_triangles else obj.method.removeprefix("none: "))
         if obj.mesh_to_surface_mean is not None and obj.mesh_to_surface_max is not None:
             note += (f", {obj.mesh_to_surface_mean * 1e3:.2g} mm from the true surface on "
                      f"average, {obj.mesh_to_surface_max * 1e3:.2g} mm at most")
@@ -247,13 +251,17 @@ def map_layers(frame: FrameMap, scene: Scene | None = None, status: str = "") ->
         true = true_of.get(obj.true_object or "") if truth else None
         meshes.append(MeshLayer(
             obj.name, vertices, triangles,
-            true.distance(vertices) if true is not None else std,
+            true.distance(vertices) if true is not None else
+            std if surface.uncertainty else np.zeros(len(vertices)),  # one colour
             unknown_vertices, unknown_triangles,
-            max_std_m=surface.mesh.max_std if surface.mesh is not None else 0.0))
+            max_std_m=surface.mesh.max_std if surface.mesh is not None and surface.uncertainty
+            else 0.0, uncertainty=surface.uncertainty))
+    flat = not truth and not all(mesh.uncertainty for mesh in meshes)
     return MapLayers(
         title=title, subtitle="\n".join(notes), points=frame.points,
         whisker_ids=frame.whisker_ids, labels=frame.labels, meshes=meshes,
-        colour_by="distance to the true surface" if truth else "predicted std of the surface",
+        colour_by="distance to the true surface" if truth else
+        "one colour: no uncertainty" if flat else "predicted std of the surface",
         true_objects=truth, path=scene.path if scene is not None else None,
         whiskers=scene.whiskers if scene is not None else (), status=status)
 
@@ -495,17 +503,20 @@ def draw_map(layers: MapLayers) -> Figure:
         top.tripcolor(Triangulation(v[:, 0], v[:, 1], mesh.triangles), value_mm,
                       shading="gouraud", cmap=cmap, norm=norm, zorder=0.8)
     known = sum(len(mesh.triangles) for mesh in layers.meshes)
+    certain = all(mesh.uncertainty for mesh in layers.meshes)
     if known:
-        handles.append(Patch(facecolor=cmap(0.6), alpha=0.8,
-                             label=f"surface estimate, known: {thousands(known)} triangles\n"
-                                   f"(colour: {layers.colour_by}, bar)"))
+        handles.append(Patch(facecolor=cmap(0.6), alpha=0.8, label=(
+            "surface estimate, known" if certain else "surface estimate, NO UNCERTAINTY")
+            + f": {thousands(known)} triangles\n(colour: {layers.colour_by}"
+            + (", bar)" if largest_mm > 0 or certain else ")")))
     if unknown:
         limits = sorted({float(f"{mesh.max_std_m * MM:.2g}") for mesh in layers.meshes
                          if len(mesh.unknown_triangles) and mesh.max_std_m > 0})
         std = ("" if not limits else f"std above {limits[0]:g} mm, " if len(limits) == 1 else
                f"std above {limits[0]:g}-{limits[-1]:g} mm by object, ")  # one line for any number
         handles.append(Patch(facecolor="0.85", alpha=0.5, label=f"unknown: {std}not on the map"))
-    if known:  # the scale ends at a percentile: the vertices above show its top colour
+    if known and (largest_mm > 0 or certain):  # the scale ends at a percentile: the vertices
+        # above show its top colour; one colour (no uncertainty, no truth) needs no bar
         above = largest_mm > top_mm
         bar = fig.colorbar(ScalarMappable(norm, cmap), ax=[ax], shrink=0.5, pad=0.02,
                            location="left", extend="max" if above else "neither")

@@ -191,6 +191,7 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
         inside = objects.inside(k)
         surface = surfaces[k]
         vertices, triangles, std = surface.part(known=True)
+        uncertain = surface.uncertainty  # Open3D's meshes: no std
         own_spacing = objects.spacings[k]
         cloud_stats: tuple[float | None, float | None] = (None, None)
         mesh_stats: tuple[float | None, float | None] = (None, None)
@@ -208,9 +209,10 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
             surface.method, len(vertices), len(triangles),
             own_spacing if np.isfinite(own_spacing) else None,
             unknown_triangles=len(surface.part(known=False)[1]),
-            max_std_m=surface.mesh.max_std if surface.mesh is not None else None,
-            std_median_m=float(np.median(std)) if len(std) else None,
-            std_max_m=float(std.max()) if len(std) else None,
+            max_std_m=surface.mesh.max_std if surface.mesh is not None and uncertain else None,
+            std_median_m=float(np.median(std)) if len(std) and uncertain else None,
+            std_max_m=float(std.max()) if len(std) and uncertain else None,
+            uncertainty=uncertain,
             true_object=true.name if true is not None else None, true_object_median_m=median,
             next_sweeps=tuple(
                 NextSweep(p.offset_m, p.axis.tolist(), len(p.line), p.std_on_line_m,

@@ -67,7 +67,10 @@ class ObjectResult:
     and errors. The mesh counts and distances are those of the known part (position std <=
     ``max_std_m``); ``unknown_triangles`` were meshed but are not on the map.
     ``points_nearer_other`` counts its points nearer another true object than its own, by that
-    object (two objects in one); ``files`` are what the caller wrote of it."""
+    object (two objects in one); ``files`` are what the caller wrote of it. ``uncertainty``
+    is False for a mesh without a position std (Open3D's Poisson or ball pivoting,
+    ``MapSettings.method``): then every triangle is known, the std and ``max_std_m`` are None
+    and there are no next sweeps."""
 
     name: str
     n_points: int
@@ -89,6 +92,7 @@ class ObjectResult:
     next_sweeps: tuple[NextSweep, ...] = ()
     files: dict[str, str] = field(default_factory=dict)
     points_nearer_other: dict[str, int] = field(default_factory=dict)
+    uncertainty: bool = True
 
     def as_dict(self) -> dict[str, Any]:
         """The object as ``report.json`` holds it."""
@@ -324,10 +328,20 @@ def _format_report(report: dict[str, Any]) -> str:
                 f"  object {obj['name']}: {obj['n_points']} points from "
                 f"{_counts(obj['whiskers'])}{matched}",
                 f"    method: {obj['method']}",
-                f"    mesh: {obj['n_vertices']} vertices, {obj['n_triangles']} triangles known, "
-                f"{obj['unknown_triangles']} unknown (std above {_mm(obj['max_std_m'])})",
-                f"    std of the known surface: median {_mm(obj['std_median_m'])}, "
-                f"max {_mm(obj['std_max_m'])}",
+            ]
+            if obj.get("uncertainty", True):
+                lines += [
+                    f"    mesh: {obj['n_vertices']} vertices, {obj['n_triangles']} triangles "
+                    f"known, {obj['unknown_triangles']} unknown (std above "
+                    f"{_mm(obj['max_std_m'])})",
+                    f"    std of the known surface: median {_mm(obj['std_median_m'])}, "
+                    f"max {_mm(obj['std_max_m'])}"]
+            else:
+                lines += [
+                    f"    mesh: {obj['n_vertices']} vertices, {obj['n_triangles']} triangles, "
+                    "NO UNCERTAINTY: no std, nothing marked unknown, no next sweeps (they "
+                    "need the GP's std; method gp)"]
+            lines += [
                 f"    cloud -> surface: max {_mm(obj['cloud_to_surface_max'])}, "
                 f"mean {_mm(obj['cloud_to_surface_mean'])}",
                 f"    mesh -> surface:  max {_mm(obj['mesh_to_surface_max'])}, "

@@ -12,6 +12,11 @@ from vibrissa.mapping.objects import JOIN_NORMAL_TOL_RAD, MIN_POINTS
 MAX_CELLS = 512
 """Finest marching-cubes grid: 512 cells along an object's box."""
 
+METHODS = ("gp", "poisson", "ball_pivoting")
+"""The surface methods (``MapSettings.method``): the Gaussian-process implicit surface with its
+uncertainty (`vibrissa.mapping.gp_surface`), or Open3D's screened Poisson or ball-pivoting
+reconstruction on the same points and normals, without one (`vibrissa.mapping.open3d_surface`)."""
+
 
 def _require(ok: bool, name: str, value: object, rule: str) -> None:
     if not ok:
@@ -46,6 +51,11 @@ class MapSettings:
     proposals, proposal_axis
         Next sweeps proposed per object (0: none) and the normal (3,) of their section planes
         (`vibrissa.mapping.next_sweep`).
+    method
+        The surface method, one of `METHODS`: ``gp`` (default; the uncertainty that the known
+        part, the std and the next sweeps need), ``poisson`` or ``ball_pivoting`` (Open3D, no
+        uncertainty: every triangle known, no std, no next sweeps; docs/MAPPING.md says when
+        each is right).
 
     Raises ``ValueError`` naming the setting when one is out of its range.
     """
@@ -61,8 +71,10 @@ class MapSettings:
     point_std_m: float = GPParams.point_std_m
     proposals: int = 3
     proposal_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    method: str = "gp"
 
     def __post_init__(self) -> None:
+        _require(self.method in METHODS, "method", self.method, f"one of {', '.join(METHODS)}")
         _require(math.isfinite(self.cluster_eps_m) and self.cluster_eps_m >= 0, "cluster_eps_m",
                  self.cluster_eps_m, "a finite number >= 0")
         _require(self.cluster_min_points >= 1, "cluster_min_points", self.cluster_min_points,

@@ -1,5 +1,7 @@
 """The surface of one object: a Gaussian-process implicit surface on its contacts and their
-normals (`vibrissa.mapping.gp_surface`), meshed over the object's box."""
+normals (`vibrissa.mapping.gp_surface`), meshed over the object's box, or Open3D's Poisson or
+ball-pivoting mesh of them without an uncertainty (`vibrissa.mapping.open3d_surface`), as
+``MapSettings.method`` chooses."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import numpy.typing as npt
 
 from vibrissa.mapping import gp_surface
 from vibrissa.mapping.gp_surface import GPParams, GPSurface, SurfaceMeshStd
+from vibrissa.mapping.open3d_surface import open3d_mesh
 from vibrissa.mapping.settings import MapSettings
 
 FloatArray = npt.NDArray[np.float64]
@@ -38,7 +41,8 @@ class ObjectSurface:
     """The surface estimate of one object (:func:`estimate_surface`).
 
     ``method`` names the method and its fitted parameters, or says why there is no surface
-    (``none: ...``; then ``gp`` and ``mesh`` are None).
+    (``none: ...``; then ``gp`` and ``mesh`` are None). Without ``gp`` (Open3D's methods) the
+    mesh has no uncertainty: every triangle is known and every std NaN.
     """
 
     method: str
@@ -52,28 +56,41 @@ class ObjectSurface:
             return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0)
         return self.mesh.part(known)
 
+    @property
+    def uncertainty(self) -> bool:
+        """False for a mesh without a position std (Open3D's): no known part, std or next
+        sweeps, which need the GP's."""
+        return self.mesh is None or self.gp is not None
+
 
 def estimate_surface(points: FloatArray, normals: FloatArray,
                      settings: MapSettings | None = None,
                      point_var_m2: FloatArray | None = None) -> ObjectSurface:
-    """The Gaussian-process implicit surface of one object's contacts (`vibrissa.mapping.gp_surface`)
-    meshed over its box, or why there is none (``too_little_for_a_surface``).
+    """The surface of one object's contacts by ``settings.method``: the Gaussian-process
+    implicit surface (`vibrissa.mapping.gp_surface`) meshed over its box, or Open3D's Poisson or
+    ball-pivoting mesh (`vibrissa.mapping.open3d_surface`), or why there is none
+    (``too_little_for_a_surface``).
 
     Parameters
     ----------
     points, normals : ndarray, shape (N, 3)
         Contact points (m) in line order and outward unit normals (:func:`contact_normals`).
     settings
-        Meshing and noise settings (``cells``, ``margin``, ``max_std_m``, ``point_std_m``).
+        The method, meshing and noise settings (``method``, ``cells``, ``margin``,
+        ``max_std_m``, ``point_std_m``).
     point_var_m2 : ndarray, shape (N,), optional
-        Each point's position variance along its normal, m^2 (from its covariance): the fit
-        weights the points by it (``gp_surface.fit``).
+        Each point's position variance along its normal, m^2 (from its covariance): the GP
+        weights the points by it (``gp_surface.fit``); Open3D's methods do not use it.
     """
     settings = settings or MapSettings()
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     too_little = too_little_for_a_surface(points)
     if too_little is not None:
         return ObjectSurface(f"none: {too_little}")
+    if settings.method != "gp":
+        mesh, method = open3d_mesh(points, np.asarray(normals, dtype=np.float64).reshape(-1, 3),
+                                   settings)
+        return ObjectSurface(method, None, mesh)
     gp = gp_surface.fit(points, normals, GPParams(point_std_m=settings.point_std_m), point_var_m2)
     return meshed_surface(gp, points, settings)
 

@@ -179,6 +179,9 @@ class MapperParams:
         (a fraction of the points' box diagonal), the largest std of a known triangle (m; 0:
         a fifth of the prior std), the std of a contact point (m); see
         `vibrissa.mapping.MapSettings`.
+    method
+        The surface method: ``gp`` (the uncertainty), ``poisson`` or ``ball_pivoting``
+        (Open3D's, no uncertainty, no next sweeps); `vibrissa.mapping.MapSettings`.
     timeout_s
         Write the final map of what has arrived after this long without a message, s (0 =
         wait for the ends).
@@ -225,6 +228,7 @@ class MapperParams:
     margin: float = MapSettings.margin
     max_std_m: float = MapSettings.max_std_m
     point_std_m: float = MapSettings.point_std_m
+    method: str = MapSettings.method
     timeout_s: float = 0.0
     map_period_s: float = 1.0
     write_period_s: float = 5.0
@@ -279,7 +283,8 @@ class MapperParams:
                 cluster_min_points=self.cluster_min_points, join_convex=self.join_convex,
                 join_normal_tol_rad=self.join_normal_tol_rad, cells=self.cells,
                 margin=self.margin, max_std_m=self.max_std_m, point_std_m=self.point_std_m,
-                proposals=self.proposals, proposal_axis=self.proposal_axis)
+                proposals=self.proposals, proposal_axis=self.proposal_axis,
+                method=self.method)
         except ValueError as exc:
             raise ValueError(f"parameter {exc}") from None
         object.__setattr__(self, "settings", settings)

@@ -293,8 +293,8 @@ class Explorer:
         return None
 
     def _route_and_look(self, X_WR: Transform, cells: npt.NDArray[np.int64]) -> Plan:
-        """Waypoints along ``cells`` (from here), heading along each leg, then a full turn in
-        place in quarter turns."""
+        """Waypoints from X_WR along ``cells`` (from here), heading along each leg, then a full
+        turn in place in quarter turns."""
         xy = self.space.centre(cells)
         xy[0] = X_WR.translation[:2]
         keep = [0]
@@ -317,4 +317,7 @@ class Explorer:
         rotations = Rotation.from_euler("z", np.array(headings)[:, None]) * self.tilt
         position = np.column_stack([np.array(points), np.full(len(points), self.height_m)])
         self._look = np.array(xy[-1])
-        return Plan(position, rotations.as_quat(), f"route of {len(xy) - 1} leg(s), then a look")
+        # from where it stands (a robot takes a first waypoint only near its pose)
+        return Plan(np.vstack([X_WR.translation, position]),
+                    np.vstack([X_WR.rotation.as_quat(), rotations.as_quat()]),
+                    f"route of {len(xy) - 1} leg(s), then a look")

@@ -30,8 +30,9 @@ p95 = 0.95 P). The mesh's delay exceeds it when the next publication is of an up
 before the contact came (it waits for the one after); so the mesh's p95 over the reference's says
 what the updates' length adds to their cadence, and ``p95 / P`` is the target's figure (<= 2; P =
 ``map_period_s``, 1 s by default). ``1st mesh`` is from the first contact to the first mesh,
-``fits`` the mapper's fits logged while the stream went on and ``fit s`` their median duration
-(its log's "mapped ... in X s"; the per-run lines list every fit, the final one too).
+``1st fit s`` how long the mapper's first update took and ``final s`` its last fit, the final
+map's (its log's "mapped ... in X s"; the per-run lines list every fit, "after" the ones that
+ended after the last contact).
 
 Configurations: ``alone``, the launch by itself; ``loaded``, the same launch while a
 32-whisker x 1 kHz stream (32 000 wrenches/s, a WhiskerWrenchArray of 32 rows per tick, poses
@@ -303,7 +304,7 @@ def measure(config: str, domain: int, tmp: Path, passes: int, rate: float, load_
                     continue
                 msg = rx.msg
                 if isinstance(msg, EndOfStream):
-                    final = rx.topic == MESH
+                    final = final or rx.topic == MESH
                 elif isinstance(msg, ContactPointArray):
                     if len(msg.whisker_ids):
                         contacts.append((now, msg.stamp))
@@ -396,7 +397,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"\nmedians over the runs of each run's figure (delays in s; P = map_period_s = "
           f"{PERIOD_S:g} s; contacts: totals)")
     print(f"{'':16} {'runs':>4} {'contacts':>8} {'final':>6} {'never':>5} {'p50':>6} {'p95':>6} "
-          f"{'max':>6} {'p95/P':>6} {'live p95':>8} {'1st mesh':>8} {'fits':>4} {'fit s':>6} "
+          f"{'max':>6} {'p95/P':>6} {'live p95':>8} {'1st mesh':>8} {'1st fit s':>9} {'final s':>8} "
           f"{'load':>5}")
     for config in configs:
         mine = [r for r in runs if r.config == config]
@@ -404,8 +405,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"{sum(int(r.delays.final_only.sum()) for r in mine):6d} "
                   f"{sum(r.delays.never for r in mine):5d}")
         common = (f"{_median([r.first_mesh_s for r in mine]):8.1f} "
-                  f"{_median([sum(live for _, live in r.updates) for r in mine]):4.0f} "
-                  f"{_median([u for r in mine for u, live in r.updates if live]):6.1f} "
+                  f"{_median([r.updates[0][0] if r.updates else np.nan for r in mine]):9.1f} "
+                  f"{_median([r.updates[-1][0] if r.updates else np.nan for r in mine]):8.1f} "
                   f"{_median([r.load for r in mine]):5.1f}")
         for name, of in (("mesh", lambda r: r.delays.delay),
                          ("next update", lambda r: r.delays.next_update)):

@@ -287,7 +287,11 @@ def _format_report(report: dict[str, Any]) -> str:
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
                      f"{stream['received']} received, {stream['lost']} lost")
-    if report.get("upstream_lost"):
+    if report.get("upstream_lost") and report.get("ended_by") == "stop":
+        lines.append(f"UPSTREAM AT THE STOP: {report['upstream_lost']} message(s) had not "
+                     "reached the nodes before the map when the graph stopped (on their way, "
+                     "or lost):")
+    elif report.get("upstream_lost"):
         lines.append(f"LOST UPSTREAM: {report['upstream_lost']} message(s) did not reach the "
                      "nodes before the map, so the map may miss what they carried:")
     for node in report.get("upstream", []):

@@ -44,10 +44,13 @@ its new points) is due at most every ``map_period_s`` and every twice the last u
 (fit and files: mapping takes at most half of the node's time); it waits until the input queued
 meanwhile is taken in. Each update is published (cloud, meshes, proposals) and its files are
 rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
-(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) is the one of a single
-fit on every point received (`LiveMap.final`, bit for bit): the last update when it is that
-already (then only the reports are rewritten when its files are written), else the objects
-that changed fitted again. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
+(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) holds every point
+received. When the streams ended or fell silent it is the one of a single fit (`LiveMap.final`,
+bit for bit): the last update when it is that already (then only the reports are rewritten when
+its files are written), else the objects that changed fitted again. On a stop it is the live
+map (`LiveMap.update`: the last update when it holds every point, else one more), so that it is
+written within the launcher's grace; Open3D is loaded before the node joins the graph, not in
+its first update. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
 the input, ``hwm`` 200 000), not in a worker thread: Open3D holds the interpreter, and a fit in
 a thread would only race the final one for the 2 cores. A SIGINT or SIGTERM is therefore seen
 when the update under way returns; the node then takes no more input and writes the final map
@@ -623,7 +626,9 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         # reports are written again when its files are), else the objects that changed fitted
         # again; a stop now changes nothing, the same signal again ends the process at once
         node.set_state("running", f"final map of {acc.n_points} points")
-        final = fit_frames(acc, params, live, final=True)
+        # at a stop, the live map of every point (an update: the launcher's grace is short),
+        # else the single fit's
+        final = fit_frames(acc, params, live, final=ended_by != "stop")
         if not updates or len(final) != len(frames) or any(
                 a is not b for a, b in zip(final, frames, strict=False)):
             frames, written = final, None
@@ -632,9 +637,11 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     if report.lost:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")
-    if report.upstream_lost:
-        log.error("%s: %d message(s) did not reach the nodes before the map (%s)", node.fqn,
-                  report.upstream_lost, ", ".join(u.node for u in report.upstream if u.short))
+    if report.upstream_lost:  # at a stop, every node stops with messages on their way
+        log.log(logging.WARNING if ended_by == "stop" else logging.ERROR,
+                "%s: %d message(s) did not reach the nodes before the map%s (%s)", node.fqn,
+                report.upstream_lost, " by the stop" if ended_by == "stop" else "",
+                ", ".join(u.node for u in report.upstream if u.short))
     if report.dropped_points:
         log.error("%s: %d contact point(s) were dropped beyond the map's bounds: %s%s",
                   node.fqn, sum(report.dropped_points.values()), report.dropped_points,
@@ -669,6 +676,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging()
     params = load_params(MapperParams, args.params_file, args.params)
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
+    import open3d  # noqa: F401  # seconds to load: before the graph starts, not in the first map
     with Node.from_args(args) as node:
         report = run(node, params)
     if report is not None and report.n_points == 0:

@@ -26,12 +26,12 @@ from typing import Any
 import numpy as np
 import yaml
 
+from vibrissa.exploration import Explore
 from vibrissa.formats import yaml_numbers
 from vibrissa.formats.csv_text import csv_records
 from vibrissa.formats.errors import SceneError
 from vibrissa.formats.files import read_text
 from vibrissa.frames import Transform, non_unit_quaternion
-from vibrissa.exploration import Explore
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
 from vibrissa.units import finite_number, number_text
 

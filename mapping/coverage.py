@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from vibrissa.mapping.report import Exploration
 from vibrissa.mapping.truth import TrueObject
 from vibrissa.surfaces import Ellipsoid, Paraboloid
 
@@ -134,3 +135,41 @@ def coverage(samples_m: FloatArray, mesh_vertices_m: FloatArray, tol_m: float = 
         return 0.0
     distance, _ = cKDTree(vertices).query(samples_m, distance_upper_bound=tol_m)
     return float(np.mean(distance <= tol_m))
+
+
+class ExplorationLog:
+    """An exploration as the map sees it: the path length of the robot base, and the coverage
+    of each map along it (`coverage` of ``samples_m`` (N, 3), m, within ``tol_m``).
+
+    The path length is the sum of the distances between the base's successive positions
+    (`move`), m: the chords of the poses as they arrive.
+    """
+
+    def __init__(self, planner: str, samples_m: FloatArray, tol_m: float = COVERAGE_TOL_M
+                 ) -> None:
+        self.planner = planner
+        self.samples_m = np.asarray(samples_m, dtype=float).reshape(-1, 3)
+        self.tol_m = tol_m
+        self.path_length_m = 0.0
+        self.history: list[tuple[float, float]] = []
+        self._last: FloatArray | None = None
+
+    def move(self, p_W_m: npt.ArrayLike) -> float:
+        """Take the base's next position (3,), m; the step from the last one, m (0 for the
+        first)."""
+        p = np.asarray(p_W_m, dtype=float).reshape(3)
+        step = 0.0 if self._last is None else float(np.linalg.norm(p - self._last))
+        self._last = p
+        self.path_length_m += step
+        return step
+
+    def record(self, mesh_vertices_m: FloatArray) -> float:
+        """The coverage of a map's known mesh (its vertices (V, 3), m), kept with the path
+        length now."""
+        share = coverage(self.samples_m, mesh_vertices_m, self.tol_m)
+        self.history.append((self.path_length_m, share))
+        return share
+
+    def result(self) -> Exploration:
+        """The exploration so far, for the report."""
+        return Exploration(self.planner, self.path_length_m, tuple(self.history))

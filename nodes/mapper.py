@@ -207,7 +207,7 @@ class MapperParams:
         (Open3D's, no uncertainty, no next sweeps); `vibrissa.mapping.MapSettings`.
     timeout_s
         Write the final map of what has arrived after this long without a message, s (0 =
-        wait for the ends).
+        wait for the ends); the time of a map update is not counted (its input waits).
     map_period_s, write_period_s
         While the streams go on, map (and publish the map) at most every ``map_period_s``
         and rewrite the files at most every ``write_period_s``, s.
@@ -676,6 +676,9 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                                 for frame in frames]
                 publish(messages)
                 update_s = time.monotonic() - fit_start
+                # the time of an update is not silence: what arrived meanwhile waits in the
+                # queue, behind the statuses that came with it
+                last += update_s
                 node.set_state("running", f"map of {fitted} points (update {updates}) in "
                                           f"{update_s:.1f} s; waiting for {expected} "
                                           "source(s) to end")

@@ -145,7 +145,7 @@ def test_the_report_holds_the_path_length_and_the_coverage_of_each_map(
                                                                        n_contacts)
     exploration = report["exploration"]
     assert exploration["planner"] == "lawnmower"
-    assert exploration["path_length_m"] == pytest.approx(length, rel=1e-12)
+    assert exploration["path_length_m"] == pytest.approx(length, rel=1e-12), out
     history = exploration["coverage"]
     assert len(history) >= 2  # the updates while the contacts came, and the final map
     lengths = [entry[0] for entry in history]

@@ -9,8 +9,8 @@ coloured by its distance to the true surface when that is known and by its predi
 otherwise, per vertex and interpolated (one colour bar in mm, to a percentile of the vertices'
 values; it states the largest, the header's maximum), and the unknown part of the meshes in
 faint grey; a legend for every layer; under the title, the map's status line when given
-(which update of a live stream or the final map, when); for an exploration, beside the legend,
-its coverage of the true objects against the path length of the robot base. Names from the wire
+(which update of a live stream or the final map, when); for an exploration, right of the top
+view, its coverage of the true objects against the path length of the robot base. Names from the wire
 (whiskers, objects, frames) are drawn as ``short_name`` gives them, and no text is read as
 matplotlib's mathtext (a ``$`` in a name).
 The 3D view is cut to the objects (contacts, meshes, true objects) and the robot within a
@@ -405,21 +405,21 @@ def draw_map(layers: MapLayers) -> Figure:
     from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 - registers the 3d projection
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    fig = Figure(figsize=(16, 9))
+    explored = layers.coverage is not None  # a third column: the coverage, right of the top view
+    fig = Figure(figsize=(20, 9) if explored else (16, 9))
     notes = layers.subtitle.count("\n") + 1 if layers.subtitle else 0
-    grid = fig.add_gridspec(2, 2, width_ratios=[1.35, 1.0], height_ratios=[1.0, 0.8],
+    grid = fig.add_gridspec(2, 3 if explored else 2,
+                            width_ratios=[1.35, 1.0, 0.65] if explored else [1.35, 1.0],
+                            height_ratios=[1.0, 0.8],
                             left=0.02, right=0.98, bottom=0.06, top=0.91 - 0.016 * notes,
                             wspace=0.2, hspace=0.15)
     # Drawn in a fixed order, not sorted by depth: the contacts on a surface stay in front of
     # its mesh, the path and the mounts in front of the objects.
     ax: Any = fig.add_subplot(grid[:, 0], projection="3d", computed_zorder=False)
     top: Any = fig.add_subplot(grid[0, 1])
-    if layers.coverage is None:
-        key: Any = fig.add_subplot(grid[1, 1])
-    else:  # the legend and the coverage side by side
-        bottom = grid[1, 1].subgridspec(1, 2, width_ratios=[1.25, 1.0], wspace=0.3)
-        key = fig.add_subplot(bottom[0])
-        draw_coverage(fig.add_subplot(bottom[1]), layers.coverage)
+    key: Any = fig.add_subplot(grid[1, 1:])
+    if layers.coverage is not None:
+        draw_coverage(fig.add_subplot(grid[0, 2]), layers.coverage)
     key.axis("off")
     focus: list[FloatArray] = []  # the objects, m: the limits of the 3D view
     extent: list[FloatArray] = []  # every drawn point, m: the limits of the top view

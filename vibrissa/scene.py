@@ -139,7 +139,7 @@ class Whisker:
 
 @dataclass(frozen=True)
 class RobotPath:
-    """Stamped robot poses X_WR: times ``t`` (N,) s, strictly increasing; positions
+    """Stamped robot poses X_WR: times ``t`` (N >= 1,) s, strictly increasing; positions
     ``p_WR`` (N, 3) m; orientations ``R_WR`` (N rotations)."""
 
     t: FloatArray
@@ -150,8 +150,8 @@ class RobotPath:
         t = np.asarray(self.t, dtype=float)
         if t.ndim != 1:
             raise ValueError(f"path times must be one column, got shape {t.shape}")
-        if len(t) < 2:
-            raise ValueError(f"a path needs at least 2 samples, got {len(t)}")
+        if len(t) < 1:  # one sample: a robot standing still
+            raise ValueError(f"a path needs at least 1 sample, got {len(t)}")
         steps = np.diff(t)
         if not np.all(steps > 0):
             first = int(np.flatnonzero(~(steps > 0))[0]) + 2  # 1-based row of the later sample
@@ -173,7 +173,9 @@ class RobotPath:
         covered = (t >= self.t[0]) & (t <= self.t[-1])
         p = np.full((len(t), 3), np.nan)
         q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
-        if covered.any():
+        if covered.any() and len(self.t) == 1:  # standing still: the one pose
+            p[covered], q[covered] = self.p_WR[0], self.R_WR[0].as_quat()
+        elif covered.any():
             p[covered], rotations = PoseSamples(self.t, self.p_WR, self.R_WR).poses_at(t[covered])
             q[covered] = rotations.as_quat()
         return covered, p, Rotation.from_quat(q)

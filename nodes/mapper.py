@@ -701,12 +701,11 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 rx = subscriber.receive(0.05)
                 if rx is not None and isinstance(rx.msg, NodeStatus):
                     traffic.add(rx.msg)
-        # the final map (the full fit's): the last update when it is that already (only the
-        # reports are written again when its files are), else the objects that changed fitted
-        # again; a stop now changes nothing, the same signal again ends the process at once
+        # the final map: the single fit's, or at a stop the live map of every point (an update:
+        # the launcher's grace is short); the last update when it is that already (only the
+        # reports are written again when its files are); a stop now changes nothing, the same
+        # signal again ends the process at once
         node.set_state("running", f"final map of {acc.n_points} points")
-        # at a stop, the live map of every point (an update: the launcher's grace is short),
-        # else the single fit's
         final = fit_frames(acc, params, live, final=ended_by != "stop")
         if not updates or len(final) != len(frames) or any(
                 a is not b for a, b in zip(final, frames, strict=False)):

@@ -929,7 +929,7 @@ class _StreamSteps(_WhiskerSteps):
         self._recorded = 0  # rows of the episode in progress already recorded
         self._recorded_run: SweepRun | None = None
         self._recorded_to = 0  # ... up to this moving sample (exclusive)
-        self._idle_at: tuple[int, bool] = (0, False)  # (samples, final) when it last waited
+        self._idle_at: tuple[int, bool] = (-1, False)  # (samples, final) when it last waited
 
     def extend(self, t: FloatArray, p_WR_m: FloatArray, rotations: Rotation) -> None:
         from scipy.spatial.transform import Rotation
@@ -985,7 +985,8 @@ class _StreamSteps(_WhiskerSteps):
             return
         if self._idle_at != (self.path.n_samples, self.final) or self._snapped is not None:
             self.start_episode()
-            self._idle_at = (self.path.n_samples, self.final)
+            # waiting for samples: not again before more came
+            self._idle_at = (self.path.n_samples, self.final) if self.run is None else (-1, False)
 
     def _next_sample(self) -> int:
         """The moving sample the episode's next step reaches (before longer early steps)."""

@@ -589,7 +589,7 @@ class CommandedMessages:
     def start(self, p_WR: FloatArray, q_WR: FloatArray
               ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
         """The pose at path time 0, where the robot stands before any command."""
-        self.next_pose = 1
+        self.next_pose, self.before = 1, (0.0, p_WR, q_WR)
         return [(self.params.pose_delay_s, 0, _pose(self.params, 0.0, p_WR, q_WR))]
 
     def of(self, samples: StreamSamples, last: bool = False
@@ -615,15 +615,15 @@ class CommandedMessages:
 
     def _poses(self, samples: StreamSamples, last: bool
                ) -> list[tuple[float, FloatArray, FloatArray]]:
-        if not self.params.pose_rate_hz:
-            first = 1 if self.before is None and len(samples.t) else 0  # the start's: out
-            return list(zip(samples.t[first:].tolist(), samples.p_WR[first:],
-                            samples.q_WR[first:], strict=True))
-        if self.before is None or not len(samples.t):
+        new = samples.t > self.before[0] if self.before is not None else samples.t >= 0
+        if not self.params.pose_rate_hz:  # the start's pose is out already
+            return list(zip(samples.t[new].tolist(), samples.p_WR[new], samples.q_WR[new],
+                            strict=True))
+        if self.before is None or not new.any():
             return []
-        t = np.concatenate([[self.before[0]], samples.t])
-        path = robot_path(t, np.vstack([self.before[1][None], samples.p_WR]),
-                          np.vstack([self.before[2][None], samples.q_WR]))
+        t = np.concatenate([[self.before[0]], samples.t[new]])
+        path = robot_path(t, np.vstack([self.before[1][None], samples.p_WR[new]]),
+                          np.vstack([self.before[2][None], samples.q_WR[new]]))
         period = 1.0 / self.params.pose_rate_hz
         stop = int(np.floor(t[-1] / period))
         at = np.arange(self.next_pose, stop + 1) * period
@@ -679,8 +679,8 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
         return True
 
     publish(out.start(p0, q0))  # where the robot stands (its wrench once it is final)
-    while not node.stop_requested and not ended:
-        rx = commands.receive(0.0 if path.queued else 0.1)
+    while not node.stop_requested and (path.queued or not ended):
+        rx = None if ended else commands.receive(0.0 if path.queued else 0.1)
         while rx is not None and not ended:
             msg = rx.msg
             if isinstance(msg, EndOfStream):

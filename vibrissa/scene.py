@@ -896,10 +896,17 @@ class SceneStream:
         rows = slice(self._sent, max(done, self._sent))
         self._sent = rows.stop
         results = [steps.raw_results(rows) for steps in self._steps]
+        for steps in self._steps:
+            steps.forget(self._sent)
         return StreamSamples(self._t[rows], self._p[rows], self._q[rows],
                              np.stack([r[0] for r in results], axis=1).reshape(-1, len(results)),
                              np.stack([r[1] for r in results], axis=1).reshape(-1, len(results), 3),
                              np.stack([r[2] for r in results], axis=1).reshape(-1, len(results), 3))
+
+
+FORGET_SAMPLES = 500
+"""A streamed whisker waiting for a touch drops the moving samples behind it once there are
+this many (`_StreamSteps.forget`)."""
 
 
 class _StreamSteps(_WhiskerSteps):
@@ -930,6 +937,7 @@ class _StreamSteps(_WhiskerSteps):
         self._recorded_run: SweepRun | None = None
         self._recorded_to = 0  # ... up to this moving sample (exclusive)
         self._idle_at: tuple[int, bool] = (-1, False)  # (samples, final) when it last waited
+        self._base = 0  # moving samples dropped (`forget`): index 0 of ``path`` is this one
 
     def extend(self, t: FloatArray, p_WR_m: FloatArray, rotations: Rotation) -> None:
         from scipy.spatial.transform import Rotation
@@ -1052,9 +1060,29 @@ class _StreamSteps(_WhiskerSteps):
             kept_done = min(n, max(self.k + 1, self._searched + 1))
         # a raw sample repeats the moving sample before it: final with it
         of_sample = np.cumsum(self.moved) - 1
-        return int(np.searchsorted(of_sample, kept_done, side="left"))
+        return int(np.searchsorted(of_sample, self._base + kept_done, side="left"))
 
     def raw_results(self, rows: slice) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
         """Phase (m,), f0 (m, 3) N and m0 (m, 3) N m of raw samples ``rows``."""
-        of_sample = (np.cumsum(self.moved) - 1)[rows]
+        of_sample = (np.cumsum(self.moved) - 1)[rows] - self._base
         return self.phase[of_sample], self.f0[of_sample], self.m0[of_sample]
+
+    def forget(self, sent: int) -> None:
+        """Drop the moving samples before ``k`` when the whisker waits for a touch and every
+        raw sample before ``sent`` is handed out: what follows depends only on the path from
+        ``k`` on (a tail of the path is the same samples and coordinates, `SampledPath.tail`),
+        and the path's cost stays that of the samples since then."""
+        if (self.path is None or self.run is not None or self._snapped is not None
+                or self.ended or self.k < FORGET_SAMPLES or self.k >= self.path.n_samples - 1
+                or self.kept[self.k] >= sent):
+            return
+        b = self.k
+        self._base += b
+        self.kept, self._p_kept = self.kept[b:], self._p_kept[b:]
+        assert self._R_kept is not None
+        self._R_kept = self._R_kept[b:]
+        for name in ("phase", "s1", "f0", "m0", "contact", "touched", "refined"):
+            setattr(self, name, getattr(self, name)[b:])
+        self.k, self._searched = 0, max(self._searched - b, -1)
+        self._idle_at = (-1, False)
+        self.path = SampledPath(self._p_kept, self._R_kept, self.scene.mu, self.mount, self.h)

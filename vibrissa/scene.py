@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
-from vibrissa.paths import SampledPath, rod_motion
+from vibrissa.paths import SUBSAMPLE_L, SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
@@ -512,10 +512,22 @@ class _WhiskerSteps:
         self.run = SweepRun(self.surfaces[self._object], [rest], rest.h)
 
     def _touch_after(self, j: int) -> bool:
-        """Whether the straight rod, free at moving sample ``j``, touches an object after it."""
+        """Whether the straight rod, free at moving sample ``j``, touches an object after it.
+
+        First, for all objects at once: none where the rod enters no object at any sample and
+        moves at most `SUBSAMPLE_L` from one to the next (`SampledPath.first_contact` then has
+        no sub-samples to check)."""
         window = SampledPath(self.path.p_WR[j:], self.path.rotations[j:], self.path.mu,
                              self.path.mount, self.path.h)
+        p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))
+        if (self.max_motion <= SUBSAMPLE_L
+                and not any(s.segment_inside(p_WC, R_WC[:, :, 2]).any() for s in self.surfaces)):
+            return False
         return any(window.first_contact(surface) is not None for surface in self.surfaces)
+
+    max_motion = float("inf")
+    """The most a point of the straight rod moved from one sample to the next, units of L
+    (unknown: inf)."""
 
     def where(self) -> tuple[int, int]:
         """The moving sample the episode has reached, and the moving samples."""
@@ -697,8 +709,10 @@ class _WhiskerSteps:
     def _skip_unresolved(self, k: int) -> int:
         """The first sample from ``k`` on where the straight rod is outside every object."""
         path, n = self.path, self.path.n_samples
-        while k < n and any(path.penetrates(s, path.x0_of(np.array([k])))[0]
-                            for s in self.surfaces):
+        while k < n:
+            p_WC, R_WC = path.clamp_pose(path.x0_of(np.array([k])))  # `SampledPath.penetrates`
+            if not any(s.segment_inside(p_WC, R_WC[:, :, 2])[0] for s in self.surfaces):
+                break
             self.phase[k], self.f0[k], self.m0[k] = SamplePhase.UNRESOLVED, np.nan, np.nan
             k += 1
         return k
@@ -904,7 +918,7 @@ class SceneStream:
                              np.stack([r[2] for r in results], axis=1).reshape(-1, len(results), 3))
 
 
-FORGET_SAMPLES = 500
+FORGET_SAMPLES = 64
 """A streamed whisker waiting for a touch drops the moving samples behind it once there are
 this many (`_StreamSteps.forget`)."""
 
@@ -932,6 +946,7 @@ class _StreamSteps(_WhiskerSteps):
         self.refined = np.zeros(0, dtype=bool)
         self.final = False
         self.hold = True
+        self.max_motion = 0.0
         self._init_state()
         self._recorded = 0  # rows of the episode in progress already recorded
         self._recorded_run: SweepRun | None = None
@@ -944,11 +959,13 @@ class _StreamSteps(_WhiskerSteps):
 
         p = (p_WR_m - self.origin_m) / self.whisker.length_m
         if self._last is None:
-            moved = np.concatenate([[True], rod_motion(p, rotations, self.mount) > PAUSE_L])
+            motion = rod_motion(p, rotations, self.mount)
+            moved = np.concatenate([[True], motion > PAUSE_L])
         else:
-            moved = rod_motion(np.vstack([self._last[0][None], p]),
-                               Rotation.concatenate([self._last[1], rotations]),
-                               self.mount) > PAUSE_L
+            motion = rod_motion(np.vstack([self._last[0][None], p]),
+                                Rotation.concatenate([self._last[1], rotations]), self.mount)
+            moved = motion > PAUSE_L
+        self.max_motion = max(self.max_motion, float(np.max(motion, initial=0.0)))
         self._last = (p[-1], rotations[-1:])
         start = len(self.t_all)
         self.t_all = np.concatenate([self.t_all, t])

@@ -491,8 +491,9 @@ class _WhiskerSteps:
                                         landings=[landing])
                     self._landed = True
                     return
-        self.k = self._skip_unresolved(self.k)  # (more samples may come: it may go on)
-        n = self.path.n_samples
+        if self._searched < self.k:  # (more samples may come: a skip may go on)
+            self.k = self._skip_unresolved(self.k)
+        n = len(self.kept)
         if self.k >= n - 1:
             self.ended = self.final
             return
@@ -517,13 +518,27 @@ class _WhiskerSteps:
         First, for all objects at once: none where the rod enters no object at any sample and
         moves at most `SUBSAMPLE_L` from one to the next (`SampledPath.first_contact` then has
         no sub-samples to check)."""
-        window = SampledPath(self.path.p_WR[j:], self.path.rotations[j:], self.path.mu,
-                             self.path.mount, self.path.h)
+        p_WR, rotations = self._samples_from(j)
+        window = SampledPath(p_WR, rotations, self.scene.mu, self.mount, self.h)
         p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))
         if (self.max_motion <= SUBSAMPLE_L
                 and not any(s.segment_inside(p_WC, R_WC[:, :, 2]).any() for s in self.surfaces)):
             return False
         return any(window.first_contact(surface) is not None for surface in self.surfaces)
+
+    def _samples_from(self, j: int) -> tuple[FloatArray, Rotation]:
+        """The moving samples from ``j`` on: robot origins (units of L) and R_WR."""
+        return self.path.p_WR[j:], self.path.rotations[j:]
+
+    @property
+    def mount(self) -> Transform:
+        """X_RC, units of L."""
+        return self.path.mount
+
+    @property
+    def h(self) -> float:
+        """Step 1's step, units of L: a sample."""
+        return self.path.h
 
     max_motion = float("inf")
     """The most a point of the straight rod moved from one sample to the next, units of L
@@ -930,16 +945,16 @@ class _StreamSteps(_WhiskerSteps):
 
     def __init__(self, scene: Scene, whisker: Whisker, origin_m: FloatArray, h: float) -> None:
         length = whisker.length_m
-        self.scene, self.whisker, self.origin_m, self.h = scene, whisker, origin_m, h
+        self.scene, self.whisker, self.origin_m, self._h = scene, whisker, origin_m, h
         self.surfaces = [obj.surface(length, origin_m) for obj in scene.objects]
-        self.mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
+        self._mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
         self.t_all = np.zeros(0)
         self.moved = np.zeros(0, dtype=bool)
         self.kept = np.zeros(0, dtype=np.int64)
         self._p_kept = np.zeros((0, 3))
         self._R_kept: Rotation | None = None
         self._last: tuple[FloatArray, Rotation] | None = None  # the last raw sample, units of L
-        self.path: SampledPath | None = None  # type: ignore[assignment]
+        self._path: SampledPath | None = None  # built from the samples when asked for
         self.phase = np.zeros(0, dtype=np.int64)
         self.s1, self.f0, self.m0 = np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
         self.contact, self.touched = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
@@ -972,6 +987,27 @@ class _StreamSteps(_WhiskerSteps):
         self.moved = np.concatenate([self.moved, moved])
         self._add_kept(start + np.flatnonzero(moved), p[moved], rotations[moved])
 
+    @property  # type: ignore[override]
+    def mount(self) -> Transform:
+        return self._mount
+
+    @property  # type: ignore[override]
+    def h(self) -> float:
+        return self._h
+
+    @property
+    def path(self) -> SampledPath | None:  # type: ignore[override]
+        """The moving samples so far (None before two), built when asked for."""
+        if self._path is None and len(self.kept) >= 2:
+            assert self._R_kept is not None
+            self._path = SampledPath(self._p_kept, self._R_kept, self.scene.mu, self.mount,
+                                     self.h)
+        return self._path
+
+    def _samples_from(self, j: int) -> tuple[FloatArray, Rotation]:
+        assert self._R_kept is not None
+        return self._p_kept[j:], self._R_kept[j:]
+
     def close(self) -> None:
         """The path ends: a robot that never moved has its first and last sample (`simulate`)."""
         self.final = True
@@ -999,19 +1035,18 @@ class _StreamSteps(_WhiskerSteps):
         self.contact = np.vstack([self.contact, np.full((m, 3), np.nan)])
         self.touched = np.concatenate([self.touched, np.full(m, -1, dtype=np.int64)])
         self.refined = np.concatenate([self.refined, np.zeros(m, dtype=bool)])
-        if len(self.kept) >= 2:
-            self.path = SampledPath(self._p_kept, self._R_kept, self.scene.mu, self.mount, self.h)
-            if self.run is not None:
-                self.run.follow(0, self.path.tail(self.k))
+        self._path = None
+        if self.run is not None and self.path is not None:
+            self.run.follow(0, self.path.tail(self.k))
 
     def go_on(self) -> None:
         """Start the next episode when there is none (or wait for samples)."""
-        if self.path is None or self.run is not None or self.ended:
+        if len(self.kept) < 2 or self.run is not None or self.ended:
             return
-        if self._idle_at != (self.path.n_samples, self.final) or self._snapped is not None:
+        if self._idle_at != (len(self.kept), self.final) or self._snapped is not None:
             self.start_episode()
             # waiting for samples: not again before more came
-            self._idle_at = (self.path.n_samples, self.final) if self.run is None else (-1, False)
+            self._idle_at = (len(self.kept), self.final) if self.run is None else (-1, False)
 
     def _next_sample(self) -> int:
         """The moving sample the episode's next step reaches (before longer early steps)."""
@@ -1059,9 +1094,9 @@ class _StreamSteps(_WhiskerSteps):
 
     def final_samples(self) -> int:
         """Raw samples (from the first) whose results no later sample changes."""
-        if self.path is None:
+        if len(self.kept) < 2:
             return 0
-        n = self.path.n_samples
+        n = len(self.kept)
         if self.ended:
             kept_done = n
         elif self.run is not None:
@@ -1070,7 +1105,7 @@ class _StreamSteps(_WhiskerSteps):
             else:
                 progress = self.run.progress(0)
                 kept_done = self.k if self._landed else self.k + round(
-                    -next_grid_point(progress.x_touch, 0.0, self.path.h) / self.path.h)
+                    -next_grid_point(progress.x_touch, 0.0, self.h) / self.h)
         elif self._snapped is not None:
             kept_done = self.k
         else:
@@ -1089,8 +1124,8 @@ class _StreamSteps(_WhiskerSteps):
         raw sample before ``sent`` is handed out: what follows depends only on the path from
         ``k`` on (a tail of the path is the same samples and coordinates, `SampledPath.tail`),
         and the path's cost stays that of the samples since then."""
-        if (self.path is None or self.run is not None or self._snapped is not None
-                or self.ended or self.k < FORGET_SAMPLES or self.k >= self.path.n_samples - 1
+        if (self.run is not None or self._snapped is not None or self.ended
+                or self.k < FORGET_SAMPLES or self.k >= len(self.kept) - 1
                 or self.kept[self.k] >= sent):
             return
         b = self.k
@@ -1101,5 +1136,4 @@ class _StreamSteps(_WhiskerSteps):
         for name in ("phase", "s1", "f0", "m0", "contact", "touched", "refined"):
             setattr(self, name, getattr(self, name)[b:])
         self.k, self._searched = 0, max(self._searched - b, -1)
-        self._idle_at = (-1, False)
-        self.path = SampledPath(self._p_kept, self._R_kept, self.scene.mu, self.mount, self.h)
+        self._idle_at, self._path = (-1, False), None

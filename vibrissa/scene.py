@@ -695,13 +695,13 @@ class _WhiskerSteps:
             return sweep.n_steps
         # A row's rod lies in two balls: the bent part (length s1 from the clamp P0 to the
         # contact P1) within s1 / 2 of (P0 + P1) / 2, the straight rest within 1 - s1 of P1.
-        middle, s1 = (sweep.p0 + sweep.contact) / 2.0, sweep.s1
-        near = np.zeros(sweep.n_steps, dtype=bool)
+        contact = sweep.contact[start:]
+        middle, s1 = (sweep.p0[start:] + contact) / 2.0, sweep.s1[start:]
+        near = np.zeros(sweep.n_steps - start, dtype=bool)
         for surface in others:
             near |= ((surface.signed_distance(middle) < s1 / 2.0 + 1e-9)
-                     | (surface.signed_distance(sweep.contact) < 1.0 - s1 + 1e-9))
-        near[:start] = False
-        candidates = np.flatnonzero(near)
+                     | (surface.signed_distance(contact) < 1.0 - s1 + 1e-9))
+        candidates = start + np.flatnonzero(near)
         for first in range(0, len(candidates), 64):
             rows = candidates[first:first + 64]
             axes = sweep.elastic_lines(rows, AXIS_SEGMENTS + 1)

@@ -15,7 +15,8 @@ its route over ``detour_m``):
 
 * ``uncertainty``: the cells still unknown within the rods' reach of it, plus
   ``surface_weight`` times the unknown-part vertices of the map's meshes (its uncertainty)
-  within that reach and at the whiskers' heights;
+  within that reach and at the whiskers' heights, each drawing one look within reach of it;
+  no cell is looked from twice;
 * ``lawnmower`` (the baseline): parallel lanes across the workspace, ``lane_spacing_m`` apart
   (default: the rods' reach), visited in order, each lane's points one reach apart; the goal is
   the standable cell nearest to the next point not yet reached or given up.
@@ -238,6 +239,8 @@ class Explorer:
         gain = self._gain()
         score = np.where(reachable, gain / (1.0 + np.where(reachable, route_m, 0.0)
                                             / self.settings.detour_m), 0.0)
+        looked, _ = self.space.cells(np.array(self._looks))  # no second look from a place
+        score[looked[:, 0], looked[:, 1]] = 0.0
         best = np.unravel_index(int(np.argmax(score)), score.shape)
         if not score[best] > 0.5:
             self.done_because = "nothing unknown within reach of where the body can stand"
@@ -255,10 +258,10 @@ class Explorer:
         if len(surface) and self.settings.surface_weight > 0:
             level = np.min(np.abs(surface[:, 2, None] - self.heights_m[None]), axis=1)
             wanted = level <= self.settings.height_tol_m
-            if self._looks:  # a vertex draws one look within half the reach of it
+            if self._looks:  # a vertex draws one look within the rods' reach of it
                 looked = np.min(np.linalg.norm(surface[:, None, :2] - np.array(self._looks)[None],
                                                axis=2), axis=1)
-                wanted &= looked > 0.5 * self.reach_m
+                wanted &= looked > self.reach_m
             ij, inside = self.space.cells(surface[wanted, :2])
             ij = ij[inside]
             np.add.at(counts, (ij[:, 0], ij[:, 1]), self.settings.surface_weight)

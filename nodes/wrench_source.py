@@ -625,10 +625,12 @@ class CommandedMessages:
         path = robot_path(t, np.vstack([self.before[1][None], samples.p_WR[new]]),
                           np.vstack([self.before[2][None], samples.q_WR[new]]))
         period = 1.0 / self.params.pose_rate_hz
-        stop = int(np.floor(t[-1] / period))
-        at = np.arange(self.next_pose, stop + 1) * period
+        grid = np.arange(self.next_pose, int(np.floor(t[-1] / period)) + 2)
+        grid = grid[grid * period <= t[-1]]  # k period may round past t[-1]: not covered yet
+        if len(grid):
+            self.next_pose = int(grid[-1]) + 1
+        at = grid * period
         at = at[at > t[0]]
-        self.next_pose = stop + 1
         if last and (not len(at) or at[-1] < t[-1]):
             at = np.append(at, t[-1])
         _, p, rotations = path.at(at)
@@ -704,8 +706,9 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
         p, q = path.take(COMMAND_CHUNK)
         stream.extend(np.arange(taken, taken + len(p)) / params.path_rate_hz, p, q)
         taken += len(p)
-        # the queue ran empty: the robot stops there, every sample up to it goes out
-        if not publish(out.of(stream.advance(hold=bool(path.queued)))):
+        # the queue ran empty: the robot stops there, every sample up to it goes out, and the
+        # pose where it stands (off the pose_rate_hz grid: the poses then cover every wrench)
+        if not publish(out.of(stream.advance(hold=bool(path.queued)), last=not path.queued)):
             break
     if not node.stop_requested:
         publish(out.of(stream.finish(), last=True))

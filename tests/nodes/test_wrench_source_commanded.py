@@ -175,3 +175,19 @@ def test_the_commanded_mode_is_checked_when_the_parameters_load() -> None:
         params(max_speed_mps=0.0)
     with pytest.raises(ValueError, match="parameter 'path_topic'"):
         params(path_topic="bad name")
+
+
+def test_poses_on_their_own_rate_cover_every_wrench_and_end_where_the_robot_stands() -> None:
+    """A straight 35 mm at 0.1 m/s: 175 samples, the last at t = 0.35 s, where 35 x 0.01 s
+    rounds past it (a grid pose there was NaN, off the path); the robot then stands at the
+    segment's end, whose pose goes out, so that every wrench lies within the poses."""
+    scene = load_scene(DEMO)
+    start, rotation = scene.path.p_WR[0], scene.path.R_WR[0].as_quat()
+    wrenches, poses, _ = run([segment([start + [0.035, 0.0, 0.0]], [rotation]), end()],
+                             pose_rate_hz=100.0)
+    assert wrenches[-1] == "EOS" and poses[-1] == "EOS"
+    stamps = [w.stamp for w in wrenches[:-1]]
+    assert len(stamps) == 176  # t = 0 (where it stands) to 0.35 s
+    assert all(np.isfinite(p.position).all() for p in poses[:-1])
+    assert poses[0].stamp <= stamps[0] and poses[-2].stamp == stamps[-1]
+    np.testing.assert_array_equal(poses[-2].position, start + [0.035, 0.0, 0.0])

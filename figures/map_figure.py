@@ -9,8 +9,10 @@ coloured by its distance to the true surface when that is known and by its predi
 otherwise, per vertex and interpolated (one colour bar in mm, to a percentile of the vertices'
 values; it states the largest, the header's maximum), and the unknown part of the meshes in
 faint grey; a legend for every layer; under the title, the map's status line when given
-(which update of a live stream or the final map, when). Names from the wire (whiskers, objects, frames) are drawn
-as ``short_name`` gives them, and no text is read as matplotlib's mathtext (a ``$`` in a name).
+(which update of a live stream or the final map, when); for an exploration, right of the top
+view, its coverage of the true objects against the path length of the robot base. Names from the wire
+(whiskers, objects, frames) are drawn as ``short_name`` gives them, and no text is read as
+matplotlib's mathtext (a ``$`` in a name).
 The 3D view is cut to the objects (contacts, meshes, true objects) and the robot within a
 whisker's length of them (`view_box`), with equal scales on its axes, so that the shapes are
 true, and draws the contacts and the robot over the meshes; the top view shows the whole
@@ -127,6 +129,9 @@ class MapLayers:
         The robot path X_WR (frame ``world``), or None.
     whiskers
         The whiskers on the robot (their mounts X_RC are drawn along ``path``).
+    coverage : sequence of (path length m, coverage), or None
+        An exploration's coverage of each map along its path
+        (`vibrissa.mapping.Exploration.coverage`); None: not an exploration (no plot).
     """
 
     title: str
@@ -140,6 +145,7 @@ class MapLayers:
     whiskers: Sequence[Whisker] = ()
     subtitle: str = ""
     status: str = ""
+    coverage: Sequence[tuple[float, float]] | None = None
 
 
 def wireframe(true: TrueObject, near: FloatArray) -> FloatArray:
@@ -215,11 +221,13 @@ def _plural(n: int, word: str) -> str:
     return f"{thousands(n)} {word}{'' if n == 1 else 's'}"
 
 
-def map_layers(frame: FrameMap, scene: Scene | None = None, status: str = "") -> MapLayers:
+def map_layers(frame: FrameMap, scene: Scene | None = None, status: str = "",
+               coverage: Sequence[tuple[float, float]] | None = None) -> MapLayers:
     """What the pictures of a frame show: the contacts, the meshes (coloured by their distance
     to the true surface when it is known, else by their std, or in one colour without one),
     the truth when known (``frame.truth``), the robot path and whisker mounts of ``scene`` (in
-    the frame's frame) when given, and the map's ``status`` line (`MapLayers.status`)."""
+    the frame's frame) when given, the map's ``status`` line (`MapLayers.status`) and an
+    exploration's ``coverage`` along its path when given (`MapLayers.coverage`)."""
     result = frame.result
     whiskers = sorted(set(frame.whisker_ids))
     title = (f"{short_name(result.frame_id)} map: {_plural(len(result.objects), 'object')}, "
@@ -263,7 +271,8 @@ def map_layers(frame: FrameMap, scene: Scene | None = None, status: str = "") ->
         colour_by="distance to the true surface" if truth else
         "one colour: no uncertainty" if flat else "predicted std of the surface",
         true_objects=truth, path=scene.path if scene is not None else None,
-        whiskers=scene.whiskers if scene is not None else (), status=status)
+        whiskers=scene.whiskers if scene is not None else (), status=status,
+        coverage=coverage)
 
 
 def _capped(entries: list[Any], more: str, handle: Any) -> list[Any]:
@@ -367,6 +376,23 @@ def plot_map(path: str | Path, layers: MapLayers) -> None:
     draw_map(layers).savefig(path, dpi=100, format="png")
 
 
+def draw_coverage(ax: Any, coverage: Sequence[tuple[float, float]]) -> None:
+    """An exploration's coverage (%) against the path length of its base (mm), a point per
+    map, on ``ax``."""
+    history = np.asarray(coverage, dtype=np.float64).reshape(-1, 2)
+    ax.plot(history[:, 0] * MM, history[:, 1] * 100.0, color="C0", marker=".", markersize=4,
+            linewidth=1.2)
+    ax.set_ylim(0.0, 100.0)
+    ax.set_xlim(left=0.0, right=max(float(history[:, 0].max(initial=0.0)) * MM * 1.05, 1.0))
+    ax.set_xlabel("path length of the base [mm]", fontsize=8)
+    ax.set_ylabel("coverage [%]", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+    final = f", final {history[-1, 1]:.1%}" if len(history) else ""
+    ax.set_title(f"coverage of the true surface in reach{final}", fontsize=9,
+                 parse_math=False)
+
+
 def draw_map(layers: MapLayers) -> Figure:
     """The figure of ``layers`` (Agg canvas)."""
     import matplotlib
@@ -379,16 +405,21 @@ def draw_map(layers: MapLayers) -> Figure:
     from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 - registers the 3d projection
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    fig = Figure(figsize=(16, 9))
+    explored = layers.coverage is not None  # a third column: the coverage, right of the top view
+    fig = Figure(figsize=(20, 9) if explored else (16, 9))
     notes = layers.subtitle.count("\n") + 1 if layers.subtitle else 0
-    grid = fig.add_gridspec(2, 2, width_ratios=[1.35, 1.0], height_ratios=[1.0, 0.8],
+    grid = fig.add_gridspec(2, 3 if explored else 2,
+                            width_ratios=[1.35, 1.0, 0.65] if explored else [1.35, 1.0],
+                            height_ratios=[1.0, 0.8],
                             left=0.02, right=0.98, bottom=0.06, top=0.91 - 0.016 * notes,
                             wspace=0.2, hspace=0.15)
     # Drawn in a fixed order, not sorted by depth: the contacts on a surface stay in front of
     # its mesh, the path and the mounts in front of the objects.
     ax: Any = fig.add_subplot(grid[:, 0], projection="3d", computed_zorder=False)
     top: Any = fig.add_subplot(grid[0, 1])
-    key: Any = fig.add_subplot(grid[1, 1])
+    key: Any = fig.add_subplot(grid[1, 1:])
+    if layers.coverage is not None:
+        draw_coverage(fig.add_subplot(grid[0, 2]), layers.coverage)
     key.axis("off")
     focus: list[FloatArray] = []  # the objects, m: the limits of the 3D view
     extent: list[FloatArray] = []  # every drawn point, m: the limits of the top view

@@ -5,8 +5,10 @@ A scene file (SI, world frame W, z up) holds ``mu``, ``objects`` (name, shape sp
 ellipsoid | paraboloid, sizes, ``position_m``, ``quaternion_xyzw``), ``whiskers`` (name,
 ``length_m``, ``ei_nm2``, ``mount`` X_RC, optionally ``sensor`` X_CS: the force/torque
 sensor's frame in the clamp frame, identity when left out) and ``path`` (a CSV ``t,x,y,z,qx,qy,qz,qw`` of robot
-poses X_WR, relative to the scene file). Its ``whiskers`` are also the robot description the
-nodes load (`load_robot`): one file, one truth.
+poses X_WR, relative to the scene file), and optionally ``explore`` (`load_explore`: the
+start pose, workspace box and body radius of an exploration; a file with ``explore`` may leave
+``path`` out, and then stands still at the start). Its ``whiskers`` are also the robot
+description the nodes load (`load_robot`): one file, one truth.
 
 The YAML is read strictly (`vibrissa.formats.yaml_numbers.load_strict`: no aliases, no repeated
 keys, only ``true``/``false`` as booleans). Names of whiskers and objects are `NAME_RULE`'s:
@@ -24,6 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from vibrissa.exploration import Explore
 from vibrissa.formats import yaml_numbers
 from vibrissa.formats.csv_text import csv_records
 from vibrissa.formats.errors import SceneError
@@ -32,12 +35,13 @@ from vibrissa.frames import Transform, non_unit_quaternion
 from vibrissa.scene import SHAPES, RobotPath, Scene, SceneObject, Whisker, robot_path
 from vibrissa.units import finite_number, number_text
 
-__all__ = ["LIMITS", "NAME_RULE", "SceneError", "check_name", "load_path", "load_robot", "load_scene",
-           "scene_files", "shown"]
+__all__ = ["LIMITS", "NAME_RULE", "SceneError", "check_name", "load_explore", "load_path",
+           "load_robot", "load_scene", "scene_files", "shown"]
 
 _OBJECT_SIZES = {"sphere": ("radius_m",), "ellipsoid": ("semi_axes_m",),
                  "paraboloid": ("a_per_m", "b_per_m", "h_m")}
 _PATH_COLUMNS = ("t", "x", "y", "z", "qx", "qy", "qz", "qw")
+_SCENE_KEYS = ("mu", "objects", "whiskers", "path", "explore")
 MAX_PATH_ROWS = 10_000_000
 """Rows of a path CSV at most (2.8 h at 1 kHz; 640 MB as floats): a file that is not a path,
 or a pipe that never ends, is refused, not read without end."""
@@ -56,21 +60,29 @@ or square overflows."""
 
 def load_scene(path: str | Path) -> Scene:
     """Read SCENE.yaml and its path CSV into a `vibrissa.scene.Scene`; `SceneError` names the
-    file and the key (or row) of the first problem."""
+    file and the key (or row) of the first problem. A file with ``explore`` and without
+    ``path`` has the path of one sample at the start pose (`vibrissa.exploration.Explore.start_path`)."""
     path = Path(path)
     doc = _read_yaml(path)
     where = path.name
-    body = _mapping(doc, where, ("mu", "objects", "whiskers", "path"), ("mu", "whiskers", "path"))
+    body = _mapping(doc, where, _SCENE_KEYS,
+                    ("mu", "whiskers") if isinstance(doc, dict) and "explore" in doc
+                    else ("mu", "whiskers", "path"))
     mu = _number(body["mu"], f"{where}: mu", "mu")
     objects = tuple(_object(item, f"{where}: objects[{i}]")
                     for i, item in enumerate(_list(body.get("objects", []), f"{where}: objects")))
     whiskers = _whiskers(body["whiskers"], where)
-    if not isinstance(body["path"], str):
+    explore = _explore(body["explore"], where) if "explore" in body else None
+    if "path" not in body:
+        assert explore is not None  # required above otherwise
+        robot = explore.start_path()
+    elif not isinstance(body["path"], str):
         raise SceneError(f"{where}: path: expected a file name, got {shown(body['path'])}")
-    try:
-        robot = load_path(path.parent / body["path"])
-    except SceneError as exc:
-        raise SceneError(f"{where}: path: {exc}") from None
+    else:
+        try:
+            robot = load_path(path.parent / body["path"])
+        except SceneError as exc:
+            raise SceneError(f"{where}: path: {exc}") from None
     try:
         return Scene(mu, objects, whiskers, robot)
     except ValueError as exc:
@@ -78,10 +90,19 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def scene_files(path: str | Path) -> list[Path]:
-    """The files a scene is read from: SCENE.yaml and its path CSV (as `load_scene` found
-    them; call it after `load_scene`)."""
+    """The files a scene is read from: SCENE.yaml and its path CSV when it has one (as
+    `load_scene` found them; call it after `load_scene`)."""
     path = Path(path)
-    return [path, path.parent / _read_yaml(path)["path"]]
+    doc = _read_yaml(path)
+    return [path] + ([path.parent / doc["path"]] if "path" in doc else [])
+
+
+def load_explore(path: str | Path) -> Explore | None:
+    """The ``explore`` key of a scene file (`vibrissa.exploration.Explore`), or None when it has
+    none; the rest of the file is not read beyond its top-level keys."""
+    path = Path(path)
+    body = _mapping(_read_yaml(path), path.name, _SCENE_KEYS, ())
+    return _explore(body["explore"], path.name) if "explore" in body else None
 
 
 def load_robot(path: str | Path) -> tuple[Whisker, ...]:
@@ -168,6 +189,8 @@ def load_path(path: Path) -> RobotPath:
                                  f"positions within [{low:g}, {high:g}] m, got {value!r}")
             values.append(value)
     table = np.frombuffer(values, dtype=float).reshape(-1, 8)
+    if len(table) < 2:  # a path CSV moves the robot (standing still: ``explore`` without it)
+        raise SceneError(f"{path.name}: a path needs at least 2 samples, got {len(table)}")
     try:
         return robot_path(table[:, 0], table[:, 1:4], table[:, 4:8])
     except ValueError as exc:
@@ -243,6 +266,26 @@ def _object(value: Any, where: str) -> SceneObject:
     name = check_name(body["name"], f"{where}.name")
     try:
         return SceneObject(name, shape, values, pose)
+    except ValueError as exc:
+        raise SceneError(f"{where}: {exc}") from None
+
+
+def _explore(value: Any, where: str) -> Explore:
+    where = f"{where}: explore"
+    body = _mapping(value, where, ("start", "workspace_m", "body_radius_m"),
+                    ("start", "workspace_m", "body_radius_m"))
+    start_body = _mapping(body["start"], f"{where}.start", ("position_m", "quaternion_xyzw"),
+                          ("position_m",))
+    start = _pose(start_body, f"{where}.start")
+    box = body["workspace_m"]
+    if not isinstance(box, list) or len(box) != 2:
+        raise SceneError(f"{where}.workspace_m: expected [[xmin, ymin, zmin], [xmax, ymax, "
+                         f"zmax]], got {shown(box)}")
+    low, high = (_vector(corner, f"{where}.workspace_m[{i}]", 3, "position_m")
+                 for i, corner in enumerate(box))
+    radius = _number(body["body_radius_m"], f"{where}.body_radius_m", "size_m")
+    try:
+        return Explore(start, (low[0], low[1], low[2]), (high[0], high[1], high[2]), radius)
     except ValueError as exc:
         raise SceneError(f"{where}: {exc}") from None
 

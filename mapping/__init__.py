@@ -8,11 +8,13 @@ normals, objects, meshes and the typed report (`FrameResult`, `MapReport`); `Liv
 growing cloud update by update, refitting only what changed. The steps, each usable alone:
 `objects` (contact lines, contact normals, DBSCAN clustering, ``join_convex``),
 `surface` (one object's surface), `gp_surface` (the Gaussian-process implicit surface and its
-mesh), `next_sweep` (where to sweep next), `truth` (distances to the true objects).
+mesh), `next_sweep` (where to sweep next), `truth` (distances to the true objects), `coverage` (how
+much of the true objects a map covers, along an exploration: `ExplorationLog`).
 docs/MAPPING.md has the choice of the method.
 """
 
 from vibrissa.mapping.accumulate import Accumulator, ContactBatch, FrameCloud, is_covariance
+from vibrissa.mapping.coverage import ExplorationLog, coverage_samples
 from vibrissa.mapping.fit import FrameMap, fit_frame, map_cloud
 from vibrissa.mapping.live import LiveMap, LiveSettings
 from vibrissa.mapping.next_sweep import Proposal, propose_sections
@@ -27,6 +29,7 @@ from vibrissa.mapping.objects import (
 )
 from vibrissa.mapping.report import (
     Clustering,
+    Exploration,
     FrameResult,
     InputStream,
     MapReport,
@@ -40,11 +43,13 @@ from vibrissa.mapping.surface import ObjectSurface, estimate_surface, too_little
 from vibrissa.mapping.truth import TrueObject, name_objects
 
 __all__ = [
-    "Accumulator", "Clustering", "Clusters", "ContactBatch", "FrameCloud", "FrameMap",
+    "Accumulator", "Clustering", "Clusters", "ContactBatch", "Exploration", "ExplorationLog",
+    "FrameCloud", "FrameMap",
     "FrameResult", "InputStream", "LiveMap", "LiveSettings", "MapReport", "MapSettings",
     "NextSweep", "ObjectResult", "UpstreamNode",
     "ObjectSurface", "Proposal", "TrueObject", "WhiskerCount", "cluster_points",
-    "contact_normals", "estimate_surface", "fit_frame", "is_covariance", "join_convex",
+    "contact_normals", "coverage_samples", "estimate_surface", "fit_frame", "is_covariance",
+    "join_convex",
     "line_spacing", "map_cloud", "name_objects", "propose_sections", "split_lines",
     "too_little_for_a_surface", "whisker_lines",
 ]

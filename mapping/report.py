@@ -169,6 +169,30 @@ class UpstreamNode:
 
 
 @dataclass(frozen=True)
+class Exploration:
+    """How much of the true objects an exploration's map covers (`vibrissa.mapping.coverage`):
+    the ``planner`` that drove the robot, the path length of its base so far, m, and
+    ``coverage``: (path length at the map, m; the share of the true surface's samples covered)
+    of each map of the run in order (every update, and the final map when it is not the last
+    update's)."""
+
+    planner: str
+    path_length_m: float
+    coverage: tuple[tuple[float, float], ...] = ()
+
+    @property
+    def coverage_final(self) -> float | None:
+        """The last map's coverage (None before the first)."""
+        return self.coverage[-1][1] if self.coverage else None
+
+    def as_dict(self) -> dict[str, Any]:
+        """``report.json``'s ``exploration``."""
+        return {"planner": self.planner, "path_length_m": self.path_length_m,
+                "coverage_final": self.coverage_final,
+                "coverage": [[length, share] for length, share in self.coverage]}
+
+
+@dataclass(frozen=True)
 class MapReport:
     """The whole map: its frames, the truth it was measured against, and what was lost or
     dropped on the way (``dropped_points`` by reason, `vibrissa.mapping.Accumulator`), and the
@@ -182,7 +206,9 @@ class MapReport:
     ``streams`` (every source ended), ``stop`` (SIGINT or SIGTERM) or ``timeout`` (silence);
     ``updates`` the map updates (fits) so far and ``update_fits`` what they did
     (`vibrissa.mapping.LiveMap.fits`: objects fitted in ``full``, ``conditioned`` on new points
-    or ``kept``; frames ``clustered``, ``joined`` or ``unchanged``).
+    or ``kept``; frames ``clustered``, ``joined`` or ``unchanged``). ``exploration``: the
+    coverage of an exploration along its path (`Exploration`), or None (``null``) when the run
+    is not one.
     """
 
     n_points: int
@@ -203,6 +229,7 @@ class MapReport:
     ended_by: str | None = "streams"
     updates: int = 1
     update_fits: dict[str, int] = field(default_factory=dict)
+    exploration: Exploration | None = None
 
     @property
     def upstream_lost(self) -> int:
@@ -238,6 +265,7 @@ class MapReport:
             "ended_by": self.ended_by,
             "updates": self.updates,
             "update_fits": dict(sorted(self.update_fits.items())),
+            "exploration": None if self.exploration is None else self.exploration.as_dict(),
         }
 
     def text(self) -> str:
@@ -273,6 +301,12 @@ def _format_report(report: dict[str, Any]) -> str:
              f"true surface: {truth}",
              f"max reconstruction error (cloud -> true surface): "
              f"{_mm(report['max_reconstruction_error_m'])}"]
+    exploration = report.get("exploration")
+    if exploration is not None:
+        final = exploration["coverage_final"]
+        lines.append(f"exploration ({exploration['planner']}): path {_mm(exploration['path_length_m'])}"
+                     f", coverage {'n/a' if final is None else f'{final:.1%}'} of the true "
+                     f"surface in reach ({len(exploration['coverage'])} map(s))")
     if report["lost"]:
         lines.append(f"LOST: {report['lost']} contact message(s) never arrived")
     for bound, n in report.get("dropped_points", {}).items():
@@ -287,7 +321,11 @@ def _format_report(report: dict[str, Any]) -> str:
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
                      f"{stream['received']} received, {stream['lost']} lost")
-    if report.get("upstream_lost"):
+    if report.get("upstream_lost") and report.get("ended_by") == "stop":
+        lines.append(f"UPSTREAM AT THE STOP: {report['upstream_lost']} message(s) had not "
+                     "reached the nodes before the map when the graph stopped (on their way, "
+                     "or lost):")
+    elif report.get("upstream_lost"):
         lines.append(f"LOST UPSTREAM: {report['upstream_lost']} message(s) did not reach the "
                      "nodes before the map, so the map may miss what they carried:")
     for node in report.get("upstream", []):

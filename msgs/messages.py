@@ -485,6 +485,33 @@ class SweepProposal(Message):
         "m", "the same after this proposal (and the ones before it) were touched")
 
 
+PATH_MODES = ("append", "replace")
+
+
+@dataclass(frozen=True, eq=False)
+class PathSegment(Message):
+    """A path command for the robot base: waypoints X_WR of ``base_link`` in the world frame,
+    driven in order from where the robot stands (or will stand, after the segments queued
+    before), position linear and orientation slerp between them, each leg at ``speed_mps`` and
+    ``turn_rate_rps`` at most (``vibrissa.paths.waypoint_samples``). Checked by the receiver
+    (``vibrissa.paths.check_segment``), not on decode: a bad command is a counted rejection."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/PathSegment"
+    VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = 1 << 20  # some 15 000 waypoints
+
+    stamp: float = _stamp()
+    frame_id: str = _frame_id("frame W of the waypoints: the robot's map frame, 'world'")
+    segment_id: int = _count("the commander's number of the segment (>= 0), for the log")
+    mode: str = _text("'append': after the queued segments; 'replace': instead of them, "
+                      "from where the robot is", choices=PATH_MODES)
+    position: FloatArray = _array(("N", 3), "m", "p_WR: base_link's origin at each waypoint")
+    orientation: FloatArray = _array(("N", 4), "", "R_WR at each waypoint: unit quaternion "
+                                     "(x, y, z, w)")
+    speed_mps: float = _number("m/s", "largest speed of base_link's origin (> 0)")
+    turn_rate_rps: float = _number("rad/s", "largest turn rate of base_link (> 0)")
+
+
 SENSOR_COMMANDS = ("bias",)
 
 
@@ -573,6 +600,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         ContactCloud,
         SurfaceMesh,
         SweepProposal,
+        PathSegment,
         SensorCommand,
         RobotPose,
         NodeStatus,

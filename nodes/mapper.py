@@ -6,6 +6,10 @@ Subscribes
 ``topics`` (default ``[contact]``) : ContactPointArray
     Points in SI (m, N), each in its ``frame_id``; each row is a point of its whisker;
     ``EndOfStream`` from every expected source ends the accumulation.
+``pose_topic`` (default none) : RobotPose
+    With ``explore_planner``: the pose of ``base_link`` in ``world``, for the path length of
+    the exploration (poses of other frames are ignored, counted in ``ignored_poses`` and
+    logged once); its ``EndOfStream`` ends nothing.
 
 Publishes
 ---------
@@ -44,10 +48,13 @@ its new points) is due at most every ``map_period_s`` and every twice the last u
 (fit and files: mapping takes at most half of the node's time); it waits until the input queued
 meanwhile is taken in. Each update is published (cloud, meshes, proposals) and its files are
 rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
-(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) is the one of a single
-fit on every point received (`LiveMap.final`, bit for bit): the last update when it is that
-already (then only the reports are rewritten when its files are written), else the objects
-that changed fitted again. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
+(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) holds every point
+received. When the streams ended or fell silent it is the one of a single fit (`LiveMap.final`,
+bit for bit): the last update when it is that already (then only the reports are rewritten when
+its files are written), else the objects that changed fitted again. On a stop it is the live
+map (`LiveMap.update`: the last update when it holds every point, else one more), so that it is
+written within the launcher's grace; Open3D is loaded before the node joins the graph, not in
+its first update. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
 the input, ``hwm`` 200 000), not in a worker thread: Open3D holds the interpreter, and a fit in
 a thread would only race the final one for the 2 cores. A SIGINT or SIGTERM is therefore seen
 when the update under way returns; the node then takes no more input and writes the final map
@@ -56,6 +63,19 @@ handlers (`vibrissa.runtime.signals.SignalHandlers` with ``once``) give a signal
 action after its first time: the same signal again (a second Ctrl-C) ends the process at once,
 even inside the fit, while the launcher's SIGTERM after its grace for a SIGINT leaves the final
 map the launcher's second grace before its SIGKILL. Nothing of the fit is skipped to be faster.
+
+Exploration: with ``explore_planner``, ``scene`` must have an ``explore`` key
+(`vibrissa.formats.scene_file.load_explore`); the true objects' surfaces are sampled uniformly by
+area within the longest whisker's length of its workspace box, once at start
+(`vibrissa.mapping.coverage.coverage_samples`, a sample per mm^2), and every map (each update,
+and the final map when it is not the last update's) records its coverage of them (a sample is
+covered when a vertex of frame ``world``'s known mesh lies within ``coverage_tol_m``) with the
+path length of the base so far (`vibrissa.mapping.ExplorationLog`: the distances between its
+successive poses on ``pose_topic`` summed). The report's ``exploration`` holds them (``null``
+without ``explore_planner``), ``report.txt`` a line, and ``map.png`` a plot of coverage against
+path length. A pose that moved the base counts as input for ``timeout_s`` (a robot travelling
+between contacts is not silence); one that did not move it does not (a driver publishing an
+idle robot's pose keeps no dead map alive).
 
 Points dropped are counted by reason (`vibrissa.mapping.Accumulator`; the report's ``dropped_points``): beyond
 the bounds (``max_points``, ``max_frames``) or not usable (``out_of_range``,
@@ -95,14 +115,18 @@ from typing import NamedTuple
 
 import numpy as np
 
+from vibrissa.exploration import Explore
 from vibrissa.figures.map_figure import map_layers, plot_map
 from vibrissa.figures.map_page import write_page
 from vibrissa.formats.files import whole_file
 from vibrissa.formats.ply import write_ply
-from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.scene_file import load_explore, load_scene
+from vibrissa.frames import ROBOT_FRAME
 from vibrissa.mapping import (
     Accumulator,
     ContactBatch,
+    Exploration,
+    ExplorationLog,
     FrameMap,
     FrameResult,
     InputStream,
@@ -114,12 +138,14 @@ from vibrissa.mapping import (
     fit_frame,
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
+from vibrissa.mapping.coverage import COVERAGE_TOL_M, coverage_samples
 from vibrissa.mapping.fit import joined_part
 from vibrissa.msgs import (
     ContactCloud,
     ContactPointArray,
     EndOfStream,
     NodeStatus,
+    RobotPose,
     SurfaceMesh,
     SweepProposal,
 )
@@ -184,7 +210,7 @@ class MapperParams:
         (Open3D's, no uncertainty, no next sweeps); `vibrissa.mapping.MapSettings`.
     timeout_s
         Write the final map of what has arrived after this long without a message, s (0 =
-        wait for the ends).
+        wait for the ends); the time of a map update is not counted (its input waits).
     map_period_s, write_period_s
         While the streams go on, map (and publish the map) at most every ``map_period_s``
         and rewrite the files at most every ``write_period_s``, s.
@@ -205,10 +231,22 @@ class MapperParams:
         Output topics.
     wait_for
         Nodes that must subscribe to the outputs before they go out (default: nobody).
+    explore_planner
+        The planner of the exploration the map follows (a name for the report, e.g.
+        ``uncertainty``); needs ``scene`` with an ``explore`` key; empty: no exploration (the
+        report's ``exploration`` is null).
+    pose_topic
+        RobotPose topic of ``base_link`` in ``world`` for the exploration's path length (needs
+        ``explore_planner``); empty: none (the path length stays 0).
+    coverage_tol_m
+        A true surface's sample is covered when a known mesh vertex lies within this, m.
     rod
         L as ``vibrissa.units.RodScale`` (derived, not a parameter).
     world
         The scene read from ``scene``, or None (derived, not a parameter).
+    explore
+        The ``explore`` key of ``scene`` with ``explore_planner``, or None (derived, not a
+        parameter).
     settings
         The map's settings (`vibrissa.mapping.MapSettings`) from these (derived, not a
         parameter); ``true_surface`` makes the frame one object.
@@ -243,8 +281,12 @@ class MapperParams:
     unknown_mesh_topic: str = "surface_mesh_unknown"
     proposal_topic: str = "next_sweep"
     wait_for: tuple[str, ...] = ()
+    explore_planner: str = ""
+    pose_topic: str = ""
+    coverage_tol_m: float = COVERAGE_TOL_M
     rod: RodScale = field(init=False, repr=False, compare=False)
     world: Scene | None = field(init=False, repr=False, compare=False)
+    explore: Explore | None = field(init=False, repr=False, compare=False)
     settings: MapSettings = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -277,6 +319,21 @@ class MapperParams:
             except ValueError as exc:
                 raise ValueError(f"parameter 'scene': {exc}") from None
         object.__setattr__(self, "world", world)
+        explore = None
+        if self.explore_planner:
+            require(bool(self.scene), "explore_planner", self.explore_planner,
+                    "empty without a scene (its explore key and objects are the coverage's)")
+            explore = load_explore(self.scene)
+            require(explore is not None, "explore_planner", self.explore_planner,
+                    f"empty: scene {self.scene} has no explore key")
+        object.__setattr__(self, "explore", explore)
+        if self.pose_topic:
+            require_parsed("pose_topic", self.pose_topic, validate_name)
+            require(bool(self.explore_planner), "pose_topic", self.pose_topic,
+                    "empty without explore_planner (the path length is the exploration's)")
+            require(self.pose_topic not in self.topics, "pose_topic", self.pose_topic,
+                    "a topic other than the contact topics")
+        require_positive("coverage_tol_m", self.coverage_tol_m)
         try:  # the map's settings check their own ranges
             settings = MapSettings(
                 one_object=bool(self.true_surface), cluster_eps_m=self.cluster_eps_m,
@@ -403,11 +460,12 @@ def map_messages(frame: FrameMap, stamp: float) -> MapMessages:
 
 
 def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
-                      final: bool = True, status: str = "") -> FrameResult:
-    """Write a mapped frame's PLYs and pictures (PNG, HTML page, with the line ``status``),
-    each file whole (`vibrissa.formats.files.whole_file`); its result with the files and each
-    object's mesh file. A frame or object without a surface is logged in the ``final`` map
-    only."""
+                      final: bool = True, status: str = "",
+                      exploration: Exploration | None = None) -> FrameResult:
+    """Write a mapped frame's PLYs and pictures (PNG, HTML page, with the line ``status``; the
+    PNG of frame ``world`` with the coverage of ``exploration`` when given), each file whole
+    (`vibrissa.formats.files.whole_file`); its result with the files and each object's mesh
+    file. A frame or object without a surface is logged in the ``final`` map only."""
     frame_id, result = frame.result.frame_id, frame.result
     sfx = _suffix(frame_id)
     files = {"cloud": out_dir / f"cloud{sfx}.ply"}
@@ -436,7 +494,9 @@ def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
         files[f"mesh_{obj.name}"] = target
         objects[k] = replace(obj, files={"mesh": str(target)})
     if params.plot:
-        layers = map_layers(frame, params.world if frame_id == SCENE_FRAME else None, status)
+        world = frame_id == SCENE_FRAME
+        layers = map_layers(frame, params.world if world else None, status,
+                            exploration.coverage if world and exploration is not None else None)
         files["png"] = out_dir / f"map{sfx}.png"
         with whole_file(files["png"]) as partial:
             plot_map(partial, layers)
@@ -461,6 +521,7 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
                   *, written: Sequence[FrameResult] | None = None, final: bool = True,
                   ended_by: str | None = "streams", updates: int = 1,
                   update_fits: dict[str, int] | None = None,
+                  exploration: Exploration | None = None,
                   ) -> tuple[MapReport, list[MapMessages]]:
     """Write the map of ``acc``: its frames' files (`write_frame_files`) and the reports, each
     file whole; returns (report, messages).
@@ -470,14 +531,16 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
     input messages lost in all and ``upstream`` what the nodes before the map moved
     (`vibrissa.runtime.traffic`), for the report; ``final``, ``ended_by`` and ``updates`` go
-    into it as they are, and ``update_fits`` (`vibrissa.mapping.MapReport`).
+    into it as they are, and ``update_fits`` and ``exploration`` (`vibrissa.mapping.MapReport`;
+    the exploration's coverage is plotted in frame ``world``'s map.png).
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = fit_frames(acc, params) if frames is None else frames
     t0 = time.monotonic()
     results = (list(written) if written is not None else
                [write_frame_files(frame, params, out_dir, final,
-                                  map_status(final, ended_by, updates, acc.n_points))
+                                  map_status(final, ended_by, updates, acc.n_points),
+                                  exploration)
                 for frame in frames])
     report_json = out_dir / "report.json"
     report_txt = out_dir / "report.txt"
@@ -492,7 +555,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         upstream=tuple(UpstreamNode(u.node, u.received, u.lost, u.rejected, u.sent_to_it)
                        for u in upstream),
         files={"report_json": str(report_json), "report_txt": str(report_txt)},
-        final=final, ended_by=ended_by, updates=updates, update_fits=dict(update_fits or {}))
+        final=final, ended_by=ended_by, updates=updates, update_fits=dict(update_fits or {}),
+        exploration=exploration)
     with whole_file(report_json) as partial:
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
     with whole_file(report_txt) as partial:
@@ -512,8 +576,12 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
     acc = Accumulator(expected, params.max_points, params.max_frames)
+    track = exploration_log(params)
+    poses = {params.pose_topic: RobotPose} if params.pose_topic else {}
+    pose_topic = node.resolve(params.pose_topic) if params.pose_topic else None
     subscriber = node.create_subscriber(
-        {**{t: ContactPointArray for t in params.topics}, STATUS_TOPIC: NodeStatus}, hwm=200_000)
+        {**{t: ContactPointArray for t in params.topics}, **poses, STATUS_TOPIC: NodeStatus},
+        hwm=200_000)
     traffic = Traffic()  # what the nodes before the map moved, for the report
     cloud_pub = node.create_publisher(params.cloud_topic, ContactCloud, wait_for=params.wait_for)
     mesh_pub = node.create_publisher(params.mesh_topic, SurfaceMesh, wait_for=params.wait_for)
@@ -538,7 +606,13 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         return write_outputs(acc, params, Path(params.out_dir), list(subscriber.ended_streams),
                              subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames,
                              written=written, final=final, ended_by=ended_by, updates=updates,
-                             update_fits=live.fits)
+                             update_fits=live.fits,
+                             exploration=track.result() if track is not None else None)
+
+    def record_coverage(frames: Sequence[FrameMap]) -> None:
+        if track is not None:  # the coverage of frame world's known mesh (none: no vertex)
+            world = [f.vertices for f in frames if f.result.frame_id == SCENE_FRAME]
+            track.record(world[0] if world else np.zeros((0, 3)))
 
     node.counters["bad_covariance"] = 0
     node.set_state("running", f"waiting for {expected} source(s) to end")
@@ -563,6 +637,10 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
             took = rx is not None and not isinstance(rx.msg, NodeStatus)
             if rx is not None and isinstance(rx.msg, NodeStatus):
                 traffic.add(rx.msg)  # not input: the timeout of silence runs on
+            elif rx is not None and rx.topic == pose_topic:
+                if track is not None and isinstance(rx.msg, RobotPose) and take_pose(
+                        node, track, rx.msg) > 0:
+                    last = time.monotonic()  # the base moved: not silence
             elif rx is not None:
                 dropped, bad = acc.dropped.total(), acc.bad_covariance
                 receive(acc, rx.msg)
@@ -589,6 +667,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                                           f"{updates + 1})")
                 frames, fitted = fit_frames(acc, params, live, final=False), acc.n_points
                 updates += 1
+                record_coverage(frames)
                 fit_end = time.monotonic()
                 written = None
                 if fit_end - files_time >= params.write_period_s:
@@ -600,6 +679,9 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                                 for frame in frames]
                 publish(messages)
                 update_s = time.monotonic() - fit_start
+                # the time of an update is not silence: what arrived meanwhile waits in the
+                # queue, behind the statuses that came with it
+                last += update_s
                 node.set_state("running", f"map of {fitted} points (update {updates}) in "
                                           f"{update_s:.1f} s; waiting for {expected} "
                                           "source(s) to end")
@@ -619,22 +701,26 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 rx = subscriber.receive(0.05)
                 if rx is not None and isinstance(rx.msg, NodeStatus):
                     traffic.add(rx.msg)
-        # the final map (the full fit's): the last update when it is that already (only the
-        # reports are written again when its files are), else the objects that changed fitted
-        # again; a stop now changes nothing, the same signal again ends the process at once
+        # the final map: the single fit's, or at a stop the live map of every point (an update:
+        # the launcher's grace is short); the last update when it is that already (only the
+        # reports are written again when its files are); a stop now changes nothing, the same
+        # signal again ends the process at once
         node.set_state("running", f"final map of {acc.n_points} points")
-        final = fit_frames(acc, params, live, final=True)
+        final = fit_frames(acc, params, live, final=ended_by != "stop")
         if not updates or len(final) != len(frames) or any(
                 a is not b for a, b in zip(final, frames, strict=False)):
             frames, written = final, None
             updates += 1
+            record_coverage(frames)
         report, messages = write(written, True, ended_by)
     if report.lost:
         log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")
-    if report.upstream_lost:
-        log.error("%s: %d message(s) did not reach the nodes before the map (%s)", node.fqn,
-                  report.upstream_lost, ", ".join(u.node for u in report.upstream if u.short))
+    if report.upstream_lost:  # at a stop, every node stops with messages on their way
+        log.log(logging.WARNING if ended_by == "stop" else logging.ERROR,
+                "%s: %d message(s) did not reach the nodes before the map%s (%s)", node.fqn,
+                report.upstream_lost, " by the stop" if ended_by == "stop" else "",
+                ", ".join(u.node for u in report.upstream if u.short))
     if report.dropped_points:
         log.error("%s: %d contact point(s) were dropped beyond the map's bounds: %s%s",
                   node.fqn, sum(report.dropped_points.values()), report.dropped_points,
@@ -658,6 +744,33 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     return report
 
 
+def exploration_log(params: MapperParams) -> ExplorationLog | None:
+    """The exploration's log with the samples of its true surfaces (`coverage_samples`: within
+    the longest whisker's length of the workspace box), or None without ``explore_planner``."""
+    if params.explore is None or params.world is None:
+        return None
+    explore = params.explore
+    samples = coverage_samples(params.truth(SCENE_FRAME), explore.workspace_min_m,
+                               explore.workspace_max_m,
+                               max(w.length_m for w in params.world.whiskers))
+    log.info("coverage: %d samples of the true surfaces within reach of the workspace",
+             len(samples))
+    return ExplorationLog(params.explore_planner, samples, params.coverage_tol_m)
+
+
+def take_pose(node: Node, track: ExplorationLog, msg: RobotPose) -> float:
+    """Move the exploration's base to a pose of ``base_link`` in ``world``; the step, m (0 for
+    a pose of other frames: counted in ``ignored_poses``, logged the first time)."""
+    if msg.frame_id != SCENE_FRAME or msg.child_frame_id != ROBOT_FRAME:
+        ignored = node.counters.get("ignored_poses", 0)
+        if not ignored:
+            log.warning("%s: a pose of %r in %r ignored: the path length is that of %r in %r",
+                        node.fqn, msg.child_frame_id, msg.frame_id, ROBOT_FRAME, SCENE_FRAME)
+        node.counters["ignored_poses"] = ignored + 1
+        return 0.0
+    return track.move(msg.position)
+
+
 def _power_of_ten(now: int, before: int) -> bool:
     """Whether a count went from ``before`` past 1, 10, 100, ... (when to log it again)."""
     return before == 0 or len(str(now)) > len(str(before))
@@ -669,6 +782,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging()
     params = load_params(MapperParams, args.params_file, args.params)
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
+    import open3d  # noqa: F401  # seconds to load: before the graph starts, not in the first map
     with Node.from_args(args) as node:
         report = run(node, params)
     if report is not None and report.n_points == 0:

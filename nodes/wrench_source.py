@@ -2,7 +2,9 @@
 
 Subscribes
 ----------
-nothing (besides the runtime's ``/vibrissa/status``).
+``path_topic`` (mode ``scene`` when set, e.g. ``/robot/path``) : PathSegment
+    the commanded robot: segments of waypoints, driven as they come (`run_commanded`); its
+    ``EndOfStream`` ends the stream. Nothing else besides the runtime's ``/vibrissa/status``.
 
 Publishes
 ---------
@@ -23,6 +25,10 @@ Publishes
     ``EndOfStream`` on both. With ``passes`` N the path is driven N legs forth and back
     (`vibrissa.scene.back_and_forth`, one simulation: the return legs differ by friction);
     with ``loop`` forth and back until stopped (one cycle simulated, played again and again).
+    With ``path_topic`` the robot is commanded instead: it stands at the path's first pose
+    (published at once) and drives the segments that arrive, each sample simulated as it
+    comes (`vibrissa.scene.SceneStream`), the same messages as along a fixed path; then
+    ``EndOfStream`` on both after the commander's.
 every WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order (a retired single ``vibrissa/WhiskerWrench`` decodes as an array of one
@@ -54,8 +60,9 @@ import numpy.typing as npt
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.formats.scene_results import read_results
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
-from vibrissa.msgs import EndOfStream, RobotPose, WhiskerWrenchArray
+from vibrissa.msgs import EndOfStream, PathSegment, RobotPose, WhiskerWrenchArray
 from vibrissa.msgs.codec import decodes_as
+from vibrissa.paths import CommandedPath, PathLimits
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import (
     require,
@@ -67,10 +74,13 @@ from vibrissa.runtime.playback import play_bag_gated
 from vibrissa.scene import (
     SamplePhase,
     Scene,
+    SceneStream,
     SimulationStopped,
+    StreamSamples,
     WhiskerResult,
     back_and_forth,
     free_at_both_ends,
+    robot_path,
     simulate,
 )
 from vibrissa.status import SweepEnd
@@ -149,6 +159,15 @@ class WrenchSourceParams:
     workers
         Mode ``scene``: processes of the simulation on start (0: one per core; unused with
         ``simulated``).
+    path_topic
+        Mode ``scene``: the topic of PathSegment commands; set, the robot is commanded (the
+        scene's path gives only its start pose, its first sample); empty: the path is fixed.
+    path_rate_hz
+        Commanded: path samples per second of path time.
+    max_speed_mps, max_turn_rate_rps, max_jump_m, max_jump_rad
+        Commanded: the fastest a segment may drive (m/s, rad/s; they set Step 1's step,
+        `vibrissa.paths.PathLimits.rod_step`), and how far its first waypoint may be from
+        where it starts (m, rad); a command beyond is refused.
     surface
         Object spec for ``vibrissa.surfaces.parse_surface``, units of L (mode ``sim``).
     y0
@@ -219,6 +238,12 @@ class WrenchSourceParams:
     passes: int = 1
     loop: bool = False
     workers: int = 0
+    path_topic: str = ""
+    path_rate_hz: float = 500.0
+    max_speed_mps: float = 0.1
+    max_turn_rate_rps: float = 1.0
+    max_jump_m: float = 0.1
+    max_jump_rad: float = 0.5
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -247,6 +272,12 @@ class WrenchSourceParams:
             if self.simulated:
                 require_parsed("simulated", self.simulated,
                                lambda folder: read_results(folder, scene))
+            if self.path_topic:
+                require_parsed("path_topic", self.path_topic, validate_name)
+                require(not self.simulated and self.passes == 1 and not self.loop, "path_topic",
+                        self.path_topic, "empty with simulated, passes > 1 or loop (the path "
+                        "is commanded)")
+                require_parsed("path_rate_hz", self.path_rate_hz, lambda _: self.path_limits)
             require_parsed("pose_topic", self.pose_topic, validate_name)
             for key in ("pose_rate_hz", "pose_delay_s", "noise_force_n", "noise_moment_nm",
                         "workers"):
@@ -267,6 +298,12 @@ class WrenchSourceParams:
                 f"a number in (0, {MAX_STEP:g}] (units of L)")
         require(not self.whisker_ids or len(self.whisker_ids) == len(self.y0), "whisker_ids",
                 self.whisker_ids, f"one name per y0 ({len(self.y0)})")
+
+    @property
+    def path_limits(self) -> PathLimits:
+        """What the commanded robot accepts (``path_topic``)."""
+        return PathLimits(self.path_rate_hz, self.max_speed_mps, self.max_turn_rate_rps,
+                          self.max_jump_m, self.max_jump_rad)
 
     @property
     def array_whisker_ids(self) -> list[str]:
@@ -528,6 +565,157 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     return count
 
 
+COMMAND_CHUNK = 50
+"""Commanded samples simulated at a time (0.1 s of path at 500 Hz): their messages go out
+together, and Step 1 looks at most 16 samples ahead (`vibrissa.scene.SceneStream`)."""
+
+
+class CommandedMessages:
+    """The messages of the commanded robot's samples, as mode ``scene`` makes them along a
+    fixed path (`scene_stream`): a WhiskerWrenchArray per sample with a row per whisker that
+    has a wrench there, stamped ``epoch_s`` + its path time, ``seq`` from 0, noise drawn per
+    sample; poses at ``pose_rate_hz`` of path time (0: one per sample), ``pose_delay_s``
+    late. Each with its time in the stream; a pose before a wrench of the same time."""
+
+    def __init__(self, scene: Scene, params: WrenchSourceParams) -> None:
+        self.params = params
+        self.names = [w.name for w in scene.whiskers]
+        self.frame_ids = [clamp_frame(name) for name in self.names]
+        self.rng = np.random.default_rng(params.seed)
+        self.seq = 0
+        self.before: tuple[float, FloatArray, FloatArray] | None = None  # the last sample
+        self.next_pose = 0  # index of the next pose time on the pose_rate_hz grid
+
+    def start(self, p_WR: FloatArray, q_WR: FloatArray
+              ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
+        """The pose at path time 0, where the robot stands before any command."""
+        self.next_pose, self.before = 1, (0.0, p_WR, q_WR)
+        return [(self.params.pose_delay_s, 0, _pose(self.params, 0.0, p_WR, q_WR))]
+
+    def of(self, samples: StreamSamples, last: bool = False
+           ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
+        """Messages of ``samples`` (``last``: the path's end, which has a pose of its own)."""
+        params, out = self.params, []
+        f0, m0 = samples.f0_n, samples.m0_nm
+        if params.noise_force_n:
+            f0 = f0 + self.rng.normal(0.0, params.noise_force_n, f0.shape)
+        if params.noise_moment_nm:
+            m0 = m0 + self.rng.normal(0.0, params.noise_moment_nm, m0.shape)
+        for k, t in enumerate(samples.t.tolist()):
+            rows = np.flatnonzero(samples.phase[k] != SamplePhase.UNRESOLVED)
+            out.append((t, 1, WhiskerWrenchArray(
+                stamp=params.epoch_s + t, seq=self.seq, whisker_ids=[self.names[i] for i in rows],
+                frame_ids=[self.frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])))
+            self.seq += 1
+        out += [(t + params.pose_delay_s, 0, _pose(params, t, p, q))
+                for t, p, q in self._poses(samples, last)]
+        if len(samples.t):
+            self.before = (float(samples.t[-1]), samples.p_WR[-1], samples.q_WR[-1])
+        return sorted(out, key=lambda e: (e[0], e[1]))
+
+    def _poses(self, samples: StreamSamples, last: bool
+               ) -> list[tuple[float, FloatArray, FloatArray]]:
+        new = samples.t > self.before[0] if self.before is not None else samples.t >= 0
+        if not self.params.pose_rate_hz:  # the start's pose is out already
+            return list(zip(samples.t[new].tolist(), samples.p_WR[new], samples.q_WR[new],
+                            strict=True))
+        if self.before is None or not new.any():
+            return []
+        t = np.concatenate([[self.before[0]], samples.t[new]])
+        path = robot_path(t, np.vstack([self.before[1][None], samples.p_WR[new]]),
+                          np.vstack([self.before[2][None], samples.q_WR[new]]))
+        period = 1.0 / self.params.pose_rate_hz
+        stop = int(np.floor(t[-1] / period))
+        at = np.arange(self.next_pose, stop + 1) * period
+        at = at[at > t[0]]
+        self.next_pose = stop + 1
+        if last and (not len(at) or at[-1] < t[-1]):
+            at = np.append(at, t[-1])
+        _, p, rotations = path.at(at)
+        return list(zip(at.tolist(), p, rotations.as_quat(), strict=True))
+
+
+def run_commanded(node: Node, params: WrenchSourceParams) -> int:
+    """Drive the robot along the segments that arrive on ``path_topic``, each sample simulated
+    as it comes, its messages published as it is final; returns the number of messages sent,
+    -1 when ``wait_for`` timed out."""
+    wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
+                                     hwm=DEFAULT_HWM * 10)
+    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
+                                  hwm=DEFAULT_HWM * 10)
+    commands = node.create_subscriber({params.path_topic: PathSegment})
+    scene = load_scene(params.scene)
+    limits = params.path_limits
+    stream = SceneStream(scene, [limits.rod_step(w.X_RC, w.length_m) for w in scene.whiskers])
+    p0, q0 = scene.path.p_WR[0], scene.path.R_WR[0].as_quat()
+    path = CommandedPath(limits, p0, q0)
+    out = CommandedMessages(scene, params)
+    for topic in (params.topic, params.pose_topic):
+        if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,
+                                                             params.wait_timeout_s):
+            return -1
+    node.set_state("running", f"{len(scene.whiskers)} whisker(s) commanded on "
+                   f"{node.resolve(params.path_topic)}")
+    _say_epoch(node, params, "path time 0")
+    stream.extend([0.0], p0[None], q0[None])  # the robot stands at the start
+    counters = node.counters
+    counters.update(commands_accepted=0, commands_rejected=0)
+    count, taken, ended = 0, 1, False
+    pace = params.rate_hz / params.path_rate_hz if params.rate_hz else 0.0
+    anchor: tuple[float, float] | None = None  # (wall, stream time) the pacing runs from
+
+    def publish(messages: list[tuple[float, int, WhiskerWrenchArray | RobotPose]]) -> bool:
+        nonlocal count, anchor
+        for stream_t, _, msg in messages:
+            if pace:
+                if anchor is None:
+                    anchor = (time.monotonic(), stream_t)
+                delay = anchor[0] + (stream_t - anchor[1]) / (pace * params.path_rate_hz) \
+                    - time.monotonic()
+                if delay > 0 and not node.sleep(delay):
+                    return False
+            (poses if isinstance(msg, RobotPose) else wrenches).publish(msg)
+            count += 1
+        return True
+
+    publish(out.start(p0, q0))  # where the robot stands (its wrench once it is final)
+    while not node.stop_requested and (path.queued or not ended):
+        rx = None if ended else commands.receive(0.0 if path.queued else 0.1)
+        while rx is not None and not ended:
+            msg = rx.msg
+            if isinstance(msg, EndOfStream):
+                ended = True
+            elif isinstance(msg, PathSegment):
+                why = (f"frame {msg.frame_id!r} is not {params.map_frame!r}"
+                       if msg.frame_id != params.map_frame else
+                       path.command(msg.position, msg.orientation, msg.speed_mps,
+                                    msg.turn_rate_rps, replace=msg.mode == "replace"))
+                key = "commands_rejected" if why else "commands_accepted"
+                counters[key] += 1
+                if why:
+                    log.warning("%s: path segment %d refused: %s", node.fqn, msg.segment_id, why)
+                else:
+                    log.info("%s: path segment %d (%s): %d waypoint(s), %d sample(s) queued",
+                             node.fqn, msg.segment_id, msg.mode, len(msg.position), path.queued)
+            rx = commands.receive(0.0)
+        if not path.queued:
+            anchor = None  # the robot waits: pacing starts again with the next segment
+            continue
+        p, q = path.take(COMMAND_CHUNK)
+        stream.extend(np.arange(taken, taken + len(p)) / params.path_rate_hz, p, q)
+        taken += len(p)
+        # the queue ran empty: the robot stops there, every sample up to it goes out
+        if not publish(out.of(stream.advance(hold=bool(path.queued)))):
+            break
+    if not node.stop_requested:
+        publish(out.of(stream.finish(), last=True))
+    wrenches.publish_end_of_stream(node.fqn)
+    poses.publish_end_of_stream(node.fqn)
+    log.info("%s: %d messages and EndOfStream on %s and %s; %s", node.fqn, count,
+             wrenches.topic, poses.topic, ", ".join(f"{k} {v}" for k, v in counters.items()))
+    return count
+
+
 def replay_topics(bag: str) -> dict[str, bool]:
     """Topics of ``bag`` whose payloads decode as ``REPLAY_TYPES`` -> whether it holds an
     EndOfStream on them."""
@@ -566,7 +754,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging()
     params = load_params(WrenchSourceParams, args.params_file, args.params)
     with Node.from_args(args) as node:
-        run = {"sim": run_sim, "scene": run_scene, "replay": run_replay}[params.mode]
+        run = {"sim": run_sim, "scene": run_commanded if params.path_topic else run_scene,
+               "replay": run_replay}[params.mode]
         sent = run(node, params)
         if sent < 0:
             node.set_state("error", "downstream not ready or replay failed")

@@ -23,6 +23,7 @@ RANK = {
     "vibrissa.msgs": 1,
     "vibrissa.formats": 1,
     "vibrissa.mapping": 1,
+    "vibrissa.planning": 1,  # where a robot goes next: free space, exploration planners
     "vibrissa.wire": 2,
     "vibrissa.figures": 2,
     "vibrissa.streaming": 2,  # Step 2 on a stream of messages, without sockets
@@ -41,6 +42,8 @@ LIBRARIES = {
     # skimage: marching cubes, threadpoolctl: one BLAS thread (vibrissa.mapping.gp_surface),
     # open3d: DBSCAN (vibrissa.mapping.objects)
     "vibrissa.mapping": {"skimage", "threadpoolctl", "open3d"},
+    # skimage: shortest routes on a grid (vibrissa.planning.explorer)
+    "vibrissa.planning": {"skimage"},
     "vibrissa.msgs": {"msgpack", "msgspec"},
     # rosbags, mcap_ros2: ROS 2 bags without ROS (vibrissa.wire.ros2_bag)
     "vibrissa.wire": {"zmq", "mcap", "zstandard", "rosbags", "mcap_ros2"},

@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from vibrissa.frames import PoseSamples, Transform
+from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
 from vibrissa.surfaces import Surface
 
 if TYPE_CHECKING:
@@ -181,3 +181,162 @@ class SampledPath:
     def symmetric(self, surface: Surface) -> bool:
         """Never assumed for a general path (psi is solved for)."""
         return False
+
+
+@dataclass(frozen=True)
+class PathLimits:
+    """What a commanded robot accepts (`CommandedPath`).
+
+    Attributes
+    ----------
+    rate_hz : float
+        Path samples per second of path time: the robot's pose is sampled every 1 / rate_hz s.
+    max_speed_mps : float
+        Largest commanded speed of the robot's origin, m/s.
+    max_turn_rate_rps : float
+        Largest commanded turn rate, rad/s.
+    max_jump_m, max_jump_rad : float
+        Largest distance (m) and turn (rad) from the pose a segment starts from to its first
+        waypoint: a command further off is refused (a wrong frame, a stale plan).
+    """
+
+    rate_hz: float = 500.0
+    max_speed_mps: float = 0.1
+    max_turn_rate_rps: float = 1.0
+    max_jump_m: float = 0.1
+    max_jump_rad: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("rate_hz", "max_speed_mps", "max_turn_rate_rps", "max_jump_m",
+                     "max_jump_rad"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+    def rod_step(self, mount: Transform, length_m: float) -> float:
+        """The largest distance a point of a straight rod of ``length_m`` mounted at ``mount``
+        (X_RC, m) moves in one sample at the largest speeds, units of L (`rod_motion`'s bound):
+        Step 1's step ``h`` along a commanded path."""
+        reach_m = float(np.linalg.norm(mount.translation)) + length_m
+        return (self.max_speed_mps + self.max_turn_rate_rps * reach_m) / self.rate_hz / length_m
+
+
+def check_segment(limits: PathLimits, p_start: ArrayLike, q_start_xyzw: ArrayLike,
+                  position: ArrayLike, orientation_xyzw: ArrayLike, speed_mps: float,
+                  turn_rate_rps: float) -> str | None:
+    """Why a segment of waypoints (positions (N, 3) m, unit quaternions (N, 4)) driven from
+    the pose (``p_start``, ``q_start_xyzw``) at ``speed_mps`` and ``turn_rate_rps`` is refused,
+    or None when it is accepted: no waypoint, non-finite numbers, a quaternion that is not
+    unit, a speed or turn rate not in (0, the limit], a first waypoint beyond ``max_jump_m`` or
+    ``max_jump_rad`` from the start."""
+    p = np.asarray(position, dtype=float)
+    q = np.asarray(orientation_xyzw, dtype=float)
+    if p.ndim != 2 or p.shape[1:] != (3,) or q.shape != (len(p), 4) or len(p) == 0:
+        return f"waypoints need positions (N >= 1, 3) and quaternions (N, 4), got {p.shape} " \
+               f"and {q.shape}"
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        return "waypoints hold non-finite numbers"
+    bad = non_unit_quaternion(q)
+    if bad is not None:
+        return f"waypoint {bad[0]}: quaternion of norm {bad[1]:.9g} is not unit"
+    for name, value, limit, unit in (("speed_mps", speed_mps, limits.max_speed_mps, "m/s"),
+                                     ("turn_rate_rps", turn_rate_rps, limits.max_turn_rate_rps,
+                                      "rad/s")):
+        if not 0 < value <= limit:
+            return f"{name} {value!r} not in (0, {limit:g}] {unit}"
+    from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
+
+    jump_m = float(np.linalg.norm(p[0] - np.asarray(p_start, dtype=float)))
+    turn = float((Rotation.from_quat(q_start_xyzw).inv() * Rotation.from_quat(q[0])).magnitude())
+    if jump_m > limits.max_jump_m or turn > limits.max_jump_rad:
+        return (f"the first waypoint is {jump_m:.4g} m and {turn:.4g} rad from where the segment "
+                f"starts (at most {limits.max_jump_m:g} m, {limits.max_jump_rad:g} rad)")
+    return None
+
+
+def waypoint_samples(p_start: ArrayLike, q_start_xyzw: ArrayLike, position: ArrayLike,
+                     orientation_xyzw: ArrayLike, speed_mps: float, turn_rate_rps: float,
+                     rate_hz: float) -> tuple[FloatArray, FloatArray]:
+    """The robot's poses X_WR every 1 / ``rate_hz`` s from the start pose through the
+    waypoints, the start excluded: positions (M, 3) m and unit quaternions (M, 4) (x, y, z, w).
+
+    Each leg, from one pose to the next waypoint, takes n = ceil(T rate_hz) samples with
+    T = max(distance / ``speed_mps``, angle / ``turn_rate_rps``) (at most those speeds), at
+    fractions j / n (j = 1 .. n; position linear, orientation slerp as `PoseSamples`), its last
+    sample the waypoint itself, to the bit; a waypoint where the robot already is adds none.
+    """
+    from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
+
+    p = np.vstack([np.asarray(p_start, dtype=float)[None], np.asarray(position, dtype=float)])
+    q = np.vstack([np.asarray(q_start_xyzw, dtype=float)[None],
+                   np.asarray(orientation_xyzw, dtype=float)])
+    rotations = Rotation.from_quat(q)
+    distance = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    turn = (rotations[:-1].inv() * rotations[1:]).magnitude()
+    duration = np.maximum(distance / speed_mps, turn / turn_rate_rps)
+    counts = np.where(duration > 0, np.ceil(duration * rate_hz - 1e-9), 0).astype(np.int64)
+    counts[(duration > 0) & (counts == 0)] = 1
+    legs = np.repeat(np.arange(len(counts)), counts)
+    fraction = np.concatenate([np.arange(1, n + 1) / n for n in counts] or [np.zeros(0)])
+    positions = p[legs] + fraction[:, None] * (p[legs + 1] - p[legs])
+    turns = (rotations[:-1].inv() * rotations[1:]).as_rotvec()
+    quaternions = (rotations[legs] * Rotation.from_rotvec(fraction[:, None] * turns[legs])).as_quat() \
+        if len(legs) else np.zeros((0, 4))
+    ends = np.cumsum(counts)[counts > 0] - 1  # each leg's last sample: its waypoint
+    positions[ends] = p[1:][counts > 0]
+    quaternions[ends] = q[1:][counts > 0]
+    return positions, quaternions
+
+
+class CommandedPath:
+    """A robot's path as it is commanded: segments of waypoints queued as poses every
+    1 / ``limits.rate_hz`` s (`waypoint_samples`), taken sample by sample by whoever drives
+    the robot (a simulation, a driver).
+
+    The robot starts at (``p_start``, ``q_start_xyzw``). A segment is driven from the end of
+    the queue (``replace`` False) or, the queue dropped, from the last pose taken (``replace``
+    True); `command` refuses a bad one (`check_segment`) with the reason, and the queue is
+    then as before.
+    """
+
+    def __init__(self, limits: PathLimits, p_start: ArrayLike, q_start_xyzw: ArrayLike) -> None:
+        self.limits = limits
+        self._taken = (np.array(p_start, dtype=float), np.array(q_start_xyzw, dtype=float))
+        self._p: FloatArray = np.zeros((0, 3))
+        self._q: FloatArray = np.zeros((0, 4))
+
+    @property
+    def queued(self) -> int:
+        """Samples queued and not yet taken."""
+        return len(self._p)
+
+    @property
+    def last_taken(self) -> tuple[FloatArray, FloatArray]:
+        """The robot's last pose taken (the start before any): position (3,) m, quaternion (4,)."""
+        return self._taken
+
+    def command(self, position: ArrayLike, orientation_xyzw: ArrayLike, speed_mps: float,
+                turn_rate_rps: float, replace: bool = False) -> str | None:
+        """Queue a segment of waypoints (positions (N, 3) m, unit quaternions (N, 4)); the
+        reason it is refused, or None."""
+        p0, q0 = self._taken if replace or not self.queued else (self._p[-1], self._q[-1])
+        why = check_segment(self.limits, p0, q0, position, orientation_xyzw, speed_mps,
+                            turn_rate_rps)
+        if why is not None:
+            return why
+        p, q = waypoint_samples(p0, q0, position, orientation_xyzw, speed_mps, turn_rate_rps,
+                                self.limits.rate_hz)
+        if replace:
+            self._p, self._q = p, q
+        else:
+            self._p, self._q = np.vstack([self._p, p]), np.vstack([self._q, q])
+        return None
+
+    def take(self, n: int) -> tuple[FloatArray, FloatArray]:
+        """The next ``n`` queued samples at most, off the queue: positions (m, 3), quaternions
+        (m, 4)."""
+        p, q = self._p[:n], self._q[:n]
+        self._p, self._q = self._p[n:], self._q[n:]
+        if len(p):
+            self._taken = (p[-1], q[-1])
+        return p, q

@@ -32,6 +32,7 @@ its whisker's L, and its own step), with the same bits as each whisker alone
 from __future__ import annotations
 
 import enum
+import math
 import multiprocessing
 import os
 import signal
@@ -44,11 +45,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
-from vibrissa.paths import SampledPath, rod_motion
+from vibrissa.paths import SUBSAMPLE_L, SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
-from vibrissa.sweep import Landing, Sweep, SweepRun, advance_together, next_grid_point
+from vibrissa.sweep import (
+    EARLY_MULTIPLES,
+    EARLY_TRAVEL_L,
+    Landing,
+    Sweep,
+    SweepRun,
+    advance_together,
+    next_grid_point,
+)
 from vibrissa.units import RodScale, finite_number, rod_units
 
 if TYPE_CHECKING:
@@ -139,7 +148,7 @@ class Whisker:
 
 @dataclass(frozen=True)
 class RobotPath:
-    """Stamped robot poses X_WR: times ``t`` (N,) s, strictly increasing; positions
+    """Stamped robot poses X_WR: times ``t`` (N >= 1,) s, strictly increasing; positions
     ``p_WR`` (N, 3) m; orientations ``R_WR`` (N rotations)."""
 
     t: FloatArray
@@ -150,8 +159,8 @@ class RobotPath:
         t = np.asarray(self.t, dtype=float)
         if t.ndim != 1:
             raise ValueError(f"path times must be one column, got shape {t.shape}")
-        if len(t) < 2:
-            raise ValueError(f"a path needs at least 2 samples, got {len(t)}")
+        if len(t) < 1:  # one sample: a robot standing still
+            raise ValueError(f"a path needs at least 1 sample, got {len(t)}")
         steps = np.diff(t)
         if not np.all(steps > 0):
             first = int(np.flatnonzero(~(steps > 0))[0]) + 2  # 1-based row of the later sample
@@ -173,7 +182,9 @@ class RobotPath:
         covered = (t >= self.t[0]) & (t <= self.t[-1])
         p = np.full((len(t), 3), np.nan)
         q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
-        if covered.any():
+        if covered.any() and len(self.t) == 1:  # standing still: the one pose
+            p[covered], q[covered] = self.p_WR[0], self.R_WR[0].as_quat()
+        elif covered.any():
             p[covered], rotations = PoseSamples(self.t, self.p_WR, self.R_WR).poses_at(t[covered])
             q[covered] = rotations.as_quat()
         return covered, p, Rotation.from_quat(q)
@@ -449,10 +460,19 @@ class _WhiskerSteps:
         self.s1, self.f0, self.m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
         self.contact, self.touched = np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
         self.refined = np.zeros(n, dtype=bool)
+        self.t_all = scene.path.t
+        self._init_state()
+        self.k = self._skip_unresolved(0)
+
+    final = True
+    """Whether ``path`` is the whole path (`SceneStream`: more samples may come)."""
+
+    def _init_state(self) -> None:
         self.episodes: list[Episode] = []
         self.run: SweepRun | None = None
         self.ended = False
-        self.k = self._skip_unresolved(0)  # the moving sample from which the next touch is searched
+        self.k = 0  # the moving sample from which the next touch is searched
+        self._searched = -1  # (more samples may come) no touch from k up to this sample
         self._object = -1  # the episode's object
         self._snapped: FloatArray | None = None  # a snap-off's last contact force: land at k
         self._inside: list[int] = []  # ... on one of these objects, the deepest first
@@ -473,18 +493,58 @@ class _WhiskerSteps:
                                         landings=[landing])
                     self._landed = True
                     return
+        if self._searched < self.k:  # (more samples may come: a skip may go on)
             self.k = self._skip_unresolved(self.k)
-        if self.k >= self.path.n_samples - 1:
-            self.ended = True
+        n = len(self.kept)
+        if self.k >= n - 1:
+            self.ended = self.final
+            return
+        if self._searched > self.k and (self._searched >= n - 1
+                                        or not self._touch_after(self._searched)):
+            self._searched = n - 1
+            self.ended = self.final
             return
         rest = self.path.tail(self.k)
         touches = [(touch, i) for i, surface in enumerate(self.surfaces)
                    if (touch := rest.first_contact(surface)) is not None]
         if not touches:
-            self.ended = True
+            self._searched = n - 1
+            self.ended = self.final
             return
         (_x_touch, _p), self._object = max(touches, key=lambda item: item[0][0])  # the first
         self.run = SweepRun(self.surfaces[self._object], [rest], rest.h)
+
+    def _touch_after(self, j: int) -> bool:
+        """Whether the straight rod, free at moving sample ``j``, touches an object after it.
+
+        First, for all objects at once: none where the rod enters no object at any sample and
+        moves at most `SUBSAMPLE_L` from one to the next (`SampledPath.first_contact` then has
+        no sub-samples to check)."""
+        p_WR, rotations = self._samples_from(j)
+        window = SampledPath(p_WR, rotations, self.scene.mu, self.mount, self.h)
+        p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))
+        if (self.max_motion <= SUBSAMPLE_L
+                and not any(s.segment_inside(p_WC, R_WC[:, :, 2]).any() for s in self.surfaces)):
+            return False
+        return any(window.first_contact(surface) is not None for surface in self.surfaces)
+
+    def _samples_from(self, j: int) -> tuple[FloatArray, Rotation]:
+        """The moving samples from ``j`` on: robot origins (units of L) and R_WR."""
+        return self.path.p_WR[j:], self.path.rotations[j:]
+
+    @property
+    def mount(self) -> Transform:
+        """X_RC, units of L."""
+        return self.path.mount
+
+    @property
+    def h(self) -> float:
+        """Step 1's step, units of L: a sample."""
+        return self.path.h
+
+    max_motion = float("inf")
+    """The most a point of the straight rod moved from one sample to the next, units of L
+    (unknown: inf)."""
 
     def where(self) -> tuple[int, int]:
         """The moving sample the episode has reached, and the moving samples."""
@@ -506,18 +566,7 @@ class _WhiskerSteps:
             changes = [change for change in changes if change[0] > sweep.x0[n]]
         # the last sample of the episode: its last row, or the one where the rod meets another
         last = int(rows[n]) if n < len(rows) else int(rows[-1]) if len(rows) else after_touch - 1
-        span = slice(k if self._landed else after_touch, last + 1)
-        self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
-        self.f0[span], self.m0[span] = np.nan, np.nan
-        self.touched[span] = i
-        kept = rows[:n]
-        self.phase[kept] = sweep.phase[:n]
-        self.s1[kept] = sweep.s1[:n] * self.whisker.length_m
-        self.f0[kept], self.m0[kept] = self.whisker.scale.wrench_to_si(sweep.f0[:n], sweep.m0[:n])
-        self.contact[kept] = sweep.contact[:n] * self.whisker.length_m
-        if self.origin_m.any():  # (so that a scene at W's origin keeps its bits, -0.0 too)
-            self.contact[kept] += self.origin_m
-        self.refined[kept] = sweep.refined[:n]
+        self._write_rows(sweep, rows, self._span_start(sweep), last, 0, n)
         self.episodes.append(Episode(self.scene.objects[i].name,
                                      self._time_at(-sweep.x_touch / h + k), str(end),
                                      [(self._time_at(-x0 / h + k), old, new)
@@ -542,6 +591,31 @@ class _WhiskerSteps:
                 self.k, self._snapped = last + 1, sweep.force[-1]
                 return
         self.k = self._skip_unresolved(last + 1)
+
+    def _span_start(self, sweep: Sweep) -> int:
+        """The episode's first sample: its landing's, or the first past the touch (on the
+        touch within 1e-9 of a step: the next one)."""
+        if self._landed:
+            return self.k
+        return self.k + round(-next_grid_point(sweep.x_touch, 0.0, self.path.h) / self.path.h)
+
+    def _write_rows(self, sweep: Sweep, rows: NDArray[np.int64], start: int, last: int,
+                    first: int, n: int) -> None:
+        """Record the episode's samples ``start`` .. ``last``, its rows ``first`` .. ``n - 1``
+        at samples ``rows``: unresolved where stepped over, each row's state at its own."""
+        span = slice(start, last + 1)
+        self.phase[span] = SamplePhase.UNRESOLVED  # stepped over, until a row says otherwise
+        self.f0[span], self.m0[span] = np.nan, np.nan
+        self.touched[span] = self._object
+        kept, part = rows[first:n], slice(first, n)
+        self.phase[kept] = sweep.phase[part]
+        self.s1[kept] = sweep.s1[part] * self.whisker.length_m
+        self.f0[kept], self.m0[kept] = self.whisker.scale.wrench_to_si(sweep.f0[part],
+                                                                       sweep.m0[part])
+        self.contact[kept] = sweep.contact[part] * self.whisker.length_m
+        if self.origin_m.any():  # (so that a scene at W's origin keeps its bits, -0.0 too)
+            self.contact[kept] += self.origin_m
+        self.refined[kept] = sweep.refined[part]
 
     def _landing(self, k: int, force_W: FloatArray) -> Landing | None:
         """Where the rod lands at sample ``k`` after a snap-off, its straight rod inside the
@@ -614,22 +688,24 @@ class _WhiskerSteps:
             return None  # the landed rod would enter another object
         return sweep.landing(landed, 0.0)
 
-    def _rows_clear_of_others(self, sweep: Sweep) -> int:
+    def _rows_clear_of_others(self, sweep: Sweep, start: int = 0) -> int:
         """How many of the episode's rows, from its first, have the rod's axis outside every
-        other object of the scene (the axis as a polyline of ``AXIS_SEGMENTS`` chords)."""
+        other object of the scene (the axis as a polyline of ``AXIS_SEGMENTS`` chords), the
+        rows before ``start`` known to."""
         others = [s for j, s in enumerate(self.surfaces) if j != self._object]
-        if not others or sweep.n_steps == 0:
+        if not others or sweep.n_steps <= start:
             return sweep.n_steps
         # A row's rod lies in two balls: the bent part (length s1 from the clamp P0 to the
         # contact P1) within s1 / 2 of (P0 + P1) / 2, the straight rest within 1 - s1 of P1.
-        middle, s1 = (sweep.p0 + sweep.contact) / 2.0, sweep.s1
-        near = np.zeros(sweep.n_steps, dtype=bool)
+        contact = sweep.contact[start:]
+        middle, s1 = (sweep.p0[start:] + contact) / 2.0, sweep.s1[start:]
+        near = np.zeros(sweep.n_steps - start, dtype=bool)
         for surface in others:
             near |= ((surface.signed_distance(middle) < s1 / 2.0 + 1e-9)
-                     | (surface.signed_distance(sweep.contact) < 1.0 - s1 + 1e-9))
-        candidates = np.flatnonzero(near)
-        for start in range(0, len(candidates), 64):
-            rows = candidates[start:start + 64]
+                     | (surface.signed_distance(contact) < 1.0 - s1 + 1e-9))
+        candidates = start + np.flatnonzero(near)
+        for first in range(0, len(candidates), 64):
+            rows = candidates[first:first + 64]
             axes = sweep.elastic_lines(rows, AXIS_SEGMENTS + 1)
             starts, chords = axes[:, :-1].reshape(-1, 3), np.diff(axes, axis=1).reshape(-1, 3)
             meets = np.zeros(len(rows), dtype=bool)
@@ -650,8 +726,10 @@ class _WhiskerSteps:
     def _skip_unresolved(self, k: int) -> int:
         """The first sample from ``k`` on where the straight rod is outside every object."""
         path, n = self.path, self.path.n_samples
-        while k < n and any(path.penetrates(s, path.x0_of(np.array([k])))[0]
-                            for s in self.surfaces):
+        while k < n:
+            p_WC, R_WC = path.clamp_pose(path.x0_of(np.array([k])))  # `SampledPath.penetrates`
+            if not any(s.segment_inside(p_WC, R_WC[:, :, 2])[0] for s in self.surfaces):
+                break
             self.phase[k], self.f0[k], self.m0[k] = SamplePhase.UNRESOLVED, np.nan, np.nan
             k += 1
         return k
@@ -659,7 +737,7 @@ class _WhiskerSteps:
     def _time_at(self, lam: float) -> float:
         """The time at the fractional moving sample ``lam``: the clamp moves from the sample
         before kept[j] (where a pause ends) to kept[j]."""
-        t_all, kept = self.scene.path.t, self.kept
+        t_all, kept = self.t_all, self.kept
         j = min(int(np.ceil(lam)), len(kept) - 1)
         if j == 0:
             return float(t_all[kept[0]])
@@ -748,3 +826,316 @@ def robot_path(t: ArrayLike, p_WR: ArrayLike, q_WR_xyzw: ArrayLike) -> RobotPath
 
     return RobotPath(np.asarray(t, dtype=float), np.asarray(p_WR, dtype=float),
                      Rotation.from_quat(q))
+
+
+@dataclass(frozen=True)
+class StreamSamples:
+    """Path samples of a `SceneStream` whose Step 1 is final, in path order (M samples, W
+    whiskers in the scene's order).
+
+    ``t`` (M,) s; ``p_WR`` (M, 3) m and ``q_WR`` (M, 4) (x, y, z, w): the robot's pose X_WR;
+    ``phase`` (M, W) `SamplePhase`; ``f0_n``, ``m0_nm`` (M, W, 3) the clamp's reaction on each
+    rod about its clamp point in its clamp frame C, N and N m (zero when free, NaN when
+    unresolved), as `WhiskerResult`'s.
+    """
+
+    t: FloatArray
+    p_WR: FloatArray
+    q_WR: FloatArray
+    phase: NDArray[np.int64]
+    f0_n: FloatArray
+    m0_nm: FloatArray
+
+
+class SceneStream:
+    """Step 1 of every whisker of a scene along a path that arrives while it runs: the same
+    state machine as `simulate` (episodes, landings, another object, pauses), each whisker's
+    state carried from one sample to the next, results handed out as soon as no later sample
+    can change them.
+
+    The path is the scene's objects, whiskers and friction with poses fed by `extend` (the
+    scene's own path only sets W's local origin, `local_origin`). Each whisker's step ``h``
+    (units of its L) is given, not the path's largest motion: ``steps`` (one per whisker, e.g.
+    `vibrissa.paths.PathLimits.rod_step`). With the path's own ``h`` and all of it fed, the
+    results are `simulate`'s, to the bit.
+
+    What may wait for later samples: a contact in its first `EARLY_TRAVEL_L` of travel looks
+    up to 16 samples ahead (`vibrissa.sweep.EARLY_MULTIPLES`), and a snap-off two samples
+    (a landing is never on the path's last sample); `advance` with ``hold`` False steps as
+    far as the samples go, as if the path ended there for the look-ahead (a robot that
+    stopped: it gives up the longer early steps past that end); `finish` ends the path.
+    """
+
+    def __init__(self, scene: Scene, steps: Sequence[float]) -> None:
+        if len(steps) != len(scene.whiskers) or not all(h > 0 for h in steps):
+            raise ValueError(f"steps must be {len(scene.whiskers)} numbers > 0, got {steps}")
+        origin_m = local_origin(scene.path)
+        self.scene = scene
+        self._steps = [_StreamSteps(scene, whisker, origin_m, h)
+                       for whisker, h in zip(scene.whiskers, steps, strict=True)]
+        self._t = np.zeros(0)
+        self._p = np.zeros((0, 3))
+        self._q = np.zeros((0, 4))
+        self._sent = 0  # raw samples handed out
+
+    def extend(self, t: ArrayLike, p_WR_m: ArrayLike, q_WR_xyzw: ArrayLike) -> None:
+        """Add path samples: times (m,) s after the last, positions (m, 3) m, unit
+        quaternions (m, 4)."""
+        from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
+
+        t = np.asarray(t, dtype=float).reshape(-1)
+        p = np.asarray(p_WR_m, dtype=float).reshape(-1, 3)
+        q = np.asarray(q_WR_xyzw, dtype=float).reshape(-1, 4)
+        if not len(t) == len(p) == len(q):
+            raise ValueError(f"{len(t)} times, {len(p)} positions, {len(q)} quaternions")
+        if not len(t):
+            return
+        if not np.all(np.diff(np.concatenate([self._t[-1:], t])) > 0):
+            raise ValueError("sample times must increase strictly")
+        self._t, self._p, self._q = (np.concatenate([self._t, t]), np.vstack([self._p, p]),
+                                     np.vstack([self._q, q]))
+        rotations = Rotation.from_quat(q)
+        for steps in self._steps:
+            steps.extend(t, p, rotations)
+
+    def advance(self, hold: bool = True) -> StreamSamples:
+        """Step every whisker as far as the samples allow; the samples now final."""
+        for steps in self._steps:
+            steps.hold = hold
+        while True:
+            for steps in self._steps:
+                steps.go_on()
+            ready = [steps for steps in self._steps if steps.can_step()]
+            if ready:
+                advance_together([steps.run for steps in ready if steps.run is not None])
+            ended = [steps for steps in self._steps
+                     if steps.run is not None and steps.run.done and steps.after_steps()]
+            if ready or ended:
+                continue
+            # nothing can step: record the episodes' rows so far (or end one at another object)
+            if not [steps for steps in self._steps if steps.after_steps()]:
+                return self._take()
+
+    def finish(self) -> StreamSamples:
+        """End the path: step every whisker to its end; the samples left."""
+        for steps in self._steps:
+            steps.close()
+        return self.advance(hold=False)
+
+    def _take(self) -> StreamSamples:
+        done = min(steps.final_samples() for steps in self._steps)  # raw samples, exclusive
+        rows = slice(self._sent, max(done, self._sent))
+        self._sent = rows.stop
+        results = [steps.raw_results(rows) for steps in self._steps]
+        for steps in self._steps:
+            steps.forget(self._sent)
+        return StreamSamples(self._t[rows], self._p[rows], self._q[rows],
+                             np.stack([r[0] for r in results], axis=1).reshape(-1, len(results)),
+                             np.stack([r[1] for r in results], axis=1).reshape(-1, len(results), 3),
+                             np.stack([r[2] for r in results], axis=1).reshape(-1, len(results), 3))
+
+
+FORGET_SAMPLES = 64
+"""A streamed whisker waiting for a touch drops the moving samples behind it once there are
+this many (`_StreamSteps.forget`)."""
+
+
+class _StreamSteps(_WhiskerSteps):
+    """`_WhiskerSteps` on a path that grows (`SceneStream`): ``path`` holds the moving samples
+    so far, ``final`` says whether more may come, and the rows of an episode are recorded as
+    they pass the check against the other objects."""
+
+    def __init__(self, scene: Scene, whisker: Whisker, origin_m: FloatArray, h: float) -> None:
+        length = whisker.length_m
+        self.scene, self.whisker, self.origin_m, self._h = scene, whisker, origin_m, h
+        self.surfaces = [obj.surface(length, origin_m) for obj in scene.objects]
+        self._mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
+        self.t_all = np.zeros(0)
+        self.moved = np.zeros(0, dtype=bool)
+        self.kept = np.zeros(0, dtype=np.int64)
+        self._p_kept = np.zeros((0, 3))
+        self._R_kept: Rotation | None = None
+        self._last: tuple[FloatArray, Rotation] | None = None  # the last raw sample, units of L
+        self._path: SampledPath | None = None  # built from the samples when asked for
+        self.phase = np.zeros(0, dtype=np.int64)
+        self.s1, self.f0, self.m0 = np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+        self.contact, self.touched = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+        self.refined = np.zeros(0, dtype=bool)
+        self.final = False
+        self.hold = True
+        self.max_motion = 0.0
+        self._init_state()
+        self._recorded = 0  # rows of the episode in progress already recorded
+        self._recorded_run: SweepRun | None = None
+        self._recorded_to = 0  # ... up to this moving sample (exclusive)
+        self._idle_at: tuple[int, bool] = (-1, False)  # (samples, final) when it last waited
+        self._base = 0  # moving samples dropped (`forget`): index 0 of ``path`` is this one
+
+    def extend(self, t: FloatArray, p_WR_m: FloatArray, rotations: Rotation) -> None:
+        from scipy.spatial.transform import Rotation
+
+        p = (p_WR_m - self.origin_m) / self.whisker.length_m
+        if self._last is None:
+            motion = rod_motion(p, rotations, self.mount)
+            moved = np.concatenate([[True], motion > PAUSE_L])
+        else:
+            motion = rod_motion(np.vstack([self._last[0][None], p]),
+                                Rotation.concatenate([self._last[1], rotations]), self.mount)
+            moved = motion > PAUSE_L
+        self.max_motion = max(self.max_motion, float(np.max(motion, initial=0.0)))
+        self._last = (p[-1], rotations[-1:])
+        start = len(self.t_all)
+        self.t_all = np.concatenate([self.t_all, t])
+        self.moved = np.concatenate([self.moved, moved])
+        self._add_kept(start + np.flatnonzero(moved), p[moved], rotations[moved])
+
+    @property  # type: ignore[override]
+    def mount(self) -> Transform:
+        return self._mount
+
+    @property  # type: ignore[override]
+    def h(self) -> float:
+        return self._h
+
+    @property
+    def path(self) -> SampledPath | None:  # type: ignore[override]
+        """The moving samples so far (None before two), built when asked for."""
+        if self._path is None and len(self.kept) >= 2:
+            assert self._R_kept is not None
+            self._path = SampledPath(self._p_kept, self._R_kept, self.scene.mu, self.mount,
+                                     self.h)
+        return self._path
+
+    def _samples_from(self, j: int) -> tuple[FloatArray, Rotation]:
+        assert self._R_kept is not None
+        return self._p_kept[j:], self._R_kept[j:]
+
+    def close(self) -> None:
+        """The path ends: a robot that never moved has its first and last sample (`simulate`)."""
+        self.final = True
+        if len(self.kept) == 1 and len(self.t_all) > 1:
+            from scipy.spatial.transform import Rotation
+
+            assert self._last is not None
+            self.moved[-1] = True
+            self._add_kept(np.array([len(self.t_all) - 1]), self._last[0][None],
+                           Rotation.concatenate([self._last[1]]))
+
+    def _add_kept(self, index: NDArray[np.int64], p: FloatArray, rotations: Rotation) -> None:
+        from scipy.spatial.transform import Rotation
+
+        if not len(index):
+            return
+        m = len(index)
+        self.kept = np.concatenate([self.kept, index])
+        self._p_kept = np.vstack([self._p_kept, p])
+        self._R_kept = rotations if self._R_kept is None else Rotation.concatenate(
+            [self._R_kept, rotations])
+        self.phase = np.concatenate([self.phase, np.full(m, SamplePhase.NONE, dtype=np.int64)])
+        self.s1 = np.concatenate([self.s1, np.full(m, np.nan)])
+        self.f0, self.m0 = np.vstack([self.f0, np.zeros((m, 3))]), np.vstack([self.m0, np.zeros((m, 3))])
+        self.contact = np.vstack([self.contact, np.full((m, 3), np.nan)])
+        self.touched = np.concatenate([self.touched, np.full(m, -1, dtype=np.int64)])
+        self.refined = np.concatenate([self.refined, np.zeros(m, dtype=bool)])
+        self._path = None
+        if self.run is not None and self.path is not None:
+            self.run.follow(0, self.path.tail(self.k))
+
+    def go_on(self) -> None:
+        """Start the next episode when there is none (or wait for samples)."""
+        if len(self.kept) < 2 or self.run is not None or self.ended:
+            return
+        if self._idle_at != (len(self.kept), self.final) or self._snapped is not None:
+            self.start_episode()
+            # waiting for samples: not again before more came
+            self._idle_at = (len(self.kept), self.final) if self.run is None else (-1, False)
+
+    def _next_sample(self) -> int:
+        """The moving sample the episode's next step reaches (before longer early steps)."""
+        assert self.run is not None and self.path is not None
+        return self.k + math.floor(-self.run.progress(0).x0 / self.path.h + 1e-9) + 1
+
+    def can_step(self) -> bool:
+        """Whether the episode goes on, and its next step's samples are there."""
+        if self.run is None or self.run.done or self.path is None:
+            return False
+        if self.final:
+            return True
+        progress = self.run.progress(0)
+        need = self._next_sample()
+        if not self.hold:
+            return need <= self.path.n_samples - 1
+        if progress.x_touch - progress.x0 < EARLY_TRAVEL_L:
+            need += EARLY_MULTIPLES[-1] - 1
+        # not onto the last sample: a pose there is interpolated in the interval before it
+        # (`vibrissa.frames.PoseSamples`), once more samples came in the one after it, which
+        # differs in the last bit
+        return need <= self.path.n_samples - 2
+
+    def after_steps(self) -> bool:
+        """Record the episode's rows clear of the other objects; end it where it ended (or met
+        another object), when no later sample can change how; whether it did."""
+        if self.run is None or self.path is None:
+            return False
+        sweep = self.run.sweeps()[0]
+        if self._recorded_run is not self.run:
+            self._recorded_run, self._recorded = self.run, 0
+        clear = self._rows_clear_of_others(sweep, self._recorded)
+        rows = self.k + np.rint(-sweep.x0 / self.path.h).astype(np.int64)
+        if clear == sweep.n_steps and sweep.n_steps > self._recorded:
+            start = int(rows[self._recorded - 1]) + 1 if self._recorded else self._span_start(sweep)
+            self._write_rows(sweep, rows, start, int(rows[-1]), self._recorded, sweep.n_steps)
+            self._recorded, self._recorded_to = sweep.n_steps, int(rows[-1]) + 1
+        if clear == sweep.n_steps and not self.run.done:
+            return False
+        if (clear == sweep.n_steps and sweep.end is SweepEnd.SNAP_OFF and not self.final
+                and (rows[-1] if len(rows) else self.k) + 2 > self.path.n_samples - 1):
+            return False  # a landing needs the samples after the snap-off
+        self.end_episode()
+        return True
+
+    def final_samples(self) -> int:
+        """Raw samples (from the first) whose results no later sample changes."""
+        if len(self.kept) < 2:
+            return 0
+        n = len(self.kept)
+        if self.ended:
+            kept_done = n
+        elif self.run is not None:
+            if self._recorded_run is self.run and self._recorded:
+                kept_done = self._recorded_to
+            else:
+                progress = self.run.progress(0)
+                kept_done = self.k if self._landed else self.k + round(
+                    -next_grid_point(progress.x_touch, 0.0, self.h) / self.h)
+        elif self._snapped is not None:
+            kept_done = self.k
+        else:
+            kept_done = min(n, max(self.k + 1, self._searched + 1))
+        # a raw sample repeats the moving sample before it: final with it
+        of_sample = np.cumsum(self.moved) - 1
+        return int(np.searchsorted(of_sample, self._base + kept_done, side="left"))
+
+    def raw_results(self, rows: slice) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+        """Phase (m,), f0 (m, 3) N and m0 (m, 3) N m of raw samples ``rows``."""
+        of_sample = (np.cumsum(self.moved) - 1)[rows] - self._base
+        return self.phase[of_sample], self.f0[of_sample], self.m0[of_sample]
+
+    def forget(self, sent: int) -> None:
+        """Drop the moving samples before ``k`` when the whisker waits for a touch and every
+        raw sample before ``sent`` is handed out: what follows depends only on the path from
+        ``k`` on (a tail of the path is the same samples and coordinates, `SampledPath.tail`),
+        and the path's cost stays that of the samples since then."""
+        if (self.run is not None or self._snapped is not None or self.ended
+                or self.k < FORGET_SAMPLES or self.k >= len(self.kept) - 1
+                or self.kept[self.k] >= sent):
+            return
+        b = self.k
+        self._base += b
+        self.kept, self._p_kept = self.kept[b:], self._p_kept[b:]
+        assert self._R_kept is not None
+        self._R_kept = self._R_kept[b:]
+        for name in ("phase", "s1", "f0", "m0", "contact", "touched", "refined"):
+            setattr(self, name, getattr(self, name)[b:])
+        self.k, self._searched = 0, max(self._searched - b, -1)
+        self._idle_at, self._path = (-1, False), None

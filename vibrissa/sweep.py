@@ -104,7 +104,10 @@ _IDENTITY = np.eye(3)
 _IDENTITY.flags.writeable = False
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
-_EARLY_TRAVEL = 0.01  # clamp travel from the touch (L) in which a failed step tries longer ones
+EARLY_TRAVEL_L = 0.01
+"""Clamp travel from the touch (units of L) within which a failed step tries longer ones."""
+EARLY_MULTIPLES = (2, 4, 8, 16)
+"""The longer steps a failed early step tries, in steps: a sweep looks this far ahead."""
 CLAMP_TOUCH_L = 1e-6
 """A first touch nearer the clamp than this (arc length, units of L) is the object meeting the
 clamp itself: no equilibrium of the rod holds it off (the sweep ends ``no-equilibrium``)."""
@@ -672,6 +675,13 @@ class SweepRun:
                                   track.trail.clamp_pose(x0)[1])
         return x0, f0, m0
 
+    def follow(self, index: int, trail: ClampPath) -> None:
+        """Sweep ``index`` goes on along ``trail``: its trail with more samples after its end
+        (a path that grows as it is commanded, `vibrissa.scene.SceneStream`); the steps taken
+        stay as they are."""
+        self.trails[index] = trail
+        self._tracks[index].trail = trail
+
     def sweeps(self) -> list[Sweep]:
         """Every sweep as it stands (complete once ``done``)."""
         return [_finish(track) for track in self._tracks]
@@ -804,7 +814,7 @@ def _advance(tracks: list[_Track]) -> None:
     for track, target, ok in zip(tracks, targets, reached, strict=False):
         if ok:
             _record(track, refined=False)
-        elif not (track.x_touch - track.x0 < _EARLY_TRAVEL and _longer_step(track)):
+        elif not (track.x_touch - track.x0 < EARLY_TRAVEL_L and _longer_step(track)):
             _refine(track, target)
         if track.end is None and len(track.rows) >= track.max_steps:
             track.end, track.x0_end = SweepEnd.MAX_STEPS, track.x0
@@ -826,9 +836,9 @@ def _longer_step(track: _Track) -> bool:
     step = track.step
     before = track.history[-1] if track.history else None
     next_point = next_grid_point(track.x0, track.x_grid, step)
-    for multiple in (2, 4, 8, 16):
+    for multiple in EARLY_MULTIPLES:
         target = next_point - (multiple - 1) * step
-        if target < max(track.trail.x_end, track.x_touch - _EARLY_TRAVEL) - 1e-9 * step:
+        if target < max(track.trail.x_end, track.x_touch - EARLY_TRAVEL_L) - 1e-9 * step:
             break
         if _attempt([track], np.array([target]), np.array([multiple * step]))[0]:
             _record(track, refined=True)

@@ -289,6 +289,13 @@ def test_a_path_that_jumps_past_the_front_of_a_ball_finds_the_touch_between_samp
     assert c.t[0] < episode.t_first_contact < c.t[1]
 
 
-def test_a_path_of_one_sample_is_refused_by_its_count() -> None:
-    with pytest.raises(ValueError, match=r"^a path needs at least 2 samples, got 1$"):
-        RobotPath(np.zeros(1), np.zeros((1, 3)), Rotation.identity(1))
+def test_a_path_of_no_sample_is_refused_and_one_sample_stands_still() -> None:
+    with pytest.raises(ValueError, match=r"^a path needs at least 1 sample, got 0$"):
+        RobotPath(np.zeros(0), np.zeros((0, 3)), Rotation.identity(0))
+    q = [0.0, 0.0, 0.6, 0.8]
+    still = RobotPath(np.array([2.0]), np.array([[0.1, 0.2, 0.3]]), Rotation.from_quat([q]))
+    covered, p, R = still.at([1.0, 2.0, 3.0])
+    assert covered.tolist() == [False, True, False]
+    np.testing.assert_array_equal(p[1], [0.1, 0.2, 0.3])
+    assert np.isnan(p[[0, 2]]).all()
+    np.testing.assert_allclose(R[1].as_quat(), q, atol=1e-15)

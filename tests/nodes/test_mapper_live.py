@@ -140,17 +140,20 @@ def test_the_map_is_written_while_the_stream_goes_on_and_sigint_writes_the_final
     assert all(0 <= b - a for a, b in zip(mesh_stamps, mesh_stamps[1:], strict=False))
     assert all(stamp == int(stamp) < i for stamp in mesh_stamps)
     assert "Traceback" not in out
-    # the final map is a single fit's on the same points (the first n: ZeroMQ keeps their
-    # order, and none repeats another), whatever the updates before it refitted
+    # the final map holds the first n points (ZeroMQ keeps their order, none repeats another)
     assert final["merged_points"] == 0 and sum(final["update_fits"].values()) >= final["updates"]
-    acc = Accumulator(1)
-    for k in range(final["n_points"]):
-        receive(acc, contact(k))
-    single, _ = write_outputs(acc, MapperParams(out_dir=str(tmp_path / "single"), plot=False,
-                                                cells=16), tmp_path / "single")
+    single = single_fit(tmp_path / "single", final["n_points"])
     assert (tmp_path / "cloud.ply").read_bytes() == (tmp_path / "single" / "cloud.ply").read_bytes()
-    assert ([dict(f, files=None) for f in final["frames"]]
-            == [dict(f, files=None) for f in single.as_dict()["frames"]])
+    assert final["frames"][0]["n_points"] == single["frames"][0]["n_points"]
+
+
+def single_fit(out: Path, n: int) -> dict[str, Any]:
+    """The report of a single fit (`write_outputs`) on the first n contacts."""
+    acc = Accumulator(1)
+    for k in range(n):
+        receive(acc, contact(k))
+    report, _ = write_outputs(acc, MapperParams(out_dir=str(out), plot=False, cells=16), out)
+    return report.as_dict()
 
 
 @pytest.mark.parametrize(("params", "ended_by"), [(("timeout_s:=3",), "timeout"), ((), "streams")])
@@ -175,6 +178,12 @@ def test_silence_or_the_end_of_the_streams_writes_the_final_map_ended_by_it(
     assert final is not None
     assert (final["final"], final["ended_by"], final["n_points"]) == (True, ended_by, 40)
     assert final["updates"] >= 1
+    # after the streams or a silence, the single fit's map on the same points, bit for bit
+    single = single_fit(tmp_path / "single", 40)
+    got, want = final["frames"][0], single["frames"][0]
+    assert {k for k in want if k not in ("files", "objects") and got[k] != want[k]} == set()
+    assert ([dict(o, files=None) for o in got["objects"]]
+            == [dict(o, files=None) for o in want["objects"]])  # each its mesh file of its own
 
 
 def test_a_signal_again_ends_at_once_and_the_launchers_sigterm_after_a_sigint_does_not() -> None:

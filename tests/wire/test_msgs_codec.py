@@ -23,6 +23,7 @@ from vibrissa.msgs import (
     EndOfStream,
     Message,
     NodeStatus,
+    PathSegment,
     Ping,
     RobotPose,
     SensorCommand,
@@ -156,6 +157,10 @@ def samples() -> list[Message]:
         SweepProposal(stamp=3.5, frame_id="world", object="ball", rank=2, axis=[0.0, 1.0, 0.0],
                       offset=0.1, line=points, std_on_line=2e-3, std_max_before=3e-3,
                       std_max_after=1e-3),
+        PathSegment(stamp=8.0, frame_id="world", segment_id=4, mode="replace",
+                    position=[[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]],
+                    orientation=[[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.6, 0.8]], speed_mps=0.05,
+                    turn_rate_rps=0.5),
     ]
 
 

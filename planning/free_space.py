@@ -1,0 +1,112 @@
+"""Where the robot body may go: a grid over the workspace's floor (x, y in W) of cells unknown,
+free (a rod swept them without touching anything, or the body stood there), occupied (a
+contact, or a surface the map knows) or hidden (unknown after a look from near).
+
+The body is a vertical cylinder around ``base_link``: it may stand where every cell within its
+radius (and a margin of one cell's diagonal) is free. Unknown counts as blocked, so the body
+only ever goes where the whiskers have been: safe by construction against objects it has not
+found yet, provided the objects reach the whiskers' heights (a rod sweeping above an object
+low on the floor sees nothing there).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+UNKNOWN, FREE, OCCUPIED, HIDDEN = 0, 1, 2, 3
+"""The states of a cell: ``HIDDEN`` is unknown after a look from within the rods' reach (inside
+an object or behind one): no look reveals it."""
+
+
+@dataclass
+class FreeSpace:
+    """The floor of the workspace box [lo_m, hi_m] (x, y in W, m) in square cells of
+    ``cell_m``: ``state`` (nx, ny) of `UNKNOWN`, `FREE`, `OCCUPIED`."""
+
+    lo_m: FloatArray
+    hi_m: FloatArray
+    cell_m: float
+    state: npt.NDArray[np.int8] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.lo_m = np.asarray(self.lo_m, dtype=np.float64)[:2]
+        self.hi_m = np.asarray(self.hi_m, dtype=np.float64)[:2]
+        if not (self.cell_m > 0 and np.all(self.hi_m > self.lo_m)):
+            raise ValueError(f"a free-space grid needs lo < hi and a cell > 0, got "
+                             f"{self.lo_m}, {self.hi_m}, {self.cell_m}")
+        shape = np.ceil((self.hi_m - self.lo_m) / self.cell_m).astype(int)
+        self.state = np.zeros(tuple(shape), dtype=np.int8)
+
+    def cells(self, xy_m: FloatArray) -> tuple[IntArray, npt.NDArray[np.bool_]]:
+        """The cell (i, j) of each point (k, 2) m, and whether it lies on the grid."""
+        ij = np.floor((np.reshape(xy_m, (-1, 2)) - self.lo_m) / self.cell_m).astype(np.int64)
+        inside = np.all((ij >= 0) & (ij < np.array(self.state.shape)), axis=1)
+        return ij, inside
+
+    def centre(self, ij: IntArray) -> FloatArray:
+        """The centre (k, 2) m of cells (k, 2)."""
+        return self.lo_m + (np.reshape(ij, (-1, 2)) + 0.5) * self.cell_m
+
+    def mark_segments(self, start_m: FloatArray, end_m: FloatArray) -> None:
+        """Cells crossed by the segments from ``start_m`` to ``end_m`` (k, 2) m become free
+        (an occupied cell stays occupied): a rod swept there without touching anything."""
+        start, end = np.reshape(start_m, (-1, 2)), np.reshape(end_m, (-1, 2))
+        if not len(start):
+            return
+        steps = int(np.ceil(np.max(np.linalg.norm(end - start, axis=1)) / (0.5 * self.cell_m)))
+        f = np.linspace(0.0, 1.0, max(steps, 1) + 1)
+        points = start[:, None, :] + f[None, :, None] * (end - start)[:, None, :]
+        self._set(points.reshape(-1, 2), FREE)
+
+    def mark_disc(self, centre_m: FloatArray, radius_m: float) -> None:
+        """Cells whose centre lies within ``radius_m`` of ``centre_m`` (2,) become free: the
+        body stands there."""
+        reach = int(np.ceil(radius_m / self.cell_m)) + 1
+        ij, _ = self.cells(np.asarray(centre_m)[:2])
+        di, dj = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1))
+        around = ij[0] + np.column_stack([di.ravel(), dj.ravel()])
+        near = np.linalg.norm(self.centre(around) - np.asarray(centre_m)[:2], axis=1) <= radius_m
+        self._set(self.centre(around[near]), FREE)
+
+    def mark_occupied(self, xy_m: FloatArray) -> None:
+        """Cells of the points (k, 2) m become occupied: a contact, a known surface."""
+        self._set(np.reshape(xy_m, (-1, 2)), OCCUPIED)
+
+    def _set(self, xy_m: FloatArray, state: int) -> None:
+        ij, inside = self.cells(xy_m)
+        ij = ij[inside]
+        if state == FREE:
+            keep = self.state[ij[:, 0], ij[:, 1]] != OCCUPIED
+            ij = ij[keep]
+        self.state[ij[:, 0], ij[:, 1]] = state
+
+    def clearance_m(self) -> FloatArray:
+        """Each cell's distance (nx, ny) m from its centre to the nearest cell that is not free
+        (unknown, occupied, or beyond the grid's edge)."""
+        free = np.pad(self.state == FREE, 1, constant_values=False)
+        return np.asarray(ndimage.distance_transform_edt(free)[1:-1, 1:-1]) * self.cell_m
+
+    def standable(self, radius_m: float) -> npt.NDArray[np.bool_]:
+        """Cells (nx, ny) where the body of ``radius_m`` may stand: free within its radius and
+        a margin of one cell's diagonal (the cells are not points)."""
+        return self.clearance_m() > radius_m + math.sqrt(2.0) * self.cell_m
+
+    def hide_unknown(self, centre_m: FloatArray, radius_m: float) -> None:
+        """Unknown cells whose centre lies within ``radius_m`` of ``centre_m`` (2,) become
+        hidden: a look from there swept the rods around and did not reveal them."""
+        ij = np.argwhere(self.state == UNKNOWN)
+        near = np.linalg.norm(self.centre(ij) - np.asarray(centre_m)[:2], axis=1) <= radius_m
+        self.state[ij[near, 0], ij[near, 1]] = HIDDEN
+
+    def frontier(self) -> npt.NDArray[np.bool_]:
+        """Free cells (nx, ny) next to an unknown one: where a look reveals something."""
+        unknown = ndimage.binary_dilation(self.state == UNKNOWN, structure=np.ones((3, 3)))
+        return (self.state == FREE) & unknown

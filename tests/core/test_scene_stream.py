@@ -1,0 +1,177 @@
+"""Step 1 along a path that arrives while it runs (`SceneStream`): fed in chunks of any size,
+with the path's own step, every whisker's results are `simulate`'s to the bit (episodes,
+landings, other objects, pauses); samples go out only once final; a commanded path
+(`CommandedPath`) is the same samples whether its waypoints come in one segment or two."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tests.core.test_scene_batched import random_scene
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.frames import Transform
+from vibrissa.paths import CommandedPath, PathLimits, check_segment, waypoint_samples
+from vibrissa.scene import (
+    SamplePhase,
+    Scene,
+    SceneStream,
+    StreamSamples,
+    _WhiskerSteps,
+    simulate,
+)
+
+DEMO = Path(__file__).parents[2] / "launch" / "robot" / "scene.yaml"
+
+
+def fed(scene: Scene, steps: list[float], chunks: list[int]) -> tuple[StreamSamples, list[int]]:
+    """The stream of ``scene``'s path fed in ``chunks`` (the rest at the end): every sample
+    handed out, and how many were handed out after each chunk."""
+    stream = SceneStream(scene, steps)
+    t, p, q = scene.path.t, scene.path.p_WR, scene.path.R_WR.as_quat()
+    bounds = np.minimum(np.cumsum([0, *chunks]), len(t)).tolist() + [len(t)]
+    parts, out = [], []
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        stream.extend(t[a:b], p[a:b], q[a:b])
+        parts.append(stream.advance())
+        out.append(len(parts[-1].t))
+        # nothing is handed out before its sample arrived
+        assert sum(out) <= b
+    parts.append(stream.finish())
+    return StreamSamples(*(np.concatenate([getattr(s, f) for s in parts]) for f in
+                           ("t", "p_WR", "q_WR", "phase", "f0_n", "m0_nm"))), out
+
+
+def own_steps(scene: Scene) -> list[float]:
+    """Each whisker's step along the whole path, as `simulate` takes it."""
+    return [_WhiskerSteps(scene, w).path.h for w in scene.whiskers]
+
+
+def assert_simulate_bits(scene: Scene, samples: StreamSamples) -> None:
+    results = simulate(scene, workers=1)
+    assert np.array_equal(samples.t, scene.path.t)
+    for i, r in enumerate(results):
+        assert np.array_equal(samples.phase[:, i], r.phase), r.name
+        assert np.array_equal(samples.f0_n[:, i], r.f0_n, equal_nan=True), r.name
+        assert np.array_equal(samples.m0_nm[:, i], r.m0_nm, equal_nan=True), r.name
+
+
+@pytest.mark.parametrize("chunk", [13, 50, 2000])
+def test_the_demo_fed_in_chunks_is_simulate_to_the_bit(chunk: int) -> None:
+    scene = load_scene(DEMO)
+    samples, out = fed(scene, own_steps(scene), [chunk] * (len(scene.path.t) // chunk + 1))
+    assert_simulate_bits(scene, samples)
+    contact = np.isin(samples.phase, [SamplePhase.TIP, SamplePhase.TANGENTIAL])
+    assert contact.any(axis=0).sum() >= 6  # the demo touches with most of its whiskers
+    if chunk < 100:  # samples go out as they come, a few held back for Step 1's look-ahead
+        assert max(out[1:-1]) <= chunk + 20 and sum(out[:-1]) >= len(scene.path.t) - 2 * chunk
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(8))
+def test_random_scenes_fed_at_random_are_simulate_to_the_bit(seed: int) -> None:
+    """Several objects, pauses, spins: landings and episodes that meet another object too."""
+    rng = np.random.default_rng(400 + seed)
+    scene = random_scene(rng)
+    chunks = rng.integers(1, 40, size=len(scene.path.t)).tolist()
+    samples, _ = fed(scene, own_steps(scene), chunks)
+    assert_simulate_bits(scene, samples)
+
+
+def test_with_a_larger_step_the_wrenches_agree_within_newtons_tolerance() -> None:
+    """The commanded robot's step comes from its speed limits (`PathLimits.rod_step`), not
+    from the path: the touches are then bisected on another coordinate and the equilibria,
+    solved to residuals of 1e-12 L, agree to 1e-12 N; the phases are the same."""
+    scene = load_scene(DEMO)
+    limits = PathLimits(rate_hz=500.0, max_speed_mps=0.1, max_turn_rate_rps=1.0)
+    steps = [limits.rod_step(w.X_RC, w.length_m) for w in scene.whiskers]
+    assert all(a > b for a, b in zip(steps, own_steps(scene), strict=True))
+    samples, _ = fed(scene, steps, [50] * 40)
+    for i, r in enumerate(simulate(scene, workers=1)):
+        assert np.array_equal(samples.phase[:, i], r.phase)
+        np.testing.assert_allclose(samples.f0_n[:, i], r.f0_n, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(samples.m0_nm[:, i], r.m0_nm, rtol=0, atol=1e-12)
+
+
+def test_a_stop_hands_out_every_sample_and_a_hold_keeps_the_last() -> None:
+    scene = load_scene(DEMO)
+    t, p, q = scene.path.t, scene.path.p_WR, scene.path.R_WR.as_quat()
+    stream = SceneStream(scene, own_steps(scene))
+    cut = 520  # most whiskers in contact (w12 from 512 on, in its first steps)
+    stream.extend(t[:cut], p[:cut], q[:cut])
+    held = len(stream.advance().t)
+    assert cut - 20 <= held < cut - 1  # the last sample waits, and the look-ahead of w12
+    assert held + len(stream.advance(hold=False).t) == cut  # a robot that stopped: all out
+    stream.extend(t[cut:], p[cut:], q[cut:])
+    assert cut + len(stream.advance().t) + len(stream.finish().t) == len(t)
+
+
+def test_two_segments_are_the_samples_of_one() -> None:
+    rng = np.random.default_rng(5)
+    n = 9
+    position = np.cumsum(rng.uniform(-0.02, 0.02, (n, 3)), axis=0)
+    orientation = Rotation.from_rotvec(np.cumsum(rng.uniform(-0.2, 0.2, (n, 3)), axis=0)).as_quat()
+    limits = PathLimits(rate_hz=500.0, max_speed_mps=0.1, max_turn_rate_rps=1.0)
+    start = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+    whole = CommandedPath(limits, *start)
+    assert whole.command(position, orientation, 0.05, 0.5) is None
+    split = CommandedPath(limits, *start)
+    assert split.command(position[:4], orientation[:4], 0.05, 0.5) is None
+    assert split.command(position[4:], orientation[4:], 0.05, 0.5) is None
+    assert split.queued == whole.queued
+    a, b = whole.take(10**6), split.take(10**6)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    # each waypoint is a sample, to the bit, and no leg is faster than commanded
+    p, q = waypoint_samples(*start, position, orientation, 0.05, 0.5, 500.0)
+    assert np.array_equal(p, a[0]) and all((p == w).all(axis=1).any() for w in position)
+    step = np.linalg.norm(np.diff(np.vstack([start[0], p]), axis=0), axis=1)
+    assert step.max() <= 0.05 / 500.0 * (1 + 1e-9)
+    turn = (Rotation.from_quat(q[:-1]).inv() * Rotation.from_quat(q[1:])).magnitude()
+    assert turn.max() <= 0.5 / 500.0 * (1 + 1e-9)
+
+
+def test_replace_drives_from_where_the_robot_is() -> None:
+    limits = PathLimits(rate_hz=100.0, max_speed_mps=0.1, max_turn_rate_rps=1.0)
+    path = CommandedPath(limits, np.zeros(3), [0.0, 0.0, 0.0, 1.0])
+    assert path.command([[0.05, 0.0, 0.0]], [[0.0, 0.0, 0.0, 1.0]], 0.1, 1.0) is None
+    path.take(20)  # 0.02 m on
+    assert path.command([[0.02, 0.05, 0.0]], [[0.0, 0.0, 0.0, 1.0]], 0.1, 1.0,
+                        replace=True) is None
+    p, _ = path.take(10**6)
+    assert len(p) == 50 and np.array_equal(p[-1], [0.02, 0.05, 0.0])
+    np.testing.assert_allclose(p[0], [0.02, 0.001, 0.0], atol=1e-15)
+
+
+@pytest.mark.parametrize(("change", "why"), [
+    ({"position": [[np.nan, 0.0, 0.0]]}, "non-finite"),
+    ({"orientation": [[0.0, 0.0, 0.0, 2.0]]}, "not unit"),
+    ({"speed": 0.0}, "speed_mps 0.0 not in"),
+    ({"speed": 0.2}, "speed_mps 0.2 not in"),
+    ({"turn": -1.0}, "turn_rate_rps -1.0 not in"),
+    ({"position": [[0.5, 0.0, 0.0]]}, "first waypoint is 0.5 m"),
+    ({"orientation": [[0.0, 0.0, 1.0, 0.0]]}, "3.142 rad"),
+    ({"position": np.zeros((0, 3)), "orientation": np.zeros((0, 4))}, "N >= 1"),
+])
+def test_bad_segments_are_refused_with_the_reason(change: dict[str, object], why: str) -> None:
+    limits = PathLimits(rate_hz=500.0, max_speed_mps=0.1, max_turn_rate_rps=1.0)
+    args: dict[str, object] = {"position": [[0.01, 0.0, 0.0]],
+                               "orientation": [[0.0, 0.0, 0.0, 1.0]], "speed": 0.05, "turn": 0.5}
+    args.update(change)
+    reason = check_segment(limits, np.zeros(3), [0.0, 0.0, 0.0, 1.0], args["position"],  # type: ignore[arg-type]
+                           args["orientation"], args["speed"], args["turn"])  # type: ignore[arg-type]
+    assert reason is not None and why in reason
+    path = CommandedPath(limits, np.zeros(3), [0.0, 0.0, 0.0, 1.0])
+    assert path.command(args["position"], args["orientation"], args["speed"],  # type: ignore[arg-type]
+                        args["turn"]) == reason and path.queued == 0  # type: ignore[arg-type]
+
+
+def test_the_step_bounds_the_rod_motion_of_a_sample() -> None:
+    limits = PathLimits(rate_hz=500.0, max_speed_mps=0.1, max_turn_rate_rps=1.0)
+    mount = Transform(Rotation.from_euler("x", 90, degrees=True), [0.0, -0.02, 0.01])
+    length = 0.05
+    h = limits.rod_step(mount, length)
+    reach = np.linalg.norm(mount.translation) + length
+    assert h == pytest.approx((0.1 + 1.0 * reach) / 500.0 / length, rel=1e-15)

@@ -1,0 +1,131 @@
+"""A scene file's ``explore``: the start pose, the workspace box and the body radius of an
+exploration, read strictly (each bad value named by file and key); a file with ``explore`` and
+no ``path`` stands still at the start (a path of one sample at t = 0)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from vibrissa.exploration import Explore
+from vibrissa.formats.scene_file import SceneError, load_explore, load_scene, scene_files
+from vibrissa.frames import Transform
+
+Q = [0.0, 0.0, 0.3826834323650898, 0.9238795325112867]  # 45 degrees about z
+EXPLORE = {"start": {"position_m": [0.0, -0.05, 0.02], "quaternion_xyzw": Q},
+           "workspace_m": [[-0.1, -0.1, 0.0], [0.3, 0.1, 0.05]], "body_radius_m": 0.03}
+
+
+def scene_doc(**changes: object) -> dict[str, object]:
+    doc: dict[str, object] = {
+        "mu": 0.2,
+        "objects": [{"name": "ball", "shape": "sphere", "radius_m": 0.02,
+                     "position_m": [0.07, -0.065, 0.025]}],
+        "whiskers": [{"name": "w0", "length_m": 0.05, "ei_nm2": 2e-4, "mount": {}}],
+        "explore": EXPLORE}
+    doc.update(changes)
+    return {k: v for k, v in doc.items() if v is not None}
+
+
+def write(tmp_path: Path, doc: dict[str, object]) -> Path:
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_a_scene_with_explore_and_no_path_stands_at_the_start(tmp_path: Path) -> None:
+    path = write(tmp_path, scene_doc())
+    explore = load_explore(path)
+    assert explore is not None
+    assert explore.workspace_min_m == (-0.1, -0.1, 0.0)
+    assert explore.workspace_max_m == (0.3, 0.1, 0.05)
+    assert explore.body_radius_m == 0.03
+    np.testing.assert_array_equal(explore.start.translation, [0.0, -0.05, 0.02])
+    np.testing.assert_allclose(explore.start.rotate([1.0, 0.0, 0.0]),
+                               [0.5**0.5, 0.5**0.5, 0.0], atol=1e-15)
+    scene = load_scene(path)
+    np.testing.assert_array_equal(scene.path.t, [0.0])
+    np.testing.assert_array_equal(scene.path.p_WR, [[0.0, -0.05, 0.02]])
+    np.testing.assert_allclose(scene.path.R_WR.as_quat(), [Q], atol=1e-15)
+    assert scene_files(path) == [path]
+
+
+def test_a_scene_with_explore_and_a_path_keeps_its_path(tmp_path: Path) -> None:
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,0.1,0,0,0,0,0,1\n")
+    path = write(tmp_path, scene_doc(path="path.csv"))
+    scene = load_scene(path)
+    np.testing.assert_array_equal(scene.path.t, [0.0, 1.0])
+    explore = load_explore(path)
+    assert explore is not None and explore.workspace_max_m == (0.3, 0.1, 0.05)
+    assert scene_files(path) == [path, tmp_path / "path.csv"]
+
+
+def test_a_scene_without_explore_has_none_and_still_needs_its_path(tmp_path: Path) -> None:
+    path = write(tmp_path, scene_doc(explore=None))
+    assert load_explore(path) is None
+    with pytest.raises(SceneError, match=r"^scene\.yaml: missing 'path'$"):
+        load_scene(path)
+
+
+def test_a_path_csv_of_one_row_is_still_refused(tmp_path: Path) -> None:
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n")
+    with pytest.raises(SceneError, match=r"path: path\.csv: a path needs at least 2 samples, "
+                                         r"got 1$"):
+        load_scene(write(tmp_path, scene_doc(path="path.csv")))
+
+
+BAD = [
+    ({"extra": 1}, r"explore: unknown key 'extra'"),
+    ({"start": None}, r"explore: missing 'start'"),
+    ({"workspace_m": None}, r"explore: missing 'workspace_m'"),
+    ({"body_radius_m": None}, r"explore: missing 'body_radius_m'"),
+    ({"start": {"quaternion_xyzw": Q}}, r"explore\.start: missing 'position_m'"),
+    ({"start": {"position_m": [0, 0, 0.01], "pos": 1}}, r"explore\.start: unknown key 'pos'"),
+    ({"start": {"position_m": [0, 0]}}, r"explore\.start\.position_m: expected 3 numbers"),
+    ({"start": {"position_m": [0, 0, 0.01], "quaternion_xyzw": [0, 0, 0, 2]}},
+     r"explore\.start\.quaternion_xyzw: \[0\.0, 0\.0, 0\.0, 2\.0\] is not a unit quaternion"),
+    ({"start": {"position_m": [0, 0, ".nan"]}},
+     r"explore\.start\.position_m\[2\]: expected a finite number"),
+    ({"workspace_m": [[0, 0, 0]]}, r"explore\.workspace_m: expected \[\[xmin"),
+    ({"workspace_m": [[0, 0, 0], [1, 1]]}, r"explore\.workspace_m\[1\]: expected 3 numbers"),
+    ({"workspace_m": [[0, 0, 0], [1, 1, "x"]]},
+     r"explore\.workspace_m\[1\]\[2\]: expected a finite number"),
+    ({"workspace_m": [[0, 0, 0], [1, 1, 1e8]]},
+     r"explore\.workspace_m\[1\]\[2\]: 100000000\.0 is outside"),
+    ({"workspace_m": [[-0.1, -0.1, 0.05], [0.3, 0.1, 0.05]]},
+     r"explore: workspace_m: the min .* must be below the max"),
+    ({"workspace_m": [[0.1, -0.1, 0.0], [0.3, 0.1, 0.05]]},
+     r"explore: start\.position_m \[0\.0, -0\.05, 0\.02\] is outside the workspace"),
+    ({"body_radius_m": 0}, r"explore\.body_radius_m: 0 is outside"),
+    ({"body_radius_m": -0.01}, r"explore\.body_radius_m: -0\.01 is outside"),
+    ({"body_radius_m": "big"}, r"explore\.body_radius_m: expected a finite number"),
+]
+
+
+@pytest.mark.parametrize(("change", "message"), BAD)
+def test_a_bad_explore_names_the_file_and_the_key(tmp_path: Path, change: dict[str, object],
+                                                   message: str) -> None:
+    explore = {k: v for k, v in {**EXPLORE, **change}.items() if v is not None}
+    path = write(tmp_path, scene_doc(explore=explore))
+    for load in (load_explore, load_scene):
+        with pytest.raises(SceneError, match=r"^scene\.yaml: " + message):
+            load(path)
+
+
+def test_explore_must_be_a_mapping(tmp_path: Path) -> None:
+    with pytest.raises(SceneError, match=r"^scene\.yaml: explore: expected a mapping, got list$"):
+        load_explore(write(tmp_path, scene_doc(explore=[1, 2])))
+
+
+def test_the_explore_dataclass_checks_itself() -> None:
+    start = Transform(None, [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="body_radius_m"):
+        Explore(start, (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), 0.0)
+    with pytest.raises(ValueError, match="outside the workspace"):
+        Explore(Transform(None, [2.0, 0.0, 0.0]), (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), 0.1)
+    explore = Explore(start, (-1, -1, -1), (1, 1, 1), 1)  # type: ignore[arg-type]
+    assert explore.workspace_min_m == (-1.0, -1.0, -1.0) and explore.body_radius_m == 1.0
+    assert all(isinstance(v, float) for v in explore.workspace_max_m)

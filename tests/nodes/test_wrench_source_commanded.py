@@ -1,0 +1,177 @@
+"""The commanded robot (socket-free): the wrench source in mode ``scene`` with ``path_topic``
+drives the segments that arrive, each sample simulated as it comes; a commanded path equal to
+the scene's fixed path gives its wrenches (within 1e-12 N: the step comes from the speed
+limits) and its poses; two segments appended are one segment of both; bad commands are
+counted and logged and the node goes on; the stream ends on the commander's EndOfStream."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.nodes.test_scene_results import FakePublisher
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.msgs import EndOfStream, Message, PathSegment, RobotPose, WhiskerWrenchArray
+from vibrissa.msgs.codec import encode
+from vibrissa.nodes.wrench_source import WrenchSourceParams, run_commanded, scene_stream
+from vibrissa.scene import SamplePhase, robot_path, simulate
+
+DEMO = Path(__file__).parents[2] / "launch" / "robot" / "scene.yaml"
+PATH = "/robot/path"
+
+
+@dataclass
+class Delivered:
+    msg: Message
+
+
+@dataclass
+class FakeCommands:
+    """The path topic: the commands handed over one per ``receive``."""
+
+    queue: deque[Message]
+
+    def receive(self, timeout_s: float) -> Delivered | None:
+        return Delivered(self.queue.popleft()) if self.queue else None
+
+
+@dataclass
+class CommandedNode:
+    """What `run_commanded` uses of a `vibrissa.runtime.Node`, without sockets."""
+
+    commands: list[Message]
+    fqn: str = "/robot/wrench_source"
+    stop_requested: bool = False
+    publishers: dict[str, FakePublisher] = field(default_factory=dict)
+    counters: dict[str, int] = field(default_factory=dict)
+
+    def create_publisher(self, topic: str, *args: Any, **kwargs: Any) -> FakePublisher:
+        return self.publishers.setdefault(topic, FakePublisher(topic))
+
+    def create_subscriber(self, topics: dict[str, Any], **kwargs: Any) -> FakeCommands:
+        assert list(topics) == [PATH] and topics[PATH] is PathSegment
+        return FakeCommands(deque(self.commands))
+
+    def resolve(self, topic: str) -> str:
+        return topic
+
+    def set_state(self, state: str, detail: str = "") -> None:
+        pass
+
+
+def params(**kwargs: Any) -> WrenchSourceParams:
+    values: dict[str, Any] = {"path_topic": PATH, "pose_rate_hz": 0.0, "epoch_s": 1000.0}
+    return WrenchSourceParams(mode="scene", scene=str(DEMO), **(values | kwargs))
+
+
+def segment(position: Any, orientation: Any, segment_id: int = 0, mode: str = "append",
+            speed_mps: float = 0.1, turn_rate_rps: float = 1.0, frame_id: str = "world"
+            ) -> PathSegment:
+    return PathSegment(stamp=0.0, frame_id=frame_id, segment_id=segment_id, mode=mode,
+                       position=position, orientation=orientation, speed_mps=speed_mps,
+                       turn_rate_rps=turn_rate_rps)
+
+
+def end() -> EndOfStream:
+    return EndOfStream(stamp=0.0, source="/explorer", count=1)
+
+
+def run(commands: list[Message], **kwargs: Any) -> tuple[list[Any], list[Any], CommandedNode]:
+    node = CommandedNode(commands)
+    run_commanded(node, params(**kwargs))  # type: ignore[arg-type]
+    return node.publishers["wrench"].sent, node.publishers["/robot/pose"].sent, node
+
+
+def test_the_scenes_path_commanded_gives_its_wrenches_and_poses() -> None:
+    """The demo's path as waypoints, one per sample (its speed, 0.1 m/s, is the limit):
+    the same wrench rows and phases as the fixed path within 1e-12 N (Step 1's step is the
+    limits' bound, not the path's largest motion: the touches are bisected on another
+    coordinate, the equilibria are solved to 1e-12 L), a pose per sample, then the ends."""
+    scene = load_scene(DEMO)
+    q = scene.path.R_WR.as_quat()
+    scene = dataclasses.replace(scene, path=robot_path(np.arange(len(q)) / 500.0,
+                                                       scene.path.p_WR, q))
+    wrenches, poses, node = run([segment(scene.path.p_WR[1:], q[1:]), end()])
+    assert wrenches[-1] == "EOS" and poses[-1] == "EOS"
+    wrenches, poses = wrenches[:-1], poses[:-1]
+    results = simulate(scene, workers=1)
+    assert len(wrenches) == len(poses) == len(scene.path.t)
+    assert [w.seq for w in wrenches] == list(range(len(wrenches)))
+    expected = [m for _, m in scene_stream(scene, results, params())
+                if isinstance(m, WhiskerWrenchArray)]
+    assert [encode(p) for p in poses] == [encode(m) for _, m in scene_stream(
+        scene, results, params()) if isinstance(m, RobotPose)]
+    for got, want in zip(wrenches, expected, strict=True):
+        assert got.stamp == want.stamp and got.whisker_ids == want.whisker_ids
+        np.testing.assert_allclose(got.f0, want.f0, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got.m0, want.m0, rtol=0, atol=1e-12)
+    assert sum(len(w.whisker_ids) for w in wrenches) == len(wrenches) * len(scene.whiskers)
+    assert any(np.any(w.f0 != 0) for w in wrenches)  # it touched
+    assert node.counters == {"commands_accepted": 1, "commands_rejected": 0}
+    assert all(r.phase[-1] == SamplePhase.NONE for r in results)
+
+
+def waypoints() -> tuple[np.ndarray, np.ndarray]:
+    """Four waypoints past the demo's ball, turning as the demo's path does."""
+    scene = load_scene(DEMO)
+    rows = [0, 400, 700, 1100, 1699]
+    return scene.path.p_WR[rows], scene.path.R_WR[rows].as_quat()
+
+
+def test_two_segments_appended_are_one_segment_of_both() -> None:
+    p, q = waypoints()
+    one, one_poses, _ = run([segment(p[1:], q[1:]), end()], noise_force_n=1e-4)
+    two, two_poses, node = run([segment(p[1:3], q[1:3], 1), segment(p[3:], q[3:], 2), end()],
+                               noise_force_n=1e-4)
+    assert node.counters == {"commands_accepted": 2, "commands_rejected": 0}
+    assert len(one) > 1000 and any(np.any(w.f0 != 0) for w in one[:-1])
+    assert [encode(m) for m in one[:-1]] == [encode(m) for m in two[:-1]]
+    assert [encode(m) for m in one_poses[:-1]] == [encode(m) for m in two_poses[:-1]]
+
+
+def test_bad_commands_are_counted_and_logged_and_the_robot_goes_on(
+        caplog: pytest.LogCaptureFixture) -> None:
+    p, q = waypoints()
+    bad = [segment(p[1:2], q[1:2], 1, speed_mps=0.0),
+           segment(p[1:2], q[1:2], 2, frame_id="odom"),
+           segment(p[1:2], [[0.0, 0.0, 0.0, 2.0]], 3),
+           segment(p[1:2] + 0.5, q[1:2], 4),  # a jump
+           segment(p[1:2], q[1:2], 5, speed_mps=1.0)]  # beyond max_speed_mps
+    with caplog.at_level(logging.WARNING):
+        wrenches, poses, node = run([*bad, segment(p[1:2], q[1:2], 6), end()])
+    assert node.counters == {"commands_accepted": 1, "commands_rejected": 5}
+    for k in range(1, 6):
+        assert f"path segment {k} refused" in caplog.text
+    assert "frame 'odom' is not 'world'" in caplog.text
+    np.testing.assert_array_equal(poses[-2].position, p[1])  # it drove the good one
+    assert wrenches[-1] == poses[-1] == "EOS"
+
+
+def test_the_stream_ends_on_the_commanders_end_with_the_robot_standing() -> None:
+    """No command at all: the start's pose goes out at once, then the ends; a pose grid of
+    its own rate ends with a pose at the path's end."""
+    wrenches, poses, _ = run([end()])
+    assert wrenches == ["EOS"] and len(poses) == 2 and poses[-1] == "EOS"
+    assert poses[0].stamp == 1000.0
+    p, q = waypoints()
+    wrenches, poses, _ = run([segment(p[1:2], q[1:2]), end()], pose_rate_hz=30.0)
+    stamps = [m.stamp - 1000.0 for m in poses[:-1]]
+    n = len(wrenches) - 1
+    assert stamps[0] == 0.0 and stamps[-1] == pytest.approx((n - 1) / 500.0, abs=1e-9)
+    np.testing.assert_allclose(np.diff(stamps[:-1]), 1 / 30.0, rtol=1e-9)
+
+
+def test_the_commanded_mode_is_checked_when_the_parameters_load() -> None:
+    with pytest.raises(ValueError, match="parameter 'path_topic' must be empty with"):
+        params(passes=2)
+    with pytest.raises(ValueError, match="max_speed_mps must be a finite number > 0"):
+        params(max_speed_mps=0.0)
+    with pytest.raises(ValueError, match="parameter 'path_topic'"):
+        params(path_topic="bad name")

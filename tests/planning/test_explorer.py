@@ -1,0 +1,150 @@
+"""The explorer's plans, driven in a toy world of its own: straight rods (no bending) past
+vertical cylinders, the contact the first point of a rod inside one (an independent geometry,
+not the package's mechanics). The body never enters an object, the base never travels beyond
+its budget, each planner ends by itself, and a look reveals what the rods sweep."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vibrissa.frames import Transform
+from vibrissa.planning import FREE, HIDDEN, OCCUPIED, UNKNOWN, Explorer, ExploreSettings, FreeSpace
+from vibrissa.scene import Whisker
+
+BODY_M = 0.025
+LO, HI = np.array([-0.1, -0.1, 0.0]), np.array([0.3, 0.3, 0.1])
+
+
+def fan(n: int = 7, length_m: float = 0.05) -> list[Whisker]:
+    """Rods on the body's front half, level at 2 cm, fanned from its right to its left."""
+    whiskers = []
+    for k, angle in enumerate(np.linspace(-math.pi / 2, math.pi / 2, n)):
+        d = np.array([math.cos(angle), math.sin(angle), 0.0])
+        rot, _ = Rotation.align_vectors([d], [[0.0, 0.0, 1.0]])
+        whiskers.append(Whisker(f"w{k}", length_m, 2e-4,
+                                Transform(rot, 0.02 * d + [0.0, 0.0, 0.02])))
+    return whiskers
+
+
+def first_inside(a: np.ndarray, b: np.ndarray, circles: list[tuple[np.ndarray, float]]
+                 ) -> np.ndarray | None:
+    """The first point of segment a -> b (3,) inside a vertical cylinder (centre, radius)."""
+    best = None
+    for centre, radius in circles:
+        d, f = b[:2] - a[:2], a[:2] - centre
+        qa, qb, qc = d @ d, 2 * f @ d, f @ f - radius**2
+        disc = qb * qb - 4 * qa * qc
+        if qa == 0 or disc < 0:
+            continue
+        t = (-qb - math.sqrt(disc)) / (2 * qa)
+        if qc <= 0:
+            t = 0.0
+        if 0 <= t <= 1 and (best is None or t < best):
+            best = t
+    return None if best is None else a + best * (b - a)
+
+
+def drive(explorer: Explorer, circles: list[tuple[np.ndarray, float]], start: Transform,
+          max_plans: int = 200) -> tuple[int, float, list[str]]:
+    """Drive at most ``max_plans`` plans at 50 Hz, 0.05 m/s, 1 rad/s, straight and slerped
+    between waypoints; (plans, the body's least clearance from an object, the purposes)."""
+    X, plans, clearance = start, 0, np.inf
+    purposes: list[str] = []
+    whiskers = list(explorer.whiskers.values())
+    while plans < max_plans:
+        plan = explorer.plan(X)
+        if plan is None:
+            return plans, clearance, purposes
+        plans += 1
+        purposes.append(plan.purpose)
+        p = np.vstack([X.translation, plan.position])
+        q = Rotation.from_quat(np.vstack([X.rotation.as_quat(), plan.orientation]))
+        for k in range(len(plan.position)):
+            turn = (q[k].inv() * q[k + 1]).magnitude()
+            n = max(1, math.ceil(50 * max(np.linalg.norm(p[k + 1] - p[k]) / 0.05, turn)))
+            for j in range(1, n + 1):
+                f = j / n
+                rot = q[k] * Rotation.from_rotvec(f * (q[k].inv() * q[k + 1]).as_rotvec())
+                X = Transform(rot, p[k] + f * (p[k + 1] - p[k]))
+                for centre, radius in circles:
+                    clearance = min(clearance, float(np.linalg.norm(X.translation[:2] - centre))
+                                    - radius - BODY_M)
+                touched = {}
+                for w in whiskers:
+                    clamp = X.R @ w.X_RC.translation + X.translation
+                    point = first_inside(clamp, clamp + w.length_m * (X.R @ w.X_RC.R[:, 2]),
+                                         circles)
+                    if point is not None:
+                        touched[w.name] = point
+                explorer.observe(X, touched)
+    return plans, clearance, purposes
+
+
+def random_circles(rng: np.random.Generator, n: int) -> list[tuple[np.ndarray, float]]:
+    """n cylinders of radius 15-35 mm in the workspace, apart from each other and from the
+    start's body and rods."""
+    circles: list[tuple[np.ndarray, float]] = []
+    while len(circles) < n:
+        centre, radius = rng.uniform(LO[:2] + 0.04, HI[:2] - 0.04), rng.uniform(0.015, 0.035)
+        if np.linalg.norm(centre) > radius + 0.1 and all(
+                np.linalg.norm(centre - c) > radius + r + 0.06 for c, r in circles):
+            circles.append((centre, radius))
+    return circles
+
+
+@pytest.mark.parametrize("planner", ["uncertainty", "lawnmower"])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_body_never_enters_an_object_and_the_exploration_ends_within_its_budget(
+        planner: str, seed: int) -> None:
+    circles = random_circles(np.random.default_rng(seed), 3)
+    start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    settings = ExploreSettings(planner=planner, budget_m=0.8, cell_m=0.005)
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, settings)
+    plans, clearance, purposes = drive(explorer, circles, start)
+    assert clearance > 0, clearance
+    assert explorer.travelled_m <= settings.budget_m + 2 * settings.cell_m
+    assert explorer.done_because and plans >= 2
+    assert purposes[0] == "route of 0 leg(s), then a look"  # it looks before it moves
+    state = explorer.space.state
+    assert (state == FREE).mean() > 0.3  # it went somewhere
+    # what it marked is true of the world: occupied cells on (or within a cell of) an object,
+    # free cells' centres never deep inside one
+    for value, worst in ((OCCUPIED, 2 * settings.cell_m), (FREE, 1.5 * settings.cell_m)):
+        centres = explorer.space.centre(np.argwhere(state == value))
+        depth = np.max([r - np.linalg.norm(centres - c, axis=1) for c, r in circles], axis=0)
+        if value == OCCUPIED:
+            assert np.all(np.abs(depth) <= worst), depth
+        else:
+            assert np.all(depth <= worst), depth.max()
+
+
+def test_a_look_sweeps_the_rods_around_and_hides_only_what_it_cannot_reach() -> None:
+    start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.1, 0.1, 0.0])
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+    drive(explorer, [], start, max_plans=1)
+    plan = explorer.plan(Transform.from_quaternion([0, 0, 0, 1.0], [0.1, 0.1, 0.0]))
+    assert plan is not None
+    centres = explorer.space.centre(np.argwhere(explorer.space.state == FREE))
+    reach = 0.02 + 0.05
+    distance = np.linalg.norm(centres - [0.1, 0.1], axis=1)
+    assert distance.max() <= reach + 0.005  # nothing beyond the rods' reach
+    disc = np.linalg.norm(explorer.space.centre(np.argwhere(np.ones_like(
+        explorer.space.state, dtype=bool))) - [0.1, 0.1], axis=1) < reach - 0.01
+    assert (explorer.space.state.ravel()[disc] == FREE).mean() > 0.97  # the whole disc swept
+    assert not (explorer.space.state == HIDDEN).any()  # nothing hides in an empty world
+
+
+def test_free_space_refuses_a_bad_grid_and_keeps_occupied_cells() -> None:
+    with pytest.raises(ValueError, match="lo < hi"):
+        FreeSpace(np.array([0.0, 0.0]), np.array([0.0, 1.0]), 0.01)
+    space = FreeSpace(np.array([0.0, 0.0]), np.array([0.1, 0.1]), 0.01)
+    space.mark_occupied(np.array([[0.055, 0.055]]))
+    space.mark_segments(np.array([[0.0, 0.055]]), np.array([[0.1, 0.055]]))
+    assert space.state[5, 5] == OCCUPIED and (space.state[:, 5] == FREE).sum() == 9
+    assert space.state[0, 0] == UNKNOWN
+    with pytest.raises(ValueError, match="planner"):
+        ExploreSettings(planner="random")

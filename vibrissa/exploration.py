@@ -1,0 +1,52 @@
+"""Where a robot explores a scene: its start pose, the workspace box its base stays in, and the
+extent of its body (a scene file's ``explore``, `vibrissa.formats.scene_file.load_explore`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vibrissa.frames import Transform
+from vibrissa.scene import RobotPath, robot_path
+
+
+@dataclass(frozen=True)
+class Explore:
+    """An exploration's frame of action, in W (m).
+
+    ``start`` is the pose X_WR of ``base_link`` where the exploration begins; its origin lies
+    in the workspace box [``workspace_min_m``, ``workspace_max_m``] (3,) each, min < max on
+    every axis, which the base's origin never leaves. The robot body is a vertical cylinder
+    (along W's z) of radius ``body_radius_m`` > 0 around ``base_link``'s origin, which must
+    never enter an object.
+    """
+
+    start: Transform
+    workspace_min_m: tuple[float, float, float]
+    workspace_max_m: tuple[float, float, float]
+    body_radius_m: float
+
+    def __post_init__(self) -> None:
+        low = np.asarray(self.workspace_min_m, dtype=float)
+        high = np.asarray(self.workspace_max_m, dtype=float)
+        if low.shape != (3,) or high.shape != (3,):
+            raise ValueError(f"workspace_m: expected min and max of 3 numbers each, got "
+                             f"shapes {low.shape} and {high.shape}")
+        if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low < high)):
+            raise ValueError(f"workspace_m: the min {low.tolist()} must be below the max "
+                             f"{high.tolist()} on every axis")
+        if not (np.isfinite(self.body_radius_m) and self.body_radius_m > 0):
+            raise ValueError(f"body_radius_m: expected a number > 0, got {self.body_radius_m!r}")
+        p = np.asarray(self.start.translation, dtype=float)
+        if not np.all((low <= p) & (p <= high)):
+            raise ValueError(f"start.position_m {p.tolist()} is outside the workspace "
+                             f"[{low.tolist()}, {high.tolist()}]")
+        object.__setattr__(self, "workspace_min_m", tuple(float(v) for v in low))
+        object.__setattr__(self, "workspace_max_m", tuple(float(v) for v in high))
+        object.__setattr__(self, "body_radius_m", float(self.body_radius_m))
+
+    def start_path(self) -> RobotPath:
+        """The robot standing at ``start``: a path of one sample at t = 0 s."""
+        return robot_path(np.zeros(1), self.start.translation[None],
+                          self.start.quaternion_xyzw[None])

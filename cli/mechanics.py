@@ -21,9 +21,9 @@ from vibrissa.formats.csv_text import refuse_overwrite
 from vibrissa.formats.scene_file import SceneError
 from vibrissa.reconstruct import reconstruct
 from vibrissa.status import SweepEnd
-from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error, run_study
+from vibrissa.study import PAPER_STEP, PAPER_SURFACE, StudyResult, reconstruction_error
 from vibrissa.surfaces import SPEC_LIMITS, Surface, parse_surface
-from vibrissa.sweep import CLAMP_TOUCH_L, simulate_sweep
+from vibrissa.sweep import CLAMP_TOUCH_L, ProgressCallback, simulate_sweep
 from vibrissa.units import RodScale, number_text
 
 EXIT_NO_CONTACT = 3
@@ -66,6 +66,16 @@ def _non_negative(text: str) -> float:
     value = _finite(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
     return value
 
 
@@ -116,9 +126,14 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_reconstruct)
 
     p = subparsers.add_parser(
-        "study", help="run a study of the paper (Step 1, Step 2, figures) or the noise study",
-        description="paper: the 25 sweeps of Sec. III (y0 = -0.4:0.2:0.4, mu = 0:0.1:0.4 past\n"
-        f"{PAPER_SURFACE}), their reconstruction and Figs. 6-10.\n\n"
+        "study", help="run a study grid, the paper's study (Step 1, Step 2, figures) or the noise study",
+        description="grid: the study of GRID.yaml (docs/STUDIES.md): every case's Step 1 and Step 2,\n"
+        "on all local cores (--workers) or a Dask cluster (--scheduler); writes\n"
+        "DIR/equilibria.parquet, DIR/summary.parquet, DIR/grid.png and the store DIR/cases/ that a\n"
+        "rerun on DIR resumes from.\n\n"
+        "paper: the 25 sweeps of Sec. III (y0 = -0.4:0.2:0.4, mu = 0:0.1:0.4 past\n"
+        f"{PAPER_SURFACE}), their reconstruction and Figs. 6-10: the shipped grid\n"
+        "studies/paper.yaml, also written as the grid's tables.\n\n"
         "noise: Step 2's error in mm for a stated rod (--rod-length-m, --rod-ei-nm2), per\n"
         "contact phase (tip, tangential), on the trails y0 = "
         f"{', '.join(map(str, noise_study.NOISE_Y0))} with mu = {noise_study.NOISE_MU}\n"
@@ -135,16 +150,26 @@ def register(subparsers: Any) -> None:
         "DIR/rod_errors.png.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=["paper", "noise"], help="which study")
+    p.add_argument("study", choices=["grid", "paper", "noise"], help="which study")
+    p.add_argument("grid_file", nargs="?", type=Path, metavar="GRID.yaml",
+                   help="grid: the study's file")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR")
-    p.add_argument("--step", type=_positive, default=PAPER_STEP, metavar="DX",
-                   help=f"clamp step along -x, units of L (default {PAPER_STEP})")
+    p.add_argument("--step", type=_positive, metavar="DX",
+                   help=f"clamp step along -x, units of L (default {PAPER_STEP}; grid: replaces "
+                   "the file's)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--rod-length-m", type=_positive, metavar="M",
                    help=f"noise study: rod length L, m (default {noise_study.ROD_LENGTH_M})")
     p.add_argument("--rod-ei-nm2", type=_positive, metavar="EI",
                    help="noise study: bending stiffness EI, N m^2 "
                    f"(default {noise_study.ROD_EI_NM2})")
+    p.add_argument("--workers", type=_workers, metavar="N",
+                   help="grid: local worker processes, or a LocalCluster's workers (default: all "
+                   "cores; 1: in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS|local",
+                   help="grid: run on the Dask distributed scheduler at ADDRESS "
+                   "(tcp://host:8786), or on a LocalCluster started for the run (local)")
+    p.add_argument("--csv", action="store_true", help="grid: also write the tables as CSV")
     p.set_defaults(func=_study)
 
 
@@ -228,14 +253,38 @@ def sweep_stem(y0: float, mu: float) -> str:
     return f"y0_{y0:+.1f}_mu_{mu:.1f}"
 
 
+def run_study(step: float, progress: ProgressCallback | None = None) -> StudyResult:
+    """The paper's study: the shipped grid ``studies/paper.yaml`` at ``step``, on all cores."""
+    from vibrissa.cli.study_grid import run_paper  # pyarrow only for a study
+
+    return run_paper(step, progress)
+
+
 def _study(args: argparse.Namespace) -> int:
     out: Path = args.output
+    if args.study == "grid":
+        if args.rod_length_m is not None or args.rod_ei_nm2 is not None:
+            return _fail("study", "--rod-length-m and --rod-ei-nm2 are for the noise study; a "
+                         "grid's rods are its key rods")
+        from vibrissa.cli.study_grid import study_grid
+
+        return study_grid(args)
+    grid_only = [flag for flag, given in (("GRID.yaml", args.grid_file is not None),
+                                          ("--workers", args.workers is not None),
+                                          ("--scheduler", args.scheduler is not None),
+                                          ("--csv", args.csv)) if given]
+    if grid_only:
+        return _fail("study", f"{', '.join(grid_only)}: for study grid")
+    args.step = PAPER_STEP if args.step is None else args.step
     if args.study == "noise":
         return _noise_study(args)
     if args.rod_length_m is not None or args.rod_ei_nm2 is not None:
         return _fail("study", "--rod-length-m and --rod-ei-nm2 are for the noise study")
     result = run_study(step=args.step, progress=_Progress())
     write_study(out, result)
+    from vibrissa.cli.study_grid import write_paper_tables
+
+    write_paper_tables(out, result)
     worst = "n/a" if result.max_error is None else f"{result.max_error:.3g} L"
     print(f"study: Step 1 + Step 2 in {result.elapsed_s:.1f} s, max reconstruction error "
           f"{worst} -> {out / 'summary.json'}", file=sys.stderr)

@@ -27,6 +27,7 @@ RANK = {
     "vibrissa.wire": 2,
     "vibrissa.figures": 2,
     "vibrissa.streaming": 2,  # Step 2 on a stream of messages, without sockets
+    "vibrissa.studies": 2,  # study grids: grid files, local and Dask runs, the case store
     "vibrissa.runtime": 3,
     "vibrissa.launch": 4,
     "vibrissa.nodes": 4,
@@ -49,6 +50,8 @@ LIBRARIES = {
     "vibrissa.formats": {"yaml"},
     "vibrissa.figures": {"matplotlib", "mpl_toolkits"},
     "vibrissa.streaming": set(),
+    # pyarrow: Parquet tables and the case store; dask, distributed: runs on a cluster
+    "vibrissa.studies": {"pyarrow", "dask", "distributed"},
     "vibrissa.runtime": {"yaml", "msgspec"},
     "vibrissa.launch": {"yaml", "msgspec"},
     # foxglove: the live view (nodes/foxglove_bridge.py, the optional extra `view`)

@@ -1,0 +1,170 @@
+"""Grid files: a study as YAML, read strictly into its cases before anything runs.
+
+Lists whose product is the grid (each key a list, or one value for a list of one)::
+
+    name: paper                                  # optional; default the file's stem
+    surfaces: ["paraboloid:a=0.5,b=1,h=0.4"]     # parse_surface specs, lengths in m
+    y0_m: [-0.4, -0.2, 0.0, 0.2, 0.4]            # trail offsets, m
+    mu: [0.0, 0.1, 0.2, 0.3, 0.4]
+    step: 0.001                                  # units of L; default 0.001
+    rods: [{length_m: 1.0, ei_nm2: 1.0}]         # default one rod of 1 m, 1 N m^2
+
+or an explicit list of cases (``cases: [{surface, y0_m, mu, step, length_m, ei_nm2}, ...]``,
+``step``, ``length_m`` and ``ei_nm2`` defaulting as above), not both. The product runs surfaces,
+then rods, steps, y0_m and mu (innermost). Every error names the file and the key.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from vibrissa.formats import yaml_numbers
+from vibrissa.formats.errors import SceneError
+from vibrissa.formats.files import read_text
+from vibrissa.grid_study import GridCase
+from vibrissa.surfaces import parse_surface
+from vibrissa.units import RodScale, finite_number
+
+PAPER_GRID = Path(__file__).with_name("paper.yaml")
+"""The paper's study (Sec. III) as a grid file: ``vibrissa study paper``."""
+
+DEFAULT_STEP = 0.001
+DEFAULT_ROD = {"length_m": 1.0, "ei_nm2": 1.0}
+PRODUCT_KEYS = ("surfaces", "y0_m", "mu", "step", "rods")
+CASE_KEYS = ("surface", "y0_m", "mu", "step", "length_m", "ei_nm2")
+ROD_KEYS = ("length_m", "ei_nm2")
+TOP_KEYS = ("name", *PRODUCT_KEYS, "cases")
+
+
+class GridFileError(ValueError):
+    """A grid file that cannot be run: the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A study read from a grid file: its ``name`` and its cases in grid order."""
+
+    name: str
+    cases: tuple[GridCase, ...]
+
+
+def load_grid(path: str | Path, step: float | None = None) -> Grid:
+    """The grid of the file ``path``; ``step`` (units of L), when given, replaces every case's.
+
+    Raises
+    ------
+    GridFileError
+        Naming the file and the key: a missing or unreadable file, invalid YAML, an unknown
+        key, a value of the wrong type, an empty list, a bad surface spec or rod.
+    """
+    path = Path(path)
+    try:
+        doc = yaml_numbers.load_strict(read_text(path))
+    except SceneError as exc:
+        raise GridFileError(str(exc)) from None
+    except (yaml.YAMLError, RecursionError) as exc:
+        raise GridFileError(f"{path}: invalid YAML: {exc}") from None
+    where = str(path)
+    if not isinstance(doc, dict):
+        raise GridFileError(f"{where}: expected a mapping of keys ({', '.join(TOP_KEYS)})")
+    _known(doc, TOP_KEYS, where)
+    name = doc.get("name", path.stem)
+    if not isinstance(name, str) or not name:
+        raise GridFileError(f"{where}: name: expected a text, got {name!r}")
+    if "cases" in doc:
+        given = [key for key in PRODUCT_KEYS if key in doc]
+        if given:
+            raise GridFileError(f"{where}: cases: give either cases or the lists "
+                                f"({', '.join(given)}), not both")
+        items = _values(doc, "cases", where, single=False)
+        cases = [_case(item, f"{where}: cases[{i}]") for i, item in enumerate(items)]
+    else:
+        for key in ("surfaces", "y0_m", "mu"):
+            if key not in doc:
+                raise GridFileError(f"{where}: {key}: missing (or give cases)")
+        surfaces = [_surface(v, f"{where}: surfaces[{i}]")
+                    for i, v in enumerate(_values(doc, "surfaces", where))]
+        rods = [_rod(v, f"{where}: rods[{i}]")
+                for i, v in enumerate(_values(doc, "rods", where, default=[DEFAULT_ROD]))]
+        steps, y0s, mus = (
+            [_number(v, f"{where}: {key}[{i}]", key)
+             for i, v in enumerate(_values(doc, key, where, default=default))]
+            for key, default in (("step", [DEFAULT_STEP]), ("y0_m", None), ("mu", None)))
+        cases = [GridCase(surface, y0, mu, dx, rod.length_m, rod.ei_nm2)
+                 for surface, rod, dx, y0, mu in itertools.product(surfaces, rods, steps, y0s, mus)]
+    if step is not None:
+        cases = [GridCase(c.surface_m, c.y0_m, c.mu, step, c.length_m, c.ei_nm2) for c in cases]
+    return Grid(name, tuple(cases))
+
+
+def _known(doc: dict[Any, Any], allowed: tuple[str, ...], where: str) -> None:
+    for key in doc:
+        if key not in allowed:
+            raise GridFileError(f"{where}: unknown key {key!r} (allowed: {', '.join(allowed)})")
+
+
+def _values(doc: dict[str, Any], key: str, where: str, default: list[Any] | None = None,
+            single: bool = True) -> list[Any]:
+    """``doc[key]`` as a non-empty list (one value is a list of one where ``single``)."""
+    value = doc.get(key, default)
+    if not isinstance(value, list):
+        if not single:
+            raise GridFileError(f"{where}: {key}: expected a list, got {type(value).__name__}")
+        value = [value]
+    if not value:
+        raise GridFileError(f"{where}: {key}: an empty list (a grid needs at least one value)")
+    return value
+
+
+def _number(value: Any, where: str, key: str) -> float:
+    if not finite_number(value):
+        raise GridFileError(f"{where}: expected a finite number, got {type(value).__name__} "
+                            f"{value!r}")
+    if key == "mu" and value < 0:
+        raise GridFileError(f"{where}: mu must be >= 0, got {value!r}")
+    if key == "step" and not value > 0:
+        raise GridFileError(f"{where}: step must be > 0, got {value!r}")
+    return float(value)
+
+
+def _surface(value: Any, where: str) -> str:
+    if not isinstance(value, str):
+        raise GridFileError(f"{where}: expected a surface spec (text), got {type(value).__name__}")
+    try:
+        parse_surface(value)
+    except ValueError as exc:
+        raise GridFileError(f"{where}: {exc}") from None
+    return value
+
+
+def _rod(value: Any, where: str) -> RodScale:
+    if not isinstance(value, dict):
+        raise GridFileError(f"{where}: expected a mapping (length_m, ei_nm2), "
+                            f"got {type(value).__name__}")
+    _known(value, ROD_KEYS, where)
+    length_m, ei_nm2 = (_number(value.get(key, DEFAULT_ROD[key]), f"{where}: {key}", key)
+                        for key in ROD_KEYS)
+    try:
+        return RodScale(length_m, ei_nm2)
+    except ValueError as exc:
+        raise GridFileError(f"{where}: {exc}") from None
+
+
+def _case(value: Any, where: str) -> GridCase:
+    if not isinstance(value, dict):
+        raise GridFileError(f"{where}: expected a mapping ({', '.join(CASE_KEYS)}), "
+                            f"got {type(value).__name__}")
+    _known(value, CASE_KEYS, where)
+    for key in ("surface", "y0_m", "mu"):
+        if key not in value:
+            raise GridFileError(f"{where}: {key}: missing")
+    surface = _surface(value["surface"], f"{where}: surface")
+    rod = _rod({key: value[key] for key in ROD_KEYS if key in value}, where)
+    y0, mu, step = (_number(value.get(key, DEFAULT_STEP), f"{where}: {key}", key)
+                    for key in ("y0_m", "mu", "step"))
+    return GridCase(surface, y0, mu, step, rod.length_m, rod.ei_nm2)

@@ -1,0 +1,260 @@
+"""Running a grid: its cases dealt into tasks, run in this process, on local processes or on a
+Dask cluster, every case stored under a hash of its inputs.
+
+Tasks: the cases are dealt round robin into two tasks per worker, so that neighbouring
+(similar) cases spread over the workers and one slow task does not hold the end alone. The
+cases of a task are solved together (`vibrissa.grid_study.run_cases`, the same bits as each
+alone), and batched Newton steps cost less per case the more cases share them, hence few large
+tasks: on a grid of a thousand sweeps 10^4-10^5 equilibria each, so scheduling stays a small
+part. The function a worker runs is plain Python (`run_cases`), never a compiled kernel
+(distributed#4597: jitted functions do not pickle to a worker reliably).
+
+numba's cache: before fanning out, this process runs a short sweep and its Step 2 (`warm_up`),
+so every kernel is compiled and cached once; the workers then load it instead of compiling the
+same kernels at once, whose parallel first writes of a ``cache=True`` entry can corrupt it
+(numba#4807). The cache is node-local: each machine of a cluster warms its own (``make setup``
+or a `warm_up` run there).
+
+Store: ``<out>/cases/<key>.parquet`` per case, ``key`` the SHA-256 of the case's inputs and the
+package version (`case_key`), written whole as each task returns. A run skips the cases whose
+file is there, so an interrupted grid resumes where it stopped and a grid with one parameter
+changed computes only the cases it touches; the tables are then assembled from the store in
+grid order, so they do not depend on how the cases were run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import math
+import multiprocessing
+import os
+import signal
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from vibrissa.formats.files import whole_file
+from vibrissa.grid_study import GridCase, case_columns, case_summary, run_cases
+from vibrissa.studies.grid_file import Grid
+from vibrissa.study import PAPER_SURFACE, StudyCase
+
+PACKAGE_VERSION = importlib.metadata.version("vibrissa")
+TASKS_PER_WORKER = 2
+PARAMETER_COLUMNS = ("surface_m", "y0_m", "mu", "step", "length_m", "ei_nm2")
+"""The case's inputs, the first columns of every table after ``case`` (its index in the grid)
+and ``key`` (its file in the store)."""
+
+_SUMMARY_METADATA = b"vibrissa.case_summary"
+_TEXT_COLUMNS = ("surface_m", "phase", "state")
+
+
+def _column_type(name: str) -> pa.DataType:
+    """Every column's type, fixed (a case without equilibria has the same schema)."""
+    if name in _TEXT_COLUMNS:
+        return pa.string()
+    return {"refined": pa.bool_(), "status": pa.int64()}.get(name, pa.float64())
+
+ProgressCallback = Callable[[int, int, int], None]
+"""``progress(cases_done, cases_total, equilibria_done)``."""
+
+
+def case_key(case: GridCase) -> str:
+    """SHA-256 (hex) of the case's inputs (`GridCase.parameters`, the surface spec in its
+    canonical form) and the package version: the case's name in the store."""
+    text = json.dumps({**case.parameters(), "vibrissa": PACKAGE_VERSION}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def warm_up() -> None:
+    """Compile (or load) numba's kernels of Step 1 and Step 2 in this process: two short sweeps
+    past the paper's object, one with tip and stick phases, one tangential."""
+    run_cases([GridCase(PAPER_SURFACE, y0, 0.4, 0.02) for y0 in (0.0, 0.4)])
+
+
+def _worker_signals() -> None:
+    """A local worker process: SIGINT ignored (the parent decides), SIGTERM ends it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def deal(n_cases: int, n_workers: int) -> list[list[int]]:
+    """Case indices dealt round robin into ``TASKS_PER_WORKER`` tasks per worker (fewer when
+    there are fewer cases)."""
+    n_tasks = max(1, min(n_cases, TASKS_PER_WORKER * n_workers))
+    return [list(range(t, n_cases, n_tasks)) for t in range(n_tasks)] if n_cases else []
+
+
+def compute(cases: Sequence[GridCase], workers: int | None = None, scheduler: str | None = None
+            ) -> Iterator[tuple[list[int], list[StudyCase]]]:
+    """Step 1 and Step 2 of ``cases``: ``(indices, results)`` per task as tasks finish.
+
+    ``workers``: local processes (default: all cores; 1: in this process), or the workers of
+    the LocalCluster that ``scheduler="local"`` starts; ``scheduler``: ``"local"`` or the
+    address of a Dask distributed scheduler (its workers decide how many run).
+    """
+    n_workers = (os.cpu_count() or 1) if workers is None else workers
+    if n_workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if not cases:
+        return
+    if scheduler is not None:
+        yield from _compute_dask(cases, n_workers, scheduler)
+        return
+    if n_workers == 1:
+        for indices in deal(len(cases), 1):
+            yield indices, run_cases([cases[i] for i in indices])
+        return
+    warm_up()
+    tasks = [(indices, [cases[i] for i in indices]) for indices in deal(len(cases), n_workers)]
+    context = multiprocessing.get_context("fork")  # the workers inherit the loaded kernels
+    # Pool's exit terminates the workers: Ctrl-C or an error ends the run at once
+    with context.Pool(min(n_workers, len(tasks)), initializer=_worker_signals) as pool:
+        yield from pool.imap_unordered(_task, tasks)
+
+
+def _task(task: tuple[list[int], list[GridCase]]) -> tuple[list[int], list[StudyCase]]:
+    """One task of a local worker: its case indices and `run_cases` of its cases."""
+    indices, cases = task
+    return indices, run_cases(cases)
+
+
+def _compute_dask(cases: Sequence[GridCase], n_workers: int, scheduler: str
+                  ) -> Iterator[tuple[list[int], list[StudyCase]]]:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    warm_up()
+    if scheduler == "local":
+        cluster: LocalCluster | None = LocalCluster(
+            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+    else:
+        cluster, client = None, Client(scheduler)
+    try:
+        slots = sum(client.nthreads().values()) or n_workers
+        tasks = deal(len(cases), slots)
+        futures = {client.submit(run_cases, [cases[i] for i in indices], pure=False): indices
+                   for indices in tasks}
+        by_key = {future.key: indices for future, indices in futures.items()}
+        for future in as_completed(list(futures)):
+            yield by_key[future.key], future.result()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+class CaseStore:
+    """One Parquet file per case, ``<folder>/<key>.parquet``: its equilibria (the parameter
+    columns, then `vibrissa.grid_study.EQUILIBRIUM_COLUMNS`) and its summary as JSON in the
+    file's metadata. A file is written whole, so one that is there is complete."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+
+    def path(self, key: str) -> Path:
+        return self.folder / f"{key}.parquet"
+
+    def has(self, key: str) -> bool:
+        return self.path(key).is_file()
+
+    def write(self, key: str, case: GridCase, result: StudyCase) -> None:
+        columns = case_columns(result)
+        n = len(columns["x0"])
+        values = {**{name: [value] * n for name, value in case.parameters().items()}, **columns}
+        table = pa.table({name: pa.array(column, _column_type(name))
+                          for name, column in values.items()})
+        summary = json.dumps({**case.parameters(), **case_summary(case, result)})
+        table = table.replace_schema_metadata({_SUMMARY_METADATA: summary.encode()})
+        with whole_file(self.path(key)) as partial:
+            pq.write_table(table, partial)
+
+    def read(self, key: str) -> tuple[pa.Table, dict[str, Any]]:
+        """The case's equilibria (without the file's metadata) and its summary."""
+        table = pq.read_table(self.path(key))
+        summary = json.loads(table.schema.metadata[_SUMMARY_METADATA])
+        return table.replace_schema_metadata(None), summary
+
+
+@dataclass(frozen=True)
+class GridRun:
+    """The tables of a grid and how they were made.
+
+    Attributes
+    ----------
+    equilibria : pyarrow.Table
+        Every equilibrium of every case, in grid order: ``case``, ``key``, the parameter
+        columns, then `vibrissa.grid_study.EQUILIBRIUM_COLUMNS`.
+    summary : pyarrow.Table
+        One row per case: ``case``, ``key``, the parameters and `case_summary`'s keys.
+    computed, reused : int
+        Cases computed by this run and cases found in the store.
+    computed_equilibria : int
+        Equilibria of the cases computed by this run.
+    elapsed_s : float
+        Wall time of the run, s.
+    """
+
+    equilibria: pa.Table
+    summary: pa.Table
+    computed: int
+    reused: int
+    computed_equilibria: int
+    elapsed_s: float
+
+
+def run_grid(grid: Grid, store: CaseStore, workers: int | None = None,
+             scheduler: str | None = None, progress: ProgressCallback | None = None) -> GridRun:
+    """Compute the cases of ``grid`` missing from ``store`` (`compute`), store each as its task
+    returns, and assemble the tables from the store."""
+    start = time.perf_counter()
+    keys = [case_key(case) for case in grid.cases]
+    missing = sorted({key: i for i, key in enumerate(keys) if not store.has(key)}.values())
+    done = len(grid.cases) - len(missing)
+    equilibria = 0
+    if progress:
+        progress(done, len(grid.cases), equilibria)
+    if missing:
+        todo = [grid.cases[i] for i in missing]
+        for indices, results in compute(todo, workers, scheduler):
+            for i, result in zip(indices, results, strict=True):
+                store.write(keys[missing[i]], todo[i], result)
+                equilibria += result.sweep.n_steps
+            done += len(indices)
+            if progress:
+                progress(done, len(grid.cases), equilibria)
+    tables, rows = [], []
+    for index, key in enumerate(keys):
+        table, summary = store.read(key)
+        head = {"case": pa.array([index] * table.num_rows, pa.int64()),
+                "key": pa.array([key] * table.num_rows, pa.string())}
+        for position, (name, column) in enumerate(head.items()):
+            table = table.add_column(position, name, column)
+        tables.append(table)
+        rows.append({"case": index, "key": key, **summary})
+    return GridRun(pa.concat_tables(tables), pa.Table.from_pylist(rows), len(missing),
+                   len(grid.cases) - len(missing), equilibria, time.perf_counter() - start)
+
+
+def same_bits(a: pa.Table, b: pa.Table) -> bool:
+    """Whether two tables are the same bit for bit: schemas, and every value's bytes (NaN
+    included, which ``pyarrow.Table.equals`` counts as unequal to itself)."""
+
+    def stream(table: pa.Table) -> bytes:
+        sink = pa.BufferOutputStream()
+        with pa.ipc.new_stream(sink, table.schema) as writer:
+            writer.write_table(table.combine_chunks())
+        return bytes(sink.getvalue().to_pybytes())
+
+    return bool(a.schema.equals(b.schema, check_metadata=True)) and stream(a) == stream(b)
+
+
+def equilibria_per_second(run: GridRun) -> float:
+    """Equilibria computed by the run per second of its wall time."""
+    return run.computed_equilibria / run.elapsed_s if run.elapsed_s > 0 else math.nan

@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.vibrissa-installed
 OUT ?= out
 # The packages' folders (pyproject.toml's package-dir) and the entry point
-SRC := vibrissa msgs wire formats mapping planning figures streaming runtime launch nodes cli _vibrissa_entry.py
+SRC := vibrissa msgs wire formats mapping planning studies figures streaming runtime launch nodes cli _vibrissa_entry.py
 
 .PHONY: setup demo study test check lint bench clean
 

@@ -166,7 +166,7 @@ class Accumulator:
     A point repeats when a point of the same whisker and frame from an earlier contact line
     lies in the same cell of a grid of edge ``merge_resolution_m`` (cells aligned with the
     frame's origin; so within sqrt(3) x that distance), or, for a point whose position std
-    (the square root of its covariance's largest eigenvalue) exceeds that edge, of a grid whose
+    (the square root of its covariance's trace) exceeds that edge, of a grid whose
     edge is the next power-of-two multiple of it at or above the std (a noisy repeat adds
     nothing its first measurement within its own noise did not; memory is then bounded by the
     cells within a few stds of the lines). A whisker's contact line is a run of
@@ -234,19 +234,17 @@ class Accumulator:
 
     def _levels(self, batch: ContactBatch) -> npt.NDArray[np.int64]:
         """Each row's merge grid: its edge is ``merge_resolution_m`` x 2**level, the smallest
-        at or above the row's position std (level 0 without a covariance, or with one that is
-        not a covariance)."""
-        levels = np.zeros(len(batch.whisker_ids), dtype=np.int64)
+        at or above the row's position std, taken as the square root of its covariance's
+        trace (at least its largest eigenvalue's; level 0 without a covariance, or with a
+        trace that is not a finite number > 0)."""
         if batch.covariances_m2 is None:
-            return levels
-        covariances = np.reshape(batch.covariances_m2, (-1, 3, 3))
-        good = is_covariance(covariances)
-        if good.any():
-            std = np.sqrt(np.maximum(np.linalg.eigvalsh(covariances[good])[:, -1], 0.0))
-            with np.errstate(divide="ignore"):
-                level = np.ceil(np.log2(np.maximum(std / self.merge_resolution_m, 1.0)))
-            levels[good] = np.minimum(level, 1000).astype(np.int64)
-        return levels
+            return np.zeros(len(batch.whisker_ids), dtype=np.int64)
+        c = np.reshape(batch.covariances_m2, (-1, 3, 3))
+        trace = c[:, 0, 0] + c[:, 1, 1] + c[:, 2, 2]
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            level = np.ceil(0.5 * np.log2(trace / self.merge_resolution_m**2))
+        return np.where(np.isfinite(level) & (level > 0), np.minimum(level, 1000), 0).astype(
+            np.int64)
 
     def _lines_and_cells(self, batch: ContactBatch) -> tuple[
             npt.NDArray[np.bool_], list[tuple[tuple[str, str], Cell, int] | None]]:

@@ -567,6 +567,10 @@ class NodeStatus(Message):
         kind=STR_STR_MAP,
         doc="topic -> endpoint its direct publisher binds; subscribers connect there",
     )})
+    seen_publishers: list[str] = field(default_factory=list, metadata={"spec": FieldSpec(
+        kind=STR_LIST,
+        doc="publisher ids (16 hex digits) the node has received anything from, pings included",
+    )})
 
 
 @dataclass(frozen=True, eq=False)

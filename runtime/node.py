@@ -20,10 +20,12 @@ A background thread publishes ``NodeStatus`` on ``/vibrissa/status`` every ``hea
 with ``wait_for=[names]`` (or later held by ``wait_for_subscribers``) starts *gated*: what the
 node publishes is encoded and buffered in order, while the thread pings the topic every
 0.1 s through the same socket. A subscriber that receives a ping adds the topic to its
-``seen_topics`` (it never hands pings to the application), and its node reports that in its
-next status. Once every named node reports the topic, the subscription path is proven up
-and the thread releases the buffer, in order, and later messages go straight out. Pings do
-not advance ``seq``, so they never look like loss (see ``vibrissa.wire.transport``). With
+``seen_topics`` and the publisher's id to its ``seen_publishers`` (it never hands pings to the
+application), and its node reports both in its next status. Once every named node reports the
+publisher's id, the subscription path is proven up (the id, not the topic: a node respawned
+on a topic its peers have seen must wait for its own path) and the thread releases the
+buffer, in order, and later messages go straight out. Pings do not advance ``seq``, so they
+never look like loss (see ``vibrissa.wire.transport``). With
 every status, and once more at close, the thread also pings each publisher that has sent
 anything: a tail of a stream that never arrived (its ``EndOfStream`` included) shows as a seq
 gap at the subscribers within a heartbeat, instead of not at all.
@@ -189,7 +191,7 @@ class Node:
         self._publishers: list[Publisher] = []
         self._subscribers: list[Subscriber] = []
         self._gates: list[_Gate] = []
-        self._peers: dict[str, set[str]] = {}  # node -> seen_topics from its last status
+        self._peers: dict[str, set[str]] = {}  # node -> seen_publishers from its last status
         self._peer_inputs: dict[str, set[str]] = {}  # node -> its subscribed topics, running
         self.counters: dict[str, int] = {}
         self.failure: str | None = None  # why the runtime stopped the node, if it did
@@ -341,11 +343,13 @@ class Node:
         totals = {"received": 0, "published": 0, "rejected": 0, "lost": 0, "pings": 0,
                   "anomalies": 0}
         seen: set[str] = set()
+        seen_pubs: set[int] = set()
         subscribes: dict[str, str] = {}
         for sub in subscribers:
             for key, value in sub.totals().items():
                 totals[key] += value
             seen |= sub.seen_topics
+            seen_pubs |= sub.seen_publishers
             for topic, msg_types in (sub.topics or {"*": None}).items():
                 subscribes[topic] = "|".join(t.TYPE_NAME for t in msg_types) if msg_types else "*"
         totals["published"] = sum(p.published for p in publishers)
@@ -357,6 +361,7 @@ class Node:
             publishes={p.topic: p.type_name for p in publishers},
             subscribes=subscribes, seen_topics=sorted(seen), message=self._message,
             endpoints={p.topic: p.endpoint for p in publishers if p.endpoint is not None},
+            seen_publishers=sorted(f"{pub:016x}" for pub in seen_pubs),
         )
 
     def _heartbeat_loop(self) -> None:
@@ -367,8 +372,8 @@ class Node:
                 now = time.monotonic()
                 with self._lock:
                     subscribers = list(self._subscribers)
-                # A newly seen topic may open a peer's gate: report it now, not in 0.5 s.
-                seen, was_seen = sum(len(sub.seen_topics) for sub in subscribers), seen
+                # A newly seen publisher may open a peer's gate: report it now, not in 0.5 s.
+                seen, was_seen = sum(len(sub.seen_publishers) for sub in subscribers), seen
                 if now >= next_beat or self._beat_now.is_set() or seen != was_seen:
                     self._beat_now.clear()
                     self._status_pub.publish(self.status())
@@ -378,7 +383,7 @@ class Node:
                 self._service_gates(now)
                 received = self._status_sub.receive(0.02)
                 if received is not None and isinstance(received.msg, NodeStatus):
-                    self._peers[received.msg.node] = set(received.msg.seen_topics)
+                    self._peers[received.msg.node] = set(received.msg.seen_publishers)
                     if received.msg.state == "running":
                         self._peer_inputs[received.msg.node] = set(received.msg.subscribes)
             self._ping_streams()
@@ -400,8 +405,8 @@ class Node:
         with self._lock:
             gates = [g for g in self._gates if not g.opened.is_set()]
         for gate in gates:
-            topic = gate.publisher.topic
-            if all(topic in self._peers.get(n, ()) for n in gate.nodes):
+            topic, pub = gate.publisher.topic, f"{gate.publisher.pub_id:016x}"
+            if all(pub in self._peers.get(n, ()) for n in gate.nodes):
                 sent = gate.publisher.release()
                 gate.opened.set()
                 log.info("%s: %s ready on %s, sent %d buffered message(s)",

@@ -788,6 +788,7 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                 self._expected[topic] = None if types is None else (*types, Ping, EndOfStream)
         self.counters: dict[str, TopicCounters] = {t: TopicCounters() for t in topics or ()}
         self._seen: set[str] = set()
+        self._seen_pubs: OrderedDict[int, None] = OrderedDict()  # at most MAX_PUBLISHERS
         # per (topic, publisher id), least recently heard first; at most MAX_PUBLISHERS
         self._next_seq: OrderedDict[tuple[str, int], int] = OrderedDict()
         self._stream_counts: dict[tuple[str, int], list[int]] = {}  # [data received, lost]
@@ -823,6 +824,12 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
     def seen_topics(self) -> set[str]:
         """Topics on which anything (pings included) has arrived."""
         return set(self._seen)
+
+    @property
+    def seen_publishers(self) -> set[int]:
+        """Ids of the publishers (the newest ``MAX_PUBLISHERS``) anything has arrived from,
+        pings included: a node restarted on a topic already seen is a new id."""
+        return set(self._seen_pubs.copy())
 
     def totals(self) -> dict[str, int]:
         """Counters summed over topics: received, lost, rejected, pings, anomalies."""
@@ -932,6 +939,10 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         except ValueError as exc:
             self._reject(topic, str(exc))
             return None
+        self._seen_pubs[header.pub] = None
+        self._seen_pubs.move_to_end(header.pub)
+        if len(self._seen_pubs) > MAX_PUBLISHERS:
+            self._seen_pubs.popitem(last=False)
         if cut:
             self._track(topic, counters, header, is_ping=False)  # it did use its seq
             self._reject(topic, f"payload of {cut} bytes, more than the "

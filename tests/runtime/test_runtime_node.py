@@ -83,6 +83,36 @@ def test_gate_buffers_until_the_downstream_node_is_ready(endpoints: Endpoints) -
             assert source.status().counters["published"] == n
 
 
+def test_a_respawned_publisher_waits_for_its_own_path_not_the_topic(endpoints: Endpoints) -> None:
+    """A node restarted on a topic its subscriber has seen: the gate waits until the
+    subscriber hears the new publisher (once it opened on the topic alone, and the
+    subscriber, busy and not yet connected to the new publisher, lost the first messages)."""
+    with node("sink", endpoints, heartbeat_s=0.1) as sink:
+        sub = sink.create_subscriber({"/w0/data": RobotPose})
+        with node("source", endpoints) as first:
+            pub = first.create_publisher("data", RobotPose, wait_for=["sink"])
+            pub.publish(pose(0))
+            deadline = time.monotonic() + TIMEOUT_S
+            while (rx := sub.receive(0.1)) is None and time.monotonic() < deadline:
+                pass
+            assert rx is not None and "/w0/data" in sink.status().seen_topics
+        with node("source", endpoints) as second:  # the respawn: a new publisher id
+            pub = second.create_publisher("data", RobotPose, wait_for=["sink"])
+            for i in range(1, 11):
+                pub.publish(pose(i))
+            # the sink takes nothing (a node busy fitting a map): the gate holds
+            assert not second.wait_for_subscribers("data", ["sink"], 1.5)
+            assert pub.held and pub.pending == 10
+            got: list[int] = []
+            deadline = time.monotonic() + TIMEOUT_S
+            while len(got) < 10 and time.monotonic() < deadline:
+                if (rx := sub.receive(0.1)) is not None:
+                    got.append(int(rx.msg.stamp))
+            assert got == list(range(1, 11))
+            assert f"{pub.pub_id:016x}" in sink.status().seen_publishers
+    assert sum(c.lost for c in sub.counters.values()) == 0
+
+
 def test_wait_for_subscribers_times_out_and_keeps_buffering(endpoints: Endpoints) -> None:
     with node("lonely", endpoints) as lonely:
         pub = lonely.create_publisher("out", EndOfStream)

@@ -288,6 +288,8 @@ class MapperParams:
     world: Scene | None = field(init=False, repr=False, compare=False)
     explore: Explore | None = field(init=False, repr=False, compare=False)
     settings: MapSettings = field(init=False, repr=False, compare=False)
+    _truths: dict[str, tuple[TrueObject, ...]] = field(
+        init=False, repr=False, compare=False, default_factory=dict)
 
     def __post_init__(self) -> None:
         require_positive("rod_length_m", self.rod_length_m)
@@ -352,15 +354,19 @@ class MapperParams:
         require(self.max_frames >= 1, "max_frames", self.max_frames, "a count >= 1")
 
 
-    def truth(self, frame_id: str) -> list[TrueObject]:
+    def truth(self, frame_id: str) -> tuple[TrueObject, ...]:
         """The known objects of frame ``frame_id``: ``true_surface`` (any frame), the objects of
-        ``scene`` (frame ``world``), or none."""
-        if self.true_surface:
-            return [TrueObject(self.true_surface, parse_surface(self.true_surface),
-                               self.rod_length_m)]
-        if self.world is not None and frame_id == SCENE_FRAME:
-            return [TrueObject(obj.name, obj.surface(1.0)) for obj in self.world.objects]
-        return []
+        ``scene`` (frame ``world``), or none; the same objects at every call (a live map keeps
+        an object's fit only while its truth is the same)."""
+        if frame_id not in self._truths:
+            truth: tuple[TrueObject, ...] = ()
+            if self.true_surface:
+                truth = (TrueObject(self.true_surface, parse_surface(self.true_surface),
+                                    self.rod_length_m),)
+            elif self.world is not None and frame_id == SCENE_FRAME:
+                truth = tuple(TrueObject(obj.name, obj.surface(1.0)) for obj in self.world.objects)
+            self._truths[frame_id] = truth
+        return self._truths[frame_id]
 
 
 PARAMS = MapperParams
@@ -670,7 +676,8 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 record_coverage(frames)
                 fit_end = time.monotonic()
                 written = None
-                if fit_end - files_time >= params.write_period_s:
+                if fit_end - files_time >= params.write_period_s and not node.stop_requested:
+                    # (a stop during the update: the final files follow at once)
                     files_time = fit_end
                     report, messages = write(None, False, None)
                     written = list(report.frames)

@@ -16,7 +16,8 @@ from typing import Any
 
 import pytest
 
-from vibrissa.mapping import Accumulator
+from vibrissa import launch
+from vibrissa.mapping import Accumulator, LiveMap
 from vibrissa.msgs import (
     ContactPhase,
     ContactPointArray,
@@ -24,7 +25,7 @@ from vibrissa.msgs import (
     NodeStatus,
     SurfaceMesh,
 )
-from vibrissa.nodes.mapper import MapperParams, receive, write_outputs
+from vibrissa.nodes.mapper import MapperParams, fit_frames, receive, write_outputs
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 
 TOPIC = "/w/contact"
@@ -202,3 +203,23 @@ def test_a_signal_again_ends_at_once_and_the_launchers_sigterm_after_a_sigint_do
                           timeout=60)
     assert done.returncode == -signal.SIGINT, done
     assert done.stdout == f"[{signal.SIGINT.value}, {signal.SIGTERM.value}]\n", done
+
+
+@pytest.mark.parametrize("truth", [{"true_surface": "paraboloid:a=0.5,b=1,h=0.4"},
+                                   {"scene": "robot/scene.yaml"}])
+def test_with_a_truth_to_measure_against_an_update_without_new_points_keeps_the_map(
+        truth: dict[str, str]) -> None:
+    """The truth (true_surface or a scene's objects) is the same at every update: an update
+    with no new point returns the last map, and the stop's final map refits nothing (each
+    update had been a full fit, and a stop waited for one)."""
+    if "scene" in truth:
+        truth = {"scene": str(Path(launch.__file__).parent / truth["scene"])}
+    params = MapperParams(out_dir="/tmp/unused", plot=False, cells=16, **truth)
+    acc = Accumulator(1)
+    for i in range(60):
+        receive(acc, contact(i))
+    live = LiveMap()
+    first = fit_frames(acc, params, live, final=False)
+    again = fit_frames(acc, params, live, final=False)
+    assert [a is b for a, b in zip(first, again, strict=True)] == [True]
+    assert live.fits["unchanged"] == 1 and live.fits["clustered"] == 1

@@ -674,17 +674,16 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 frames, fitted = fit_frames(acc, params, live, final=False), acc.n_points
                 updates += 1
                 record_coverage(frames)
+                # the map goes out first, its files (seconds of plotting) after
+                publish([map_messages(frame, acc.frames[frame.result.frame_id].stamp)
+                          for frame in frames])
                 fit_end = time.monotonic()
                 written = None
                 if fit_end - files_time >= params.write_period_s and not node.stop_requested:
                     # (a stop during the update: the final files follow at once)
                     files_time = fit_end
-                    report, messages = write(None, False, None)
+                    report, _ = write(None, False, None)
                     written = list(report.frames)
-                else:
-                    messages = [map_messages(frame, acc.frames[frame.result.frame_id].stamp)
-                                for frame in frames]
-                publish(messages)
                 update_s = time.monotonic() - fit_start
                 # the time of an update is not silence: what arrived meanwhile waits in the
                 # queue, behind the statuses that came with it

@@ -633,6 +633,8 @@ class CommandedMessages:
         at = at[at > t[0]]
         if last and (not len(at) or at[-1] < t[-1]):
             at = np.append(at, t[-1])
+            # a grid time that is t[-1] but for round-off is this pose: not a second one
+            self.next_pose = max(self.next_pose, int(np.floor(t[-1] / period + 1e-6)) + 1)
         _, p, rotations = path.at(at)
         return list(zip(at.tolist(), p, rotations.as_quat(), strict=True))
 

@@ -53,6 +53,9 @@ WORLD = "world"
 TICK_WAIT_S = 2.0
 """How long the robot's last ticks of a plan may take to arrive, s: a tick the reconstructor
 could not place (no pose) never comes."""
+LOOKING_RAD = 1.0
+"""A robot at a plan's goal position turned this far from the goal's heading is in the plan's
+closing full turn, rad."""
 POSE_HISTORY = 200_000
 """The most poses kept for placing ticks (400 s at 500 Hz)."""
 
@@ -166,6 +169,7 @@ def run(node: Node, params: ExplorerParams) -> str:
     surfaces = {True: np.zeros((0, 3)), False: np.zeros((0, 3))}
     goal: Transform | None = None  # where the last plan ends: plan once it is reached
     reached_stamp: float | None = -np.inf  # the stamp of the pose that reached it (the start)
+    looking = False  # the robot is in the plan's last turn
     placed_stamp = -np.inf  # the newest tick placed
     segments = 0
     last_tick = time.monotonic()  # when the last tick arrived
@@ -183,10 +187,14 @@ def run(node: Node, params: ExplorerParams) -> str:
                 if msg.frame_id == WORLD and msg.child_frame_id == "base_link":
                     X = _pose(msg)
                     poses.add(msg.stamp, X)
-                    if (goal is not None and reached_stamp is None
-                            and np.allclose(X.translation, goal.translation, rtol=0, atol=1e-9)
-                            and (X.rotation.inv() * goal.rotation).magnitude() < 1e-9):
-                        reached_stamp = msg.stamp
+                    if goal is not None and reached_stamp is None and np.allclose(
+                            X.translation, goal.translation, rtol=0, atol=1e-9):
+                        # a plan ends with a full turn where it began: the goal is reached
+                        # at the turn's end, not as the turn starts
+                        turned = (X.rotation.inv() * goal.rotation).magnitude()
+                        looking |= turned > LOOKING_RAD
+                        if looking and turned < 1e-9:
+                            reached_stamp = msg.stamp
             elif isinstance(msg, ContactPointArray):
                 last_tick = time.monotonic()
                 if msg.frame_id == WORLD:
@@ -222,7 +230,7 @@ def run(node: Node, params: ExplorerParams) -> str:
                                  orientation=plan.orientation, speed_mps=params.speed_mps,
                                  turn_rate_rps=params.turn_rate_rps))
         goal = Transform.from_quaternion(plan.orientation[-1], plan.position[-1])
-        reached_stamp = None
+        reached_stamp, looking = None, False
         node.set_state("running", f"plan {segments}: {plan.purpose}; travelled "
                                   f"{explorer.travelled_m:.3f} of {params.budget_m} m")
         log.info("plan %d: %s (travelled %.3f m; %d ticks placed; %.1f %% of the floor free)",

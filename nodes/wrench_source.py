@@ -574,8 +574,10 @@ class CommandedMessages:
     """The messages of the commanded robot's samples, as mode ``scene`` makes them along a
     fixed path (`scene_stream`): a WhiskerWrenchArray per sample with a row per whisker that
     has a wrench there, stamped ``epoch_s`` + its path time, ``seq`` from 0, noise drawn per
-    sample; poses at ``pose_rate_hz`` of path time (0: one per sample), ``pose_delay_s``
-    late. Each with its time in the stream; a pose before a wrench of the same time."""
+    sample; poses at ``pose_rate_hz`` of path time (0: one per sample) and one at the last
+    sample of each batch (a wrench never waits for the next batch's simulation to be placed),
+    ``pose_delay_s`` late. Each with its time in the stream; a pose before a wrench of the
+    same time."""
 
     def __init__(self, scene: Scene, params: WrenchSourceParams) -> None:
         self.params = params
@@ -592,9 +594,8 @@ class CommandedMessages:
         self.next_pose, self.before = 1, (0.0, p_WR, q_WR)
         return [(self.params.pose_delay_s, 0, _pose(self.params, 0.0, p_WR, q_WR))]
 
-    def of(self, samples: StreamSamples, last: bool = False
-           ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
-        """Messages of ``samples`` (``last``: the path's end, which has a pose of its own)."""
+    def of(self, samples: StreamSamples) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
+        """Messages of ``samples``, the poses up to the last of them."""
         params, out = self.params, []
         f0, m0 = samples.f0_n, samples.m0_nm
         if params.noise_force_n:
@@ -608,12 +609,12 @@ class CommandedMessages:
                 frame_ids=[self.frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])))
             self.seq += 1
         out += [(t + params.pose_delay_s, 0, _pose(params, t, p, q))
-                for t, p, q in self._poses(samples, last)]
+                for t, p, q in self._poses(samples)]
         if len(samples.t):
             self.before = (float(samples.t[-1]), samples.p_WR[-1], samples.q_WR[-1])
         return sorted(out, key=lambda e: (e[0], e[1]))
 
-    def _poses(self, samples: StreamSamples, last: bool
+    def _poses(self, samples: StreamSamples
                ) -> list[tuple[float, FloatArray, FloatArray]]:
         new = samples.t > self.before[0] if self.before is not None else samples.t >= 0
         if not self.params.pose_rate_hz:  # the start's pose is out already
@@ -631,7 +632,7 @@ class CommandedMessages:
             self.next_pose = int(grid[-1]) + 1
         at = grid * period
         at = at[at > t[0]]
-        if last and (not len(at) or at[-1] < t[-1]):
+        if not len(at) or at[-1] < t[-1]:
             at = np.append(at, t[-1])
             # a grid time that is t[-1] but for round-off is this pose: not a second one
             self.next_pose = max(self.next_pose, int(np.floor(t[-1] / period + 1e-6)) + 1)
@@ -708,12 +709,13 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
         p, q = path.take(COMMAND_CHUNK)
         stream.extend(np.arange(taken, taken + len(p)) / params.path_rate_hz, p, q)
         taken += len(p)
-        # the queue ran empty: the robot stops there, every sample up to it goes out, and the
-        # pose where it stands (off the pose_rate_hz grid: the poses then cover every wrench)
-        if not publish(out.of(stream.advance(hold=bool(path.queued)), last=not path.queued)):
+        # the queue ran empty: the robot stops there and every sample up to it goes out; each
+        # batch ends with a pose at its last sample (off the pose_rate_hz grid: the poses cover
+        # every wrench published, and where the robot stands)
+        if not publish(out.of(stream.advance(hold=bool(path.queued)))):
             break
     if not node.stop_requested:
-        publish(out.of(stream.finish(), last=True))
+        publish(out.of(stream.finish()))
     wrenches.publish_end_of_stream(node.fqn)
     poses.publish_end_of_stream(node.fqn)
     log.info("%s: %d messages and EndOfStream on %s and %s; %s", node.fqn, count,

@@ -12,6 +12,10 @@ Subscribes
 SurfaceMesh
     The mapper's known and unknown parts of frame ``world``: the known surfaces are obstacles,
     the unknown part what the ``uncertainty`` planner goes to touch.
+``proposal_topic`` (default ``next_sweep``) : SweepProposal
+    The mapper's next sweeps of frame ``world``: the points of each section (where the map is
+    least sure) are what the ``uncertainty`` planner goes to touch too (the proposals of the
+    newest update replace those before).
 
 Publishes
 ---------
@@ -40,7 +44,14 @@ import numpy as np
 
 from vibrissa.formats.scene_file import load_explore, load_robot
 from vibrissa.frames import Transform, interpolate
-from vibrissa.msgs import ContactPointArray, EndOfStream, PathSegment, RobotPose, SurfaceMesh
+from vibrissa.msgs import (
+    ContactPointArray,
+    EndOfStream,
+    PathSegment,
+    RobotPose,
+    SurfaceMesh,
+    SweepProposal,
+)
 from vibrissa.planning import FREE, PLANNERS, Explorer, ExploreSettings
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import require, require_parsed, require_positive
@@ -78,7 +89,7 @@ class ExplorerParams:
         Edge of the free-space grid's cells, m.
     speed_mps, turn_rate_rps
         The robot's speed and turn rate along a plan.
-    pose_topic, contact_topic, mesh_topic, unknown_mesh_topic, path_topic
+    pose_topic, contact_topic, mesh_topic, unknown_mesh_topic, proposal_topic, path_topic
         Topics, relative to the namespace unless absolute.
     wait_for
         Nodes that must subscribe to ``path_topic`` before the first segment goes out (the
@@ -95,6 +106,7 @@ class ExplorerParams:
     contact_topic: str = "contact"
     mesh_topic: str = "surface_mesh"
     unknown_mesh_topic: str = "surface_mesh_unknown"
+    proposal_topic: str = "next_sweep"
     path_topic: str = "path"
     wait_for: tuple[str, ...] = ()
     settings: ExploreSettings = field(init=False, repr=False, compare=False)
@@ -105,9 +117,9 @@ class ExplorerParams:
         require_positive("speed_mps", self.speed_mps)
         require_positive("turn_rate_rps", self.turn_rate_rps)
         for name in (self.pose_topic, self.contact_topic, self.mesh_topic,
-                     self.unknown_mesh_topic, self.path_topic):
-            require_parsed("pose_topic/contact_topic/mesh_topic/unknown_mesh_topic/path_topic",
-                           name, validate_name)
+                     self.unknown_mesh_topic, self.proposal_topic, self.path_topic):
+            require_parsed("pose_topic/contact_topic/mesh_topic/unknown_mesh_topic/"
+                           "proposal_topic/path_topic", name, validate_name)
         for name in self.wait_for:
             require_parsed("wait_for", name, validate_name)
         try:
@@ -161,12 +173,15 @@ def run(node: Node, params: ExplorerParams) -> str:
                         explore.workspace_max_m, explore.start, params.settings)
     subscriber = node.create_subscriber({
         params.pose_topic: RobotPose, params.contact_topic: ContactPointArray,
-        params.mesh_topic: SurfaceMesh, params.unknown_mesh_topic: SurfaceMesh})
+        params.mesh_topic: SurfaceMesh, params.unknown_mesh_topic: SurfaceMesh,
+        params.proposal_topic: SweepProposal})
     mesh_topic = node.resolve(params.mesh_topic)
     path = node.create_publisher(params.path_topic, PathSegment, wait_for=params.wait_for)
     poses = Poses()
     pending: list[ContactPointArray] = []  # ticks whose pose has not come yet
     surfaces = {True: np.zeros((0, 3)), False: np.zeros((0, 3))}
+    proposals: dict[tuple[str, int], np.ndarray] = {}  # the newest update's sections
+    proposal_stamp = -np.inf
     goal: Transform | None = None  # where the last plan ends: plan once it is reached
     reached_stamp: float | None = -np.inf  # the stamp of the pose that reached it (the start)
     looking = False  # the robot is in the plan's last turn
@@ -201,7 +216,15 @@ def run(node: Node, params: ExplorerParams) -> str:
                     pending.append(msg)
             elif isinstance(msg, SurfaceMesh) and msg.frame_id == WORLD:
                 surfaces[rx.topic == mesh_topic] = np.reshape(msg.vertices, (-1, 3))
-                explorer.observe_surface(surfaces[True], surfaces[False])
+                explorer.observe_surface(surfaces[True], np.vstack([surfaces[False],
+                                                                    *proposals.values()]))
+            elif (isinstance(msg, SweepProposal) and msg.frame_id == WORLD
+                  and msg.stamp >= proposal_stamp):
+                if msg.stamp > proposal_stamp:  # a newer update: its proposals replace
+                    proposals, proposal_stamp = {}, msg.stamp
+                proposals[(msg.object, msg.rank)] = np.reshape(msg.line, (-1, 3))
+                explorer.observe_surface(surfaces[True], np.vstack([surfaces[False],
+                                                                    *proposals.values()]))
         while pending:
             at = poses.at(pending[0].stamp)
             if at is None and poses.stamps and pending[0].stamp < poses.stamps[0]:

@@ -197,6 +197,9 @@ class WrenchSourceParams:
     wait_for
         Node names (relative names resolve in the namespace) whose subscription to the output
         must be up before anything goes out; until then samples are buffered, never dropped.
+    pose_wait_for
+        Mode ``scene``: nodes that must subscribe to ``pose_topic`` too (besides ``wait_for``)
+        before a pose goes out: a node that takes the poses and not the wrenches.
     wait_timeout_s
         Give up waiting for ``wait_for`` after this long, s (exit status 1).
     rod_length_m
@@ -221,6 +224,7 @@ class WrenchSourceParams:
     replay_rate: float = 1.0
     topic: str = "wrench"
     wait_for: tuple[str, ...] = ()
+    pose_wait_for: tuple[str, ...] = ()
     wait_timeout_s: float = 60.0
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
@@ -256,8 +260,9 @@ class WrenchSourceParams:
         require(0 <= self.epoch_s < MAX_EPOCH_S, "epoch_s", self.epoch_s,
                 f"s since the Unix epoch in [0, {MAX_EPOCH_S:.0f})")
         require_parsed("topic", self.topic, validate_name)
-        for name in self.wait_for:
-            require_parsed("wait_for", name, validate_name)
+        for key in ("wait_for", "pose_wait_for"):
+            for name in getattr(self, key):
+                require_parsed(key, name, validate_name)
         if self.mode == "replay":
             require(bool(self.bag), "bag", self.bag, "an .mcap file in mode 'replay'")
             require_parsed("bag", self.bag, check_bag_file)
@@ -298,6 +303,11 @@ class WrenchSourceParams:
                 f"a number in (0, {MAX_STEP:g}] (units of L)")
         require(not self.whisker_ids or len(self.whisker_ids) == len(self.y0), "whisker_ids",
                 self.whisker_ids, f"one name per y0 ({len(self.y0)})")
+
+    @property
+    def pose_waits(self) -> tuple[str, ...]:
+        """The nodes the poses wait for: ``wait_for`` and ``pose_wait_for``."""
+        return tuple(dict.fromkeys(self.wait_for + self.pose_wait_for))
 
     @property
     def path_limits(self) -> PathLimits:
@@ -507,7 +517,7 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     ``wait_for`` timed out or a ``loop`` cannot repeat exactly."""
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
                                      hwm=DEFAULT_HWM * 10)
-    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
+    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.pose_waits,
                                   hwm=DEFAULT_HWM * 10)
     scene = load_scene(params.scene)
     legs = 2 if params.loop else params.passes
@@ -539,9 +549,8 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
         wrenches.publish_end_of_stream(node.fqn)
         poses.publish_end_of_stream(node.fqn)
         return -1
-    for topic in (params.topic, params.pose_topic):
-        if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,
-                                                             params.wait_timeout_s):
+    for topic, names in ((params.topic, params.wait_for), (params.pose_topic, params.pose_waits)):
+        if names and not node.wait_for_subscribers(topic, names, params.wait_timeout_s):
             return -1
     node.set_state("running", f"playing {params.scene}")
     _say_epoch(node, params, "path time 0")
@@ -646,7 +655,7 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
     -1 when ``wait_for`` timed out."""
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
                                      hwm=DEFAULT_HWM * 10)
-    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
+    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.pose_waits,
                                   hwm=DEFAULT_HWM * 10)
     commands = node.create_subscriber({params.path_topic: PathSegment})
     scene = load_scene(params.scene)
@@ -655,9 +664,8 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
     p0, q0 = scene.path.p_WR[0], scene.path.R_WR[0].as_quat()
     path = CommandedPath(limits, p0, q0)
     out = CommandedMessages(scene, params)
-    for topic in (params.topic, params.pose_topic):
-        if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,
-                                                             params.wait_timeout_s):
+    for topic, names in ((params.topic, params.wait_for), (params.pose_topic, params.pose_waits)):
+        if names and not node.wait_for_subscribers(topic, names, params.wait_timeout_s):
             return -1
     node.set_state("running", f"{len(scene.whiskers)} whisker(s) commanded on "
                    f"{node.resolve(params.path_topic)}")

@@ -775,6 +775,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if sent < 0:
             node.set_state("error", "downstream not ready or replay failed")
             return 1
+        # the stream's tail (its EndOfStream too) still queued for a subscriber behind it (a
+        # bag played as fast as possible) gets up to wait_timeout_s to leave, unless stopped
+        node.close(drain_s=1.0 if node.stop_requested else params.wait_timeout_s)
     return 0
 
 

@@ -720,7 +720,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
             record_coverage(frames)
         report, messages = write(written, True, ended_by)
     if report.lost:
-        log.error("%s: %d contact message(s) were lost on the way to the map%s", node.fqn,
+        log.error("%s: %d input message(s) were lost on the way to the map%s", node.fqn,
                   report.lost, " (allowed: allow_loss)" if params.allow_loss else "")
     if report.upstream_lost:  # at a stop, every node stops with messages on their way
         log.log(logging.WARNING if ended_by == "stop" else logging.ERROR,

@@ -279,7 +279,8 @@ def run(node: Node, params: ReconstructorParams) -> None:
             ends.append(eos)
         for outcome in stream.take(batches.drained):
             publisher.publish(outcome.contacts)
-        stream.apply_poses()  # the poses no wrench waited for, now that the points are out
+        # the poses no wrench waited for, now that the points are out
+        stream.apply_poses(batches.drained)
         while ends and not len(stream):
             end = ends.pop(0)
             publisher.publish_end_of_stream(node.fqn)

@@ -197,6 +197,9 @@ class WrenchSourceParams:
     wait_for
         Node names (relative names resolve in the namespace) whose subscription to the output
         must be up before anything goes out; until then samples are buffered, never dropped.
+    pose_wait_for
+        Mode ``scene``: nodes that must subscribe to ``pose_topic`` too (besides ``wait_for``)
+        before a pose goes out: a node that takes the poses and not the wrenches.
     wait_timeout_s
         Give up waiting for ``wait_for`` after this long, s (exit status 1).
     rod_length_m
@@ -221,6 +224,7 @@ class WrenchSourceParams:
     replay_rate: float = 1.0
     topic: str = "wrench"
     wait_for: tuple[str, ...] = ()
+    pose_wait_for: tuple[str, ...] = ()
     wait_timeout_s: float = 60.0
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
@@ -256,8 +260,9 @@ class WrenchSourceParams:
         require(0 <= self.epoch_s < MAX_EPOCH_S, "epoch_s", self.epoch_s,
                 f"s since the Unix epoch in [0, {MAX_EPOCH_S:.0f})")
         require_parsed("topic", self.topic, validate_name)
-        for name in self.wait_for:
-            require_parsed("wait_for", name, validate_name)
+        for key in ("wait_for", "pose_wait_for"):
+            for name in getattr(self, key):
+                require_parsed(key, name, validate_name)
         if self.mode == "replay":
             require(bool(self.bag), "bag", self.bag, "an .mcap file in mode 'replay'")
             require_parsed("bag", self.bag, check_bag_file)
@@ -298,6 +303,11 @@ class WrenchSourceParams:
                 f"a number in (0, {MAX_STEP:g}] (units of L)")
         require(not self.whisker_ids or len(self.whisker_ids) == len(self.y0), "whisker_ids",
                 self.whisker_ids, f"one name per y0 ({len(self.y0)})")
+
+    @property
+    def pose_waits(self) -> tuple[str, ...]:
+        """The nodes the poses wait for: ``wait_for`` and ``pose_wait_for``."""
+        return tuple(dict.fromkeys(self.wait_for + self.pose_wait_for))
 
     @property
     def path_limits(self) -> PathLimits:
@@ -507,7 +517,7 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     ``wait_for`` timed out or a ``loop`` cannot repeat exactly."""
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
                                      hwm=DEFAULT_HWM * 10)
-    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
+    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.pose_waits,
                                   hwm=DEFAULT_HWM * 10)
     scene = load_scene(params.scene)
     legs = 2 if params.loop else params.passes
@@ -539,9 +549,8 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
         wrenches.publish_end_of_stream(node.fqn)
         poses.publish_end_of_stream(node.fqn)
         return -1
-    for topic in (params.topic, params.pose_topic):
-        if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,
-                                                             params.wait_timeout_s):
+    for topic, names in ((params.topic, params.wait_for), (params.pose_topic, params.pose_waits)):
+        if names and not node.wait_for_subscribers(topic, names, params.wait_timeout_s):
             return -1
     node.set_state("running", f"playing {params.scene}")
     _say_epoch(node, params, "path time 0")
@@ -574,8 +583,10 @@ class CommandedMessages:
     """The messages of the commanded robot's samples, as mode ``scene`` makes them along a
     fixed path (`scene_stream`): a WhiskerWrenchArray per sample with a row per whisker that
     has a wrench there, stamped ``epoch_s`` + its path time, ``seq`` from 0, noise drawn per
-    sample; poses at ``pose_rate_hz`` of path time (0: one per sample), ``pose_delay_s``
-    late. Each with its time in the stream; a pose before a wrench of the same time."""
+    sample; poses at ``pose_rate_hz`` of path time (0: one per sample) and one at the last
+    sample of each batch (a wrench never waits for the next batch's simulation to be placed),
+    ``pose_delay_s`` late. Each with its time in the stream; a pose before a wrench of the
+    same time."""
 
     def __init__(self, scene: Scene, params: WrenchSourceParams) -> None:
         self.params = params
@@ -592,9 +603,8 @@ class CommandedMessages:
         self.next_pose, self.before = 1, (0.0, p_WR, q_WR)
         return [(self.params.pose_delay_s, 0, _pose(self.params, 0.0, p_WR, q_WR))]
 
-    def of(self, samples: StreamSamples, last: bool = False
-           ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
-        """Messages of ``samples`` (``last``: the path's end, which has a pose of its own)."""
+    def of(self, samples: StreamSamples) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
+        """Messages of ``samples``, the poses up to the last of them."""
         params, out = self.params, []
         f0, m0 = samples.f0_n, samples.m0_nm
         if params.noise_force_n:
@@ -608,12 +618,12 @@ class CommandedMessages:
                 frame_ids=[self.frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])))
             self.seq += 1
         out += [(t + params.pose_delay_s, 0, _pose(params, t, p, q))
-                for t, p, q in self._poses(samples, last)]
+                for t, p, q in self._poses(samples)]
         if len(samples.t):
             self.before = (float(samples.t[-1]), samples.p_WR[-1], samples.q_WR[-1])
         return sorted(out, key=lambda e: (e[0], e[1]))
 
-    def _poses(self, samples: StreamSamples, last: bool
+    def _poses(self, samples: StreamSamples
                ) -> list[tuple[float, FloatArray, FloatArray]]:
         new = samples.t > self.before[0] if self.before is not None else samples.t >= 0
         if not self.params.pose_rate_hz:  # the start's pose is out already
@@ -631,8 +641,10 @@ class CommandedMessages:
             self.next_pose = int(grid[-1]) + 1
         at = grid * period
         at = at[at > t[0]]
-        if last and (not len(at) or at[-1] < t[-1]):
+        if not len(at) or at[-1] < t[-1]:
             at = np.append(at, t[-1])
+            # a grid time that is t[-1] but for round-off is this pose: not a second one
+            self.next_pose = max(self.next_pose, int(np.floor(t[-1] / period + 1e-6)) + 1)
         _, p, rotations = path.at(at)
         return list(zip(at.tolist(), p, rotations.as_quat(), strict=True))
 
@@ -643,7 +655,7 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
     -1 when ``wait_for`` timed out."""
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
                                      hwm=DEFAULT_HWM * 10)
-    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.wait_for,
+    poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.pose_waits,
                                   hwm=DEFAULT_HWM * 10)
     commands = node.create_subscriber({params.path_topic: PathSegment})
     scene = load_scene(params.scene)
@@ -652,9 +664,8 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
     p0, q0 = scene.path.p_WR[0], scene.path.R_WR[0].as_quat()
     path = CommandedPath(limits, p0, q0)
     out = CommandedMessages(scene, params)
-    for topic in (params.topic, params.pose_topic):
-        if params.wait_for and not node.wait_for_subscribers(topic, params.wait_for,
-                                                             params.wait_timeout_s):
+    for topic, names in ((params.topic, params.wait_for), (params.pose_topic, params.pose_waits)):
+        if names and not node.wait_for_subscribers(topic, names, params.wait_timeout_s):
             return -1
     node.set_state("running", f"{len(scene.whiskers)} whisker(s) commanded on "
                    f"{node.resolve(params.path_topic)}")
@@ -706,12 +717,13 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
         p, q = path.take(COMMAND_CHUNK)
         stream.extend(np.arange(taken, taken + len(p)) / params.path_rate_hz, p, q)
         taken += len(p)
-        # the queue ran empty: the robot stops there, every sample up to it goes out, and the
-        # pose where it stands (off the pose_rate_hz grid: the poses then cover every wrench)
-        if not publish(out.of(stream.advance(hold=bool(path.queued)), last=not path.queued)):
+        # the queue ran empty: the robot stops there and every sample up to it goes out; each
+        # batch ends with a pose at its last sample (off the pose_rate_hz grid: the poses cover
+        # every wrench published, and where the robot stands)
+        if not publish(out.of(stream.advance(hold=bool(path.queued)))):
             break
     if not node.stop_requested:
-        publish(out.of(stream.finish(), last=True))
+        publish(out.of(stream.finish()))
     wrenches.publish_end_of_stream(node.fqn)
     poses.publish_end_of_stream(node.fqn)
     log.info("%s: %d messages and EndOfStream on %s and %s; %s", node.fqn, count,
@@ -763,6 +775,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if sent < 0:
             node.set_state("error", "downstream not ready or replay failed")
             return 1
+        # the stream's tail (its EndOfStream too) still queued for a subscriber behind it (a
+        # bag played as fast as possible) gets up to wait_timeout_s to leave, unless stopped
+        node.close(drain_s=1.0 if node.stop_requested else params.wait_timeout_s)
     return 0
 
 

@@ -34,12 +34,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
 from scipy.signal import fftconvolve
 from scipy.spatial.transform import Rotation
 from skimage.graph import MCP_Geometric
 
 from vibrissa.frames import Transform
-from vibrissa.planning.free_space import UNKNOWN, FreeSpace
+from vibrissa.planning.free_space import OCCUPIED, UNKNOWN, FreeSpace
 from vibrissa.scene import Whisker
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,6 +65,9 @@ class ExploreSettings:
         A goal's gain is divided by one plus its route's length over this, m.
     surface_weight
         Gain of an unknown-part mesh vertex within reach, in unknown cells.
+    object_weight, object_ring_m
+        Extra gain of an unknown cell within ``object_ring_m`` of an occupied one (a touched
+        object goes on there), in unknown cells.
     lane_spacing_m
         Distance between the lawnmower's lanes, m; 0: the rods' reach.
     height_tol_m
@@ -75,6 +79,8 @@ class ExploreSettings:
     cell_m: float = 0.004
     detour_m: float = 0.1
     surface_weight: float = 4.0
+    object_weight: float = 4.0
+    object_ring_m: float = 0.01
     lane_spacing_m: float = 0.0
     height_tol_m: float = 0.005
 
@@ -86,7 +92,8 @@ class ExploreSettings:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name!r} must be a finite number > 0, got {value!r}")
-        for name in ("surface_weight", "lane_spacing_m", "height_tol_m"):
+        for name in ("surface_weight", "object_weight", "object_ring_m", "lane_spacing_m",
+                     "height_tol_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name!r} must be a finite number >= 0, got {value!r}")
@@ -226,6 +233,7 @@ class Explorer:
         reachable = np.isfinite(route_m) & (route_m <= left)
         goal = self._goal(reachable, route_m, here[0])
         if goal is None:
+            self.done_because += f" within the {left:.3f} m of budget left"
             return None
         cells = np.array(mcp.traceback(tuple(goal)), dtype=np.int64)
         return self._route_and_look(X_WR, cells)
@@ -253,7 +261,12 @@ class Explorer:
         radius = int(math.ceil(self.reach_m / self.settings.cell_m))
         di, dj = np.mgrid[-radius:radius + 1, -radius:radius + 1]
         disc = (np.hypot(di, dj) * self.settings.cell_m <= self.reach_m).astype(np.float64)
-        counts = (self.space.state == UNKNOWN).astype(np.float64)
+        unknown = self.space.state == UNKNOWN
+        counts = unknown.astype(np.float64)
+        if self.settings.object_weight > 0:  # where a touched object goes on
+            ring = int(math.ceil(self.settings.object_ring_m / self.settings.cell_m))
+            near = ndimage.binary_dilation(self.space.state == OCCUPIED, iterations=ring)
+            counts += self.settings.object_weight * (near & unknown)
         surface = self._unknown_surface
         if len(surface) and self.settings.surface_weight > 0:
             level = np.min(np.abs(surface[:, 2, None] - self.heights_m[None]), axis=1)

@@ -76,15 +76,18 @@ class PoseWait:
         if len(self._poses) > MAX_HELD_POSES:
             self._on_pose(self._poses.popleft()[1])
 
-    def apply_poses(self) -> None:
+    def apply_poses(self, drained: bool = True) -> None:
         """Hand the held robot poses to ``on_pose``, in arrival order, up to the first stamped
         more than ``lead_s`` past the newest wrench that has not waited ``timeout_s`` without
-        a wrench coming."""
+        a wrench coming, the input queue ``drained`` (under a backlog the wrenches are
+        queued, not missing: a node busy with a long batch let every held pose in once, and
+        the wrenches behind them found the history moved on)."""
         limit = self._newest + self.lead_s if self.lead_s < math.inf else math.inf
         quiet_since = self._clock() - self.timeout_s
         while self._poses:
             held_since, pose = self._poses[0]
-            if pose.stamp > limit and max(held_since, self._last_wrench) > quiet_since:
+            if pose.stamp > limit and (not drained
+                                       or max(held_since, self._last_wrench) > quiet_since):
                 break
             self._poses.popleft()
             self._on_pose(pose)

@@ -237,10 +237,11 @@ class Step2Stream:
         counts["max_batch"] = max(counts["max_batch"], len(ready))
         return outcomes
 
-    def apply_poses(self) -> None:
+    def apply_poses(self, drained: bool = True) -> None:
         """Put the held poses no tick waited for into the frame buffer; call it after
-        publishing what `take` gave, so the points do not wait for it."""
-        self._wait.apply_poses()
+        publishing what `take` gave, so the points do not wait for it (``drained``: no input
+        queued behind, `PoseWait.apply_poses`)."""
+        self._wait.apply_poses(drained)
 
     def wait_s(self) -> float:
         """Seconds until the front tick times out (inf with none waiting)."""

@@ -191,3 +191,34 @@ def test_poses_on_their_own_rate_cover_every_wrench_and_end_where_the_robot_stan
     assert all(np.isfinite(p.position).all() for p in poses[:-1])
     assert poses[0].stamp <= stamps[0] and poses[-2].stamp == stamps[-1]
     np.testing.assert_array_equal(poses[-2].position, start + [0.035, 0.0, 0.0])
+
+
+@dataclass
+class OneWhenIdle(FakeCommands):
+    """The path topic of a commander that sends the next segment only once the robot
+    stands (the explorer's way: it plans where the last plan ended)."""
+
+    def receive(self, timeout_s: float) -> Delivered | None:
+        return super().receive(timeout_s) if timeout_s > 0 else None
+
+
+def test_a_robot_that_stands_between_segments_gives_one_pose_per_stamp_and_covers_its_wrenches(
+        ) -> None:
+    """Two 35 mm segments, the robot standing between them at t = 0.35 s, where the pose grid
+    (35 x 0.01 s) rounds past the sample time: the pose where it stood and the grid's next one
+    were two poses of one stamp, and the reconstructor refused the second."""
+    scene = load_scene(DEMO)
+    start, rotation = scene.path.p_WR[0], scene.path.R_WR[0].as_quat()
+    node = CommandedNode([])
+    commands = OneWhenIdle(deque([segment([start + [0.035, 0.0, 0.0]], [rotation], 1),
+                                  segment([start + [0.035, 0.0, 0.0], start + [0.07, 0.0, 0.0]],
+                                          [rotation, rotation], 2), end()]))
+    node.create_subscriber = lambda topics, **kw: commands  # type: ignore[method-assign]
+    run_commanded(node, params(pose_rate_hz=100.0))  # type: ignore[arg-type]
+    wrenches = node.publishers["wrench"].sent[:-1]
+    poses = node.publishers["/robot/pose"].sent[:-1]
+    pose_stamps = np.array([p.stamp for p in poses])
+    assert len(wrenches) > 2 * 175 and np.all(np.diff(pose_stamps) > 0)
+    wrench_stamps = np.array([w.stamp for w in wrenches])
+    assert pose_stamps[0] <= wrench_stamps.min() and wrench_stamps.max() <= pose_stamps[-1]
+    np.testing.assert_array_equal(poses[-1].position, start + [0.07, 0.0, 0.0])

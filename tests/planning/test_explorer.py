@@ -154,6 +154,7 @@ def coverages(seed: int) -> dict[str, float]:
     return coverage
 
 
+@pytest.mark.slow  # twelve explorations: about a minute
 def test_the_uncertainty_planner_covers_more_than_the_lawnmower_on_the_same_budget() -> None:
     """Over six random scenes, more on average and never less by more than 2 % (a lane may
     run along an object: the lawnmower ties one of them)."""

@@ -80,8 +80,8 @@ class PoseWait:
         """Hand the held robot poses to ``on_pose``, in arrival order, up to the first stamped
         more than ``lead_s`` past the newest wrench that has not waited ``timeout_s`` without
         a wrench coming, the input queue ``drained`` (under a backlog the wrenches are
-        queued, not missing: a node busy with a long batch let every held pose in once, and
-        the wrenches behind them found the history moved on)."""
+        queued, not missing: poses let in for them ahead of time would move the history
+        past the wrenches behind)."""
         limit = self._newest + self.lead_s if self.lead_s < math.inf else math.inf
         quiet_since = self._clock() - self.timeout_s
         while self._poses:

@@ -210,8 +210,8 @@ def test_a_signal_again_ends_at_once_and_the_launchers_sigterm_after_a_sigint_do
 def test_with_a_truth_to_measure_against_an_update_without_new_points_keeps_the_map(
         truth: dict[str, str]) -> None:
     """The truth (true_surface or a scene's objects) is the same at every update: an update
-    with no new point returns the last map, and the stop's final map refits nothing (each
-    update had been a full fit, and a stop waited for one)."""
+    with no new point (as a stop's final map is, when the last update held every point)
+    returns the last map and refits nothing."""
     if "scene" in truth:
         truth = {"scene": str(Path(launch.__file__).parent / truth["scene"])}
     params = MapperParams(out_dir="/tmp/unused", plot=False, cells=16, **truth)

@@ -220,8 +220,8 @@ def test_poses_far_ahead_of_the_wrenches_are_held_not_pushed_out_of_the_history(
     wait.apply_poses()
     assert counters["robot_poses"] == 302
     now[0] += 0.01  # held for the timeout with no wrench coming: they go in, but only once
-    wait.apply_poses(drained=False)  # no input waits behind (a node busy with a long batch
-    assert counters["robot_poses"] == 302  # let them in, and its queued wrenches had none)
+    wait.apply_poses(drained=False)  # no input waits behind (queued wrenches may need the
+    assert counters["robot_poses"] == 302  # history they would push out)
     wait.apply_poses()
     assert counters["robot_poses"] == 310
     wait.hold(pose(620.0))  # a wrench meanwhile keeps a far pose held for the timeout again

@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
@@ -48,12 +49,13 @@ def footprint_gap(obj: dict, xy: np.ndarray) -> np.ndarray:
     return np.where(inside, -gap, gap)
 
 
+@pytest.mark.timeout(1200)  # the two launches' deadlines
 def test_the_robot_explores_by_itself_never_enters_an_object_and_its_bag_replays_the_map(
         tmp_path: Path) -> None:
     out = tmp_path / "explore"
     launch = Launch(LAUNCH / "explore.yaml", f"out:={out}", f"budget_m:={BUDGET_M}",
                     domain=DOMAIN)
-    assert launch.wait(1500) == 0, launch.text()
+    assert launch.wait(700) == 0, launch.text()
     text = launch.text()
     assert "exploration ended:" in text and "'explorer' finished (exit 0)" in text, text
     report = json.loads((out / "report.json").read_text())
@@ -76,7 +78,7 @@ def test_the_robot_explores_by_itself_never_enters_an_object_and_its_bag_replays
     replay = tmp_path / "replay"
     again = Launch(LAUNCH / "robot.yaml", "mode:=replay", f"bag:={out / 'explore.mcap'}",
                    f"scene:={SCENE}", f"out:={replay}", domain=DOMAIN + 1)  # as recorded
-    assert again.wait(900) == 0, again.text()
+    assert again.wait(400) == 0, again.text()
     for ply in sorted(out.glob("*.ply")):
         assert (replay / ply.name).read_bytes() == ply.read_bytes(), ply.name
     assert json.loads((replay / "report.json").read_text())["n_points"] == report["n_points"]

@@ -35,7 +35,8 @@ Files in ``out_dir`` (for frame ``world``; another frame F gets the suffix ``_F`
 ``cloud.ply`` (points + normals), ``mesh.ply`` (every object's known mesh, with each vertex's
 position std ``std_m``), ``mesh_<object>.ply`` (one per object with a known mesh), ``map.png``
 (`vibrissa.figures.map_figure`), ``map.html`` (the same layers as a rotatable self-contained page,
-`vibrissa.figures.map_page`), ``report.json`` and ``report.txt``. Then the node exits 0 (the
+`vibrissa.figures.map_page`), ``report.json`` and ``report.txt``; the files of an earlier map of the run that the new one
+does not have are removed (`remove_stale_files`). Then the node exits 0 (the
 demo launch ends on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams
 ended without a single contact point (only the reports are written, and they say so), or
 ``EXIT_LOST_DATA`` (4) when input messages were lost (the report lists every input stream: sent,
@@ -512,6 +513,17 @@ def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
     return replace(result, objects=tuple(objects), files={k: str(v) for k, v in files.items()})
 
 
+def remove_stale_files(before: set[str], report: MapReport) -> set[str]:
+    """Remove the files of an earlier map of this run that ``report``'s map no longer has (an
+    object merged into another, a frame or object that has no known mesh now), so that the
+    folder holds one map; the files of ``report``."""
+    now = {path for frame in report.frames for path in frame.files.values()}
+    now.update(report.files.values())
+    for path in before - now:
+        Path(path).unlink(missing_ok=True)
+    return now
+
+
 def map_status(final: bool, ended_by: str | None, updates: int, n_points: int) -> str:
     """The pictures' line saying which map they show: the final one and what ended it, or a
     map so far with the time it was written (UTC)."""
@@ -607,13 +619,18 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
             for proposal in proposals:
                 proposal_pub.publish(proposal)
 
+    on_disk: set[str] = set()  # the files of the map written last
+
     def write(written: Sequence[FrameResult] | None, final: bool, ended_by: str | None,
               ) -> tuple[MapReport, list[MapMessages]]:
-        return write_outputs(acc, params, Path(params.out_dir), list(subscriber.ended_streams),
-                             subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames,
-                             written=written, final=final, ended_by=ended_by, updates=updates,
-                             update_fits=live.fits,
-                             exploration=track.result() if track is not None else None)
+        nonlocal on_disk
+        report, messages = write_outputs(
+            acc, params, Path(params.out_dir), list(subscriber.ended_streams),
+            subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames, written=written,
+            final=final, ended_by=ended_by, updates=updates, update_fits=live.fits,
+            exploration=track.result() if track is not None else None)
+        on_disk = remove_stale_files(on_disk, report)
+        return report, messages
 
     def record_coverage(frames: Sequence[FrameMap]) -> None:
         if track is not None:  # the coverage of frame world's known mesh (none: no vertex)

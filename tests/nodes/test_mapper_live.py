@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from vibrissa import launch
-from vibrissa.mapping import Accumulator, LiveMap
+from vibrissa.mapping import Accumulator, FrameResult, LiveMap, MapReport
 from vibrissa.msgs import (
     ContactPhase,
     ContactPointArray,
@@ -25,7 +25,13 @@ from vibrissa.msgs import (
     NodeStatus,
     SurfaceMesh,
 )
-from vibrissa.nodes.mapper import MapperParams, fit_frames, receive, write_outputs
+from vibrissa.nodes.mapper import (
+    MapperParams,
+    fit_frames,
+    receive,
+    remove_stale_files,
+    write_outputs,
+)
 from vibrissa.wire import STATUS_TOPIC, Endpoints, Publisher, Subscriber
 
 TOPIC = "/w/contact"
@@ -223,3 +229,22 @@ def test_with_a_truth_to_measure_against_an_update_without_new_points_keeps_the_
     again = fit_frames(acc, params, live, final=False)
     assert [a is b for a, b in zip(first, again, strict=True)] == [True]
     assert live.fits["unchanged"] == 1 and live.fits["clustered"] == 1
+
+
+def test_a_map_without_an_object_of_the_one_before_removes_that_objects_file(
+        tmp_path: Path) -> None:
+    def report(*objects: str) -> MapReport:
+        files = {f"mesh_{name}": str(tmp_path / f"mesh_{name}.ply") for name in objects}
+        frame = FrameResult("world", 10, "gp", 3, 1, None,
+                            files={"cloud": str(tmp_path / "cloud.ply"), **files})
+        return MapReport(10, (), (frame,), files={"report_json": str(tmp_path / "report.json")})
+
+    kept = tmp_path / "notes.txt"  # not the mapper's
+    for path in ("cloud.ply", "mesh_a.ply", "mesh_a-2.ply", "report.json", "notes.txt"):
+        (tmp_path / path).write_text("x")
+    on_disk = remove_stale_files(set(), report("a", "a-2"))
+    assert len(on_disk) == 4 and (tmp_path / "mesh_a-2.ply").exists()
+    on_disk = remove_stale_files(on_disk, report("a"))  # a-2 merged into a
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "cloud.ply", "mesh_a.ply", "notes.txt", "report.json"]
+    assert kept.exists() and len(on_disk) == 3

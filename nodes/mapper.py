@@ -35,9 +35,9 @@ Files in ``out_dir`` (for frame ``world``; another frame F gets the suffix ``_F`
 ``cloud.ply`` (points + normals), ``mesh.ply`` (every object's known mesh, with each vertex's
 position std ``std_m``), ``mesh_<object>.ply`` (one per object with a known mesh), ``map.png``
 (`vibrissa.figures.map_figure`), ``map.html`` (the same layers as a rotatable self-contained page,
-`vibrissa.figures.map_page`), ``report.json`` and ``report.txt``; the files of an earlier map of the run that the new one
-does not have are removed (`remove_stale_files`). Then the node exits 0 (the
-demo launch ends on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams
+`vibrissa.figures.map_page`), ``report.json`` and ``report.txt``; the files of an earlier map of
+the run that the new one does not have are removed (`remove_stale_files`). Then the node exits 0
+(the demo launch ends on it with ``on_exit: shutdown``), or ``EXIT_EMPTY_MAP`` (3) when the streams
 ended without a single contact point (only the reports are written, and they say so), or
 ``EXIT_LOST_DATA`` (4) when input messages were lost (the report lists every input stream: sent,
 received, lost) or points were dropped beyond ``max_points`` / ``max_frames``, unless

@@ -53,6 +53,7 @@ __all__ = [
     "BagReader",
     "BagRecord",
     "BagWriter",
+    "PACE_EVERY",
     "PlayResult",
     "check_bag_file",
     "TopicInfo",
@@ -66,6 +67,8 @@ MSGPACK_ENCODING = "msgpack"
 JSON_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
 VERSION_KEY = "x-vibrissa-version"
+PACE_EVERY = 250
+"""Messages between two calls of `play_bag`'s ``pace`` when played as fast as possible."""
 _MAGIC = b"\x89MCAP0\r\n"
 _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary_start, summary_offset_start, crc
 _PROFILE = ""  # no well-known profile fits; Foxglove reads jsonschema + json without one
@@ -737,6 +740,7 @@ def play_bag(
     make_publisher: Callable[[str, MessageTypes, int], Publisher] | None = None,
     ready: Callable[[dict[str, Publisher]], bool] | None = None,
     drain_s: float = 2.0,
+    pace: Callable[[int], bool] | None = None,
 ) -> PlayResult:
     """Publish a bag's messages with their original bytes (``publish_raw``) and timing.
 
@@ -770,6 +774,11 @@ def play_bag(
     drain_s
         Linger of the default publishers at close, s: queued messages get this long to
         leave once the context terminates.
+    pace
+        With ``rate=None``: called with the number of messages published so far every
+        `PACE_EVERY` messages, before the next; may block until the subscribers caught up
+        (messages beyond a subscriber's queue in the proxy are dropped) and returns False to
+        stop.
     """
     if rate is not None and not (rate > 0 and math.isfinite(rate)):
         raise ValueError(f"rate must be finite and > 0, or None (as fast as possible), got {rate}")
@@ -805,6 +814,7 @@ def play_bag(
             return result
         t_wall0 = time.monotonic()
         t_bag0: int | None = None
+        sent = 0
         for rec in reader:
             if t_bag0 is None:
                 t_bag0 = rec.log_time_ns
@@ -813,11 +823,13 @@ def play_bag(
                 if wait_event(stop, due - time.monotonic()):
                     result.interrupted = True
                     break
-            elif stop.is_set():
+            elif stop.is_set() or (pace is not None and sent and not sent % PACE_EVERY
+                                   and not pace(sent)):
                 result.interrupted = True
                 break
             publishers[rec.topic].publish_raw(rec.payload)
             result.published[rec.topic] += 1
+            sent += 1
         result.wall_s = time.monotonic() - t_wall0
         reader.report_damage("played")
         return result

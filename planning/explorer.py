@@ -233,7 +233,10 @@ class Explorer:
         reachable = np.isfinite(route_m) & (route_m <= left)
         goal = self._goal(reachable, route_m, here[0])
         if goal is None:
-            self.done_because += f" within the {left:.3f} m of budget left"
+            self.done_because = (
+                f"budget spent ({self.travelled_m:.3f} m; the {left:.3f} m left is less than "
+                "a cell)" if left < self.settings.cell_m
+                else f"{self.done_because} within the {left:.3f} m of budget left")
             return None
         cells = np.array(mcp.traceback(tuple(goal)), dtype=np.int64)
         return self._route_and_look(X_WR, cells)

@@ -112,6 +112,9 @@ def test_the_body_never_enters_an_object_and_the_exploration_ends_within_its_bud
     assert clearance > 0, clearance
     assert explorer.travelled_m <= settings.budget_m + 2 * settings.cell_m
     assert explorer.done_because and plans >= 2
+    left = settings.budget_m - explorer.travelled_m
+    assert explorer.done_because.startswith("budget spent") == (left < settings.cell_m), (
+        explorer.done_because, left)
     assert purposes[0] == "route of 0 leg(s), then a look"  # it looks before it moves
     state = explorer.space.state
     assert (state == FREE).mean() > 0.3  # it went somewhere

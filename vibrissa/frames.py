@@ -228,12 +228,9 @@ class PoseSamples:
         (`quaternion_slerp`: scipy's Slerp costs 0.4 ms a call, the path of a simulation asks
         for thousands)."""
         t = np.asarray(t, dtype=float).reshape(-1)
-        if np.any(~(t >= self.t[0])) or np.any(~(t <= self.t[-1])):
+        if not (t.min(initial=self.t[0]) >= self.t[0] and t.max(initial=self.t[0]) <= self.t[-1]):
             raise ValueError(f"t outside the samples [{self.t[0]}, {self.t[-1]}]: no extrapolation")
-        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 2)
-        frac = (t - self.t[k]) / (self.t[k + 1] - self.t[k])
-        p = self.p_AB[k] + frac[:, None] * (self.p_AB[k + 1] - self.p_AB[k])
-        return p, quaternion_slerp(self._q[k], self._q[k + 1], frac)
+        return sampled_poses(self.t, self.p_AB, self._q, t)
 
 
 def interpolate(X_a: Transform, X_b: Transform, t: float) -> Transform:
@@ -368,6 +365,24 @@ def quaternion_slerp(q0_xyzw: FloatArray, q1_xyzw: FloatArray, fraction: FloatAr
         out[i, 2] = w0 * ez + ew * z0 + x0 * ey - y0 * ex
         out[i, 3] = w0 * ew - x0 * ex - y0 * ey - z0 * ez
     return out
+
+
+@compiled
+def sampled_poses(t_s: FloatArray, p_s: FloatArray, q_s: FloatArray, t: FloatArray
+                  ) -> tuple[FloatArray, FloatArray]:
+    """Positions (n, 3) and quaternions (n, 4) at times ``t`` (n,) within samples at increasing
+    ``t_s`` (N,) of positions ``p_s`` (N, 3) and unit quaternions ``q_s`` (N, 4): position
+    linear, orientation `quaternion_slerp` between the two samples around each time."""
+    n, last = t.shape[0], t_s.shape[0] - 2
+    k = np.minimum(np.maximum(np.searchsorted(t_s, t, side="right") - 1, 0), last)
+    frac = np.empty(n)
+    p = np.empty((n, 3))
+    for i in range(n):
+        a = k[i]
+        frac[i] = (t[i] - t_s[a]) / (t_s[a + 1] - t_s[a])
+        for j in range(3):
+            p[i, j] = p_s[a, j] + frac[i] * (p_s[a + 1, j] - p_s[a, j])
+    return p, quaternion_slerp(q_s[k], q_s[k + 1], frac)
 
 
 @compiled

@@ -501,16 +501,24 @@ def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
         files[f"mesh_{obj.name}"] = target
         objects[k] = replace(obj, files={"mesh": str(target)})
     if params.plot:
-        world = frame_id == SCENE_FRAME
-        layers = map_layers(frame, params.world if world else None, status,
-                            exploration.coverage if world and exploration is not None else None)
-        files["png"] = out_dir / f"map{sfx}.png"
-        with whole_file(files["png"]) as partial:
-            plot_map(partial, layers)
-        files["html"] = out_dir / f"map{sfx}.html"
-        with whole_file(files["html"]) as partial:
-            write_page(partial, layers)
+        files.update(write_pictures(frame, params, out_dir, status, exploration))
     return replace(result, objects=tuple(objects), files={k: str(v) for k, v in files.items()})
+
+
+def write_pictures(frame: FrameMap, params: MapperParams, out_dir: Path, status: str,
+                   exploration: Exploration | None = None) -> dict[str, Path]:
+    """A mapped frame's map.png and map.html with the line ``status`` (`write_frame_files`)."""
+    frame_id = frame.result.frame_id
+    world = frame_id == SCENE_FRAME
+    layers = map_layers(frame, params.world if world else None, status,
+                        exploration.coverage if world and exploration is not None else None)
+    files = {"png": out_dir / f"map{_suffix(frame_id)}.png",
+             "html": out_dir / f"map{_suffix(frame_id)}.html"}
+    with whole_file(files["png"]) as partial:
+        plot_map(partial, layers)
+    with whole_file(files["html"]) as partial:
+        write_page(partial, layers)
+    return files
 
 
 def remove_stale_files(before: set[str], report: MapReport) -> set[str]:
@@ -545,7 +553,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     file whole; returns (report, messages).
 
     ``frames`` are its frames mapped (default: `fit_frames` now); ``written`` their results
-    when their files are written already (then only the reports are). ``streams`` are the input
+    when their files are written already (then only the reports are, and in the ``final`` map
+    the pictures again, after the reports, with the final map's line). ``streams`` are the input
     streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
     input messages lost in all and ``upstream`` what the nodes before the map moved
     (`vibrissa.runtime.traffic`), for the report; ``final``, ``ended_by`` and ``updates`` go
@@ -579,8 +588,14 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
     with whole_file(report_txt) as partial:
         partial.write_text(report.text())
+    if written is not None and final and params.plot:  # the pictures say "map so far"
+        for frame in frames:
+            write_pictures(frame, params, out_dir,
+                           map_status(final, ended_by, updates, acc.n_points), exploration)
     log.info("wrote the %s map (%s) in %.1f s", "final" if final else "periodic",
-             "reports" if written is not None else "files and reports", time.monotonic() - t0)
+             "files and reports" if written is None
+             else "reports and pictures" if final and params.plot else "reports",
+             time.monotonic() - t0)
     return report, [map_messages(frame, acc.frames[frame.result.frame_id].stamp)
                     for frame in frames]
 

@@ -248,3 +248,23 @@ def test_a_map_without_an_object_of_the_one_before_removes_that_objects_file(
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "cloud.ply", "mesh_a.ply", "notes.txt", "report.json"]
     assert kept.exists() and len(on_disk) == 3
+
+
+def test_a_final_map_whose_files_are_written_already_gets_pictures_that_say_final(
+        tmp_path: Path) -> None:
+    """A stop after an update that held every point writes only the reports again, and the
+    pictures with the final map's line (they said "map so far")."""
+    params = MapperParams(out_dir=str(tmp_path), cells=16)
+    acc = Accumulator(1)
+    for i in range(60):
+        receive(acc, contact(i))
+    frames = fit_frames(acc, params, LiveMap(), final=False)
+    periodic, _ = write_outputs(acc, params, tmp_path, frames=frames, final=False,
+                                ended_by=None, updates=1)
+    assert "map so far" in (tmp_path / "map.html").read_text()
+    cloud = (tmp_path / "cloud.ply").stat().st_mtime_ns
+    write_outputs(acc, params, tmp_path, frames=frames, written=periodic.frames, final=True,
+                  ended_by="stop", updates=1)
+    assert "final map (ended by stop): 60 contact points" in (tmp_path / "map.html").read_text()
+    assert (tmp_path / "cloud.ply").stat().st_mtime_ns == cloud  # not written again
+    assert json.loads((tmp_path / "report.json").read_text())["ended_by"] == "stop"

@@ -24,7 +24,6 @@ from vibrissa.mapping.objects import (
     contact_normals,
     join_convex,
     line_spacing,
-    load_open3d,
     split_lines,
     whisker_lines,
 )
@@ -51,6 +50,6 @@ __all__ = [
     "ObjectSurface", "Proposal", "TrueObject", "WhiskerCount", "cluster_points",
     "contact_normals", "coverage_samples", "estimate_surface", "fit_frame", "is_covariance",
     "join_convex",
-    "line_spacing", "load_open3d", "map_cloud", "name_objects", "propose_sections", "split_lines",
+    "line_spacing", "map_cloud", "name_objects", "propose_sections", "split_lines",
     "too_little_for_a_surface", "whisker_lines",
 ]

@@ -216,12 +216,6 @@ class Clusters:
         return int(self.labels.max()) + 1 if len(self.labels) else 0
 
 
-def load_open3d() -> None:
-    """Import Open3D now (3-6 s on two busy cores), so that the first clustering (`cluster_points`)
-    does not pay for it: a live map's first update would."""
-    import open3d  # noqa: F401
-
-
 def cluster_points(points: FloatArray, lines: IntArray, eps: float = 0.0,
                    min_points: int = MIN_POINTS) -> Clusters:
     """Objects of a contact cloud by DBSCAN (Open3D), labels deterministic (see module).

@@ -137,7 +137,6 @@ from vibrissa.mapping import (
     TrueObject,
     UpstreamNode,
     fit_frame,
-    load_open3d,
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
 from vibrissa.mapping.coverage import COVERAGE_TOL_M, coverage_samples
@@ -626,8 +625,6 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                                         wait_for=params.wait_for)
     publishers = (cloud_pub, mesh_pub, unknown_pub, proposal_pub)
     live = LiveMap()
-    node.set_state("starting", "loading Open3D")
-    load_open3d()  # here, while the first contacts queue, not in the first update
 
     def publish(messages: list[MapMessages]) -> None:
         for cloud, mesh, unknown_mesh, proposals in messages:

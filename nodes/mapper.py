@@ -52,7 +52,8 @@ rewritten, each whole, at most every ``write_period_s``, with ``"final": false``
 (``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) holds every point
 received. When the streams ended or fell silent it is the one of a single fit (`LiveMap.final`,
 bit for bit): the last update when it is that already (then only the reports are rewritten when
-its files are written), else the objects that changed fitted again. On a stop it is the live
+its files are written), else the objects that changed fitted again; the points no update held
+go out first in one more update (published only). On a stop it is the live
 map (`LiveMap.update`: the last update when it holds every point, else one more), so that it is
 written within the launcher's grace; Open3D is loaded before the node joins the graph, not in
 its first update. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
@@ -733,7 +734,17 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
             log.warning("%s: stopped before the end of the streams: writing the final map of "
                         "the %d contact points received (sources ended: %s)", node.fqn,
                         acc.n_points, ", ".join(sorted(acc.ended)) or "none")
-        else:  # every node's status after the ends
+        else:
+            if updates and acc.n_points > fitted:
+                # what came since the last update goes out at once, in an update (the grown
+                # objects conditioned on their new points: a fraction of the final fit's time)
+                frames, fitted, written = fit_frames(acc, params, live, final=False), \
+                    acc.n_points, None
+                updates += 1
+                record_coverage(frames)
+                publish([map_messages(frame, acc.frames[frame.result.frame_id].stamp)
+                         for frame in frames])
+            # every node's status after the ends
             settle = time.monotonic() + 2 * node.heartbeat_s
             while time.monotonic() < settle and not node.stop_requested:
                 rx = subscriber.receive(0.05)

@@ -47,6 +47,16 @@ def contact(i: int) -> ContactPointArray:
                              status=[ContactStatus.OK])
 
 
+def contacts(first: int, end: int) -> ContactPointArray:
+    """Contacts first..end-1 (`contact`) in one message, stamped with the last one's."""
+    rows = [contact(i) for i in range(first, end)]
+    return ContactPointArray(
+        stamp=rows[-1].stamp, seq=first, whisker_ids=[r.whisker_ids[0] for r in rows],
+        frame_id="world", point=[r.point[0] for r in rows], s1=[0.5] * len(rows),
+        phase=[ContactPhase.TIP] * len(rows), force=[[0.0, 0.0, 1.0]] * len(rows),
+        status=[ContactStatus.OK] * len(rows))
+
+
 def start_mapper(tmp_path: Path, endpoints: Endpoints, *params: str) -> subprocess.Popen[str]:
     words = [w for p in [f"topics:=[{TOPIC}]", f"out_dir:={tmp_path}", "plot:=false",
                          "cells:=16", f"map_period_s:={MAP_PERIOD_S}", "write_period_s:=2",
@@ -191,6 +201,47 @@ def test_silence_or_the_end_of_the_streams_writes_the_final_map_ended_by_it(
     assert {k for k in want if k not in ("files", "objects") and got[k] != want[k]} == set()
     assert ([dict(o, files=None) for o in got["objects"]]
             == [dict(o, files=None) for o in want["objects"]])  # each its mesh file of its own
+
+
+def test_points_no_update_held_go_out_in_an_update_at_the_end_before_the_final_map(
+    tmp_path: Path, endpoints: Endpoints
+) -> None:
+    """An update after the first 60 points, then none for a long map_period_s: at the end of the
+    stream the 6 more are published in one more update (conditioned on them), then the final
+    map (a full fit)."""
+    mapper = start_mapper(tmp_path, endpoints, "map_period_s:=3600")
+    stamps: list[float] = []
+    try:
+        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses, \
+                Subscriber({"/surface_mesh": SurfaceMesh}, endpoints) as meshes:
+            wait_heard(pub, statuses)
+            pub.publish(contacts(0, 60))  # one message: the first update holds them all
+            deadline = time.monotonic() + 120
+            while not stamps and time.monotonic() < deadline:  # the first update's mesh
+                rx = meshes.receive(0.1)
+                if rx is not None:
+                    stamps.append(rx.msg.stamp)
+            if not stamps:
+                mapper.kill()
+                pytest.fail(f"no first update: {mapper.communicate()[0]}")
+            pub.publish(contacts(60, 66))
+            pub.publish_end_of_stream("/test")
+            rc, out = finish(mapper)
+            rx = meshes.receive(5.0)
+            while rx is not None:
+                if isinstance(rx.msg, SurfaceMesh):  # not its EndOfStream
+                    stamps.append(rx.msg.stamp)
+                rx = meshes.receive(0.5)
+    finally:
+        if mapper.poll() is None:
+            mapper.kill()
+    assert rc == 0, out
+    final = read_report(tmp_path / "report.json")
+    assert final is not None and final["n_points"] == 66
+    assert final["updates"] == 3, final["update_fits"]  # the first, the end's, the final map
+    assert final["update_fits"]["conditioned"] == 1, final["update_fits"]
+    assert stamps == [59.0, 65.0, 65.0], stamps
 
 
 def test_a_signal_again_ends_at_once_and_the_launchers_sigterm_after_a_sigint_does_not() -> None:

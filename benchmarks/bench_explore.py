@@ -56,7 +56,8 @@ def random_objects(rng: np.random.Generator, n: int, workspace: list[list[float]
                    "quaternion_xyzw": [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]}
         else:  # below z = h - a (x^2 + y^2), footprint radius `size`
             height = float(rng.uniform(0.03, 0.05))
-            obj = {"shape": shape, "a_per_m": height / size**2, "b_per_m": height / size**2,
+            a_per_m = height / size**2
+            obj = {"shape": shape, "a_per_m": a_per_m, "b_per_m": a_per_m,
                    "h_m": -height, "position_m": [*centre, 0.0],
                    "quaternion_xyzw": [1.0, 0.0, 0.0, 0.0]}
         objects.append({"name": name, **obj})

@@ -103,3 +103,24 @@ def test_pose_samples_interpolate_between_uneven_samples_and_never_extrapolate()
             samples.at([outside])
     with pytest.raises(ValueError, match="strictly increasing"):
         PoseSamples(np.array([0.0, 0.0]), np.zeros((2, 3)), Rotation.identity(2))
+
+
+def test_pose_samples_of_random_rotations_are_scipys_slerp_and_linear_positions() -> None:
+    """Against scipy's Slerp (an independent implementation: log and exp of the relative
+    rotation) on uneven times, including rotations of opposite quaternion sign."""
+    from scipy.spatial.transform import Slerp
+
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.1, 2.0, 12))
+    rotations = Rotation.random(12, random_state=8)
+    q = rotations.as_quat()
+    q[::3] *= -1.0  # the same rotations, the other sign
+    p = rng.normal(size=(12, 3))
+    samples = PoseSamples(t, p, Rotation.from_quat(q))
+    at = np.concatenate([t, rng.uniform(t[0], t[-1], 200)])
+    got_p, got_R = samples.at(at)
+    np.testing.assert_allclose(got_R, Slerp(t, rotations)(at).as_matrix(), atol=1e-14)
+    k = np.clip(np.searchsorted(t, at, side="right") - 1, 0, len(t) - 2)
+    share = (at - t[k]) / (t[k + 1] - t[k])
+    np.testing.assert_allclose(got_p, p[k] + share[:, None] * (p[k + 1] - p[k]), atol=1e-14)
+    assert np.allclose(samples.poses_at(at)[1].as_matrix(), got_R, atol=1e-15)

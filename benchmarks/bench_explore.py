@@ -65,6 +65,14 @@ def random_objects(rng: np.random.Generator, n: int, workspace: list[list[float]
     return objects
 
 
+def random_scene(rng: np.random.Generator, n: int) -> dict[str, Any]:
+    """The default scene with ``n`` random objects (`random_objects`) instead of its own, clear
+    of the start's body and rods by 30 mm."""
+    base = yaml.safe_load(SCENE.read_text())
+    clear_m = base["explore"]["body_radius_m"] + max(w["length_m"] for w in base["whiskers"]) + 0.03
+    return {**base, "objects": random_objects(rng, n, base["explore"]["workspace_m"], clear_m)}
+
+
 def explore(scene: Path, planner: str, budget_m: float, out: Path) -> dict[str, Any]:
     """One exploration in real processes; its report's exploration and the wall time."""
     start = time.monotonic()
@@ -89,15 +97,12 @@ def main() -> None:
     parser.add_argument("--budget", type=float, default=0.3)
     parser.add_argument("--default", action="store_true", help="the shipped scene too")
     args = parser.parse_args()
-    base = yaml.safe_load(SCENE.read_text())
     rng = np.random.default_rng(args.seed)
-    clear_m = base["explore"]["body_radius_m"] + max(w["length_m"] for w in base["whiskers"]) + 0.03
     work = Path(tempfile.mkdtemp(prefix="bench-explore-"))
     scenes = [("default", SCENE)] if args.default else []
     for k in range(args.scenes):
         path = work / f"scene{k}.yaml"
-        scene = {**base, "objects": random_objects(rng, args.objects,
-                                                   base["explore"]["workspace_m"], clear_m)}
+        scene = random_scene(rng, args.objects)
         path.write_text(yaml.safe_dump(scene, sort_keys=False))
         scenes.append((f"random {k} ({', '.join(o['name'] for o in scene['objects'])})", path))
     print(f"budget {args.budget} m, seed {args.seed}, scenes in {work}")

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from benchmarks.bench_explore import random_objects
-from tests.system.test_explore import LAUNCH, SCENE, footprint_gap
+from benchmarks.bench_explore import random_scene
+from tests.system.test_explore import LAUNCH, footprint_gap
 from tests.system.test_first_hour import Launch
 from vibrissa.msgs import RobotPose
 from vibrissa.msgs.codec import decode
@@ -28,11 +28,7 @@ BUDGET_M = 0.25
 @pytest.mark.timeout(1500)
 def test_on_random_objects_the_uncertainty_planner_covers_more_than_the_lawnmower(
         tmp_path: Path) -> None:
-    base = yaml.safe_load(SCENE.read_text())
-    clear_m = (base["explore"]["body_radius_m"] + max(w["length_m"] for w in base["whiskers"])
-               + 0.03)
-    scene = {**base, "objects": random_objects(np.random.default_rng(1), 3,
-                                               base["explore"]["workspace_m"], clear_m)}
+    scene = random_scene(np.random.default_rng(1), 3)
     path = tmp_path / "scene.yaml"
     path.write_text(yaml.safe_dump(scene, sort_keys=False))
     coverage = {}
@@ -53,6 +49,6 @@ def test_on_random_objects_the_uncertainty_planner_covers_more_than_the_lawnmowe
                  if r.topic == "/robot/pose"]
         xy = np.array([p.position[:2] for p in poses if isinstance(p, RobotPose)])
         for obj in scene["objects"]:
-            assert footprint_gap(obj, xy).min() > base["explore"]["body_radius_m"], (
+            assert footprint_gap(obj, xy).min() > scene["explore"]["body_radius_m"], (
                 planner, obj["name"])
     assert coverage["uncertainty"] > coverage["lawnmower"] + 0.05, coverage

@@ -210,6 +210,11 @@ class PoseSamples:
         object.__setattr__(self, "p_AB", p)
         object.__setattr__(self, "_q", np.ascontiguousarray(self.rotations.as_quat()))
 
+    @property
+    def quaternions(self) -> FloatArray:
+        """The samples' orientations as unit quaternions (N, 4) (x, y, z, w), contiguous."""
+        return self._q
+
     def at(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Positions (n, 3) and rotation matrices (n, 3, 3) at times ``t`` (n,); ValueError
         outside the samples."""
@@ -336,6 +341,23 @@ def mounted_poses(p_TA: FloatArray, q_TA_xyzw: FloatArray, p_AC: FloatArray, q_A
         q_out[i, 2] = aw * bz + bw * az + ax * by - ay * bx
         q_out[i, 3] = aw * bw - ax * bx - ay * by - az * bz
     return p_out, q_out
+
+
+@compiled
+def quaternion_turns(q_xyzw: FloatArray) -> FloatArray:
+    """Angles (N-1,) of the rotations from each of unit quaternion rows (N, 4) to the next, rad,
+    in [0, pi]: the magnitude of q_i^-1 q_(i+1), as scipy's ``(R[:-1].inv() * R[1:]).magnitude()``."""
+    n = q_xyzw.shape[0]
+    out = np.empty(max(n - 1, 0))
+    for i in range(n - 1):
+        x0, y0, z0, w0 = q_xyzw[i, 0], q_xyzw[i, 1], q_xyzw[i, 2], q_xyzw[i, 3]
+        x1, y1, z1, w1 = q_xyzw[i + 1, 0], q_xyzw[i + 1, 1], q_xyzw[i + 1, 2], q_xyzw[i + 1, 3]
+        dx = w0 * x1 - w1 * x0 - (y0 * z1 - z0 * y1)
+        dy = w0 * y1 - w1 * y0 - (z0 * x1 - x0 * z1)
+        dz = w0 * z1 - w1 * z0 - (x0 * y1 - y0 * x1)
+        dw = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
+        out[i] = 2.0 * math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), abs(dw))
+    return out
 
 
 @compiled

@@ -18,8 +18,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
-from vibrissa.surfaces import Surface
+from vibrissa.compiled import compiled
+from vibrissa.frames import (
+    PoseSamples,
+    Transform,
+    non_unit_quaternion,
+    quaternion_matrices,
+    quaternion_turns,
+    sampled_poses,
+)
+from vibrissa.surfaces import Surface, line_interval_body
 
 if TYPE_CHECKING:
     from scipy.spatial.transform import Rotation
@@ -38,7 +46,7 @@ def rod_motion(p_WR: FloatArray, rotations: Rotation, mount: Transform) -> Float
     """A bound on how far a point of the straight rod moves between consecutive samples (N-1,),
     units of L: a point at most |p_RC| + 1 from R's origin moves at most
     |dp_WR| + |dtheta| (|p_RC| + 1)."""
-    turn = (rotations[:-1].inv() * rotations[1:]).magnitude()
+    turn = quaternion_turns(np.ascontiguousarray(rotations.as_quat()))
     reach = float(np.linalg.norm(mount.translation)) + 1.0
     return np.asarray(np.linalg.norm(np.diff(p_WR, axis=0), axis=1) + turn * reach)
 
@@ -112,12 +120,10 @@ class SampledPath:
         outside the path (no extrapolation)."""
         lam = -np.asarray(x0, dtype=float).reshape(-1) / self.h
         last = self.n_samples - 1
-        if np.any(lam < -1e-9) or np.any(lam > last + 1e-9):
+        if len(lam) and not (lam.min() >= -1e-9 and lam.max() <= last + 1e-9):
             raise ValueError(f"x0 outside the path [{self.x_end}, 0]")
-        p_WR, R_WR = self._poses.at(np.clip(lam, 0.0, last))
-        if self.mount.is_identity:
-            return p_WR, R_WR
-        return p_WR + R_WR @ self.mount.translation, R_WR @ self.mount.R
+        return clamp_poses(np.clip(lam, 0.0, last), self._poses.t, self.p_WR,
+                           self._poses.quaternions, self.mount.translation, self.mount.R)
 
     def penetrates(self, surface: Surface, x0: FloatArray) -> NDArray[np.bool_]:
         """Whether the straight rod at ``x0`` (n,) has points inside the object."""
@@ -149,14 +155,11 @@ class SampledPath:
             lo, hi = grid[hits[0] - 1], grid[hits[0]]
         else:
             return None
-        for _ in range(_TOUCH_ITERATIONS):
-            mid = 0.5 * (lo + hi)
-            if mid in (lo, hi):
-                break
-            if self.penetrates(surface, self.x0_of(np.array([mid])))[0]:
-                hi = mid
-            else:
-                lo = mid
+        Q, linear, c, R_WB, p_WB = surface.kernel_arrays
+        hi = _touch_bisection(float(lo), float(hi), self.h, self._poses.t, self.p_WR,
+                              self._poses.quaternions,
+                              self.mount.translation, self.mount.R, Q[0], linear[0], float(c[0]),
+                              R_WB[0], p_WB[0])
         x_touch = float(self.x0_of(np.array([hi]))[0])
         p, R = (a[0] for a in self.clamp_pose(np.array([x_touch])))
         t_in, t_out = surface.line_interval(p, R[:, 2])
@@ -182,6 +185,54 @@ class SampledPath:
         """Never assumed for a general path (psi is solved for)."""
         return False
 
+
+
+@compiled
+def clamp_poses(lam: FloatArray, t_s: FloatArray, p_WR: FloatArray, q_WR: FloatArray,
+                p_RC: FloatArray, R_RC: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Clamp origins (n, 3) and R_WC (n, 3, 3) at fractional sample indices ``lam`` (n,) within
+    the samples' range: the robot's samples at ``t_s`` = 0 .. N-1 (p_WR (N, 3), unit q_WR (N, 4))
+    interpolated by `sampled_poses`, the clamp mounted at (p_RC, R_RC)."""
+    p, q = sampled_poses(t_s, p_WR, q_WR, lam)
+    R_WR = quaternion_matrices(q)[0]
+    n = lam.shape[0]
+    p_WC, R_WC = np.empty((n, 3)), np.empty((n, 3, 3))
+    for k in range(n):
+        for i in range(3):
+            p_WC[k, i] = p[k, i] + (R_WR[k, i, 0] * p_RC[0] + R_WR[k, i, 1] * p_RC[1]
+                                    + R_WR[k, i, 2] * p_RC[2])
+            for j in range(3):
+                R_WC[k, i, j] = (R_WR[k, i, 0] * R_RC[0, j] + R_WR[k, i, 1] * R_RC[1, j]
+                                 + R_WR[k, i, 2] * R_RC[2, j])
+    return p_WC, R_WC
+
+
+@compiled
+def _touch_bisection(lo: float, hi: float, h: float, t_s: FloatArray, p_WR: FloatArray,
+                     q_WR: FloatArray, p_RC: FloatArray, R_RC: FloatArray, Q: FloatArray,
+                     linear: FloatArray, c: float, R_WB: FloatArray, p_WB: FloatArray) -> float:
+    """The first fractional sample index in (lo, hi] where the straight rod (`clamp_poses`)
+    enters the object (the quadric (Q, linear, c) at (R_WB, p_WB)), by bisection to the last
+    bit: free at ``lo``, inside at ``hi``. Each index k is tried where `SampledPath.clamp_pose`
+    puts its x0 = -k h (``h`` the path's step): the touch found is inside there."""
+    lam = np.empty(1)
+    for _ in range(_TOUCH_ITERATIONS):
+        mid = 0.5 * (lo + hi)
+        if mid == lo or mid == hi:
+            break
+        lam[0] = -(-mid * h) / h  # as clamp_pose(x0_of(mid))
+        p_WC, R_WC = clamp_poses(lam, t_s, p_WR, q_WR, p_RC, R_RC)
+        a = [p_WC[0, 0] - p_WB[0], p_WC[0, 1] - p_WB[1], p_WC[0, 2] - p_WB[2]]
+        d = [R_WC[0, 0, 2], R_WC[0, 1, 2], R_WC[0, 2, 2]]
+        a_B = [a[0] * R_WB[0, j] + a[1] * R_WB[1, j] + a[2] * R_WB[2, j] for j in range(3)]
+        d_B = [d[0] * R_WB[0, j] + d[1] * R_WB[1, j] + d[2] * R_WB[2, j] for j in range(3)]
+        t_in, t_out = line_interval_body(a_B[0], a_B[1], a_B[2], d_B[0], d_B[1], d_B[2],
+                                         Q, linear, c)
+        if t_in < 1.0 and t_out > 0.0:  # the segment 0 <= t <= 1 (the rod) meets the inside
+            hi = mid
+        else:
+            lo = mid
+    return hi
 
 @dataclass(frozen=True)
 class PathLimits:
@@ -272,7 +323,7 @@ def waypoint_samples(p_start: ArrayLike, q_start_xyzw: ArrayLike, position: Arra
                    np.asarray(orientation_xyzw, dtype=float)])
     rotations = Rotation.from_quat(q)
     distance = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    turn = (rotations[:-1].inv() * rotations[1:]).magnitude()
+    turn = quaternion_turns(np.ascontiguousarray(rotations.as_quat()))
     duration = np.maximum(distance / speed_mps, turn / turn_rate_rps)
     counts = np.where(duration > 0, np.ceil(duration * rate_hz - 1e-9), 0).astype(np.int64)
     counts[(duration > 0) & (counts == 0)] = 1

@@ -11,6 +11,7 @@ Lengths are in units of the rod length L.
 from __future__ import annotations
 
 import functools
+import math
 from abc import ABC, abstractmethod
 
 import numpy as np
@@ -99,21 +100,11 @@ class Surface(ABC):
         """
         a_B = self.pose.apply_inverse(np.atleast_2d(np.asarray(a_W, dtype=float)))
         d_B = np.atleast_2d(np.asarray(d_W, dtype=float)) @ self.pose.R
+        a_B, d_B = np.broadcast_arrays(a_B, d_B)
         Q, linear, c = self._quadric()
-        qa = np.einsum("ni,ij,nj->n", d_B, Q, d_B)
-        qb = 2.0 * np.einsum("ni,ij,nj->n", a_B, Q, d_B) + d_B @ linear
-        qc = np.einsum("ni,ij,nj->n", a_B, Q, a_B) + a_B @ linear + c
-        with np.errstate(divide="ignore", invalid="ignore"):
-            root = np.sqrt(qb * qb - 4.0 * qa * qc)
-            # Stable roots of qa t^2 + qb t + qc; a line along a paraboloid's axis has qa = 0.
-            big = -0.5 * (qb + np.copysign(root, qb))
-            t1, t2 = big / qa, qc / big
-            linear = qa <= 1e-14 * (np.abs(qb) + np.abs(qc) + 1.0)
-            t_lin = -qc / qb
-            lo = np.where(linear, np.where(qb > 0, -np.inf, t_lin), np.minimum(t1, t2))
-            hi = np.where(linear, np.where(qb > 0, t_lin, np.inf), np.maximum(t1, t2))
-        never = ~np.isfinite(root) & ~linear
-        return np.where(never, np.nan, lo), np.where(never, np.nan, hi)
+        return line_intervals(np.ascontiguousarray(a_B), np.ascontiguousarray(d_B),
+                              np.ascontiguousarray(Q, dtype=float),
+                              np.ascontiguousarray(linear, dtype=float), float(c))
 
     def segment_inside(self, a_W: ArrayLike, d_W: ArrayLike) -> NDArray[np.bool_]:
         """Whether the segments a + t d, 0 <= t <= 1, have points inside the object (N,); a
@@ -173,16 +164,7 @@ class Ellipsoid(Surface):
         return np.diag(1.0 / self.radii**2), np.zeros(3), -1.0
 
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
-        # p_i = r_i^2 q_i / (r_i^2 + lam); sum (r_i q_i / (r_i^2 + lam))^2 = 1 is decreasing in lam.
-        r2 = self.radii**2
-
-        def minus_constraint(lam: FloatArray) -> FloatArray:
-            return 1.0 - np.sum((self.radii * q_B / (r2 + lam[:, None])) ** 2, axis=1)
-
-        lo = np.full(len(q_B), -r2.min() * (1.0 - 1e-15))
-        hi = self.radii.max() * np.linalg.norm(q_B, axis=1) + 1.0
-        lam = _bisect_increasing(minus_constraint, lo, hi)
-        return r2 * q_B / (r2 + lam[:, None])
+        return _ellipsoid_closest(np.ascontiguousarray(q_B, dtype=float), self.radii)
 
 
 class Sphere(Ellipsoid):
@@ -197,6 +179,73 @@ class Sphere(Ellipsoid):
 
     def _closest_point_body(self, q_B: FloatArray) -> FloatArray:
         return self.radii[0] * q_B / np.linalg.norm(q_B, axis=1, keepdims=True)
+
+
+@compiled
+def line_interval_body(ax: float, ay: float, az: float, dx: float, dy: float, dz: float,
+                       Q: FloatArray, linear: FloatArray, c: float) -> tuple[float, float]:
+    """[t_in, t_out] where the body-frame line a + t d lies inside g_B < 0 (NaN, NaN if never):
+    the stable roots of qa t^2 + qb t + qc; a line along a paraboloid's axis has qa = 0 and a
+    half-infinite interval."""
+    qa = qb_half = qc = 0.0
+    a, d = (ax, ay, az), (dx, dy, dz)
+    for i in range(3):
+        for j in range(3):
+            qa += d[i] * Q[i, j] * d[j]
+            qb_half += a[i] * Q[i, j] * d[j]
+            qc += a[i] * Q[i, j] * a[j]
+    qb = 2.0 * qb_half + d[0] * linear[0] + d[1] * linear[1] + d[2] * linear[2]
+    qc += a[0] * linear[0] + a[1] * linear[1] + a[2] * linear[2] + c
+    if qa <= 1e-14 * (abs(qb) + abs(qc) + 1.0):
+        t_lin = -qc / qb
+        return (-math.inf, t_lin) if qb > 0 else (t_lin, math.inf)
+    disc = qb * qb - 4.0 * qa * qc
+    if not disc >= 0.0:
+        return math.nan, math.nan
+    big = -0.5 * (qb + math.copysign(math.sqrt(disc), qb))
+    t1, t2 = big / qa, qc / big
+    return min(t1, t2), max(t1, t2)
+
+
+@compiled
+def line_intervals(a_B: FloatArray, d_B: FloatArray, Q: FloatArray, linear: FloatArray,
+                   c: float) -> tuple[FloatArray, FloatArray]:
+    """`line_interval_body` of the rows of a_B, d_B (N, 3): t_in (N,), t_out (N,)."""
+    n = a_B.shape[0]
+    t_in, t_out = np.empty(n), np.empty(n)
+    for k in range(n):
+        t_in[k], t_out[k] = line_interval_body(a_B[k, 0], a_B[k, 1], a_B[k, 2],
+                                               d_B[k, 0], d_B[k, 1], d_B[k, 2], Q, linear, c)
+    return t_in, t_out
+
+
+@compiled
+def _ellipsoid_closest(q_B: FloatArray, radii: FloatArray) -> FloatArray:
+    """Closest points (N, 3) on the ellipsoid of ``radii`` (3,) to points q_B (N, 3), body frame.
+
+    p_i = r_i^2 q_i / (r_i^2 + lam), and sum (r_i q_i / (r_i^2 + lam))^2 = 1 is decreasing in
+    lam above -min r_i^2: bracket and bisect, per point, to the last bit.
+    """
+    out = np.empty_like(q_B)
+    r2 = radii * radii
+    for n in range(q_B.shape[0]):
+        lo = -r2.min() * (1.0 - 1e-15)
+        hi = radii.max() * math.sqrt(q_B[n, 0] ** 2 + q_B[n, 1] ** 2 + q_B[n, 2] ** 2) + 1.0
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            inside = 0.0
+            for i in range(3):
+                inside += (radii[i] * q_B[n, i] / (r2[i] + mid)) ** 2
+            if 1.0 - inside > 0:
+                hi = mid
+            else:
+                lo = mid
+            if hi - lo <= 4e-16 * max(abs(mid), 1.0):
+                break
+        lam = 0.5 * (lo + hi)
+        for i in range(3):
+            out[n, i] = r2[i] * q_B[n, i] / (r2[i] + lam)
+    return out
 
 
 @compiled
@@ -225,18 +274,6 @@ def _paraboloid_closest(q_B: FloatArray, a: float, b: float, h: float) -> FloatA
         out[n, 0], out[n, 1], out[n, 2] = qx / (1 - 2 * a * lam), qy / (1 - 2 * b * lam), qz - lam
     return out
 
-
-def _bisect_increasing(function, lo: FloatArray, hi: FloatArray) -> FloatArray:  # type: ignore[no-untyped-def]
-    """Root of an increasing function per element, bracketed by lo < root < hi."""
-    lo, hi = lo.astype(float).copy(), hi.astype(float).copy()
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        above = function(mid) > 0
-        hi = np.where(above, mid, hi)
-        lo = np.where(above, lo, mid)
-        if np.all(hi - lo <= 4e-16 * np.maximum(np.abs(mid), 1.0)):
-            break
-    return 0.5 * (lo + hi)
 
 
 _POSE_KEYS = ("cx", "cy", "cz", "roll", "pitch", "yaw")

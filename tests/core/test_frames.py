@@ -14,6 +14,7 @@ from vibrissa.frames import (
     interpolate,
     quaternion_matrices,
     quaternion_matrix,
+    quaternion_turns,
 )
 
 RNG = np.random.default_rng(7)
@@ -89,6 +90,17 @@ def test_compiled_quaternion_kernel_matches_scipy() -> None:
     zero = np.empty((3, 3))
     assert quaternion_matrix(np.zeros(4), zero) == 0.0
     assert not np.isfinite(zero).all()  # not a rotation: callers check |q|^2
+
+
+def test_turns_between_samples_are_scipys_relative_magnitudes_whatever_the_sign() -> None:
+    rotations = Rotation.random(50, random_state=RNG)
+    q = rotations.as_quat()
+    q[::3] *= -1.0  # the same rotations
+    small = Rotation.from_rotvec([[0.0, 0.0, 0.0], [1e-9, 0.0, 0.0], [0.0, 0.0, math.pi]])
+    for rots, quats in ((rotations, q), (small, small.as_quat())):
+        expected = (rots[:-1].inv() * rots[1:]).magnitude()
+        np.testing.assert_allclose(quaternion_turns(quats), expected, rtol=1e-12, atol=1e-15)
+    assert quaternion_turns(q[:1]).shape == (0,)
 
 
 def test_pose_samples_interpolate_between_uneven_samples_and_never_extrapolate() -> None:

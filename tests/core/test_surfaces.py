@@ -28,6 +28,29 @@ def test_closest_point_is_on_the_surface_along_the_normal(spec):
 
 
 @pytest.mark.parametrize("spec", SPECS)
+def test_line_intervals_bound_where_points_along_the_line_are_inside(spec):
+    """Against the object's own g sampled densely along each line (value < 0 inside)."""
+    surface = parse_surface(spec)
+    rng = np.random.default_rng(5)
+    a = rng.uniform(-0.6, 0.6, size=(300, 3)) + [0.0, 0.0, 0.8]
+    d = rng.normal(size=(300, 3))
+    d[:5] = [0.0, 0.0, 1.0]  # along a paraboloid's axis: a half-line inside
+    t_in, t_out = surface.line_interval(a, d)
+    t = np.linspace(-3.0, 3.0, 6001)
+    for k in range(len(a)):
+        inside = surface.value(a[k] + t[:, None] * d[k]) < 0.0
+        if np.isnan(t_in[k]):
+            assert not inside.any()
+            continue
+        within = (t > t_in[k] + 1e-9) & (t < t_out[k] - 1e-9)
+        outside = (t < t_in[k] - 1e-9) | (t > t_out[k] + 1e-9)
+        assert inside[within].all() and not inside[outside].any()
+        for ends in (t_in[k], t_out[k]):
+            if np.isfinite(ends):
+                assert abs(surface.value(a[k] + ends * d[k])[0]) < 1e-9
+
+
+@pytest.mark.parametrize("spec", SPECS)
 def test_spec_round_trip(spec):
     surface = parse_surface(spec)
     again = parse_surface(surface.spec)

@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vibrissa.compiled import compiled
 from vibrissa.frames import (
-    PoseSamples,
     Transform,
     non_unit_quaternion,
     quaternion_matrices,
@@ -28,9 +26,6 @@ from vibrissa.frames import (
     sampled_poses,
 )
 from vibrissa.surfaces import Surface, line_interval_body
-
-if TYPE_CHECKING:
-    from scipy.spatial.transform import Rotation
 
 FloatArray = NDArray[np.float64]
 
@@ -42,11 +37,11 @@ straight rod is checked at sub-samples this far apart for a touch: a rod that pa
 object between two samples (a coarse path) touches it."""
 
 
-def rod_motion(p_WR: FloatArray, rotations: Rotation, mount: Transform) -> FloatArray:
-    """A bound on how far a point of the straight rod moves between consecutive samples (N-1,),
-    units of L: a point at most |p_RC| + 1 from R's origin moves at most
-    |dp_WR| + |dtheta| (|p_RC| + 1)."""
-    turn = quaternion_turns(np.ascontiguousarray(rotations.as_quat()))
+def rod_motion(p_WR: FloatArray, q_WR: FloatArray, mount: Transform) -> FloatArray:
+    """A bound on how far a point of the straight rod moves between consecutive samples (N-1,)
+    of robot poses (origins p_WR (N, 3), unit quaternions q_WR (N, 4)), units of L: a point at
+    most |p_RC| + 1 from R's origin moves at most |dp_WR| + |dtheta| (|p_RC| + 1)."""
+    turn = quaternion_turns(np.ascontiguousarray(q_WR, dtype=float))
     reach = float(np.linalg.norm(mount.translation)) + 1.0
     return np.asarray(np.linalg.norm(np.diff(p_WR, axis=0), axis=1) + turn * reach)
 
@@ -63,8 +58,8 @@ class SampledPath:
     ----------
     p_WR : ndarray, shape (N, 3)
         Robot origins, units of L.
-    rotations : scipy.spatial.transform.Rotation, N rotations
-        R_WR of the samples.
+    q_WR : ndarray, shape (N, 4)
+        R_WR of the samples as unit quaternions (x, y, z, w).
     mu : float
         Coulomb friction of the contacts.
     mount : Transform
@@ -76,32 +71,36 @@ class SampledPath:
     """
 
     p_WR: FloatArray
-    rotations: Rotation
+    q_WR: FloatArray
     mu: float
     mount: Transform = field(default_factory=Transform)
     h: float = 0.0
     x_end: float = field(init=False)
     x_grid: float = 0.0  # the steps of Step 1 are the samples
-    _poses: PoseSamples = field(init=False, repr=False)
+    _t: FloatArray = field(init=False, repr=False)  # the samples' indices, 0 .. N-1
 
     def __post_init__(self) -> None:
         p = np.array(self.p_WR, dtype=float)
         if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2:
             raise ValueError(f"p_WR must be (N >= 2, 3), got shape {p.shape}")
-        if len(self.rotations) != len(p):
-            raise ValueError(f"{len(self.rotations)} rotations for {len(p)} positions")
+        q = np.ascontiguousarray(self.q_WR, dtype=float)
+        if q.shape != (len(p), 4):
+            raise ValueError(f"q_WR must be ({len(p)}, 4) for {len(p)} positions, got {q.shape}")
+        bad = non_unit_quaternion(q)
+        if bad is not None:
+            raise ValueError(f"q_WR row {bad[0]} is not a unit quaternion (norm {bad[1]:.9g})")
         if not np.all(np.isfinite(p)):
             raise ValueError("p_WR must be finite")
         if not self.mu >= 0:
             raise ValueError(f"mu must be >= 0, got {self.mu}")
-        h = self.h or float(np.max(rod_motion(p, self.rotations, self.mount)))
+        h = self.h or float(np.max(rod_motion(p, q, self.mount)))
         if not h > 0:
             h = 1.0  # the clamp stays put: the coordinate only counts samples
         object.__setattr__(self, "p_WR", p)
+        object.__setattr__(self, "q_WR", q)
         object.__setattr__(self, "h", h)
         object.__setattr__(self, "x_end", -(len(p) - 1) * h)
-        object.__setattr__(self, "_poses", PoseSamples(np.arange(len(p), dtype=float), p,
-                                                       self.rotations))
+        object.__setattr__(self, "_t", np.arange(len(p), dtype=float))
 
     @property
     def n_samples(self) -> int:
@@ -109,7 +108,7 @@ class SampledPath:
 
     def tail(self, k: int) -> SampledPath:
         """The path from sample ``k`` on (its x0 = this path's x0 + k h)."""
-        return SampledPath(self.p_WR[k:], self.rotations[k:], self.mu, self.mount, self.h)
+        return SampledPath(self.p_WR[k:], self.q_WR[k:], self.mu, self.mount, self.h)
 
     def x0_of(self, k: FloatArray) -> FloatArray:
         """The path coordinate x0 of (fractional) sample indices ``k``."""
@@ -122,8 +121,8 @@ class SampledPath:
         last = self.n_samples - 1
         if len(lam) and not (lam.min() >= -1e-9 and lam.max() <= last + 1e-9):
             raise ValueError(f"x0 outside the path [{self.x_end}, 0]")
-        return clamp_poses(np.clip(lam, 0.0, last), self._poses.t, self.p_WR,
-                           self._poses.quaternions, self.mount.translation, self.mount.R)
+        return clamp_poses(lam, self._t, self.p_WR, self.q_WR, self.mount.translation,
+                           self.mount.R)
 
     def penetrates(self, surface: Surface, x0: FloatArray) -> NDArray[np.bool_]:
         """Whether the straight rod at ``x0`` (n,) has points inside the object."""
@@ -156,8 +155,7 @@ class SampledPath:
         else:
             return None
         Q, linear, c, R_WB, p_WB = surface.kernel_arrays
-        hi = _touch_bisection(float(lo), float(hi), self.h, self._poses.t, self.p_WR,
-                              self._poses.quaternions,
+        hi = _touch_bisection(float(lo), float(hi), self.h, self._t, self.p_WR, self.q_WR,
                               self.mount.translation, self.mount.R, Q[0], linear[0], float(c[0]),
                               R_WB[0], p_WB[0])
         x_touch = float(self.x0_of(np.array([hi]))[0])
@@ -170,7 +168,7 @@ class SampledPath:
         """Fractional sample indices between samples 0 .. ``end`` where a point of the rod
         moves further than `SUBSAMPLE_L` from one sample to the next and the object is within
         the rod's reach (its clamp nearer than 1 + that motion): `SUBSAMPLE_L` apart."""
-        motion = rod_motion(self.p_WR[:end + 1], self.rotations[:end + 1], self.mount)
+        motion = rod_motion(self.p_WR[:end + 1], self.q_WR[:end + 1], self.mount)
         coarse = np.flatnonzero(motion > SUBSAMPLE_L)
         if len(coarse) == 0:
             return np.zeros(0)
@@ -190,10 +188,10 @@ class SampledPath:
 @compiled
 def clamp_poses(lam: FloatArray, t_s: FloatArray, p_WR: FloatArray, q_WR: FloatArray,
                 p_RC: FloatArray, R_RC: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Clamp origins (n, 3) and R_WC (n, 3, 3) at fractional sample indices ``lam`` (n,) within
-    the samples' range: the robot's samples at ``t_s`` = 0 .. N-1 (p_WR (N, 3), unit q_WR (N, 4))
-    interpolated by `sampled_poses`, the clamp mounted at (p_RC, R_RC)."""
-    p, q = sampled_poses(t_s, p_WR, q_WR, lam)
+    """Clamp origins (n, 3) and R_WC (n, 3, 3) at fractional sample indices ``lam`` (n,),
+    clipped to the samples' range: the robot's samples at ``t_s`` = 0 .. N-1 (p_WR (N, 3), unit
+    q_WR (N, 4)) interpolated by `sampled_poses`, the clamp mounted at (p_RC, R_RC)."""
+    p, q = sampled_poses(t_s, p_WR, q_WR, np.minimum(np.maximum(lam, 0.0), t_s[-1]))
     R_WR = quaternion_matrices(q)[0]
     n = lam.shape[0]
     p_WC, R_WC = np.empty((n, 3)), np.empty((n, 3, 3))

@@ -450,11 +450,12 @@ class _WhiskerSteps:
         self.surfaces = [obj.surface(length, self.origin_m) for obj in scene.objects]
         mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
         p_WR = (scene.path.p_WR - self.origin_m) / length
-        moved = np.concatenate([[True], rod_motion(p_WR, scene.path.R_WR, mount) > PAUSE_L])
+        q_WR = scene.path.R_WR.as_quat()
+        moved = np.concatenate([[True], rod_motion(p_WR, q_WR, mount) > PAUSE_L])
         moved[-1] |= not moved[1:].any()  # a robot that never moves: its first and last sample
         self.moved = moved
         self.kept = np.flatnonzero(moved)
-        self.path = SampledPath(p_WR[self.kept], scene.path.R_WR[self.kept], scene.mu, mount)
+        self.path = SampledPath(p_WR[self.kept], q_WR[self.kept], scene.mu, mount)
         n = self.path.n_samples
         self.phase = np.full(n, SamplePhase.NONE, dtype=np.int64)
         self.s1, self.f0, self.m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
@@ -520,17 +521,18 @@ class _WhiskerSteps:
         First, for all objects at once: none where the rod enters no object at any sample and
         moves at most `SUBSAMPLE_L` from one to the next (`SampledPath.first_contact` then has
         no sub-samples to check)."""
-        p_WR, rotations = self._samples_from(j)
-        window = SampledPath(p_WR, rotations, self.scene.mu, self.mount, self.h)
+        p_WR, q_WR = self._samples_from(j)
+        window = SampledPath(p_WR, q_WR, self.scene.mu, self.mount, self.h)
         p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))
         if (self.max_motion <= SUBSAMPLE_L
                 and not any(s.segment_inside(p_WC, R_WC[:, :, 2]).any() for s in self.surfaces)):
             return False
         return any(window.first_contact(surface) is not None for surface in self.surfaces)
 
-    def _samples_from(self, j: int) -> tuple[FloatArray, Rotation]:
-        """The moving samples from ``j`` on: robot origins (units of L) and R_WR."""
-        return self.path.p_WR[j:], self.path.rotations[j:]
+    def _samples_from(self, j: int) -> tuple[FloatArray, FloatArray]:
+        """The moving samples from ``j`` on: robot origins (units of L) and R_WR (unit
+        quaternions)."""
+        return self.path.p_WR[j:], self.path.q_WR[j:]
 
     @property
     def mount(self) -> Transform:
@@ -672,7 +674,7 @@ class _WhiskerSteps:
             return None
         steps = int(np.clip(np.ceil(distance / self.path.h), *LANDING_STEPS))
         back = np.linspace(distance, 0.0, steps + 1)[:, None] * away
-        approach = SampledPath(self.path.p_WR[k] + back, self.path.rotations[np.full(steps + 1, k)],
+        approach = SampledPath(self.path.p_WR[k] + back, self.path.q_WR[np.full(steps + 1, k)],
                                0.0, self.path.mount)
         run = SweepRun(surface, [approach], approach.h)
         while not run.done:
@@ -881,8 +883,6 @@ class SceneStream:
     def extend(self, t: ArrayLike, p_WR_m: ArrayLike, q_WR_xyzw: ArrayLike) -> None:
         """Add path samples: times (m,) s after the last, positions (m, 3) m, unit
         quaternions (m, 4)."""
-        from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
-
         t = np.asarray(t, dtype=float).reshape(-1)
         p = np.asarray(p_WR_m, dtype=float).reshape(-1, 3)
         q = np.asarray(q_WR_xyzw, dtype=float).reshape(-1, 4)
@@ -892,11 +892,14 @@ class SceneStream:
             return
         if not np.all(np.diff(np.concatenate([self._t[-1:], t])) > 0):
             raise ValueError("sample times must increase strictly")
+        norm = np.linalg.norm(q, axis=1)
+        if not np.all((norm > 0) & np.isfinite(norm)):
+            raise ValueError("quaternions must be finite and non-zero")
         self._t, self._p, self._q = (np.concatenate([self._t, t]), np.vstack([self._p, p]),
                                      np.vstack([self._q, q]))
-        rotations = Rotation.from_quat(q)
+        q = q / norm[:, None]  # unit, as Rotation.from_quat makes them
         for steps in self._steps:
-            steps.extend(t, p, rotations)
+            steps.extend(t, p, q)
 
     def advance(self, hold: bool = True) -> StreamSamples:
         """Step every whisker as far as the samples allow; the samples now final."""
@@ -954,8 +957,8 @@ class _StreamSteps(_WhiskerSteps):
         self.moved = np.zeros(0, dtype=bool)
         self.kept = np.zeros(0, dtype=np.int64)
         self._p_kept = np.zeros((0, 3))
-        self._R_kept: Rotation | None = None
-        self._last: tuple[FloatArray, Rotation] | None = None  # the last raw sample, units of L
+        self._q_kept = np.zeros((0, 4))
+        self._last: tuple[FloatArray, FloatArray] | None = None  # the last raw sample, units of L
         self._path: SampledPath | None = None  # built from the samples when asked for
         self.phase = np.zeros(0, dtype=np.int64)
         self.s1, self.f0, self.m0 = np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
@@ -971,23 +974,21 @@ class _StreamSteps(_WhiskerSteps):
         self._idle_at: tuple[int, bool] = (-1, False)  # (samples, final) when it last waited
         self._base = 0  # moving samples dropped (`forget`): index 0 of ``path`` is this one
 
-    def extend(self, t: FloatArray, p_WR_m: FloatArray, rotations: Rotation) -> None:
-        from scipy.spatial.transform import Rotation
-
+    def extend(self, t: FloatArray, p_WR_m: FloatArray, q_WR: FloatArray) -> None:
         p = (p_WR_m - self.origin_m) / self.whisker.length_m
         if self._last is None:
-            motion = rod_motion(p, rotations, self.mount)
+            motion = rod_motion(p, q_WR, self.mount)
             moved = np.concatenate([[True], motion > PAUSE_L])
         else:
             motion = rod_motion(np.vstack([self._last[0][None], p]),
-                                Rotation.concatenate([self._last[1], rotations]), self.mount)
+                                np.vstack([self._last[1][None], q_WR]), self.mount)
             moved = motion > PAUSE_L
         self.max_motion = max(self.max_motion, float(np.max(motion, initial=0.0)))
-        self._last = (p[-1], rotations[-1:])
+        self._last = (p[-1], q_WR[-1])
         start = len(self.t_all)
         self.t_all = np.concatenate([self.t_all, t])
         self.moved = np.concatenate([self.moved, moved])
-        self._add_kept(start + np.flatnonzero(moved), p[moved], rotations[moved])
+        self._add_kept(start + np.flatnonzero(moved), p[moved], q_WR[moved])
 
     @property  # type: ignore[override]
     def mount(self) -> Transform:
@@ -1001,36 +1002,29 @@ class _StreamSteps(_WhiskerSteps):
     def path(self) -> SampledPath | None:  # type: ignore[override]
         """The moving samples so far (None before two), built when asked for."""
         if self._path is None and len(self.kept) >= 2:
-            assert self._R_kept is not None
-            self._path = SampledPath(self._p_kept, self._R_kept, self.scene.mu, self.mount,
+            self._path = SampledPath(self._p_kept, self._q_kept, self.scene.mu, self.mount,
                                      self.h)
         return self._path
 
-    def _samples_from(self, j: int) -> tuple[FloatArray, Rotation]:
-        assert self._R_kept is not None
-        return self._p_kept[j:], self._R_kept[j:]
+    def _samples_from(self, j: int) -> tuple[FloatArray, FloatArray]:
+        return self._p_kept[j:], self._q_kept[j:]
 
     def close(self) -> None:
         """The path ends: a robot that never moved has its first and last sample (`simulate`)."""
         self.final = True
         if len(self.kept) == 1 and len(self.t_all) > 1:
-            from scipy.spatial.transform import Rotation
-
             assert self._last is not None
             self.moved[-1] = True
             self._add_kept(np.array([len(self.t_all) - 1]), self._last[0][None],
-                           Rotation.concatenate([self._last[1]]))
+                           self._last[1][None])
 
-    def _add_kept(self, index: NDArray[np.int64], p: FloatArray, rotations: Rotation) -> None:
-        from scipy.spatial.transform import Rotation
-
+    def _add_kept(self, index: NDArray[np.int64], p: FloatArray, q_WR: FloatArray) -> None:
         if not len(index):
             return
         m = len(index)
         self.kept = np.concatenate([self.kept, index])
         self._p_kept = np.vstack([self._p_kept, p])
-        self._R_kept = rotations if self._R_kept is None else Rotation.concatenate(
-            [self._R_kept, rotations])
+        self._q_kept = np.vstack([self._q_kept, q_WR])
         self.phase = np.concatenate([self.phase, np.full(m, SamplePhase.NONE, dtype=np.int64)])
         self.s1 = np.concatenate([self.s1, np.full(m, np.nan)])
         self.f0, self.m0 = np.vstack([self.f0, np.zeros((m, 3))]), np.vstack([self.m0, np.zeros((m, 3))])
@@ -1133,8 +1127,7 @@ class _StreamSteps(_WhiskerSteps):
         b = self.k
         self._base += b
         self.kept, self._p_kept = self.kept[b:], self._p_kept[b:]
-        assert self._R_kept is not None
-        self._R_kept = self._R_kept[b:]
+        self._q_kept = self._q_kept[b:]
         for name in ("phase", "s1", "f0", "m0", "contact", "touched", "refined"):
             setattr(self, name, getattr(self, name)[b:])
         self.k, self._searched = 0, max(self._searched - b, -1)

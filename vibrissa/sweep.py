@@ -290,6 +290,11 @@ _MODE_HELD = MODE_STICK_TANGENTIAL
 _STUCK = (MODE_STICK, MODE_STICK_TANGENTIAL)
 
 
+def _stuck(modes: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Whether each mode is one of `_STUCK` (np.isin's result, without its cost per call)."""
+    return (modes == MODE_STICK) | (modes == MODE_STICK_TANGENTIAL)
+
+
 @dataclass
 class _Batch:
     """Fixed data of the rows solved together (one row per sweep attempt): the clamp pose
@@ -970,7 +975,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         if len(rows) == 0:
             return
         batch = _Batch(p_WC[rows], R_WC[rows], mu[rows],
-                       np.where(np.isin(modes[rows], _STUCK)[:, None], anchor[rows], p1[rows]),
+                       np.where(_stuck(modes[rows])[:, None], anchor[rows], p1[rows]),
                        modes[rows], locked[rows],
                        *(objects if len(rows) == n else (a[rows] for a in objects)))
         if kind == "anchored":
@@ -1201,7 +1206,7 @@ def _finish(track: _Track) -> Sweep:
         step=track.step,
         x0=x0,
         phase=np.array([_phase_of(m) for m in modes], dtype=np.int64),
-        state=np.where(np.isin(modes, _STUCK), STICK, SLIDE).astype(np.int64),
+        state=np.where(_stuck(modes), STICK, SLIDE).astype(np.int64),
         s1=s1,
         psi=psi,
         f0=f0,

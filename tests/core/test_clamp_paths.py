@@ -19,11 +19,12 @@ PARABOLOID = "paraboloid:a=0.5,b=1,h=0.4"
 def straight(x_from: float, y0: float, step: float, n: int, mu: float) -> SampledPath:
     x = x_from - step * np.arange(n)
     return SampledPath(np.column_stack([x, np.full(n, y0), np.zeros(n)]),
-                       Rotation.identity(n), mu)
+                       Rotation.identity(n).as_quat(), mu)
 
 
 def moved(path: SampledPath, X: Transform) -> SampledPath:
-    return SampledPath(X.apply(path.p_WR), X.rotation * path.rotations, path.mu)
+    return SampledPath(X.apply(path.p_WR), (X.rotation * Rotation.from_quat(path.q_WR)).as_quat(),
+                       path.mu)
 
 
 def check_physics(sweep: Sweep, surface_spec: str, path: SampledPath) -> None:
@@ -96,7 +97,7 @@ def test_a_turning_clamp_satisfies_the_physics_at_every_step(spec: str, mu: floa
                                  np.zeros(n)])
     tilt = Rotation.from_euler("y", -0.2)  # the mount tilts the rod
     rotations = Rotation.from_euler("z", -theta[:, None]) * tilt
-    path = SampledPath(positions, rotations, mu)
+    path = SampledPath(positions, rotations.as_quat(), mu)
     sweep = simulate_sweeps(parse_surface(spec), [path], path.h)[0]
     assert sweep.n_steps > 50, sweep.end
     check_physics(sweep, spec, path)
@@ -111,7 +112,7 @@ def test_a_path_that_ends_in_contact_ends_there() -> None:
 
 def test_clamp_poses_interpolate_and_never_extrapolate() -> None:
     rotations = Rotation.from_euler("z", [[0.0], [0.4]])
-    path = SampledPath(np.array([[0.0, 0, 0], [0.1, 0, 0]]), rotations, 0.1)
+    path = SampledPath(np.array([[0.0, 0, 0], [0.1, 0, 0]]), rotations.as_quat(), 0.1)
     assert path.h == pytest.approx(0.1 + 0.4)
     p, R = path.clamp_pose(np.array([-0.25 * path.h]))
     np.testing.assert_allclose(p[0], [0.025, 0, 0], atol=1e-15)

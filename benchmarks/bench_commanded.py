@@ -11,7 +11,7 @@ egg) on two paths, each the demo's samples commanded as waypoints of one segment
 * ``fixed``: `vibrissa.scene.simulate` of the whole path at once in this process (the wrench
   source's fixed path, ``workers`` 1): the baseline of the ratio.
 * ``commanded``: the commanded mode's work without sockets: the segment queued, then taken
-  and simulated 50 samples at a time (`vibrissa.nodes.wrench_source.COMMAND_CHUNK`) by
+  and simulated `vibrissa.nodes.wrench_source.COMMAND_CHUNK` (100) samples at a time by
   `vibrissa.scene.SceneStream` with the step of the limits.
 
 Each time is the median of ``--repeat`` runs after one warm-up run (numba's compilation

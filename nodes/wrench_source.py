@@ -574,8 +574,8 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     return count
 
 
-COMMAND_CHUNK = 50
-"""Commanded samples simulated at a time (0.1 s of path at 500 Hz): their messages go out
+COMMAND_CHUNK = 100
+"""Commanded samples simulated at a time (0.2 s of path at 500 Hz): their messages go out
 together, and Step 1 looks at most 16 samples ahead (`vibrissa.scene.SceneStream`)."""
 
 

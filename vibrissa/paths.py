@@ -25,7 +25,7 @@ from vibrissa.frames import (
     quaternion_turns,
     sampled_poses,
 )
-from vibrissa.surfaces import Surface, line_interval_body
+from vibrissa.surfaces import Surface, line_interval_world
 
 FloatArray = NDArray[np.float64]
 
@@ -117,12 +117,12 @@ class SampledPath:
     def clamp_pose(self, x0: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Clamp poses at ``x0`` (n,): origins (n, 3) and rotations R_WC (n, 3, 3); ValueError
         outside the path (no extrapolation)."""
-        lam = -np.asarray(x0, dtype=float).reshape(-1) / self.h
-        last = self.n_samples - 1
-        if len(lam) and not (lam.min() >= -1e-9 and lam.max() <= last + 1e-9):
+        p_WC, R_WC, within = clamp_poses(-np.asarray(x0, dtype=float).reshape(-1) / self.h,
+                                         self._t, self.p_WR, self.q_WR, self.mount.translation,
+                                         self.mount.R)
+        if not within:
             raise ValueError(f"x0 outside the path [{self.x_end}, 0]")
-        return clamp_poses(lam, self._t, self.p_WR, self.q_WR, self.mount.translation,
-                           self.mount.R)
+        return p_WC, R_WC
 
     def penetrates(self, surface: Surface, x0: FloatArray) -> NDArray[np.bool_]:
         """Whether the straight rod at ``x0`` (n,) has points inside the object."""
@@ -187,11 +187,16 @@ class SampledPath:
 
 @compiled
 def clamp_poses(lam: FloatArray, t_s: FloatArray, p_WR: FloatArray, q_WR: FloatArray,
-                p_RC: FloatArray, R_RC: FloatArray) -> tuple[FloatArray, FloatArray]:
+                p_RC: FloatArray, R_RC: FloatArray) -> tuple[FloatArray, FloatArray, bool]:
     """Clamp origins (n, 3) and R_WC (n, 3, 3) at fractional sample indices ``lam`` (n,),
-    clipped to the samples' range: the robot's samples at ``t_s`` = 0 .. N-1 (p_WR (N, 3), unit
-    q_WR (N, 4)) interpolated by `sampled_poses`, the clamp mounted at (p_RC, R_RC)."""
-    p, q = sampled_poses(t_s, p_WR, q_WR, np.minimum(np.maximum(lam, 0.0), t_s[-1]))
+    clipped to the samples' range, and whether every one was within it (to 1e-9): the robot's
+    samples at ``t_s`` = 0 .. N-1 (p_WR (N, 3), unit q_WR (N, 4)) interpolated by
+    `sampled_poses`, the clamp mounted at (p_RC, R_RC)."""
+    last = t_s[-1]
+    within = True
+    for value in lam:
+        within &= -1e-9 <= value <= last + 1e-9
+    p, q = sampled_poses(t_s, p_WR, q_WR, np.minimum(np.maximum(lam, 0.0), last))
     R_WR = quaternion_matrices(q)[0]
     n = lam.shape[0]
     p_WC, R_WC = np.empty((n, 3)), np.empty((n, 3, 3))
@@ -202,7 +207,7 @@ def clamp_poses(lam: FloatArray, t_s: FloatArray, p_WR: FloatArray, q_WR: FloatA
             for j in range(3):
                 R_WC[k, i, j] = (R_WR[k, i, 0] * R_RC[0, j] + R_WR[k, i, 1] * R_RC[1, j]
                                  + R_WR[k, i, 2] * R_RC[2, j])
-    return p_WC, R_WC
+    return p_WC, R_WC, within
 
 
 @compiled
@@ -219,13 +224,9 @@ def _touch_bisection(lo: float, hi: float, h: float, t_s: FloatArray, p_WR: Floa
         if mid == lo or mid == hi:
             break
         lam[0] = -(-mid * h) / h  # as clamp_pose(x0_of(mid))
-        p_WC, R_WC = clamp_poses(lam, t_s, p_WR, q_WR, p_RC, R_RC)
-        a = [p_WC[0, 0] - p_WB[0], p_WC[0, 1] - p_WB[1], p_WC[0, 2] - p_WB[2]]
-        d = [R_WC[0, 0, 2], R_WC[0, 1, 2], R_WC[0, 2, 2]]
-        a_B = [a[0] * R_WB[0, j] + a[1] * R_WB[1, j] + a[2] * R_WB[2, j] for j in range(3)]
-        d_B = [d[0] * R_WB[0, j] + d[1] * R_WB[1, j] + d[2] * R_WB[2, j] for j in range(3)]
-        t_in, t_out = line_interval_body(a_B[0], a_B[1], a_B[2], d_B[0], d_B[1], d_B[2],
-                                         Q, linear, c)
+        p_WC, R_WC, _ = clamp_poses(lam, t_s, p_WR, q_WR, p_RC, R_RC)
+        t_in, t_out = line_interval_world(p_WC[0, 0], p_WC[0, 1], p_WC[0, 2], R_WC[0, 0, 2],
+                                          R_WC[0, 1, 2], R_WC[0, 2, 2], Q, linear, c, R_WB, p_WB)
         if t_in < 1.0 and t_out > 0.0:  # the segment 0 <= t <= 1 (the rod) meets the inside
             hi = mid
         else:

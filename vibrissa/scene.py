@@ -32,6 +32,7 @@ its whisker's L, and its own step), with the same bits as each whisker alone
 from __future__ import annotations
 
 import enum
+import functools
 import math
 import multiprocessing
 import os
@@ -48,7 +49,7 @@ from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
 from vibrissa.paths import SUBSAMPLE_L, SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
 from vibrissa.status import ContactPhase, SweepEnd
-from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface
+from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface, segments_meet
 from vibrissa.sweep import (
     EARLY_MULTIPLES,
     EARLY_TRAVEL_L,
@@ -525,9 +526,15 @@ class _WhiskerSteps:
         window = SampledPath(p_WR, q_WR, self.scene.mu, self.mount, self.h)
         p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))
         if (self.max_motion <= SUBSAMPLE_L
-                and not any(s.segment_inside(p_WC, R_WC[:, :, 2]).any() for s in self.surfaces)):
+                and not segments_meet(p_WC, np.ascontiguousarray(R_WC[:, :, 2]), *self._objects)):
             return False
         return any(window.first_contact(surface) is not None for surface in self.surfaces)
+
+    @functools.cached_property
+    def _objects(self) -> tuple[FloatArray, ...]:
+        """The scene's objects as the rows of `vibrissa.surfaces.segments_meet`."""
+        return tuple(np.concatenate(rows) for rows in zip(*(s.kernel_arrays for s in self.surfaces),
+                                                          strict=True))
 
     def _samples_from(self, j: int) -> tuple[FloatArray, FloatArray]:
         """The moving samples from ``j`` on: robot origins (units of L) and R_WR (unit

@@ -98,13 +98,10 @@ class Surface(ABC):
         a_W, d_W : array_like, shape (N, 3) or (3,)
             Points on the lines and their directions, in W.
         """
-        a_B = self.pose.apply_inverse(np.atleast_2d(np.asarray(a_W, dtype=float)))
-        d_B = np.atleast_2d(np.asarray(d_W, dtype=float)) @ self.pose.R
-        a_B, d_B = np.broadcast_arrays(a_B, d_B)
-        Q, linear, c = self._quadric()
-        return line_intervals(np.ascontiguousarray(a_B), np.ascontiguousarray(d_B),
-                              np.ascontiguousarray(Q, dtype=float),
-                              np.ascontiguousarray(linear, dtype=float), float(c))
+        a, d = np.broadcast_arrays(np.atleast_2d(np.asarray(a_W, dtype=float)),
+                                   np.atleast_2d(np.asarray(d_W, dtype=float)))
+        return line_intervals(np.ascontiguousarray(a), np.ascontiguousarray(d),
+                              *(array[0] for array in self.kernel_arrays))
 
     def segment_inside(self, a_W: ArrayLike, d_W: ArrayLike) -> NDArray[np.bool_]:
         """Whether the segments a + t d, 0 <= t <= 1, have points inside the object (N,); a
@@ -208,15 +205,47 @@ def line_interval_body(ax: float, ay: float, az: float, dx: float, dy: float, dz
 
 
 @compiled
-def line_intervals(a_B: FloatArray, d_B: FloatArray, Q: FloatArray, linear: FloatArray,
-                   c: float) -> tuple[FloatArray, FloatArray]:
-    """`line_interval_body` of the rows of a_B, d_B (N, 3): t_in (N,), t_out (N,)."""
-    n = a_B.shape[0]
+def line_interval_world(ax: float, ay: float, az: float, dx: float, dy: float, dz: float,
+                        Q: FloatArray, linear: FloatArray, c: float, R_WB: FloatArray,
+                        p_WB: FloatArray) -> tuple[float, float]:
+    """`line_interval_body` of the line a + t d given in W, the object at (R_WB, p_WB)."""
+    ax, ay, az = ax - p_WB[0], ay - p_WB[1], az - p_WB[2]
+    return line_interval_body(ax * R_WB[0, 0] + ay * R_WB[1, 0] + az * R_WB[2, 0],
+                              ax * R_WB[0, 1] + ay * R_WB[1, 1] + az * R_WB[2, 1],
+                              ax * R_WB[0, 2] + ay * R_WB[1, 2] + az * R_WB[2, 2],
+                              dx * R_WB[0, 0] + dy * R_WB[1, 0] + dz * R_WB[2, 0],
+                              dx * R_WB[0, 1] + dy * R_WB[1, 1] + dz * R_WB[2, 1],
+                              dx * R_WB[0, 2] + dy * R_WB[1, 2] + dz * R_WB[2, 2],
+                              Q, linear, c)
+
+
+@compiled
+def line_intervals(a_W: FloatArray, d_W: FloatArray, Q: FloatArray, linear: FloatArray,
+                   c: float, R_WB: FloatArray, p_WB: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """`line_interval_world` of the rows of a_W, d_W (N, 3): t_in (N,), t_out (N,)."""
+    n = a_W.shape[0]
     t_in, t_out = np.empty(n), np.empty(n)
     for k in range(n):
-        t_in[k], t_out[k] = line_interval_body(a_B[k, 0], a_B[k, 1], a_B[k, 2],
-                                               d_B[k, 0], d_B[k, 1], d_B[k, 2], Q, linear, c)
+        t_in[k], t_out[k] = line_interval_world(a_W[k, 0], a_W[k, 1], a_W[k, 2],
+                                                d_W[k, 0], d_W[k, 1], d_W[k, 2],
+                                                Q, linear, c, R_WB, p_WB)
     return t_in, t_out
+
+
+@compiled
+def segments_meet(a_W: FloatArray, d_W: FloatArray, Q: FloatArray, linear: FloatArray,
+                  c: FloatArray, R_WB: FloatArray, p_WB: FloatArray) -> bool:
+    """Whether any segment a + t d, 0 <= t <= 1 (rows of a_W, d_W (N, 3)), has points inside
+    any of the objects (`Surface.kernel_arrays` stacked: Q (M, 3, 3) ...): `Surface.segment_inside`
+    of every row and object at once."""
+    for j in range(Q.shape[0]):
+        for k in range(a_W.shape[0]):
+            t_in, t_out = line_interval_world(a_W[k, 0], a_W[k, 1], a_W[k, 2],
+                                              d_W[k, 0], d_W[k, 1], d_W[k, 2],
+                                              Q[j], linear[j], c[j], R_WB[j], p_WB[j])
+            if t_in < 1.0 and t_out > 0.0:
+                return True
+    return False
 
 
 @compiled

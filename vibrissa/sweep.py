@@ -1069,7 +1069,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
 
 
 def _take_state(state: _State, k: int) -> _State:
-    return _State(state.rows[[k]])
+    return _State(state.rows[k:k + 1].copy())
 
 
 def _newton_friction_continuation(
@@ -1139,8 +1139,8 @@ def _turns_back(track: _Track, p1: FloatArray) -> bool:
     if track.slid is None:
         return False
     moved = p1 - track.p1
-    return (float(moved @ track.slid) < 0.0 and float(np.linalg.norm(moved)) > _TURN_L
-            and float(np.linalg.norm(track.slid)) > _TURN_L)
+    return (float(moved @ track.slid) < 0.0 and math.sqrt(moved.dot(moved)) > _TURN_L
+            and math.sqrt(track.slid.dot(track.slid)) > _TURN_L)  # np.linalg.norm's arithmetic
 
 
 def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode: int) -> None:

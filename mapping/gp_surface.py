@@ -479,24 +479,13 @@ def fit(points: FloatArray, normals: FloatArray, params: GPParams | None = None,
     return replace(surface, residual_std=float(np.sqrt(np.mean(f * f))))
 
 
-@_one_blas_thread
 def conditioned(surface: GPSurface, points: FloatArray, normals: FloatArray) -> GPSurface:
-    """The surface had it also observed ``points`` (K, 3), m, with outward ``normals``
+    """The surface had it also observed ``points`` (K >= 1, 3), m, with outward ``normals``
     (K, 3), its hyperparameters kept: what touching there would leave of its uncertainty
     (the std of a GP does not depend on the values observed, only on where); the new points
-    with the least point std."""
-    u_new = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - surface.center) / surface.scale
-    n_new = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    n_new = n_new / np.linalg.norm(n_new, axis=1, keepdims=True)
-    u = np.ascontiguousarray(np.concatenate([surface._u, u_new]))
-    n = np.concatenate([surface._n, n_new])
-    stds = np.concatenate([surface._point_std, np.full(len(n_new), surface.point_std)])
-    sigma = surface.sigma
-    solution = _solve(sigma * sigma * _prior(u, surface.length_scale)
-                      + _noise(n, stds, surface.normal_std), _design(u),
-                      surface.quadric_std, _targets(n))
-    return replace(surface, log_likelihood=solution.loglik, _point_std=stds, _u=u, _n=n,
-                   _solution=solution, _alpha_se=sigma * sigma * solution.alpha, _order=None)
+    with the least point std. Every point joins: :func:`extended` with all of them (its
+    factor extended by a block, not a new factor of all the observations)."""
+    return extended(surface, points, normals, len(np.reshape(points, (-1, 3))))
 
 
 def _point_stds(points: FloatArray, point_var_m2: FloatArray | None, scale: float,

@@ -15,12 +15,14 @@ object is matched to the object of the previous update that holds its points:
   of ``LiveSettings.cells``; its next sweeps are those of its last full fit;
 * anything else (a new object, objects that **merged**, an object that **split**, one grown
   by ``LiveSettings.refit_growth`` of its points since its last full fit: the cadence of the
-  hyperparameters): a full fit, exactly as `fit_frame` does it.
+  hyperparameters): a full fit as `fit_frame` does it, meshed on the grid of
+  ``LiveSettings.cells`` too.
 
 `LiveMap.final` fits every object whose surface is not already the full fit on exactly its
-points: the final map is then the single fit's (`fit_frame` on the same cloud), bit for bit,
-which a grown object's conditioned surface is not (its active points are those of each update,
-not a selection along the whole cloud, and its normals are those of the points' first update).
+points, meshed on the settings' grid: the final map is then the single fit's (`fit_frame` on
+the same cloud), bit for bit, which a grown object's conditioned surface is not (its active
+points are those of each update, not a selection along the whole cloud, and its normals are
+those of the points' first update).
 """
 
 from __future__ import annotations
@@ -66,9 +68,10 @@ class LiveSettings:
         proposed again) once its points have grown by this fraction since its last full fit;
         below it, its surface is conditioned on the new points.
     cells
-        Marching-cubes grid cells along the longest side of a conditioned object's box (8 to
-        ``MAX_CELLS``): the std at the mesh's vertices is most of an update's cost, and it
-        scales with their number, the square of the cells.
+        Marching-cubes grid cells along the longest side of an object's box in an update (8 to
+        ``MAX_CELLS``; the final map uses the settings' own): the std at the mesh's vertices
+        is most of an update's cost, and it scales with their number, the square of the
+        cells.
     """
 
     refit_growth: float = 0.5
@@ -248,6 +251,10 @@ class LiveMap:
                                meshed_surface(gp, points, settings, self.live.cells),
                                previous.proposals, previous.fitted, exact=False)
         self.fits["full"] += 1
-        surface = estimate_surface(points, normals, settings, normal_var)
+        # while the stream goes on, meshed on the live grid as a conditioned surface is (the
+        # final map meshes it on the settings' grid again)
+        surface = estimate_surface(points, normals, settings, normal_var,
+                                   0 if final else self.live.cells)
+        exact = final or self.live.cells == settings.cells
         return _Object(points, normals, normal_var, surface,
-                       object_proposals(surface, points, settings), len(points), exact=True)
+                       object_proposals(surface, points, settings), len(points), exact=exact)

@@ -65,7 +65,7 @@ class ObjectSurface:
 
 def estimate_surface(points: FloatArray, normals: FloatArray,
                      settings: MapSettings | None = None,
-                     point_var_m2: FloatArray | None = None) -> ObjectSurface:
+                     point_var_m2: FloatArray | None = None, cells: int = 0) -> ObjectSurface:
     """The surface of one object's contacts by ``settings.method``: the Gaussian-process
     implicit surface (`vibrissa.mapping.gp_surface`) meshed over its box, or Open3D's Poisson or
     ball-pivoting mesh (`vibrissa.mapping.open3d_surface`), or why there is none
@@ -81,6 +81,9 @@ def estimate_surface(points: FloatArray, normals: FloatArray,
     point_var_m2 : ndarray, shape (N,), optional
         Each point's position variance along its normal, m^2 (from its covariance): the GP
         weights the points by it (``gp_surface.fit``); Open3D's methods do not use it.
+    cells
+        The GP surface's marching-cubes grid along the box's longest side (0:
+        ``settings.cells``; `meshed_surface`).
     """
     settings = settings or MapSettings()
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -92,7 +95,7 @@ def estimate_surface(points: FloatArray, normals: FloatArray,
                                    settings)
         return ObjectSurface(method, None, mesh)
     gp = gp_surface.fit(points, normals, GPParams(point_std_m=settings.point_std_m), point_var_m2)
-    return meshed_surface(gp, points, settings)
+    return meshed_surface(gp, points, settings, cells)
 
 
 def meshed_surface(gp: GPSurface, points: FloatArray, settings: MapSettings,

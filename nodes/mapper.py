@@ -110,7 +110,9 @@ import hashlib
 import json
 import logging
 import time
+from collections import Counter
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import NamedTuple
@@ -141,7 +143,7 @@ from vibrissa.mapping import (
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
 from vibrissa.mapping.coverage import COVERAGE_TOL_M, coverage_samples
-from vibrissa.mapping.fit import joined_part
+from vibrissa.mapping.fit import joined_part, warm_up
 from vibrissa.msgs import (
     ContactCloud,
     ContactPointArray,
@@ -542,7 +544,24 @@ def map_status(final: bool, ended_by: str | None, updates: int, n_points: int) -
             f"written {time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime())} UTC")
 
 
-def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
+@dataclass(frozen=True)
+class AccumulatorCounts:
+    """What the reports say of an `Accumulator`, taken at one moment (`write_outputs` from
+    another thread while points go on arriving)."""
+
+    n_points: int
+    ended: frozenset[str]
+    dropped: Counter[str]
+    bad_covariance: int
+    merged: int
+
+    @classmethod
+    def of(cls, acc: Accumulator) -> AccumulatorCounts:
+        return cls(acc.n_points, frozenset(acc.ended), Counter(acc.dropped), acc.bad_covariance,
+                   acc.merged)
+
+
+def write_outputs(acc: Accumulator | AccumulatorCounts, params: MapperParams, out_dir: Path,
                   streams: Sequence[StreamEnd] = (), lost: int = 0,
                   upstream: Sequence[Upstream] = (), frames: Sequence[FrameMap] | None = None,
                   *, written: Sequence[FrameResult] | None = None, final: bool = True,
@@ -553,7 +572,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     """Write the map of ``acc``: its frames' files (`write_frame_files`) and the reports, each
     file whole; returns (report, messages).
 
-    ``frames`` are its frames mapped (default: `fit_frames` now); ``written`` their results
+    ``acc`` may be its counts only (`AccumulatorCounts`), with ``frames`` given; no messages are
+    returned then. ``frames`` are its frames mapped (default: `fit_frames` now); ``written`` their results
     when their files are written already (then only the reports are, and in the ``final`` map
     the pictures again, after the reports, with the final map's line). ``streams`` are the input
     streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
@@ -563,7 +583,9 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
     the exploration's coverage is plotted in frame ``world``'s map.png).
     """
     out_dir.mkdir(parents=True, exist_ok=True)
-    frames = fit_frames(acc, params) if frames is None else frames
+    if frames is None:
+        assert isinstance(acc, Accumulator), "the frames of counts are given"
+        frames = fit_frames(acc, params)
     t0 = time.monotonic()
     results = (list(written) if written is not None else
                [write_frame_files(frame, params, out_dir, final,
@@ -597,6 +619,8 @@ def write_outputs(acc: Accumulator, params: MapperParams, out_dir: Path,
              "files and reports" if written is None
              else "reports and pictures" if final and params.plot else "reports",
              time.monotonic() - t0)
+    if not isinstance(acc, Accumulator):
+        return report, []
     return report, [map_messages(frame, acc.frames[frame.result.frame_id].stamp)
                     for frame in frames]
 
@@ -663,13 +687,46 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     updates = 0
     fit_start = files_time = -np.inf  # monotonic times of the last update and files
     update_s = 0.0  # how long the last update took
+    # the periodic files are written in a thread of their own (seconds of plotting): the map
+    # goes on meanwhile; one write at a time, the final one here once it is done
+    files = ThreadPoolExecutor(1, thread_name_prefix="map-files")
+    pending: tuple[Future[MapReport], list[FrameMap]] | None = None  # a write, of which map
+
+    def write_periodic(of: list[FrameMap]) -> None:
+        nonlocal pending
+        args = (AccumulatorCounts.of(acc), params, Path(params.out_dir),
+                list(subscriber.ended_streams), subscriber.totals()["lost"],
+                traffic.upstream_of(node.fqn), of)
+        exploration = track.result() if track is not None else None
+        fits = dict(live.fits)
+        pending = (files.submit(lambda: write_outputs(
+            *args, written=None, final=False, ended_by=None, updates=updates, update_fits=fits,
+            exploration=exploration)[0]), of)
+
+    def collect(wait: bool) -> None:
+        """Take a periodic write that ended (``wait``: wait for it): its files are the map's
+        on disk, and the last update's when it wrote that."""
+        nonlocal pending, on_disk, written
+        if pending is None or not (wait or pending[0].done()):
+            return
+        (future, of), pending = pending, None
+        try:
+            report = future.result()
+        except Exception:  # the final write tries again, and says why if it fails too
+            log.exception("%s: writing the periodic map files failed", node.fqn)
+            return
+        on_disk = remove_stale_files(on_disk, report)
+        if of is frames:
+            written = list(report.frames)
+
     # a stop during an update is seen when it returns: a signal asks to stop, the same signal
     # again ends the process at once (Open3D holds the interpreter while it works)
     with SignalHandlers(lambda signum: node.request_stop(), once=True):
         while not node.stop_requested and not acc.done:
+            collect(wait=False)
             # an update is due once map_period_s passed since the last one began, and twice
-            # its time (fit and files: the map takes at most half of the node's time); it waits
-            # until the input queued meanwhile is taken in (no input waiting)
+            # its time (the map takes at most half of the node's time); it waits until the
+            # input queued meanwhile is taken in (no input waiting)
             due = (acc.n_points > fitted and time.monotonic() - fit_start
                    >= max(params.map_period_s, 2 * update_s))
             rx = subscriber.receive(0.0 if due else 0.1)
@@ -711,13 +768,13 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                 publish([map_messages(frame, acc.frames[frame.result.frame_id].stamp)
                           for frame in frames])
                 fit_end = time.monotonic()
+                update_s = fit_end - fit_start
                 written = None
-                if fit_end - files_time >= params.write_period_s and not node.stop_requested:
+                if (pending is None and fit_end - files_time >= params.write_period_s
+                        and not node.stop_requested):
                     # (a stop during the update: the final files follow at once)
                     files_time = fit_end
-                    report, _ = write(None, False, None)
-                    written = list(report.frames)
-                update_s = time.monotonic() - fit_start
+                    write_periodic(frames)
                 # the time of an update is not silence: what arrived meanwhile waits in the
                 # queue, behind the statuses that came with it
                 last += update_s
@@ -754,6 +811,8 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         # the launcher's grace is short); the last update when it is that already (only the
         # reports are written again when its files are); a stop now changes nothing, the same
         # signal again ends the process at once
+        collect(wait=True)
+        files.shutdown()
         node.set_state("running", f"final map of {acc.n_points} points")
         final = fit_frames(acc, params, live, final=ended_by != "stop")
         if not updates or len(final) != len(frames) or any(
@@ -831,7 +890,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging()
     params = load_params(MapperParams, args.params_file, args.params)
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
-    import open3d  # noqa: F401  # seconds to load: before the graph starts, not in the first map
+    # seconds to load: before the graph starts, not in the first map (Open3D, the pictures'
+    # backend for their thread, the fits' compiled kernels)
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import open3d  # noqa: F401
+    warm_up(params.settings)
     with Node.from_args(args) as node:
         report = run(node, params)
     if report is not None and report.n_points == 0:

@@ -5,6 +5,8 @@ points."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -139,8 +141,25 @@ def test_an_object_split_by_new_points_is_two_objects_fitted_again() -> None:
     assert len(split.surfaces) == 2
 
 
+def refactored(surface: gp_surface.GPSurface, points: np.ndarray, normals: np.ndarray
+               ) -> gp_surface.GPSurface:
+    """The regression of ``surface`` on its observations and ``points`` (K, 3) with unit
+    ``normals`` at the least point std, its hyperparameters kept, from one new Cholesky factor
+    of all of them in `_design`'s order: the formulation `gp_surface.extended` avoids."""
+    u = np.concatenate([surface._u, (points - surface.center) / surface.scale])
+    n = np.concatenate([surface._n, normals / np.linalg.norm(normals, axis=1, keepdims=True)])
+    stds = np.concatenate([surface._point_std, np.full(len(points), surface.point_std)])
+    sigma = surface.sigma
+    solution = gp_surface._solve(
+        sigma * sigma * gp_surface._prior(u, surface.length_scale)
+        + gp_surface._noise(n, stds, surface.normal_std), gp_surface._design(u),
+        surface.quadric_std, gp_surface._targets(n))
+    return replace(surface, _point_std=stds, _u=u, _n=n, _solution=solution,
+                   _alpha_se=sigma * sigma * solution.alpha, _order=None)
+
+
 def test_extending_a_fit_is_the_regression_on_the_union_of_its_active_points() -> None:
-    """`gp_surface.extended` (the Cholesky factor grown by blocks, twice) against `conditioned`
+    """`gp_surface.extended` (the Cholesky factor grown by blocks, twice) against `refactored`
     (one factor of all the observations, in `_design`'s order): the same mean, gradient and
     std to rounding."""
     lines = [ball_line(CENTRES_M[0], polar, "w") for polar in (1.0, 1.2, 1.4, 1.6, 1.8)]
@@ -151,7 +170,7 @@ def test_extending_a_fit_is_the_regression_on_the_union_of_its_active_points() -
     twice = gp_surface.extended(once, points[320:], normals[320:], 12)
     taken = np.concatenate([twice.active[len(fit.active):]]) - 240
     assert len(taken) == len(twice._u) - len(fit._u) and len(taken) >= 20
-    direct = gp_surface.conditioned(fit, points[240:][taken], normals[240:][taken])
+    direct = refactored(fit, points[240:][taken], normals[240:][taken])
     q = CENTRES_M[0] + np.random.default_rng(0).uniform(-2, 2, (300, 3)) * RADIUS_M
     for a, b in zip(twice.evaluate(q), direct.evaluate(q), strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max())

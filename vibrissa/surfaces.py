@@ -304,7 +304,6 @@ def _paraboloid_closest(q_B: FloatArray, a: float, b: float, h: float) -> FloatA
     return out
 
 
-
 _POSE_KEYS = ("cx", "cy", "cz", "roll", "pitch", "yaw")
 _SHAPE_KEYS = {
     "paraboloid": ("a", "b", "h"),

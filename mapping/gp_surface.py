@@ -398,7 +398,9 @@ def _regress(chol: FloatArray, G: FloatArray, q: float, y: FloatArray) -> _Solut
                               check_finite=False)
     Aw = A.T @ w
     beta = cho_solve((chol_beta, True), Aw, check_finite=False)
-    alpha = cho_solve((chol, True), y - G @ beta, check_finite=False)
+    # K_y^-1 (y - G beta) = L^-T L^-1 (y - G beta) = L^-T (w - A beta): one triangular solve
+    # (cho_solve would copy the factor to Fortran order first)
+    alpha = solve_triangular(chol, w - A @ beta, lower=True, trans="T", check_finite=False)
     # y ~ N(0, K_y + q^2 G G^T): Woodbury for the quadratic form, the determinant lemma for
     # log |K_y + q^2 G G^T| = log |K_y| + log |q^2 M|
     quadratic = float(w @ w) - float(Aw @ beta)

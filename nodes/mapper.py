@@ -114,6 +114,7 @@ from collections import Counter
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import NamedTuple
 
@@ -697,11 +698,10 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         args = (AccumulatorCounts.of(acc), params, Path(params.out_dir),
                 list(subscriber.ended_streams), subscriber.totals()["lost"],
                 traffic.upstream_of(node.fqn), of)
-        exploration = track.result() if track is not None else None
-        fits = dict(live.fits)
-        pending = (files.submit(lambda: write_outputs(
-            *args, written=None, final=False, ended_by=None, updates=updates, update_fits=fits,
-            exploration=exploration)[0]), of)
+        job = partial(write_outputs, *args, written=None, final=False, ended_by=None,
+                      updates=updates, update_fits=dict(live.fits),
+                      exploration=track.result() if track is not None else None)  # as of now
+        pending = (files.submit(lambda: job()[0]), of)
 
     def collect(wait: bool) -> None:
         """Take a periodic write that ended (``wait``: wait for it): its files are the map's

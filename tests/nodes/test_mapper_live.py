@@ -26,6 +26,7 @@ from vibrissa.msgs import (
     SurfaceMesh,
 )
 from vibrissa.nodes.mapper import (
+    AccumulatorCounts,
     MapperParams,
     fit_frames,
     receive,
@@ -319,3 +320,22 @@ def test_a_final_map_whose_files_are_written_already_gets_pictures_that_say_fina
     assert "final map (ended by stop): 60 contact points" in (tmp_path / "map.html").read_text()
     assert (tmp_path / "cloud.ply").stat().st_mtime_ns == cloud  # not written again
     assert json.loads((tmp_path / "report.json").read_text())["ended_by"] == "stop"
+
+
+def test_a_periodic_write_reports_the_counts_as_of_its_submission(tmp_path: Path) -> None:
+    """The periodic files are written in a thread while points go on arriving: what the
+    report says of the accumulator is its counts when the write was handed over."""
+    params = MapperParams(out_dir=str(tmp_path), plot=False, cells=16)
+    acc = Accumulator(1)
+    for i in range(60):
+        receive(acc, contact(i))
+    frames = fit_frames(acc, params, LiveMap(), final=False)
+    counts = AccumulatorCounts.of(acc)
+    for i in range(60, 80):  # meanwhile
+        receive(acc, contact(i))
+    report, messages = write_outputs(counts, params, tmp_path, frames=frames, final=False,
+                                     ended_by=None, updates=1)
+    assert messages == [] and report.n_points == 60 and acc.n_points == 80
+    written = json.loads((tmp_path / "report.json").read_text())
+    assert written["n_points"] == 60 and written["final"] is False
+    assert (tmp_path / "cloud.ply").exists()

@@ -14,6 +14,7 @@ by the reach on every side) and lies below the box's top, where every point it c
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -137,6 +138,15 @@ def coverage(samples_m: FloatArray, mesh_vertices_m: FloatArray, tol_m: float = 
     return float(np.mean(distance <= tol_m))
 
 
+PATH_STEP_M = 0.001
+"""How far the base moves between the poses `ExplorationLog` keeps for the pictures, m: a path
+of 1 m is about 1 000 poses."""
+
+PATH_TURN_RAD = 0.05
+"""... or how far it turns in place, rad."""
+_TURN_GAP = 1.0 - math.cos(PATH_TURN_RAD / 2)  # 1 - |q1 . q2| at that turn
+
+
 class ExplorationLog:
     """An exploration as the map sees it: the path length of the robot base, and the coverage
     of each map along it (`coverage` of ``samples_m`` (N, 3), m, within ``tol_m``).
@@ -153,14 +163,22 @@ class ExplorationLog:
         self.path_length_m = 0.0
         self.history: list[tuple[float, float]] = []
         self._last: FloatArray | None = None
+        self._path: list[tuple[FloatArray, FloatArray]] = []  # for the pictures
 
-    def move(self, p_W_m: npt.ArrayLike) -> float:
-        """Take the base's next position (3,), m; the step from the last one, m (0 for the
-        first)."""
+    def move(self, p_W_m: npt.ArrayLike, q_W_xyzw: npt.ArrayLike | None = None) -> float:
+        """Take the base's next position (3,), m, and its orientation (4,) (x, y, z, w) when
+        given (kept for the pictures once the base moved `PATH_STEP_M` or turned
+        `PATH_TURN_RAD`); the step from the last position, m (0 for the first)."""
         p = np.asarray(p_W_m, dtype=float).reshape(3)
         step = 0.0 if self._last is None else float(np.linalg.norm(p - self._last))
         self._last = p
         self.path_length_m += step
+        q = None if q_W_xyzw is None else np.asarray(q_W_xyzw, dtype=float).reshape(4)
+        if q is not None and np.all(np.isfinite(p)) and np.linalg.norm(q) > 0:
+            q = q / np.linalg.norm(q)
+            if not self._path or (np.linalg.norm(p - self._path[-1][0]) >= PATH_STEP_M
+                                  or 1.0 - abs(float(q @ self._path[-1][1])) >= _TURN_GAP):
+                self._path.append((p, q))
         return step
 
     def record(self, mesh_vertices_m: FloatArray) -> float:
@@ -172,4 +190,6 @@ class ExplorationLog:
 
     def result(self) -> Exploration:
         """The exploration so far, for the report."""
-        return Exploration(self.planner, self.path_length_m, tuple(self.history))
+        path = (np.array([p for p, _ in self._path]).reshape(-1, 3),
+                np.array([q for _, q in self._path]).reshape(-1, 4))
+        return Exploration(self.planner, self.path_length_m, tuple(self.history), path)

@@ -9,7 +9,12 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from vibrissa.mapping.accumulate import MAX_FORCE_N, MAX_POSITION_M
+
+FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -179,6 +184,11 @@ class Exploration:
     planner: str
     path_length_m: float
     coverage: tuple[tuple[float, float], ...] = ()
+    base_path: tuple[FloatArray, FloatArray] | None = field(default=None, compare=False,
+                                                            repr=False)
+    """The base's poses driven so far, for the pictures (not in report.json): positions
+    (N, 3) m and quaternions (N, 4) (x, y, z, w), about one a
+    `vibrissa.mapping.coverage.PATH_STEP_M` of travel."""
 
     @property
     def coverage_final(self) -> float | None:

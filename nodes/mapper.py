@@ -159,7 +159,7 @@ from vibrissa.runtime.node import EXIT_LOST_DATA
 from vibrissa.runtime.params import require, require_non_negative, require_parsed, require_positive
 from vibrissa.runtime.signals import SignalHandlers
 from vibrissa.runtime.traffic import Traffic, Upstream
-from vibrissa.scene import Scene
+from vibrissa.scene import Scene, robot_path
 from vibrissa.surfaces import parse_surface
 from vibrissa.units import RodScale
 from vibrissa.wire.topics import STATUS_TOPIC, resolve_topic, validate_name
@@ -514,7 +514,13 @@ def write_pictures(frame: FrameMap, params: MapperParams, out_dir: Path, status:
     """A mapped frame's map.png and map.html with the line ``status`` (`write_frame_files`)."""
     frame_id = frame.result.frame_id
     world = frame_id == SCENE_FRAME
-    layers = map_layers(frame, params.world if world else None, status,
+    scene = params.world if world else None
+    if scene is not None and exploration is not None and exploration.base_path is not None \
+            and len(exploration.base_path[0]) >= 2:  # the path driven, not the scene file's
+        positions, quaternions = exploration.base_path
+        scene = replace(scene, path=robot_path(np.arange(len(positions), dtype=float),
+                                               positions, quaternions))
+    layers = map_layers(frame, scene, status,
                         exploration.coverage if world and exploration is not None else None)
     files = {"png": out_dir / f"map{_suffix(frame_id)}.png",
              "html": out_dir / f"map{_suffix(frame_id)}.html"}
@@ -876,7 +882,7 @@ def take_pose(node: Node, track: ExplorationLog, msg: RobotPose) -> float:
                         node.fqn, msg.child_frame_id, msg.frame_id, ROBOT_FRAME, SCENE_FRAME)
         node.counters["ignored_poses"] = ignored + 1
         return 0.0
-    return track.move(msg.position)
+    return track.move(msg.position, msg.orientation)
 
 
 def _power_of_ten(now: int, before: int) -> bool:

@@ -148,3 +148,30 @@ def test_bad_arguments_are_refused_by_name() -> None:
         coverage_samples([ball(100.0)], *BIG, reach_m=0.0, spacing_m=1e-3)
     with pytest.raises(ValueError, match="tol_m"):
         coverage(np.zeros((1, 3)), np.zeros((1, 3)), tol_m=-1.0)
+
+
+def test_the_log_keeps_a_pose_a_millimetre_or_a_turn_for_the_pictures_not_for_the_report(
+        ) -> None:
+    from scipy.spatial.transform import Rotation
+
+    from vibrissa.mapping.coverage import PATH_STEP_M, PATH_TURN_RAD, ExplorationLog
+
+    log = ExplorationLog("uncertainty", np.zeros((1, 3)))
+    identity = [0.0, 0.0, 0.0, 1.0]
+    for x in np.arange(0.0, 0.0101, 0.0001):  # 10 mm in 0.1 mm steps
+        log.move([x, 0.0, 0.0], identity)
+    for yaw in np.linspace(0.0, 1.0, 101):  # then a turn in place of 1 rad
+        log.move([0.01, 0.0, 0.0], Rotation.from_euler("z", yaw).as_quat())
+    log.move([0.02, 0.0, 0.0])  # no orientation: the length only
+    positions, quaternions = log.result().base_path
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    moved = steps[steps > 0]
+    assert len(moved) == 10 and np.all(moved >= PATH_STEP_M - 1e-12)
+    assert np.all(moved <= PATH_STEP_M + 1e-4 + 1e-12)
+    turns = (Rotation.from_quat(quaternions[:-1]).inv() * Rotation.from_quat(quaternions[1:])
+             ).magnitude()[steps == 0]
+    # each kept turn at least PATH_TURN_RAD and less than that and one yaw step of 0.01 rad
+    assert np.all((turns >= PATH_TURN_RAD - 1e-9) & (turns <= PATH_TURN_RAD + 0.01 + 1e-9))
+    assert len(turns) >= 1.0 / (PATH_TURN_RAD + 0.01) - 1
+    assert log.result().path_length_m == pytest.approx(0.02)
+    assert "base_path" not in log.result().as_dict()

@@ -490,6 +490,49 @@ def conditioned(surface: GPSurface, points: FloatArray, normals: FloatArray) -> 
     return extended(surface, points, normals, len(np.reshape(points, (-1, 3))))
 
 
+@dataclass(frozen=True)
+class StdAt:
+    """The std of ``surface`` at fixed points, kept through :func:`conditioned`: the triangular
+    solve of the factor's old block is kept (``v``), only the new block's is solved, O(n m Q)
+    for n old and m new observations at Q points against O((n + m)^2 Q)."""
+
+    surface: GPSurface
+    q: FloatArray  # the points, normalised (Q, 3)
+    v: FloatArray  # L^-1 sigma^2 k(observations, q) (4M, Q), rows in the factor's order
+
+    @classmethod
+    def of(cls, surface: GPSurface, points: FloatArray) -> StdAt:
+        """At points (Q, 3), m."""
+        q = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - surface.center) / surface.scale
+        cross = _cross_se(q, surface._u, surface.length_scale)
+        if surface._order is not None:
+            cross = cross[:, surface._order]
+        v = solve_triangular(surface._solution.chol, surface.sigma**2 * cross.T, lower=True,
+                             check_finite=False)
+        return cls(surface, q, v)
+
+    def std(self) -> FloatArray:
+        """Std (Q,) of f at the points, m: ``surface.std``'s."""
+        solution, s2 = self.surface._solution, self.surface.sigma**2
+        phi, _ = _quadric(self.q)
+        r = solve_triangular(solution.chol_beta, phi.T - solution.basis.T @ self.v, lower=True,
+                             check_finite=False)
+        variance = s2 - np.einsum("ij,ij->j", self.v, self.v) + np.einsum("ij,ij->j", r, r)
+        return np.hypot(np.sqrt(np.maximum(variance, 0.0)) * self.surface.scale,
+                        self.surface.residual_std)
+
+    @_one_blas_thread
+    def conditioned(self, points: FloatArray, normals: FloatArray) -> StdAt:
+        """At the same points, of :func:`conditioned` (``surface``, ``points``, ``normals``)."""
+        surface = conditioned(self.surface, points, normals)
+        k = len(self.v)
+        chol = surface._solution.chol  # the old factor, then the new block's rows
+        cross = _cross_se(self.q, surface._u[len(self.surface._u):], surface.length_scale)
+        v_new = solve_triangular(chol[k:, k:], surface.sigma**2 * cross.T - chol[k:, :k] @ self.v,
+                                 lower=True, check_finite=False)
+        return StdAt(surface, self.q, np.concatenate([self.v, v_new]))
+
+
 def _point_stds(points: FloatArray, point_var_m2: FloatArray | None, scale: float,
                 point_std: float) -> FloatArray:
     """Each point's std of f (N,), units of s: from its variance along the normal (m^2; NaN:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from vibrissa.mapping.gp_surface import GPSurface, conditioned
+from vibrissa.mapping.gp_surface import GPSurface, StdAt
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -106,7 +106,8 @@ def propose_sections(surface: GPSurface, vertices: FloatArray, contacts: FloatAr
     # stays the same surface, but its gradient's length may drift, and with it sd_f / |grad|
     _, gradient = surface.evaluate(reach)
     slope = np.maximum(np.linalg.norm(gradient, axis=1), 1e-12)
-    std = surface.std(reach) / slope
+    at = StdAt.of(surface, reach)  # the std there, kept through the conditionings
+    std = at.std() / slope
     for _ in range(count):
         scores = np.full(len(offsets), -np.inf)
         for k, offset in enumerate(offsets):
@@ -119,10 +120,10 @@ def propose_sections(surface: GPSurface, vertices: FloatArray, contacts: FloatAr
         on = np.flatnonzero(np.abs(position - offsets[best]) <= band / 2)
         line = reach[on[_order_along(reach[on])]]
         taken = line[np.unique(np.linspace(0, len(line) - 1, SECTION_POINTS).astype(int))]
-        _, normals = surface.evaluate(taken)
+        _, normals = at.surface.evaluate(taken)
         before = float(std.max())
-        surface = conditioned(surface, taken, normals)
-        std = surface.std(reach) / slope
+        at = at.conditioned(taken, normals)
+        std = at.std() / slope
         proposals.append(Proposal(float(offsets[best]), axis, line, float(scores[best]),
                                   before, float(std.max())))
     return proposals

@@ -88,3 +88,21 @@ def test_on_the_demo_object_three_proposals_beat_three_evenly_spaced_trails():
         return np.max(np.abs(f) / np.linalg.norm(g, axis=1))
 
     assert max_error(demo + proposed) < 0.7 * max_error(demo + even)
+
+
+def test_the_std_kept_through_conditionings_is_the_conditioned_surfaces(two_lines):
+    """`StdAt` solves only the new block of the factor at each conditioning: the std of the
+    surface conditioned on all the sections so far, to rounding."""
+    points, surface, mesh = two_lines
+    queries = mesh.vertices[::5]
+    at = gp_surface.StdAt.of(surface, queries)
+    np.testing.assert_allclose(at.std(), surface.std(queries), rtol=1e-12)
+    rng = np.random.default_rng(3)
+    direct = surface
+    for _ in range(3):
+        taken = mesh.vertices[rng.choice(len(mesh.vertices), 40, replace=False)]
+        _, normals = direct.evaluate(taken)
+        at = at.conditioned(taken, normals)
+        direct = gp_surface.conditioned(direct, taken, normals)
+        np.testing.assert_allclose(at.std(), direct.std(queries), rtol=1e-9)
+    assert at.std().max() < surface.std(queries).max()

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -277,14 +277,3 @@ def map_cloud(points_m: FloatArray, forces_n: FloatArray, whisker_ids: Sequence[
               if covariances_m2 is None else np.asarray(covariances_m2, dtype=np.float64))
     return fit_frame(frame_id, cloud, settings, truth)
 
-
-def warm_up(settings: MapSettings | None = None) -> None:
-    """Map a small made-up object once (`map_cloud`): a process loads the fits' compiled
-    kernels and libraries then, not in its first map (seconds at start, beside a busy stream)."""
-    angle = np.linspace(0.2, 1.2, 60)
-    lines = [np.column_stack([np.cos(angle) * np.cos(phi), np.cos(angle) * np.sin(phi),
-                              np.sin(angle)]) for phi in (0.0, 0.4, 0.8, 1.2)]
-    normals = np.vstack(lines)  # points on a ball of 20 mm, pushed along its normals
-    coarse = replace(settings or MapSettings(), cells=16)  # the same kernels, a small grid
-    map_cloud(0.02 * normals, 0.01 * normals, [f"w{k}" for k in range(4) for _ in angle],
-              coarse)

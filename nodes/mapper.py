@@ -144,7 +144,7 @@ from vibrissa.mapping import (
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
 from vibrissa.mapping.coverage import COVERAGE_TOL_M, coverage_samples
-from vibrissa.mapping.fit import joined_part, warm_up
+from vibrissa.mapping.fit import joined_part
 from vibrissa.msgs import (
     ContactCloud,
     ContactPointArray,
@@ -896,11 +896,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging()
     params = load_params(MapperParams, args.params_file, args.params)
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
-    # seconds to load: before the graph starts, not in the first map (Open3D, the pictures'
-    # backend for their thread, the fits' compiled kernels)
-    import matplotlib.backends.backend_agg  # noqa: F401
-    import open3d  # noqa: F401
-    warm_up(params.settings)
+    import open3d  # noqa: F401  # seconds to load: before the graph starts, not in the first map
     with Node.from_args(args) as node:
         report = run(node, params)
     if report is not None and report.n_points == 0:

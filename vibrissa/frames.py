@@ -210,11 +210,6 @@ class PoseSamples:
         object.__setattr__(self, "p_AB", p)
         object.__setattr__(self, "_q", np.ascontiguousarray(self.rotations.as_quat()))
 
-    @property
-    def quaternions(self) -> FloatArray:
-        """The samples' orientations as unit quaternions (N, 4) (x, y, z, w), contiguous."""
-        return self._q
-
     def at(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Positions (n, 3) and rotation matrices (n, 3, 3) at times ``t`` (n,); ValueError
         outside the samples."""

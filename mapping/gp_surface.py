@@ -355,16 +355,22 @@ class GPSurface:
         if self._order is not None:
             cross = cross[:, self._order]
         v = solve_triangular(solution.chol, s2 * cross.T, lower=True, check_finite=False)
-        # the trend's share: R^T M^-1 R with R = phi - A^T v (eq. 2.42)
-        r = solve_triangular(solution.chol_beta, phi.T - solution.basis.T @ v, lower=True,
-                             check_finite=False)
-        variance = s2 - np.einsum("ij,ij->j", v, v) + np.einsum("ij,ij->j", r, r)
-        return np.sqrt(np.maximum(variance, 0.0))
+        return _posterior_std(solution, s2, phi, v)
 
     def position_std(self, points: FloatArray) -> FloatArray:
         """Std (N,) of the surface's position near points (N, 3) on it, m: sd_f / |grad f|."""
         _, g = self.evaluate(points)
         return self.std(points) / np.maximum(np.linalg.norm(g, axis=1), 1e-12)
+
+
+def _posterior_std(solution: _Solution, s2: float, phi: FloatArray, v: FloatArray) -> FloatArray:
+    """Posterior std of f (Q,), units of s, at points with trend monomials phi (Q, 10) and
+    v = L^-1 sigma^2 k(observations, points) (4M, Q) in the factor's order."""
+    # the trend's share: R^T M^-1 R with R = phi - A^T v (eq. 2.42)
+    r = solve_triangular(solution.chol_beta, phi.T - solution.basis.T @ v, lower=True,
+                         check_finite=False)
+    variance = s2 - np.einsum("ij,ij->j", v, v) + np.einsum("ij,ij->j", r, r)
+    return np.sqrt(np.maximum(variance, 0.0))
 
 
 @dataclass(frozen=True)
@@ -513,13 +519,9 @@ class StdAt:
 
     def std(self) -> FloatArray:
         """Std (Q,) of f at the points, m: ``surface.std``'s."""
-        solution, s2 = self.surface._solution, self.surface.sigma**2
         phi, _ = _quadric(self.q)
-        r = solve_triangular(solution.chol_beta, phi.T - solution.basis.T @ self.v, lower=True,
-                             check_finite=False)
-        variance = s2 - np.einsum("ij,ij->j", self.v, self.v) + np.einsum("ij,ij->j", r, r)
-        return np.hypot(np.sqrt(np.maximum(variance, 0.0)) * self.surface.scale,
-                        self.surface.residual_std)
+        std = _posterior_std(self.surface._solution, self.surface.sigma**2, phi, self.v)
+        return np.hypot(std * self.surface.scale, self.surface.residual_std)
 
     @_one_blas_thread
     def conditioned(self, points: FloatArray, normals: FloatArray) -> StdAt:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -214,9 +214,7 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
             std_max_m=float(std.max()) if len(std) and uncertain else None,
             uncertainty=uncertain,
             true_object=true.name if true is not None else None, true_object_median_m=median,
-            next_sweeps=tuple(
-                NextSweep(p.offset_m, p.axis.tolist(), len(p.line), p.std_on_line_m,
-                          p.std_max_before_m, p.std_max_after_m) for p in proposals[k]),
+            next_sweeps=next_sweeps(proposals[k]),
             points_nearer_other=nearer_other, cloud_to_surface_max=cloud_stats[0],
             cloud_to_surface_mean=cloud_stats[1], mesh_to_surface_max=mesh_stats[0],
             mesh_to_surface_mean=mesh_stats[1]))
@@ -249,6 +247,20 @@ def frame_map(frame_id: str, objects: FrameObjects, surfaces: Sequence[ObjectSur
                     vertices, triangles, std, [list(p) for p in proposals], truth)
 
 
+def next_sweeps(proposals: Sequence[Proposal]) -> tuple[NextSweep, ...]:
+    """An object's next sweeps as its report gives them."""
+    return tuple(NextSweep(p.offset_m, p.axis.tolist(), len(p.line), p.std_on_line_m,
+                           p.std_max_before_m, p.std_max_after_m) for p in proposals)
+
+
+def with_proposals(frame: FrameMap, proposals: Sequence[list[Proposal]]) -> FrameMap:
+    """``frame`` with these next sweeps of its objects (in its report too)."""
+    objects = tuple(replace(obj, next_sweeps=next_sweeps(p))
+                    for obj, p in zip(frame.result.objects, proposals, strict=True))
+    return replace(frame, result=replace(frame.result, objects=objects),
+                   proposals=[list(p) for p in proposals])
+
+
 def joined_part(surfaces: Sequence[ObjectSurface], known: bool = True,
                 ) -> tuple[FloatArray, IntArray, FloatArray]:
     """The known (or unknown) part of every surface's mesh in one: vertices (V, 3) m, triangles
@@ -277,3 +289,16 @@ def map_cloud(points_m: FloatArray, forces_n: FloatArray, whisker_ids: Sequence[
               if covariances_m2 is None else np.asarray(covariances_m2, dtype=np.float64))
     return fit_frame(frame_id, cloud, settings, truth)
 
+
+
+def warm_up(settings: MapSettings | None = None) -> None:
+    """Map a small made-up object once (`map_cloud`): a process loads the fits' compiled
+    kernels and libraries then, not in its first map (a second at start, beside a busy
+    stream)."""
+    angle = np.linspace(0.2, 1.2, 60)
+    lines = [np.column_stack([np.cos(angle) * np.cos(phi), np.cos(angle) * np.sin(phi),
+                              np.sin(angle)]) for phi in (0.0, 0.4, 0.8, 1.2)]
+    normals = np.vstack(lines)  # points on a ball of 20 mm, pushed along its normals
+    coarse = replace(settings or MapSettings(), cells=16)  # the same kernels, a small grid
+    map_cloud(0.02 * normals, 0.01 * normals, [f"w{k}" for k in range(4) for _ in angle],
+              coarse)

@@ -51,8 +51,8 @@ import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from functools import wraps
-from typing import ParamSpec, TypeVar
+from functools import partial, wraps
+from typing import Any, ParamSpec, TypeVar
 
 import numba
 import numpy as np
@@ -337,30 +337,39 @@ class GPSurface:
         return f * self.scale, g
 
     @_one_blas_thread
-    def std(self, points: FloatArray, chunk: int = 1024) -> FloatArray:
+    def std(self, points: FloatArray, chunk: int = 1024, single: bool = False) -> FloatArray:
         """Std (N,) of f at points (N, 3), m: the posterior's and ``residual_std``. Chunks of
-        points are solved on the cores side by side (the triangular solves release the GIL);
-        each point's std is computed alone, whatever the chunks."""
+        at most ``chunk`` points, at least one per core, are solved on the cores side by side
+        (the triangular solves release the GIL); each point's std is computed alone, whatever
+        the chunks. ``single``: the triangular solve, most of the cost, in single precision
+        (half the time; absolute errors of a few 1e-3 x sigma, which swamp the std near the
+        points, far below sigma there: good for a mesh's known part, not for the std itself)."""
         q = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.center) / self.scale
-        parts = [q[start:start + chunk] for start in range(0, len(q), chunk)]
-        with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
-            out = np.concatenate(list(pool.map(self._std_unit, parts)) or [np.zeros(0)])
+        cores = os.cpu_count() or 1
+        parts = [part for part in np.array_split(q, max(cores, -(-len(q) // chunk))) if len(part)]
+        chol = self._solution.chol.astype(np.float32) if single else self._solution.chol
+        with ThreadPoolExecutor(cores) as pool:
+            out = np.concatenate(list(pool.map(partial(self._std_unit, chol=chol), parts))
+                                 or [np.zeros(0)])
         return np.hypot(out * self.scale, self.residual_std)
 
-    def _std_unit(self, q: FloatArray) -> FloatArray:
-        """Posterior std (Q,) of f at normalised points q (Q, 3), units of s."""
+    def _std_unit(self, q: FloatArray, chol: npt.NDArray[np.floating[Any]]) -> FloatArray:
+        """Posterior std (Q,) of f at normalised points q (Q, 3), units of s, with the factor
+        ``chol`` (in the precision to solve in)."""
         solution, s2 = self._solution, self.sigma**2
         phi, _ = _quadric(q)
         cross = _cross_se(q, self._u, self.length_scale)
         if self._order is not None:
             cross = cross[:, self._order]
-        v = solve_triangular(solution.chol, s2 * cross.T, lower=True, check_finite=False)
-        return _posterior_std(solution, s2, phi, v)
+        v = solve_triangular(chol, (s2 * cross.T).astype(chol.dtype, copy=False), lower=True,
+                             check_finite=False)
+        return _posterior_std(solution, s2, phi, v.astype(np.float64, copy=False))
 
-    def position_std(self, points: FloatArray) -> FloatArray:
-        """Std (N,) of the surface's position near points (N, 3) on it, m: sd_f / |grad f|."""
+    def position_std(self, points: FloatArray, single: bool = False) -> FloatArray:
+        """Std (N,) of the surface's position near points (N, 3) on it, m: sd_f / |grad f|
+        (``single``: as for `std`)."""
         _, g = self.evaluate(points)
-        return self.std(points) / np.maximum(np.linalg.norm(g, axis=1), 1e-12)
+        return self.std(points, single=single) / np.maximum(np.linalg.norm(g, axis=1), 1e-12)
 
 
 def _posterior_std(solution: _Solution, s2: float, phi: FloatArray, v: FloatArray) -> FloatArray:
@@ -651,7 +660,7 @@ touched."""
 
 
 def mesh(surface: GPSurface, box_lo: FloatArray, box_hi: FloatArray, cells: int = 64,
-         max_std: float = 0.0) -> SurfaceMeshStd:
+         max_std: float = 0.0, single: bool = False) -> SurfaceMeshStd:
     """Marching cubes (scikit-image) of the mean surface over a box, with vertex stds.
 
     The mean is evaluated on a coarse grid (``COARSE`` cells per coarse cell), then exactly
@@ -669,6 +678,8 @@ def mesh(surface: GPSurface, box_lo: FloatArray, box_hi: FloatArray, cells: int 
     max_std
         Largest position std of a known triangle's vertices, m; 0: ``KNOWN_FRACTION`` x the
         prior std sigma s.
+    single
+        The vertex stds solved in single precision (`GPSurface.std`): a live map's meshes.
     """
     from scipy.interpolate import RegularGridInterpolator
     from scipy.ndimage import binary_dilation
@@ -715,6 +726,6 @@ def mesh(surface: GPSurface, box_lo: FloatArray, box_hi: FloatArray, cells: int 
         return empty
     vertices, triangles, _, _ = marching_cubes(f, 0.0, spacing=(cell, cell, cell))
     vertices = vertices.astype(np.float64) + box_lo
-    std = surface.position_std(vertices)
+    std = surface.position_std(vertices, single)
     known = np.all(std[triangles] <= max_std, axis=1)
     return SurfaceMeshStd(vertices, triangles.astype(np.int64), std, known, max_std, cell)

@@ -12,11 +12,16 @@ object is matched to the object of the previous update that holds its points:
 * **grown** (all of one previous object's points and new ones): its Gaussian-process surface is
   conditioned on the new points, its hyperparameters kept (`gp_surface.extended`: the Cholesky
   factor extended by a block, exact for the active points it holds), and meshed again on a grid
-  of ``LiveSettings.cells``; its next sweeps are those of its last full fit;
+  of ``LiveSettings.cells``; its next sweeps are those of its last full fit (or proposed on
+  it, when that fit's were never);
 * anything else (a new object, objects that **merged**, an object that **split**, one grown
   by ``LiveSettings.refit_growth`` of its points since its last full fit: the cadence of the
   hyperparameters): a full fit as `fit_frame` does it, meshed on the grid of
   ``LiveSettings.cells`` too.
+
+An update proposes the next sweeps of the objects it fitted in full, or with
+``propose=False`` leaves them to `LiveMap.propose` (the mapper publishes the meshes first: the
+sweeps take as long as the surfaces); until then those objects have none.
 
 `LiveMap.final` fits every object whose surface is not already the full fit on exactly its
 points, meshed on the settings' grid: the final map is then the single fit's (`fit_frame` on
@@ -30,7 +35,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import cast
 
 import numpy as np
@@ -46,6 +51,7 @@ from vibrissa.mapping.fit import (
     frame_contacts,
     frame_map,
     object_proposals,
+    with_proposals,
 )
 from vibrissa.mapping.gp_surface import GPParams
 from vibrissa.mapping.next_sweep import Proposal
@@ -72,10 +78,15 @@ class LiveSettings:
         ``MAX_CELLS``; the final map uses the settings' own): the std at the mesh's vertices
         is most of an update's cost, and it scales with their number, the square of the
         cells.
+    single
+        An update solves the std at the mesh's vertices in single precision
+        (`gp_surface.GPSurface.std`: half its time; on the robot demo's objects within 2e-3
+        of the prior std, the same known part); the final map in double.
     """
 
     refit_growth: float = 0.5
     cells: int = 32
+    single: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.refit_growth) and self.refit_growth > 0):
@@ -89,14 +100,14 @@ class LiveSettings:
 @dataclass(frozen=True)
 class _Object:
     """An object of the last update: its points (n, 3), normals (n, 3) and variances (n,) in
-    line order, its surface and next sweeps, the points of its last full fit, and whether its
-    surface and sweeps are that full fit on exactly these points."""
+    line order, its surface and next sweeps (None: not proposed yet), the points of its last
+    full fit, and whether its surface and sweeps are that full fit on exactly these points."""
 
     points: FloatArray
     normals: FloatArray
     normal_var: FloatArray
     surface: ObjectSurface
-    proposals: list[Proposal]
+    proposals: list[Proposal] | None
     fitted: int
     exact: bool
 
@@ -178,27 +189,42 @@ class LiveMap:
         self._frames: dict[str, _Frame] = {}
 
     def update(self, frame_id: str, cloud: FrameCloud, settings: MapSettings | None = None,
-               truth: Sequence[TrueObject] = ()) -> FrameMap:
+               truth: Sequence[TrueObject] = (), propose: bool = True) -> FrameMap:
         """The map of ``frame_id`` with all of its points so far (``cloud``, as for
-        `fit_frame`), refitting only the objects that changed since its last update."""
-        return self._map(frame_id, cloud, settings or MapSettings(), tuple(truth), final=False)
+        `fit_frame`), refitting only the objects that changed since its last update;
+        ``propose=False``: the next sweeps of objects fitted in full are left to `propose`."""
+        return self._map(frame_id, cloud, settings or MapSettings(), tuple(truth), final=False,
+                         propose=propose)
+
+    def propose(self, frame_id: str) -> FrameMap:
+        """The last map of ``frame_id`` with the next sweeps its update left out (the same map
+        when it left none)."""
+        last = self._frames[frame_id]
+        if all(obj.proposals is not None for obj in last.tracked):
+            return last.map
+        tracked = [self._proposed(obj, last.settings) for obj in last.tracked]
+        mapped = with_proposals(last.map, [cast(list[Proposal], obj.proposals)
+                                           for obj in tracked])
+        self._frames[frame_id] = replace(last, map=mapped, tracked=tracked)
+        return mapped
 
     def final(self, frame_id: str, cloud: FrameCloud, settings: MapSettings | None = None,
               truth: Sequence[TrueObject] = ()) -> FrameMap:
         """The map of ``frame_id`` equal to ``fit_frame(frame_id, cloud, settings, truth)``:
         as `update`, with the objects clustered again and a full fit of every object whose
         surface is not one already."""
-        return self._map(frame_id, cloud, settings or MapSettings(), tuple(truth), final=True)
+        return self._map(frame_id, cloud, settings or MapSettings(), tuple(truth), final=True,
+                         propose=True)
 
     def _map(self, frame_id: str, cloud: FrameCloud, settings: MapSettings,
-             truth: tuple[TrueObject, ...], final: bool) -> FrameMap:
+             truth: tuple[TrueObject, ...], final: bool, propose: bool) -> FrameMap:
         last = self._frames.get(frame_id)
         if last is not None and (last.settings != settings or last.truth != truth):
             last = None
         if (last is not None and last.cloud is cloud and last.n_points == len(cloud.seqs)
                 and (last.exact or not final)):
             self.fits["unchanged"] += 1
-            return last.map
+            return self.propose(frame_id) if propose else last.map
         contacts = frame_contacts(cloud)
         keys = _keys(contacts[0])
         objects = None
@@ -217,8 +243,10 @@ class LiveMap:
         owner = {key: j for j, obj in enumerate(before) for key in _keys(obj.points)}
         tracked = [self._object(objects, k, [keys[i] for i in objects.inside(k)], before, owner,
                                 settings, final) for k in range(len(objects.named))]
+        if propose:
+            tracked = [self._proposed(obj, settings) for obj in tracked]
         mapped = frame_map(frame_id, objects, [obj.surface for obj in tracked],
-                           [obj.proposals for obj in tracked], truth)
+                           [obj.proposals or [] for obj in tracked], truth)
         self._frames[frame_id] = _Frame(settings, truth, cloud, len(cloud.seqs), mapped,
                                         objects, tracked, clustered,
                                         exact and all(obj.exact for obj in tracked))
@@ -248,13 +276,21 @@ class LiveMap:
                 count = math.ceil(GPParams.max_active * len(new) / len(keys))
                 gp = gp_surface.extended(gp, points[new], normals[new], count, normal_var[new])
                 return _Object(points, normals, normal_var,
-                               meshed_surface(gp, points, settings, self.live.cells),
+                               meshed_surface(gp, points, settings, self.live.cells,
+                                              self.live.single),
                                previous.proposals, previous.fitted, exact=False)
         self.fits["full"] += 1
         # while the stream goes on, meshed on the live grid as a conditioned surface is (the
         # final map meshes it on the settings' grid again)
         surface = estimate_surface(points, normals, settings, normal_var,
-                                   0 if final else self.live.cells)
-        exact = final or self.live.cells == settings.cells
-        return _Object(points, normals, normal_var, surface,
-                       object_proposals(surface, points, settings), len(points), exact=exact)
+                                   0 if final else self.live.cells,
+                                   not final and self.live.single)
+        exact = final or (self.live.cells == settings.cells and not self.live.single)
+        return _Object(points, normals, normal_var, surface, None, len(points), exact=exact)
+
+    @staticmethod
+    def _proposed(obj: _Object, settings: MapSettings) -> _Object:
+        """``obj`` with its next sweeps proposed when they are not yet."""
+        if obj.proposals is not None:
+            return obj
+        return replace(obj, proposals=object_proposals(obj.surface, obj.points, settings))

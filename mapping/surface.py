@@ -65,7 +65,8 @@ class ObjectSurface:
 
 def estimate_surface(points: FloatArray, normals: FloatArray,
                      settings: MapSettings | None = None,
-                     point_var_m2: FloatArray | None = None, cells: int = 0) -> ObjectSurface:
+                     point_var_m2: FloatArray | None = None, cells: int = 0,
+                     single: bool = False) -> ObjectSurface:
     """The surface of one object's contacts by ``settings.method``: the Gaussian-process
     implicit surface (`vibrissa.mapping.gp_surface`) meshed over its box, or Open3D's Poisson or
     ball-pivoting mesh (`vibrissa.mapping.open3d_surface`), or why there is none
@@ -84,6 +85,8 @@ def estimate_surface(points: FloatArray, normals: FloatArray,
     cells
         The GP surface's marching-cubes grid along the box's longest side (0:
         ``settings.cells``; `meshed_surface`).
+    single
+        Its vertex stds solved in single precision (`gp_surface.mesh`).
     """
     settings = settings or MapSettings()
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -95,17 +98,17 @@ def estimate_surface(points: FloatArray, normals: FloatArray,
                                    settings)
         return ObjectSurface(method, None, mesh)
     gp = gp_surface.fit(points, normals, GPParams(point_std_m=settings.point_std_m), point_var_m2)
-    return meshed_surface(gp, points, settings, cells)
+    return meshed_surface(gp, points, settings, cells, single)
 
 
 def meshed_surface(gp: GPSurface, points: FloatArray, settings: MapSettings,
-                   cells: int = 0) -> ObjectSurface:
+                   cells: int = 0, single: bool = False) -> ObjectSurface:
     """The surface ``gp`` of an object's contact ``points`` (N, 3), m, meshed over its box:
     the points' box grown by ``settings.margin``, on a grid of ``cells`` along its longest side
-    (0: ``settings.cells``)."""
+    (0: ``settings.cells``), its vertex stds solved in single precision with ``single``."""
     pad = settings.margin * float(np.linalg.norm(np.ptp(points, axis=0)))
     mesh = gp_surface.mesh(gp, points.min(axis=0) - pad, points.max(axis=0) + pad,
-                           cells or settings.cells, settings.max_std_m)
+                           cells or settings.cells, settings.max_std_m, single)
     method = (f"gp implicit surface (quadric trend + SE: ell {gp.length_scale * gp.scale:.3g} m, "
               f"sigma {gp.sigma * gp.scale:.3g} m; normal std {gp.normal_std:.3g} rad; "
               f"{len(gp.active)} of {len(points)} points; known where std <= "

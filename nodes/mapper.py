@@ -45,18 +45,20 @@ received, lost) or points were dropped beyond ``max_points`` / ``max_frames``, u
 
 The live map: from the first contact point on, an update (`vibrissa.mapping.LiveMap.update`:
 only the objects that received points are fitted again, a grown object's surface conditioned on
-its new points) is due at most every ``map_period_s`` and every twice the last update's time
-(fit and files: mapping takes at most half of the node's time); it waits until the input queued
-meanwhile is taken in. Each update is published (cloud, meshes, proposals) and its files are
-rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
+its new points) is due at most every ``map_period_s`` and the last update's duration; it waits
+until every message queued meanwhile is taken in (``map_period_s`` at most). Each update's cloud
+and meshes are published at once; its next sweeps (as long again: ``LiveMap.propose``) when no
+update falls due before they would be done, ``2 x map_period_s`` after it at the latest; then
+its files are rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
 (``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) holds every point
 received. When the streams ended or fell silent it is the one of a single fit (`LiveMap.final`,
 bit for bit): the last update when it is that already (then only the reports are rewritten when
 its files are written), else the objects that changed fitted again; the points no update held
 go out first in one more update (published only). On a stop it is the live
 map (`LiveMap.update`: the last update when it holds every point, else one more), so that it is
-written within the launcher's grace; Open3D is loaded before the node joins the graph, not in
-its first update. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
+written within the launcher's grace; Open3D is loaded before the node joins the graph and the
+fits' kernels in a thread while it joins (`vibrissa.mapping.fit.warm_up`), not in its first
+update. Updates run in the main thread, the receive loop waiting (ZeroMQ queues
 the input, ``hwm`` 200 000), not in a worker thread: Open3D holds the interpreter, and a fit in
 a thread would only race the final one for the 2 cores. A SIGINT or SIGTERM is therefore seen
 when the update under way returns; the node then takes no more input and writes the final map
@@ -109,6 +111,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import threading
 import time
 from collections import Counter
 from collections.abc import Sequence
@@ -144,7 +147,7 @@ from vibrissa.mapping import (
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
 from vibrissa.mapping.coverage import COVERAGE_TOL_M, coverage_samples
-from vibrissa.mapping.fit import joined_part
+from vibrissa.mapping.fit import joined_part, warm_up
 from vibrissa.msgs import (
     ContactCloud,
     ContactPointArray,
@@ -410,10 +413,11 @@ def receive(acc: Accumulator, msg: ContactPointArray | EndOfStream) -> None:
 
 
 def fit_frames(acc: Accumulator, params: MapperParams, live: LiveMap | None = None,
-               final: bool = True) -> list[FrameMap]:
+               final: bool = True, propose: bool = True) -> list[FrameMap]:
     """Map every frame of ``acc`` in frame order: the full fit (`vibrissa.mapping.fit_frame`)
     on all its points, or with ``live`` its update (`vibrissa.mapping.LiveMap.update`: only
-    what changed is fitted again) or, ``final``, its final map (`LiveMap.final`: the full
+    what changed is fitted again; ``propose=False``: the next sweeps of what was fitted in full
+    are left to `LiveMap.propose`) or, ``final``, its final map (`LiveMap.final`: the full
     fit's)."""
     frames = []
     for frame_id, cloud in sorted(acc.frames.items()):
@@ -424,7 +428,7 @@ def fit_frames(acc: Accumulator, params: MapperParams, live: LiveMap | None = No
         elif final:
             frame = live.final(frame_id, cloud, params.settings, truth)
         else:
-            frame = live.update(frame_id, cloud, params.settings, truth)
+            frame = live.update(frame_id, cloud, params.settings, truth, propose)
         result = frame.result
         log.info("mapped %s: %d points -> %s (%d noise points), %d triangles in %.1f s",
                  frame_id, result.n_points,
@@ -461,13 +465,18 @@ def map_messages(frame: FrameMap, stamp: float) -> MapMessages:
         SurfaceMesh(stamp=stamp, frame_id=result.frame_id, vertices=unknown_vertices,
                     triangles=unknown_triangles.astype(np.int32), method=result.method,
                     n_points=result.n_points, **errors),
-        [SweepProposal(stamp=stamp, frame_id=result.frame_id, object=obj.name, rank=rank,
-                       axis=p.axis, offset=p.offset_m, line=p.line,
-                       std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
-                       std_max_after=p.std_max_after_m)
-         for obj, proposals in zip(result.objects, frame.proposals, strict=True)
-         for rank, p in enumerate(proposals, start=1)],
+        proposal_messages(frame, stamp),
     )
+
+
+def proposal_messages(frame: FrameMap, stamp: float) -> list[SweepProposal]:
+    """The next sweeps of a mapped frame, best first per object, each stamped ``stamp``."""
+    return [SweepProposal(stamp=stamp, frame_id=frame.result.frame_id, object=obj.name,
+                          rank=rank, axis=p.axis, offset=p.offset_m, line=p.line,
+                          std_on_line=p.std_on_line_m, std_max_before=p.std_max_before_m,
+                          std_max_after=p.std_max_after_m)
+            for obj, proposals in zip(frame.result.objects, frame.proposals, strict=True)
+            for rank, p in enumerate(proposals, start=1)]
 
 
 def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
@@ -632,11 +641,22 @@ def write_outputs(acc: Accumulator | AccumulatorCounts, params: MapperParams, ou
                     for frame in frames]
 
 
-def run(node: Node, params: MapperParams) -> MapReport | None:
+def _warm_up(settings: MapSettings) -> None:
+    """`warm_up`, or why it failed (the first map fails then too, and says why)."""
+    try:
+        warm_up(settings)
+    except Exception as exc:
+        log.warning("the mapper's warm-up failed: %r", exc)
+
+
+def run(node: Node, params: MapperParams, warming: threading.Thread | None = None,
+        ) -> MapReport | None:
     """Accumulate and map while the streams go on (an update at most every ``map_period_s``,
     its files at most every ``write_period_s``), then write the final map when every source
     ended, after ``timeout_s`` of silence or on a stop; the final report (``None`` when stopped
-    before a single contact point: nothing is written)."""
+    before a single contact point: nothing is written). ``warming``: a thread running
+    `warm_up`, which the first fit waits for (numba's parallel loops take one thread at a
+    time)."""
     expected: int | list[str] = (
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
@@ -666,6 +686,31 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
             for proposal in proposals:
                 proposal_pub.publish(proposal)
 
+    def fit(final: bool, propose: bool = True) -> list[FrameMap]:
+        """`fit_frames` with ``live``, once the warm-up is done."""
+        nonlocal warming
+        if warming is not None:
+            warming.join()
+            warming = None
+        return fit_frames(acc, params, live, final, propose)
+
+    def publish_maps(frames: list[FrameMap]) -> list[float]:
+        """Publish an update's maps (``fit_frames`` with ``propose=False``) without their
+        next sweeps: the stamps they went out with, for their sweeps."""
+        stamps = [acc.frames[frame.result.frame_id].stamp for frame in frames]
+        publish([map_messages(frame, stamp)._replace(proposals=[])
+                 for frame, stamp in zip(frames, stamps, strict=True)])
+        return stamps
+
+    def publish_proposals(frames: list[FrameMap], stamps: list[float]) -> list[FrameMap]:
+        """Propose the next sweeps the update of ``frames`` (its maps published with
+        ``stamps``) left out and publish them all: the frames with them."""
+        frames = [live.propose(frame.result.frame_id) for frame in frames]
+        for frame, stamp in zip(frames, stamps, strict=True):
+            for proposal in proposal_messages(frame, stamp):
+                proposal_pub.publish(proposal)
+        return frames
+
     on_disk: set[str] = set()  # the files of the map written last
 
     def write(written: Sequence[FrameResult] | None, final: bool, ended_by: str | None,
@@ -693,7 +738,11 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     written: list[FrameResult] | None = None  # its frames' results once its files are written
     updates = 0
     fit_start = files_time = -np.inf  # monotonic times of the last update and files
-    update_s = 0.0  # how long the last update took
+    update_s = 0.0  # how long the last update's maps took (not its next sweeps)
+    due_since = np.inf  # monotonic time since when an update is due
+    unproposed: float | None = None  # since when the last update's next sweeps are left out
+    stamps: list[float] = []  # the stamps its maps went out with
+    propose_s = 0.0  # how long the last next sweeps took
     # the periodic files are written in a thread of their own (seconds of plotting): the map
     # goes on meanwhile; one write at a time, the final one here once it is done
     files = ThreadPoolExecutor(1, thread_name_prefix="map-files")
@@ -730,11 +779,15 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
     with SignalHandlers(lambda signum: node.request_stop(), once=True):
         while not node.stop_requested and not acc.done:
             collect(wait=False)
-            # an update is due once map_period_s passed since the last one began, and twice
-            # its time (the map takes at most half of the node's time); it waits until the
-            # input queued meanwhile is taken in (no input waiting)
+            # an update is due once map_period_s passed since the last one began, and its
+            # time; it waits until the input queued meanwhile is taken in (no message waiting,
+            # statuses included: input may wait behind them), map_period_s at most
             due = (acc.n_points > fitted and time.monotonic() - fit_start
-                   >= max(params.map_period_s, 2 * update_s))
+                   >= max(params.map_period_s, update_s))
+            if not due:
+                due_since = np.inf
+            elif due_since == np.inf:
+                due_since = time.monotonic()
             rx = subscriber.receive(0.0 if due else 0.1)
             took = rx is not None and not isinstance(rx.msg, NodeStatus)
             if rx is not None and isinstance(rx.msg, NodeStatus):
@@ -763,30 +816,44 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
                             node.fqn, params.timeout_s, sorted(acc.ended))
                 ended_by = "timeout"
                 break
-            if due and not took and not acc.done:
+            # the next sweeps of an update go out 2 map_period_s after it at the latest
+            overdue = unproposed is not None and now - unproposed >= 2 * params.map_period_s
+            if (due and (rx is None or now - due_since >= params.map_period_s) and not overdue
+                    and not acc.done):
                 fit_start = now
                 node.set_state("running", f"mapping {acc.n_points} points (update "
                                           f"{updates + 1})")
-                frames, fitted = fit_frames(acc, params, live, final=False), acc.n_points
+                frames = fit(final=False, propose=False)
+                fitted = acc.n_points
                 updates += 1
                 record_coverage(frames)
-                # the map goes out first, its files (seconds of plotting) after
-                publish([map_messages(frame, acc.frames[frame.result.frame_id].stamp)
-                          for frame in frames])
-                fit_end = time.monotonic()
-                update_s = fit_end - fit_start
+                # the maps go out at once; their next sweeps (as long again) when the map has
+                # time for them, their files (seconds of plotting) after those
+                stamps = publish_maps(frames)
+                update_s = time.monotonic() - fit_start
                 written = None
-                if (pending is None and fit_end - files_time >= params.write_period_s
-                        and not node.stop_requested):
-                    # (a stop during the update: the final files follow at once)
-                    files_time = fit_end
-                    write_periodic(frames)
+                if unproposed is None:  # since when next sweeps are left out
+                    unproposed = time.monotonic()
                 # the time of an update is not silence: what arrived meanwhile waits in the
                 # queue, behind the statuses that came with it
                 last += update_s
                 node.set_state("running", f"map of {fitted} points (update {updates}) in "
                                           f"{update_s:.1f} s; waiting for {expected} "
                                           "source(s) to end")
+            elif unproposed is not None and (overdue or rx is None and (
+                    acc.n_points == fitted
+                    or fit_start + max(params.map_period_s, update_s) - now >= propose_s)):
+                # the next sweeps of the last update: when no update is due before they would
+                # be done (as long as the last ones took), or overdue
+                frames = publish_proposals(frames, stamps)
+                done = time.monotonic()
+                propose_s, unproposed = done - now, None
+                if (pending is None and done - files_time >= params.write_period_s
+                        and not node.stop_requested):
+                    # (a stop meanwhile: the final files follow at once)
+                    files_time = done
+                    write_periodic(frames)
+                last += propose_s
         if node.stop_requested:
             ended_by = "stop"
             if acc.n_points == 0:
@@ -801,12 +868,11 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
             if updates and acc.n_points > fitted:
                 # what came since the last update goes out at once, in an update (the grown
                 # objects conditioned on their new points: a fraction of the final fit's time)
-                frames, fitted, written = fit_frames(acc, params, live, final=False), \
-                    acc.n_points, None
+                frames = fit(final=False, propose=False)
+                fitted, written = acc.n_points, None
                 updates += 1
                 record_coverage(frames)
-                publish([map_messages(frame, acc.frames[frame.result.frame_id].stamp)
-                         for frame in frames])
+                frames = publish_proposals(frames, publish_maps(frames))
             # every node's status after the ends
             settle = time.monotonic() + 2 * node.heartbeat_s
             while time.monotonic() < settle and not node.stop_requested:
@@ -820,7 +886,7 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         collect(wait=True)
         files.shutdown()
         node.set_state("running", f"final map of {acc.n_points} points")
-        final = fit_frames(acc, params, live, final=ended_by != "stop")
+        final = fit(final=ended_by != "stop")
         if not updates or len(final) != len(frames) or any(
                 a is not b for a, b in zip(final, frames, strict=False)):
             frames, written = final, None
@@ -896,9 +962,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging()
     params = load_params(MapperParams, args.params_file, args.params)
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
-    import open3d  # noqa: F401  # seconds to load: before the graph starts, not in the first map
+    # seconds to load, before the first map: Open3D before the graph starts, then the fits'
+    # kernels in a thread of their own (the node starts meanwhile)
+    import open3d  # noqa: F401
+    warming = threading.Thread(target=_warm_up, args=(params.settings,), name="map-warm-up",
+                               daemon=True)
+    warming.start()
     with Node.from_args(args) as node:
-        report = run(node, params)
+        report = run(node, params, warming)
     if report is not None and report.n_points == 0:
         return EXIT_EMPTY_MAP
     if (report is not None and (report.lost or report.dropped_points)

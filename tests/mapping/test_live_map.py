@@ -29,6 +29,8 @@ CENTRES_M = (np.array([0.0, 0.0, 0.05]), np.array([0.2, 0.0, 0.05]))
 BALLS = tuple(TrueObject(f"ball{k}", parse_surface(f"sphere:r={RADIUS_M},cx={c[0]},cz={c[2]}"))
               for k, c in enumerate(CENTRES_M))
 SETTINGS = MapSettings(cells=32)
+DOUBLE = LiveSettings(single=False)
+"""Updates meshed as `fit_frame` meshes: a full fit at the settings' grid is its fit, bit for bit."""
 
 
 def ball_line(centre: np.ndarray, polar: float, whisker: str, mu: float = 0.3
@@ -109,7 +111,7 @@ def test_clusters_joined_by_new_points_are_one_object_fitted_again() -> None:
     """Two patches of a plane farther apart than the DBSCAN radius are two objects; lines
     between them make them one, fitted in full as the single fit does."""
     settings = MapSettings(cells=32, cluster_eps_m=0.015, join_convex=False, proposals=0)
-    acc, live = Accumulator(), LiveMap()
+    acc, live = Accumulator(), LiveMap(DOUBLE)
     for y in (0.0, 0.01, 0.02, 0.06, 0.07, 0.08):
         acc.add(plane_line(y, (0.0, 0.1), 101, f"w{y}"))
     assert len(live.update("world", acc.frames["world"], settings).surfaces) == 2
@@ -127,7 +129,7 @@ def test_an_object_split_by_new_points_is_two_objects_fitted_again() -> None:
     extent, 0.5 m); many short lines near each shrink the radius below their gap, and the
     frame clustered again (their points outgrow ``refit_growth``) is two objects."""
     settings = MapSettings(cells=32, join_convex=False, proposals=0)
-    acc, live = Accumulator(), LiveMap()
+    acc, live = Accumulator(), LiveMap(DOUBLE)
     for y in (0.0, 0.3):
         acc.add(plane_line(y, (0.0, 1.0), 1001, f"long{y}"))
     assert len(live.update("world", acc.frames["world"], settings).surfaces) == 1
@@ -209,7 +211,7 @@ def test_points_gone_since_the_last_update_mean_a_new_clustering_and_fit() -> No
     """A cloud that lost points (merged away upstream) is not the last one grown: the frame is
     clustered again and the object fitted in full, as the single fit does."""
     lines = [ball_line(CENTRES_M[0], polar, f"w{k}") for k, polar in enumerate((1.0, 1.3, 1.6))]
-    live = LiveMap()
+    live = LiveMap(DOUBLE)
     for kept in (lines, lines[1:]):
         cloud = FrameCloud()
         for line in kept:
@@ -218,3 +220,46 @@ def test_points_gone_since_the_last_update_mean_a_new_clustering_and_fit() -> No
         fewer = live.update("world", cloud, SETTINGS)
     assert live.fits - fits == {"clustered": 1, "full": 1}
     assert_same_map(fewer, fit_frame("world", cloud, SETTINGS))
+
+
+def test_an_update_in_single_precision_has_the_known_part_of_the_double_one() -> None:
+    """An update's vertex stds solved in single precision (the default): the same mesh and
+    known part as `fit_frame`'s at the same grid, each std within 1e-2 of the prior std (a few
+    1e-3 measured); the final map is the single fit's, in double."""
+    acc, live = Accumulator(), LiveMap()
+    for k, polar in enumerate((1.0, 1.2, 1.4)):
+        acc.add(ball_line(CENTRES_M[0], polar, f"w{k}"))
+    update = live.update("world", acc.frames["world"], SETTINGS, BALLS)
+    single = fit_frame("world", acc.frames["world"], SETTINGS, BALLS)
+    mesh, exact = update.surfaces[0].mesh, single.surfaces[0].mesh
+    gp = single.surfaces[0].gp
+    assert mesh is not None and exact is not None and gp is not None
+    np.testing.assert_array_equal(mesh.vertices, exact.vertices)
+    np.testing.assert_array_equal(mesh.known, exact.known)
+    assert np.abs(mesh.std - exact.std).max() <= 1e-2 * gp.sigma * gp.scale
+    assert not np.array_equal(mesh.std, exact.std)  # the solve was single
+    assert_same_map(live.final("world", acc.frames["world"], SETTINGS, BALLS), single)
+
+
+def test_next_sweeps_left_out_of_an_update_are_those_it_would_have_proposed() -> None:
+    """``propose=False``: the objects fitted in full have no next sweeps in the update's map
+    (nor in its report); `LiveMap.propose` gives them, the same as an update that proposed;
+    a conditioned object keeps those of its full fit."""
+    acc = Accumulator()
+    for b, centre in enumerate(CENTRES_M):
+        for k, polar in enumerate((1.0, 1.2, 1.4)):
+            acc.add(ball_line(centre, polar, f"b{b}w{k}"))
+    proposing, leaving = LiveMap(), LiveMap()
+    full = proposing.update("world", acc.frames["world"], SETTINGS, BALLS)
+    left = leaving.update("world", acc.frames["world"], SETTINGS, BALLS, propose=False)
+    assert [len(p) for p in full.proposals] == [3, 3]
+    assert left.proposals == [[], []]
+    assert all(not obj.next_sweeps for obj in left.result.objects)
+    proposed = leaving.propose("world")
+    assert_same_map(proposed, full)
+    assert leaving.propose("world") is proposed  # nothing left out any more
+    acc.add(ball_line(CENTRES_M[1], 1.6, "b1w3"))  # ball1 grows, conditioned
+    grown = leaving.update("world", acc.frames["world"], SETTINGS, BALLS, propose=False)
+    assert leaving.fits["conditioned"] == 1
+    assert grown.proposals[1] == proposed.proposals[1]
+    assert leaving.propose("world") is grown

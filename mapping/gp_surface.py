@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -66,6 +67,10 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     # first, and in a process that has imported Open3D (which bundles an older TBB) it warns
     # and falls back anyway
     numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]  # made at run time
+
+_MEAN_LOCK = threading.Lock()
+"""One thread at a time in the mean's parallel loop: numba's workqueue pool takes no second
+caller (it aborts the process), and a warm-up thread or a user's threads may evaluate too."""
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -332,8 +337,9 @@ class GPSurface:
         """Mean f (N,) in m (> 0 outside; about the signed distance near the data) and its
         gradient (N, 3) at points (N, 3), m."""
         q = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.center) / self.scale
-        f, g = _mean_kernel(np.ascontiguousarray(q), self._u, self._alpha_se,
-                            self.length_scale, self._solution.beta)
+        with _MEAN_LOCK:
+            f, g = _mean_kernel(np.ascontiguousarray(q), self._u, self._alpha_se,
+                                self.length_scale, self._solution.beta)
         return f * self.scale, g
 
     @_one_blas_thread

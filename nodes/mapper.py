@@ -48,7 +48,7 @@ only the objects that received points are fitted again, a grown object's surface
 its new points) is due at most every ``map_period_s`` and the last update's duration; it waits
 until every message queued meanwhile is taken in (``map_period_s`` at most). Each update's cloud
 and meshes are published at once; its next sweeps (as long again: ``LiveMap.propose``) when no
-update falls due before they would be done, ``2 x map_period_s`` after it at the latest; then
+update falls due before they would be done, `SWEEPS_DUE` periods after it at the latest; then
 its files are rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
 (``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) holds every point
 received. When the streams ended or fell silent it is the one of a single fit (`LiveMap.final`,
@@ -641,6 +641,11 @@ def write_outputs(acc: Accumulator | AccumulatorCounts, params: MapperParams, ou
                     for frame in frames]
 
 
+SWEEPS_DUE = 10
+"""The next sweeps of an update go out at the latest this many ``map_period_s`` after it (before
+the next update; until then, only when no update falls due before they would be done)."""
+
+
 def _warm_up(settings: MapSettings) -> None:
     """`warm_up`, or why it failed (the first map fails then too, and says why)."""
     try:
@@ -649,14 +654,11 @@ def _warm_up(settings: MapSettings) -> None:
         log.warning("the mapper's warm-up failed: %r", exc)
 
 
-def run(node: Node, params: MapperParams, warming: threading.Thread | None = None,
-        ) -> MapReport | None:
+def run(node: Node, params: MapperParams) -> MapReport | None:
     """Accumulate and map while the streams go on (an update at most every ``map_period_s``,
     its files at most every ``write_period_s``), then write the final map when every source
     ended, after ``timeout_s`` of silence or on a stop; the final report (``None`` when stopped
-    before a single contact point: nothing is written). ``warming``: a thread running
-    `warm_up`, which the first fit waits for (numba's parallel loops take one thread at a
-    time)."""
+    before a single contact point: nothing is written)."""
     expected: int | list[str] = (
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
@@ -685,14 +687,6 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
             unknown_pub.publish(unknown_mesh)
             for proposal in proposals:
                 proposal_pub.publish(proposal)
-
-    def fit(final: bool, propose: bool = True) -> list[FrameMap]:
-        """`fit_frames` with ``live``, once the warm-up is done."""
-        nonlocal warming
-        if warming is not None:
-            warming.join()
-            warming = None
-        return fit_frames(acc, params, live, final, propose)
 
     def publish_maps(frames: list[FrameMap]) -> list[float]:
         """Publish an update's maps (``fit_frames`` with ``propose=False``) without their
@@ -816,14 +810,15 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
                             node.fqn, params.timeout_s, sorted(acc.ended))
                 ended_by = "timeout"
                 break
-            # the next sweeps of an update go out 2 map_period_s after it at the latest
-            overdue = unproposed is not None and now - unproposed >= 2 * params.map_period_s
+            # the next sweeps of an update go out SWEEPS_DUE periods after it at the latest
+            overdue = (unproposed is not None
+                       and now - unproposed >= SWEEPS_DUE * params.map_period_s)
             if (due and (rx is None or now - due_since >= params.map_period_s) and not overdue
                     and not acc.done):
                 fit_start = now
                 node.set_state("running", f"mapping {acc.n_points} points (update "
                                           f"{updates + 1})")
-                frames = fit(final=False, propose=False)
+                frames = fit_frames(acc, params, live, final=False, propose=False)
                 fitted = acc.n_points
                 updates += 1
                 record_coverage(frames)
@@ -868,7 +863,7 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
             if updates and acc.n_points > fitted:
                 # what came since the last update goes out at once, in an update (the grown
                 # objects conditioned on their new points: a fraction of the final fit's time)
-                frames = fit(final=False, propose=False)
+                frames = fit_frames(acc, params, live, final=False, propose=False)
                 fitted, written = acc.n_points, None
                 updates += 1
                 record_coverage(frames)
@@ -886,7 +881,7 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
         collect(wait=True)
         files.shutdown()
         node.set_state("running", f"final map of {acc.n_points} points")
-        final = fit(final=ended_by != "stop")
+        final = fit_frames(acc, params, live, final=ended_by != "stop")
         if not updates or len(final) != len(frames) or any(
                 a is not b for a, b in zip(final, frames, strict=False)):
             frames, written = final, None
@@ -963,13 +958,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     params = load_params(MapperParams, args.params_file, args.params)
     Path(params.out_dir).mkdir(parents=True, exist_ok=True)  # fail now, not after the sweeps
     # seconds to load, before the first map: Open3D before the graph starts, then the fits'
-    # kernels in a thread of their own (the node starts meanwhile)
+    # kernels in a thread of their own (the node starts and maps meanwhile)
     import open3d  # noqa: F401
-    warming = threading.Thread(target=_warm_up, args=(params.settings,), name="map-warm-up",
-                               daemon=True)
-    warming.start()
+    threading.Thread(target=_warm_up, args=(params.settings,), name="map-warm-up",
+                     daemon=True).start()
     with Node.from_args(args) as node:
-        report = run(node, params, warming)
+        report = run(node, params)
     if report is not None and report.n_points == 0:
         return EXIT_EMPTY_MAP
     if (report is not None and (report.lost or report.dropped_points)

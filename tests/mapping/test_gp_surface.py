@@ -1,6 +1,8 @@
 """The Gaussian-process implicit surface: accuracy against the true object where it was
 touched, calibration of its std, "unknown" away from the data, determinism, rigid motions."""
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 from scipy.spatial import Delaunay, cKDTree
@@ -122,6 +124,18 @@ def test_same_points_give_the_same_bits(paraboloid):
                  (first.std, second.std), (first.known, second.known)]:
         assert a.tobytes() == b.tobytes()
     assert first_surface.log_likelihood == second_surface.log_likelihood
+
+
+def test_threads_may_evaluate_one_surface_side_by_side(paraboloid):
+    """The mean's parallel loop takes one caller at a time (numba's workqueue pool aborts the
+    process on a second): threads evaluating at once get what one thread gets."""
+    surface, mesh = fitted(paraboloid, cells=16)
+    queries = mesh.vertices + 0.01
+    alone = surface.evaluate(queries)
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda _: surface.evaluate(queries), range(40)))
+    for f, g in results:
+        assert f.tobytes() == alone[0].tobytes() and g.tobytes() == alone[1].tobytes()
 
 
 def test_a_rigid_motion_moves_the_surface_with_the_cloud(sphere):

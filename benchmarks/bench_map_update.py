@@ -9,6 +9,8 @@ first ``--base`` points are one object (10^4 by default), then ``--new`` more ar
 * ``update``: ``LiveMap.update`` with the same points, after an update with the first ``base``
   (not timed): the object grew, so its GP is conditioned on the new points and meshed on
   ``LiveSettings.cells`` (``--cells``); its next sweeps are kept.
+* ``double``: the same update with its vertex stds solved in double precision
+  (``LiveSettings(single=False)``): what ``LiveSettings.single`` saves.
 * ``final``: ``LiveMap.final`` after that update: the full fit of the grown object.
 
 Each time is the median of ``--repeat`` runs after one warm-up run (numba's compilation and
@@ -83,15 +85,19 @@ def main() -> None:
         raise SystemExit(f"--base + --new must be at most {len(points)}, got {total}")
     before, after = cloud_of(points[:args.base], forces[:args.base]), cloud_of(
         points[:total], forces[:total])
-    times: dict[str, list[float]] = {"full": [], "update": [], "final": []}
+    times: dict[str, list[float]] = {"full": [], "update": [], "double": [], "final": []}
     for run in range(args.repeat + 1):
         live = LiveMap(LiveSettings(cells=args.cells))
         live.update(FRAME, before)
         update = timed(partial(live.update, FRAME, after))
         final = timed(partial(live.final, FRAME, after))
+        in_double = LiveMap(LiveSettings(cells=args.cells, single=False))
+        in_double.update(FRAME, before)
+        double = timed(partial(in_double.update, FRAME, after))
         full = timed(lambda: fit_frame(FRAME, after))
         if run:  # the first is the warm-up
-            for name, value in (("full", full), ("update", update), ("final", final)):
+            for name, value in (("full", full), ("update", update), ("double", double),
+                                ("final", final)):
                 times[name].append(value)
     median = {name: statistics.median(values) for name, values in times.items()}
     print(f"{args.base} points + {args.new} new, {args.cells} cells, {args.repeat} runs, load average "

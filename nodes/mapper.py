@@ -49,8 +49,8 @@ its new points) is due at most every ``map_period_s`` and the last update's dura
 until every message queued meanwhile is taken in (``map_period_s`` at most). Each update's cloud
 and meshes are published at once; its next sweeps (as long again: ``LiveMap.propose``) when no
 update falls due before they would be done, `SWEEPS_DUE` periods after it at the latest; then
-its files are rewritten, each whole, at most every ``write_period_s``, with ``"final": false``. The final map
-(``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) holds every point
+its files are rewritten, each whole, at most every ``write_period_s``, with ``"final": false``.
+The final map (``"final": true``, ``"ended_by"``: ``streams``, ``timeout`` or ``stop``) holds every point
 received. When the streams ended or fell silent it is the one of a single fit (`LiveMap.final`,
 bit for bit): the last update when it is that already (then only the reports are rewritten when
 its files are written), else the objects that changed fitted again; the points no update held

@@ -290,7 +290,6 @@ def map_cloud(points_m: FloatArray, forces_n: FloatArray, whisker_ids: Sequence[
     return fit_frame(frame_id, cloud, settings, truth)
 
 
-
 def warm_up(settings: MapSettings | None = None) -> None:
     """Map a small made-up object once (`map_cloud`): a process loads the fits' compiled
     kernels and libraries then, not in its first map (a second at start, beside a busy

@@ -654,11 +654,14 @@ def _warm_up(settings: MapSettings) -> None:
         log.warning("the mapper's warm-up failed: %r", exc)
 
 
-def run(node: Node, params: MapperParams) -> MapReport | None:
+def run(node: Node, params: MapperParams, warming: threading.Thread | None = None,
+        ) -> MapReport | None:
     """Accumulate and map while the streams go on (an update at most every ``map_period_s``,
     its files at most every ``write_period_s``), then write the final map when every source
     ended, after ``timeout_s`` of silence or on a stop; the final report (``None`` when stopped
-    before a single contact point: nothing is written)."""
+    before a single contact point: nothing is written). ``warming``: the thread of `warm_up`,
+    which the final map waits for (it is computed with nothing else at work in the process:
+    the single fit's bits)."""
     expected: int | list[str] = (
         params.expected_sources if isinstance(params.expected_sources, int)
         else [resolve_topic(n, node.namespace) for n in params.expected_sources])
@@ -881,6 +884,8 @@ def run(node: Node, params: MapperParams) -> MapReport | None:
         collect(wait=True)
         files.shutdown()
         node.set_state("running", f"final map of {acc.n_points} points")
+        if warming is not None:
+            warming.join()
         final = fit_frames(acc, params, live, final=ended_by != "stop")
         if not updates or len(final) != len(frames) or any(
                 a is not b for a, b in zip(final, frames, strict=False)):
@@ -960,10 +965,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     # seconds to load, before the first map: Open3D before the graph starts, then the fits'
     # kernels in a thread of their own (the node starts and maps meanwhile)
     import open3d  # noqa: F401
-    threading.Thread(target=_warm_up, args=(params.settings,), name="map-warm-up",
-                     daemon=True).start()
+    warming = threading.Thread(target=_warm_up, args=(params.settings,), name="map-warm-up",
+                               daemon=True)
+    warming.start()
     with Node.from_args(args) as node:
-        report = run(node, params)
+        report = run(node, params, warming)
     if report is not None and report.n_points == 0:
         return EXIT_EMPTY_MAP
     if (report is not None and (report.lost or report.dropped_points)

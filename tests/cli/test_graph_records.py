@@ -6,10 +6,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import socket
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -28,10 +30,30 @@ DOMAIN = 2000 + os.getpid() % 500 * 2  # +0..+1; away from the other tests' rang
 
 
 @pytest.fixture
-def temp_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+def temp_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
     """A temporary folder of the tests' own as the machine's temp dir."""
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    return tmp_path
+    yield tmp_path
+    _wait_until_closed([DOMAIN, DOMAIN + 1])
+
+
+def _wait_until_closed(domains: list[int], deadline_s: float = 20.0) -> None:
+    """Until both ports of each domain refuse connections: ZeroMQ closes a proxy's listening
+    sockets in its I/O thread, after ``Proxy.stop`` returns, and the next test binds them."""
+    ports = [int(address.rsplit(":", 1)[1]) for domain in domains
+             for address in Endpoints.for_domain(domain).addresses]
+    deadline = time.monotonic() + deadline_s
+    while time.monotonic() < deadline:
+        open_ports = []
+        for port in ports:
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+                probe.settimeout(0.2)
+                if probe.connect_ex(("127.0.0.1", port)) == 0:
+                    open_ports.append(port)
+        if not open_ports:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"ports {open_ports} still listening {deadline_s} s after the test")
 
 
 def test_a_live_launchers_record_of_a_bound_domain_counts(temp_dir: Path) -> None:

@@ -1,6 +1,7 @@
 """``vibrissa study grid GRID.yaml -o DIR`` and the paper's study as the shipped grid.
 
-DIR gets ``equilibria.parquet`` (every equilibrium, the case's parameters as columns),
+DIR gets ``equilibria.parquet`` (every equilibrium, the case's parameters as columns; a grid of
+scenes: every whisker's every path sample),
 ``summary.parquet`` (one row per case), ``grid.png`` and the store ``cases/`` that a rerun on the
 same DIR resumes from (`vibrissa.studies.grid_run`); with ``--csv`` also both tables as CSV.
 """
@@ -112,8 +113,10 @@ def run_and_write(grid: Grid, out: Path, workers: int | None, scheduler: str | N
     run = run_grid(grid, CaseStore(out / CASES_FOLDER), workers, scheduler, GridProgress())
     paths = write_tables(out, run, csv)
     summary = run.summary.to_pydict()
-    errors = [e for e in summary["max_reconstruction_error"] if e == e]
-    worst = f"{max(errors):.3g} L" if errors else "n/a"
+    key, unit = (("max_reconstruction_error_m", "m") if "scene" in summary
+                 else ("max_reconstruction_error", "L"))
+    errors = [e for e in summary[key] if e == e]
+    worst = f"{max(errors):.3g} {unit}" if errors else "n/a"
     print(f"study: {grid.name}: {len(grid.cases)} cases ({run.computed} computed, {run.reused} "
           f"from {out / CASES_FOLDER}), {run.equilibria.num_rows} equilibria, "
           f"{run.computed_equilibria} computed in {run.elapsed_s:.1f} s "

@@ -1,5 +1,6 @@
 """The main outcome of a study grid (matplotlib, Agg): per case, the peak clamp force against
-friction, marked by how the sweep ended, and the largest reconstruction error of Step 2."""
+friction, marked by how the sweep ended (a grid of scenes: by its rods), and the largest
+reconstruction error of Step 2."""
 
 from __future__ import annotations
 
@@ -54,9 +55,42 @@ def grid_figure(summary: Mapping[str, Sequence[Any]], title: str) -> Figure:
     return figure
 
 
+def scene_grid_figure(summary: Mapping[str, Sequence[Any]], title: str) -> Figure:
+    """Two panels from a grid of scenes' summary (``case``, ``scene``, ``mu``, ``length_m``,
+    ``ei_nm2``, ``peak_f0_n``, ``max_reconstruction_error_m``): peak |f0| of any whisker (N)
+    against mu, one colour per scene and one marker per rod; the largest distance of Step 2's
+    point to the true contact (m, log scale) per case."""
+    figure, (forces, errors) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    scenes = list(dict.fromkeys(str(s) for s in summary["scene"]))
+    colour = {s: f"C{i % 10}" for i, s in enumerate(scenes)}
+    rods = [("the scene's rods" if math.isnan(length) else f"L {length * 1e3:.4g} mm, EI {ei:.3g} N m^2")
+            for length, ei in zip(summary["length_m"], summary["ei_nm2"], strict=True)]
+    for k, rod in enumerate(dict.fromkeys(rods)):
+        rows = [i for i, r in enumerate(rods) if r == rod]
+        forces.scatter([summary["mu"][i] for i in rows], [summary["peak_f0_n"][i] for i in rows],
+                       c=[colour[str(summary["scene"][i])] for i in rows],
+                       marker="oxs^vD"[k % 6], label=rod)
+    forces.set_xlabel("friction coefficient mu")
+    forces.set_ylabel("peak |f0| of any whisker (N)")
+    forces.legend(title="rods", fontsize="small")
+    case_error = [(int(c), float(e)) for c, e in zip(summary["case"], summary["max_reconstruction_error_m"],
+                                                     strict=True) if not math.isnan(e) and e > 0]
+    if case_error:
+        errors.scatter(*zip(*case_error, strict=True), s=8,
+                       c=[colour[str(summary["scene"][c])] for c, _e in case_error])
+        errors.set_yscale("log")
+    errors.set_xlabel("case")
+    errors.set_ylabel("max distance to the true contact (m)")
+    for scene in scenes[:10]:
+        errors.plot([], [], "o", color=colour[scene], label=scene)
+    errors.legend(fontsize="x-small", title="scene")
+    figure.suptitle(f"study {title}: {len(rods)} cases")
+    return figure
+
+
 def write_grid_figure(summary: Mapping[str, Sequence[Any]], title: str, path: Path) -> Path:
-    """`grid_figure` as PNG at ``path``."""
-    figure = grid_figure(summary, title)
+    """`grid_figure` (`scene_grid_figure` for a grid of scenes) as PNG at ``path``."""
+    figure = (scene_grid_figure if "scene" in summary else grid_figure)(summary, title)
     figure.savefig(path, dpi=DPI)
     plt.close(figure)
     return path

@@ -13,7 +13,6 @@ is one.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from collections.abc import Sequence
@@ -24,7 +23,7 @@ import numpy as np
 
 from vibrissa.formats.csv_text import cells, read_csv, write_csv
 from vibrissa.formats.scene_file import SceneError, check_name
-from vibrissa.scene import EPISODE_STARTS, Episode, SamplePhase, Scene, WhiskerResult
+from vibrissa.scene import EPISODE_STARTS, Episode, SamplePhase, Scene, WhiskerResult, scene_digest
 from vibrissa.status import SweepEnd
 
 __all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "WRENCHES_FILE", "WRENCH_COLUMNS", "read_results",
@@ -104,7 +103,7 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
                                        for result, row in zip(results, sample, strict=True)))
     written.append(target)
     summary = {
-        "scene_sha256": _scene_digest(scene),
+        "scene_sha256": scene_digest(scene),
         "units": {"t": "s", "length": "m", "force": "N", "moment": "N m",
                   "wrench": "clamp reaction on the rod about the clamp point, in the clamp frame"},
         "whiskers": {
@@ -123,21 +122,6 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
     target.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     written.append(target)
     return written
-
-
-def _scene_digest(scene: Scene) -> str:
-    """SHA-256 of what a scene's results depend on: mu, the objects, the whiskers (rods,
-    mounts, sensor frames) and the path, bit for bit."""
-    digest = hashlib.sha256(repr(scene.mu).encode())
-    for obj in scene.objects:
-        digest.update(repr((obj.name, obj.shape, sorted(obj.sizes.items()))).encode())
-        digest.update(obj.X_WO.matrix.tobytes())
-    for whisker in scene.whiskers:
-        digest.update(repr((whisker.name, whisker.length_m, whisker.ei_nm2)).encode())
-        digest.update(whisker.X_RC.matrix.tobytes() + whisker.X_CS.matrix.tobytes())
-    for array in (scene.path.t, scene.path.p_WR, scene.path.R_WR.as_matrix()):
-        digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
-    return digest.hexdigest()
 
 
 def read_results(folder: str | Path, scene: Scene) -> list[WhiskerResult]:
@@ -245,7 +229,7 @@ def _read_episodes(path: Path, names: Sequence[str], scene: Scene) -> dict[str, 
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise SceneError(f"{path}: {exc}") from None
     written_for = doc.get("scene_sha256") if isinstance(doc, dict) else None
-    if written_for is not None and written_for != _scene_digest(scene):
+    if written_for is not None and written_for != scene_digest(scene):
         raise SceneError(f"{path}: the results of another scene: its scene_sha256 is not this "
                          "scene's (objects, whiskers, mu or path differ); simulate this scene")
     episodes: dict[str, list[Episode]] = {}

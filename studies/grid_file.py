@@ -11,12 +11,23 @@ Lists whose product is the grid (each key a list, or one value for a list of one
 
 or an explicit list of cases (``cases: [{surface, y0_m, mu, step, length_m, ei_nm2}, ...]``,
 ``step``, ``length_m`` and ``ei_nm2`` defaulting as above), not both. The product runs surfaces,
-then rods, steps, y0_m and mu (innermost). Every error names the file and the key.
+then rods, steps, y0_m and mu (innermost).
+
+Or whole scenes along their robot paths instead of surfaces and trails::
+
+    scenes: [../launch/robot/scene.yaml]         # scene files, relative to the grid file
+    mu: [0.0, 0.2, 0.5]                          # optional; default each scene's own
+    rods: [{length_m: 0.05, ei_nm2: 2.3e-4}]     # optional; replace every whisker's; default its own
+
+(``cases: [{scene, mu, length_m, ei_nm2}, ...]`` likewise); the product runs scenes, then
+rods and mu (innermost). A grid is all trails or all scenes: its tables have one set of
+columns. Every error names the file and the key.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,7 +37,9 @@ import yaml
 from vibrissa.formats import yaml_numbers
 from vibrissa.formats.errors import SceneError
 from vibrissa.formats.files import read_text
-from vibrissa.grid_study import GridCase
+from vibrissa.formats.scene_file import load_scene
+from vibrissa.grid_study import GridCase, SceneCase
+from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
 from vibrissa.units import RodScale, finite_number
 
@@ -36,9 +49,11 @@ PAPER_GRID = Path(__file__).with_name("paper.yaml")
 DEFAULT_STEP = 0.001
 DEFAULT_ROD = {"length_m": 1.0, "ei_nm2": 1.0}
 PRODUCT_KEYS = ("surfaces", "y0_m", "mu", "step", "rods")
+SCENE_PRODUCT_KEYS = ("scenes", "mu", "rods")
 CASE_KEYS = ("surface", "y0_m", "mu", "step", "length_m", "ei_nm2")
+SCENE_CASE_KEYS = ("scene", "mu", "length_m", "ei_nm2")
 ROD_KEYS = ("length_m", "ei_nm2")
-TOP_KEYS = ("name", *PRODUCT_KEYS, "cases")
+TOP_KEYS = ("name", *PRODUCT_KEYS, "scenes", "cases")
 
 
 class GridFileError(ValueError):
@@ -47,20 +62,22 @@ class GridFileError(ValueError):
 
 @dataclass(frozen=True)
 class Grid:
-    """A study read from a grid file: its ``name`` and its cases in grid order."""
+    """A study read from a grid file: its ``name`` and its cases in grid order, all trails
+    (`GridCase`) or all scenes (`SceneCase`)."""
 
     name: str
-    cases: tuple[GridCase, ...]
+    cases: tuple[GridCase, ...] | tuple[SceneCase, ...]
 
 
 def load_grid(path: str | Path, step: float | None = None) -> Grid:
-    """The grid of the file ``path``; ``step`` (units of L), when given, replaces every case's.
+    """The grid of the file ``path``; ``step`` (units of L), when given, replaces every trail
+    case's (a grid of scenes has none: its paths set the samples).
 
     Raises
     ------
     GridFileError
         Naming the file and the key: a missing or unreadable file, invalid YAML, an unknown
-        key, a value of the wrong type, an empty list, a bad surface spec or rod.
+        key, a value of the wrong type, an empty list, a bad surface spec, scene file or rod.
     """
     path = Path(path)
     try:
@@ -76,6 +93,12 @@ def load_grid(path: str | Path, step: float | None = None) -> Grid:
     name = doc.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise GridFileError(f"{where}: name: expected a text, got {name!r}")
+    if "scenes" in doc or (isinstance(doc.get("cases"), list) and any(
+            isinstance(item, dict) and "scene" in item for item in doc["cases"])):
+        if step is not None:
+            raise GridFileError(f"{where}: --step: a grid of scenes has no step (its robot paths "
+                                f"set the samples)")
+        return Grid(name, _scene_cases(doc, path, where))
     if "cases" in doc:
         given = [key for key in PRODUCT_KEYS if key in doc]
         if given:
@@ -100,6 +123,78 @@ def load_grid(path: str | Path, step: float | None = None) -> Grid:
     if step is not None:
         cases = [GridCase(c.surface_m, c.y0_m, c.mu, step, c.length_m, c.ei_nm2) for c in cases]
     return Grid(name, tuple(cases))
+
+
+def _scene_cases(doc: dict[str, Any], path: Path, where: str) -> tuple[SceneCase, ...]:
+    """A grid of scenes: the product of ``scenes``, ``rods`` and ``mu``, or its ``cases``."""
+    read: dict[str, Scene] = {}
+
+    def scene(value: Any, key: str) -> tuple[str, Scene]:
+        if not isinstance(value, str) or not value:
+            raise GridFileError(f"{where}: {key}: expected a scene file (text), got {value!r}")
+        if value not in read:
+            try:
+                read[value] = load_scene(path.parent / value)
+            except SceneError as exc:
+                raise GridFileError(f"{where}: {key}: {exc}") from None
+        return value, read[value]
+
+    def case(name: str, read_scene: Scene, mu: float | None, rod: RodScale | None, key: str
+             ) -> SceneCase:
+        rod_m = (math.nan, math.nan) if rod is None else (rod.length_m, rod.ei_nm2)
+        try:
+            return SceneCase(name, read_scene, read_scene.mu if mu is None else mu, *rod_m)
+        except ValueError as exc:
+            raise GridFileError(f"{where}: {key}: {exc}") from None
+
+    if "cases" in doc:
+        given = [key for key in SCENE_PRODUCT_KEYS if key in doc]
+        if given:
+            raise GridFileError(f"{where}: cases: give either cases or the lists "
+                                f"({', '.join(given)}), not both")
+        cases = []
+        for i, item in enumerate(_values(doc, "cases", where, single=False)):
+            at = f"cases[{i}]"
+            if not isinstance(item, dict) or "scene" not in item:
+                raise GridFileError(f"{where}: {at}: a grid is all scenes or all trails: expected "
+                                    f"a mapping with scene ({', '.join(SCENE_CASE_KEYS)})")
+            _known(item, SCENE_CASE_KEYS, f"{where}: {at}")
+            mu = _number(item["mu"], f"{where}: {at}: mu", "mu") if "mu" in item else None
+            rod = _scene_rod(item, f"{where}: {at}")
+            cases.append(case(*scene(item["scene"], f"{at}: scene"), mu, rod, at))
+        return tuple(cases)
+    trail_keys = [key for key in ("surfaces", "y0_m", "step") if key in doc]
+    if trail_keys:
+        raise GridFileError(f"{where}: {trail_keys[0]}: a grid of scenes has no "
+                            f"{', '.join(trail_keys)} (its objects and robot paths are the scenes')")
+    scenes = [scene(value, f"scenes[{i}]") for i, value in enumerate(_values(doc, "scenes", where))]
+    rods: list[RodScale | None] = [None]
+    if "rods" in doc:
+        rods = [_scene_rod(v, f"{where}: rods[{i}]", required=True)
+                for i, v in enumerate(_values(doc, "rods", where))]
+    mus: list[float | None] = [None]
+    if "mu" in doc:
+        mus = [_number(v, f"{where}: mu[{i}]", "mu") for i, v in enumerate(_values(doc, "mu", where))]
+    return tuple(case(name, read_scene, mu, rod, f"scenes: {name}")
+                 for (name, read_scene), rod, mu in itertools.product(scenes, rods, mus))
+
+
+def _scene_rod(item: Any, where: str, required: bool = False) -> RodScale | None:
+    """A scene's rod: both of ``length_m`` and ``ei_nm2``, or (unless ``required``) neither:
+    the scene's own."""
+    if not isinstance(item, dict):
+        raise GridFileError(f"{where}: expected a mapping (length_m, ei_nm2), "
+                            f"got {type(item).__name__}")
+    if required:
+        _known(item, ROD_KEYS, where)
+    given = [key for key in ROD_KEYS if key in item]
+    if not given and not required:
+        return None
+    if len(given) < 2:
+        missing = next(key for key in ROD_KEYS if key not in given)
+        raise GridFileError(f"{where}: {missing}: missing (a scene's rods are replaced by both "
+                            f"length_m and ei_nm2, or neither)")
+    return _rod({key: item[key] for key in ROD_KEYS}, where)
 
 
 def _known(doc: dict[Any, Any], allowed: tuple[str, ...], where: str) -> None:

@@ -37,22 +37,39 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from vibrissa.formats.files import whole_file
-from vibrissa.grid_study import GridCase, case_columns, case_summary, run_cases
+from vibrissa.frames import Transform
+from vibrissa.grid_study import (
+    GridCase,
+    SceneCase,
+    SceneStudy,
+    case_columns,
+    case_summary,
+    run_cases,
+    scene_columns,
+    scene_summary,
+)
+from vibrissa.scene import Scene, SceneObject, Whisker, robot_path
 from vibrissa.studies.grid_file import Grid
 from vibrissa.study import PAPER_SURFACE, StudyCase
 
 PACKAGE_VERSION = importlib.metadata.version("vibrissa")
 TASKS_PER_WORKER = 2
 PARAMETER_COLUMNS = ("surface_m", "y0_m", "mu", "step", "length_m", "ei_nm2")
-"""The case's inputs, the first columns of every table after ``case`` (its index in the grid)
-and ``key`` (its file in the store)."""
+"""A trail case's inputs, the first columns of every table after ``case`` (its index in the
+grid) and ``key`` (its file in the store)."""
+SCENE_PARAMETER_COLUMNS = ("scene", "mu", "length_m", "ei_nm2")
+"""A scene case's inputs, in the same place (``length_m``, ``ei_nm2`` NaN: the scene's rods)."""
+
+Case = GridCase | SceneCase
+Result = StudyCase | SceneStudy
 
 _SUMMARY_METADATA = b"vibrissa.case_summary"
-_TEXT_COLUMNS = ("surface_m", "phase", "state")
+_TEXT_COLUMNS = ("surface_m", "phase", "state", "scene", "whisker", "object")
 
 
 def _column_type(name: str) -> pa.DataType:
@@ -65,17 +82,29 @@ ProgressCallback = Callable[[int, int, int], None]
 """``progress(cases_done, cases_total, equilibria_done)``."""
 
 
-def case_key(case: GridCase) -> str:
-    """SHA-256 (hex) of the case's inputs (`GridCase.parameters`, the surface spec in its
-    canonical form) and the package version: the case's name in the store."""
-    text = json.dumps({**case.parameters(), "vibrissa": PACKAGE_VERSION}, sort_keys=True)
+def case_key(case: Case) -> str:
+    """SHA-256 (hex) of the case's inputs (`GridCase.inputs`: the surface spec in its
+    canonical form; `SceneCase.inputs`: the scene's content) and the package version: the
+    case's name in the store."""
+    text = json.dumps({**case.inputs(), "vibrissa": PACKAGE_VERSION}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def warm_up() -> None:
+def warm_up(scenes: bool = False) -> None:
     """Compile (or load) numba's kernels of Step 1 and Step 2 in this process: two short sweeps
-    past the paper's object, one with tip and stick phases, one tangential."""
+    past the paper's object, one with tip and stick phases, one tangential; with ``scenes``
+    also a short scene (`WARM_UP_SCENE`: a robot path, landings, Step 2 through the poses)."""
     run_cases([GridCase(PAPER_SURFACE, y0, 0.4, 0.02) for y0 in (0.0, 0.4)])
+    if scenes:
+        run_cases([SceneCase("warm-up", WARM_UP_SCENE, 0.4)])
+
+
+WARM_UP_SCENE = Scene(
+    0.4, (SceneObject("ball", "sphere", {"radius_m": 0.01}, Transform(translation=(0.0, 0.0, 0.035))),),
+    (Whisker("w", 0.05, 1e-4),),
+    robot_path(np.linspace(0.0, 1.0, 40), np.linspace([0.03, 0.0, 0.0], [-0.06, 0.0, 0.0], 40),
+               np.tile([0.0, 0.0, 0.0, 1.0], (40, 1))))
+"""A 50 mm rod driven 90 mm along -x past a 10 mm ball: tip contact, then tangential, snap-off."""
 
 
 def _worker_signals() -> None:
@@ -91,8 +120,8 @@ def deal(n_cases: int, n_workers: int) -> list[list[int]]:
     return [list(range(t, n_cases, n_tasks)) for t in range(n_tasks)] if n_cases else []
 
 
-def compute(cases: Sequence[GridCase], workers: int | None = None, scheduler: str | None = None
-            ) -> Iterator[tuple[list[int], list[StudyCase]]]:
+def compute(cases: Sequence[Case], workers: int | None = None, scheduler: str | None = None
+            ) -> Iterator[tuple[list[int], list[Result]]]:
     """Step 1 and Step 2 of ``cases``: ``(indices, results)`` per task as tasks finish.
 
     ``workers``: local processes (default: all cores; 1: in this process), or the workers of
@@ -111,7 +140,7 @@ def compute(cases: Sequence[GridCase], workers: int | None = None, scheduler: st
         for indices in deal(len(cases), 1):
             yield indices, run_cases([cases[i] for i in indices])
         return
-    warm_up()
+    warm_up(isinstance(cases[0], SceneCase))
     tasks = [(indices, [cases[i] for i in indices]) for indices in deal(len(cases), n_workers)]
     context = multiprocessing.get_context("fork")  # the workers inherit the loaded kernels
     # Pool's exit terminates the workers: Ctrl-C or an error ends the run at once
@@ -119,17 +148,17 @@ def compute(cases: Sequence[GridCase], workers: int | None = None, scheduler: st
         yield from pool.imap_unordered(_task, tasks)
 
 
-def _task(task: tuple[list[int], list[GridCase]]) -> tuple[list[int], list[StudyCase]]:
+def _task(task: tuple[list[int], list[Case]]) -> tuple[list[int], list[Result]]:
     """One task of a local worker: its case indices and `run_cases` of its cases."""
     indices, cases = task
     return indices, run_cases(cases)
 
 
-def _compute_dask(cases: Sequence[GridCase], n_workers: int, scheduler: str
-                  ) -> Iterator[tuple[list[int], list[StudyCase]]]:
+def _compute_dask(cases: Sequence[Case], n_workers: int, scheduler: str
+                  ) -> Iterator[tuple[list[int], list[Result]]]:
     from dask.distributed import Client, LocalCluster, as_completed
 
-    warm_up()
+    warm_up(isinstance(cases[0], SceneCase))
     if scheduler == "local":
         cluster: LocalCluster | None = LocalCluster(
             n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
@@ -152,8 +181,9 @@ def _compute_dask(cases: Sequence[GridCase], n_workers: int, scheduler: str
 
 class CaseStore:
     """One Parquet file per case, ``<folder>/<key>.parquet``: its equilibria (the parameter
-    columns, then `vibrissa.grid_study.EQUILIBRIUM_COLUMNS`) and its summary as JSON in the
-    file's metadata. A file is written whole, so one that is there is complete."""
+    columns, then `vibrissa.grid_study.EQUILIBRIUM_COLUMNS` or, for a scene,
+    `vibrissa.grid_study.SCENE_EQUILIBRIUM_COLUMNS`) and its summary as JSON in the file's
+    metadata. A file is written whole, so one that is there is complete."""
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
@@ -164,13 +194,18 @@ class CaseStore:
     def has(self, key: str) -> bool:
         return self.path(key).is_file()
 
-    def write(self, key: str, case: GridCase, result: StudyCase) -> None:
-        columns = case_columns(result)
-        n = len(columns["x0"])
+    def write(self, key: str, case: Case, result: Result) -> None:
+        if isinstance(case, SceneCase):
+            assert isinstance(result, SceneStudy)
+            columns, summary_of = scene_columns(case, result), scene_summary(case, result)
+        else:
+            assert isinstance(result, StudyCase)
+            columns, summary_of = case_columns(result), case_summary(case, result)
+        n = len(next(iter(columns.values())))
         values = {**{name: [value] * n for name, value in case.parameters().items()}, **columns}
         table = pa.table({name: pa.array(column, _column_type(name))
                           for name, column in values.items()})
-        summary = json.dumps({**case.parameters(), **case_summary(case, result)})
+        summary = json.dumps({**case.parameters(), **summary_of})
         table = table.replace_schema_metadata({_SUMMARY_METADATA: summary.encode()})
         with whole_file(self.path(key)) as partial:
             pq.write_table(table, partial)
@@ -190,7 +225,8 @@ class GridRun:
     ----------
     equilibria : pyarrow.Table
         Every equilibrium of every case, in grid order: ``case``, ``key``, the parameter
-        columns, then `vibrissa.grid_study.EQUILIBRIUM_COLUMNS`.
+        columns, then `vibrissa.grid_study.EQUILIBRIUM_COLUMNS` (a scene's:
+        `vibrissa.grid_study.SCENE_EQUILIBRIUM_COLUMNS`, a row per whisker and path sample).
     summary : pyarrow.Table
         One row per case: ``case``, ``key``, the parameters and `case_summary`'s keys.
     computed, reused : int
@@ -225,7 +261,8 @@ def run_grid(grid: Grid, store: CaseStore, workers: int | None = None,
         for indices, results in compute(todo, workers, scheduler):
             for i, result in zip(indices, results, strict=True):
                 store.write(keys[missing[i]], todo[i], result)
-                equilibria += result.sweep.n_steps
+                equilibria += (sum(len(r.t) for r in result.results)
+                               if isinstance(result, SceneStudy) else result.sweep.n_steps)
             done += len(indices)
             if progress:
                 progress(done, len(grid.cases), equilibria)

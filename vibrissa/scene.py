@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import hashlib
 import math
 import multiprocessing
 import os
@@ -291,6 +292,21 @@ def free_at_both_ends(results: Sequence[WhiskerResult]) -> list[str]:
     again gives the same results, sample for sample."""
     return [r.name for r in results
             if not (r.phase[0] == SamplePhase.NONE and r.phase[-1] == SamplePhase.NONE)]
+
+
+def scene_digest(scene: Scene) -> str:
+    """SHA-256 of what a scene's results depend on: mu, the objects, the whiskers (rods,
+    mounts, sensor frames) and the path, bit for bit."""
+    digest = hashlib.sha256(repr(scene.mu).encode())
+    for obj in scene.objects:
+        digest.update(repr((obj.name, obj.shape, sorted(obj.sizes.items()))).encode())
+        digest.update(obj.X_WO.matrix.tobytes())
+    for whisker in scene.whiskers:
+        digest.update(repr((whisker.name, whisker.length_m, whisker.ei_nm2)).encode())
+        digest.update(whisker.X_RC.matrix.tobytes() + whisker.X_CS.matrix.tobytes())
+    for array in (scene.path.t, scene.path.p_WR, scene.path.R_WR.as_matrix()):
+        digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
+    return digest.hexdigest()
 
 
 SampleProgress = Callable[[str, int, int], None]

@@ -139,3 +139,11 @@ def test_workers_must_be_a_whole_number_of_one_or_more(capsys: pytest.CaptureFix
             main(["study", "grid", "g.yaml", "-o", "out", "--workers", value])
         assert info.value.code == 2
         assert "--workers" in capsys.readouterr().err
+
+
+def test_the_shipped_robot_friction_grid_is_the_robot_demo_at_three_frictions() -> None:
+    from vibrissa.grid_study import SceneCase
+
+    grid = load_grid(Path(__file__).parents[2] / "studies" / "robot_friction.yaml")
+    assert [case.mu for case in grid.cases] == [0.0, 0.2, 0.5]
+    assert all(isinstance(case, SceneCase) and len(case.scene.whiskers) == 8 for case in grid.cases)

@@ -1,13 +1,15 @@
 """Running a grid: its cases dealt into tasks, run in this process, on local processes or on a
 Dask cluster, every case stored under a hash of its inputs.
 
-Tasks: the cases are dealt round robin into two tasks per worker, so that neighbouring
-(similar) cases spread over the workers and one slow task does not hold the end alone. The
-cases of a task are solved together (`vibrissa.grid_study.run_cases`, the same bits as each
-alone), and batched Newton steps cost less per case the more cases share them, hence few large
-tasks: on a grid of a thousand sweeps 10^4-10^5 equilibria each, so scheduling stays a small
-part. The function a worker runs is plain Python (`run_cases`), never a compiled kernel
-(distributed#4597: jitted functions do not pickle to a worker reliably).
+Tasks: the cases are dealt round robin into tasks, so that neighbouring (similar) cases
+spread over the workers. The cases of a task are solved together (`vibrissa.grid_study.
+run_cases`, the same bits as each alone), and batched Newton steps cost less per case the more
+cases share them (the paper's 25 sweeps: 0.38 s a case alone, 0.19 s in sixes, 0.16 s in
+twelves and more), hence few large tasks: one per worker where the cases allow, at most
+`MAX_TASK_CASES` each, so that a long grid stores its cases (and shows its progress) as it
+goes. A scene is a task of its own (its whiskers are batched within it). The function a
+worker runs is plain Python (`run_cases`), never a compiled kernel (distributed#4597: jitted
+functions do not pickle to a worker reliably).
 
 numba's cache: before fanning out, this process runs a short sweep and its Step 2 (`warm_up`),
 so every kernel is compiled and cached once; the workers then load it instead of compiling the
@@ -35,7 +37,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import pyarrow as pa
@@ -58,12 +60,22 @@ from vibrissa.studies.grid_file import Grid
 from vibrissa.study import PAPER_SURFACE, StudyCase
 
 PACKAGE_VERSION = importlib.metadata.version("vibrissa")
-TASKS_PER_WORKER = 2
+MAX_TASK_CASES = 32
+"""Trail cases of one task at most (batching gains little beyond a dozen)."""
 PARAMETER_COLUMNS = ("surface_m", "y0_m", "mu", "step", "length_m", "ei_nm2")
 """A trail case's inputs, the first columns of every table after ``case`` (its index in the
 grid) and ``key`` (its file in the store)."""
 SCENE_PARAMETER_COLUMNS = ("scene", "mu", "length_m", "ei_nm2")
 """A scene case's inputs, in the same place (``length_m``, ``ei_nm2`` NaN: the scene's rods)."""
+
+LOCAL_CLUSTER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+"""Dask settings of the LocalCluster of ``--scheduler local``: no statistical profiler, slower
+event-loop ticks and monitors (a CPU-bound task keeps the GIL longer)."""
 
 Case = GridCase | SceneCase
 Result = StudyCase | SceneStudy
@@ -91,12 +103,18 @@ def case_key(case: Case) -> str:
 
 
 def warm_up(scenes: bool = False) -> None:
-    """Compile (or load) numba's kernels of Step 1 and Step 2 in this process: two short sweeps
-    past the paper's object, one with tip and stick phases, one tangential; with ``scenes``
-    also a short scene (`WARM_UP_SCENE`: a robot path, landings, Step 2 through the poses)."""
-    run_cases([GridCase(PAPER_SURFACE, y0, 0.4, 0.02) for y0 in (0.0, 0.4)])
-    if scenes:
-        run_cases([SceneCase("warm-up", WARM_UP_SCENE, 0.4)])
+    """Compile (or load) numba's kernels of Step 1 and Step 2 in this process, once: two short
+    sweeps past the paper's object, one with tip and stick phases, one tangential; with
+    ``scenes`` also a short scene (`WARM_UP_SCENE`: a robot path, Step 2 through the poses)."""
+    for kind, cases in (("trails", [GridCase(PAPER_SURFACE, y0, 0.4, 0.02) for y0 in (0.0, 0.4)]),
+                        ("scenes", [SceneCase("warm-up", WARM_UP_SCENE, 0.4)] if scenes else [])):
+        if cases and kind not in _WARM:
+            run_cases(cases)
+            _WARM.add(kind)
+
+
+_WARM: set[str] = set()
+"""The kinds of case whose kernels this process has loaded (`warm_up`)."""
 
 
 WARM_UP_SCENE = Scene(
@@ -113,11 +131,18 @@ def _worker_signals() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def deal(n_cases: int, n_workers: int) -> list[list[int]]:
-    """Case indices dealt round robin into ``TASKS_PER_WORKER`` tasks per worker (fewer when
-    there are fewer cases)."""
-    n_tasks = max(1, min(n_cases, TASKS_PER_WORKER * n_workers))
-    return [list(range(t, n_cases, n_tasks)) for t in range(n_tasks)] if n_cases else []
+def deal(n_cases: int, n_workers: int, per_task: int = MAX_TASK_CASES) -> list[list[int]]:
+    """Case indices dealt round robin into tasks: as few as keep each at most ``per_task``
+    cases, as many for each worker, and at least two (a stopped grid has stored some), fewer
+    when there are fewer cases."""
+    n_tasks = max(2, n_workers, math.ceil(n_cases / per_task))
+    n_tasks = min(n_cases, math.ceil(n_tasks / n_workers) * n_workers)
+    return [list(range(t, n_cases, n_tasks)) for t in range(n_tasks)]
+
+
+def _per_task(cases: Sequence[Case]) -> int:
+    """Cases of a task at most: `MAX_TASK_CASES` trails, or one scene."""
+    return 1 if isinstance(cases[0], SceneCase) else MAX_TASK_CASES
 
 
 def compute(cases: Sequence[Case], workers: int | None = None, scheduler: str | None = None
@@ -128,24 +153,41 @@ def compute(cases: Sequence[Case], workers: int | None = None, scheduler: str | 
     the LocalCluster that ``scheduler="local"`` starts; ``scheduler``: ``"local"`` or the
     address of a Dask distributed scheduler (its workers decide how many run).
     """
-    n_workers = (os.cpu_count() or 1) if workers is None else workers
-    if n_workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    n_workers = _workers(workers)
     if not cases:
         return
     if scheduler is not None:
-        yield from _compute_dask(cases, n_workers, scheduler)
+        yield from _on_dask(_task, lambda indices: (indices, [cases[i] for i in indices]), cases,
+                            n_workers, scheduler)
         return
+    tasks = [(indices, [cases[i] for i in indices])
+             for indices in deal(len(cases), n_workers, _per_task(cases))]
+    yield from _on_local_workers(_task, tasks, n_workers, isinstance(cases[0], SceneCase))
+
+
+def _workers(workers: int | None) -> int:
+    n_workers = (os.cpu_count() or 1) if workers is None else workers
+    if n_workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    return n_workers
+
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def _on_local_workers(function: Callable[[T], R], tasks: Sequence[T], n_workers: int,
+                      scenes: bool) -> Iterator[R]:
+    """``function`` of each task as tasks finish: in this process (one worker), or on
+    ``n_workers`` processes forked after `warm_up` (they inherit the loaded kernels)."""
     if n_workers == 1:
-        for indices in deal(len(cases), 1):
-            yield indices, run_cases([cases[i] for i in indices])
+        yield from map(function, tasks)
         return
-    warm_up(isinstance(cases[0], SceneCase))
-    tasks = [(indices, [cases[i] for i in indices]) for indices in deal(len(cases), n_workers)]
-    context = multiprocessing.get_context("fork")  # the workers inherit the loaded kernels
+    warm_up(scenes)
+    context = multiprocessing.get_context("fork")
     # Pool's exit terminates the workers: Ctrl-C or an error ends the run at once
     with context.Pool(min(n_workers, len(tasks)), initializer=_worker_signals) as pool:
-        yield from pool.imap_unordered(_task, tasks)
+        yield from pool.imap_unordered(function, tasks)
 
 
 def _task(task: tuple[list[int], list[Case]]) -> tuple[list[int], list[Result]]:
@@ -154,25 +196,45 @@ def _task(task: tuple[list[int], list[Case]]) -> tuple[list[int], list[Result]]:
     return indices, run_cases(cases)
 
 
-def _compute_dask(cases: Sequence[Case], n_workers: int, scheduler: str
-                  ) -> Iterator[tuple[list[int], list[Result]]]:
+def _stored_task(task: tuple[CaseStore, list[int], list[str], list[Case]]) -> tuple[list[int], int]:
+    """One task of a local worker that stores its cases itself (the store is on this machine):
+    its case indices and their equilibria."""
+    store, indices, keys, cases = task
+    return indices, _write(store, keys, cases, run_cases(cases))
+
+
+def _equilibria(result: Result) -> int:
+    """A case's equilibria: a sweep's steps, or a scene's rows (whiskers x samples)."""
+    return sum(len(r.t) for r in result.results) if isinstance(result, SceneStudy) else result.sweep.n_steps
+
+
+def _on_dask(function: Callable[[T], R], task_of: Callable[[list[int]], T], cases: Sequence[Case],
+             n_workers: int, scheduler: str) -> Iterator[R]:
+    """``function`` of each task (``task_of`` its case indices) as tasks finish, on the
+    LocalCluster of ``n_workers`` processes that ``scheduler="local"`` starts, or on the Dask
+    scheduler at the address ``scheduler``; its tasks dealt for the workers' threads."""
     from dask.distributed import Client, LocalCluster, as_completed
 
     warm_up(isinstance(cases[0], SceneCase))
     if scheduler == "local":
-        cluster: LocalCluster | None = LocalCluster(
-            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        import dask
+
+        # A worker's event loop wakes to sample every thread's stack (10 ms), to watch itself
+        # (20 ms) and its memory (100 ms), each time taking the GIL from the task's thread: the
+        # large grid of bench_study_grid.py computed 8 % slower per task with the profiler, 14 %
+        # with all three. A cluster of one's own turns them off or down (docs/STUDIES.md).
+        with dask.config.set(LOCAL_CLUSTER_CONFIG):
+            cluster: LocalCluster | None = LocalCluster(
+                n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
         client = Client(cluster)
     else:
         cluster, client = None, Client(scheduler)
     try:
         slots = sum(client.nthreads().values()) or n_workers
-        tasks = deal(len(cases), slots)
-        futures = {client.submit(run_cases, [cases[i] for i in indices], pure=False): indices
-                   for indices in tasks}
-        by_key = {future.key: indices for future, indices in futures.items()}
-        for future in as_completed(list(futures)):
-            yield by_key[future.key], future.result()
+        futures = [client.submit(function, task_of(indices), pure=False)
+                   for indices in deal(len(cases), slots, _per_task(cases))]
+        for future in as_completed(futures):
+            yield future.result()
     finally:
         client.close()
         if cluster is not None:
@@ -247,8 +309,9 @@ class GridRun:
 
 def run_grid(grid: Grid, store: CaseStore, workers: int | None = None,
              scheduler: str | None = None, progress: ProgressCallback | None = None) -> GridRun:
-    """Compute the cases of ``grid`` missing from ``store`` (`compute`), store each as its task
-    returns, and assemble the tables from the store."""
+    """Compute the cases of ``grid`` missing from ``store``, store each task's cases as it
+    finishes (local workers write them themselves; with a ``scheduler`` this process does, as
+    the tasks come back from `compute`), and assemble the tables from the store."""
     start = time.perf_counter()
     keys = [case_key(case) for case in grid.cases]
     missing = sorted({key: i for i, key in enumerate(keys) if not store.has(key)}.values())
@@ -258,11 +321,25 @@ def run_grid(grid: Grid, store: CaseStore, workers: int | None = None,
         progress(done, len(grid.cases), equilibria)
     if missing:
         todo = [grid.cases[i] for i in missing]
-        for indices, results in compute(todo, workers, scheduler):
-            for i, result in zip(indices, results, strict=True):
-                store.write(keys[missing[i]], todo[i], result)
-                equilibria += (sum(len(r.t) for r in result.results)
-                               if isinstance(result, SceneStudy) else result.sweep.n_steps)
+        todo_keys = [keys[i] for i in missing]
+        n_workers = _workers(workers)
+        finished: Iterator[tuple[list[int], int]]
+        scenes = isinstance(todo[0], SceneCase)
+
+        def task_of(indices: list[int]) -> tuple[CaseStore, list[int], list[str], list[Case]]:
+            return store, indices, [todo_keys[i] for i in indices], [todo[i] for i in indices]
+
+        if scheduler is None:  # workers on this machine store their cases themselves
+            tasks = [task_of(indices) for indices in deal(len(todo), n_workers, _per_task(todo))]
+            finished = _on_local_workers(_stored_task, tasks, n_workers, scenes)
+        elif scheduler == "local":
+            finished = _on_dask(_stored_task, task_of, todo, n_workers, scheduler)
+        else:  # a cluster's workers may not reach the store: this process writes
+            finished = ((indices, _write(store, [todo_keys[i] for i in indices],
+                                         [todo[i] for i in indices], results))
+                        for indices, results in compute(todo, n_workers, scheduler))
+        for indices, computed in finished:
+            equilibria += computed
             done += len(indices)
             if progress:
                 progress(done, len(grid.cases), equilibria)
@@ -277,6 +354,13 @@ def run_grid(grid: Grid, store: CaseStore, workers: int | None = None,
         rows.append({"case": index, "key": key, **summary})
     return GridRun(pa.concat_tables(tables), pa.Table.from_pylist(rows), len(missing),
                    len(grid.cases) - len(missing), equilibria, time.perf_counter() - start)
+
+
+def _write(store: CaseStore, keys: Sequence[str], cases: Sequence[Case], results: Sequence[Result]) -> int:
+    """Store the results of a task computed elsewhere; their equilibria."""
+    for key, case, result in zip(keys, cases, results, strict=True):
+        store.write(key, case, result)
+    return sum(_equilibria(result) for result in results)
 
 
 def same_bits(a: pa.Table, b: pa.Table) -> bool:

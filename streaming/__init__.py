@@ -40,7 +40,8 @@ carries NaN, and a point with finite placeholder zeros would be a point on the m
 threshold: the rod is free), ``tip_within_noise`` (points that are the tip within the noise),
 ``no_covariance`` (points whose covariance is not defined, an axial load: they carry L^2 I, the
 rod's reach), ``no_contact`` (valid wrench, no consistent contact, or a result that overflows to
-inf near the float limit), ``bad_pose`` (clamp quaternion of zero or non-finite length),
+inf near the float limit), ``multi_contact`` (of those, wrenches no single contact gives:
+two contacts on the rod, beyond the noise), ``bad_pose`` (clamp quaternion of zero or non-finite length),
 ``no_pose`` (no clamp pose at the tick's stamp within ``pose_timeout_s``), ``unknown_whisker``
 (not in the robot description), ``wrong_frame`` (measured, by its ``frame_ids``, in another
 frame than its whisker's clamp frame: placed there it would get another whisker's mount); and

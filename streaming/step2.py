@@ -101,6 +101,9 @@ class Reconstructed:
         Points in ``contacts`` that are the tip within the noise.
     no_covariance
         Points in ``contacts`` whose covariance is not defined (they carry L^2 I).
+    multi_contact
+        Rows of ``no_contact`` whose wrench no single contact gives (MULTI_CONTACT: two
+        contacts on the rod, beyond the noise).
     """
 
     contacts: ContactPointArray
@@ -113,6 +116,7 @@ class Reconstructed:
     wrong_frame: int = 0
     tip_within_noise: int = 0
     no_covariance: int = 0
+    multi_contact: int = 0
 
 
 @dataclass
@@ -225,6 +229,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     # a row whose result overflows (finite inputs near the float limit) is flagged
     # NON_FINITE_INPUT by Step 2: not valid, so it counts as no consistent contact
     valid = result.valid
+    multi = result.pose_ok & ((status & int(ContactStatus.MULTI_CONTACT)) != 0)
     covariance = result.covariance_m2
     # with a noise model: per row, a point that is the tip within the noise, or that has no
     # covariance (an axial load: it gets the rod's reach, L^2 I)
@@ -276,7 +281,8 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
             tip_within_noise=(0 if tip_within_noise is None
                               else int(np.count_nonzero(tip_within_noise[rows]))),
             no_covariance=(0 if no_covariance is None
-                           else int(np.count_nonzero(no_covariance[rows])))))
+                           else int(np.count_nonzero(no_covariance[rows]))),
+            multi_contact=int(np.count_nonzero(multi[rows]))))
         first += n
     return outcomes
 

@@ -136,6 +136,17 @@ _NO_CONTACT = int(NO_CONTACT)
 _NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
 _BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
 _TIP_WITHIN_NOISE = int(ContactStatus.TIP_WITHIN_NOISE)
+_MULTI = int(ContactStatus.MULTI_CONTACT)
+
+MULTI_TOLERANCE = 1e-9
+"""Without a noise model, the band of a single contact's m0 . f0 and m0z: this fraction of
+(|f0| + |m0|)^2 and of |f0| + |m0| (units of L): round-off of an exact wrench, which Step 1's
+is to about 1e-15."""
+
+MULTI_SIGMAS = 4.0
+"""With a wrench covariance, the band of a single contact's m0 . f0 and m0z: this many of
+their std (each passes it with Gaussian noise at 6e-5 odds; the two: under 1.3e-4)."""
+
 _NO_ROTATION = np.empty((0, 3, 3))  # the kernel's "C parallel to W"
 
 
@@ -166,7 +177,7 @@ def _reconstruct_kernel(
 def reconstruct_row(
     p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
     rotate: bool, R_WC: NDArray[np.float64], point: NDArray[np.float64], force: NDArray[np.float64],
-    tip_band: float = 0.0,
+    tip_band: float = 0.0, dot_band: float = -1.0, twist_band: float = -1.0,
 ) -> tuple[float, int, float, int]:
     """Step 2 of one sample, for compiled callers (numba): :func:`reconstruct` of one row.
 
@@ -178,7 +189,9 @@ def reconstruct_row(
     tip within the noise: a first zero of the curvature past the tip by more than round-off
     but at most ``tip_band`` is a tip contact at the elastica's point there, flagged
     TIP_WITHIN_NOISE; one farther out is no contact on the rod (CONTACT_BEYOND_ROD); one
-    within ``tip_band`` before the tip is a tip contact too.
+    within ``tip_band`` before the tip is a tip contact too. A wrench whose m0 . f0 or m0z
+    passes ``dot_band`` or ``twist_band`` (units of L, from the wrench noise; negative: none)
+    widened by round-off is no single contact: MULTI_CONTACT (`single_contact_excess`).
     """
     fx, fy, fz = -f0_C[0], -f0_C[1], -f0_C[2]  # the contact force on the rod, in C
     m_horizontal = math.hypot(m0_C[0], m0_C[1])
@@ -199,6 +212,8 @@ def reconstruct_row(
         finite = finite and math.isfinite(p0_W[j]) and math.isfinite(m0_C[j])
     if not finite:
         status |= _NON_FINITE
+    if status & _NON_FINITE == 0 and single_contact_excess(f0_C, m0_C, dot_band, twist_band) > 1.0:
+        status |= _MULTI
     if status & _NO_CONTACT == 0 and s1 > 1.0 + S1_TOLERANCE:
         status |= _BEYOND if s1 > 1.0 + tip_band else _TIP_WITHIN_NOISE
     p1x, p1y, p1z = u1 * e_ux, u1 * e_uy, v1  # P1 - P0 in C
@@ -216,6 +231,50 @@ def reconstruct_row(
     s1 = min(s1, 1.0)
     phase = PHASE_TIP if s1 >= 1.0 - max(TIP_TOLERANCE, tip_band) else PHASE_TANGENTIAL
     return s1, phase, math.atan2(e_uy, e_ux), status
+
+
+@compiled
+def single_contact_excess(f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
+                          dot_band: float = -1.0, twist_band: float = -1.0) -> float:
+    """How far a wrench is from any single point contact's: the larger of |m0 . f0| /
+    ``dot_band`` and |m0z| / ``twist_band`` (above 1: MULTI_CONTACT). One contact force F at
+    P1 bends the rod in the plane of F and the clamp's axis z: m0 = (P1 - P0) x f0 is normal
+    to that plane, so m0 . f0 = 0 and m0z = 0. Two contacts give neither in general. Units
+    are the caller's (L in Step 2); each band is widened by `MULTI_TOLERANCE`'s round-off
+    band (a negative one is that alone)."""
+    scale = math.sqrt(f0_C[0] ** 2 + f0_C[1] ** 2 + f0_C[2] ** 2) + math.sqrt(
+        m0_C[0] ** 2 + m0_C[1] ** 2 + m0_C[2] ** 2)
+    dot_band = max(dot_band, 0.0) + MULTI_TOLERANCE * scale * scale
+    twist_band = max(twist_band, 0.0) + MULTI_TOLERANCE * scale
+    dot = abs(f0_C[0] * m0_C[0] + f0_C[1] * m0_C[1] + f0_C[2] * m0_C[2])
+    twist = abs(m0_C[2])
+    excess = 0.0
+    for value, band in ((dot, dot_band), (twist, twist_band)):
+        if value > 0.0:
+            excess = max(excess, value / band if band > 0.0 else math.inf)
+    return excess
+
+
+@compiled
+def single_contact_bands(f0: NDArray[np.float64], m0: NDArray[np.float64],
+                         cov: NDArray[np.float64], sigmas: float) -> tuple[float, float]:
+    """The noise bands of m0 . f0 and m0z (`single_contact_excess`) for a wrench measured with
+    the noise covariance ``cov`` (6, 6) of (f0, m0), in its units: ``sigmas`` std of each
+    about its mean under a single contact. m0 . f0 with Gaussian noise (d_f, d_m) has mean
+    tr(cov_fm) and variance a^T cov a + tr(cov_mm cov_ff) + tr(cov_mf cov_mf), a = (m0, f0)
+    (the second-order terms keep the band where the wrench is as small as its noise)."""
+    linear = 0.0
+    for i in range(6):
+        a_i = m0[i] if i < 3 else f0[i - 3]
+        for j in range(6):
+            linear += a_i * cov[i, j] * (m0[j] if j < 3 else f0[j - 3])
+    second, mean = 0.0, 0.0
+    for i in range(3):
+        mean += cov[i, 3 + i]
+        for j in range(3):
+            second += cov[3 + i, 3 + j] * cov[j, i] + cov[3 + i, j] * cov[3 + j, i]
+    dot_band = abs(mean) + sigmas * math.sqrt(max(linear + second, 0.0))
+    return dot_band, sigmas * math.sqrt(max(cov[5, 5], 0.0))
 
 
 @compiled
@@ -365,8 +424,12 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
     for j in range(3):
         p0_L[j], f0_L[j], m0_L[j] = p0[j] / length_m, f0[j] / force_n, m0[j] / moment_nm
     tip_band = 0.0
+    dot_band = twist_band = -1.0
     known = False
     if cov.shape[0] > 0:
+        dot_band, twist_band = single_contact_bands(f0, m0, cov, MULTI_SIGMAS)
+        dot_band /= force_n * moment_nm  # in units of L
+        twist_band /= moment_nm
         jacobian = work[0:4]
         known = jacobian_into(f0_L, m0_L, jacobian, work[4:7, 0:3])
         if known:
@@ -374,7 +437,7 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
                                    covariance, work[7:15])
             tip_band = tip_sigmas * math.sqrt(max(s1_var, 0.0))
     s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force,
-                                              tip_band)
+                                              tip_band, dot_band, twist_band)
     for j in range(3):
         point[j] *= length_m
         force[j] *= force_n

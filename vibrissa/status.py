@@ -34,6 +34,9 @@ class ContactStatus(enum.IntFlag):
     # contact point or force overflows (also in the rod's units: f0 = 1e308 N on EI/L^2 < 0.5 N)
     AXIAL_LOAD = 16  # force along the straight rod: taken as tip contact of the straight rod
     TIP_WITHIN_NOISE = 32  # first zero of kappa past the tip, within the noise: taken as the tip
+    MULTI_CONTACT = 64  # no single point contact gives the wrench: a moment about the force's
+    # own line (m0 . f0) or about the rod's axis at the clamp (m0z) beyond the noise band,
+    # as two contacts on the rod give (vibrissa.reconstruct.single_contact_excess)
 
 
 #: Flags that leave no usable contact point.
@@ -42,6 +45,7 @@ NO_CONTACT = (
     | ContactStatus.CURVATURE_NEVER_VANISHES
     | ContactStatus.CONTACT_BEYOND_ROD
     | ContactStatus.NON_FINITE_INPUT
+    | ContactStatus.MULTI_CONTACT
 )
 
 

@@ -219,7 +219,7 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
                     continue
                 rows.append([row["t"], name, *(row[c] for c in CONTRACT[3:9])])
                 truth.append((row["phase"], [row[c] for c in ("px", "py", "pz")]))
-    between = ["0.555", "w1", "0.001", "-0.002", "0.0005", "1e-5", "2e-5", "0"]  # mid-sample
+    between = ["0.555", "w1", "0.001", "-0.002", "0.0005", "2e-5", "1e-5", "0"]  # mid-sample (m0 . f0 = 0)
     missing = ["0.5", "w0", "0.001", "", "0", "0", "0", "0"]  # an empty cell: a missing value
     off = ["3.5", "w0", "0.001", "0", "0", "0", "0", "0"]  # after the path's last pose
     order = np.random.default_rng(3).permutation(len(rows))
@@ -257,7 +257,7 @@ def test_reconstruct_from_wrenches_in_clamp_frames_recovers_the_true_points(
     q_WC = (R_WR * mount).as_quat()
     p_WC = p_WR + R_WR.apply([0.0, -0.01, 0.0])
     expected = reconstruct_si(q_WC, p_WC, np.array([[0.001, -0.002, 0.0005]]),
-                              np.array([[1e-5, 2e-5, 0.0]]), RodScale(0.04, 1e-5))
+                              np.array([[2e-5, 1e-5, 0.0]]), RodScale(0.04, 1e-5))
     got = result[-3]
     assert np.allclose(np.array(got[2:5], float), expected.point_m[0], rtol=0, atol=1e-12)
     assert result[-2][2:5] == ["", "", ""] and result[-2][7] == "non_finite_input"

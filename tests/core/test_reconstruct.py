@@ -20,6 +20,11 @@ def _random_wrenches(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     p0 = rng.uniform(-1, 1, (n, 3))
     f0 = rng.normal(size=(n, 3)) * rng.choice([1e-3, 1.0, 10.0, 100.0], (n, 1))
     m0 = rng.normal(size=(n, 3)) * rng.choice([1e-3, 1.0, 10.0], (n, 1))
+    # every other row a single contact's wrench (m0z = 0, f0 in the plane normal to m0); the
+    # rest is what no single contact gives (MULTI_CONTACT)
+    m0[::2, 2] = 0.0
+    m0_h = m0[::2]
+    f0[::2] -= m0_h * (np.sum(f0[::2] * m0_h, axis=1) / np.sum(m0_h * m0_h, axis=1))[:, None]
     f0[0::40] = 0.0  # no force
     m0[1::40] = 0.0  # straight rod: the plane follows the force
     m0[2::40, :2] = 0.0  # twist only
@@ -49,7 +54,7 @@ def test_single_sample_equals_array_path(seed):
     many = reconstruct(p0, f0, m0)
     flags = set(many.status.tolist())
     # every outcome is exercised
-    assert {0, 1, 2, 4, 16} <= flags and any(s & ContactStatus.NON_FINITE_INPUT for s in flags)
+    assert {0, 1, 2, 4, 16, 64} <= flags and any(s & ContactStatus.NON_FINITE_INPUT for s in flags)
     for i in range(len(p0)):
         _assert_same(reconstruct(p0[i], f0[i], m0[i]), many, i)
 

@@ -19,10 +19,16 @@ from vibrissa.wire.transport import Header, Received
 def _wrenches(n: int = 5) -> list[WhiskerWrenchArray]:
     """One whisker's samples, each a tick of one row."""
     rng = np.random.default_rng(3)
-    return [WhiskerWrenchArray(stamp=float(i), seq=i, whisker_ids=["w"], frame_ids=["w/clamp"],
-                               pose_frame_id="world", clamp_position=rng.uniform(-1, 1, (1, 3)),
-                               clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=rng.normal(0, 1, (1, 3)),
-                               m0=rng.normal(0, 1, (1, 3))) for i in range(n)]
+    arrays = []
+    for i in range(n):
+        position = rng.uniform(-1, 1, (1, 3))
+        f0, m0 = rng.normal(0, 1, (1, 3)), rng.normal(0, 1, (1, 3))
+        m0[:, 2] = 0.0  # one contact's wrench: no twist, the force normal to the moment
+        f0 -= m0 * float(f0[0] @ m0[0] / (m0[0] @ m0[0]))
+        arrays.append(WhiskerWrenchArray(
+            stamp=float(i), seq=i, whisker_ids=["w"], frame_ids=["w/clamp"], pose_frame_id="world",
+            clamp_position=position, clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=f0, m0=m0))
+    return arrays
 
 
 def _tick(wrenches: list[WhiskerWrenchArray], seq: int) -> WhiskerWrenchArray:

@@ -6,7 +6,8 @@ Run once from the repository root: ``.venv/bin/python tests/data/live_tick/make_
 Three streams: clamp poses on the wire (a rod of its own, rows without contact and a zero
 quaternion among them, then a tick whose every row is a contact), a robot description with its
 poses (an unknown whisker and a row in the wrong frame among them), and a noise model (free
-rows, an axial load without covariance).
+rows, an axial load without covariance). Random wrenches are made one contact's
+(`single_contact`), but for one twisted row of two contacts.
 """
 
 from __future__ import annotations
@@ -28,12 +29,26 @@ OUT = Path(__file__).with_name("live_tick.msgpack")
 ROD = RodScale(0.05, 2e-5)
 
 
+def single_contact(f0: np.ndarray, m0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (N, 3) of (f0, m0) made wrenches one contact can give: m0z = 0 and f0 normal to
+    m0 (the rod bent in the plane of its force and its axis; Step 2 flags any other
+    MULTI_CONTACT)."""
+    f0, m0 = np.array(f0, dtype=float), np.array(m0, dtype=float)
+    m0[:, 2] = 0.0
+    norm2 = np.sum(m0 * m0, axis=1)
+    bent = norm2 > 0
+    f0[bent] -= m0[bent] * (np.sum(f0[bent] * m0[bent], axis=1) / norm2[bent])[:, None]
+    return f0, m0
+
+
 def _poses_ticks(rng: np.random.Generator) -> list[bytes]:
     ticks = []
     for k in range(3):
         n = 32
         f0 = rng.normal(size=(n, 3)) * ROD.force_n * 0.1
         m0 = rng.normal(size=(n, 3)) * ROD.moment_nm * 0.1
+        f0, m0 = single_contact(f0, m0)
+        m0[7] = [0.0, 0.05 * ROD.moment_nm, 0.02 * ROD.moment_nm]  # twisted: two contacts
         f0[3] = m0[3] = 0.0  # no force: no contact
         q = Rotation.random(n, random_state=10 + k).as_quat()
         q[5] = 0.0  # a zero quaternion: bad pose
@@ -72,6 +87,7 @@ def _robot_stream(rng: np.random.Generator) -> list[bytes]:
         rods = [w.scale for w in _robot()] + [ROD]
         f0 = np.array([rng.normal(size=3) * r.force_n * 0.1 for r in rods])
         m0 = np.array([rng.normal(size=3) * r.moment_nm * 0.1 for r in rods])
+        f0, m0 = single_contact(f0, m0)
         out.append(encode(WhiskerWrenchArray(
             stamp=0.005 + 0.007 * k, seq=k, whisker_ids=names, frame_ids=frames, f0=f0, m0=m0)))
     rods = [w.scale for w in _robot()]  # the robot's whiskers, every row a contact
@@ -89,8 +105,10 @@ def _noise_ticks(rng: np.random.Generator) -> list[bytes]:
         n = 8
         wrench = rng.normal(size=(n, 6)) * sigma
         if k == 1:
-            wrench[:4, :3] += rng.normal(size=(4, 3)) * 0.1 * ROD.force_n
-            wrench[:4, 3:] += rng.normal(size=(4, 3)) * 0.05 * ROD.moment_nm
+            f0, m0 = single_contact(rng.normal(size=(4, 3)) * 0.1 * ROD.force_n,
+                                    rng.normal(size=(4, 3)) * 0.05 * ROD.moment_nm)
+            wrench[:4, :3] += f0
+            wrench[:4, 3:] += m0
             wrench[4] = [0.0, 0.0, 0.1 * ROD.force_n, 0.0, 0.0, 0.0]  # axial: no covariance
         out.append(encode(WhiskerWrenchArray(
             stamp=0.001 * k, seq=k, whisker_ids=[f"n{j}" for j in range(n)],

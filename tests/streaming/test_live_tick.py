@@ -13,7 +13,9 @@ import pytest
 DATA = Path(__file__).parents[1] / "data" / "live_tick"
 
 
-def _recorder() -> ModuleType:
+def recorder() -> ModuleType:
+    """tests/data/live_tick/make_live_tick.py as a module (it also makes random wrenches one
+    contact's: ``single_contact``)."""
     spec = importlib.util.spec_from_file_location("make_live_tick", DATA / "make_live_tick.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
@@ -27,7 +29,7 @@ RECORD = msgpack.unpackb((DATA / "live_tick.msgpack").read_bytes())
 @pytest.mark.parametrize("name", sorted(RECORD))
 def test_a_recorded_stream_gives_the_recorded_bytes_and_counts(name: str) -> None:
     recorded = RECORD[name]
-    published = _recorder().run(name, recorded["input"])
+    published = recorder().run(name, recorded["input"])
     assert len(published) == len(recorded["output"])
     for (payload, counts), (want_payload, want_counts) in zip(published, recorded["output"],
                                                               strict=True):

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tests.streaming.test_live_tick import recorder
 from vibrissa.msgs import EndOfStream, WhiskerWrenchArray
 from vibrissa.nodes.reconstructor import BatchCollector, ReconstructorParams, collect_batch
 from vibrissa.streaming import reconstruct_messages
@@ -22,9 +23,7 @@ def _wrenches(n: int = 5) -> list[WhiskerWrenchArray]:
     arrays = []
     for i in range(n):
         position = rng.uniform(-1, 1, (1, 3))
-        f0, m0 = rng.normal(0, 1, (1, 3)), rng.normal(0, 1, (1, 3))
-        m0[:, 2] = 0.0  # one contact's wrench: no twist, the force normal to the moment
-        f0 -= m0 * float(f0[0] @ m0[0] / (m0[0] @ m0[0]))
+        f0, m0 = recorder().single_contact(rng.normal(0, 1, (1, 3)), rng.normal(0, 1, (1, 3)))
         arrays.append(WhiskerWrenchArray(
             stamp=float(i), seq=i, whisker_ids=["w"], frame_ids=["w/clamp"], pose_frame_id="world",
             clamp_position=position, clamp_orientation=[[0.0, 0.0, 0.0, 1.0]], f0=f0, m0=m0))

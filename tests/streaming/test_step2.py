@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from tests.streaming.test_live_tick import recorder
 from vibrissa.contact_detection import ContactDetector, wrench_covariance
 from vibrissa.frames import quaternion_matrices
 from vibrissa.msgs import ContactPointArray, WhiskerWrenchArray
@@ -93,23 +94,11 @@ def sweep_arrays(run: SweepRun, whisker_ids: list[str], frame_id: str, rod: RodS
     return tick_messages(array_ticks(run, rod), whisker_ids, frame_id, array=True)  # type: ignore[return-value]
 
 
-def single_contact(f0: np.ndarray, m0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows (N, 3) of (f0, m0) made wrenches one contact can give: m0z = 0 and f0 normal to
-    m0 (the rod bent in the plane of its force and its axis; Step 2 flags any other
-    MULTI_CONTACT)."""
-    f0, m0 = np.array(f0, dtype=float), np.array(m0, dtype=float)
-    m0[:, 2] = 0.0
-    norm2 = np.sum(m0 * m0, axis=1)
-    bent = norm2 > 0
-    f0[bent] -= m0[bent] * (np.sum(f0[bent] * m0[bent], axis=1) / norm2[bent])[:, None]
-    return f0, m0
-
-
 def _wrenches(n: int = 64, seed: int = 3) -> list[Wrench]:
     """Wrenches of a rod touched at random points of a bent plane (some without contact)."""
     rng = np.random.default_rng(seed)
     p0 = rng.uniform(-1, 1, (n, 3))
-    f0, m0 = single_contact(rng.normal(0, 1, (n, 3)), rng.normal(0, 1, (n, 3)))
+    f0, m0 = recorder().single_contact(rng.normal(0, 1, (n, 3)), rng.normal(0, 1, (n, 3)))
     f0[0] = 0.0  # no force: no contact
     m0[0] = 0.0
     return [Wrench(float(i), i, p0[i], np.array([0.0, 0.0, 0.0, 1.0]), f0[i], m0[i])

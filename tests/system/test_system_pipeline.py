@@ -27,6 +27,7 @@ import pytest
 import yaml
 import zmq
 
+from tests.streaming.test_live_tick import recorder
 from vibrissa.frames import quaternion_matrices
 from vibrissa.msgs import (
     ContactPointArray,
@@ -359,7 +360,9 @@ def test_killed_node_without_respawn_fails_the_launch_naming_it(tmp_path: Path) 
 def _good_wrench() -> WhiskerWrenchArray:
     rng = np.random.default_rng(11)
     while True:
-        p0, f0, m0 = rng.uniform(-1, 1, 3), rng.normal(size=3), rng.normal(size=3)
+        p0 = rng.uniform(-1, 1, 3)
+        f0, m0 = (row[0] for row in recorder().single_contact(rng.normal(size=(1, 3)),
+                                                               rng.normal(size=(1, 3))))
         if reconstruct(p0, f0, m0).valid[0]:
             return WhiskerWrenchArray(stamp=1.0, seq=42, whisker_ids=["w"], frame_ids=["w/clamp"],
                                       pose_frame_id="world", clamp_position=[p0],

@@ -37,7 +37,7 @@ import yaml
 from vibrissa.formats import yaml_numbers
 from vibrissa.formats.errors import SceneError
 from vibrissa.formats.files import read_text
-from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.scene_file import LIMITS, load_scene
 from vibrissa.grid_study import GridCase, SceneCase
 from vibrissa.scene import Scene
 from vibrissa.surfaces import parse_surface
@@ -194,7 +194,13 @@ def _scene_rod(item: Any, where: str, required: bool = False) -> RodScale | None
         missing = next(key for key in ROD_KEYS if key not in given)
         raise GridFileError(f"{where}: {missing}: missing (a scene's rods are replaced by both "
                             f"length_m and ei_nm2, or neither)")
-    return _rod({key: item[key] for key in ROD_KEYS}, where)
+    rod = _rod({key: item[key] for key in ROD_KEYS}, where)
+    for key in ROD_KEYS:  # the scene files' limits: a whisker's units must not overflow
+        low, high = LIMITS[key]
+        if not low <= getattr(rod, key) <= high:
+            raise GridFileError(f"{where}: {key}: {getattr(rod, key)!r} is outside the range "
+                                f"[{low:g}, {high:g}] a scene's whiskers take")
+    return rod
 
 
 def _known(doc: dict[Any, Any], allowed: tuple[str, ...], where: str) -> None:

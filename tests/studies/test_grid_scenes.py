@@ -212,6 +212,8 @@ BAD = [
     ("a rod with another key", GRID.replace("ei_nm2: 1.5e-5}", "ei_nm2: 1.5e-5, d: 1}"),
      "rods[0]: unknown key 'd'"),
     ("negative mu", GRID.replace("mu: [0.0, 0.8]", "mu: [0.0, -0.8]"), "mu[1]: mu must be >= 0"),
+    ("a rod of 1e300 m", GRID.replace("length_m: 0.045", "length_m: 1e300"),
+     "rods[0]: length_m: 1e+300 is outside the range"),
     ("a trail among scene cases", "cases: [{scene: scene.yaml}, {surface: 'sphere:r=0.3', y0_m: 0, mu: 0}]\n",
      "cases[1]: a grid is all scenes or all trails"),
     ("a scene case with L alone", "cases: [{scene: scene.yaml, length_m: 0.04}]\n",

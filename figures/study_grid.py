@@ -14,6 +14,7 @@ import matplotlib
 matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from vibrissa.status import SweepEnd  # noqa: E402
@@ -40,17 +41,8 @@ def grid_figure(summary: Mapping[str, Sequence[Any]], title: str) -> Figure:
     forces.set_xlabel("friction coefficient mu")
     forces.set_ylabel("peak |f0| (N)")
     forces.legend(title="sweep ended by", fontsize="small")
-    case_error = [(int(c), float(e)) for c, e in zip(summary["case"], summary["max_reconstruction_error"],
-                                                     strict=True) if not math.isnan(e) and e > 0]
-    if case_error:
-        errors.scatter(*zip(*case_error, strict=True), s=8,
-                       c=[colour[str(summary["surface_m"][c])] for c, _e in case_error])
-        errors.set_yscale("log")
-    errors.set_xlabel("case")
-    errors.set_ylabel("max reconstruction error (L)")
-    for surface in surfaces[:10]:
-        errors.plot([], [], "o", color=colour[surface], label=surface)
-    errors.legend(fontsize="x-small", title="object (m)")
+    _error_panel(errors, summary, "max_reconstruction_error", "surface_m", colour,
+                 "max reconstruction error (L)", "object (m)")
     figure.suptitle(f"study {title}: {len(ends)} cases")
     return figure
 
@@ -73,19 +65,26 @@ def scene_grid_figure(summary: Mapping[str, Sequence[Any]], title: str) -> Figur
     forces.set_xlabel("friction coefficient mu")
     forces.set_ylabel("peak |f0| of any whisker (N)")
     forces.legend(title="rods", fontsize="small")
-    case_error = [(int(c), float(e)) for c, e in zip(summary["case"], summary["max_reconstruction_error_m"],
-                                                     strict=True) if not math.isnan(e) and e > 0]
-    if case_error:
-        errors.scatter(*zip(*case_error, strict=True), s=8,
-                       c=[colour[str(summary["scene"][c])] for c, _e in case_error])
-        errors.set_yscale("log")
-    errors.set_xlabel("case")
-    errors.set_ylabel("max distance to the true contact (m)")
-    for scene in scenes[:10]:
-        errors.plot([], [], "o", color=colour[scene], label=scene)
-    errors.legend(fontsize="x-small", title="scene")
+    _error_panel(errors, summary, "max_reconstruction_error_m", "scene", colour,
+                 "max distance to the true contact (m)", "scene")
     figure.suptitle(f"study {title}: {len(rods)} cases")
     return figure
+
+
+def _error_panel(errors: Axes, summary: Mapping[str, Sequence[Any]], key: str, group: str,
+                 colour: Mapping[str, str], ylabel: str, legend_title: str) -> None:
+    """Each case's ``key`` (log scale, positive ones) coloured by its ``group`` column."""
+    case_error = [(int(c), float(e)) for c, e in zip(summary["case"], summary[key], strict=True)
+                  if not math.isnan(e) and e > 0]
+    if case_error:
+        errors.scatter([c for c, _e in case_error], [e for _c, e in case_error], s=8,
+                       c=[colour[str(summary[group][c])] for c, _e in case_error])
+        errors.set_yscale("log")
+    errors.set_xlabel("case")
+    errors.set_ylabel(ylabel)
+    for name in list(colour)[:10]:
+        errors.plot([], [], "o", color=colour[name], label=name)
+    errors.legend(fontsize="x-small", title=legend_title)
 
 
 def write_grid_figure(summary: Mapping[str, Sequence[Any]], title: str, path: Path) -> Path:

@@ -61,9 +61,12 @@ log = logging.getLogger(__name__)
 
 WORLD = "world"
 """The frame of the poses, contacts, meshes and path segments."""
-TICK_WAIT_S = 2.0
-"""How long the robot's last ticks of a plan may take to arrive, s: a tick the reconstructor
-could not place (no pose) never comes."""
+TICK_WAIT_S = 20.0
+"""How long the explorer waits for the robot's last ticks of a plan after the newest one
+arrived, s, before it plans without them: a tick the reconstructor could not place (no pose)
+never comes, but a reconstructor starved of CPU for seconds is late, and a plan made without
+its last look's ticks takes the unseen floor for hidden (an exploration on a loaded machine
+ended at 40 % of its budget)."""
 LOOKING_RAD = 1.0
 """A robot at a plan's goal position turned this far from the goal's heading is in the plan's
 closing full turn, rad."""
@@ -241,6 +244,10 @@ def run(node: Node, params: ExplorerParams) -> str:
         if reached_stamp is None or (segments and placed_stamp < reached_stamp
                                      and time.monotonic() - last_tick < TICK_WAIT_S):
             continue  # still driving, or its last ticks on their way
+        if segments and placed_stamp < reached_stamp:
+            node.counters["plans_without_ticks"] = node.counters.get("plans_without_ticks", 0) + 1
+            log.warning("plan %d without the ticks after %.3f s of robot time: none came for "
+                        "%.0f s", segments + 1, reached_stamp - placed_stamp, TICK_WAIT_S)
         here = poses.poses[-1] if poses.poses else explore.start
         plan = explorer.plan(here)
         if plan is None:

@@ -68,7 +68,7 @@ def test_the_robot_explores_by_itself_never_enters_an_object_and_its_bag_replays
     assert (report["final"], report["ended_by"]) == (True, "streams")
     exploration = report["exploration"]
     assert exploration["planner"] == "uncertainty"
-    assert 0.5 * BUDGET_M < exploration["path_length_m"] <= BUDGET_M + 0.01
+    assert 0.5 * BUDGET_M < exploration["path_length_m"] <= BUDGET_M + 0.01, text
     lengths, coverage = np.array(exploration["coverage"]).T
     assert np.all(np.diff(lengths) >= 0) and np.all((coverage >= 0) & (coverage <= 1))
     assert exploration["coverage_final"] == coverage[-1] > 0.05  # it found something

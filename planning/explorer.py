@@ -7,7 +7,8 @@ the workspace box, its poses, the contacts of each tick and the map's meshes. Fr
 keeps a `FreeSpace` grid: a rod without contact sweeps free cells from its clamp to its tip, a
 rod in contact from its clamp to the contact point, which is occupied, and so are the map's
 known surfaces. The body only goes where every cell within its radius is free (unknown is
-blocked), by the shortest route through such cells.
+blocked), by the shortest route through such cells; where the map marked a surface beside it
+after it arrived, it first steps out of there, no closer to that surface.
 
 A plan is a route to a goal, then a look: a full turn in place, which sweeps the rods around the
 body. The goal is the standable cell of most *gain* per metre of route (its gain over one plus
@@ -223,8 +224,7 @@ class Explorer:
         if not inside[0]:
             self.done_because = "the robot is outside its workspace"
             return None
-        standable = self.space.standable(self.body_radius_m)
-        standable[here[0, 0], here[0, 1]] = True
+        standable = self.space.standable(self.body_radius_m, here[0])
         costs = np.where(standable, 1.0, np.inf)
         mcp = MCP_Geometric(costs)
         route_cells, _ = mcp.find_costs([tuple(here[0])])

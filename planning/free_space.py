@@ -94,10 +94,21 @@ class FreeSpace:
         free = np.pad(self.state == FREE, 1, constant_values=False)
         return np.asarray(ndimage.distance_transform_edt(free)[1:-1, 1:-1]) * self.cell_m
 
-    def standable(self, radius_m: float) -> npt.NDArray[np.bool_]:
+    def standable(self, radius_m: float, here: IntArray | None = None) -> npt.NDArray[np.bool_]:
         """Cells (nx, ny) where the body of ``radius_m`` may stand: free within its radius and
-        a margin of one cell's diagonal (the cells are not points)."""
-        return self.clearance_m() > radius_m + math.sqrt(2.0) * self.cell_m
+        a margin of one cell's diagonal (the cells are not points). With ``here``, the cell
+        (2,) where the body stands, also that cell and its way out of a spot the margin no
+        longer allows (a surface marked near the body after it arrived): the cells within
+        ``radius_m`` of it that are at least as clear as it is."""
+        clearance = self.clearance_m()
+        standable = clearance > radius_m + math.sqrt(2.0) * self.cell_m
+        if here is not None:
+            i, j = int(here[0]), int(here[1])
+            di, dj = np.indices(standable.shape)
+            near = np.hypot(di - i, dj - j) * self.cell_m <= radius_m
+            standable |= near & (clearance >= clearance[i, j])
+            standable[i, j] = True
+        return standable
 
     def hide_unknown(self, centre_m: FloatArray, radius_m: float) -> None:
         """Unknown cells whose centre lies within ``radius_m`` of ``centre_m`` (2,) become

@@ -182,6 +182,31 @@ def test_a_look_sweeps_the_rods_around_and_hides_only_what_it_cannot_reach() -> 
     assert not (explorer.space.state == HIDDEN).any()  # nothing hides in an empty world
 
 
+def test_a_surface_marked_beside_the_body_after_it_arrived_does_not_wall_it_in() -> None:
+    """A live map's next fit may mark a surface closer to where the body stands than its margin
+    allows (an exploration on a loaded machine ended there with most of its budget left): the
+    body steps out of that spot, never closer to the surface, and goes on."""
+    centre = np.array([0.1, 0.1])
+    start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [*centre, 0.0])
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+    drive(explorer, [], start, max_plans=1)  # a look where it stands: all around it free
+    angles = np.linspace(-np.pi / 3, np.pi / 3, 60)
+    arc = centre + 0.022 * np.column_stack([np.cos(angles), np.sin(angles)])  # 3 mm in the body
+    explorer.observe_surface(np.column_stack([arc, np.full(len(arc), 0.02)]), np.zeros((0, 3)))
+    here, _ = explorer.space.cells(centre)
+    standable = explorer.space.standable(BODY_M)
+    i, j = here[0]
+    assert not standable[i - 1:i + 2, j - 1:j + 2].any()  # no neighbour within the margin
+
+    plan = explorer.plan(start)
+    assert plan is not None, explorer.done_because
+    route = plan.position[:, :2]
+    gap = np.min(np.linalg.norm(route[:, None] - arc[None], axis=2), axis=1)
+    half_cell = 0.5 * math.sqrt(2.0) * 0.005  # waypoints are cell centres
+    assert np.all(gap >= gap[0] - half_cell)  # never closer to it than where it stood
+    assert gap[-1] > BODY_M + math.sqrt(2.0) * 0.005  # and on to where the margin holds
+
+
 def test_free_space_refuses_a_bad_grid_and_keeps_occupied_cells() -> None:
     with pytest.raises(ValueError, match="lo < hi"):
         FreeSpace(np.array([0.0, 0.0]), np.array([0.0, 1.0]), 0.01)

@@ -549,6 +549,7 @@ class _Track:
     slid: FloatArray | None = None  # the contact's last displacement by a slide, units of L
     pending: tuple[FloatArray, FloatArray, FloatArray, float] = ()  # type: ignore[assignment]  # p1, normal, force, s1 of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
+    trace: list[FloatArray] = field(default_factory=list)  # the slide's last contact points, newest last
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
     s_touch: float = float("nan")  # arc length of the straight rod's touching point, units of L
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
@@ -954,6 +955,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     locked = np.array([t.locked for t in tracks])
     p1 = np.array([t.p1 for t in tracks])
     anchor = np.array([t.anchor for t in tracks])
+    origin = np.array([_chord_origin(t) for t in tracks])
     predictors = np.array([_predict(t) for t in tracks])
     sliding_mode = np.array([_sliding(t.mode) for t in tracks])
     stuck: dict[int, tuple[FloatArray, _State, int]] = {}
@@ -972,10 +974,13 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         if kind == "continuation":
             # for rows where no slide was found; a far slide is one
             rows = np.array([i for i in rows if i not in far], dtype=np.int64)
+        if kind == "secant":
+            rows = rows[np.any(origin[rows] != p1[rows], axis=1)]
         if len(rows) == 0:
             return
         batch = _Batch(p_WC[rows], R_WC[rows], mu[rows],
-                       np.where(_stuck(modes[rows])[:, None], anchor[rows], p1[rows]),
+                       np.where(_stuck(modes[rows])[:, None], anchor[rows],
+                                (origin if kind == "secant" else p1)[rows]),
                        modes[rows], locked[rows],
                        *(objects if len(rows) == n else (a[rows] for a in objects)))
         if kind == "anchored":
@@ -990,7 +995,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         else:
             q, state, converged = _newton(predictors[rows], batch)
         ok = converged & admissible_rows(state.rows, batch.mode, batch.mu, p1[rows], jump[rows])
-        if kind in ("slide", "alternating", "continuation"):
+        if kind in ("slide", "alternating", "continuation", "secant"):
             # Coulomb's friction turns back through its cone: a slide against the last one is
             # taken only where the contact cannot hold, and a held tangential contact slides
             # only once it cannot hold any longer.
@@ -1049,6 +1054,9 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         # ... or slip only slightly from where it was: a tip slide in polar coordinates around
         # the held point, from the stuck state (well conditioned for any slip).
         (np.full(n, _MODE_TIP), "anchored"),
+        # A slide whose last steps moved the contact too little to resolve eq. 7's chord: its
+        # friction direction from further back along the slide (`RESOLVED_CHORD_L`).
+        (sliding_mode, "secant"),
         # Friction continuation (mu from 0 up) for steps whose sliding state is far from the
         # predictor.
         (sliding_mode, "continuation"),
@@ -1124,6 +1132,30 @@ def _far(track: _Track, chord: float, step: float) -> bool:
             and not 0.5 * track.chord_before <= chord <= 2.0 * track.chord_before)
 
 
+RESOLVED_CHORD_L = 1e-5
+"""The shortest chord eq. 7's friction direction is taken along where the plain stages found
+no state, units of L: a slide whose last step moved the contact less then takes it from further
+back along its track (`_chord_origin`, the ``secant`` stage):
+the tip's slip just after a touch is about 1.2 d dx (deflection d, step dx), 1e-6 L per step
+at 10 samples per 0.1 mm of a 35 mm rod, and Newton's basin for a direction along so short a
+chord is narrower than any predictor; its steps then failed down to 2**-10 of a step and the
+sweep ended in snap-offs that coarser samplings of the same path did not have."""
+_TRACE_POINTS = 64
+
+
+def _chord_origin(track: _Track) -> FloatArray:
+    """Where the friction direction of a slide from ``track`` points back to (3,), L: the last
+    contact point, or the newest one of the slide's track at least ``RESOLVED_CHORD_L`` from
+    where it is going when the last step moved it less (the secant of the last steps: the
+    direction of the slip over a resolvable length)."""
+    if track.chord >= RESOLVED_CHORD_L or len(track.trace) < 2:
+        return track.p1
+    for p in reversed(track.trace[:-1]):
+        if _chord(track.p1, p) + track.chord >= RESOLVED_CHORD_L:
+            return p
+    return track.trace[0]
+
+
 def _chord(p1: FloatArray, previous: FloatArray) -> float:
     moved = p1 - previous
     return math.sqrt(moved.dot(moved))  # np.linalg.norm's arithmetic, without its calls
@@ -1156,6 +1188,9 @@ def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode
     track.p1 = state.p1[k].copy()
     if mode not in _STUCK:
         track.anchor = track.p1
+        track.trace = [*track.trace[1 - _TRACE_POINTS:], track.p1]
+    else:
+        track.trace = [track.p1]
     track.pending = (state.p1[k].copy(), state.normal[k].copy(), state.force[k].copy(), float(state.s1[k]))
 
 

@@ -1,0 +1,59 @@
+"""Step 1's contact events do not depend on how finely the path is sampled: a rod on a yawing
+robot, its tip on a sphere at 40-50 degrees from the surface normal (the rod's plane tilted
+out of the sphere's equator), driven along the same arc at 1, 4 and 10 samples per 0.1 mm of
+tip travel, gives the same episodes (how each begins and ends, in the same order) with their
+starts within one coarse sample.
+
+At 10 samples, the tip's slip just after a touch is about 1e-6 L per sample, too short a chord
+for eq. 7's friction direction: the sweep then ended in snap-off after snap-off (13 on the
+first case), where the coarser samplings slide on (`vibrissa.sweep.RESOLVED_CHORD_L`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vibrissa.frames import Transform
+from vibrissa.scene import RobotPath, Scene, SceneObject, Whisker, simulate
+
+L_M, EI_NM2 = 0.035, 1e-4
+TIP_STEP_M = 1e-4  # tip travel per coarse sample
+
+
+def yawing_scene(tilt_deg: float, elevation_deg: float, mu: float, radius_m: float,
+                 per_sample: int) -> Scene:
+    """A rod along W's x from the robot's origin, the robot yawing about z from -0.05 to
+    1.0 rad; a sphere whose surface holds the point 0.95 L along the rod, its outward normal
+    there turned ``tilt_deg`` from -x towards -y, then ``elevation_deg`` about y."""
+    contact = np.array([0.95 * L_M, 0.0, 0.0])
+    tilt = np.radians(tilt_deg)
+    normal = Rotation.from_euler("y", np.radians(elevation_deg)).apply(
+        [-np.cos(tilt), -np.sin(tilt), 0.0])
+    centre = contact - radius_m * normal
+    yaw = np.arange(-0.05, 1.0, TIP_STEP_M / L_M / per_sample)
+    path = RobotPath(np.arange(len(yaw)) * 0.01, np.zeros((len(yaw), 3)),
+                     Rotation.from_euler("z", yaw[:, None]))
+    ball = SceneObject("ball", "sphere", {"radius_m": radius_m},
+                       Transform(Rotation.identity(), centre))
+    rod = Whisker("w", L_M, EI_NM2, Transform(Rotation.from_euler("y", np.pi / 2), np.zeros(3)))
+    return Scene(mu, (ball,), (rod,), path)
+
+
+@pytest.mark.parametrize("tilt_deg, elevation_deg, mu, radius_m", [
+    (50.0, 40.0, 0.5, 0.02), (45.0, -20.0, 0.5, 0.01), (40.0, 10.0, 0.3, 0.005)])
+def test_the_episodes_are_the_same_at_1_4_and_10_samples(
+        tilt_deg: float, elevation_deg: float, mu: float, radius_m: float) -> None:
+    episodes = {}
+    for per_sample in (1, 4, 10):
+        (result,) = simulate(yawing_scene(tilt_deg, elevation_deg, mu, radius_m, per_sample),
+                             workers=1)
+        coarse_sample = result.t / 0.01 / per_sample
+        episodes[per_sample] = [
+            (e.start, e.end, float(np.interp(e.t_first_contact, result.t, coarse_sample)))
+            for e in result.episodes]
+    kinds = {n: [(start, end) for start, end, _ in eps] for n, eps in episodes.items()}
+    assert kinds[1] and kinds[4] == kinds[1] and kinds[10] == kinds[1], episodes
+    for n in (4, 10):
+        starts = np.array([at for *_, at in episodes[n]])
+        assert np.all(np.abs(starts - [at for *_, at in episodes[1]]) <= 1.0), episodes

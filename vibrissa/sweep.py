@@ -820,10 +820,39 @@ def _advance(tracks: list[_Track]) -> None:
     for track, target, ok in zip(tracks, targets, reached, strict=False):
         if ok:
             _record(track, refined=False)
-        elif not (track.x_touch - track.x0 < EARLY_TRAVEL_L and _longer_step(track)):
+        elif not (_unresolved_slip(track) and _longer_step(track)):
             _refine(track, target)
         if track.end is None and len(track.rows) >= track.max_steps:
             track.end, track.x0_end = SweepEnd.MAX_STEPS, track.x0
+
+
+_SLOW_GROWTH = 4.0
+"""Past ``EARLY_TRAVEL_L``, a longer step is taken only where it moves the contact at most this
+many times as fast as the slide before it (`_longer_step`)."""
+
+
+def _unresolved_slip(track: _Track) -> bool:
+    """Whether a failed step may be taken as a longer one (`_longer_step`): within
+    ``EARLY_TRAVEL_L`` of the touch, or a slide whose last step moved the contact less than
+    ``RESOLVED_CHORD_L``."""
+    return (track.x_touch - track.x0 < EARLY_TRAVEL_L
+            or (track.mode not in _STUCK and 0.0 < track.chord < RESOLVED_CHORD_L))
+
+
+class _Undo:
+    """What an attempt changes of a track, to take the step back."""
+
+    _FIELDS = ("x0", "q", "mode", "p1", "anchor", "smooth", "chord", "chord_before", "slid",
+               "pending", "history", "trace")
+
+    def __init__(self, track: _Track) -> None:
+        self.values = [getattr(track, name) for name in self._FIELDS]
+        self.changes = len(track.phase_changes)
+
+    def restore(self, track: _Track) -> None:
+        for name, value in zip(self._FIELDS, self.values, strict=True):
+            setattr(track, name, value)
+        del track.phase_changes[self.changes:]
 
 
 def _longer_step(track: _Track) -> bool:
@@ -834,19 +863,28 @@ def _longer_step(track: _Track) -> bool:
     step dx: ~1e-7 over the first steps below 1e-3, too short for the direction of the chord of
     eq. 7, hence the friction, to be resolved. A longer step has a resolvable chord; the sweep
     stays on its grid and skips the positions in between (marked ``refined``). Longer steps end
-    within 0.01 L of the touch: past that the tip's slip is resolvable, and a longer step would
-    only skip over where the touch's own branch ends (a steep poke with strong friction jams
-    the tip: 16 samples of 0.009 L on after such a touch, Newton found a tip state 0.125 L from
-    it, on no branch from the touch).
+    within 0.01 L of the touch while the slide moves its contact ``RESOLVED_CHORD_L`` a step:
+    past that they would only skip over where the touch's own branch ends (a steep poke with
+    strong friction jams the tip: 16 samples of 0.009 L on after such a touch, Newton found a
+    tip state 0.125 L from it, on no branch from the touch). A slower slide (finely sampled
+    paths: 3e-6 L a step 0.01 L after the touch) takes them past it too, where each must move
+    the contact at most ``_SLOW_GROWTH`` times as fast as the slide before it.
     """
     step = track.step
     before = track.history[-1] if track.history else None
     next_point = next_grid_point(track.x0, track.x_grid, step)
+    window = track.x_touch - EARLY_TRAVEL_L
+    last_chord = max(track.chord, RESOLVED_CHORD_L)
+    slow = track.mode not in _STUCK and 0.0 < track.chord < RESOLVED_CHORD_L
     for multiple in EARLY_MULTIPLES:
         target = next_point - (multiple - 1) * step
-        if target < max(track.trail.x_end, track.x_touch - EARLY_TRAVEL_L) - 1e-9 * step:
+        if target < max(track.trail.x_end, -math.inf if slow else window) - 1e-9 * step:
             break
+        undo = _Undo(track)
         if _attempt([track], np.array([target]), np.array([multiple * step]))[0]:
+            if target < window and track.chord > _SLOW_GROWTH * multiple * last_chord:
+                undo.restore(track)  # not the slow slide it was: a jump
+                return False
             _record(track, refined=True)
             # The loads grow about linearly here: the state one step back on the line from
             # the state before (zero load at the touch) lets the predictor take the next step.

@@ -831,12 +831,16 @@ _SLOW_GROWTH = 4.0
 many times as fast as the slide before it (`_longer_step`)."""
 
 
+def _slow_slide(track: _Track) -> bool:
+    """Whether the track slides with its last step moving the contact less than
+    ``RESOLVED_CHORD_L``."""
+    return track.mode not in _STUCK and 0.0 < track.chord < RESOLVED_CHORD_L
+
+
 def _unresolved_slip(track: _Track) -> bool:
     """Whether a failed step may be taken as a longer one (`_longer_step`): within
-    ``EARLY_TRAVEL_L`` of the touch, or a slide whose last step moved the contact less than
-    ``RESOLVED_CHORD_L``."""
-    return (track.x_touch - track.x0 < EARLY_TRAVEL_L
-            or (track.mode not in _STUCK and 0.0 < track.chord < RESOLVED_CHORD_L))
+    ``EARLY_TRAVEL_L`` of the touch, or a slow slide."""
+    return track.x_touch - track.x0 < EARLY_TRAVEL_L or _slow_slide(track)
 
 
 class _Undo:
@@ -875,7 +879,7 @@ def _longer_step(track: _Track) -> bool:
     next_point = next_grid_point(track.x0, track.x_grid, step)
     window = track.x_touch - EARLY_TRAVEL_L
     last_chord = max(track.chord, RESOLVED_CHORD_L)
-    slow = track.mode not in _STUCK and 0.0 < track.chord < RESOLVED_CHORD_L
+    slow = _slow_slide(track)
     for multiple in EARLY_MULTIPLES:
         target = next_point - (multiple - 1) * step
         if target < max(track.trail.x_end, -math.inf if slow else window) - 1e-9 * step:

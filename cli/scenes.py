@@ -18,7 +18,7 @@ Output: ``DIR/<whisker>.csv`` (``SCENE_COLUMNS``, one row per path sample),
 ``DIR/wrenches.csv`` (``t,whisker,f0x,f0y,f0z,m0x,m0y,m0z``: every whisker's wrench at every
 sample, sample by sample, the input of ``vibrissa reconstruct``) and
 ``DIR/summary.json`` (per whisker: contact episodes, each begun by a ``touch`` or a ``landing``
-after a snap-off, phase changes, samples per phase), by
+after a snap-off, phase changes, snap-throughs, samples per phase), by
 `vibrissa.formats.scene_results`, which reads them back too (the wrench source's ``simulated``).
 
 Also Step 2 of such a scene offline: ``vibrissa reconstruct WRENCHES.csv --scene SCENE.yaml -o
@@ -112,6 +112,10 @@ def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None
     landings = sum(episode.start == "landing" for result in results for episode in result.episodes)
     if landings:
         line += f", {landings} of them landing{'s' * (landings != 1)} after a snap-off"
+    jumps = sum(len(episode.snap_throughs) for result in results for episode in result.episodes)
+    if jumps:
+        line += (f", {jumps} snap-through{'s' * (jumps != 1)} inside them (the contact jumped "
+                 "to another branch: summary.json)")
     line += "; samples: " + ", ".join(f"{samples[phase.label]} {phase.label}"
                                       for phase in SamplePhase)
     if ends[SweepEnd.ANOTHER_OBJECT]:

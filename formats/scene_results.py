@@ -76,6 +76,16 @@ def result_files(out: Path, scene: Scene) -> list[Path]:
     return [*files, out / WRENCHES_FILE, out / SUMMARY_FILE]
 
 
+def _snap_through(result: WhiskerResult, t: float) -> dict[str, Any]:
+    """A snap-through at ``t`` (one of the result's samples): the wrench of the sample before and
+    of its own."""
+    k = int(np.searchsorted(result.t, t))
+    before = max(k - 1, 0)
+    return {"t": t, "kind": "snap-through",
+            "f0_before": result.f0_n[before].tolist(), "m0_before": result.m0_nm[before].tolist(),
+            "f0_after": result.f0_n[k].tolist(), "m0_after": result.m0_nm[k].tolist()}
+
+
 def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> list[Path]:
     """``out/<whisker>.csv`` per result, ``out/wrenches.csv`` and ``out/summary.json``; returns
     the files written."""
@@ -111,7 +121,8 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
                 "episodes": [{"object": e.object, "t_first_contact": e.t_first_contact,
                               "start": e.start, "end": e.end,
                               "phase_changes": [{"t": t, "from": a, "to": b}
-                                                for t, a, b in e.phase_changes]}
+                                                for t, a, b in e.phase_changes],
+                              "snap_throughs": [_snap_through(r, t) for t in e.snap_throughs]}
                              for e in r.episodes],
                 "samples_per_phase": r.counts(),
             }
@@ -240,7 +251,8 @@ def _read_episodes(path: Path, names: Sequence[str], scene: Scene) -> dict[str, 
                 Episode(str(e["object"]), float(e["t_first_contact"]),
                         _one_of(e["end"], [str(end) for end in SweepEnd], "end"),
                         [(float(c["t"]), str(c["from"]), str(c["to"])) for c in e["phase_changes"]],
-                        _one_of(e.get("start", "touch"), EPISODE_STARTS, "start"))
+                        _one_of(e.get("start", "touch"), EPISODE_STARTS, "start"),
+                        tuple(float(c["t"]) for c in e.get("snap_throughs", [])))
                 for e in items]
         except (KeyError, TypeError, ValueError) as exc:
             raise SceneError(f"{path}: whiskers.{name}.episodes: not as vibrissa simulate writes "

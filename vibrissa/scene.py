@@ -244,14 +244,16 @@ snap-off."""
 @dataclass(frozen=True)
 class Episode:
     """One contact of a whisker: the object, when it began (``start``: the straight rod's touch,
-    or a landing after a snap-off) and how it ended, and the time of every phase change (t,
-    from, to)."""
+    or a landing after a snap-off) and how it ended, the time of every phase change (t, from,
+    to) and of every snap-through inside it (the contact jumped to another branch:
+    `vibrissa.sweep.Sweep.jumped`)."""
 
     object: str
     t_first_contact: float
     end: str
     phase_changes: list[tuple[float, str, str]]
     start: str = "touch"  # one of EPISODE_STARTS
+    snap_throughs: tuple[float, ...] = ()
 
 
 @dataclass
@@ -596,7 +598,9 @@ class _WhiskerSteps:
                                      self._time_at(-sweep.x_touch / h + k), str(end),
                                      [(self._time_at(-x0 / h + k), old, new)
                                       for x0, old, new in changes],
-                                     "landing" if self._landed else "touch"))
+                                     "landing" if self._landed else "touch",
+                                     tuple(self._time_at(-x0 / h + k)
+                                           for x0 in sweep.x0[:n][sweep.jumped[:n]])))
         if end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return

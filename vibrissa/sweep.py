@@ -200,7 +200,9 @@ class Sweep:
     or the grid shared by the trails of an array, see :func:`simulate_sweeps`), except that a step
     just after the first contact that finds no equilibrium is taken as 2-16 steps (the positions
     in between are missing, the row is ``refined``): see ``_longer_step``. ``refined`` also marks
-    steps reached through sub-steps (the chord of eq. 7 is then a sub-step's).
+    steps reached through sub-steps (the chord of eq. 7 is then a sub-step's). ``jumped`` marks
+    rows the contact jumped to: a far slide (``_FAR_STEPS``), taken where no nearer state was
+    found, a snap-through to another branch.
     """
 
     trail: ClampPath
@@ -218,6 +220,7 @@ class Sweep:
     fn: FloatArray
     ft: FloatArray
     refined: NDArray[np.bool_]  # not one plain step: sub-steps, or a longer step after the touch
+    jumped: NDArray[np.bool_]  # the contact jumped there (a far slide): a snap-through
     end: SweepEnd
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
@@ -538,8 +541,8 @@ class _Track:
     mode: int
     p1: FloatArray
     anchor: FloatArray
-    rows: list[tuple[float, int, int, FloatArray, FloatArray, FloatArray, FloatArray, float]] = field(
-        default_factory=list)
+    rows: list[tuple[float, int, int, FloatArray, FloatArray, FloatArray, FloatArray, float,
+                     bool]] = field(default_factory=list)
     phase_changes: list[tuple[float, str, str]] = field(default_factory=list)
     end: SweepEnd | None = None
     x0_end: float = float("nan")
@@ -550,6 +553,7 @@ class _Track:
     pending: tuple[FloatArray, FloatArray, FloatArray, float] = ()  # type: ignore[assignment]  # p1, normal, force, s1 of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
     trace: list[FloatArray] = field(default_factory=list)  # the slide's last contact points, newest last
+    jumped: bool = False  # the last step took a far slide (no nearer state)
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
     s_touch: float = float("nan")  # arc length of the straight rod's touching point, units of L
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
@@ -847,7 +851,7 @@ class _Undo:
     """What an attempt changes of a track, to take the step back."""
 
     _FIELDS = ("x0", "q", "mode", "p1", "anchor", "smooth", "chord", "chord_before", "slid",
-               "pending", "history", "trace")
+               "pending", "history", "trace", "jumped")
 
     def __init__(self, track: _Track) -> None:
         self.values = [getattr(track, name) for name in self._FIELDS]
@@ -1115,6 +1119,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     for i, (q_i, state_i, mode, kind) in far.items():
         if not success[i]:
             take(i, q_i, state_i, mode, kind)  # no nearer state: the contact jumps
+            tracks[i].jumped = True
     return success
 
 
@@ -1247,7 +1252,9 @@ def _sliding(mode: int) -> int:
 
 def _record(track: _Track, refined: bool) -> None:
     p1, normal, force, s1 = track.pending
-    track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force, s1))
+    track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force, s1,
+                       track.jumped))
+    track.jumped = False
 
 
 def _clamp_reactions(q: FloatArray, force_W: FloatArray, R_WC: FloatArray
@@ -1269,6 +1276,7 @@ def _finish(track: _Track) -> Sweep:
     x0 = np.array([r[0] for r in rows], dtype=float)
     modes = np.array([r[1] for r in rows], dtype=np.int64)
     refined = np.array([r[2] for r in rows], dtype=bool)
+    jumped = np.array([r[8] for r in rows], dtype=bool)
     contact = np.array([r[4] for r in rows]).reshape(n, 3)
     normal = np.array([r[5] for r in rows]).reshape(n, 3)
     force = np.array([r[6] for r in rows]).reshape(n, 3)
@@ -1294,6 +1302,7 @@ def _finish(track: _Track) -> Sweep:
         fn=fn,
         ft=ft,
         refined=refined,
+        jumped=jumped,
         end=end,
         x0_end=float(track.x0_end),
         phase_changes=track.phase_changes,

@@ -12,10 +12,15 @@ landing 4 or 10 samples had where 1 had none (`vibrissa.sweep._unresolved_slip`)
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from vibrissa.cli.scenes import episode_summary
+from vibrissa.formats.scene_results import read_results, write_results
 from vibrissa.frames import Transform
 from vibrissa.scene import RobotPath, Scene, SceneObject, Whisker, simulate
 
@@ -60,3 +65,31 @@ def test_the_episodes_are_the_same_at_1_4_and_10_samples(
     for n in (4, 10):
         starts = np.array([at for *_, at in episodes[n]])
         assert np.all(np.abs(starts - [at for *_, at in episodes[1]]) <= 1.0), episodes
+
+
+def test_a_jump_of_the_contact_inside_an_episode_is_told_with_its_wrenches(tmp_path: Path
+                                                                          ) -> None:
+    """A far slide taken where no nearer state exists (the contact jumps to another branch) is
+    a snap-through: in the episode, in summary.json with the wrenches of the samples before and
+    at it (read back), and in `vibrissa simulate`'s closing line."""
+    scene = yawing_scene(50.0, 40.0, 0.5, 0.02, 4)
+    (result,) = simulate(scene, workers=1)
+    jumps = [t for e in result.episodes for t in e.snap_throughs]
+    assert jumps, result.episodes
+    tip_step_m = TIP_STEP_M / 4
+    for t in jumps:
+        k = int(np.flatnonzero(result.t == t)[0])
+        moved_m = np.linalg.norm(result.p_W_m[k] - result.p_W_m[k - 1])
+        assert moved_m > 2 * tip_step_m  # `vibrissa.sweep._FAR_STEPS`: more than two steps
+
+    write_results(tmp_path, scene, [result])
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    told = [s for e in summary["whiskers"]["w"]["episodes"] for s in e["snap_throughs"]]
+    assert [s["t"] for s in told] == jumps and {s["kind"] for s in told} == {"snap-through"}
+    for s in told:
+        k = int(np.flatnonzero(result.t == s["t"])[0])
+        assert s["f0_before"] == result.f0_n[k - 1].tolist()
+        assert s["m0_after"] == result.m0_nm[k].tolist()
+    (back,) = read_results(tmp_path, scene)
+    assert [e.snap_throughs for e in back.episodes] == [e.snap_throughs for e in result.episodes]
+    assert f"{len(jumps)} snap-through" in episode_summary([result])

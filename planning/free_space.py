@@ -98,7 +98,7 @@ class FreeSpace:
         """Cells (nx, ny) where the body of ``radius_m`` may stand: free within its radius and
         a margin of one cell's diagonal (the cells are not points). With ``here``, the cell
         (2,) where the body stands, also that cell and its way out of a spot the margin no
-        longer allows (a surface marked near the body after it arrived): the cells within
+        longer allows (a surface marked near the body after it arrived): the free cells within
         ``radius_m`` of it that are at least as clear as it is."""
         clearance = self.clearance_m()
         standable = clearance > radius_m + math.sqrt(2.0) * self.cell_m
@@ -106,7 +106,7 @@ class FreeSpace:
             i, j = int(here[0]), int(here[1])
             di, dj = np.indices(standable.shape)
             near = np.hypot(di - i, dj - j) * self.cell_m <= radius_m
-            standable |= near & (clearance >= clearance[i, j])
+            standable |= near & (self.state == FREE) & (clearance >= clearance[i, j])
             standable[i, j] = True
         return standable
 

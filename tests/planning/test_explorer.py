@@ -207,6 +207,24 @@ def test_a_surface_marked_beside_the_body_after_it_arrived_does_not_wall_it_in()
     assert gap[-1] > BODY_M + math.sqrt(2.0) * 0.005  # and on to where the margin holds
 
 
+def test_the_way_out_of_a_walled_in_spot_crosses_only_free_cells() -> None:
+    """Even with a surface marked on the very cell the body stands on (clearance 0 there), the
+    way out goes through free cells only."""
+    centre = np.array([0.1, 0.1])
+    start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [*centre, 0.0])
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+    drive(explorer, [], start, max_plans=1)
+    angles = np.linspace(0.0, 2 * np.pi, 90, endpoint=False)
+    ring = centre + 0.04 * np.column_stack([np.cos(angles), np.sin(angles)])
+    explorer.space.mark_occupied(np.vstack([centre, ring]))
+    here, _ = explorer.space.cells(centre)
+    standable = explorer.space.standable(BODY_M, here[0])
+    state = explorer.space.state
+    way = standable.copy()
+    way[here[0, 0], here[0, 1]] = False
+    assert way.any() and np.all(state[way] == FREE)
+
+
 def test_free_space_refuses_a_bad_grid_and_keeps_occupied_cells() -> None:
     with pytest.raises(ValueError, match="lo < hi"):
         FreeSpace(np.array([0.0, 0.0]), np.array([0.0, 1.0]), 0.01)

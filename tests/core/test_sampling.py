@@ -1,5 +1,5 @@
 """Step 1's contact events do not depend on how finely the path is sampled: a rod on a yawing
-robot, its tip on a sphere at 40-50 degrees from the surface normal (the rod's plane tilted
+robot, its tip on a sphere at 40-55 degrees from the surface normal (the rod's plane tilted
 out of the sphere's equator), driven along the same arc at 1, 4 and 10 samples per 0.1 mm of
 tip travel, gives the same episodes (how each begins and ends, in the same order) with their
 starts within one coarse sample.

@@ -65,8 +65,7 @@ TICK_WAIT_S = 20.0
 """How long the explorer waits for the robot's last ticks of a plan after the newest one
 arrived, s, before it plans without them: a tick the reconstructor could not place (no pose)
 never comes, but a reconstructor starved of CPU for seconds is late, and a plan made without
-its last look's ticks takes the unseen floor for hidden (an exploration on a loaded machine
-ended at 40 % of its budget)."""
+its last look's ticks takes the floor the look swept for hidden."""
 LOOKING_RAD = 1.0
 """A robot at a plan's goal position turned this far from the goal's heading is in the plan's
 closing full turn, rad."""

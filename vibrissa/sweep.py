@@ -1001,7 +1001,6 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     locked = np.array([t.locked for t in tracks])
     p1 = np.array([t.p1 for t in tracks])
     anchor = np.array([t.anchor for t in tracks])
-    origin = np.array([_chord_origin(t) for t in tracks])
     predictors = np.array([_predict(t) for t in tracks])
     sliding_mode = np.array([_sliding(t.mode) for t in tracks])
     stuck: dict[int, tuple[FloatArray, _State, int]] = {}
@@ -1020,13 +1019,15 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         if kind == "continuation":
             # for rows where no slide was found; a far slide is one
             rows = np.array([i for i in rows if i not in far], dtype=np.int64)
-        if kind == "secant":
-            rows = rows[np.any(origin[rows] != p1[rows], axis=1)]
+        origin = p1[rows]  # where eq. 7's chord starts
+        if kind == "secant":  # only here: a slide too short for its chord
+            origin = np.array([_chord_origin(tracks[i]) for i in rows]).reshape(-1, 3)
+            further = np.any(origin != p1[rows], axis=1)
+            rows, origin = rows[further], origin[further]
         if len(rows) == 0:
             return
         batch = _Batch(p_WC[rows], R_WC[rows], mu[rows],
-                       np.where(_stuck(modes[rows])[:, None], anchor[rows],
-                                (origin if kind == "secant" else p1)[rows]),
+                       np.where(_stuck(modes[rows])[:, None], anchor[rows], origin),
                        modes[rows], locked[rows],
                        *(objects if len(rows) == n else (a[rows] for a in objects)))
         if kind == "anchored":
@@ -1182,11 +1183,10 @@ def _far(track: _Track, chord: float, step: float) -> bool:
 RESOLVED_CHORD_L = 1e-5
 """The shortest chord eq. 7's friction direction is taken along where the plain stages found
 no state, units of L: a slide whose last step moved the contact less then takes it from further
-back along its track (`_chord_origin`, the ``secant`` stage):
-the tip's slip just after a touch is about 1.2 d dx (deflection d, step dx), 1e-6 L per step
-at 10 samples per 0.1 mm of a 35 mm rod, and Newton's basin for a direction along so short a
-chord is narrower than any predictor; its steps then failed down to 2**-10 of a step and the
-sweep ended in snap-offs that coarser samplings of the same path did not have."""
+back along its track (`_chord_origin`, the ``secant`` stage). The tip's slip just after a
+touch is about 1.2 d dx (deflection d, step dx), 1e-6 L per step at 10 samples per 0.1 mm of a
+35 mm rod, and Newton's basin for a direction along so short a chord is narrower than any
+predictor: refining the step only shortens the chord further."""
 _TRACE_POINTS = 64
 
 

@@ -5,10 +5,10 @@ tip travel, gives the same episodes (how each begins and ends, in the same order
 starts within one coarse sample.
 
 At 10 samples, the tip's slip just after a touch is about 1e-6 L per sample, too short a chord
-for eq. 7's friction direction: the sweep then ended in snap-off after snap-off (13 on the
-first case), where the coarser samplings slide on (`vibrissa.sweep.RESOLVED_CHORD_L`); and at
-mu 0.8 such a slow slide still failed its steps once 0.01 L past the touch, a snap-off and a
-landing 4 or 10 samples had where 1 had none (`vibrissa.sweep._unresolved_slip`)."""
+for eq. 7's friction direction (`vibrissa.sweep.RESOLVED_CHORD_L`), and at mu 0.8 such a slow
+slide goes on beyond 0.01 L past the touch (`vibrissa.sweep._unresolved_slip`): the cases are
+ones where either took the fine samplings through snap-offs and landings the coarse one
+does not have."""
 
 from __future__ import annotations
 

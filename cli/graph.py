@@ -22,11 +22,14 @@ from vibrissa.wire.transport import (
 
 
 def add_endpoint_flags(parser: argparse.ArgumentParser) -> None:
-    """``--domain``, ``--pub``/``--sub`` and ``--keys``, over ``VIBRISSA_DOMAIN_ID`` (default 0)
-    and ``VIBRISSA_KEYS``."""
+    """``--domain``, ``--graph``, ``--pub``/``--sub`` and ``--keys``, over
+    ``VIBRISSA_DOMAIN_ID`` (default 0) and ``VIBRISSA_KEYS``."""
     parser.add_argument("--domain", type=domain_id, metavar="N",
                         help=f"the graph's domain (default: ${DOMAIN_ENV}, else 0; "
                              "`vibrissa launch` prints it)")
+    parser.add_argument("--graph", type=graph_address, metavar="HOST[:DOMAIN]",
+                        help="a graph whose proxy runs on another host (launched there with "
+                             "bind:=HOST), on DOMAIN (default: --domain, else as for --domain)")
     parser.add_argument("--pub", metavar="ENDPOINT",
                         help="proxy endpoint publishers connect to (XSUB), over --domain")
     parser.add_argument("--sub", metavar="ENDPOINT",
@@ -107,19 +110,41 @@ def is_graph_name(word: str) -> bool:
     return True
 
 
+def graph_address(text: str) -> tuple[str, int | None]:
+    """Argparse type: ``HOST[:DOMAIN]``."""
+    host, colon, domain = text.partition(":")
+    if colon and not domain:
+        raise argparse.ArgumentTypeError(f"expected HOST[:DOMAIN], got {text!r}")
+    try:
+        Endpoints.for_domain(0, host)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+    return host, domain_id(domain) if colon else None
+
+
 def endpoints_from(args: argparse.Namespace) -> Endpoints:
-    """``--pub``/``--sub`` where given, else ``--domain``, else the environment.
+    """``--pub``/``--sub`` where given, else ``--graph``, else ``--domain``, else the
+    environment.
 
     Raises ``ValueError`` for a bad ``VIBRISSA_DOMAIN_ID`` (or only one of the endpoint
     variables) and ``KeysError`` for a key folder that cannot be used.
     """
     keys = Keys.load(args.keys) if args.keys else Keys.from_env()
-    base = Endpoints.for_domain(args.domain) if args.domain is not None else Endpoints.from_env()
+    graph = getattr(args, "graph", None)
+    if graph is not None:
+        base = Endpoints.for_domain(domain_of(args), graph[0])
+    elif args.domain is not None:
+        base = Endpoints.for_domain(args.domain)
+    else:
+        base = Endpoints.from_env()
     return Endpoints(args.pub or base.pub, args.sub or base.sub, keys)
 
 
 def domain_of(args: argparse.Namespace) -> int:
-    """The domain a tool looks at: ``--domain``, else the environment's."""
+    """The domain a tool looks at: ``--graph``'s, else ``--domain``, else the environment's."""
+    graph = getattr(args, "graph", None)
+    if graph is not None and graph[1] is not None:
+        return int(graph[1])
     return args.domain if args.domain is not None else Endpoints.env_domain()
 
 
@@ -131,9 +156,10 @@ def where(args: argparse.Namespace, endpoints: Endpoints) -> str:
 
 
 def graph_note(args: argparse.Namespace) -> str | None:
-    """`which_graph` for a tool run without ``--domain`` (or ``--pub/--sub``); None when the
-    graph was named."""
-    if args.domain is not None or args.pub or args.sub:
+    """`which_graph` for a tool run without ``--domain`` (or ``--graph``, ``--pub/--sub``);
+    None when the graph was named."""
+    if args.domain is not None or getattr(args, "graph", None) is not None or args.pub \
+            or args.sub:
         return None
     note = which_graph(domain_of(args))
     return None if note is None else f"{note}; pass --domain N (or {DOMAIN_ENV}=N) for another"

@@ -64,7 +64,7 @@ def run_launch(args: argparse.Namespace) -> int:
                 print(f"[{spec.name}]   param {key}: {value!r}")
         return 0
     return Launcher(description, grace_s=args.grace, domain=args.domain, debug=args.debug,
-                    keys=keys).run()
+                    keys=keys, insecure=args.insecure).run()
 
 
 def _print_args(description: LaunchDescription) -> None:
@@ -97,6 +97,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--domain", type=domain_id, metavar="N",
                         help=f"run the graph on domain N (default: ${DOMAIN_ENV}, else 0, "
                              "else the next free one); the tools take the same --domain")
+    parser.add_argument("--insecure", action="store_true",
+                        help="let a graph off loopback (transport bind or proxy_host) run "
+                             "without keys: plain text anyone on the network can read and write")
     parser.add_argument("--keys", metavar="DIR", type=folder,
                         help="encrypt and authenticate every socket with the CURVE keys of DIR "
                              f"(`vibrissa keys DIR`; default: ${KEYS_ENV}, else the file's "

@@ -153,6 +153,14 @@ class TransportSpec:
     ``max_message_bytes``: the largest frame the proxy takes from a publisher.
     ``max_buffered_bytes``: what each subscriber of a node buffers at most (its default is
     ``DEFAULT_MAX_BUFFERED_BYTES``).
+
+    A graph over several hosts: one launch holds the proxy on the ports of its domain at
+    ``bind`` (an address of this host the others reach), the others join it with
+    ``proxy_host`` (that address) and no proxy of their own. ``direct_host``: the address this
+    host's direct publishers bind and announce (default: ``bind``, or the address of the
+    interface that routes to ``proxy_host``). Off loopback, keys are required (or
+    ``--insecure``). A node of another host not heard for ``peer_timeout_s`` is gone:
+    ``on_peer_lost`` ``shutdown`` ends this launch (failed), ``continue`` keeps it running.
     """
 
     domain: int | None = None
@@ -161,6 +169,11 @@ class TransportSpec:
     keys: str | None = None
     max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES
     max_buffered_bytes: int | None = None
+    bind: str | None = None
+    proxy_host: str | None = None
+    direct_host: str | None = None
+    peer_timeout_s: float = 10.0
+    on_peer_lost: str = "shutdown"
 
 
 NODE_ENTRY_POINTS = "vibrissa.nodes"
@@ -498,8 +511,28 @@ class _Parser:
 
     def transport(self, value: Any, path: str) -> TransportSpec:
         body = self.mapping(value, path, (), ("domain", "pub_endpoint", "sub_endpoint", "keys",
-                                              "max_message_bytes", "max_buffered_bytes"))
+                                              "max_message_bytes", "max_buffered_bytes", "bind",
+                                              "proxy_host", "direct_host", "peer_timeout_s",
+                                              "on_peer_lost"))
+        hosts = {key: self.host(body[key], f"{path}.{key}") for key in
+                 ("bind", "proxy_host", "direct_host") if key in body}
+        hosts = {key: host for key, host in hosts.items() if host}  # an empty argument: unset
+        if "bind" in hosts and "proxy_host" in hosts:
+            raise self.error(path, "give bind (this host holds the proxy) or proxy_host (another "
+                                   "host does), not both")
+        if hosts.keys() & {"bind", "proxy_host"} and "pub_endpoint" in body:
+            raise self.error(path, "give bind or proxy_host (with a domain) or "
+                                   "pub_endpoint/sub_endpoint, not both")
+        on_peer_lost = self.string(body.get("on_peer_lost", "shutdown"), f"{path}.on_peer_lost")
+        if on_peer_lost not in ("shutdown", "continue"):
+            raise self.error(f"{path}.on_peer_lost",
+                             f"expected shutdown or continue, got {on_peer_lost!r}")
         common = TransportSpec(
+            bind=hosts.get("bind"), proxy_host=hosts.get("proxy_host"),
+            direct_host=hosts.get("direct_host"),
+            peer_timeout_s=self.number(body.get("peer_timeout_s", 10.0), f"{path}.peer_timeout_s",
+                                       0.5),
+            on_peer_lost=on_peer_lost,
             keys=self.string(body["keys"], f"{path}.keys", _folder_name) if "keys" in body else None,
             max_message_bytes=self.integer(body.get("max_message_bytes",
                                                     DEFAULT_MAX_MESSAGE_BYTES),
@@ -527,6 +560,16 @@ class _Parser:
                     )
             return replace(common, pub_endpoint=pub, sub_endpoint=sub)
         return common
+
+    def host(self, value: Any, path: str) -> str:
+        """A host name or IPv4 address (``Endpoints.for_domain``), or empty."""
+        text = self.text(value, path)
+        if text:
+            try:
+                Endpoints.for_domain(0, text)
+            except ValueError as exc:
+                raise self.error(path, str(exc)) from None
+        return text
 
     def included(self, value: Any, path: str) -> bool:
         """Whether a node entry takes part: its ``if`` is true, or its ``unless`` false."""

@@ -51,7 +51,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import IO
 
 import yaml
@@ -77,6 +77,8 @@ from vibrissa.wire.transport import (
     GraphRecord,
     Proxy,
     Subscriber,
+    is_loopback,
+    local_address_towards,
     register_graph,
 )
 
@@ -169,6 +171,15 @@ class _Running:
     ended_at: float | None = None  # monotonic time it was last seen done
 
 
+@dataclass
+class _Peer:
+    """A node of another host of the graph, as its statuses tell."""
+
+    heard_at: float  # monotonic time of its last status
+    state: str
+    gone: bool = False
+
+
 def node_command(spec: NodeSpec, params_file: str | None, python: str = sys.executable
                  ) -> list[str]:
     """The argv that starts ``spec``, following the node command line of ARCHITECTURE.md.
@@ -250,6 +261,8 @@ class Launcher:
         Nodes log the traceback of an error that ends them (``VIBRISSA_DEBUG=1``).
     keys : Keys, optional
         CURVE keys (``--keys``), over the launch file's and ``VIBRISSA_KEYS``.
+    insecure : bool
+        A graph off loopback may run without keys (``--insecure``): plain text.
     """
 
     def __init__(
@@ -263,10 +276,13 @@ class Launcher:
         domain: int | None = None,
         debug: bool = False,
         keys: Keys | None = None,
+        insecure: bool = False,
     ) -> None:
         self.description = description
         self.domain = domain
         self.keys = keys
+        self.insecure = insecure
+        self.exit_status = 1  # of a launch that could not join its graph
         self.refused_peers = 0
         self.debug = debug
         self.grace_s = grace_s
@@ -283,6 +299,8 @@ class Launcher:
         self._stranded: list[str] = []  # nodes whose input can no longer arrive, and why
         self._reach = ""  # how tools reach a graph that moved off its preferred domain
         self.traffic = Traffic()
+        self._spans_hosts = False
+        self._peers: dict[str, _Peer] = {}  # nodes of other hosts, by name
 
     # -- the run -------------------------------------------------------------------------------
 
@@ -295,18 +313,18 @@ class Launcher:
             The exit status (see the module docstring).
         """
         with SignalHandlers(self._signals.append):
-            started = self._start_proxy()
+            started = self._join_graph()
             if started is None:
-                return 1
-            proxy, domain_env = started
-            assert proxy.endpoints is not None
+                return self.exit_status
+            proxy, endpoints, domain_env = started
             record = None
-            if domain_env:  # on a domain: the tools of every user can name the graph
+            if domain_env and is_loopback(endpoints.sub.partition("://")[2].rpartition(":")[0]):
+                # on a domain of loopback: the tools of every user can name the graph
                 record = register_graph(GraphRecord.of_this_process(
                     int(domain_env[DOMAIN_ENV]), os.path.abspath(self.description.source)))
-            self._statuses = Subscriber({STATUS_TOPIC: NodeStatus}, proxy.endpoints)
+            self._statuses = Subscriber({STATUS_TOPIC: NodeStatus}, endpoints)
             transport = self.description.transport or TransportSpec()
-            self._env = {"PYTHONUNBUFFERED": "1", **proxy.endpoints.to_env(), **domain_env,
+            self._env = {"PYTHONUNBUFFERED": "1", **endpoints.to_env(), **domain_env,
                          **({DEBUG_ENV: "1"} if self.debug else {}),
                          **({BUFFER_ENV: str(transport.max_buffered_bytes)}
                             if transport.max_buffered_bytes is not None else {})}
@@ -317,30 +335,68 @@ class Launcher:
             finally:
                 self._shutdown()
                 self._collect_statuses(0.3)  # the nodes' final statuses
+                self._await_peers()
                 self._statuses.close()
                 self._statuses = None
-                self.refused_peers = proxy.refused
-                with contextlib.suppress(Exception):
-                    proxy.stop()
+                if proxy is not None:
+                    self.refused_peers = proxy.refused
+                    with contextlib.suppress(Exception):
+                        proxy.stop()
                 if record is not None:
                     record.unlink(missing_ok=True)
                 shutil.rmtree(self._params_dir, ignore_errors=True)
         return self._finish()
 
-    def _start_proxy(self) -> tuple[Proxy, dict[str, str]] | None:
-        """Bind the graph's proxy: the launch file's endpoints, else the domain of ``domain``
-        or of the file (taken or fail), else the environment's domain (default 0) or, when
-        that is taken by another graph, the next free one. Returns the proxy and the domain
-        variable for the nodes, or ``None`` after logging why nothing could be bound."""
+    def _join_graph(self) -> tuple[Proxy | None, Endpoints, dict[str, str]] | None:
+        """Join the graph: start its proxy here (`_start_proxy`), or, with ``proxy_host``, join
+        the proxy of another host. Returns the proxy (None: another host's), the endpoints for
+        the nodes and the domain variable, or ``None`` after logging why not (``exit_status``
+        says how the launch ends)."""
         spec = self.description.transport or TransportSpec()
         try:
             keys = self.keys or (Keys.load(spec.keys) if spec.keys else Keys.from_env())
         except KeysError as exc:
             self.out.log(f"cannot use the keys: {exc}")
             return None
+        host = spec.bind or spec.proxy_host
+        self._spans_hosts = host is not None
+        if host is not None and not is_loopback(host) and keys is None:
+            if not self.insecure:
+                self.out.log(f"refused: this graph reaches {host}, off loopback, without keys. "
+                             "Give the same keys on every host (--keys DIR, made with `vibrissa "
+                             "keys DIR`; docs/HOSTS.md), or --insecure to send plain text")
+                self.exit_status = 2
+                return None
+            self.out.log(f"INSECURE (--insecure): the graph's traffic with {host} is plain text; "
+                         "anyone on that network can read it and publish into it")
+        if spec.proxy_host is None:
+            return self._start_proxy(spec, keys)
+        domain = self.domain if self.domain is not None else spec.domain
+        try:
+            domain = Endpoints.env_domain() if domain is None else domain
+            direct_host = spec.direct_host or local_address_towards(spec.proxy_host)
+        except (ValueError, OSError) as exc:
+            self.out.log(f"cannot join the graph at {spec.proxy_host}: {exc}")
+            return None
+        endpoints = replace(Endpoints.for_domain(domain, spec.proxy_host), keys=keys,
+                            direct_host=direct_host, insecure=self.insecure)
+        secured = "plain text" if keys is None else f"CURVE with the keys of {keys.folder}"
+        self.out.log(f"joining the graph whose proxy runs on {spec.proxy_host} (domain {domain}: "
+                     f"publishers -> {endpoints.pub}, subscribers -> {endpoints.sub}; this "
+                     f"host's direct publishers on {direct_host}; {secured}; tools: --graph "
+                     f"{spec.proxy_host}:{domain})")
+        self._reach = f" the graph on {spec.proxy_host}:{domain}"
+        return None, endpoints, {DOMAIN_ENV: str(domain)}
+
+    def _start_proxy(self, spec: TransportSpec, keys: Keys | None
+                     ) -> tuple[Proxy, Endpoints, dict[str, str]] | None:
+        """Bind the graph's proxy: the launch file's endpoints, else the domain of ``domain``
+        or of the file (taken or fail), else the environment's domain (default 0) or, when
+        that is taken by another graph, the next free one; on loopback or at ``bind``."""
         secured = "" if keys is None else f"; CURVE with the keys of {keys.folder}"
         if spec.pub_endpoint is not None and spec.sub_endpoint is not None:
-            proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint, keys),
+            proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint, keys,
+                                    insecure=self.insecure),
                           max_message_bytes=spec.max_message_bytes)
             try:
                 endpoints = proxy.start()
@@ -349,7 +405,7 @@ class Launcher:
                 return None
             self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
                          f"(tools: --pub {endpoints.pub} --sub {endpoints.sub}{secured})")
-            return proxy, {}
+            return proxy, endpoints, {}
         fixed = self.domain if self.domain is not None else spec.domain
         if fixed is not None:
             candidates = [fixed]
@@ -361,7 +417,9 @@ class Launcher:
                 return None
             candidates = list(range(preferred, min(preferred + DOMAIN_TRIES, Endpoints.MAX_DOMAIN + 1)))
         for domain in candidates:
-            proxy = Proxy(Endpoints.for_domain(domain).with_keys(keys),
+            proxy = Proxy(replace(Endpoints.for_domain(domain, spec.bind or "127.0.0.1"),
+                                  keys=keys, direct_host=spec.direct_host,
+                                  insecure=self.insecure),
                           max_message_bytes=spec.max_message_bytes)
             try:
                 endpoints = proxy.start()
@@ -376,9 +434,12 @@ class Launcher:
                 self._reach = f" domain {domain} (tools: --domain {domain} or {DOMAIN_ENV}={domain})"
             tools = ("tools find it without flags" if domain == 0 and DOMAIN_ENV not in os.environ
                      else f"tools: --domain {domain} or {DOMAIN_ENV}={domain}")
+            if spec.bind is not None:
+                tools = f"tools: --graph {spec.bind}:{domain}"
+                self._reach = f" the graph on {spec.bind}:{domain}"
             self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
                          f"(domain {domain}; {tools}{secured})")
-            return proxy, {DOMAIN_ENV: str(domain)}
+            return proxy, endpoints, {DOMAIN_ENV: str(domain)}
         taken = (f"domain {fixed} is in use" if fixed is not None
                  else f"domains {candidates[0]}-{candidates[-1]} are all in use")
         self.out.log(f"cannot start the proxy: {taken} (another graph has bound its ports); "
@@ -404,6 +465,31 @@ class Launcher:
                 return
             self._collect_statuses(_POLL_S)
             self._end_stranded()
+            self._check_peers()
+
+    def _check_peers(self) -> None:
+        """In a graph over several hosts: a node of another host not heard for
+        ``peer_timeout_s`` (its host or the link down) is gone, said once; ``on_peer_lost``
+        says whether this launch ends (failed) or runs on. One heard again is back."""
+        if not self._spans_hosts:
+            return
+        spec = self.description.transport or TransportSpec()
+        now = time.monotonic()
+        gone = [name for name, peer in self._peers.items()
+                if not peer.gone and peer.state not in ("finished", "error")
+                and now - peer.heard_at > spec.peer_timeout_s]
+        if not gone:
+            return
+        for name in gone:
+            self._peers[name].gone = True
+        what = (f"node(s) {', '.join(gone)} of another host not heard for "
+                f"{spec.peer_timeout_s:g} s (that host's launch or the link is down)")
+        if spec.on_peer_lost == "continue":
+            self.out.log(f"{what}; marked gone, running on (on_peer_lost: continue)")
+            return
+        self._failure = what
+        self.out.log(f"{what}; shutting down (on_peer_lost: shutdown)")
+        self._shutting_down = True
 
     def _end_stranded(self) -> None:
         """Shut the graph down when a running node waits for input that can no longer arrive:
@@ -596,10 +682,38 @@ class Launcher:
         while rx is not None:
             if isinstance(rx.msg, NodeStatus):
                 self.traffic.add(rx.msg)
+                own = False
                 for node in self.nodes:
-                    if node.spec.fqn == rx.msg.node and node.state == "running":
-                        node.heard_at = node.heard_at or time.monotonic()
+                    if node.spec.fqn == rx.msg.node:
+                        own = True
+                        if node.state == "running":
+                            node.heard_at = node.heard_at or time.monotonic()
+                if not own and self._spans_hosts:
+                    self._heard_peer(rx.msg)
             rx = self._statuses.receive(0.0)
+
+    def _await_peers(self) -> None:
+        """Before the summary of a graph over several hosts: the final statuses of the other
+        hosts' nodes (their counts), for up to ``peer_timeout_s``; not after Ctrl-C."""
+        if not self._peers or self._signals:
+            return
+        spec = self.description.transport or TransportSpec()
+        deadline = time.monotonic() + spec.peer_timeout_s
+        while time.monotonic() < deadline and any(
+                not peer.gone and peer.state not in ("finished", "error")
+                for peer in self._peers.values()):
+            self._collect_statuses(_POLL_S)
+            if self._signals:
+                return
+
+    def _heard_peer(self, status: NodeStatus) -> None:
+        peer = self._peers.get(status.node)
+        if peer is None:
+            self._peers[status.node] = _Peer(time.monotonic(), status.state)
+            return
+        if peer.gone:
+            self.out.log(f"node {status.node} of another host is heard again")
+        peer.heard_at, peer.state, peer.gone = time.monotonic(), status.state, False
 
     def _finish(self) -> int:
         outcomes = [node.outcome for node in self.nodes]
@@ -623,6 +737,14 @@ class Launcher:
                 refused_peers += moved["refused_peers"]
             self.out.log(f"  {o.name:<{width}}  {o.describe():<{result_width}}  "
                          f"starts {o.starts}  respawns {o.respawns}{flow}")
+        if self._peers:
+            self.out.log("  other hosts' nodes:")
+        for name, peer in sorted(self._peers.items()):
+            moved = self.traffic.of(name) or {}
+            flow = "".join(f"  {key} {moved[key]}" for key in ("published", "received", "lost",
+                                                                "rejected") if key in moved)
+            state = "gone (not heard at the end)" if peer.gone else peer.state
+            self.out.log(f"  {name:<{width}}  {state}{flow}")
         if refused_peers:
             self.out.log(f"refused {refused_peers} connection(s) without an allowed key "
                          f"({self.refused_peers} at the proxy)")

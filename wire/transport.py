@@ -34,6 +34,7 @@ import contextlib
 import errno
 import functools
 import getpass
+import ipaddress
 import itertools
 import json
 import logging
@@ -67,7 +68,9 @@ __all__ = [
     "DEFAULT_HWM",
     "DEFAULT_MAX_BUFFERED_BYTES",
     "DEFAULT_MAX_MESSAGE_BYTES",
+    "DIRECT_HOST_ENV",
     "DOMAIN_ENV",
+    "INSECURE_ENV",
     "MAX_PUBLISHERS",
     "MAX_SEQ_GAP",
     "SCANNED_DOMAINS",
@@ -81,7 +84,9 @@ __all__ = [
     "StreamEnd",
     "Subscriber",
     "TopicCounters",
+    "is_loopback",
     "joined_graph_note",
+    "local_address_towards",
     "register_graph",
     "running_graphs",
     "scanned_domains",
@@ -117,31 +122,71 @@ MessageTypes: TypeAlias = type[Message] | tuple[type[Message], ...]
 _ENV_PUB = "VIBRISSA_PUB_ENDPOINT"
 _ENV_SUB = "VIBRISSA_SUB_ENDPOINT"
 DOMAIN_ENV = "VIBRISSA_DOMAIN_ID"
+DIRECT_HOST_ENV = "VIBRISSA_DIRECT_HOST"
+"""The address of this host that its direct publishers bind (and announce), when the graph's
+proxy runs on another host."""
+INSECURE_ENV = "VIBRISSA_INSECURE"
+"""``1``: sockets may bind off loopback without keys (plain text; ``vibrissa launch --insecure``)."""
 _CONTROL_IDS = itertools.count()
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (an address as in a tcp endpoint, ``[::1]`` with brackets or without,
+    or ``localhost``) is this machine's loopback."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def local_address_towards(host: str) -> str:
+    """The address of this host's interface that routes to ``host`` (no packet is sent);
+    ``OSError`` when there is no route or the name does not resolve."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.connect((host, 9))
+        return str(probe.getsockname()[0])
+
+
+def _tcp_host(endpoint: str) -> str | None:
+    """``10.0.0.1`` of ``tcp://10.0.0.1:7400`` (``*`` for a wildcard); None for other schemes."""
+    scheme, sep, address = endpoint.partition("://")
+    return address.rpartition(":")[0] if sep and scheme == "tcp" else None
 
 
 @dataclass(frozen=True)
 class Endpoints:
     """Where publishers connect (``pub``, the proxy's XSUB) and subscribers (``sub``, XPUB),
-    and the CURVE keys that get a process in (``None``: plain sockets, see ``security``)."""
+    and the CURVE keys that get a process in (``None``: plain sockets, see ``security``).
+
+    ``direct_host``: the address of this host its direct publishers bind, when the proxy runs
+    on another one (None: the proxy's host). ``insecure``: sockets may bind off loopback
+    without keys (else refused, `KeysError`).
+    """
 
     pub: str
     sub: str
     keys: Keys | None = None
+    direct_host: str | None = None
+    insecure: bool = False
 
     BASE_PORT: ClassVar[int] = 7400
     MAX_DOMAIN: ClassVar[int] = (65535 - BASE_PORT - 1) // 2
     """The largest domain id whose two ports exist."""
 
     @classmethod
-    def for_domain(cls, domain_id: int = 0) -> Endpoints:
-        """``tcp://127.0.0.1:{7400 + 2 id}`` (pub) and ``{7401 + 2 id}`` (sub)."""
+    def for_domain(cls, domain_id: int = 0, host: str = "127.0.0.1") -> Endpoints:
+        """``tcp://{host}:{7400 + 2 id}`` (pub) and ``{7401 + 2 id}`` (sub): the proxy of a
+        graph on this machine's loopback, or on ``host``."""
         if isinstance(domain_id, bool) or not isinstance(domain_id, int):
             raise ValueError(f"domain_id must be an int, got {type(domain_id).__name__}")
         if not 0 <= domain_id <= cls.MAX_DOMAIN:
             raise ValueError(f"domain_id {domain_id} gives no valid port")
+        if not host or any(c in host for c in "/ :[]*"):
+            raise ValueError(f"expected a host name or IPv4 address, got {host!r}")
         port = cls.BASE_PORT + 2 * domain_id
-        return cls(f"tcp://127.0.0.1:{port}", f"tcp://127.0.0.1:{port + 1}")
+        return cls(f"tcp://{host}:{port}", f"tcp://{host}:{port + 1}")
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> Endpoints:
@@ -150,11 +195,12 @@ class Endpoints:
         env = os.environ if environ is None else environ
         keys = Keys.from_env(env)
         pub, sub = env.get(_ENV_PUB), env.get(_ENV_SUB)
-        if pub and sub:
-            return cls(pub, sub, keys)
-        if pub or sub:
+        if bool(pub) != bool(sub):
             raise ValueError(f"set both {_ENV_PUB} and {_ENV_SUB}, or neither")
-        return cls.for_domain(cls.env_domain(env)).with_keys(keys)
+        found = (cls(pub, sub) if pub and sub
+                 else cls.for_domain(cls.env_domain(env)))
+        return replace(found, keys=keys, direct_host=env.get(DIRECT_HOST_ENV) or None,
+                       insecure=env.get(INSECURE_ENV) == "1")
 
     def with_keys(self, keys: Keys | None) -> Endpoints:
         """The same endpoints, entered with ``keys``."""
@@ -194,7 +240,9 @@ class Endpoints:
     def to_env(self) -> dict[str, str]:
         """The environment variables that hand these endpoints (and keys) to a node process."""
         return {_ENV_PUB: self.pub, _ENV_SUB: self.sub,
-                **(self.keys.to_env() if self.keys is not None else {})}
+                **(self.keys.to_env() if self.keys is not None else {}),
+                **({DIRECT_HOST_ENV: self.direct_host} if self.direct_host else {}),
+                **({INSECURE_ENV: "1"} if self.insecure else {})}
 
     def direct_bind(self, pub_id: int) -> str | None:
         """Where a direct publisher ``pub_id`` binds, beside the proxy's XSUB: a free port on
@@ -204,7 +252,7 @@ class Endpoints:
         if not sep:
             return None
         if scheme == "tcp":
-            host = address.rpartition(":")[0]
+            host = self.direct_host or address.rpartition(":")[0]
             return f"tcp://{host}:*" if host else None
         if scheme in ("ipc", "inproc"):
             return f"{self.pub}-{pub_id:016x}"
@@ -212,13 +260,19 @@ class Endpoints:
 
     def allows_direct(self, endpoint: str) -> bool:
         """Whether ``endpoint`` is one ``direct_bind`` could have given: a port on the proxy's
-        host, a socket file beside the proxy's. A subscriber connects to no other announced
-        endpoint, so a forged status cannot send it to another host or folder."""
+        host (or this host's ``direct_host``), a socket file beside the proxy's. A subscriber
+        connects to no other announced endpoint, so a forged status cannot send it to another
+        host or folder. A graph whose proxy is off loopback spans hosts: a port on any host
+        (with keys, a subscriber talks only to servers that prove the graph's key)."""
         scheme, sep, address = self.pub.partition("://")
         if scheme == "tcp":
             host = address.rpartition(":")[0]
-            port = endpoint.rpartition(":")[2]
-            return bool(host) and endpoint == f"tcp://{host}:{port}" and port.isdigit()
+            announced, _, port = endpoint.partition("://")[2].rpartition(":")
+            if not (endpoint.startswith("tcp://") and port.isdigit() and announced
+                    and announced != "*"):
+                return False
+            return (announced in (host, self.direct_host)
+                    or not is_loopback(host) and announced != "0.0.0.0")
         if scheme in ("ipc", "inproc"):
             suffix = endpoint.removeprefix(f"{self.pub}-")
             return suffix != endpoint and len(suffix) == 16 and all(
@@ -396,9 +450,17 @@ def _socket(context: zmq.Context[Any], kind: int, hwm: int) -> zmq.Socket[Any]:
     return sock
 
 
-def _bind(sock: zmq.Socket[Any], address: str, keys: Keys | None) -> None:
+def _bind(sock: zmq.Socket[Any], address: str, keys: Keys | None, insecure: bool = False
+          ) -> None:
     """Bind ``sock`` as a CURVE server when there are keys; an ipc socket file only in a
-    folder no other user can enter."""
+    folder no other user can enter; a tcp address off loopback only with keys, unless
+    ``insecure`` (`KeysError`)."""
+    host = _tcp_host(address)
+    if keys is None and host is not None and not is_loopback(host) and not insecure:
+        raise KeysError(f"{address} is not on loopback: a graph's sockets bind off loopback "
+                        "only with keys (--keys DIR; make them with `vibrissa keys DIR`), or "
+                        "with --insecure for plain text that anyone on the network can read "
+                        "and write")
     if keys is not None:
         keys.serve_with(sock, sock.context)
     if address.startswith("ipc://"):
@@ -461,8 +523,8 @@ class Proxy:
         control_in.setsockopt(zmq.LINGER, 0)
         keys = self._requested.keys
         try:
-            _bind(xsub, self._requested.pub, keys)
-            _bind(xpub, self._requested.sub, keys)
+            _bind(xsub, self._requested.pub, keys, self._requested.insecure)
+            _bind(xpub, self._requested.sub, keys, self._requested.insecure)
             control_in.bind(control_address)
             self._control = self._context.socket(zmq.PAIR)
             self._control.setsockopt(zmq.LINGER, 0)
@@ -474,10 +536,8 @@ class Proxy:
                 self._control.close()
                 self._control = None
             raise
-        self.endpoints = Endpoints(
-            xsub.getsockopt_string(zmq.LAST_ENDPOINT), xpub.getsockopt_string(zmq.LAST_ENDPOINT),
-            keys,
-        )
+        self.endpoints = replace(self._requested, pub=xsub.getsockopt_string(zmq.LAST_ENDPOINT),
+                                 sub=xpub.getsockopt_string(zmq.LAST_ENDPOINT))
         # The sockets move to the proxy thread here; thread start is the memory barrier
         # ZeroMQ asks for when a socket changes threads.
         self._thread = threading.Thread(
@@ -591,17 +651,17 @@ class Publisher(contextlib.AbstractContextManager["Publisher"]):
         self._socket = _socket(context, zmq.PUB, hwm)
         try:
             bind = endpoints.direct_bind(self.pub_id) if direct else None
-            if bind is not None:
-                self.endpoint = self._bind_or_none(bind, endpoints.keys)
+            if bind is not None and (endpoints.keys is None or endpoints.keys.serves):
+                self.endpoint = self._bind_or_none(bind, endpoints.keys, endpoints.insecure)
             if self.endpoint is None:
                 _connect(self._socket, endpoints.pub, endpoints.keys)
         except zmq.ZMQError:
             self._socket.close()
             raise
 
-    def _bind_or_none(self, address: str, keys: Keys | None) -> str | None:
+    def _bind_or_none(self, address: str, keys: Keys | None, insecure: bool) -> str | None:
         try:
-            _bind(self._socket, address, keys)
+            _bind(self._socket, address, keys, insecure)
         except (zmq.ZMQError, KeysError) as exc:
             log.warning("%s: cannot bind %s (%s); publishing through the proxy",
                         self.topic, address, exc)

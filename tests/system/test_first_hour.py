@@ -12,7 +12,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,13 +31,15 @@ DOMAIN = 8200 + os.getpid() % 12 * 128  # +0..+120; ports below the ephemeral on
 class Launch:
     """``vibrissa launch`` in the background; stdout and stderr lines with arrival times."""
 
-    def __init__(self, path: Path, *words: str, domain: int | None = None) -> None:
+    def __init__(self, path: Path, *words: str, domain: int | None = None,
+                 prefix: Sequence[str] = ()) -> None:
         env = {k: v for k, v in os.environ.items() if not k.startswith("VIBRISSA_")}
         if domain is not None:
             env["VIBRISSA_DOMAIN_ID"] = str(domain)
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "vibrissa.cli.main", "launch", "--grace", "5", str(path),
-             *words], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.proc = subprocess.Popen(  # prefix: ip netns exec NS (it execs the launcher)
+            [*prefix, sys.executable, "-m", "vibrissa.cli.main", "launch", "--grace", "5",
+             str(path), *words], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env=env)
         self.lines: list[tuple[float, str]] = []
         self._readers = [threading.Thread(target=self._pump, args=(pipe,), daemon=True)
                          for pipe in (self.proc.stdout, self.proc.stderr)]

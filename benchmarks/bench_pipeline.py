@@ -24,6 +24,10 @@ broker costs without any work)::
 
     load --/bench/wrench--> proxy --> echo --/bench/contact--> proxy --> sink
 
+``veth`` (root and iproute2) is ``curve`` over two hosts: the proxy, the load and the
+reconstructor in a network namespace of their own (the robot), the sink here (the
+workstation), joined by a veth pair.
+
 Two ways to send a tick of 32 whiskers at ``rate`` wrenches/s in total: *per wrench*, one
 WhiskerWrenchArray of one row per whisker (32 messages per tick; latency per wrench, its
 ContactPointArray), and *per tick*, one WhiskerWrenchArray of 32 rows (latency per tick, its
@@ -77,12 +81,13 @@ Run: ``python benchmarks/bench_pipeline.py [--duration 2] [--rates 1000,...] [--
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -104,7 +109,7 @@ WHISKERS = 32
 TOPIC = "/bench/wrench"
 CONTACT = "/bench/contact"
 UNITS = ("wrench", "tick")  # a WhiskerWrenchArray of one row per whisker, or of 32 per tick
-MODES = ("timer", "bare", "busy", "proxied", "vibrissa", "curve", "robot", "robot-rt")
+MODES = ("timer", "bare", "busy", "proxied", "vibrissa", "curve", "veth", "robot", "robot-rt")
 # one process waking at each tick (no message), the floor, the floor with work per message, the
 # floor through the proxy, the pipeline, the pipeline encrypted and authenticated, the robot graph
 # (poses one period ahead), the robot graph with poses in real time
@@ -165,7 +170,15 @@ def _payloads(n: int, unit: str, robot: bool, tick_s: float) -> list[bytes]:
     from vibrissa.units import RodScale
 
     rng = np.random.default_rng(1)
-    p0, f0, m0 = rng.uniform(-1, 1, (512, 3)), rng.normal(size=(512, 3)), rng.normal(size=(512, 3))
+    # wrenches of one contact each (else Step 2 says MULTI_CONTACT): a force f at a point r of
+    # the rod's bending plane (through the clamp's z axis, at a random angle), m0 = r x f
+    p0 = rng.uniform(-1, 1, (512, 3))
+    phi = rng.uniform(0, 2 * np.pi, 512)
+    radial = np.column_stack([np.cos(phi), np.sin(phi), np.zeros(512)])
+    axial = np.array([0.0, 0.0, 1.0])
+    r = rng.uniform(0.0, 0.5, (512, 1)) * radial + rng.uniform(0.5, 1.0, (512, 1)) * axial
+    f0 = rng.normal(size=(512, 1)) * radial + rng.normal(size=(512, 1)) * axial
+    m0 = np.cross(r, f0)
     whiskers = _robot() if robot else ()
     names = [w.name for w in whiskers] or [f"whisker{j}" for j in range(WHISKERS)]
     rods = [w.scale for w in whiskers] or [RodScale()] * WHISKERS
@@ -358,7 +371,8 @@ def _proxy() -> None:
     from vibrissa.wire.security import Keys
     from vibrissa.wire.transport import Proxy
 
-    proxy = Proxy(Endpoints.free().with_keys(Keys.from_env()), zmq.Context(), hwm=1_000_000)
+    host = os.environ.get(VETH_HOST_ENV, "127.0.0.1")
+    proxy = Proxy(Endpoints.free(host).with_keys(Keys.from_env()), zmq.Context(), hwm=1_000_000)
     bound = proxy.start()
     print(bound.pub, bound.sub, flush=True)
     try:
@@ -436,11 +450,38 @@ def _steal(before: tuple[float, float]) -> float:
     return (steal - before[0]) / max(total - before[1], 1.0)
 
 
-def _python(*args: str, **kwargs: Any) -> subprocess.Popen[str]:
+def _python(*args: str, netns: str | None = None, **kwargs: Any) -> subprocess.Popen[str]:
     """A helper process that ends with the bench, however the bench ends (a killed bench once
-    left a reconstructor that kept 2 % of a CPU busy retrying its peers)."""
-    return subprocess.Popen([sys.executable, *args], text=True,
+    left a reconstructor that kept 2 % of a CPU busy retrying its peers); in the network
+    namespace ``netns`` if given."""
+    prefix = ["ip", "netns", "exec", netns] if netns else []
+    return subprocess.Popen([*prefix, sys.executable, *args], text=True,
                             preexec_fn=die_with_parent(os.getpid()), **kwargs)
+
+
+VETH_HOST_ENV = "BENCH_PROXY_HOST"
+VETH_ROBOT, VETH_HERE = "10.214.0.1", "10.214.0.2"
+
+
+@contextlib.contextmanager
+def _robot_namespace() -> Iterator[str]:
+    """A network namespace (the robot's host) joined to this one by a veth pair: the robot at
+    10.214.0.1, this end 10.214.0.2 (root and iproute2)."""
+    name = f"vbench{os.getpid() % 100000}"
+    def ip(*words: str) -> None:
+        subprocess.run(["ip", *words], check=True, capture_output=True, timeout=30)
+    ip("netns", "add", name)
+    try:
+        ip("-n", name, "link", "set", "lo", "up")
+        ip("link", "add", f"{name}h", "type", "veth", "peer", "name", f"{name}r", "netns", name)
+        ip("addr", "add", f"{VETH_HERE}/24", "dev", f"{name}h")
+        ip("link", "set", f"{name}h", "up")
+        ip("-n", name, "addr", "add", f"{VETH_ROBOT}/24", "dev", f"{name}r")
+        ip("-n", name, "link", "set", f"{name}r", "up")
+        yield name
+    finally:
+        subprocess.run(["ip", "link", "del", f"{name}h"], capture_output=True, timeout=30)
+        subprocess.run(["ip", "netns", "del", name], capture_output=True, timeout=30)
 
 
 def _sink(sock: zmq.Socket[Any], n: int, header_seq: bool, timeout_s: float) -> np.ndarray:
@@ -510,6 +551,7 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path,
     sink.setsockopt(zmq.RCVHWM, 1_000_000)
     helpers: list[subprocess.Popen[str]] = []
     me = str(Path(__file__).resolve())
+    stack = contextlib.ExitStack()
     try:
         if mode == "timer":
             ticks = n // per_tick
@@ -554,13 +596,16 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path,
         else:
             keys = None
             secured: dict[str, str] = {}
-            if mode == "curve":
+            netns = stack.enter_context(_robot_namespace()) if mode == "veth" else None
+            if mode in ("curve", "veth"):
                 create_keys(tmp / "keys")
                 keys = Keys.load(tmp / "keys")
                 keys.connect_with(sink)
                 secured = keys.to_env()
-            env = {**os.environ, "VIBRISSA_LOG_LEVEL": "WARNING", **secured}
-            proxy = _python(me, "_proxy", stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+            env = {**os.environ, "VIBRISSA_LOG_LEVEL": "WARNING", **secured,
+                   **({VETH_HOST_ENV: VETH_ROBOT} if netns else {})}
+            proxy = _python(me, "_proxy", stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+                            netns=netns)
             helpers.append(proxy)
             assert proxy.stdout is not None
             pub_ep, sub_ep = proxy.stdout.readline().split()
@@ -573,11 +618,12 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path,
                 params = ["--param", f"robot:={tmp / 'robot.yaml'}",
                           "--param", f"pose_topic:={POSE_TOPIC}"]
             helpers.append(_python("-m", "vibrissa.nodes.reconstructor", "--name",
-                                   "reconstructor", "--namespace", "/bench", *params, env=env))
+                                   "reconstructor", "--namespace", "/bench", *params, env=env,
+                                   netns=netns))
             endpoints = Endpoints(pub_ep, sub_ep, keys)
             sink.connect(_announced(endpoints, "/bench/reconstructor", CONTACT))
             load = _python(me, "_load", mode, unit, "", str(n), str(rate), str(out),
-                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, netns=netns)
             helpers.append(load)
             assert load.stdout is not None and load.stdout.readline().strip() == "ready"
             header_seq = True
@@ -610,6 +656,7 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path,
                 proc.wait(10)
             except subprocess.TimeoutExpired:
                 proc.kill()
+        stack.close()
     ok = np.isfinite(t_recv)
     latency = t_recv - t_send
     first = latency[::per_tick]

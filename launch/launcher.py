@@ -98,6 +98,8 @@ RUN_MODULE = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.SI
 """How a package node starts: ``python -c RUN_MODULE MODULE ...`` runs MODULE as ``python -m``
 would, except that a SIGINT before the node takes over its signals (its imports take a second
 or two) ends the process at once and quietly, instead of in a KeyboardInterrupt traceback."""
+PEER_SILENT_S = 2.0
+"""A node of another host not heard for this long when one of them times out went with it."""
 DOMAIN_TRIES = 32
 """Domains tried from the preferred one when it is taken and no domain was asked for."""
 _POLL_S = 0.02
@@ -470,16 +472,19 @@ class Launcher:
     def _check_peers(self) -> None:
         """In a graph over several hosts: a node of another host not heard for
         ``peer_timeout_s`` (its host or the link down) is gone, said once; ``on_peer_lost``
-        says whether this launch ends (failed) or runs on. One heard again is back."""
+        says whether this launch ends (failed) or runs on, and the others silent for
+        `PEER_SILENT_S` then are gone with it. One heard again is back."""
         if not self._spans_hosts:
             return
         spec = self.description.transport or TransportSpec()
         now = time.monotonic()
-        gone = [name for name, peer in self._peers.items()
-                if not peer.gone and peer.state not in ("finished", "error")
-                and now - peer.heard_at > spec.peer_timeout_s]
-        if not gone:
+        silent = {name: now - peer.heard_at for name, peer in self._peers.items()
+                  if not peer.gone and peer.state not in ("finished", "error")}
+        if not any(quiet > spec.peer_timeout_s for quiet in silent.values()):
             return
+        # with one gone, so are those that went silent with it (statuses come every 0.5 s)
+        gone = sorted(name for name, quiet in silent.items()
+                      if quiet > min(spec.peer_timeout_s, PEER_SILENT_S))
         for name in gone:
             self._peers[name].gone = True
         what = (f"node(s) {', '.join(gone)} of another host not heard for "

@@ -44,7 +44,8 @@ import zmq
 import zmq.auth
 from zmq.utils.monitor import parse_monitor_message
 
-__all__ = ["GRAPH_KEY", "KEYS_ENV", "Guard", "Keys", "KeysError", "create_keys"]
+__all__ = ["GRAPH_KEY", "KEYS_ENV", "Guard", "Keys", "KeysError", "authorize_keys", "create_keys",
+           "join_keys"]
 
 log = logging.getLogger(__name__)
 
@@ -185,10 +186,7 @@ def create_keys(folder: str | os.PathLike[str], clients: tuple[str, ...] = ()) -
     if not os.fspath(folder):
         raise KeysError("the key folder is an empty name")
     for name in clients:
-        if not name.isidentifier():
-            raise KeysError(f"client name {name!r}: use letters, digits and _")
-        if name == GRAPH_KEY:
-            raise KeysError(f"{GRAPH_KEY!r} is the graph's own key, not a client's")
+        _client_name(name)
     root.mkdir(mode=0o700, parents=True, exist_ok=True)
     for made in (root, root / "authorized", root / "clients"):
         if made.exists():
@@ -207,6 +205,81 @@ def create_keys(folder: str | os.PathLike[str], clients: tuple[str, ...] = ()) -
         (root / "authorized").mkdir(mode=0o700, exist_ok=True)
         shutil.copy(home / f"{name}.key", root / "authorized" / f"{name}.key")
         written += [home / f"{GRAPH_KEY}.key", root / "authorized" / f"{name}.key"]
+    return written
+
+
+def _client_name(name: str) -> None:
+    if not name.isidentifier():
+        raise KeysError(f"client name {name!r}: use letters, digits and _")
+    if name == GRAPH_KEY:
+        raise KeysError(f"{GRAPH_KEY!r} is the graph's own key, not a client's")
+
+
+def _public_key_file(path: Path) -> bytes:
+    """The public key of a ``NAME.key`` file; `KeysError` for a secret file or no key."""
+    try:
+        public, secret = zmq.auth.load_certificate(path)
+    except (OSError, ValueError) as exc:
+        raise KeysError(f"cannot read key {path}: {exc}") from None
+    if secret is not None:
+        raise KeysError(f"{path} holds a secret key: give the public NAME.key (the secret "
+                        "never leaves its host)")
+    if len(public) != 40:
+        raise KeysError(f"key {path} is not a 40-character z85 CURVE key")
+    return public
+
+
+def join_keys(folder: str | os.PathLike[str], name: str, graph_key: str | os.PathLike[str]
+              ) -> list[Path]:
+    """Make a client's folder on the client's own host: the graph's public key (a copy of
+    ``graph_key``, the graph's ``graph.key``) and a new pair ``name``, whose public key
+    ``NAME.key`` the graph's host then lets in (`authorize_keys`). Returns the files written."""
+    _client_name(name)
+    server_public = _public_key_file(Path(graph_key))
+    root = Path(folder)
+    if not os.fspath(folder):
+        raise KeysError("the key folder is an empty name")
+    root.mkdir(mode=0o700, parents=True, exist_ok=True)
+    _check_own(root)
+    if (root / f"{GRAPH_KEY}.key_secret").exists() or any(
+            p.name != f"{name}.key_secret" for p in root.glob("*.key_secret")):
+        raise KeysError(f"{root} holds another secret key already: a client folder holds its "
+                        "own pair only; choose a new folder")
+    written: list[Path] = []
+    existing = root / f"{GRAPH_KEY}.key"
+    if existing.exists() and _public_key_file(existing) != server_public:
+        raise KeysError(f"{existing} is another graph's key")
+    if not existing.exists():
+        shutil.copy(graph_key, existing)
+        os.chmod(existing, 0o644)
+        written.append(existing)
+    if not (root / f"{name}.key_secret").exists():
+        written += _new_pair(root, name)
+    return written
+
+
+def authorize_keys(folder: str | os.PathLike[str], public_keys: tuple[str, ...]) -> list[Path]:
+    """Let clients into the graph of ``folder``: copy each public ``NAME.key`` (made on the
+    client's host by `join_keys`) into ``folder/authorized``. Returns the files written."""
+    root = Path(folder)
+    if not (root / f"{GRAPH_KEY}.key_secret").exists():
+        raise KeysError(f"{root} is not a graph's key folder (no {GRAPH_KEY}.key_secret; make "
+                        f"one with `vibrissa keys {root}`)")
+    _check_own(root)
+    authorized = root / "authorized"
+    authorized.mkdir(mode=0o700, exist_ok=True)
+    _check_own(authorized)
+    written = []
+    for key in map(Path, public_keys):
+        _public_key_file(key)
+        name = key.name.removesuffix(".key")
+        if not key.name.endswith(".key"):
+            raise KeysError(f"{key}: expected a public key file NAME.key")
+        _client_name(name)
+        target = authorized / key.name
+        shutil.copy(key, target)
+        os.chmod(target, 0o644)
+        written.append(target)
     return written
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from vibrissa.launch.description import LaunchFileError, parse_launch
-from vibrissa.wire.security import Keys, KeysError, create_keys
+from vibrissa.wire.security import Keys, KeysError, authorize_keys, create_keys, join_keys
 
 needs_root = pytest.mark.skipif(os.geteuid() != 0 or shutil.which("useradd") is None
                                 or shutil.which("runuser") is None,
@@ -110,3 +110,31 @@ def test_an_empty_key_folder_name_is_an_error_not_no_keys(tmp_path: Path) -> Non
                                "sys.exit(main(sys.argv[1:]))", *words],
                               capture_output=True, text=True, timeout=120, check=False)
         assert done.returncode == 2 and "empty name" in done.stderr, (words, done.stderr)
+
+
+def test_a_client_made_on_its_own_host_gets_in_with_only_public_keys_travelling(
+        tmp_path: Path) -> None:
+    graph_dir, client_dir, carried = tmp_path / "robot", tmp_path / "station", tmp_path / "g.key"
+    create_keys(graph_dir)
+    shutil.copy(graph_dir / "graph.key", carried)  # the graph's public key goes to the client
+    written = join_keys(client_dir, "station", carried)
+    assert {p.name for p in written} == {"graph.key", "station.key", "station.key_secret"}
+    assert os.stat(client_dir / "station.key_secret").st_mode & 0o077 == 0
+    client = Keys.load(client_dir)
+    graph = Keys.load(graph_dir)
+    assert client.name == "station" and not client.serves
+    assert client.server_public == graph.server_public
+    assert client.public not in graph.allowed
+    authorize_keys(graph_dir, (str(client_dir / "station.key"),))  # its public key comes back
+    assert client.public in Keys.load(graph_dir).allowed
+    with pytest.raises(KeysError, match="holds a secret key"):
+        authorize_keys(graph_dir, (str(client_dir / "station.key_secret"),))
+    with pytest.raises(KeysError, match="holds a secret key"):
+        join_keys(tmp_path / "other", "x", graph_dir / "graph.key_secret")
+    with pytest.raises(KeysError, match="another secret key"):
+        join_keys(graph_dir, "station", carried)  # the graph's own folder
+    with pytest.raises(KeysError, match="not a graph's key folder"):
+        authorize_keys(client_dir, (str(client_dir / "station.key"),))
+    create_keys(tmp_path / "other-graph")
+    with pytest.raises(KeysError, match="another graph's key"):
+        join_keys(client_dir, "station", tmp_path / "other-graph" / "graph.key")

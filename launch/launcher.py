@@ -302,6 +302,7 @@ class Launcher:
         self._reach = ""  # how tools reach a graph that moved off its preferred domain
         self.traffic = Traffic()
         self._spans_hosts = False
+        self._joined_at: float | None = None  # when this launch joined a graph over hosts
         self._peers: dict[str, _Peer] = {}  # nodes of other hosts, by name
 
     # -- the run -------------------------------------------------------------------------------
@@ -362,6 +363,7 @@ class Launcher:
             return None
         host = spec.bind or spec.proxy_host
         self._spans_hosts = host is not None
+        self._joined_at = time.monotonic() if self._spans_hosts else None
         if host is not None and not is_loopback(host) and keys is None:
             if not self.insecure:
                 self.out.log(f"refused: this graph reaches {host}, off loopback, without keys. "
@@ -473,11 +475,20 @@ class Launcher:
         """In a graph over several hosts: a node of another host not heard for
         ``peer_timeout_s`` (its host or the link down) is gone, said once; ``on_peer_lost``
         says whether this launch ends (failed) or runs on, and the others silent for
-        `PEER_SILENT_S` then are gone with it. One heard again is back."""
+        `PEER_SILENT_S` then are gone with it. One heard again is back. No other host heard
+        at all within ``peer_timeout_s`` is said once (how to join is usually what is wrong)."""
         if not self._spans_hosts:
             return
         spec = self.description.transport or TransportSpec()
         now = time.monotonic()
+        if not self._peers and self._joined_at is not None \
+                and now - self._joined_at > spec.peer_timeout_s:
+            self._joined_at = None  # said once
+            where = spec.bind or spec.proxy_host
+            self.out.log(f"no node of another host heard for {spec.peer_timeout_s:g} s: is the "
+                         f"other host's launch running, with the graph at {where} on the same "
+                         "domain, and keys this graph allows (a refused key is counted where "
+                         "it was refused)?")
         silent = {name: now - peer.heard_at for name, peer in self._peers.items()
                   if not peer.gone and peer.state not in ("finished", "error")}
         if not any(quiet > spec.peer_timeout_s for quiet in silent.values()):

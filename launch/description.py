@@ -517,6 +517,11 @@ class _Parser:
         hosts = {key: self.host(body[key], f"{path}.{key}") for key in
                  ("bind", "proxy_host", "direct_host") if key in body}
         hosts = {key: host for key, host in hosts.items() if host}  # an empty argument: unset
+        if hosts.get("direct_host") == "0.0.0.0" or (hosts.get("bind") == "0.0.0.0"
+                                                    and "direct_host" not in hosts):
+            raise self.error(path, "0.0.0.0 binds every interface but is no address the other "
+                                   "hosts can reach: give direct_host, this host's address they "
+                                   "reach (direct publishers announce it)")
         if "bind" in hosts and "proxy_host" in hosts:
             raise self.error(path, "give bind (this host holds the proxy) or proxy_host (another "
                                    "host does), not both")

@@ -45,6 +45,7 @@ import errno
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -361,6 +362,12 @@ class Launcher:
         except KeysError as exc:
             self.out.log(f"cannot use the keys: {exc}")
             return None
+        if spec.bind is not None:  # ZeroMQ binds addresses, not names
+            try:
+                spec = replace(spec, bind=socket.gethostbyname(spec.bind))
+            except OSError as exc:
+                self.out.log(f"cannot bind {spec.bind}: {exc}")
+                return None
         host = spec.bind or spec.proxy_host
         self._spans_hosts = host is not None
         self._joined_at = time.monotonic() if self._spans_hosts else None

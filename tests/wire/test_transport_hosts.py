@@ -91,11 +91,15 @@ def test_launch_file_host_keys(tmp_path: Path) -> None:
     assert _transport(tmp_path, "{proxy_host: '$(var host)'}") == TransportSpec()
     assert _transport(tmp_path, "{proxy_host: '$(var host)'}", "host:=10.0.0.1") == \
         TransportSpec(proxy_host="10.0.0.1")
+    assert _transport(tmp_path, "{bind: 0.0.0.0, direct_host: 10.0.0.1}") == \
+        TransportSpec(bind="0.0.0.0", direct_host="10.0.0.1")
     for body, message in (("{bind: 10.0.0.1, proxy_host: 10.0.0.2}", "not both"),
                           ("{bind: 'tcp://10.0.0.1'}", "host name or IPv4"),
                           ("{proxy_host: h, pub_endpoint: 'tcp://h:1', sub_endpoint: 'tcp://h:2'}",
                            "not both"),
                           ("{on_peer_lost: later}", "shutdown or continue"),
+                          ("{bind: 0.0.0.0}", "give direct_host"),
+                          ("{proxy_host: h, direct_host: 0.0.0.0}", "give direct_host"),
                           ("{peer_timeout_s: 0.1}", ">= 0.5")):
         with pytest.raises(LaunchFileError, match=message):
             _transport(tmp_path, body)

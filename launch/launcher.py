@@ -181,6 +181,7 @@ class _Peer:
     heard_at: float  # monotonic time of its last status
     state: str
     gone: bool = False
+    message: str = ""  # of its last status
 
 
 def node_command(spec: NodeSpec, params_file: str | None, python: str = sys.executable
@@ -732,11 +733,16 @@ class Launcher:
     def _heard_peer(self, status: NodeStatus) -> None:
         peer = self._peers.get(status.node)
         if peer is None:
-            self._peers[status.node] = _Peer(time.monotonic(), status.state)
+            self._peers[status.node] = _Peer(time.monotonic(), status.state,
+                                             message=status.message)
             return
         if peer.gone:
             self.out.log(f"node {status.node} of another host is heard again")
+        if status.state in ("finished", "error") and peer.state != status.state:
+            why = f" ({status.message})" if status.message else ""
+            self.out.log(f"node {status.node} of another host: {status.state}{why}")
         peer.heard_at, peer.state, peer.gone = time.monotonic(), status.state, False
+        peer.message = status.message
 
     def _finish(self) -> int:
         outcomes = [node.outcome for node in self.nodes]
@@ -766,7 +772,9 @@ class Launcher:
             moved = self.traffic.of(name) or {}
             flow = "".join(f"  {key} {moved[key]}" for key in ("published", "received", "lost",
                                                                 "rejected") if key in moved)
-            state = "gone (not heard at the end)" if peer.gone else peer.state
+            state = ("gone (not heard at the end)" if peer.gone else
+                     f"{peer.state} ({peer.message})" if peer.message.startswith("stopped by")
+                     else peer.state)
             self.out.log(f"  {name:<{width}}  {state}{flow}")
         if refused_peers:
             self.out.log(f"refused {refused_peers} connection(s) without an allowed key "

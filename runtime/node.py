@@ -184,6 +184,7 @@ class Node:
         self.heartbeat_s = heartbeat_s
         self._state = "starting"
         self._message = ""
+        self._stopped_by = ""  # the signal that stopped the node
         self._stop = threading.Event()
         self._closing = threading.Event()
         self._beat_now = threading.Event()
@@ -339,6 +340,7 @@ class Node:
         if self._stop.is_set() and signum == signal.SIGINT:
             raise KeyboardInterrupt
         log.info("%s: %s, stopping", self.fqn, signal.Signals(signum).name)
+        self._stopped_by = self._stopped_by or signal.Signals(signum).name
         self._stop.set()
 
     # -- heartbeat thread ----------------------------------------------------------------
@@ -441,6 +443,8 @@ class Node:
             gate.opened.wait(max(0.0, deadline - time.monotonic()))
         if self._state != "error":
             self._state = "finished"
+            if self._stopped_by:  # the last status says why, to the launchers of other hosts
+                self._message = f"stopped by {self._stopped_by}"
         self._closing.set()
         self._thread.join(2.0)
         with self._lock:

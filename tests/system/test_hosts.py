@@ -222,3 +222,21 @@ def test_a_killed_host_is_told_by_the_other_which_ends_and_keeps_its_map(
     assert "gone" in summary_line(text, "robot/reconstructor")
     assert "gone" in summary_line(text, "robot/wrench_source")
     assert (tmp_path / "cloud.ply").exists(), text
+
+
+def test_a_killed_launcher_is_told_by_the_other_host_its_nodes_stopped_by_sigterm(
+        hosts: Hosts, keys: Path, tmp_path: Path) -> None:
+    robot = Launch(LAUNCH / "robot_host.yaml", f"bind:={hosts.robot_address}", "loop:=true",
+                   "rate:=500", "--keys", str(keys), domain=DOMAIN, prefix=hosts.run(hosts.robot))
+    station = Launch(LAUNCH / "station_host.yaml", f"proxy_host:={hosts.robot_address}",
+                     f"out:={tmp_path}", "--keys", str(keys), domain=DOMAIN,
+                     prefix=hosts.run(hosts.station))
+    station.wait_line(r"\[mapper\].*mapped .*: \d+ points", 300)
+    station.proc.send_signal(signal.SIGKILL)  # the launcher alone: its nodes get SIGTERM
+    station.wait(60)
+    # the recorder closes its bag at once (the mapper may take longer to write its map than
+    # an orphan's grace allows, and is then gone, not finished)
+    robot.wait_line(r"node /bag_recorder of another host: finished \(stopped by SIGTERM\)", 120)
+    robot.proc.send_signal(signal.SIGINT)
+    assert robot.wait(120) == 130, robot.text()
+    assert "stopped by SIGTERM" in summary_line(robot.text(), "bag_recorder"), robot.text()

@@ -101,6 +101,18 @@ def counter(line: str, name: str) -> int:
     return int(match.group(1)) if match else 0
 
 
+def robot_and_station(hosts: Hosts, out: Path, *robot_args: str, keys: Path | None = None
+                      ) -> tuple[Launch, Launch]:
+    """The robot's half (``robot_args``) and the workstation's (into ``out``), each in its
+    namespace, both with the graph's ``keys`` (or --insecure)."""
+    secure = ["--keys", str(keys)] if keys is not None else ["--insecure"]
+    robot = Launch(LAUNCH / "robot_host.yaml", f"bind:={hosts.robot_address}", *robot_args,
+                   *secure, domain=DOMAIN, prefix=hosts.run(hosts.robot))
+    station = Launch(LAUNCH / "station_host.yaml", f"proxy_host:={hosts.robot_address}",
+                     f"out:={out}", *secure, domain=DOMAIN, prefix=hosts.run(hosts.station))
+    return robot, station
+
+
 INTRUDER = """
 import sys, time
 from vibrissa.wire import Endpoints, Subscriber
@@ -154,11 +166,7 @@ def test_off_loopback_a_graph_without_keys_is_refused_unless_insecure(hosts: Hos
     joined = Launch(LAUNCH / "station_host.yaml", f"proxy_host:={hosts.robot_address}",
                     f"out:={tmp_path}", domain=DOMAIN, prefix=hosts.run(hosts.station))
     assert joined.wait(120) == 2, joined.text()
-    robot = Launch(LAUNCH / "robot_host.yaml", f"bind:={hosts.robot_address}", "--insecure",
-                   f"epoch:={EPOCH}", domain=DOMAIN, prefix=hosts.run(hosts.robot))
-    station = Launch(LAUNCH / "station_host.yaml", f"proxy_host:={hosts.robot_address}",
-                     f"out:={tmp_path / 'two'}", "--insecure", domain=DOMAIN,
-                     prefix=hosts.run(hosts.station))
+    robot, station = robot_and_station(hosts, tmp_path / "two", f"epoch:={EPOCH}")
     assert station.wait(600) == 0, station.text()
     assert robot.wait(600) == 0, robot.text()
     for launch in (robot, station):
@@ -167,11 +175,7 @@ def test_off_loopback_a_graph_without_keys_is_refused_unless_insecure(hosts: Hos
 
 def test_a_link_cut_for_3_s_mid_stream_is_counted_in_both_summaries_and_the_graph_recovers(
         hosts: Hosts, keys: Path, tmp_path: Path) -> None:
-    robot = Launch(LAUNCH / "robot_host.yaml", f"bind:={hosts.robot_address}", "rate:=300",
-                   "passes:=6", "--keys", str(keys), domain=DOMAIN, prefix=hosts.run(hosts.robot))
-    station = Launch(LAUNCH / "station_host.yaml", f"proxy_host:={hosts.robot_address}",
-                     f"out:={tmp_path}", "--keys", str(keys), domain=DOMAIN,
-                     prefix=hosts.run(hosts.station))
+    robot, station = robot_and_station(hosts, tmp_path, "rate:=300", "passes:=6", keys=keys)
     robot.wait_line(r"ready on /robot/contact", 300)  # the stream flows to the station
     # a tool on the workstation reaches the graph on the robot, with the client's keys
     tool = subprocess.run(
@@ -199,15 +203,13 @@ def test_a_link_cut_for_3_s_mid_stream_is_counted_in_both_summaries_and_the_grap
                    and not isinstance(decode(record.payload), EndOfStream))
     lost = counter(summary_line(station.text(), "bag_recorder"), "lost")
     assert recorded + lost == sent, (recorded, lost, sent)
+    print(f"link cut 3 s: sent {sent}, recorded {recorded}, lost {lost};",
+          summary_line(station.text(), "mapper"))
 
 
 def test_a_killed_host_is_told_by_the_other_which_ends_and_keeps_its_map(
         hosts: Hosts, keys: Path, tmp_path: Path) -> None:
-    robot = Launch(LAUNCH / "robot_host.yaml", f"bind:={hosts.robot_address}", "loop:=true",
-                   "rate:=500", "--keys", str(keys), domain=DOMAIN, prefix=hosts.run(hosts.robot))
-    station = Launch(LAUNCH / "station_host.yaml", f"proxy_host:={hosts.robot_address}",
-                     f"out:={tmp_path}", "--keys", str(keys), domain=DOMAIN,
-                     prefix=hosts.run(hosts.station))
+    robot, station = robot_and_station(hosts, tmp_path, "loop:=true", "rate:=500", keys=keys)
     station.wait_line(r"\[mapper\].*mapped .*: \d+ points", 300)  # contacts arrive
     # the robot host fails at once (power, a crash): every process of it, no goodbye
     pids = subprocess.run(["ip", "netns", "pids", hosts.robot], capture_output=True, text=True,
@@ -226,11 +228,7 @@ def test_a_killed_host_is_told_by_the_other_which_ends_and_keeps_its_map(
 
 def test_a_killed_launcher_is_told_by_the_other_host_its_nodes_stopped_by_sigterm(
         hosts: Hosts, keys: Path, tmp_path: Path) -> None:
-    robot = Launch(LAUNCH / "robot_host.yaml", f"bind:={hosts.robot_address}", "loop:=true",
-                   "rate:=500", "--keys", str(keys), domain=DOMAIN, prefix=hosts.run(hosts.robot))
-    station = Launch(LAUNCH / "station_host.yaml", f"proxy_host:={hosts.robot_address}",
-                     f"out:={tmp_path}", "--keys", str(keys), domain=DOMAIN,
-                     prefix=hosts.run(hosts.station))
+    robot, station = robot_and_station(hosts, tmp_path, "loop:=true", "rate:=500", keys=keys)
     station.wait_line(r"\[mapper\].*mapped .*: \d+ points", 300)
     station.proc.send_signal(signal.SIGKILL)  # the launcher alone: its nodes get SIGTERM
     station.wait(60)

@@ -15,7 +15,7 @@ from vibrissa.nodes.wrench_source import WrenchSourceParams, clock_from
 LAUNCH = Path(__file__).parents[2] / "launch"
 EPOCH = 1_767_225_600.25  # 2026-01-01T00:00:00.25Z
 SIMULATED = {"demo.yaml": "sim", "record_demo.yaml": "sim", "robot.yaml": "scene",
-             "view.yaml": "scene", "explore.yaml": "scene"}
+             "view.yaml": "scene", "explore.yaml": "scene", "robot_host.yaml": "scene"}
 
 
 def test_the_sim_clock_reads_the_epoch_first_then_the_time_since() -> None:

@@ -176,7 +176,8 @@ class _Running:
 
 @dataclass
 class _Peer:
-    """A node of another host of the graph, as its statuses tell."""
+    """A node of the graph that this launch did not start (another host's, a tool), as its
+    statuses tell."""
 
     heard_at: float  # monotonic time of its last status
     state: str
@@ -480,8 +481,8 @@ class Launcher:
             self._check_peers()
 
     def _check_peers(self) -> None:
-        """In a graph over several hosts: a node of another host not heard for
-        ``peer_timeout_s`` (its host or the link down) is gone, said once; ``on_peer_lost``
+        """In a graph over several hosts: a node not of this launch (another host's, a tool) not
+        heard for ``peer_timeout_s`` (its host or the link down) is gone, said once; ``on_peer_lost``
         says whether this launch ends (failed) or runs on, and the others silent for
         `PEER_SILENT_S` then are gone with it. One heard again is back. No other host heard
         at all within ``peer_timeout_s`` is said once (how to join is usually what is wrong)."""
@@ -506,8 +507,8 @@ class Launcher:
                       if quiet > min(spec.peer_timeout_s, PEER_SILENT_S))
         for name in gone:
             self._peers[name].gone = True
-        what = (f"node(s) {', '.join(gone)} of another host not heard for "
-                f"{spec.peer_timeout_s:g} s (that host's launch or the link is down)")
+        what = (f"node(s) {', '.join(gone)} (not this launch's) not heard for "
+                f"{spec.peer_timeout_s:g} s (their host, their launch or the link is down)")
         if spec.on_peer_lost == "continue":
             self.out.log(f"{what}; marked gone, running on (on_peer_lost: continue)")
             return
@@ -737,10 +738,10 @@ class Launcher:
                                              message=status.message)
             return
         if peer.gone:
-            self.out.log(f"node {status.node} of another host is heard again")
+            self.out.log(f"node {status.node} (not this launch's) is heard again")
         if status.state in ("finished", "error") and peer.state != status.state:
             why = f" ({status.message})" if status.message else ""
-            self.out.log(f"node {status.node} of another host: {status.state}{why}")
+            self.out.log(f"node {status.node} (not this launch's): {status.state}{why}")
         peer.heard_at, peer.state, peer.gone = time.monotonic(), status.state, False
         peer.message = status.message
 
@@ -767,7 +768,7 @@ class Launcher:
             self.out.log(f"  {o.name:<{width}}  {o.describe():<{result_width}}  "
                          f"starts {o.starts}  respawns {o.respawns}{flow}")
         if self._peers:
-            self.out.log("  other hosts' nodes:")
+            self.out.log("  the graph's other nodes (not this launch's):")
         for name, peer in sorted(self._peers.items()):
             moved = self.traffic.of(name) or {}
             flow = "".join(f"  {key} {moved[key]}" for key in ("published", "received", "lost",

@@ -220,7 +220,7 @@ def test_a_killed_host_is_told_by_the_other_which_ends_and_keeps_its_map(
     robot.wait(60)
     assert station.wait(300) == 1, station.text()
     text = station.text()
-    assert "of another host not heard for 10 s" in text, text
+    assert "(not this launch's) not heard for 10 s" in text, text
     assert "gone" in summary_line(text, "robot/reconstructor")
     assert "gone" in summary_line(text, "robot/wrench_source")
     assert (tmp_path / "cloud.ply").exists(), text
@@ -234,7 +234,7 @@ def test_a_killed_launcher_is_told_by_the_other_host_its_nodes_stopped_by_sigter
     station.wait(60)
     # the recorder closes its bag at once (the mapper may take longer to write its map than
     # an orphan's grace allows, and is then gone, not finished)
-    robot.wait_line(r"node /bag_recorder of another host: finished \(stopped by SIGTERM\)", 120)
+    robot.wait_line(r"node /bag_recorder \(not this launch's\): finished \(stopped by SIGTERM\)", 120)
     robot.proc.send_signal(signal.SIGINT)
     assert robot.wait(120) == 130, robot.text()
     assert "stopped by SIGTERM" in summary_line(robot.text(), "bag_recorder"), robot.text()

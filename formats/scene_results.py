@@ -23,7 +23,16 @@ import numpy as np
 
 from vibrissa.formats.csv_text import cells, read_csv, write_csv
 from vibrissa.formats.scene_file import SceneError, check_name
-from vibrissa.scene import EPISODE_STARTS, Episode, SamplePhase, Scene, WhiskerResult, scene_digest
+from vibrissa.scene import (
+    EPISODE_STARTS,
+    Episode,
+    SamplePhase,
+    Scene,
+    Snap,
+    WhiskerResult,
+    scene_digest,
+    snaps,
+)
 from vibrissa.status import SweepEnd
 
 __all__ = ["SCENE_COLUMNS", "SUMMARY_FILE", "WRENCHES_FILE", "WRENCH_COLUMNS", "read_results",
@@ -76,14 +85,14 @@ def result_files(out: Path, scene: Scene) -> list[Path]:
     return [*files, out / WRENCHES_FILE, out / SUMMARY_FILE]
 
 
-def _snap_through(result: WhiskerResult, t: float) -> dict[str, Any]:
-    """A snap-through at ``t`` (one of the result's samples): the wrench of the sample before and
-    of its own."""
-    k = int(np.searchsorted(result.t, t))
-    before = max(k - 1, 0)
-    return {"t": t, "kind": "snap-through",
-            "f0_before": result.f0_n[before].tolist(), "m0_before": result.m0_nm[before].tolist(),
-            "f0_after": result.f0_n[k].tolist(), "m0_after": result.m0_nm[k].tolist()}
+def _snap(result: WhiskerResult, snap: Snap) -> dict[str, Any]:
+    """A jump of the path (`vibrissa.scene.snaps`): its time, kind, object and the wrenches of
+    the samples before and at it."""
+    return {"t": snap.t, "kind": snap.kind, "object": snap.object,
+            "f0_before": result.f0_n[snap.before].tolist(),
+            "m0_before": result.m0_nm[snap.before].tolist(),
+            "f0_after": result.f0_n[snap.after].tolist(),
+            "m0_after": result.m0_nm[snap.after].tolist()}
 
 
 def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> list[Path]:
@@ -112,6 +121,7 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
                                        for sample in zip(*wrenches, strict=True)
                                        for result, row in zip(results, sample, strict=True)))
     written.append(target)
+    jumps = {r.name: snaps(r, names) for r in results}
     summary = {
         "scene_sha256": scene_digest(scene),
         "units": {"t": "s", "length": "m", "force": "N", "moment": "N m",
@@ -122,8 +132,11 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
                               "start": e.start, "end": e.end,
                               "phase_changes": [{"t": t, "from": a, "to": b}
                                                 for t, a, b in e.phase_changes],
-                              "snap_throughs": [_snap_through(r, t) for t in e.snap_throughs]}
+                              "snap_throughs": [_snap(r, snap) for snap in jumps[r.name]
+                                                if snap.kind == "snap-through"
+                                                and snap.t in e.snap_throughs]}
                              for e in r.episodes],
+                "snaps": [_snap(r, snap) for snap in jumps[r.name]],
                 "samples_per_phase": r.counts(),
             }
             for r in results

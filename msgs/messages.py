@@ -18,7 +18,7 @@ from typing import Any, ClassVar, Self
 import numpy as np
 import numpy.typing as npt
 
-from vibrissa.status import ContactPhase, ContactStatus
+from vibrissa.status import SNAP_KINDS, ContactPhase, ContactStatus
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int32]
@@ -512,6 +512,29 @@ class PathSegment(Message):
     turn_rate_rps: float = _number("rad/s", "largest turn rate of base_link (> 0)")
 
 
+@dataclass(frozen=True, eq=False)
+class SnapEvent(Message):
+    """A jump of a whisker's equilibrium path between two samples of a simulated stream
+    (`vibrissa.scene.snaps`): the wrench changes by more than a step of the continuation
+    allows. Stamped as the wrench sample it is told at (``after``); wrenches in the clamp frame
+    ``frame_id`` as the whisker's `WhiskerWrenchArray` rows, without noise."""
+
+    TYPE_NAME: ClassVar[str] = "vibrissa/SnapEvent"
+    VERSION: ClassVar[int] = 1
+
+    stamp: float = _stamp()
+    whisker_id: str = _text("the whisker")
+    frame_id: str = _frame_id("the whisker's clamp frame C, as its wrench rows")
+    kind: str = _text("'snap-off', 'snap-through' (to another branch inside a contact) or "
+                      "'landing' (on the sample after a snap-off)", choices=SNAP_KINDS)
+    object: str = _text("the scene object of the contact")
+    f0_before: FloatArray = _array((3,), "N", "clamp force on the rod at the sample before, in C")
+    m0_before: FloatArray = _array((3,), "N m", "clamp moment about the clamp point at the "
+                                   "sample before, in C")
+    f0_after: FloatArray = _array((3,), "N", "clamp force at the sample told, in C")
+    m0_after: FloatArray = _array((3,), "N m", "clamp moment at the sample told, in C")
+
+
 SENSOR_COMMANDS = ("bias",)
 
 
@@ -605,6 +628,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         SurfaceMesh,
         SweepProposal,
         PathSegment,
+        SnapEvent,
         SensorCommand,
         RobotPose,
         NodeStatus,

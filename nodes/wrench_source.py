@@ -29,6 +29,10 @@ Publishes
     (published at once) and drives the segments that arrive, each sample simulated as it
     comes (`vibrissa.scene.SceneStream`), the same messages as along a fixed path; then
     ``EndOfStream`` on both after the commander's.
+``events_topic`` (default ``events``, relative) : SnapEvent
+    mode ``scene`` along a fixed path: each jump of a whisker's path (`vibrissa.scene.snaps`:
+    snap-off, snap-through, landing), stamped as the wrench sample it is told at and published
+    after it; then ``EndOfStream``.
 every WhiskerWrenchArray or RobotPose topic of ``bag`` : the recorded types
     mode ``replay`` (remaps apply to the recorded absolute names): the recorded bytes in
     recorded order (a retired single ``vibrissa/WhiskerWrench`` decodes as an array of one
@@ -60,7 +64,7 @@ import numpy.typing as npt
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.formats.scene_results import read_results
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
-from vibrissa.msgs import EndOfStream, PathSegment, RobotPose, WhiskerWrenchArray
+from vibrissa.msgs import EndOfStream, PathSegment, RobotPose, SnapEvent, WhiskerWrenchArray
 from vibrissa.msgs.codec import decodes_as
 from vibrissa.paths import CommandedPath, PathLimits
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
@@ -82,6 +86,7 @@ from vibrissa.scene import (
     free_at_both_ends,
     robot_path,
     simulate,
+    snaps,
 )
 from vibrissa.status import SweepEnd
 from vibrissa.surfaces import parse_surface
@@ -129,6 +134,9 @@ class WrenchSourceParams:
         start); empty: simulate on start.
     pose_topic, map_frame, robot_frame
         Mode ``scene``: where the robot's poses go, and the frames they join.
+    events_topic
+        Mode ``scene`` along a fixed path: where each jump of a whisker's path goes, as a
+        `SnapEvent` at the stamp of the sample it is told at (`vibrissa.scene.snaps`).
     pose_rate_hz
         Mode ``scene``: robot poses per second of path time, each interpolated on the path (a
         localisation at its own rate); 0: a pose at each path sample, the path's own, so that
@@ -231,6 +239,7 @@ class WrenchSourceParams:
     scene: str = ""
     simulated: str = ""
     pose_topic: str = "/robot/pose"
+    events_topic: str = "events"
     map_frame: str = WORLD_FRAME
     robot_frame: str = ROBOT_FRAME
     pose_rate_hz: float = 100.0
@@ -284,6 +293,7 @@ class WrenchSourceParams:
                         "is commanded)")
                 require_parsed("path_rate_hz", self.path_rate_hz, lambda _: self.path_limits)
             require_parsed("pose_topic", self.pose_topic, validate_name)
+            require_parsed("events_topic", self.events_topic, validate_name)
             for key in ("pose_rate_hz", "pose_delay_s", "noise_force_n", "noise_moment_nm",
                         "workers"):
                 require_non_negative(key, getattr(self, key))
@@ -505,6 +515,28 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
         yield stream_t, msg
 
 
+def scene_events(scene: Scene, results: Sequence[WhiskerResult], params: WrenchSourceParams,
+                 repeat: bool = False) -> Iterator[tuple[float, SnapEvent]]:
+    """The jumps of every whisker's path (`vibrissa.scene.snaps`) as `SnapEvent`s, each with
+    its time in the stream (the sample it is told at), in time order; with ``repeat`` as
+    `scene_stream` repeats the path (a cycle's jumps again, shifted by its duration)."""
+    t = scene.path.t
+    names = [obj.name for obj in scene.objects]
+    found = sorted(((float(t[snap.after]), result, snap) for result in results
+                    for snap in snaps(result, names)), key=lambda e: e[0])
+    duration = float(t[-1] - t[0])
+    for n in itertools.count() if repeat else range(1):
+        for at, result, snap in found:
+            stamp = at + n * duration
+            yield stamp, SnapEvent(
+                stamp=params.epoch_s + stamp, whisker_id=result.name,
+                frame_id=clamp_frame(result.name), kind=snap.kind, object=snap.object,
+                f0_before=result.f0_n[snap.before], m0_before=result.m0_nm[snap.before],
+                f0_after=result.f0_n[snap.after], m0_after=result.m0_nm[snap.after])
+        if not found:
+            return
+
+
 def _pose(params: WrenchSourceParams, stamp: float, p: FloatArray, q: FloatArray) -> RobotPose:
     return RobotPose(stamp=params.epoch_s + float(stamp), frame_id=params.map_frame,
                      child_frame_id=params.robot_frame, position=p, orientation=q)
@@ -519,6 +551,7 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
                                      hwm=DEFAULT_HWM * 10)
     poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.pose_waits,
                                   hwm=DEFAULT_HWM * 10)
+    events = node.create_publisher(params.events_topic, SnapEvent)
     scene = load_scene(params.scene)
     legs = 2 if params.loop else params.passes
     if legs > 1:
@@ -534,8 +567,8 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
                                stop=lambda: node.stop_requested)
         except SimulationStopped as exc:
             log.info("%s: %s while simulating", node.fqn, exc)
-            wrenches.publish_end_of_stream(node.fqn)
-            poses.publish_end_of_stream(node.fqn)
+            for publisher in (wrenches, poses, events):
+                publisher.publish_end_of_stream(node.fqn)
             return 0
     size = f"{len(results)} whisker(s) x {len(scene.path.t)} path samples"
     how = f"read {size} from {params.simulated}" if params.simulated else f"simulated {size}"
@@ -546,8 +579,8 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
         log.error("%s: loop: %s not free at both ends of the path: a cycle does not end in "
                   "the state it began with, and repeating it would not be the robot's stream",
                   node.fqn, ", ".join(held))
-        wrenches.publish_end_of_stream(node.fqn)
-        poses.publish_end_of_stream(node.fqn)
+        for publisher in (wrenches, poses, events):
+            publisher.publish_end_of_stream(node.fqn)
         return -1
     for topic, names in ((params.topic, params.wait_for), (params.pose_topic, params.pose_waits)):
         if names and not node.wait_for_subscribers(topic, names, params.wait_timeout_s):
@@ -558,19 +591,24 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     wall_per_s = (len(t) - 1) / (params.rate_hz * (t[-1] - t[0])) if params.rate_hz else 0.0
     start = time.monotonic()
     count = 0
-    for stream_t, msg in scene_stream(scene, results, params, repeat=params.loop):
+    # the jumps after the wrench of their sample
+    stream = heapq.merge(scene_stream(scene, results, params, repeat=params.loop),
+                         scene_events(scene, results, params, repeat=params.loop),
+                         key=lambda e: (e[0], isinstance(e[1], SnapEvent)))
+    for stream_t, msg in stream:
         if node.stop_requested:
             break
         if wall_per_s:
             delay = start + (stream_t - t[0]) * wall_per_s - time.monotonic()
             if delay > 0 and not node.sleep(delay):
                 break
-        (poses if isinstance(msg, RobotPose) else wrenches).publish(msg)
+        (poses if isinstance(msg, RobotPose) else events if isinstance(msg, SnapEvent)
+         else wrenches).publish(msg)
         count += 1
-    wrenches.publish_end_of_stream(node.fqn)
-    poses.publish_end_of_stream(node.fqn)
-    log.info("%s: %d messages and EndOfStream on %s and %s in %.1f s", node.fqn, count,
-             wrenches.topic, poses.topic, time.monotonic() - start)
+    for publisher in (wrenches, poses, events):
+        publisher.publish_end_of_stream(node.fqn)
+    log.info("%s: %d messages and EndOfStream on %s, %s and %s in %.1f s", node.fqn, count,
+             wrenches.topic, poses.topic, events.topic, time.monotonic() - start)
     return count
 
 

@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
 from vibrissa.paths import SUBSAMPLE_L, SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
-from vibrissa.status import ContactPhase, SweepEnd
+from vibrissa.status import SNAP_KINDS, ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface, segments_meet
 from vibrissa.sweep import (
     EARLY_MULTIPLES,
@@ -283,6 +283,45 @@ class WhiskerResult:
     def counts(self) -> dict[str, int]:
         """Samples per phase."""
         return {phase.label: int(np.sum(self.phase == phase)) for phase in SamplePhase}
+
+
+@dataclass(frozen=True)
+class Snap:
+    """A jump between samples ``before`` and ``after`` (indices into the result's rows) of a
+    contact with ``object``: ``kind`` one of `SNAP_KINDS`, told at ``t``, the time of
+    ``after``."""
+
+    t: float
+    kind: str
+    object: str
+    before: int
+    after: int
+
+
+def snaps(result: WhiskerResult, object_names: Sequence[str]) -> list[Snap]:
+    """Every jump of ``result``'s path, in time order: each episode's snap-throughs, its
+    landing (its first sample, the one after the snap-off it follows) and its snap-off (from
+    its last sample in contact to the next). ``object_names``: the scene's objects, in order
+    (``result.object`` indexes them)."""
+    t = result.t
+    contact = (result.phase == SamplePhase.TIP) | (result.phase == SamplePhase.TANGENTIAL)
+    firsts = [int(np.searchsorted(t, e.t_first_contact)) for e in result.episodes]
+    found: list[Snap] = []
+    for i, episode in enumerate(result.episodes):
+        first, bound = firsts[i], firsts[i + 1] if i + 1 < len(firsts) else len(t)
+        if episode.start == "landing" and first > 0:
+            found.append(Snap(float(t[first]), "landing", episode.object, first - 1, first))
+        for at in episode.snap_throughs:
+            k = int(np.searchsorted(t, at))
+            found.append(Snap(at, "snap-through", episode.object, k - 1, k))
+        if episode.end == str(SweepEnd.SNAP_OFF):
+            index = object_names.index(episode.object)
+            held = np.flatnonzero(contact[first:bound] & (result.object[first:bound] == index))
+            last = first + int(held[-1]) if len(held) else -1
+            if 0 <= last < len(t) - 1:
+                found.append(Snap(float(t[last + 1]), "snap-off", episode.object, last,
+                                  last + 1))
+    return sorted(found, key=lambda snap: (snap.after, SNAP_KINDS.index(snap.kind)))
 
 
 def free_at_both_ends(results: Sequence[WhiskerResult]) -> list[str]:

@@ -49,6 +49,12 @@ NO_CONTACT = (
 )
 
 
+SNAP_KINDS = ("snap-off", "snap-through", "landing")
+"""The jumps of a whisker's equilibrium path between two samples (`vibrissa.scene.snaps`): its
+contact snaps off, jumps to another branch inside an episode, or lands (on the sample after a
+snap-off)."""
+
+
 class SweepEnd(str, enum.Enum):
     """How a simulated sweep ended (``vibrissa.sweep.Sweep.end``); compares equal to its text."""
 

@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 from vibrissa.cli.scenes import episode_summary
 from vibrissa.formats.scene_results import read_results, write_results
 from vibrissa.frames import Transform
-from vibrissa.scene import RobotPath, Scene, SceneObject, Whisker, simulate
+from vibrissa.scene import RobotPath, SamplePhase, Scene, SceneObject, Whisker, simulate, snaps
 
 L_M, EI_NM2 = 0.035, 1e-4
 TIP_STEP_M = 1e-4  # tip travel per coarse sample
@@ -90,6 +90,33 @@ def test_a_jump_of_the_contact_inside_an_episode_is_told_with_its_wrenches(tmp_p
         k = int(np.flatnonzero(result.t == s["t"])[0])
         assert s["f0_before"] == result.f0_n[k - 1].tolist()
         assert s["m0_after"] == result.m0_nm[k].tolist()
+    every = summary["whiskers"]["w"]["snaps"]  # snap-offs and landings too, in time order
+    assert [(s["t"], s["kind"]) for s in every] == [
+        (snap.t, snap.kind) for snap in snaps(result, [obj.name for obj in scene.objects])]
+    assert {s["kind"] for s in every} >= {"snap-through", "snap-off", "landing"}
     (back,) = read_results(tmp_path, scene)
     assert [e.snap_throughs for e in back.episodes] == [e.snap_throughs for e in result.episodes]
     assert f"{len(jumps)} snap-through" in episode_summary([result])
+
+
+def test_every_snap_of_the_path_is_a_jump_of_the_wrench_told_with_its_two_samples() -> None:
+    """`snaps`: a snap-off (the rod's last sample in contact to the next), the landing on the
+    sample after it and a snap-through, in time order; at each the clamp wrench changes by
+    more than five times what it changes from sample to sample around it, and at the
+    snap-off the contact point leaves for another place on the ball."""
+    scene = yawing_scene(50.0, 40.0, 0.5, 0.02, 4)
+    (result,) = simulate(scene, workers=1)
+    found = snaps(result, [obj.name for obj in scene.objects])
+    assert [s.kind for s in found] == ["snap-off", "landing", "snap-through"], result.episodes
+    wrench = np.hstack([result.f0_n, result.m0_nm / L_M])
+    change = np.linalg.norm(np.diff(wrench, axis=0), axis=1)  # sample k to k + 1
+    for snap in found:
+        assert snap.after == snap.before + 1 and snap.t == result.t[snap.after]
+        around = np.r_[change[snap.before - 5:snap.before], change[snap.after:snap.after + 5]]
+        assert change[snap.before] > 5 * np.median(around), (snap, change[snap.before], around)
+    snap_off, landing, through = found
+    assert result.phase[snap_off.before] != SamplePhase.NONE
+    assert (landing.before, landing.after) == (snap_off.before, snap_off.after)
+    moved_m = np.linalg.norm(result.p_W_m[snap_off.after] - result.p_W_m[snap_off.before])
+    assert moved_m > 10 * TIP_STEP_M / 4
+    assert through.t in result.episodes[1].snap_throughs

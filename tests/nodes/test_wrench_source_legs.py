@@ -101,7 +101,9 @@ def test_a_stream_of_three_legs_ends(scene_file: Path) -> None:
     assert wrenches[-1] == "EOS" and node.publishers["/robot/pose"].sent[-1] == "EOS"
     stamps = [w.stamp for w in wrenches[:-1]]
     assert len(stamps) == 3 * N - 2 and np.all(np.diff(stamps) > 0)
-    assert sent == 2 * (3 * N - 2)
+    events = node.publishers["events"].sent
+    assert events[-1] == "EOS"
+    assert sent == 2 * (3 * N - 2) + len(events) - 1
 
 
 class StoppingPublisher(FakePublisher):

@@ -305,14 +305,21 @@ def snaps(result: WhiskerResult, object_names: Sequence[str]) -> list[Snap]:
     (``result.object`` indexes them)."""
     t = result.t
     contact = (result.phase == SamplePhase.TIP) | (result.phase == SamplePhase.TANGENTIAL)
-    firsts = [int(np.searchsorted(t, e.t_first_contact)) for e in result.episodes]
+
+    def sample(at: float) -> int:  # a landing's and a snap-through's time is a sample's
+        return int(np.argmin(np.abs(t - at)))
+
+    # an episode's first sample: its landing's, or the first past its touch
+    firsts = [sample(e.t_first_contact) if e.start == "landing"
+              else int(np.searchsorted(t, e.t_first_contact, side="right"))
+              for e in result.episodes]
     found: list[Snap] = []
     for i, episode in enumerate(result.episodes):
         first, bound = firsts[i], firsts[i + 1] if i + 1 < len(firsts) else len(t)
         if episode.start == "landing" and first > 0:
             found.append(Snap(float(t[first]), "landing", episode.object, first - 1, first))
         for at in episode.snap_throughs:
-            k = int(np.searchsorted(t, at))
+            k = sample(at)
             found.append(Snap(at, "snap-through", episode.object, k - 1, k))
         if episode.end == str(SweepEnd.SNAP_OFF):
             index = object_names.index(episode.object)

@@ -405,7 +405,8 @@ class Launcher:
                      ) -> tuple[Proxy, Endpoints, dict[str, str]] | None:
         """Bind the graph's proxy: the launch file's endpoints, else the domain of ``domain``
         or of the file (taken or fail), else the environment's domain (default 0) or, when
-        that is taken by another graph, the next free one; on loopback or at ``bind``."""
+        that is taken by another graph, the next free one (not at ``bind``: the other hosts
+        join the domain they are told); on loopback or at ``bind``."""
         secured = "" if keys is None else f"; CURVE with the keys of {keys.folder}"
         if spec.pub_endpoint is not None and spec.sub_endpoint is not None:
             proxy = Proxy(Endpoints(spec.pub_endpoint, spec.sub_endpoint, keys,
@@ -428,7 +429,9 @@ class Launcher:
             except ValueError as exc:
                 self.out.log(f"cannot choose a domain: {exc}")
                 return None
-            candidates = list(range(preferred, min(preferred + DOMAIN_TRIES, Endpoints.MAX_DOMAIN + 1)))
+            # a graph over hosts stays on its domain: the other hosts join the one they are told
+            candidates = [preferred] if spec.bind is not None else list(
+                range(preferred, min(preferred + DOMAIN_TRIES, Endpoints.MAX_DOMAIN + 1)))
         for domain in candidates:
             proxy = Proxy(replace(Endpoints.for_domain(domain, spec.bind or "127.0.0.1"),
                                   keys=keys, direct_host=spec.direct_host,
@@ -453,7 +456,7 @@ class Launcher:
             self.out.log(f"proxy: publishers -> {endpoints.pub}, subscribers -> {endpoints.sub} "
                          f"(domain {domain}; {tools}{secured})")
             return proxy, endpoints, {DOMAIN_ENV: str(domain)}
-        taken = (f"domain {fixed} is in use" if fixed is not None
+        taken = (f"domain {candidates[0]} is in use" if len(candidates) == 1
                  else f"domains {candidates[0]}-{candidates[-1]} are all in use")
         self.out.log(f"cannot start the proxy: {taken} (another graph has bound its ports); "
                      "choose a free one with --domain N")

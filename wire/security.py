@@ -217,15 +217,10 @@ def _client_name(name: str) -> None:
 
 def _public_key_file(path: Path) -> bytes:
     """The public key of a ``NAME.key`` file; `KeysError` for a secret file or no key."""
-    try:
-        public, secret = zmq.auth.load_certificate(path)
-    except (OSError, ValueError) as exc:
-        raise KeysError(f"cannot read key {path}: {exc}") from None
+    public, secret = _read_key(path)
     if secret is not None:
         raise KeysError(f"{path} holds a secret key: give the public NAME.key (the secret "
                         "never leaves its host)")
-    if len(public) != 40:
-        raise KeysError(f"key {path} is not a 40-character z85 CURVE key")
     return public
 
 

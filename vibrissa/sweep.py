@@ -74,6 +74,7 @@ object).
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Protocol
@@ -554,6 +555,7 @@ class _Track:
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
     trace: list[FloatArray] = field(default_factory=list)  # the slide's last contact points, newest last
     jumped: bool = False  # the last step took a far slide (no nearer state)
+    pace: float = math.nan  # the contact force's change per unit of clamp travel in the last row
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
     s_touch: float = float("nan")  # arc length of the straight rod's touching point, units of L
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
@@ -820,10 +822,13 @@ def _advance(tracks: list[_Track]) -> None:
     if not tracks:
         return
     targets = np.array([next_grid_point(t.x0, t.x_grid, t.step) for t in tracks])
+    before = [_Undo(t) for t in tracks]
     reached = _attempt(tracks, targets, np.array([t.step for t in tracks]))
-    for track, target, ok in zip(tracks, targets, reached, strict=False):
+    for track, target, ok, undo in zip(tracks, targets, reached, before, strict=False):
         if ok:
-            _record(track, refined=False)
+            retaken = (not track.jumped and _steep(track)
+                       and _through_steep_step(track, undo, float(target)))
+            _record(track, refined=retaken)
         elif not (_unresolved_slip(track) and _longer_step(track)):
             _refine(track, target)
         if track.end is None and len(track.rows) >= track.max_steps:
@@ -833,6 +838,100 @@ def _advance(tracks: list[_Track]) -> None:
 _SLOW_GROWTH = 4.0
 """Past ``EARLY_TRAVEL_L``, a longer step is taken only where it moves the contact at most this
 many times as fast as the slide before it (`_longer_step`)."""
+
+
+_STEEP_GROWTH = 3.0
+"""A plain step whose contact force changes more than this many times as much per unit of
+clamp travel as in the step before is retaken in sub-steps (`_through_steep_step`)."""
+_SMOOTH_GROWTH = 1.5
+"""... and each sub-step of it again while its rate grows more than this many times over the
+sub-step before it; at the finest level, a growth beyond ``_STEEP_GROWTH`` is a jump (a branch
+that steepens towards its fold grows its rate by at most 2.4 times a step)."""
+_STEEP_FLOOR = 1e-6
+"""... and more than this, units of EI/L^2 (changes of round-off size are no jump)."""
+FOLD_LEVELS = 6
+"""A steep step is bisected at most this many times: a fold inside it is located to 1/64 of it."""
+
+
+def _force_change(a: FloatArray, b: FloatArray) -> float:
+    d = a - b
+    return math.sqrt(d.dot(d))
+
+
+def _steep(track: _Track) -> bool:
+    """Whether the step just taken (to ``track.x0``, its state pending) changed the contact
+    force per unit of clamp travel by more than ``_STEEP_GROWTH`` times the step before it
+    (``track.pace``)."""
+    if not track.pace >= 0.0:
+        return False
+    x_b, f_b = track.rows[-1][0], track.rows[-1][6]
+    change = _force_change(track.pending[2], f_b)
+    return change > max(_STEEP_FLOOR, _STEEP_GROWTH * track.pace * (x_b - track.x0))
+
+
+def _through_steep_step(track: _Track, before: _Undo, target: float) -> bool:
+    """Retake a steep step (`_steep`) from ``before`` to ``target`` in halves, each half
+    bisected again while it is steep against the sub-step before it, down to
+    ``FOLD_LEVELS`` levels: so the path follows its branch as far as the branch goes, instead
+    of the whole step's Newton landing on another branch before the first ends. A change of
+    the contact force at the finest level that does not shrink with the sub-step (`_bisected`)
+    is a jump (``track.jumped``), located to 1/2**FOLD_LEVELS of the step; a smooth but steep
+    stretch is followed without one. Where a sub-step finds no equilibrium (a phase change
+    the sub-steps do not resolve) the step stays as it was taken. Whether it was retaken."""
+    taken = _Undo(track)
+    changes = list(track.phase_changes)
+    x_b, rate = track.rows[-1][0], track.pace
+    before.restore(track)
+    q_start, p_start, chord_start = track.q, track.p1, track.chord
+    reached, _rate, jumped = _bisected(track, target, rate, 1,
+                                       max(_STEEP_FLOOR, rate * (x_b - target)))
+    if reached:
+        # the step's own chord and predictor, not its last sub-step's: the next step is whole
+        track.jumped = jumped
+        track.chord_before, track.chord = chord_start, _chord(track.p1, p_start)
+        track.history = [q_start, track.q]
+        return True
+    taken.restore(track)
+    track.phase_changes[:] = changes
+    return False
+
+
+def _bisected(track: _Track, target: float, rate: float, level: int, allowed: float,
+              coarse: float = 0.0) -> tuple[bool, float, bool]:
+    """Move ``track`` to ``target`` in two halves at bisection ``level`` (`_through_steep_step`);
+    whether it got there, the force's rate of change of its last sub-step, and whether a jump
+    was taken: a finest sub-step that changes the force by more than ``allowed`` and by more
+    than half of what its half of the step changed it by at once (``coarse``): a jump does not
+    shrink with the sub-step, the square-root onset of a branch (a tip rolling onto the rod's
+    side) shrinks 5.7 times from the half step to 1/64."""
+    jumped = False
+    x_mid = 0.5 * (track.x0 + target)
+    for x_to in (x_mid, target):
+        x_from, f_from, undo = track.x0, track.pending[2], _Undo(track)
+        ok = _attempt([track], np.array([x_to]), np.array([x_from - x_to]))[0]
+        if ok:
+            change = _force_change(track.pending[2], f_from)
+            growth = change / max(rate * (x_from - x_to), 1e-300)
+            if change <= _STEEP_FLOOR or growth <= _SMOOTH_GROWTH or level >= FOLD_LEVELS:
+                # a jump: more in the finest sub-step than the branch's pace before the step
+                # allows in the whole step (a kink, where only the pace changes, is none);
+                # past it, the far branch sets the pace
+                jumped = jumped or (level >= FOLD_LEVELS and change > allowed
+                                    and change > 0.5 * coarse)
+                rate = change / (x_from - x_to)
+                continue
+            undo.restore(track)
+            if level == 1:
+                coarse = change
+        elif level >= FOLD_LEVELS:
+            return False, rate, jumped
+        elif level == 1:
+            coarse = 0.0
+        reached, rate, deeper = _bisected(track, x_to, rate, level + 1, allowed, coarse)
+        if not reached:
+            return False, rate, jumped
+        jumped = jumped or deeper
+    return True, rate, jumped
 
 
 def _slow_slide(track: _Track) -> bool:
@@ -852,10 +951,16 @@ class _Undo:
 
     _FIELDS = ("x0", "q", "mode", "p1", "anchor", "smooth", "chord", "chord_before", "slid",
                "pending", "history", "trace", "jumped")
+    _get = operator.attrgetter(*_FIELDS)  # one call: every step of every track takes one
 
     def __init__(self, track: _Track) -> None:
-        self.values = [getattr(track, name) for name in self._FIELDS]
+        self.values = self._get(track)
         self.changes = len(track.phase_changes)
+
+    @property
+    def x0(self) -> float:
+        """The track's clamp position then."""
+        return float(self.values[0])
 
     def restore(self, track: _Track) -> None:
         for name, value in zip(self._FIELDS, self.values, strict=True):
@@ -1252,6 +1357,9 @@ def _sliding(mode: int) -> int:
 
 def _record(track: _Track, refined: bool) -> None:
     p1, normal, force, s1 = track.pending
+    if track.rows:
+        x_b, f_b = track.rows[-1][0], track.rows[-1][6]
+        track.pace = _force_change(force, f_b) / max(x_b - track.x0, 1e-300)
     track.rows.append((track.x0, track.mode, refined, track.q.copy(), p1, normal, force, s1,
                        track.jumped))
     track.jumped = False

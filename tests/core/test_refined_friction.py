@@ -46,7 +46,9 @@ def test_a_tip_on_a_ball_slides_on_to_a_smooth_detachment(
     assert force[-1] < 0.02 * force.max()
     worst = check_against_the_rod(scene)
     assert worst["samples"] == len(contact)
-    assert worst["reach"] <= 1e-10 and worst["inside"] <= 1e-10 and worst["cone"] <= 1e-10
+    # a held tip is admitted up to 1e-9 mu F_n beyond the cone (vibrissa.equilibrium's
+    # admissible_rows): a kink retaken in sub-steps ends on a tip held at the cone's edge
+    assert worst["reach"] <= 1e-10 and worst["inside"] <= 1e-10 and worst["cone"] <= 1e-9
     assert worst["free inside"] <= 0.0
 
 

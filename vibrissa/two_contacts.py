@@ -1,0 +1,382 @@
+"""Step 1 with two point contacts on one rod (an object behind an object, a rod leaning on two).
+
+With two contact forces the rod no longer bends in one plane: it is a spatial elastica, a
+Kirchhoff rod of isotropic bending stiffness (EI = 1 in units of L) without twist (point forces
+act through its axis, and an isotropic rod carries its twisting moment unchanged from the free
+tip, where it is zero). Arc length s from the clamp, position r, unit tangent t, internal
+moment m (the moment the part beyond s exerts on the part before it, about r(s)) and internal
+force n (the sum of the contact forces beyond s, F_i on the rod at s_i)::
+
+    r' = t,    t' = m x t,    m' = n x t,    m . t = 0
+
+from the clamp r(0) = p_WC, t(0) = C's e_z; beyond the outer contact the rod is straight and
+unloaded, so m vanishes there. Integrated by classical Runge-Kutta with ``SEGMENT_STEPS``
+steps on each of the two loaded segments (clamp to inner contact, inner to outer), so that
+each contact is a step boundary.
+
+Unknowns x = (m0_x, m0_y, F_0 (3), F_1 (3), s_0, s_1): the clamp moment in C (its z component
+is zero), the contact forces on the rod in W, and the arc lengths, s_0 <= s_1 (contact 0 is
+the inner one). Ten conditions:
+
+* m(s_1) = 0, its two components across t(s_1);
+* each contact, four: sliding (``MODE_TIP`` for the outer contact only: s_1 = 1; or
+  ``MODE_TANGENTIAL``: t _|_ n) with the point on its object and the force along n + mu c
+  (eq. 7's Coulomb friction, c the unit chord towards the contact's previous point, ``anchor``,
+  in the tangent plane: two components of F across that direction); or held (``MODE_STICK``
+  at the tip, ``MODE_STICK_TANGENTIAL`` rolling over the point) at its anchor (three).
+
+Units of L throughout, the objects as the quadrics of ``vibrissa.equilibrium`` (each contact
+its own). Newton's method with a forward-difference Jacobian, compiled (``vibrissa.compiled``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vibrissa.compiled import compiled
+from vibrissa.equilibrium import (
+    DIRECTION_TOL,
+    MODE_STICK,
+    MODE_STICK_TANGENTIAL,
+    MODE_TANGENTIAL,
+    MODE_TIP,
+    NEWTON_TOL,
+)
+
+FloatArray = NDArray[np.float64]
+
+SEGMENT_STEPS = 256
+"""Runge-Kutta steps on each loaded segment: the contact points to ~1e-12 L on the rods of
+the tests (halving the steps moves them by 16x that)."""
+N_UNKNOWNS = 10
+STATE_WIDTH = 34
+"""A solution's state: the ten conditions 0:10, then per contact j from 10 + 12 j its point,
+the rod's tangent there, the object's outward normal and the force on the rod (3 each)."""
+_CONTACT = 12
+
+
+@compiled
+def _derivative(y: FloatArray, n: FloatArray, out: FloatArray) -> None:
+    """(r, t, m)' = (t, m x t, n x t) into ``out`` (9,)."""
+    t0, t1, t2 = y[3], y[4], y[5]
+    m0, m1, m2 = y[6], y[7], y[8]
+    out[0], out[1], out[2] = t0, t1, t2
+    out[3] = m1 * t2 - m2 * t1
+    out[4] = m2 * t0 - m0 * t2
+    out[5] = m0 * t1 - m1 * t0
+    out[6] = n[1] * t2 - n[2] * t1
+    out[7] = n[2] * t0 - n[0] * t2
+    out[8] = n[0] * t1 - n[1] * t0
+
+
+@compiled
+def _segment(y: FloatArray, n: FloatArray, length: float, steps: int) -> None:
+    """Integrate ``y`` = (r, t, m) in place over ``length`` of arc under the internal force
+    ``n`` (classical Runge-Kutta, ``steps`` steps)."""
+    h = length / steps
+    k1, k2, k3, k4, tmp = np.empty(9), np.empty(9), np.empty(9), np.empty(9), np.empty(9)
+    for _ in range(steps):
+        _derivative(y, n, k1)
+        for i in range(9):
+            tmp[i] = y[i] + 0.5 * h * k1[i]
+        _derivative(tmp, n, k2)
+        for i in range(9):
+            tmp[i] = y[i] + 0.5 * h * k2[i]
+        _derivative(tmp, n, k3)
+        for i in range(9):
+            tmp[i] = y[i] + h * k3[i]
+        _derivative(tmp, n, k4)
+        for i in range(9):
+            y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+
+
+@compiled
+def rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: int) -> FloatArray:
+    """The rod's axis (``points``, 3) in W at evenly spaced arc lengths from the clamp to the
+    tip, for the unknowns ``x``."""
+    y = np.empty(9)
+    for i in range(3):
+        y[i] = p_WC[i]
+        y[3 + i] = R_WC[i, 2]
+        y[6 + i] = R_WC[i, 0] * x[0] + R_WC[i, 1] * x[1]
+    s0, s1 = x[8], x[9]
+    n = np.empty(3)
+    out = np.empty((points, 3))
+    out[0, 0], out[0, 1], out[0, 2] = y[0], y[1], y[2]
+    s = 0.0
+    for k in range(1, points):
+        target = k / (points - 1)
+        while s < target:
+            boundary = s0 if s < s0 else s1 if s < s1 else math.inf
+            end = min(target, boundary)
+            for i in range(3):
+                n[i] = x[2 + i] + x[5 + i] if s < s0 else x[5 + i] if s < s1 else 0.0
+            _segment(y, n, end - s, max(1, int(math.ceil((end - s) * SEGMENT_STEPS))))
+            s = end
+        out[k, 0], out[k, 1], out[k, 2] = y[0], y[1], y[2]
+    return out
+
+
+@compiled
+def _surface(p: FloatArray, Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray,
+             p_WB: FloatArray, normal: FloatArray) -> float:
+    """First-order signed distance of ``p`` (W) to the quadric, its outward normal into
+    ``normal``."""
+    p_B = np.empty(3)
+    for j in range(3):
+        p_B[j] = ((p[0] - p_WB[0]) * R_WB[0, j] + (p[1] - p_WB[1]) * R_WB[1, j]
+                  + (p[2] - p_WB[2]) * R_WB[2, j])
+    g = c
+    grad = np.empty(3)
+    for j in range(3):
+        qp = p_B[0] * Q[0, j] + p_B[1] * Q[1, j] + p_B[2] * Q[2, j]
+        g += p_B[j] * qp + lin[j] * p_B[j]
+        grad[j] = 2.0 * qp + lin[j]
+    size = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
+    for i in range(3):
+        normal[i] = (R_WB[i, 0] * grad[0] + R_WB[i, 1] * grad[1] + R_WB[i, 2] * grad[2]) / size
+    return g / size
+
+
+@compiled
+def _contact_conditions(mode: int, s: float, p: FloatArray, t: FloatArray, force: FloatArray,
+                        anchor: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: float,
+                        R_WB: FloatArray, p_WB: FloatArray, out: FloatArray,
+                        info: FloatArray) -> None:
+    """The four conditions of one contact into ``out`` (4,), its point, tangent, normal and
+    force into ``info`` (12,)."""
+    normal = np.empty(3)
+    gap = _surface(p, Q, lin, c, R_WB, p_WB, normal)
+    tangency = t[0] * normal[0] + t[1] * normal[1] + t[2] * normal[2]
+    out[0] = s - 1.0 if mode == MODE_TIP or mode == MODE_STICK else tangency
+    if mode == MODE_STICK or mode == MODE_STICK_TANGENTIAL:
+        out[1], out[2], out[3] = p[0] - anchor[0], p[1] - anchor[1], p[2] - anchor[2]
+    else:
+        chord = np.empty(3)
+        for i in range(3):
+            chord[i] = anchor[i] - p[i]
+        along_n = chord[0] * normal[0] + chord[1] * normal[1] + chord[2] * normal[2]
+        for i in range(3):
+            chord[i] -= along_n * normal[i]
+        chord_length = math.sqrt(chord[0] ** 2 + chord[1] ** 2 + chord[2] ** 2)
+        d = np.empty(3)
+        for i in range(3):
+            d[i] = normal[i] + (mu * chord[i] / chord_length if chord_length > 0 else 0.0)
+        size = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+        for i in range(3):
+            d[i] /= size
+        # two directions across d: the rod's tangent made normal to d, and d x that
+        td = t[0] * d[0] + t[1] * d[1] + t[2] * d[2]
+        u = np.empty(3)
+        for i in range(3):
+            u[i] = t[i] - td * d[i]
+        u_size = math.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
+        for i in range(3):
+            u[i] /= u_size
+        w0 = d[1] * u[2] - d[2] * u[1]
+        w1 = d[2] * u[0] - d[0] * u[2]
+        w2 = d[0] * u[1] - d[1] * u[0]
+        out[1] = gap
+        out[2] = force[0] * u[0] + force[1] * u[1] + force[2] * u[2]
+        out[3] = force[0] * w0 + force[1] * w1 + force[2] * w2
+    for i in range(3):
+        info[i] = p[i]
+        info[3 + i] = t[i]
+        info[6 + i] = normal[i]
+        info[9 + i] = force[i]
+
+
+@compiled
+def evaluate(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[np.int64],
+             anchors: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: FloatArray,
+             R_WB: FloatArray, p_WB: FloatArray, out: FloatArray) -> None:
+    """The ten conditions at ``x`` into ``out[0:10]`` and each contact's point, tangent, normal
+    and force into ``out[10 + 12 i : 22 + 12 i]``; the objects' quadrics per contact (Q (2,
+    3, 3), ...). NaN conditions where the arc lengths are out of order (a rod longer than 1
+    is evaluated: Newton probes past a tip; `admissible` keeps s_1 <= 1)."""
+    s0, s1 = x[8], x[9]
+    if not (0.0 < s0 <= s1 < 2.0):
+        out[:] = math.nan
+        return
+    y = np.empty(9)
+    for i in range(3):
+        y[i] = p_WC[i]
+        y[3 + i] = R_WC[i, 2]
+        y[6 + i] = R_WC[i, 0] * x[0] + R_WC[i, 1] * x[1]
+    n = np.empty(3)
+    for i in range(3):
+        n[i] = x[2 + i] + x[5 + i]
+    _segment(y, n, s0, SEGMENT_STEPS)
+    points = np.empty((2, 3))
+    tangents = np.empty((2, 3))
+    for i in range(3):
+        points[0, i], tangents[0, i] = y[i], y[3 + i]
+        n[i] = x[5 + i]
+    _segment(y, n, s1 - s0, SEGMENT_STEPS)
+    for i in range(3):
+        points[1, i], tangents[1, i] = y[i], y[3 + i]
+    # m(s_1) = 0 across t(s_1): along the clamp's e_x and e_y made normal to t(s_1)
+    t = tangents[1]
+    for k in range(2):
+        e = np.empty(3)
+        et = R_WC[0, k] * t[0] + R_WC[1, k] * t[1] + R_WC[2, k] * t[2]
+        for i in range(3):
+            e[i] = R_WC[i, k] - et * t[i]
+        out[k] = y[6] * e[0] + y[7] * e[1] + y[8] * e[2]
+    block = np.empty(4)
+    for j in range(2):
+        force = x[2 + 3 * j: 5 + 3 * j]
+        _contact_conditions(modes[j], x[8 + j], points[j], tangents[j], force, anchors[j], mu,
+                            Q[j], lin[j], c[j], R_WB[j], p_WB[j], block,
+                            out[10 + _CONTACT * j: 10 + _CONTACT * (j + 1)])
+        for k in range(4):
+            out[2 + 4 * j + k] = block[k]
+
+
+@compiled
+def converged(state: FloatArray, modes: NDArray[np.int64]) -> bool:
+    """Whether ``state``'s conditions hold: geometry to ``NEWTON_TOL``, a sliding contact's
+    friction direction to ``DIRECTION_TOL`` (as for one contact)."""
+    for k in range(2):
+        if not abs(state[k]) < NEWTON_TOL:
+            return False
+    for j in range(2):
+        held = modes[j] == MODE_STICK or modes[j] == MODE_STICK_TANGENTIAL
+        for k in range(4):
+            tol = DIRECTION_TOL if (k >= 2 and not held) else NEWTON_TOL
+            if not abs(state[2 + 4 * j + k]) < tol:
+                return False
+    return True
+
+
+@compiled
+def _norm(state: FloatArray) -> float:
+    worst = 0.0
+    for i in range(N_UNKNOWNS):
+        value = abs(state[i])
+        if value != value:
+            return math.nan
+        worst = max(worst, value)
+    return worst
+
+
+@compiled
+def newton(x0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[np.int64],
+           anchors: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: FloatArray,
+           R_WB: FloatArray, p_WB: FloatArray, max_iter: int = 40
+           ) -> tuple[FloatArray, FloatArray]:
+    """Newton's method on the ten conditions from ``x0``: forward-difference Jacobian, step
+    halving until the residual decreases; the last iterate and its state."""
+    x = x0.copy()
+    state = np.empty(STATE_WIDTH)
+    evaluate(x, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB, state)
+    norm = _norm(state)
+    probe_state = np.empty(STATE_WIDTH)
+    trial_state = np.empty(STATE_WIDTH)
+    jac = np.empty((N_UNKNOWNS, N_UNKNOWNS))
+    for _ in range(max_iter):
+        if not math.isfinite(norm) or converged(state, modes):
+            break
+        load = 0.0
+        for j in range(8):
+            load = max(load, abs(x[j]))
+        for j in range(N_UNKNOWNS):
+            scale = 1e-3 * load if j < 8 else 1.0
+            h = max(1e-8 * max(abs(x[j]), scale), 1e-300)
+            probe = x.copy()
+            probe[j] += h
+            evaluate(probe, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB, probe_state)
+            for i in range(N_UNKNOWNS):
+                jac[i, j] = (probe_state[i] - state[i]) / h
+        rhs = -state[:N_UNKNOWNS].copy()
+        if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(rhs))):
+            break
+        try:
+            delta = np.linalg.solve(jac, rhs)
+        except Exception:  # noqa: BLE001 - numba: LinAlgError for a singular matrix
+            delta = np.linalg.lstsq(jac, rhs)[0]
+        accepted = False
+        for _halving in range(12):
+            trial = x + delta
+            evaluate(trial, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB, trial_state)
+            trial_norm = _norm(trial_state)
+            if trial_norm < norm or converged(trial_state, modes):
+                x = trial
+                state[:] = trial_state
+                norm = trial_norm
+                accepted = True
+                break
+            delta *= 0.5
+        if not accepted:
+            break
+    return x, state
+
+
+FRICTION_STAGES = 8
+
+
+def solve(x0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[np.int64],
+          anchors: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: FloatArray,
+          R_WB: FloatArray, p_WB: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """`newton` from ``x0``; where it does not converge, again along mu = 0 -> ``mu`` in
+    ``FRICTION_STAGES`` steps, each from the last (as one contact's friction continuation)."""
+    x, state = newton(x0, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB)
+    if converged(state, modes) or mu == 0.0:
+        return x, state
+    x = x0.copy()
+    for fraction in np.linspace(0.0, 1.0, FRICTION_STAGES + 1):
+        x, state = newton(x, p_WC, R_WC, modes, anchors, fraction * mu, Q, lin, c, R_WB, p_WB)
+        if not converged(state, modes):
+            break
+    return x, state
+
+
+def contact_info(state: FloatArray, j: int) -> tuple[FloatArray, FloatArray, FloatArray,
+                                                      FloatArray]:
+    """Contact ``j``'s point, rod tangent, object normal and force on the rod (W, units of L
+    and EI/L^2) from a state of `evaluate`."""
+    base = 10 + _CONTACT * j
+    return (state[base:base + 3], state[base + 3:base + 6], state[base + 6:base + 9],
+            state[base + 9:base + 12])
+
+
+def clamp_reactions(x: FloatArray, state: FloatArray, p_WC: FloatArray, R_WC: FloatArray
+                    ) -> tuple[FloatArray, FloatArray]:
+    """The clamp's reaction on the rod, f0 and m0 about the clamp point, in C (units of EI/L^2
+    and EI/L): the statics of the two contact forces."""
+    f_W = np.zeros(3)
+    m_W = np.zeros(3)
+    for j in range(2):
+        point, _t, _n, force = contact_info(state, j)
+        f_W -= force
+        m_W -= np.cross(point - p_WC, force)
+    return R_WC.T @ f_W, R_WC.T @ m_W
+
+
+def admissible(x: FloatArray, state: FloatArray, modes: NDArray[np.int64], mu: float
+               ) -> tuple[bool, int]:
+    """Whether a converged state is physical, and if not, the contact whose normal force does
+    not push (-1: another reason): both contacts push (F . n > 0), their arc lengths in order
+    on the rod, an outer tip's tangent not pointing out of its object, a held contact's force
+    inside the friction cone (to 1e-9 of mu F_n, as for one contact)."""
+    if not 0.0 < x[8] <= x[9] <= 1.0 + 1e-9:
+        return False, -1
+    for j in range(2):
+        _p, tangent, normal, force = contact_info(state, j)
+        fn = float(force @ normal)
+        if not fn > 0.0:
+            return False, j
+        if modes[j] in (MODE_TIP, MODE_STICK) and float(tangent @ normal) > 1e-9:
+            return False, -1
+        if modes[j] in (MODE_STICK, MODE_STICK_TANGENTIAL):
+            if float(np.linalg.norm(force - fn * normal)) > mu * fn * (1.0 + 1e-9):
+                return False, -1
+    return True, -1
+
+
+__all__ = ["MODE_STICK", "MODE_STICK_TANGENTIAL", "MODE_TANGENTIAL", "MODE_TIP", "N_UNKNOWNS",
+           "SEGMENT_STEPS", "admissible", "clamp_reactions", "contact_info", "evaluate",
+           "newton", "rod_line", "solve"]

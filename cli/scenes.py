@@ -109,9 +109,20 @@ def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None
     line = f"{count} contact episode{'s' * (count != 1)}"
     if ends:
         line += f" ({', '.join(f'{n} {end}' for end, n in ends.most_common())})"
-    landings = sum(episode.start == "landing" for result in results for episode in result.episodes)
+    after = Counter(before.end for result in results
+                    for before, episode in itertools.pairwise(result.episodes)
+                    if episode.start == "landing")
+    landings = after[SweepEnd.SNAP_OFF]
     if landings:
         line += f", {landings} of them landing{'s' * (landings != 1)} after a snap-off"
+    others = sum(after.values()) - landings
+    if others:
+        line += f", {others} landing{'s' * (others != 1)} where one of two contacts left"
+    seconds = sum(episode.start == "second-contact" for result in results
+                  for episode in result.episodes)
+    if seconds:
+        line += (f", {seconds} with a second contact (the rod leaning on two objects: "
+                 f"{sum(int(np.count_nonzero(r.second_object >= 0)) for r in results)} samples)")
     jumps = sum(len(episode.snap_throughs) for result in results for episode in result.episodes)
     if jumps:
         line += (f", {jumps} snap-through{'s' * (jumps != 1)} inside them (the contact jumped "
@@ -119,8 +130,10 @@ def episode_summary(results: Sequence[WhiskerResult], scene: Scene | None = None
     line += "; samples: " + ", ".join(f"{samples[phase.label]} {phase.label}"
                                       for phase in SamplePhase)
     if ends[SweepEnd.ANOTHER_OBJECT]:
-        line += ("\n  another-object: a rod leaning on one object met a second; contact with "
-                 "two at once is not modelled, so those samples are unresolved")
+        line += ("\n  another-object: a rod leaning on one object met a second; it goes on "
+                 "with both contacts (a second-contact episode, the second in the CSV's s2, "
+                 "p2x.. and object2) where an equilibrium with both is found, else those "
+                 "samples are unresolved")
     if scene is None:
         return line
     for result, whisker in zip(results, scene.whiskers, strict=True):

@@ -57,11 +57,17 @@ SCENE_COLUMNS: dict[str, tuple[str, str]] = {
     "refined": ("-", "1: Step 1 reached the sample through sub-steps, or by a longer step after "
                      "the touch, so eq. 7's friction is along a sub-step's chord, not the one "
                      "from the sample before; 0 otherwise"),
+    "s2": ("m", "arc length of a second contact, where the rod leans on two objects (empty "
+                "otherwise; the wrench is then both contacts')"),
+    "p2x": ("m", "the second contact point in W, x (empty without one)"),
+    "p2y": ("m", "the second contact point in W, y"),
+    "p2z": ("m", "the second contact point in W, z"),
+    "object2": ("-", "name of the second object touched (empty: none)"),
 }
-"""The columns of ``DIR/<whisker>.csv``: (unit, meaning). ``refined`` came later: a file
-without it is read as all 0."""
+"""The columns of ``DIR/<whisker>.csv``: (unit, meaning). ``refined`` and the second contact's
+came later: a file without them is read as all 0 and no second contact."""
 
-_OPTIONAL = ("refined",)
+_OPTIONAL = ("refined", "s2", "p2x", "p2y", "p2z", "object2")
 
 SUMMARY_FILE = "summary.json"
 WRENCHES_FILE = "wrenches.csv"
@@ -105,12 +111,13 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
     for result in results:
         numbers = cells(np.column_stack([result.t, result.s1_m, result.f0_n, result.m0_nm,
                                          result.p_W_m]))
+        second = cells(np.column_stack([result.second_s_m, result.second_W_m]))
         rows = (
             [r[0], SamplePhase(phase).label, *r[1:], names[obj] if obj >= 0 else "",
-             "1" if refined else "0"]
-            for r, phase, obj, refined in zip(numbers, result.phase.tolist(),
-                                              result.object.tolist(), result.refined.tolist(),
-                                              strict=True)
+             "1" if refined else "0", *r2, names[obj2] if obj2 >= 0 else ""]
+            for r, phase, obj, refined, r2, obj2 in zip(
+                numbers, result.phase.tolist(), result.object.tolist(), result.refined.tolist(),
+                second, result.second_object.tolist(), strict=True)
         )
         target = out / f"{check_name(result.name, 'whisker')}.csv"  # a file name
         write_csv(target, tuple(SCENE_COLUMNS), rows)
@@ -130,6 +137,7 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
             r.name: {
                 "episodes": [{"object": e.object, "t_first_contact": e.t_first_contact,
                               "start": e.start, "end": e.end,
+                              **({"second_object": e.second_object} if e.second_object else {}),
                               "phase_changes": [{"t": t, "from": a, "to": b}
                                                 for t, a, b in e.phase_changes],
                               "snap_throughs": [_snap(r, snap) for snap in jumps[r.name]
@@ -138,6 +146,7 @@ def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> 
                              for e in r.episodes],
                 "snaps": [_snap(r, snap) for snap in jumps[r.name]],
                 "samples_per_phase": r.counts(),
+                "samples_with_two_contacts": int(np.count_nonzero(r.second_object >= 0)),
             }
             for r in results
         },
@@ -227,7 +236,20 @@ def _read_whisker(path: Path, name: str, scene: Scene) -> WhiskerResult:
     refined = (np.array([flag == "1" for flag in column["refined"]], dtype=bool)
                if column["refined"] else np.zeros(len(body), dtype=bool))
     s1, f0, m0, p_W = (values[:, cols].copy() for cols in (1, slice(2, 5), slice(5, 8), slice(8, 11)))
-    return WhiskerResult(name, t_path, phase, s1, f0, m0, p_W, touched, refined, [])
+    second = np.full((len(body), 4), np.nan)
+    for j, key in enumerate(("s2", "p2x", "p2y", "p2z")):
+        for i, text in enumerate(column[key]):
+            if not _is_number(text):
+                raise SceneError(f"{path}: row {i + 1}, column {key}: {text!r} is not a number")
+            second[i, j] = float(text) if text else math.nan
+    for i, obj in enumerate(column["object2"]):
+        if obj and obj not in objects:
+            raise SceneError(f"{path}: row {i + 1}, column object2: {obj!r} is not an object of "
+                             f"the scene ({', '.join(objects)})")
+    touched2 = np.array([objects[obj] if obj else -1 for obj in column["object2"]]
+                        or np.full(len(body), -1), dtype=np.int64)
+    return WhiskerResult(name, t_path, phase, s1, f0, m0, p_W, touched, refined, [],
+                         second[:, 0].copy(), second[:, 1:].copy(), touched2)
 
 
 def _is_number(text: str) -> bool:
@@ -265,7 +287,8 @@ def _read_episodes(path: Path, names: Sequence[str], scene: Scene) -> dict[str, 
                         _one_of(e["end"], [str(end) for end in SweepEnd], "end"),
                         [(float(c["t"]), str(c["from"]), str(c["to"])) for c in e["phase_changes"]],
                         _one_of(e.get("start", "touch"), EPISODE_STARTS, "start"),
-                        tuple(float(c["t"]) for c in e.get("snap_throughs", [])))
+                        tuple(float(c["t"]) for c in e.get("snap_throughs", [])),
+                        str(e.get("second_object", "")))
                 for e in items]
         except (KeyError, TypeError, ValueError) as exc:
             raise SceneError(f"{path}: whiskers.{name}.episodes: not as vibrissa simulate writes "

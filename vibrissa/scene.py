@@ -39,13 +39,14 @@ import multiprocessing
 import os
 import signal
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vibrissa import two_contacts as two
 from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
 from vibrissa.paths import SUBSAMPLE_L, SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
@@ -236,9 +237,11 @@ class Scene:
             raise ValueError("a scene needs at least one whisker")
 
 
-EPISODE_STARTS = ("touch", "landing")
-"""How an episode begins: the straight rod touches an object, or the rod lands on one after a
-snap-off."""
+EPISODE_STARTS = ("touch", "landing", "second-contact")
+"""How an episode begins: the straight rod touches an object, the rod lands on one after a
+snap-off, or the rod in contact with one meets a second (`Episode.second_object`) and goes on
+with both (its samples: the first object's contact in the usual columns, the second's in
+``second_*``)."""
 
 
 @dataclass(frozen=True)
@@ -254,6 +257,7 @@ class Episode:
     phase_changes: list[tuple[float, str, str]]
     start: str = "touch"  # one of EPISODE_STARTS
     snap_throughs: tuple[float, ...] = ()
+    second_object: str = ""  # (start "second-contact") the second object the rod leans on
 
 
 @dataclass
@@ -266,7 +270,10 @@ class WhiskerResult:
     W, m (NaN without one); ``object`` (N,) index into the scene's objects (-1: none);
     ``refined`` (N,) whether Step 1 reached the sample through sub-steps, or by a longer step
     after the touch (`vibrissa.sweep.Sweep`): eq. 7's chord is then a sub-step's, not the one
-    from the sample before.
+    from the sample before. Where the rod leans on a second object too (an episode that
+    starts ``second-contact``), ``second_s_m`` (N,), ``second_W_m`` (N, 3) and
+    ``second_object`` (N,) are that contact's (NaN and -1 elsewhere); the wrench is both
+    contacts'.
     """
 
     name: str
@@ -279,6 +286,18 @@ class WhiskerResult:
     object: NDArray[np.int64]
     refined: NDArray[np.bool_]
     episodes: list[Episode]
+    second_s_m: FloatArray = field(default_factory=lambda: np.empty(0))
+    second_W_m: FloatArray = field(default_factory=lambda: np.empty((0, 3)))
+    second_object: NDArray[np.int64] = field(default_factory=lambda: np.empty(0, np.int64))
+
+    def __post_init__(self) -> None:
+        n = len(self.t)  # not given: no second contact anywhere
+        if len(self.second_s_m) != n:
+            self.second_s_m = np.full(n, np.nan)
+        if len(self.second_W_m) != n:
+            self.second_W_m = np.full((n, 3), np.nan)
+        if len(self.second_object) != n:
+            self.second_object = np.full(n, -1, dtype=np.int64)
 
     def counts(self) -> dict[str, int]:
         """Samples per phase."""
@@ -526,6 +545,8 @@ class _WhiskerSteps:
         self.s1, self.f0, self.m0 = np.full(n, np.nan), np.zeros((n, 3)), np.zeros((n, 3))
         self.contact, self.touched = np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
         self.refined = np.zeros(n, dtype=bool)
+        self.second_s, self.second_contact = np.full(n, np.nan), np.full((n, 3), np.nan)
+        self.second_touched = np.full(n, -1, dtype=np.int64)
         self.t_all = scene.path.t
         self._init_state()
         self.k = self._skip_unresolved(0)
@@ -647,6 +668,16 @@ class _WhiskerSteps:
                                      "landing" if self._landed else "touch",
                                      tuple(self._time_at(-x0 / h + k)
                                            for x0 in sweep.x0[:n][sweep.jumped[:n]])))
+        snapped = sweep.force[-1] if len(sweep.force) else None
+        if end is SweepEnd.ANOTHER_OBJECT and self.two_contacts and n >= 1:
+            stretch = self._second_contact(sweep, rows, n)
+            if stretch is not None:
+                end, last, snapped, landing_on = stretch
+                if end is SweepEnd.DETACHMENT:  # one contact left: the other goes on alone
+                    if landing_on >= 0 and self._lands(last, [landing_on], snapped):
+                        return
+                    self.k = self._skip_unresolved(last + 1)
+                    return
         if end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return
@@ -654,18 +685,90 @@ class _WhiskerSteps:
         # on one of them, the deepest first (not twice from the same sample: a landing that
         # snaps off at once is left; not on the path's last sample, which, as for a touch,
         # starts no episode).
-        if (end is SweepEnd.SNAP_OFF and last + 1 < self.path.n_samples - 1
-                and not (self._landed and len(rows) == 1)):
-            x0_next = self.path.x0_of(np.array([last + 1]))
-            on_rod = self._straight_rod(last + 1)[2]
-            self._inside = sorted(
-                (j for j, surface in enumerate(self.surfaces)
-                 if self.path.penetrates(surface, x0_next)[0]),
-                key=lambda j: float(self.surfaces[j].signed_distance(on_rod).min()))
-            if self._inside:
-                self.k, self._snapped = last + 1, sweep.force[-1]
-                return
+        if (end is SweepEnd.SNAP_OFF and not (self._landed and len(rows) == 1)
+                and self._lands(last, range(len(self.surfaces)), snapped)):
+            return
         self.k = self._skip_unresolved(last + 1)
+
+    def _lands(self, last: int, objects: Iterable[int], force: FloatArray | None) -> bool:
+        """Whether the rod, last in contact at moving sample ``last`` with the contact force
+        ``force`` on it (W, units of L), is to land at the next one on one of ``objects``
+        that its straight rod enters there, the deepest first (not on the path's last
+        sample, which, as for a touch, starts no episode)."""
+        if force is None or last + 1 >= self.path.n_samples - 1:
+            return False
+        x0_next = self.path.x0_of(np.array([last + 1]))
+        on_rod = self._straight_rod(last + 1)[2]
+        self._inside = sorted(
+            (j for j in objects if self.path.penetrates(self.surfaces[j], x0_next)[0]),
+            key=lambda j: float(self.surfaces[j].signed_distance(on_rod).min()))
+        if not self._inside:
+            return False
+        self.k, self._snapped = last + 1, force
+        return True
+
+    two_contacts = True
+    """Whether a rod in contact that meets a second object goes on with both contacts
+    (`vibrissa.two_contacts`); a stream whose path may still grow does not (yet)."""
+
+    def _second_contact(self, sweep: Sweep, rows: NDArray[np.int64], n: int
+                        ) -> tuple[SweepEnd, int, FloatArray | None, int] | None:
+        """Both contacts from the sample after the episode's last row before its rod met
+        another object (row ``n``), recorded as they go (`vibrissa.two_contacts`), with their
+        episode; None where not even the first sample has an equilibrium with both. Returns
+        how the stretch ended (a contact that left: ``DETACHMENT``), its last sample, the
+        force of its last outer contact on the rod (W, units of L) and the object the
+        remaining contact is on when one left (-1: none)."""
+        k_first = int(rows[n - 1]) + 1
+        if k_first >= self.path.n_samples or k_first > int(rows[n]):
+            return None
+        line = sweep.elastic_lines([n], AXIS_SEGMENTS + 1)[0]  # the rod of row n, in the other
+        depth, other = min((float(surface.signed_distance(line).min()), j)
+                           for j, surface in enumerate(self.surfaces) if j != self._object)
+        if not depth < 0.0:
+            return None
+        deepest = int(np.argmin(self.surfaces[other].signed_distance(line)))
+        s_other = deepest / AXIS_SEGMENTS
+        s_own, mode_own = float(sweep.s1[n - 1]), (two.MODE_TIP if sweep.phase[n - 1]
+                                                    == SamplePhase.TIP else two.MODE_TANGENTIAL)
+        mode_other = two.MODE_TIP if deepest == AXIS_SEGMENTS else two.MODE_TANGENTIAL
+        normal = self.surfaces[other].normal(line[deepest][None])[0]
+        force_own = sweep.force[n - 1]
+        force_other = 1e-3 * float(np.linalg.norm(force_own)) * normal
+        moment = -sweep.m0[n - 1]  # the rod's internal moment at the clamp, C
+        own = (s_own, force_own, mode_own, sweep.contact[n - 1], self._object)
+        theirs = (s_other, force_other, mode_other, line[deepest], other)
+        inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)
+        x_start = np.concatenate([moment[:2], inner[1], outer[1], [inner[0], outer[0]]])
+        stretch = two.follow_two_contacts(
+            self.path, self.surfaces, (inner[4], outer[4]), k_first, x_start,
+            np.array([inner[2], outer[2]], dtype=np.int64), np.array([inner[3], outer[3]]))
+        if not stretch.rows:
+            return None
+        mine = 0 if inner[4] == self._object else 1
+        length = self.whisker.length_m
+        for row in stretch.rows:
+            k = row.k
+            point, _t, _n, _f = two.contact_info(row.state, mine)
+            second, _t, _n, _f = two.contact_info(row.state, 1 - mine)
+            self.phase[k] = (SamplePhase.TIP if row.modes[mine] in (two.MODE_TIP, two.MODE_STICK)
+                             else SamplePhase.TANGENTIAL)
+            self.s1[k], self.second_s[k] = row.x[8 + mine] * length, row.x[9 - mine] * length
+            self.contact[k] = point * length + self.origin_m
+            self.second_contact[k] = second * length + self.origin_m
+            self.touched[k], self.second_touched[k] = self._object, other
+            self.f0[k], self.m0[k] = self.whisker.scale.wrench_to_si(row.f0, row.m0)
+            self.refined[k] = row.refined
+        last = stretch.rows[-1].k
+        end = SweepEnd(stretch.end) if stretch.end != "left" else SweepEnd.DETACHMENT
+        self.episodes.append(Episode(self.scene.objects[self._object].name,
+                                     self._time_at(k_first - 0.5), str(end), [],
+                                     "second-contact",
+                                     second_object=self.scene.objects[other].name))
+        final = stretch.rows[-1].state
+        remaining = -1 if stretch.left < 0 else (inner, outer)[1 - stretch.left][4]
+        force = two.contact_info(final, 1 if stretch.left != 1 else 0)[3]
+        return end, last, force, remaining
 
     def _span_start(self, sweep: Sweep) -> int:
         """The episode's first sample: its landing's, or the first past the touch (on the
@@ -796,7 +899,9 @@ class _WhiskerSteps:
         return WhiskerResult(self.whisker.name, self.scene.path.t, self.phase[of_sample],
                              self.s1[of_sample], self.f0[of_sample], self.m0[of_sample],
                              self.contact[of_sample], self.touched[of_sample],
-                             self.refined[of_sample], self.episodes)
+                             self.refined[of_sample], self.episodes,
+                             self.second_s[of_sample], self.second_contact[of_sample],
+                             self.second_touched[of_sample])
 
     def _skip_unresolved(self, k: int) -> int:
         """The first sample from ``k`` on where the straight rod is outside every object."""
@@ -1046,6 +1151,8 @@ class _StreamSteps(_WhiskerSteps):
         self._recorded_to = 0  # ... up to this moving sample (exclusive)
         self._idle_at: tuple[int, bool] = (-1, False)  # (samples, final) when it last waited
         self._base = 0  # moving samples dropped (`forget`): index 0 of ``path`` is this one
+
+    two_contacts = False
 
     def extend(self, t: FloatArray, p_WR_m: FloatArray, q_WR: FloatArray) -> None:
         p = (p_WR_m - self.origin_m) / self.whisker.length_m

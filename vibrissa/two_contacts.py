@@ -32,6 +32,8 @@ its own). Newton's method with a forward-difference Jacobian, compiled (``vibris
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +47,8 @@ from vibrissa.equilibrium import (
     MODE_TIP,
     NEWTON_TOL,
 )
+from vibrissa.paths import SampledPath
+from vibrissa.surfaces import Surface
 
 FloatArray = NDArray[np.float64]
 
@@ -377,6 +381,142 @@ def admissible(x: FloatArray, state: FloatArray, modes: NDArray[np.int64], mu: f
     return True, -1
 
 
+STRETCH_ENDS = ("left", "snap-off", "another-object", "path-end")
+"""How a stretch of two contacts ends: one contact's force went to zero (it leaves; the other
+goes on alone), no equilibrium near the last one, the rod met a third object, or the path
+ended."""
+SUB_STEP_LEVELS = 5
+"""A sample the plain step does not reach is tried in 2, 4, .. 32 sub-steps."""
+CLEAR_POINTS = 129
+"""Points of the rod's axis checked to lie outside every object."""
+_HELD = {MODE_TIP: MODE_STICK, MODE_TANGENTIAL: MODE_STICK_TANGENTIAL}
+_OTHER_PHASE = {MODE_TIP: MODE_TANGENTIAL, MODE_TANGENTIAL: MODE_TIP}
+
+
+@dataclass
+class StretchRow:
+    """One sample of a stretch of two contacts: the moving sample ``k``, the unknowns ``x``, the
+    state, the contacts' modes, the clamp's reaction f0, m0 in C (units of EI/L^2, EI/L) and
+    whether sub-steps reached it."""
+
+    k: int
+    x: FloatArray
+    state: FloatArray
+    modes: NDArray[np.int64]
+    f0: FloatArray
+    m0: FloatArray
+    refined: bool
+
+
+@dataclass
+class Stretch:
+    """A stretch of two contacts along a path: its rows (one per sample, from the first), how
+    it ended (`STRETCH_ENDS`) and, when a contact left, which (0 inner, 1 outer)."""
+
+    rows: list[StretchRow]
+    end: str
+    left: int = -1
+
+
+def follow_two_contacts(path: SampledPath, surfaces: Sequence[Surface], objects: tuple[int, int],
+                        k_first: int, x_start: FloatArray, modes: NDArray[np.int64],
+                        anchors: FloatArray) -> Stretch:
+    """Two contacts along ``path`` from moving sample ``k_first``: contact 0 (inner) on
+    ``surfaces[objects[0]]``, contact 1 on ``surfaces[objects[1]]``, from the state ``x_start``
+    (the unknowns just before k_first, or a guess of them) with sliding ``modes`` and the
+    contacts' last points ``anchors`` (W, units of L).
+
+    At each sample the contacts slide, else hold (each, then both), else the outer contact
+    changes between tip and tangential; each solution must converge, push at both contacts
+    and keep the rod (``CLEAR_POINTS`` points of it) outside every object. A sample none of
+    them reaches is tried in ever shorter sub-steps from as far as the longer ones got
+    (``SUB_STEP_LEVELS``). The stretch ends where a
+    contact's force would pull (it leaves), where the rod would enter another object, where
+    no equilibrium is near (snap-off), or at the path's end."""
+    rows: list[StretchRow] = []
+    x_last, last_step = x_start.copy(), math.nan  # the state and the step that reached it
+    x_before = x_start
+    sliding = modes.copy()
+    anchors = anchors.copy()
+    mu = path.mu
+    kernel = [np.ascontiguousarray(np.concatenate([surfaces[j].kernel_arrays[i] for j in objects]))
+              for i in range(5)]
+    for k in range(k_first, path.n_samples):
+        x0_k = float(path.x0_of(np.array([k]))[0])
+        x0_at = float(path.x0_of(np.array([k - 1]))[0])
+        span = x0_at - x0_k
+        why = ""
+        refined = False
+        # the first sample is reached from the guess at once: sub-steps from the sample before
+        # would start before the second contact touches
+        for level in range(SUB_STEP_LEVELS + 1 if rows else 1):
+            sub = span / 2**level
+            while x0_at - sub >= x0_k - 1e-12 * span:
+                x0 = max(x0_at - sub, x0_k)
+                p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0])))
+                predictor = (x_last if not last_step > 0
+                             else x_last + (x_last - x_before) * (sub / last_step))
+                found, why = _step(predictor, x_last, p_WC, R_WC, sliding, anchors, mu, kernel,
+                                   surfaces)
+                if found is None:
+                    break
+                x_before, x_last, last_step, x0_at = x_last, found[0], sub, x0
+                state, modes_now = found[1], found[2]
+                sliding = np.array([_sliding(m) for m in modes_now])
+                for j in range(2):
+                    anchors[j] = contact_info(state, j)[0]
+                refined = refined or level > 0
+            if abs(x0_at - x0_k) <= 1e-12 * span:
+                break
+        if abs(x0_at - x0_k) > 1e-12 * span:
+            left = int(why[5:]) if why.startswith("left ") else -1
+            end = "left" if left >= 0 else why if why == "another-object" else "snap-off"
+            return Stretch(rows, end, left)
+        p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0_k])))
+        f0, m0 = clamp_reactions(x_last, state, p_WC, R_WC)
+        rows.append(StretchRow(k, x_last, state, modes_now, f0, m0, refined))
+    return Stretch(rows, "path-end")
+
+
+def _sliding(mode: int) -> int:
+    return MODE_TIP if mode == MODE_STICK else MODE_TANGENTIAL if mode == MODE_STICK_TANGENTIAL \
+        else mode
+
+
+def _step(predictor: FloatArray, last: FloatArray, p_WC: FloatArray, R_WC: FloatArray,
+          sliding: NDArray[np.int64], anchors: FloatArray, mu: float,
+          kernel: list[FloatArray], surfaces: Sequence[Surface]
+          ) -> tuple[tuple[FloatArray, FloatArray, NDArray[np.int64]] | None, str]:
+    """The first admissible state at one clamp pose over the contacts' modes (`follow_two_contacts`),
+    or None and why: ``left J`` (contact J's force would pull), ``another-object`` or ``none``."""
+    inner, outer = int(sliding[0]), int(sliding[1])
+    combos = [(inner, outer)]
+    if mu > 0:
+        combos += [(_HELD[inner], outer), (inner, _HELD[outer]), (_HELD[inner], _HELD[outer])]
+    combos += [(inner, _OTHER_PHASE[outer])]
+    if mu > 0:
+        combos += [(_HELD[inner], _OTHER_PHASE[outer])]
+    why = "none"
+    for combo in combos:
+        modes = np.array(combo, dtype=np.int64)
+        for start in (predictor, last):
+            x, state = solve(start, p_WC, R_WC, modes, anchors, mu, *kernel)
+            if not converged(state, modes):
+                continue
+            ok, pulls = admissible(x, state, modes, mu)
+            if not ok:
+                if pulls >= 0 and why == "none":
+                    why = f"left {pulls}"
+                continue
+            line = rod_line(x, p_WC, R_WC, CLEAR_POINTS)
+            if any(float(surface.signed_distance(line).min()) < -1e-9 for surface in surfaces):
+                why = "another-object"
+                continue
+            return (x, state, modes), why
+    return None, why
+
+
 __all__ = ["MODE_STICK", "MODE_STICK_TANGENTIAL", "MODE_TANGENTIAL", "MODE_TIP", "N_UNKNOWNS",
            "SEGMENT_STEPS", "admissible", "clamp_reactions", "contact_info", "evaluate",
-           "newton", "rod_line", "solve"]
+           "follow_two_contacts", "newton", "rod_line", "solve", "Stretch", "StretchRow",
+           "STRETCH_ENDS"]

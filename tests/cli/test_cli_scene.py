@@ -66,7 +66,7 @@ def test_simulate_writes_a_csv_per_whisker_and_a_summary(tmp_path: Path, capsys)
         with (out / f"{name}.csv").open() as handle:
             rows = list(csv.reader(handle))
         assert rows[0][: len(CONTRACT)] == CONTRACT and len(rows) == 301
-        assert rows[0][len(CONTRACT):] == ["object", "refined"]
+        assert rows[0][len(CONTRACT):] == ["object", "refined", "s2", "p2x", "p2y", "p2z", "object2"]
         assert {row[13] for row in rows[1:]} <= {"0", "1"}
         phases = [row[1] for row in rows[1:]]
         assert set(phases) <= {"none", "tip", "tangential", "unresolved"}
@@ -361,8 +361,9 @@ def test_the_whiskers_of_a_scene_file_are_the_robot_description(tmp_path: Path) 
 
 def test_simulate_says_when_a_rod_met_a_second_object(tmp_path: Path, capsys) -> None:
     """A rod leaning on ball a runs into ball b low on its path (the scene of
-    tests/core/test_random_scenes_rod.py): the episode ends another-object, in summary.json and
-    in the closing lines, which say what that means."""
+    tests/core/test_random_scenes_rod.py): the episode ends another-object and a second-contact
+    episode goes on with both balls, in summary.json, the CSV's second-contact columns and the
+    closing lines, which say what that means."""
     (tmp_path / "scene.yaml").write_text("""\
 mu: 0.3
 objects:
@@ -377,11 +378,17 @@ path: path.csv
         f"{0.01 * i},{x[i]},0,0,0,0,0,1\n" for i in range(len(x))))
     out = tmp_path / "out"
     assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(out), "--workers", "1"]) == 0
-    [episode] = json.loads((out / "summary.json").read_text())["whiskers"]["w"]["episodes"]
-    assert (episode["object"], episode["end"]) == ("a", "another-object")
+    summary = json.loads((out / "summary.json").read_text())["whiskers"]["w"]
+    first, both, *_rest = summary["episodes"]
+    assert (first["object"], first["end"]) == ("a", "another-object")
+    assert (both["start"], both["object"], both["second_object"]) == ("second-contact", "a", "b")
+    two = summary["samples_with_two_contacts"]
+    assert two > 10 and summary["samples_per_phase"]["unresolved"] == 0
+    rows = (out / "w.csv").read_text().splitlines()
+    assert sum(row.endswith(",b") for row in rows[1:]) == two  # object2 is the last column
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-2].startswith("1 contact episode (1 another-object); samples: ")
-    assert "contact with two at once is not modelled" in err[-1]
+    assert f"1 with a second contact (the rod leaning on two objects: {two} samples)" in err[-2]
+    assert "it goes on with both contacts" in err[-1]
 
 
 @pytest.mark.parametrize("ball_m, x0_m, step_m, unresolved, line", [

@@ -177,13 +177,17 @@ def test_a_link_cut_for_3_s_mid_stream_is_counted_in_both_summaries_and_the_grap
         hosts: Hosts, keys: Path, tmp_path: Path) -> None:
     robot, station = robot_and_station(hosts, tmp_path, "rate:=300", "passes:=6", keys=keys)
     robot.wait_line(r"ready on /robot/contact", 300)  # the stream flows to the station
-    # a tool on the workstation reaches the graph on the robot, with the client's keys
-    tool = subprocess.run(
-        [*hosts.run(hosts.station), sys.executable, "-m", "vibrissa.cli.main", "topic", "hz",
-         "/robot/wrench", "--graph", f"{hosts.robot_address}:{DOMAIN}", "--keys",
-         str(keys / "clients" / "station"), "--duration", "3"],
-        capture_output=True, text=True, timeout=120)
-    rates = [float(r) for r in re.findall(r"average rate: ([\d.]+) Hz", tool.stdout)]
+    # a tool on the workstation reaches the graph on the robot, with the client's keys (again
+    # until the wrenches flow: on a loaded machine the source may still be starting)
+    deadline = time.monotonic() + 300
+    rates: list[float] = []
+    while not rates and time.monotonic() < deadline:
+        tool = subprocess.run(
+            [*hosts.run(hosts.station), sys.executable, "-m", "vibrissa.cli.main", "topic",
+             "hz", "/robot/wrench", "--graph", f"{hosts.robot_address}:{DOMAIN}", "--keys",
+             str(keys / "clients" / "station"), "--duration", "3"],
+            capture_output=True, text=True, timeout=120)
+        rates = [float(r) for r in re.findall(r"average rate: ([\d.]+) Hz", tool.stdout)]
     assert rates and 200 < rates[-1] < 400, tool.stdout + tool.stderr  # rate:=300
     ip("-n", hosts.robot, "link", "set", hosts.link, "down")
     time.sleep(3.0)  # the fault's length, not a wait for a condition

@@ -1,0 +1,137 @@
+"""A rod leaning on one ball that runs into a second one goes on with both contacts (Step 1's
+``second-contact`` episodes), checked sample by sample against an integration of its own: from
+the clamp wrench alone (SI, scipy's `solve_ivp`) the rod must reach the inner contact point;
+there, the moment left must be the outer force's about the outer point, which gives that force
+up to its component along the chord between the points; that one number chosen by least
+squares, the rod must reach the outer point too, touching both balls and staying outside them.
+Step 2 given the wrench says it is no single contact."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from vibrissa.formats.scene_results import read_results, write_results
+from vibrissa.frames import Transform
+from vibrissa.reconstruct import reconstruct_si
+from vibrissa.scene import RobotPath, Scene, SceneObject, Whisker, simulate
+from vibrissa.status import ContactStatus
+
+L_M, EI_NM2 = 0.05, 1e-4
+
+
+def leaning_scene(lift_m: float) -> Scene:
+    """A rod up W's z from a robot driving along x under ball a, then into ball b low on its
+    way, b ``lift_m`` out of the plane of the path."""
+    x = np.linspace(-0.0025, 0.045, 951)
+    path = RobotPath(0.01 * np.arange(len(x)), np.column_stack([x, 0 * x, 0 * x]),
+                     Rotation.identity(len(x)))
+    a = SceneObject("a", "sphere", {"radius_m": 0.015},
+                    Transform(Rotation.identity(), [0.015, 0.0, 0.04]))
+    b = SceneObject("b", "sphere", {"radius_m": 0.005},
+                    Transform(Rotation.identity(), [0.0175, lift_m, 0.0075]))
+    return Scene(0.3, (a, b), (Whisker("w", L_M, EI_NM2, Transform()),), path)
+
+
+def rod_from(p0: np.ndarray, t0: np.ndarray, m0: np.ndarray, n: np.ndarray, s_m: float
+             ) -> np.ndarray:
+    """(r, t, m) after ``s_m`` of rod from (p0, t0, m0) under the internal force ``n`` (SI):
+    r' = t, t' = m x t / EI, m' = n x t."""
+    def rhs(_s: float, y: np.ndarray) -> np.ndarray:
+        t, m = y[3:6], y[6:9]
+        return np.concatenate([t, np.cross(m, t) / EI_NM2, np.cross(n, t)])
+
+    return solve_ivp(rhs, (0.0, s_m), np.concatenate([p0, t0, m0]), method="DOP853",
+                     rtol=1e-12, atol=1e-15).y[:, -1]
+
+
+@pytest.mark.parametrize("lift_m", [0.001, 0.003])
+def test_two_contacts_against_the_rod_integrated_from_the_clamp_wrench(lift_m: float) -> None:
+    scene = leaning_scene(lift_m)
+    (result,) = simulate(scene, workers=1)
+    starts = [(e.start, e.object, e.second_object) for e in result.episodes]
+    assert ("second-contact", "a", "b") in starts, starts
+    two = np.flatnonzero(result.second_object >= 0)
+    assert len(two) >= 20
+    balls = {j: (obj.X_WO.translation, obj.sizes["radius_m"]) for j, obj in enumerate(scene.objects)}
+    worst = dict.fromkeys(("on ball", "inner", "chord moment", "outer", "tangent", "inside"), 0.0)
+    for k in two:
+        points = [(result.s1_m[k], result.p_W_m[k], result.object[k]),
+                  (result.second_s_m[k], result.second_W_m[k], result.second_object[k])]
+        for _s, p, j in points:
+            centre, radius = balls[int(j)]
+            worst["on ball"] = max(worst["on ball"], abs(np.linalg.norm(p - centre) - radius))
+        (s_in, p_in, j_in), (s_out, p_out, j_out) = sorted(points, key=lambda c: c[0])
+        p0 = scene.path.p_WR[k]  # the clamp: the robot's origin, C = R = W's axes
+        # the clamp's reaction on the rod is -(internal force, moment) at s = 0
+        y = rod_from(p0, np.array([0.0, 0.0, 1.0]), -result.m0_nm[k], -result.f0_n[k], s_in)
+        worst["inner"] = max(worst["inner"], float(np.linalg.norm(y[:3] - p_in)))
+        chord = p_out - p_in
+        m_in = y[6:9]  # = chord x F_out
+        worst["chord moment"] = max(worst["chord moment"], abs(m_in @ chord) / (
+            np.linalg.norm(m_in) * np.linalg.norm(chord)))
+        across = np.cross(m_in, chord) / (chord @ chord)  # F_out's part across the chord
+
+        def miss(lam: np.ndarray, y: np.ndarray = y, across: np.ndarray = across,
+                 chord: np.ndarray = chord, s: float = s_out - s_in,
+                 p_out: np.ndarray = p_out) -> np.ndarray:
+            end = rod_from(y[:3], y[3:6], y[6:9], across + lam[0] * chord, s)
+            return (end[:3] - p_out) / L_M
+
+        fit = least_squares(miss, [0.0], xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        worst["outer"] = max(worst["outer"], float(np.linalg.norm(fit.fun)) * L_M)
+        # both contacts are tangential here: the rod touches each ball there, outside it
+        for s_end, p, j, start, n in ((s_in, p_in, j_in, None, None),
+                                      (s_out, p_out, j_out, y, across + fit.x[0] * chord)):
+            centre, radius = balls[int(j)]
+            if start is None:
+                t = y[3:6]
+            else:
+                t = rod_from(start[:3], start[3:6], start[6:9], n, s_end - s_in)[3:6]
+            worst["tangent"] = max(worst["tangent"], abs(t @ (p - centre)) / radius)
+        outer_force = across + fit.x[0] * chord
+        on_rod = [rod_from(p0, np.array([0.0, 0.0, 1.0]), -result.m0_nm[k], -result.f0_n[k],
+                           s)[:3] for s in np.linspace(0.0, s_in, 9)[1:-1]]
+        on_rod += [rod_from(y[:3], y[3:6], y[6:9], outer_force, s)[:3]
+                   for s in np.linspace(0.0, s_out - s_in, 9)[1:-1]]
+        for r in on_rod:
+            for centre, radius in balls.values():
+                worst["inside"] = max(worst["inside"], radius - np.linalg.norm(r - centre))
+    assert worst["on ball"] < 1e-12 and worst["inner"] < 1e-10 * L_M, worst
+    assert worst["chord moment"] < 1e-8 and worst["outer"] < 1e-10 * L_M, worst
+    assert worst["tangent"] < 1e-8 and worst["inside"] <= 1e-12, worst
+    # Step 2 from the clamp wrench alone: no single contact gives it, and it says so
+    rec = reconstruct_si(np.tile([0.0, 0.0, 0.0, 1.0], (len(two), 1)), scene.path.p_WR[two],
+                         result.f0_n[two], result.m0_nm[two], [scene.whiskers[0].scale] * len(two))
+    assert np.all(rec.status & int(ContactStatus.MULTI_CONTACT)) and not rec.valid.any()
+
+
+def test_the_second_contact_is_written_and_read_back_bit_for_bit(tmp_path: Path) -> None:
+    scene = leaning_scene(0.001)
+    (result,) = simulate(scene, workers=1)
+    write_results(tmp_path, scene, [result])
+    (back,) = read_results(tmp_path, scene)
+    for name in ("second_s_m", "second_W_m", "second_object", "p_W_m", "f0_n"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(result, name))
+    assert back.episodes == result.episodes
+    assert "object2" in (tmp_path / "w.csv").read_text().splitlines()[0]
+
+
+def test_a_rod_that_meets_nothing_else_is_as_before() -> None:
+    """Without the second ball the rod's path has no second contact, and the ball moved out of
+    reach gives the same samples as no ball at all."""
+    scene = leaning_scene(0.001)
+    alone = dataclasses.replace(scene, objects=scene.objects[:1])
+    far = dataclasses.replace(scene, objects=(scene.objects[0], dataclasses.replace(
+        scene.objects[1], X_WO=Transform(Rotation.identity(), [1.0, 1.0, 1.0]))))
+    (a,) = simulate(alone, workers=1)
+    (b,) = simulate(far, workers=1)
+    assert not np.any(a.second_object >= 0)
+    np.testing.assert_array_equal(a.f0_n, b.f0_n)
+    np.testing.assert_array_equal(a.p_W_m, b.p_W_m)

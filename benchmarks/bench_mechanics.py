@@ -11,6 +11,8 @@ Prints one table. Baselines, in the same run and on the same inputs:
   from the library's previous step, as a sweep would.
 * Step 1 of a robot's scene: its whiskers one after another (each alone) against the library's
   whiskers solved together.
+* Step 1's retaking of steep steps in sub-steps (``vibrissa.sweep``): the paper's study with the
+  check switched off, interleaved with the study as it is.
 
 The scipy baselines are checked against the library's results (max difference printed), and
 a whisker alone gives the same bits as solved together, so the timings compare equal answers.
@@ -37,6 +39,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 from scipy.optimize import root  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from vibrissa import sweep as sweep_module  # noqa: E402
 from vibrissa.frames import Transform  # noqa: E402
 from vibrissa.reconstruct import reconstruct, reconstruct_si  # noqa: E402
 from vibrissa.scene import (  # noqa: E402
@@ -165,6 +168,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=1_000_000)
     parser.add_argument("--ivp-samples", type=int, default=300)
     parser.add_argument("--shooting-steps", type=int, default=5)
+    parser.add_argument("--retake-repeat", type=int, default=5)
     args = parser.parse_args()
     surface = parse_surface(PAPER_SURFACE)
     rows: list[tuple[str, str, str]] = []
@@ -178,6 +182,20 @@ def main() -> None:
                  f"{study.elapsed_s:.1f} s", f"{n_equilibria} equilibria"))
     rows.append(("Step 1 library: per equilibrium (study wall / equilibria)",
                  f"{lib_step * 1e3:.2f} ms", ""))
+
+    # What retaking steep steps in sub-steps costs (vibrissa.sweep._through_steep_step): the
+    # study with it and with the check switched off, interleaved, medians of --retake-repeat.
+    plain, retaken = [], []
+    check = sweep_module._steep
+    for _ in range(args.retake_repeat):
+        for switched_off, times in ((True, plain), (False, retaken)):
+            sweep_module._steep = (lambda track: False) if switched_off else check
+            times.append(run_study(surface, step=args.study_step).elapsed_s)
+    sweep_module._steep = check
+    rows.append(("Step 1: the study with steep steps retaken / without (a baseline)",
+                 f"{np.median(retaken) / np.median(plain):.3f}x",
+                 f"medians of {args.retake_repeat}: {np.median(retaken):.2f} s, "
+                 f"{np.median(plain):.2f} s"))
 
     # Step 1, baseline: shooting for a few consecutive tip-contact steps of y0 = 0.2, mu = 0.
     sweep = study.case(0.2, 0.0).sweep

@@ -135,8 +135,9 @@ class WrenchSourceParams:
     pose_topic, map_frame, robot_frame
         Mode ``scene``: where the robot's poses go, and the frames they join.
     events_topic
-        Mode ``scene`` along a fixed path: where each jump of a whisker's path goes, as a
-        `SnapEvent` at the stamp of the sample it is told at (`vibrissa.scene.snaps`).
+        Mode ``scene``: where each jump of a whisker's path goes, as a `SnapEvent` at the
+        stamp of the sample it is told at (`vibrissa.scene.snaps`), after that sample's
+        wrench; along a commanded path, as soon as that sample is simulated.
     pose_rate_hz
         Mode ``scene``: robot poses per second of path time, each interpolated on the path (a
         localisation at its own rate); 0: a pose at each path sample, the path's own, so that
@@ -636,14 +637,17 @@ class CommandedMessages:
         self.next_pose = 0  # index of the next pose time on the pose_rate_hz grid
 
     def start(self, p_WR: FloatArray, q_WR: FloatArray
-              ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
+              ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose | SnapEvent]]:
         """The pose at path time 0, where the robot stands before any command."""
         self.next_pose, self.before = 1, (0.0, p_WR, q_WR)
         return [(self.params.pose_delay_s, 0, _pose(self.params, 0.0, p_WR, q_WR))]
 
-    def of(self, samples: StreamSamples) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
-        """Messages of ``samples``, the poses up to the last of them."""
-        params, out = self.params, []
+    def of(self, samples: StreamSamples
+           ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose | SnapEvent]]:
+        """Messages of ``samples``, the poses up to the last of them, and the jumps told at
+        them (a `SnapEvent` after the wrench of its sample)."""
+        params = self.params
+        out: list[tuple[float, int, WhiskerWrenchArray | RobotPose | SnapEvent]] = []
         f0, m0 = samples.f0_n, samples.m0_nm
         if params.noise_force_n:
             f0 = f0 + self.rng.normal(0.0, params.noise_force_n, f0.shape)
@@ -657,6 +661,11 @@ class CommandedMessages:
             self.seq += 1
         out += [(t + params.pose_delay_s, 0, _pose(params, t, p, q))
                 for t, p, q in self._poses(samples)]
+        out += [(told.snap.t, 2, SnapEvent(
+            stamp=params.epoch_s + told.snap.t, whisker_id=self.names[told.whisker],
+            frame_id=self.frame_ids[told.whisker], kind=told.snap.kind, object=told.snap.object,
+            f0_before=told.f0_before, m0_before=told.m0_before, f0_after=told.f0_after,
+            m0_after=told.m0_after)) for told in samples.snaps]
         if len(samples.t):
             self.before = (float(samples.t[-1]), samples.p_WR[-1], samples.q_WR[-1])
         return sorted(out, key=lambda e: (e[0], e[1]))
@@ -695,6 +704,7 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
                                      hwm=DEFAULT_HWM * 10)
     poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.pose_waits,
                                   hwm=DEFAULT_HWM * 10)
+    events = node.create_publisher(params.events_topic, SnapEvent)
     commands = node.create_subscriber({params.path_topic: PathSegment})
     scene = load_scene(params.scene)
     limits = params.path_limits
@@ -715,7 +725,8 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
     pace = params.rate_hz / params.path_rate_hz if params.rate_hz else 0.0
     anchor: tuple[float, float] | None = None  # (wall, stream time) the pacing runs from
 
-    def publish(messages: list[tuple[float, int, WhiskerWrenchArray | RobotPose]]) -> bool:
+    def publish(messages: list[tuple[float, int, WhiskerWrenchArray | RobotPose | SnapEvent]]
+                ) -> bool:
         nonlocal count, anchor
         for stream_t, _, msg in messages:
             if pace:
@@ -725,7 +736,8 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
                     - time.monotonic()
                 if delay > 0 and not node.sleep(delay):
                     return False
-            (poses if isinstance(msg, RobotPose) else wrenches).publish(msg)
+            (poses if isinstance(msg, RobotPose) else events if isinstance(msg, SnapEvent)
+             else wrenches).publish(msg)
             count += 1
         return True
 
@@ -762,10 +774,11 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
             break
     if not node.stop_requested:
         publish(out.of(stream.finish()))
-    wrenches.publish_end_of_stream(node.fqn)
-    poses.publish_end_of_stream(node.fqn)
-    log.info("%s: %d messages and EndOfStream on %s and %s; %s", node.fqn, count,
-             wrenches.topic, poses.topic, ", ".join(f"{k} {v}" for k, v in counters.items()))
+    for publisher in (wrenches, poses, events):
+        publisher.publish_end_of_stream(node.fqn)
+    log.info("%s: %d messages and EndOfStream on %s, %s and %s; %s", node.fqn, count,
+             wrenches.topic, poses.topic, events.topic,
+             ", ".join(f"{k} {v}" for k, v in counters.items()))
     return count
 
 

@@ -1016,7 +1016,8 @@ class StreamSamples:
     ``t`` (M,) s; ``p_WR`` (M, 3) m and ``q_WR`` (M, 4) (x, y, z, w): the robot's pose X_WR;
     ``phase`` (M, W) `SamplePhase`; ``f0_n``, ``m0_nm`` (M, W, 3) the clamp's reaction on each
     rod about its clamp point in its clamp frame C, N and N m (zero when free, NaN when
-    unresolved), as `WhiskerResult`'s.
+    unresolved), as `WhiskerResult`'s; ``snaps`` the jumps told at these samples, in time
+    order (`simulate`'s `snaps` of the same path).
     """
 
     t: FloatArray
@@ -1025,6 +1026,21 @@ class StreamSamples:
     phase: NDArray[np.int64]
     f0_n: FloatArray
     m0_nm: FloatArray
+    snaps: tuple[StreamSnap, ...] = ()
+
+
+@dataclass(frozen=True)
+class StreamSnap:
+    """A jump of a streamed whisker's path (`snaps`), told with the samples that hold its
+    ``after`` sample: the whisker (index into the scene's), the `Snap` (its ``before`` and
+    ``after`` not indices here) and the clamp wrenches (N, N m, in C) at its two samples."""
+
+    whisker: int
+    snap: Snap
+    f0_before: FloatArray
+    m0_before: FloatArray
+    f0_after: FloatArray
+    m0_after: FloatArray
 
 
 class SceneStream:
@@ -1037,7 +1053,10 @@ class SceneStream:
     scene's own path only sets W's local origin, `local_origin`). Each whisker's step ``h``
     (units of its L) is given, not the path's largest motion: ``steps`` (one per whisker, e.g.
     `vibrissa.paths.PathLimits.rod_step`). With the path's own ``h`` and all of it fed, the
-    results are `simulate`'s, to the bit.
+    results are `simulate`'s, to the bit, but where a rod leaning on one object meets a second:
+    the stream ends the episode there (``another-object``), `simulate` goes on with both
+    contacts. The jumps (`snaps`) go out with the samples that hold the sample each is told
+    at (`StreamSamples.snaps`).
 
     What may wait for later samples: a contact in its first `EARLY_TRAVEL_L` of travel looks
     up to 16 samples ahead (`vibrissa.sweep.EARLY_MULTIPLES`), and a snap-off two samples
@@ -1108,12 +1127,17 @@ class SceneStream:
         rows = slice(self._sent, max(done, self._sent))
         self._sent = rows.stop
         results = [steps.raw_results(rows) for steps in self._steps]
+        told = [] if rows.stop == rows.start else sorted(
+            (event for j, steps in enumerate(self._steps)
+             for event in steps.snaps_until(j, float(self._t[rows.stop - 1]))),
+            key=lambda e: (e.snap.t, e.whisker))
         for steps in self._steps:
             steps.forget(self._sent)
         return StreamSamples(self._t[rows], self._p[rows], self._q[rows],
                              np.stack([r[0] for r in results], axis=1).reshape(-1, len(results)),
                              np.stack([r[1] for r in results], axis=1).reshape(-1, len(results), 3),
-                             np.stack([r[2] for r in results], axis=1).reshape(-1, len(results), 3))
+                             np.stack([r[2] for r in results], axis=1).reshape(-1, len(results), 3),
+                             tuple(told))
 
 
 FORGET_SAMPLES = 64
@@ -1151,6 +1175,8 @@ class _StreamSteps(_WhiskerSteps):
         self._recorded_to = 0  # ... up to this moving sample (exclusive)
         self._idle_at: tuple[int, bool] = (-1, False)  # (samples, final) when it last waited
         self._base = 0  # moving samples dropped (`forget`): index 0 of ``path`` is this one
+        self._pending: list[Snap] = []  # jumps found at samples not handed out yet
+        self._told: set[tuple[float, str]] = set()  # (t, kind) of the jumps told
 
     two_contacts = False
 
@@ -1290,6 +1316,42 @@ class _StreamSteps(_WhiskerSteps):
         of_sample = np.cumsum(self.moved) - 1
         return int(np.searchsorted(of_sample, self._base + kept_done, side="left"))
 
+    def snaps_until(self, whisker: int, t_until: float) -> list[StreamSnap]:
+        """The jumps (`snaps`) not told yet whose sample is at or before ``t_until``: `snaps`
+        of the moving samples held and the episodes that begin among them (those before
+        ended, and their jumps were told, before `forget` dropped their samples), the episode
+        in progress (or the landing about to start) bounding the last one that ended. A
+        snap-through is known once its episode ends: it is told then, later than its
+        sample."""
+        raw = np.flatnonzero(np.cumsum(self.moved) - 1 >= self._base)
+        if not len(raw):
+            return []
+        of_sample = np.cumsum(self.moved)[raw] - 1 - self._base
+        t = self.t_all[raw]
+        episodes = [e for e in self.episodes if e.t_first_contact >= t[0]]
+        if self.run is not None or self._snapped is not None:  # where the next one begins
+            at = float(t[np.searchsorted(of_sample, self.k)]) if self.k <= of_sample[-1] else t[-1]
+            episodes.append(Episode(self.scene.objects[self._object].name, at, "", [],
+                                    "landing" if self.run is not None and self._landed
+                                    else "touch"))
+        window = WhiskerResult(
+            self.whisker.name, t, self.phase[of_sample], self.s1[of_sample],
+            self.f0[of_sample], self.m0[of_sample], self.contact[of_sample],
+            self.touched[of_sample], self.refined[of_sample], episodes)
+        told, self._pending = [], []
+        for snap in snaps(window, [obj.name for obj in self.scene.objects]):
+            key = (snap.t, snap.kind)
+            if key in self._told:
+                continue
+            if snap.t > t_until:
+                self._pending.append(snap)
+                continue
+            self._told.add(key)
+            told.append(StreamSnap(whisker, snap, window.f0_n[snap.before],
+                                   window.m0_nm[snap.before], window.f0_n[snap.after],
+                                   window.m0_nm[snap.after]))
+        return told
+
     def raw_results(self, rows: slice) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
         """Phase (m,), f0 (m, 3) N and m0 (m, 3) N m of raw samples ``rows``."""
         of_sample = (np.cumsum(self.moved) - 1)[rows] - self._base
@@ -1299,8 +1361,9 @@ class _StreamSteps(_WhiskerSteps):
         """Drop the moving samples before ``k`` when the whisker waits for a touch and every
         raw sample before ``sent`` is handed out: what follows depends only on the path from
         ``k`` on (a tail of the path is the same samples and coordinates, `SampledPath.tail`),
-        and the path's cost stays that of the samples since then."""
-        if (self.run is not None or self._snapped is not None or self.ended
+        and the path's cost stays that of the samples since then (not while a jump waits to be
+        told, `snaps_until`)."""
+        if (self.run is not None or self._snapped is not None or self.ended or self._pending
                 or self.k < FORGET_SAMPLES or self.k >= len(self.kept) - 1
                 or self.kept[self.k] >= sent):
             return

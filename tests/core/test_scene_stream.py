@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from tests.core.test_sampling import yawing_scene
 from tests.core.test_scene_batched import random_scene
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.frames import Transform
@@ -23,6 +24,7 @@ from vibrissa.scene import (
     StreamSamples,
     _WhiskerSteps,
     simulate,
+    snaps,
 )
 
 DEMO = Path(__file__).parents[2] / "launch" / "robot" / "scene.yaml"
@@ -34,7 +36,8 @@ def fed(scene: Scene, steps: list[float], chunks: list[int]) -> tuple[StreamSamp
     stream = SceneStream(scene, steps)
     t, p, q = scene.path.t, scene.path.p_WR, scene.path.R_WR.as_quat()
     bounds = np.minimum(np.cumsum([0, *chunks]), len(t)).tolist() + [len(t)]
-    parts, out = [], []
+    parts: list[StreamSamples] = []
+    out = []
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         stream.extend(t[a:b], p[a:b], q[a:b])
         parts.append(stream.advance())
@@ -42,8 +45,11 @@ def fed(scene: Scene, steps: list[float], chunks: list[int]) -> tuple[StreamSamp
         # nothing is handed out before its sample arrived
         assert sum(out) <= b
     parts.append(stream.finish())
+    for part in parts:  # a jump goes out once its sample is out, and its episode has ended
+        assert all(told.snap.t <= part.t[-1] for told in part.snaps)
     return StreamSamples(*(np.concatenate([getattr(s, f) for s in parts]) for f in
-                           ("t", "p_WR", "q_WR", "phase", "f0_n", "m0_nm"))), out
+                           ("t", "p_WR", "q_WR", "phase", "f0_n", "m0_nm")),
+                         tuple(told for s in parts for told in s.snaps)), out
 
 
 def own_steps(scene: Scene) -> list[float]:
@@ -79,8 +85,12 @@ def test_the_demo_fed_in_chunks_is_simulate(chunk: int) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(8))
-def test_random_scenes_fed_at_random_are_simulate(seed: int) -> None:
-    """Several objects, pauses, spins: landings and episodes that meet another object too."""
+def test_random_scenes_fed_at_random_are_simulate(seed: int, monkeypatch: pytest.MonkeyPatch
+                                                  ) -> None:
+    """Several objects, pauses, spins: landings and episodes that meet another object too
+    (there the stream ends the episode, as `simulate` without two contacts does: the stream
+    does not follow two contacts, docs/LIMITS.md)."""
+    monkeypatch.setattr(_WhiskerSteps, "two_contacts", False)
     rng = np.random.default_rng(400 + seed)
     scene = random_scene(rng)
     chunks = rng.integers(1, 40, size=len(scene.path.t)).tolist()
@@ -182,3 +192,24 @@ def test_the_step_bounds_the_rod_motion_of_a_sample() -> None:
     h = limits.rod_step(mount, length)
     reach = np.linalg.norm(mount.translation) + length
     assert h == pytest.approx((0.1 + 1.0 * reach) / 500.0 / length, rel=1e-15)
+
+
+@pytest.mark.parametrize("chunk", [7, 100])
+def test_the_jumps_of_a_streamed_path_are_simulates(chunk: int) -> None:
+    """A tip on a ball slowing to a hold (tests/core/test_sampling.py): snap-off, landing and
+    snap-through, streamed once their samples are out, as `snaps` of `simulate` finds them,
+    with the wrenches of the streamed samples before and at each."""
+    scene = yawing_scene(50.0, 40.0, 0.5, 0.02, 4)
+    samples, _ = fed(scene, own_steps(scene), [chunk] * (len(scene.path.t) // chunk + 1))
+    (result,) = simulate(scene, workers=1)
+    want = snaps(result, ["ball"])
+    assert [s.kind for s in want] == ["snap-off", "landing", "snap-through"]
+    got = samples.snaps
+    assert [(g.snap.t, g.snap.kind, g.snap.object) for g in got] == [
+        (w.t, w.kind, w.object) for w in want]
+    for g in got:
+        after = int(np.flatnonzero(samples.t == g.snap.t)[0])
+        assert np.array_equal(g.f0_before, samples.f0_n[after - 1, 0])
+        assert np.array_equal(g.m0_before, samples.m0_nm[after - 1, 0])
+        assert np.array_equal(g.f0_after, samples.f0_n[after, 0])
+        assert np.array_equal(g.m0_after, samples.m0_nm[after, 0])

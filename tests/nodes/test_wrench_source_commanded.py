@@ -222,3 +222,48 @@ def test_a_robot_that_stands_between_segments_gives_one_pose_per_stamp_and_cover
     wrench_stamps = np.array([w.stamp for w in wrenches])
     assert pose_stamps[0] <= wrench_stamps.min() and wrench_stamps.max() <= pose_stamps[-1]
     np.testing.assert_array_equal(poses[-1].position, start + [0.07, 0.0, 0.0])
+
+
+def test_the_jumps_of_a_commanded_path_go_out_after_their_wrench(tmp_path: Path) -> None:
+    """A tip on a ball slowing to a hold (tests/core/test_sampling.py), its path commanded:
+    the snap-off, the landing and the snap-through of the fixed path, in that order, each a
+    SnapEvent stamped as a wrench that went out before it, with that wrench as ``after``."""
+    from tests.core.test_sampling import yawing_scene
+    from vibrissa.msgs import SnapEvent
+    from vibrissa.scene import snaps
+
+    scene = yawing_scene(50.0, 40.0, 0.5, 0.02, 4)
+    q = scene.path.R_WR.as_quat()
+    scene = dataclasses.replace(scene, path=robot_path(np.arange(len(q)) / 500.0,
+                                                       scene.path.p_WR, q))
+    ball, (rod,) = scene.objects[0], scene.whiskers
+    mount = rod.X_RC.quaternion_xyzw.tolist()
+    (tmp_path / "scene.yaml").write_text(
+        f"mu: {scene.mu}\nobjects:\n  - {{name: ball, shape: sphere, radius_m: "
+        f"{float(ball.sizes['radius_m'])!r}, position_m: "
+        f"{[float(v) for v in ball.X_WO.translation]}}}\nwhiskers:\n  - {{name: w, length_m: "
+        f"{rod.length_m!r}, ei_nm2: {rod.ei_nm2!r}, mount: {{position_m: [0, 0, 0], "
+        f"quaternion_xyzw: {[float(v) for v in mount]}}}}}\npath: path.csv\n")
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(
+        f"{float(t)!r},0,0,0,{','.join(repr(float(v)) for v in qk)}\n"
+        for t, qk in zip(scene.path.t, q, strict=True)))
+    # the robot turns in place at its path's rate, which is the limit: Step 1's step is the
+    # path's own (`PathLimits.rod_step`)
+    turn_rps = float((scene.path.R_WR[1] * scene.path.R_WR[0].inv()).magnitude()) * 500.0
+    node = CommandedNode([segment(scene.path.p_WR[1:], q[1:], speed_mps=1e-6,
+                                  turn_rate_rps=turn_rps), end()])
+    run_commanded(node, WrenchSourceParams(  # type: ignore[arg-type]
+        mode="scene", scene=str(tmp_path / "scene.yaml"), path_topic=PATH, pose_rate_hz=0.0,
+        epoch_s=1000.0, max_speed_mps=1e-6, max_turn_rate_rps=turn_rps))
+    events = [m for m in node.publishers["events"].sent if m != "EOS"]
+    assert node.publishers["events"].sent[-1] == "EOS"
+    (result,) = simulate(scene, workers=1)
+    want = snaps(result, ["ball"])
+    assert [e.kind for e in events] == [w.kind for w in want] == [
+        "snap-off", "landing", "snap-through"]
+    wrenches = {w.stamp: w for w in node.publishers["wrench"].sent if w != "EOS"}
+    for event, w in zip(events, want, strict=True):
+        assert isinstance(event, SnapEvent) and event.object == "ball"
+        assert abs(event.stamp - (1000.0 + w.t)) <= 2.5 / 500  # the commanded step is its own
+        told = wrenches[event.stamp]
+        np.testing.assert_array_equal(event.f0_after, told.f0[0])

@@ -76,7 +76,9 @@ class ReconstructorParams:
         Most messages taken in one batch (reconstructed, then published) when the node falls
         behind.
     receive_hwm
-        Receive high-water mark, messages: the backlog the node can hold without loss.
+        Receive high-water mark, messages: the backlog the node can hold without loss; its
+        output queues as many for a subscriber that is busy (a mapper fitting while the points
+        held for it go out at once).
     exit_on_eos
         Exit (status 0) after forwarding the first ``EndOfStream``; by default the node runs
         until stopped, like a sensor driver.
@@ -264,7 +266,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
         topics[params.pose_topic] = RobotPose
     subscriber = node.create_subscriber(topics, hwm=params.receive_hwm)  # type: ignore[arg-type]
     publisher = node.create_publisher(params.output_topic, ContactPointArray,
-                                      wait_for=params.wait_for)
+                                      wait_for=params.wait_for, hwm=params.receive_hwm)
     batches = BatchCollector(subscriber.receive, params.drain_limit, params.max_batch,
                              stream.add_pose, resolve_topic(params.input_topic, node.namespace),
                              max_span_s=params.history_s / 2)

@@ -22,6 +22,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from tests.core.test_random_scenes import random_scene
+from tests.core.test_two_contacts_scene import two_contacts_worst
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.frames import Transform
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate_whisker
@@ -55,8 +56,9 @@ def check_against_the_rod(scene: Scene, whisker: int = 0, every: int = 1) -> dic
     w = scene.whiskers[whisker]
     L, EI = w.length_m, w.ei_nm2
     result = simulate_whisker(scene, w)
-    rows = np.flatnonzero((result.phase == SamplePhase.TIP)
-                          | (result.phase == SamplePhase.TANGENTIAL))[::every]
+    rows = np.flatnonzero(((result.phase == SamplePhase.TIP)
+                           | (result.phase == SamplePhase.TANGENTIAL))
+                          & (result.second_object < 0))[::every]
     R_WC = scene.path.R_WR[rows] * w.X_RC.rotation
     p_WC = scene.path.p_WR[rows] + scene.path.R_WR[rows].apply(np.array(w.X_RC.translation))
     worst = {"reach": 0.0, "tangent": 0.0, "inside": 0.0, "cone": 0.0, "free inside": -np.inf,
@@ -81,6 +83,12 @@ def check_against_the_rod(scene: Scene, whisker: int = 0, every: int = 1) -> dic
         F_t = float(np.linalg.norm(F_W - F_n * n_W))
         assert F_n > 0.0, f"sample {i}: the object pulls the rod (F . n = {F_n})"
         worst["cone"] = max(worst["cone"], (F_t - scene.mu * F_n) / np.linalg.norm(F_W))
+    # samples with a second contact: their own formulation (tests/core/test_two_contacts_scene)
+    two = two_contacts_worst(scene, w, result)
+    worst["two-contact samples"] = two["samples"]
+    worst["reach"] = max(worst["reach"], two["on"], two["inner"], two["outer"])
+    worst["tangent"] = max(worst["tangent"], two["tangent"])
+    worst["inside"] = max(worst["inside"], two["inside"])
     free = np.flatnonzero(result.phase == SamplePhase.NONE)
     rod_C = np.outer(np.linspace(0.0, 1.0, 50), [0.0, 0.0, 1.0])  # a free rod is straight
     R_WC = scene.path.R_WR[free] * w.X_RC.rotation
@@ -121,11 +129,13 @@ def test_the_robot_demos_whiskers_against_an_independent_rod(whisker: int) -> No
 @pytest.mark.parametrize("mu", [0.0, 0.3])
 def test_a_rod_leaning_on_one_object_never_enters_another(mu: float) -> None:
     """A rod slides along a ball A (side graze at 0.8 L) while the clamp drives under A, towards
-    a ball B low on its path. The bent rod meets B: contact with two objects is not modelled, so
-    the episode ends there (``another-object``), the independent rod of every contact sample is
-    outside both balls, its last one within a few samples' travel of B, and the samples after it
-    are unresolved until the straight rod is clear of both. Step 1 once followed A on and put the
-    rod 0.1 L deep into B (a posed scene of the independent check: up to 0.147 L)."""
+    a ball B low on its path. The bent rod meets B: the episode on A ends there
+    (``another-object``) and a second-contact episode goes on with both; the independent rod of
+    every sample (one contact: the planar elastica from the wrench; two: the spatial rod from
+    the wrench, tests/core/test_two_contacts_scene) is outside both balls and touches where
+    Step 1 says, the last sample with A alone within a few samples' travel of B, and no sample
+    is unresolved. Step 1 once followed A on and put the rod 0.1 L deep into B (a posed scene
+    of the independent check: up to 0.147 L)."""
     L, n = 0.05, 951
     a = SceneObject("a", "sphere", {"radius_m": 0.3 * L}, Transform(translation=[0.3 * L, 0, 0.8 * L]))
     b = SceneObject("b", "sphere", {"radius_m": 0.1 * L}, Transform(translation=[0.35 * L, 0, 0.15 * L]))
@@ -135,18 +145,15 @@ def test_a_rod_leaning_on_one_object_never_enters_another(mu: float) -> None:
     whisker = Whisker("w", L, 1e-4)
     scene = Scene(mu, (a, b), (whisker,), path)
     worst = check_against_the_rod(scene)
-    assert worst["samples"] > 100
+    assert worst["samples"] > 100 and worst["two-contact samples"] > 10
     assert worst["inside"] <= 1e-10 and worst["free inside"] <= 0.0
-    assert worst["reach"] <= 1e-10 and worst["cone"] <= 1e-10
+    assert worst["reach"] <= 1e-10 and worst["cone"] <= 1e-10 and worst["tangent"] <= 1e-8
     result = simulate_whisker(scene, whisker)
-    [episode] = result.episodes
-    assert (episode.object, episode.end) == ("a", "another-object")
-    contact = np.flatnonzero(result.phase != SamplePhase.NONE)
-    rows = contact[result.phase[contact] != SamplePhase.UNRESOLVED]
-    last, unresolved = int(rows[-1]), contact[contact > rows[-1]]
-    assert np.array_equal(unresolved, np.arange(last + 1, last + 1 + len(unresolved)))
-    assert np.all(np.isnan(result.f0_n[unresolved])) and np.all(np.isnan(result.p_W_m[unresolved]))
-    assert np.all(result.phase[unresolved[-1] + 1:] == SamplePhase.NONE)
+    first, both, *_rest = result.episodes
+    assert (first.object, first.end) == ("a", "another-object")
+    assert (both.start, both.object, both.second_object) == ("second-contact", "a", "b")
+    assert not np.any(result.phase == SamplePhase.UNRESOLVED)
+    last = int(np.flatnonzero(result.second_object >= 0)[0]) - 1  # A alone, the last time
     # the last contact sample's independent rod is within 5 samples' travel of B
     rod_C, tangent_C = rod_in_clamp_frame(result.f0_n[last] * L**2 / whisker.ei_nm2,
                                           result.m0_nm[last] * L / whisker.ei_nm2,

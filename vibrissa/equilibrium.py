@@ -38,6 +38,27 @@ kappa0 17, e_w 18:21, status 21, converged 22 (1 or 0)."""
 
 
 @compiled
+def quadric_gap(p: FloatArray, Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray,
+                p_WB: FloatArray, normal: FloatArray) -> float:
+    """First-order signed distance of ``p`` (W) to the object's quadric g(p_B) = p_B' Q p_B +
+    lin' p_B + c placed at X_WB (g / |grad g|), its outward normal in W into ``normal``."""
+    p_B = np.empty(3)
+    for j in range(3):
+        p_B[j] = ((p[0] - p_WB[0]) * R_WB[0, j] + (p[1] - p_WB[1]) * R_WB[1, j]
+                  + (p[2] - p_WB[2]) * R_WB[2, j])
+    g = c
+    grad = np.empty(3)
+    for j in range(3):
+        qp = p_B[0] * Q[0, j] + p_B[1] * Q[1, j] + p_B[2] * Q[2, j]
+        g += p_B[j] * qp + lin[j] * p_B[j]
+        grad[j] = 2.0 * qp + lin[j]
+    grad_norm = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
+    for i in range(3):
+        normal[i] = (R_WB[i, 0] * grad[0] + R_WB[i, 1] * grad[1] + R_WB[i, 2] * grad[2]) / grad_norm
+    return g / grad_norm
+
+
+@compiled
 def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
                  anchor: FloatArray, mode: int, locked: bool, Q: FloatArray, lin: FloatArray,
                  c: float, R_WB: FloatArray, p_WB: FloatArray, out: FloatArray) -> None:
@@ -60,22 +81,8 @@ def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
         p1[i] = p_WC[i] + u1 * e_u[i] + v1 * e_v[i]
         tangent[i] = cos1 * e_u[i] + sin1 * e_v[i]
         force[i] = fu * e_u[i] + fv * e_v[i]
-    # the object: first-order signed distance and outward normal of its quadric
-    p_B = np.empty(3)
-    for j in range(3):
-        p_B[j] = ((p1[0] - p_WB[0]) * R_WB[0, j] + (p1[1] - p_WB[1]) * R_WB[1, j]
-                  + (p1[2] - p_WB[2]) * R_WB[2, j])
-    g = c
-    grad = np.empty(3)
-    for j in range(3):
-        qp = p_B[0] * Q[0, j] + p_B[1] * Q[1, j] + p_B[2] * Q[2, j]
-        g += p_B[j] * qp + lin[j] * p_B[j]
-        grad[j] = 2.0 * qp + lin[j]
-    grad_norm = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
-    gap = g / grad_norm
     normal = np.empty(3)
-    for i in range(3):
-        normal[i] = (R_WB[i, 0] * grad[0] + R_WB[i, 1] * grad[1] + R_WB[i, 2] * grad[2]) / grad_norm
+    gap = quadric_gap(p1, Q, lin, c, R_WB, p_WB, normal)
     # Coulomb (eq. 7): F along n + mu t, t towards the anchor in the tangent plane
     chord = np.empty(3)
     for i in range(3):

@@ -46,6 +46,7 @@ from vibrissa.equilibrium import (
     MODE_TANGENTIAL,
     MODE_TIP,
     NEWTON_TOL,
+    quadric_gap,
 )
 from vibrissa.paths import SampledPath
 from vibrissa.surfaces import Surface
@@ -125,27 +126,6 @@ def rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: int) -> 
 
 
 @compiled
-def _surface(p: FloatArray, Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray,
-             p_WB: FloatArray, normal: FloatArray) -> float:
-    """First-order signed distance of ``p`` (W) to the quadric, its outward normal into
-    ``normal``."""
-    p_B = np.empty(3)
-    for j in range(3):
-        p_B[j] = ((p[0] - p_WB[0]) * R_WB[0, j] + (p[1] - p_WB[1]) * R_WB[1, j]
-                  + (p[2] - p_WB[2]) * R_WB[2, j])
-    g = c
-    grad = np.empty(3)
-    for j in range(3):
-        qp = p_B[0] * Q[0, j] + p_B[1] * Q[1, j] + p_B[2] * Q[2, j]
-        g += p_B[j] * qp + lin[j] * p_B[j]
-        grad[j] = 2.0 * qp + lin[j]
-    size = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
-    for i in range(3):
-        normal[i] = (R_WB[i, 0] * grad[0] + R_WB[i, 1] * grad[1] + R_WB[i, 2] * grad[2]) / size
-    return g / size
-
-
-@compiled
 def _contact_conditions(mode: int, s: float, p: FloatArray, t: FloatArray, force: FloatArray,
                         anchor: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: float,
                         R_WB: FloatArray, p_WB: FloatArray, out: FloatArray,
@@ -153,7 +133,7 @@ def _contact_conditions(mode: int, s: float, p: FloatArray, t: FloatArray, force
     """The four conditions of one contact into ``out`` (4,), its point, tangent, normal and
     force into ``info`` (12,)."""
     normal = np.empty(3)
-    gap = _surface(p, Q, lin, c, R_WB, p_WB, normal)
+    gap = quadric_gap(p, Q, lin, c, R_WB, p_WB, normal)
     tangency = t[0] * normal[0] + t[1] * normal[1] + t[2] * normal[2]
     out[0] = s - 1.0 if mode == MODE_TIP or mode == MODE_STICK else tangency
     if mode == MODE_STICK or mode == MODE_STICK_TANGENTIAL:

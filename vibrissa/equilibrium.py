@@ -59,6 +59,27 @@ def quadric_gap(p: FloatArray, Q: FloatArray, lin: FloatArray, c: float, R_WB: F
 
 
 @compiled
+def coulomb_direction(p: FloatArray, anchor: FloatArray, normal: FloatArray, mu: float,
+                      direction: FloatArray) -> None:
+    """The unit direction of a sliding contact's force (eq. 7) into ``direction``: along
+    n + mu t, t the unit chord from ``p`` towards ``anchor`` (its last point) in the tangent
+    plane of ``normal``; n alone where the chord is zero."""
+    chord = np.empty(3)
+    for i in range(3):
+        chord[i] = anchor[i] - p[i]
+    along_n = chord[0] * normal[0] + chord[1] * normal[1] + chord[2] * normal[2]
+    for i in range(3):
+        chord[i] -= along_n * normal[i]
+    chord_length = math.sqrt(chord[0] ** 2 + chord[1] ** 2 + chord[2] ** 2)
+    for i in range(3):
+        slide = chord[i] / chord_length if chord_length > 0 else 0.0
+        direction[i] = normal[i] + mu * slide
+    size = math.sqrt(direction[0] ** 2 + direction[1] ** 2 + direction[2] ** 2)
+    for i in range(3):
+        direction[i] /= size
+
+
+@compiled
 def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
                  anchor: FloatArray, mode: int, locked: bool, Q: FloatArray, lin: FloatArray,
                  c: float, R_WB: FloatArray, p_WB: FloatArray, out: FloatArray) -> None:
@@ -83,21 +104,8 @@ def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
         force[i] = fu * e_u[i] + fv * e_v[i]
     normal = np.empty(3)
     gap = quadric_gap(p1, Q, lin, c, R_WB, p_WB, normal)
-    # Coulomb (eq. 7): F along n + mu t, t towards the anchor in the tangent plane
-    chord = np.empty(3)
-    for i in range(3):
-        chord[i] = anchor[i] - p1[i]
-    along_n = chord[0] * normal[0] + chord[1] * normal[1] + chord[2] * normal[2]
-    for i in range(3):
-        chord[i] -= along_n * normal[i]
-    chord_length = math.sqrt(chord[0] ** 2 + chord[1] ** 2 + chord[2] ** 2)
     direction = np.empty(3)
-    for i in range(3):
-        slide = chord[i] / chord_length if chord_length > 0 else 0.0
-        direction[i] = normal[i] + mu * slide
-    size = math.sqrt(direction[0] ** 2 + direction[1] ** 2 + direction[2] ** 2)
-    for i in range(3):
-        direction[i] /= size
+    coulomb_direction(p1, anchor, normal, mu, direction)
     f = math.hypot(fu, fv)
     in_plane = direction[0] * e_w[0] + direction[1] * e_w[1] + direction[2] * e_w[2]
     d_u = direction[0] * e_u[0] + direction[1] * e_u[1] + direction[2] * e_u[2]

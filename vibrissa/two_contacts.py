@@ -46,6 +46,7 @@ from vibrissa.equilibrium import (
     MODE_TANGENTIAL,
     MODE_TIP,
     NEWTON_TOL,
+    coulomb_direction,
     quadric_gap,
 )
 from vibrissa.paths import SampledPath
@@ -139,19 +140,8 @@ def _contact_conditions(mode: int, s: float, p: FloatArray, t: FloatArray, force
     if mode == MODE_STICK or mode == MODE_STICK_TANGENTIAL:
         out[1], out[2], out[3] = p[0] - anchor[0], p[1] - anchor[1], p[2] - anchor[2]
     else:
-        chord = np.empty(3)
-        for i in range(3):
-            chord[i] = anchor[i] - p[i]
-        along_n = chord[0] * normal[0] + chord[1] * normal[1] + chord[2] * normal[2]
-        for i in range(3):
-            chord[i] -= along_n * normal[i]
-        chord_length = math.sqrt(chord[0] ** 2 + chord[1] ** 2 + chord[2] ** 2)
         d = np.empty(3)
-        for i in range(3):
-            d[i] = normal[i] + (mu * chord[i] / chord_length if chord_length > 0 else 0.0)
-        size = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
-        for i in range(3):
-            d[i] /= size
+        coulomb_direction(p, anchor, normal, mu, d)
         # two directions across d: the rod's tangent made normal to d, and d x that
         td = t[0] * d[0] + t[1] * d[1] + t[2] * d[2]
         u = np.empty(3)

@@ -203,7 +203,8 @@ class Sweep:
     in between are missing, the row is ``refined``): see ``_longer_step``. ``refined`` also marks
     steps reached through sub-steps (the chord of eq. 7 is then a sub-step's). ``jumped`` marks
     rows the contact jumped to: a far slide (``_FAR_STEPS``), taken where no nearer state was
-    found, a snap-through to another branch.
+    found, or a jump of the contact force inside a step retaken in sub-steps
+    (`_through_steep_step`): a snap-through to another branch.
     """
 
     trail: ClampPath
@@ -221,7 +222,7 @@ class Sweep:
     fn: FloatArray
     ft: FloatArray
     refined: NDArray[np.bool_]  # not one plain step: sub-steps, or a longer step after the touch
-    jumped: NDArray[np.bool_]  # the contact jumped there (a far slide): a snap-through
+    jumped: NDArray[np.bool_]  # the contact jumped there (a snap-through)
     end: SweepEnd
     x0_end: float
     phase_changes: list[tuple[float, str, str]]
@@ -554,7 +555,7 @@ class _Track:
     pending: tuple[FloatArray, FloatArray, FloatArray, float] = ()  # type: ignore[assignment]  # p1, normal, force, s1 of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
     trace: list[FloatArray] = field(default_factory=list)  # the slide's last contact points, newest last
-    jumped: bool = False  # the last step took a far slide (no nearer state)
+    jumped: bool = False  # the last step jumped (a far slide, or the force inside the step)
     pace: float = math.nan  # the contact force's change per unit of clamp travel in the last row
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
     s_touch: float = float("nan")  # arc length of the straight rod's touching point, units of L

@@ -55,8 +55,8 @@ from vibrissa.surfaces import Surface
 FloatArray = NDArray[np.float64]
 
 SEGMENT_STEPS = 256
-"""Runge-Kutta steps on each loaded segment: the contact points to ~1e-12 L on the rods of
-the tests (halving the steps moves them by 16x that)."""
+"""Runge-Kutta steps on each loaded segment (the error falls as the fourth power of the
+step: tests/core/test_two_contacts*.py give the closures against scipy's `solve_ivp`)."""
 N_UNKNOWNS = 10
 STATE_WIDTH = 34
 """A solution's state: the ten conditions 0:10, then per contact j from 10 + 12 j its point,
@@ -469,7 +469,7 @@ def _step(predictor: FloatArray, last: FloatArray, p_WC: FloatArray, R_WC: Float
     why = "none"
     for combo in combos:
         modes = np.array(combo, dtype=np.int64)
-        for start in (predictor, last):
+        for start in (predictor, last) if predictor is not last else (last,):
             x, state = solve(start, p_WC, R_WC, modes, anchors, mu, *kernel)
             if not converged(state, modes):
                 continue

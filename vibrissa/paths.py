@@ -11,6 +11,8 @@ paper's trail is one clamp displacement.
 
 from __future__ import annotations
 
+import bisect
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -113,6 +115,38 @@ class SampledPath:
     def x0_of(self, k: FloatArray) -> FloatArray:
         """The path coordinate x0 of (fractional) sample indices ``k``."""
         return -np.asarray(k, dtype=float) * self.h
+
+    @functools.cached_property
+    def _travelled(self) -> list[float]:
+        """The straight rod's travel (`rod_motion` summed) from sample 0 to each sample (N,),
+        units of L (a list: Step 1 reads it a float at a time)."""
+        motion = rod_motion(self.p_WR, self.q_WR, self.mount)
+        return [0.0, *np.cumsum(motion).tolist()]
+
+    def _travelled_at(self, x0: float) -> float:
+        at, total = -x0 / self.h, self._travelled
+        if at <= 0.0:
+            return 0.0
+        k = min(int(at), len(total) - 2)
+        return total[k] + (min(at, len(total) - 1.0) - k) * (total[k + 1] - total[k])
+
+    def travel(self, x_from: float, x_to: float) -> float:
+        """How far the straight rod moves from ``x_from`` to ``x_to`` <= ``x_from``, units of
+        L (`rod_motion` summed over the samples, linear within one): at most ``x_from -
+        x_to``, the coordinate advancing ``h`` a sample, at least the rod's motion."""
+        return self._travelled_at(x_to) - self._travelled_at(x_from)
+
+    def travel_end(self, x_from: float, travel: float) -> float:
+        """The coordinate x0 <= ``x_from`` at which the straight rod has moved ``travel``
+        (units of L, as `travel` measures it) since ``x_from``; ``x_end`` where it never
+        does."""
+        total = self._travelled
+        goal = self._travelled_at(x_from) + travel
+        k = bisect.bisect_left(total, goal)  # total[k - 1] < goal <= total[k]
+        if k >= len(total):
+            return self.x_end
+        k = max(k, 1)
+        return -(k - 1 + (goal - total[k - 1]) / (total[k] - total[k - 1])) * self.h
 
     def clamp_pose(self, x0: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Clamp poses at ``x0`` (n,): origins (n, 3) and rotations R_WC (n, 3, 3); ValueError

@@ -54,7 +54,6 @@ from vibrissa.status import SNAP_KINDS, ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface, segments_meet
 from vibrissa.sweep import (
     EARLY_MULTIPLES,
-    EARLY_TRAVEL_L,
     Landing,
     Sweep,
     SweepRun,
@@ -1058,11 +1057,11 @@ class SceneStream:
     contacts. The jumps (`snaps`) go out with the samples that hold the sample each is told
     at (`StreamSamples.snaps`).
 
-    What may wait for later samples: a contact in its first `EARLY_TRAVEL_L` of travel looks
-    up to 16 samples ahead (`vibrissa.sweep.EARLY_MULTIPLES`), and a snap-off two samples
-    (a landing is never on the path's last sample); `advance` with ``hold`` False steps as
-    far as the samples go, as if the path ended there for the look-ahead (a robot that
-    stopped: it gives up the longer early steps past that end); `finish` ends the path.
+    What may wait for later samples: a contact in its first `vibrissa.sweep.EARLY_TRAVEL_L` of
+    travel looks up to 16 samples ahead (`vibrissa.sweep.EARLY_MULTIPLES`), and a snap-off two
+    samples (a landing is never on the path's last sample); `advance` with ``hold`` False
+    steps as far as the samples go, as if the path ended there for the look-ahead (a robot
+    that stopped: it gives up the longer early steps past that end); `finish` ends the path.
     """
 
     def __init__(self, scene: Scene, steps: Sequence[float]) -> None:
@@ -1261,11 +1260,10 @@ class _StreamSteps(_WhiskerSteps):
             return False
         if self.final:
             return True
-        progress = self.run.progress(0)
         need = self._next_sample()
         if not self.hold:
             return need <= self.path.n_samples - 1
-        if progress.x_touch - progress.x0 < EARLY_TRAVEL_L:
+        if self.run.early(0):
             need += EARLY_MULTIPLES[-1] - 1
         # not onto the last sample: a pose there is interpolated in the interval before it
         # (`vibrissa.frames.PoseSamples`), once more samples came in the one after it, which

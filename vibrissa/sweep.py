@@ -106,7 +106,8 @@ _IDENTITY.flags.writeable = False
 _DETACHMENT_FRACTION = 0.02  # last force / peak force below which the sweep ended smoothly
 _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the force reaches zero
 EARLY_TRAVEL_L = 0.01
-"""Clamp travel from the touch (units of L) within which a failed step tries longer ones."""
+"""Clamp travel from the touch (units of L) within which a failed step tries longer ones
+(`SweepRun.early`)."""
 EARLY_MULTIPLES = (2, 4, 8, 16)
 """The longer steps a failed early step tries, in steps: a sweep looks this far ahead."""
 CLAMP_TOUCH_L = 1e-6
@@ -143,6 +144,17 @@ class ClampPath(Protocol):
         """Clamp poses X_WC at ``x0`` (n,): origins p_WC (n, 3), rotations R_WC (n, 3, 3)."""
         ...
 
+    def travel(self, x_from: float, x_to: float) -> float:
+        """How far the straight rod's points move from ``x_from`` to ``x_to`` <= ``x_from``,
+        units of L: at most ``x_from - x_to`` (the coordinate advances at least as fast as the
+        rod moves)."""
+        ...
+
+    def travel_end(self, x_from: float, travel: float) -> float:
+        """The x0 <= ``x_from`` at which the rod has moved ``travel`` (units of L, as `travel`
+        measures it) since ``x_from``; ``x_end`` where it never does."""
+        ...
+
     def first_contact(self, surface: Surface) -> tuple[float, FloatArray] | None:
         """The first x0 at which the straight rod touches the object, and the touch point in
         W; None when it never does."""
@@ -171,6 +183,14 @@ class Trail:
     def symmetric(self, surface: Surface) -> bool:
         """Whether the object is symmetric across the vertical plane y = y0 of the trail."""
         return surface.is_mirror_symmetric([0.0, self.y0, 0.0], [0.0, 1.0, 0.0])
+
+    def travel(self, x_from: float, x_to: float) -> float:
+        """``x_from - x_to``: x0 is the clamp's x."""
+        return x_from - x_to
+
+    def travel_end(self, x_from: float, travel: float) -> float:
+        """``x_from - travel``: x0 is the clamp's x."""
+        return x_from - travel
 
     def clamp_pose(self, x0: FloatArray) -> tuple[FloatArray, FloatArray]:
         """The clamp poses X_WC at positions ``x0`` (n,) of the trail: origins p_WC (n, 3) =
@@ -560,6 +580,7 @@ class _Track:
     x_touch: float = float("nan")  # clamp x0 at the first contact, units of L
     s_touch: float = float("nan")  # arc length of the straight rod's touching point, units of L
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
+    x_early: float = float("nan")  # where EARLY_TRAVEL_L of travel after the touch ends (NaN: not known yet)
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -687,6 +708,11 @@ class SweepRun:
         f0, m0 = _clamp_reactions(q, np.array([r[6] for r in rows]).reshape(n, 3),
                                   track.trail.clamp_pose(x0)[1])
         return x0, f0, m0
+
+    def early(self, index: int) -> bool:
+        """Whether sweep ``index``'s clamp has travelled less than `EARLY_TRAVEL_L` since its
+        touch: a failed step then tries longer ones, up to `EARLY_MULTIPLES` steps ahead."""
+        return _early(self._tracks[index])
 
     def follow(self, index: int, trail: ClampPath) -> None:
         """Sweep ``index`` goes on along ``trail``: its trail with more samples after its end
@@ -941,10 +967,28 @@ def _slow_slide(track: _Track) -> bool:
     return track.mode not in _STUCK and 0.0 < track.chord < RESOLVED_CHORD_L
 
 
+def _early_end(track: _Track) -> float:
+    """The x0 at which the clamp has travelled ``EARLY_TRAVEL_L`` since the touch (the trail's
+    end while it has not yet: a path that grows, `SweepRun.follow`)."""
+    if math.isnan(track.x_early):
+        end = track.trail.travel_end(track.x_touch, EARLY_TRAVEL_L)
+        if end > track.trail.x_end:
+            track.x_early = end
+        return end
+    return track.x_early
+
+
+def _early(track: _Track) -> bool:
+    """Whether the clamp has travelled less than ``EARLY_TRAVEL_L`` since the touch. The path
+    coordinate advances at least as fast as the clamp: a robot slower than its path's step
+    (a commanded robot below its limits) is early for more than ``EARLY_TRAVEL_L`` of it."""
+    return track.x_touch - track.x0 < EARLY_TRAVEL_L or track.x0 > _early_end(track)
+
+
 def _unresolved_slip(track: _Track) -> bool:
-    """Whether a failed step may be taken as a longer one (`_longer_step`): within
-    ``EARLY_TRAVEL_L`` of the touch, or a slow slide."""
-    return track.x_touch - track.x0 < EARLY_TRAVEL_L or _slow_slide(track)
+    """Whether a failed step may be taken as a longer one (`_longer_step`): `_early` after the
+    touch, or a slow slide."""
+    return _early(track) or _slow_slide(track)
 
 
 class _Undo:
@@ -987,7 +1031,7 @@ def _longer_step(track: _Track) -> bool:
     step = track.step
     before = track.history[-1] if track.history else None
     next_point = next_grid_point(track.x0, track.x_grid, step)
-    window = track.x_touch - EARLY_TRAVEL_L
+    window = min(track.x_touch - EARLY_TRAVEL_L, _early_end(track))
     last_chord = max(track.chord, RESOLVED_CHORD_L)
     slow = _slow_slide(track)
     for multiple in EARLY_MULTIPLES:
@@ -1093,7 +1137,12 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     """
     n = len(tracks)
     success = np.zeros(n, dtype=bool)
+    # the contact's largest move: 20 times the rod's in the step (the coordinate's step on a
+    # path the robot follows at its step's speed, less where it goes slower: a commanded robot
+    # below its limits), at least 0.01 L
     jump = np.maximum(20.0 * steps, 0.01)
+    for i in np.flatnonzero(jump > 0.01).tolist():
+        jump[i] = max(20.0 * tracks[i].trail.travel(targets[i] + steps[i], targets[i]), 0.01)
     objects: tuple[FloatArray, ...]
     if n == 1:
         p_WC, R_WC = tracks[0].trail.clamp_pose(targets)
@@ -1161,7 +1210,8 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
             # from where it holds (`_FAR_STEPS`).
             for k in np.flatnonzero(ok):
                 i = int(rows[k])
-                if mu[i] > 0 and _far(tracks[i], _chord(state.rows[k, 4:7], p1[i]), steps[i]):
+                if mu[i] > 0 and _far(tracks[i], _chord(state.rows[k, 4:7], p1[i]), targets[i],
+                                          steps[i]):
                     far.setdefault(i, (q[k].copy(), _take_state(state, int(k)), int(modes[i]), kind))
                     ok[k] = False
         for k in np.flatnonzero(ok):
@@ -1277,12 +1327,14 @@ contact up to about 1.5 steps (the paper's trail near a detachment: 2-3, each st
 growing by less than 2x)."""
 
 
-def _far(track: _Track, chord: float, step: float) -> bool:
-    """Whether a slide moving the contact by ``chord`` in a step of ``step`` is far
-    (``_FAR_STEPS``); not when it repeats the move two steps back (within 2x): in stick-slip,
-    jumps alternate with creeps where each creep's branch folds, and checking every jump cost
-    the paper's trail at mu 0.4 3x the time for the same states."""
-    return (chord > max(_FAR_STEPS * step, _FAR_GROWTH * track.chord)
+def _far(track: _Track, chord: float, target: float, step: float) -> bool:
+    """Whether a slide moving the contact by ``chord`` in the step of ``step`` to ``target``
+    is far (``_FAR_STEPS`` of the rod's travel in it); not when it repeats the move two steps
+    back (within 2x): in stick-slip, jumps alternate with creeps where each creep's branch
+    folds, and checking every jump cost the paper's trail at mu 0.4 3x the time for the same
+    states."""
+    return (chord > _FAR_GROWTH * track.chord
+            and chord > _FAR_STEPS * track.trail.travel(target + step, target)
             and not 0.5 * track.chord_before <= chord <= 2.0 * track.chord_before)
 
 

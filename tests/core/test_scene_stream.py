@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tests.core.test_sampling import yawing_scene
+from tests.core.test_sampling import L_M, yawing_scene
 from tests.core.test_scene_batched import random_scene
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.frames import Transform
@@ -111,6 +111,31 @@ def test_with_a_larger_step_the_wrenches_agree_within_newtons_tolerance() -> Non
         assert np.array_equal(samples.phase[:, i], r.phase)
         np.testing.assert_allclose(samples.f0_n[:, i], r.f0_n, rtol=0, atol=1e-12)
         np.testing.assert_allclose(samples.m0_nm[:, i], r.m0_nm, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("tilt_deg, elevation_deg, mu, radius_m, per_sample", [
+    (50.0, 40.0, 0.5, 0.02, 4), (45.0, -20.0, 0.5, 0.01, 1), (40.0, 10.0, 0.3, 0.005, 4)])
+@pytest.mark.parametrize("slower", [10, 100])
+def test_a_robot_slower_than_its_step_gives_simulates_contacts(
+        tilt_deg: float, elevation_deg: float, mu: float, radius_m: float, per_sample: int,
+        slower: int) -> None:
+    """A commanded robot's step is the rod's motion at its limits: one driving ``slower``
+    times slower has its contacts all the same. A tip touching a ball at mu 0.3-0.5 slips by
+    the rod's shortening at first (too little for eq. 7's direction over one sample): it takes
+    longer steps over the first 0.01 L of the rod's travel, not of the coordinate's (which
+    would be one sample at 10x), and a slide is far by the rod's motion, not the coordinate's.
+    The same phases as `simulate` but at most two samples (an unresolved one next to the
+    touch), the wrenches within 1e-7 N of a 0.075-0.16 N peak."""
+    scene = yawing_scene(tilt_deg, elevation_deg, mu, radius_m, per_sample)
+    (want,) = simulate(scene, workers=1)
+    samples, _ = fed(scene, [slower * h for h in own_steps(scene)],
+                     [50] * (len(scene.path.t) // 50 + 1))
+    same = samples.phase[:, 0] == want.phase
+    assert np.count_nonzero(~same) <= 2
+    assert np.isin(want.phase, [SamplePhase.TIP, SamplePhase.TANGENTIAL]).sum() > 200
+    np.testing.assert_allclose(samples.f0_n[same, 0], want.f0_n[same], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(samples.m0_nm[same, 0], want.m0_nm[same], rtol=0,
+                               atol=1e-7 * L_M)
 
 
 def test_a_stop_hands_out_every_sample_and_a_hold_keeps_the_last() -> None:

@@ -9,7 +9,8 @@ gives each run's path length, final coverage (report.json's ``exploration``) and
 run that touched nothing fails the launch, the mapper's map being empty: coverage 0).
 ``--default`` adds the shipped scene. Not a test: minutes per run.
 
-Usage: ``python benchmarks/bench_explore.py [--scenes 2] [--seed 1] [--budget 0.3] [--default]``
+Usage: ``python benchmarks/bench_explore.py [--scenes 2] [--seed 1] [--budget 0.3] [--default]
+[--planners uncertainty,lawnmower]``
 """
 
 from __future__ import annotations
@@ -96,6 +97,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--budget", type=float, default=0.3)
     parser.add_argument("--default", action="store_true", help="the shipped scene too")
+    parser.add_argument("--planners", default=",".join(PLANNERS),
+                        help="comma-separated, of: " + ", ".join(PLANNERS))
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     work = Path(tempfile.mkdtemp(prefix="bench-explore-"))
@@ -109,7 +112,7 @@ def main() -> None:
     print("| scene | planner | path m | coverage | wall s |")
     print("|---|---|---|---|---|")
     for name, path in scenes:
-        for planner in PLANNERS:
+        for planner in args.planners.split(","):
             result = explore(path, planner, args.budget, work / f"{path.stem}-{planner}")
             print(f"| {name} | {planner} | {result['path_length_m']:.3f} | "
                   f"{result['coverage_final']:.3f} | {result['wall_s']:.0f} |", flush=True)

@@ -516,6 +516,22 @@ def local_origin(path: RobotPath) -> FloatArray:
     return np.round((path.p_WR.min(axis=0) + path.p_WR.max(axis=0)) / 2.0)
 
 
+@dataclass
+class _Pair:
+    """A stretch of two contacts being followed (`_WhiskerSteps.go_on_pair`): its follower,
+    the objects of its inner and outer contact, which of the two is the episode's own
+    (``mine``, 0 inner) and the other's object, its first moving sample, the rows of the
+    episode it follows and the stretch's rows recorded so far."""
+
+    follower: two.TwoContactFollower
+    objects: tuple[int, int]
+    mine: int
+    other: int
+    k_first: int
+    rows_before: int
+    recorded: int = 0
+
+
 class _WhiskerSteps:
     """One whisker's Step 1 along the path, a state machine that `simulate_group` steps: past
     unresolved samples, searching the next touch, in an episode (``run``, a `SweepRun` of one
@@ -552,6 +568,8 @@ class _WhiskerSteps:
 
     final = True
     """Whether ``path`` is the whole path (`SceneStream`: more samples may come)."""
+    hold = False
+    """(More samples to come) whether the last sample waits for the next (`SceneStream.advance`)."""
 
     def _init_state(self) -> None:
         self.episodes: list[Episode] = []
@@ -563,6 +581,7 @@ class _WhiskerSteps:
         self._snapped: FloatArray | None = None  # a snap-off's last contact force: land at k
         self._inside: list[int] = []  # ... on one of these objects, the deepest first
         self._landed = False  # the episode started from a landing
+        self._pair: _Pair | None = None  # two contacts being followed
 
     def start_episode(self) -> None:
         """Land on the object at sample ``k`` after a snap-off, or search the first touch from
@@ -668,15 +687,17 @@ class _WhiskerSteps:
                                      tuple(self._time_at(-x0 / h + k)
                                            for x0 in sweep.x0[:n][sweep.jumped[:n]])))
         snapped = sweep.force[-1] if len(sweep.force) else None
-        if end is SweepEnd.ANOTHER_OBJECT and self.two_contacts and n >= 1:
-            stretch = self._second_contact(sweep, rows, n)
-            if stretch is not None:
-                end, last, snapped, landing_on = stretch
-                if end is SweepEnd.DETACHMENT:  # one contact left: the other goes on alone
-                    if landing_on >= 0 and self._lands(last, [landing_on], snapped):
-                        return
-                    self.k = self._skip_unresolved(last + 1)
-                    return
+        if (end is SweepEnd.ANOTHER_OBJECT and self.two_contacts and n >= 1
+                and self._start_pair(sweep, rows, n)):
+            self.go_on_pair()
+            return
+        self._after_episode(end, last, snapped, len(rows))
+
+    def _after_episode(self, end: SweepEnd, last: int, snapped: FloatArray | None,
+                       n_rows: int) -> None:
+        """Go on after an episode of ``n_rows`` rows that ended ``end`` at moving sample
+        ``last`` with the contact force ``snapped`` on the rod (W, units of L): to the end, a
+        landing, or the next touch."""
         if end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return
@@ -684,7 +705,7 @@ class _WhiskerSteps:
         # on one of them, the deepest first (not twice from the same sample: a landing that
         # snaps off at once is left; not on the path's last sample, which, as for a touch,
         # starts no episode).
-        if (end is SweepEnd.SNAP_OFF and not (self._landed and len(rows) == 1)
+        if (end is SweepEnd.SNAP_OFF and not (self._landed and n_rows == 1)
                 and self._lands(last, range(len(self.surfaces)), snapped)):
             return
         self.k = self._skip_unresolved(last + 1)
@@ -708,24 +729,20 @@ class _WhiskerSteps:
 
     two_contacts = True
     """Whether a rod in contact that meets a second object goes on with both contacts
-    (`vibrissa.two_contacts`); a stream whose path may still grow does not (yet)."""
+    (`vibrissa.two_contacts`)."""
 
-    def _second_contact(self, sweep: Sweep, rows: NDArray[np.int64], n: int
-                        ) -> tuple[SweepEnd, int, FloatArray | None, int] | None:
-        """Both contacts from the sample after the episode's last row before its rod met
-        another object (row ``n``), recorded as they go (`vibrissa.two_contacts`), with their
-        episode; None where not even the first sample has an equilibrium with both. Returns
-        how the stretch ended (a contact that left: ``DETACHMENT``), its last sample, the
-        force of its last outer contact on the rod (W, units of L) and the object the
-        remaining contact is on when one left (-1: none)."""
+    def _start_pair(self, sweep: Sweep, rows: NDArray[np.int64], n: int) -> bool:
+        """Start both contacts from the sample after the episode's last row before its rod met
+        another object (row ``n``), where the two have an equilibrium at that first sample
+        (`vibrissa.two_contacts`); whether they do."""
         k_first = int(rows[n - 1]) + 1
         if k_first >= self.path.n_samples or k_first > int(rows[n]):
-            return None
+            return False
         line = sweep.elastic_lines([n], AXIS_SEGMENTS + 1)[0]  # the rod of row n, in the other
         depth, other = min((float(surface.signed_distance(line).min()), j)
                            for j, surface in enumerate(self.surfaces) if j != self._object)
         if not depth < 0.0:
-            return None
+            return False
         deepest = int(np.argmin(self.surfaces[other].signed_distance(line)))
         s_other = deepest / AXIS_SEGMENTS
         s_own, mode_own = float(sweep.s1[n - 1]), (two.MODE_TIP if sweep.phase[n - 1]
@@ -739,15 +756,29 @@ class _WhiskerSteps:
         theirs = (s_other, force_other, mode_other, line[deepest], other)
         inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)
         x_start = np.concatenate([moment[:2], inner[1], outer[1], [inner[0], outer[0]]])
-        stretch = two.follow_two_contacts(
-            self.path, self.surfaces, (inner[4], outer[4]), k_first, x_start,
+        follower = two.TwoContactFollower(
+            self.surfaces, (inner[4], outer[4]), k_first, x_start,
             np.array([inner[2], outer[2]], dtype=np.int64), np.array([inner[3], outer[3]]))
-        if not stretch.rows:
-            return None
-        mine = 0 if inner[4] == self._object else 1
+        follower.advance(self.path, k_first + 1)
+        if not follower.stretch.rows:
+            return False
+        self._pair = _Pair(follower, (inner[4], outer[4]), 0 if inner[4] == self._object else 1,
+                           other, k_first, len(rows))
+        return True
+
+    def go_on_pair(self) -> None:
+        """Follow the two contacts as far as the samples go, recording each sample as it is
+        reached; once the stretch ends (and, more samples to come, the one after its end is
+        there for a landing) end its episode and go on."""
+        pair = self._pair
+        assert pair is not None
+        n = self.path.n_samples
+        # (more samples to come: not onto the last sample, `_StreamSteps.can_step`)
+        pair.follower.advance(self.path, n if self.final or not self.hold else n - 1)
+        stretch = pair.follower.stretch
         length = self.whisker.length_m
-        for row in stretch.rows:
-            k = row.k
+        for row in stretch.rows[pair.recorded:]:
+            k, mine = row.k, pair.mine
             point, _t, _n, _f = two.contact_info(row.state, mine)
             second, _t, _n, _f = two.contact_info(row.state, 1 - mine)
             self.phase[k] = (SamplePhase.TIP if row.modes[mine] in (two.MODE_TIP, two.MODE_STICK)
@@ -755,19 +786,32 @@ class _WhiskerSteps:
             self.s1[k], self.second_s[k] = row.x[8 + mine] * length, row.x[9 - mine] * length
             self.contact[k] = point * length + self.origin_m
             self.second_contact[k] = second * length + self.origin_m
-            self.touched[k], self.second_touched[k] = self._object, other
+            self.touched[k], self.second_touched[k] = self._object, pair.other
             self.f0[k], self.m0[k] = self.whisker.scale.wrench_to_si(row.f0, row.m0)
             self.refined[k] = row.refined
+        pair.recorded = len(stretch.rows)
+        if not stretch.end:
+            if not self.final:
+                return
+            stretch.end = "path-end"
         last = stretch.rows[-1].k
+        if stretch.end != "path-end" and not self.final and last + 2 > n - 1:
+            return  # a landing needs the samples after the stretch
+        self._pair = None
         end = SweepEnd(stretch.end) if stretch.end != "left" else SweepEnd.DETACHMENT
         self.episodes.append(Episode(self.scene.objects[self._object].name,
-                                     self._time_at(k_first - 0.5), str(end), [],
+                                     self._time_at(pair.k_first - 0.5), str(end), [],
                                      "second-contact",
-                                     second_object=self.scene.objects[other].name))
+                                     second_object=self.scene.objects[pair.other].name))
         final = stretch.rows[-1].state
-        remaining = -1 if stretch.left < 0 else (inner, outer)[1 - stretch.left][4]
         force = two.contact_info(final, 1 if stretch.left != 1 else 0)[3]
-        return end, last, force, remaining
+        if end is SweepEnd.DETACHMENT:  # one contact left: the other goes on alone
+            remaining = pair.objects[1 - stretch.left]
+            if self._lands(last, [remaining], force):
+                return
+            self.k = self._skip_unresolved(last + 1)
+            return
+        self._after_episode(end, last, force, pair.rows_before)
 
     def _span_start(self, sweep: Sweep) -> int:
         """The episode's first sample: its landing's, or the first past the touch (on the
@@ -1052,10 +1096,9 @@ class SceneStream:
     scene's own path only sets W's local origin, `local_origin`). Each whisker's step ``h``
     (units of its L) is given, not the path's largest motion: ``steps`` (one per whisker, e.g.
     `vibrissa.paths.PathLimits.rod_step`). With the path's own ``h`` and all of it fed, the
-    results are `simulate`'s, to the bit, but where a rod leaning on one object meets a second:
-    the stream ends the episode there (``another-object``), `simulate` goes on with both
-    contacts. The jumps (`snaps`) go out with the samples that hold the sample each is told
-    at (`StreamSamples.snaps`).
+    results are `simulate`'s, to the bit, two contacts on a rod too (followed sample by sample
+    as they come, `vibrissa.two_contacts.TwoContactFollower`). The jumps (`snaps`) go out with
+    the samples that hold the sample each is told at (`StreamSamples.snaps`).
 
     What may wait for later samples: a contact in its first `vibrissa.sweep.EARLY_TRAVEL_L` of
     travel looks up to 16 samples ahead (`vibrissa.sweep.EARLY_MULTIPLES`), and a snap-off two
@@ -1165,6 +1208,8 @@ class _StreamSteps(_WhiskerSteps):
         self.s1, self.f0, self.m0 = np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
         self.contact, self.touched = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
         self.refined = np.zeros(0, dtype=bool)
+        self.second_s, self.second_contact = np.zeros(0), np.zeros((0, 3))
+        self.second_touched = np.zeros(0, dtype=np.int64)
         self.final = False
         self.hold = True
         self.max_motion = 0.0
@@ -1176,8 +1221,6 @@ class _StreamSteps(_WhiskerSteps):
         self._base = 0  # moving samples dropped (`forget`): index 0 of ``path`` is this one
         self._pending: list[Snap] = []  # jumps found at samples not handed out yet
         self._told: set[tuple[float, str]] = set()  # (t, kind) of the jumps told
-
-    two_contacts = False
 
     def extend(self, t: FloatArray, p_WR_m: FloatArray, q_WR: FloatArray) -> None:
         p = (p_WR_m - self.origin_m) / self.whisker.length_m
@@ -1236,13 +1279,19 @@ class _StreamSteps(_WhiskerSteps):
         self.contact = np.vstack([self.contact, np.full((m, 3), np.nan)])
         self.touched = np.concatenate([self.touched, np.full(m, -1, dtype=np.int64)])
         self.refined = np.concatenate([self.refined, np.zeros(m, dtype=bool)])
+        self.second_s = np.concatenate([self.second_s, np.full(m, np.nan)])
+        self.second_contact = np.vstack([self.second_contact, np.full((m, 3), np.nan)])
+        self.second_touched = np.concatenate([self.second_touched, np.full(m, -1, dtype=np.int64)])
         self._path = None
         if self.run is not None and self.path is not None:
             self.run.follow(0, self.path.tail(self.k))
 
     def go_on(self) -> None:
-        """Start the next episode when there is none (or wait for samples)."""
-        if len(self.kept) < 2 or self.run is not None or self.ended:
+        """Follow two contacts on, or start the next episode when there is none (or wait for
+        samples)."""
+        if self._pair is not None and self.path is not None:
+            self.go_on_pair()
+        if len(self.kept) < 2 or self.run is not None or self._pair is not None or self.ended:
             return
         if self._idle_at != (len(self.kept), self.final) or self._snapped is not None:
             self.start_episode()
@@ -1306,6 +1355,8 @@ class _StreamSteps(_WhiskerSteps):
                 progress = self.run.progress(0)
                 kept_done = self.k if self._landed else self.k + round(
                     -next_grid_point(progress.x_touch, 0.0, self.h) / self.h)
+        elif self._pair is not None:
+            kept_done = self._pair.follower.k
         elif self._snapped is not None:
             kept_done = self.k
         else:
@@ -1327,7 +1378,11 @@ class _StreamSteps(_WhiskerSteps):
         of_sample = np.cumsum(self.moved)[raw] - 1 - self._base
         t = self.t_all[raw]
         episodes = [e for e in self.episodes if e.t_first_contact >= t[0]]
-        if self.run is not None or self._snapped is not None:  # where the next one begins
+        if self._pair is not None:  # where the stretch of two contacts in progress begins
+            episodes.append(Episode(self.scene.objects[self._object].name,
+                                    self._time_at(self._pair.k_first - 0.5), "", [],
+                                    "second-contact"))
+        elif self.run is not None or self._snapped is not None:  # where the next one begins
             at = float(t[np.searchsorted(of_sample, self.k)]) if self.k <= of_sample[-1] else t[-1]
             episodes.append(Episode(self.scene.objects[self._object].name, at, "", [],
                                     "landing" if self.run is not None and self._landed
@@ -1361,7 +1416,8 @@ class _StreamSteps(_WhiskerSteps):
         ``k`` on (a tail of the path is the same samples and coordinates, `SampledPath.tail`),
         and the path's cost stays that of the samples since then (not while a jump waits to be
         told, `snaps_until`)."""
-        if (self.run is not None or self._snapped is not None or self.ended or self._pending
+        if (self.run is not None or self._pair is not None or self._snapped is not None
+                or self.ended or self._pending
                 or self.k < FORGET_SAMPLES or self.k >= len(self.kept) - 1
                 or self.kept[self.k] >= sent):
             return
@@ -1369,7 +1425,8 @@ class _StreamSteps(_WhiskerSteps):
         self._base += b
         self.kept, self._p_kept = self.kept[b:], self._p_kept[b:]
         self._q_kept = self._q_kept[b:]
-        for name in ("phase", "s1", "f0", "m0", "contact", "touched", "refined"):
+        for name in ("phase", "s1", "f0", "m0", "contact", "touched", "refined", "second_s",
+                     "second_contact", "second_touched"):
             setattr(self, name, getattr(self, name)[b:])
         self.k, self._searched = 0, max(self._searched - b, -1)
         self._idle_at, self._path = (-1, False), None

@@ -381,71 +381,97 @@ class StretchRow:
 @dataclass
 class Stretch:
     """A stretch of two contacts along a path: its rows (one per sample, from the first), how
-    it ended (`STRETCH_ENDS`) and, when a contact left, which (0 inner, 1 outer)."""
+    it ended (`STRETCH_ENDS`; empty while it goes on) and, when a contact left, which (0 inner,
+    1 outer)."""
 
     rows: list[StretchRow]
     end: str
     left: int = -1
 
 
-def follow_two_contacts(path: SampledPath, surfaces: Sequence[Surface], objects: tuple[int, int],
-                        k_first: int, x_start: FloatArray, modes: NDArray[np.int64],
-                        anchors: FloatArray) -> Stretch:
-    """Two contacts along ``path`` from moving sample ``k_first``: contact 0 (inner) on
-    ``surfaces[objects[0]]``, contact 1 on ``surfaces[objects[1]]``, from the state ``x_start``
-    (the unknowns just before k_first, or a guess of them) with sliding ``modes`` and the
-    contacts' last points ``anchors`` (W, units of L).
+class TwoContactFollower:
+    """Two contacts followed sample by sample along a path that may grow (`advance`): contact 0
+    (inner) on ``surfaces[objects[0]]``, contact 1 on ``surfaces[objects[1]]``, from moving
+    sample ``k_first`` and the state ``x_start`` (the unknowns just before it, or a guess of
+    them) with sliding ``modes`` and the contacts' last points ``anchors`` (W, units of L).
 
     At each sample the contacts slide, else hold (each, then both), else the outer contact
     changes between tip and tangential; each solution must converge, push at both contacts
     and keep the rod (``CLEAR_POINTS`` points of it) outside every object. A sample none of
     them reaches is tried in ever shorter sub-steps from as far as the longer ones got
-    (``SUB_STEP_LEVELS``). The stretch ends where a
-    contact's force would pull (it leaves), where the rod would enter another object, where
-    no equilibrium is near (snap-off), or at the path's end."""
-    rows: list[StretchRow] = []
-    x_last, last_step = x_start.copy(), math.nan  # the state and the step that reached it
-    x_before = x_start
-    sliding = modes.copy()
-    anchors = anchors.copy()
-    mu = path.mu
-    kernel = [np.ascontiguousarray(np.concatenate([surfaces[j].kernel_arrays[i] for j in objects]))
-              for i in range(5)]
-    for k in range(k_first, path.n_samples):
-        x0_k = float(path.x0_of(np.array([k]))[0])
-        x0_at = float(path.x0_of(np.array([k - 1]))[0])
-        span = x0_at - x0_k
-        why = ""
-        refined = False
-        # the first sample is reached from the guess at once: sub-steps from the sample before
-        # would start before the second contact touches
-        for level in range(SUB_STEP_LEVELS + 1 if rows else 1):
-            sub = span / 2**level
-            while x0_at - sub >= x0_k - 1e-12 * span:
-                x0 = max(x0_at - sub, x0_k)
-                p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0])))
-                predictor = (x_last if not last_step > 0
-                             else x_last + (x_last - x_before) * (sub / last_step))
-                found, why = _step(predictor, x_last, p_WC, R_WC, sliding, anchors, mu, kernel,
-                                   surfaces)
-                if found is None:
+    (``SUB_STEP_LEVELS``). The stretch (``stretch``, its ``end`` empty while it goes on) ends
+    where a contact's force would pull (it leaves), where the rod would enter another object,
+    or where no equilibrium is near (snap-off)."""
+
+    def __init__(self, surfaces: Sequence[Surface], objects: tuple[int, int], k_first: int,
+                 x_start: FloatArray, modes: NDArray[np.int64], anchors: FloatArray) -> None:
+        self.surfaces = surfaces
+        self.stretch = Stretch([], "")
+        self.k = k_first  # the next sample to reach
+        self._x_last, self._last_step = x_start.copy(), math.nan  # the state, the step to it
+        self._x_before = x_start
+        self._sliding = modes.copy()
+        self._anchors = anchors.copy()
+        self._kernel = [np.ascontiguousarray(np.concatenate([surfaces[j].kernel_arrays[i]
+                                                             for j in objects]))
+                        for i in range(5)]
+
+    def advance(self, path: SampledPath, k_stop: int) -> None:
+        """Reach the samples of ``path`` up to ``k_stop`` (exclusive), or to where the stretch
+        ends."""
+        rows, mu, surfaces, kernel = self.stretch.rows, path.mu, self.surfaces, self._kernel
+        x_last, x_before, last_step = self._x_last, self._x_before, self._last_step
+        while self.k < k_stop and not self.stretch.end:
+            k = self.k
+            x0_k = float(path.x0_of(np.array([k]))[0])
+            x0_at = float(path.x0_of(np.array([k - 1]))[0])
+            span = x0_at - x0_k
+            why = ""
+            refined = False
+            # the first sample is reached from the guess at once: sub-steps from the sample
+            # before would start before the second contact touches
+            for level in range(SUB_STEP_LEVELS + 1 if rows else 1):
+                sub = span / 2**level
+                while x0_at - sub >= x0_k - 1e-12 * span:
+                    x0 = max(x0_at - sub, x0_k)
+                    p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0])))
+                    predictor = (x_last if not last_step > 0
+                                 else x_last + (x_last - x_before) * (sub / last_step))
+                    found, why = _step(predictor, x_last, p_WC, R_WC, self._sliding,
+                                       self._anchors, mu, kernel, surfaces)
+                    if found is None:
+                        break
+                    x_before, x_last, last_step, x0_at = x_last, found[0], sub, x0
+                    state, modes_now = found[1], found[2]
+                    self._sliding = np.array([_sliding(m) for m in modes_now])
+                    for j in range(2):
+                        self._anchors[j] = contact_info(state, j)[0]
+                    refined = refined or level > 0
+                if abs(x0_at - x0_k) <= 1e-12 * span:
                     break
-                x_before, x_last, last_step, x0_at = x_last, found[0], sub, x0
-                state, modes_now = found[1], found[2]
-                sliding = np.array([_sliding(m) for m in modes_now])
-                for j in range(2):
-                    anchors[j] = contact_info(state, j)[0]
-                refined = refined or level > 0
-            if abs(x0_at - x0_k) <= 1e-12 * span:
+            if abs(x0_at - x0_k) > 1e-12 * span:
+                left = int(why[5:]) if why.startswith("left ") else -1
+                self.stretch.end = ("left" if left >= 0 else why if why == "another-object"
+                                    else "snap-off")
+                self.stretch.left = left
                 break
-        if abs(x0_at - x0_k) > 1e-12 * span:
-            left = int(why[5:]) if why.startswith("left ") else -1
-            end = "left" if left >= 0 else why if why == "another-object" else "snap-off"
-            return Stretch(rows, end, left)
-        p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0_k])))
-        f0, m0 = clamp_reactions(x_last, state, p_WC, R_WC)
-        rows.append(StretchRow(k, x_last, state, modes_now, f0, m0, refined))
-    return Stretch(rows, "path-end")
+            p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0_k])))
+            f0, m0 = clamp_reactions(x_last, state, p_WC, R_WC)
+            rows.append(StretchRow(k, x_last, state, modes_now, f0, m0, refined))
+            self.k = k + 1
+        self._x_last, self._x_before, self._last_step = x_last, x_before, last_step
+
+
+def follow_two_contacts(path: SampledPath, surfaces: Sequence[Surface], objects: tuple[int, int],
+                        k_first: int, x_start: FloatArray, modes: NDArray[np.int64],
+                        anchors: FloatArray) -> Stretch:
+    """Two contacts along the whole of ``path`` from moving sample ``k_first``
+    (`TwoContactFollower`); a stretch that reaches the path's last sample ends ``path-end``."""
+    follower = TwoContactFollower(surfaces, objects, k_first, x_start, modes, anchors)
+    follower.advance(path, path.n_samples)
+    if not follower.stretch.end:
+        follower.stretch.end = "path-end"
+    return follower.stretch
 
 
 def _sliding(mode: int) -> int:
@@ -489,4 +515,4 @@ def _step(predictor: FloatArray, last: FloatArray, p_WC: FloatArray, R_WC: Float
 __all__ = ["MODE_STICK", "MODE_STICK_TANGENTIAL", "MODE_TANGENTIAL", "MODE_TIP", "N_UNKNOWNS",
            "SEGMENT_STEPS", "admissible", "clamp_reactions", "contact_info", "evaluate",
            "follow_two_contacts", "newton", "rod_line", "solve", "Stretch", "StretchRow",
-           "STRETCH_ENDS"]
+           "STRETCH_ENDS", "TwoContactFollower"]

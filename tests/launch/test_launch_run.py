@@ -358,7 +358,10 @@ def test_a_required_node_ending_while_the_graph_runs_fails_it_unless_finite(
         assert err.strip().splitlines()[-1] == (
             "[launch] launch failed: required node 'early' ended (exit 0) while the graph "
             "still runs (a node whose work ends by itself is marked finite: true)")
-        assert "[waiting] waiting interrupted" in out
+        # stopped before its 2 s were up (on a loaded machine it may not have started yet)
+        assert "[waiting] waiting done" not in out
+        if "[waiting] waiting sleeping" in out:
+            assert "[waiting] waiting interrupted" in out
 
 
 @pytest.mark.parametrize("allow_loss", [False, True])

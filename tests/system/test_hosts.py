@@ -215,12 +215,15 @@ def test_a_killed_host_is_told_by_the_other_which_ends_and_keeps_its_map(
         hosts: Hosts, keys: Path, tmp_path: Path) -> None:
     robot, station = robot_and_station(hosts, tmp_path, "loop:=true", "rate:=500", keys=keys)
     station.wait_line(r"\[mapper\].*mapped .*: \d+ points", 300)  # contacts arrive
-    # the robot host fails at once (power, a crash): every process of it, no goodbye
+    # the robot host fails at once (power, a crash): every process of it, no goodbye; frozen
+    # first, so that none runs on to say goodbye between the kills (a node whose launcher died
+    # before it is sent SIGTERM, and ends its stream)
     pids = subprocess.run(["ip", "netns", "pids", hosts.robot], capture_output=True, text=True,
                           check=True).stdout.split()
-    for pid in pids:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(int(pid), signal.SIGKILL)
+    for sig in (signal.SIGSTOP, signal.SIGKILL):
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(int(pid), sig)
     robot.wait(60)
     assert station.wait(300) == 1, station.text()
     text = station.text()

@@ -95,10 +95,13 @@ __all__ = [
 
 DEFAULT_GRACE_S = 5.0
 RUN_MODULE = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+              "signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT]); "
               "runpy.run_module(sys.argv.pop(1), run_name='__main__', alter_sys=True)")
 """How a package node starts: ``python -c RUN_MODULE MODULE ...`` runs MODULE as ``python -m``
 would, except that a SIGINT before the node takes over its signals (its imports take a second
-or two) ends the process at once and quietly, instead of in a KeyboardInterrupt traceback."""
+or two) ends the process at once and quietly, instead of in a KeyboardInterrupt traceback. The
+launcher starts it with SIGINT blocked (`package_node_start`), so that one sent while the
+interpreter itself still starts (on a loaded machine, longer than a second) waits until then."""
 PEER_SILENT_S = 2.0
 """A node of another host not heard for this long when one of them times out went with it."""
 DOMAIN_TRIES = 32
@@ -572,7 +575,8 @@ class Launcher:
             proc = subprocess.Popen(
                 argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                 env=env, start_new_session=True,  # own process group: signalled as a whole
-                preexec_fn=die_with_parent(os.getpid()),
+                preexec_fn=package_node_start(os.getpid()) if spec.cmd is None
+                else die_with_parent(os.getpid()),
             )
         except OSError as exc:
             node.proc = None
@@ -816,6 +820,18 @@ PARAMS_DIR_PREFIX = "vibrissa-launch-"
 
 _PR_SET_PDEATHSIG = 1
 _LIBC = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
+
+
+def package_node_start(launcher_pid: int) -> Callable[[], None]:
+    """What a package node's process runs between fork and exec: SIGINT blocked until
+    `RUN_MODULE` sets its default action and unblocks it, and `die_with_parent`."""
+    with_parent = die_with_parent(launcher_pid)
+
+    def start() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])
+        if with_parent is not None:
+            with_parent()
+    return start
 
 
 def die_with_parent(launcher_pid: int) -> Callable[[], None] | None:

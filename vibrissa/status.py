@@ -37,6 +37,8 @@ class ContactStatus(enum.IntFlag):
     MULTI_CONTACT = 64  # no single point contact gives the wrench: a moment about the force's
     # own line (m0 . f0) or about the rod's axis at the clamp (m0z) beyond the noise band,
     # as two contacts on the rod give (vibrissa.reconstruct.single_contact_excess)
+    AMBIGUOUS_CONTACT = 128  # (tapered or pre-curved rods) more than one point of the rod fits
+    # the wrench and the previous contact does not tell which (vibrissa.reconstruct_rods)
 
 
 #: Flags that leave no usable contact point.

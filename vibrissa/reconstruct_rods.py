@@ -1,0 +1,261 @@
+"""Step 2 for tapered and pre-curved rods: the contact point from the clamp's wrench alone.
+
+The wrench (f0, m0) gives the internal moment everywhere along the loaded part of the rod,
+m(s) = r(s) x f0 - m0 (``vibrissa.rods``), and the rod's line by integrating the Kirchhoff rod
+from the clamp; the contact is where the moment vanishes, the free part beyond it carrying
+nothing. m(s) is normal to the force F = -f0 (a single contact has m0 . f0 = 0), and
+l(s) = F x m(s) / |F|^2 is the offset of the force's line from the rod's point r(s): a contact
+is a point where |l| has a local minimum (l . d3 changes sign from + to -) at which the line
+passes through the rod, |l| <= ``LINE_TOL`` (L). Integrated to ``S_MAX`` past the tip, so that
+a tip contact is found however round-off puts its zero.
+
+A wrench may be satisfied by more than one point along the rod (the loaded line, continued
+past the contact, can meet the force's line again: in the plane, as the elastica's curvature
+vanishes again): every such point is a candidate. Alone, a sample takes the first from the
+clamp; along a stream, the one within ``CONTINUITY_L`` of the previous contact. The choice is
+flagged ``AMBIGUOUS_CONTACT`` where it is not determined: more than one candidate and no
+previous contact, or not exactly one candidate within ``CONTINUITY_L`` of it.
+
+The straight uniform rod has its closed form (``vibrissa.reconstruct``): :func:`reconstruct_rod`
+hands it there, bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vibrissa.compiled import compiled
+from vibrissa.elastica import S1_TOLERANCE
+from vibrissa.frames import rotate_vector
+from vibrissa.reconstruct import (
+    PHASE_NONE,
+    PHASE_TANGENTIAL,
+    PHASE_TIP,
+    TIP_TOLERANCE,
+    Reconstruction,
+    _as_vectors,
+    reconstruct,
+    single_contact_excess,
+)
+from vibrissa.rods import N_STEPS, RodShape, clamp_state, rk4_step
+from vibrissa.status import NO_CONTACT, ContactStatus
+
+FloatArray = NDArray[np.float64]
+
+LINE_TOL = 1e-6
+"""How far (L) the force's line may pass from the rod at a contact."""
+CONTINUITY_L = 0.05
+"""Along a stream, a candidate this near (arc length, L) the previous contact continues it."""
+S_MAX = 1.0 + 1.0 / N_STEPS
+"""How far the rod is integrated: one step past the tip."""
+MAX_CANDIDATES = 8
+
+_NO_CONTACT = int(NO_CONTACT)
+_NO_FORCE = int(ContactStatus.NO_FORCE)
+_NON_FINITE = int(ContactStatus.NON_FINITE_INPUT)
+_BEYOND = int(ContactStatus.CONTACT_BEYOND_ROD)
+_TIP_WITHIN_NOISE = int(ContactStatus.TIP_WITHIN_NOISE)
+_MULTI = int(ContactStatus.MULTI_CONTACT)
+_AMBIGUOUS = int(ContactStatus.AMBIGUOUS_CONTACT)
+
+
+@compiled
+def _offset(y: FloatArray, f0: FloatArray, m0: FloatArray, out: FloatArray) -> float:
+    """l = F x m / |F|^2 at state ``y`` into ``out``; returns l . d3."""
+    mx = y[1] * f0[2] - y[2] * f0[1] - m0[0]
+    my = y[2] * f0[0] - y[0] * f0[2] - m0[1]
+    mz = y[0] * f0[1] - y[1] * f0[0] - m0[2]
+    f2 = f0[0] * f0[0] + f0[1] * f0[1] + f0[2] * f0[2]
+    # F = -f0
+    out[0] = -(f0[1] * mz - f0[2] * my) / f2
+    out[1] = -(f0[2] * mx - f0[0] * mz) / f2
+    out[2] = -(f0[0] * my - f0[1] * mx) / f2
+    qw, qx, qy, qz = y[3], y[4], y[5], y[6]
+    d3x, d3y, d3z = 2 * (qx * qz + qw * qy), 2 * (qy * qz - qw * qx), 1 - 2 * (qx * qx + qy * qy)
+    return out[0] * d3x + out[1] * d3y + out[2] * d3z
+
+
+@compiled
+def contact_candidates(f0: FloatArray, m0: FloatArray, params: FloatArray,
+                       s_out: FloatArray, y_out: FloatArray) -> int:
+    """Every point of the rod (up to ``S_MAX``) where the moment of the wrench vanishes: their
+    arc lengths into ``s_out`` and states into ``y_out`` (``MAX_CANDIDATES`` rows, 7), in order
+    from the clamp; returns how many."""
+    h = 1.0 / N_STEPS
+    n_steps = int(math.ceil(S_MAX * N_STEPS - 1e-9))
+    y = clamp_state()
+    nxt, probe, offset = np.empty(7), np.empty(7), np.empty(3)
+    g = _offset(y, f0, m0, offset)
+    count = 0
+    for k in range(n_steps):
+        s = k * h
+        rk4_step(s, h, y, f0, m0, params, nxt)
+        g_next = _offset(nxt, f0, m0, offset)
+        if g > 0.0 and g_next <= 0.0 and count < MAX_CANDIDATES:
+            # regula falsi (Illinois) on the length of a partial step from y
+            lo, hi, g_lo, g_hi = 0.0, h, g, g_next
+            t, side = h, 0
+            for _ in range(40):
+                t_new = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
+                if abs(t_new - t) <= 1e-13 * h:
+                    t = t_new
+                    break
+                t = t_new
+                rk4_step(s, t, y, f0, m0, params, probe)
+                g_t = _offset(probe, f0, m0, offset)
+                if g_t > 0.0:
+                    lo, g_lo = t, g_t
+                    if side == 1:
+                        g_hi *= 0.5
+                    side = 1
+                elif g_t < 0.0:
+                    hi, g_hi = t, g_t
+                    if side == -1:
+                        g_lo *= 0.5
+                    side = -1
+                else:
+                    break
+            rk4_step(s, t, y, f0, m0, params, probe)
+            _offset(probe, f0, m0, offset)
+            if math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2) <= LINE_TOL:
+                s_out[count] = s + t
+                y_out[count, :] = probe
+                count += 1
+        y[:] = nxt
+        g = g_next
+    return count
+
+
+@compiled
+def reconstruct_rod_row(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, rotate: bool,
+                        R_WC: FloatArray, params: FloatArray, previous_s1: float,
+                        point: FloatArray, force: FloatArray, candidates: FloatArray,
+                        tip_band: float = 0.0, dot_band: float = -1.0
+                        ) -> tuple[float, int, int, int]:
+    """Step 2 of one sample of a rod of ``params`` (``RodShape.params``): as
+    ``vibrissa.reconstruct.reconstruct_row`` (point and force in W into ``point``, ``force``),
+    with the previous contact's arc length ``previous_s1`` (NaN: none) to choose among the
+    candidates, whose arc lengths go into ``candidates`` (``MAX_CANDIDATES``). Returns s1, phase,
+    status and the number of candidates."""
+    nan = math.nan
+    point[:] = nan
+    fx, fy, fz = -f0_C[0], -f0_C[1], -f0_C[2]
+    force[0], force[1], force[2] = rotate_vector(R_WC, fx, fy, fz) if rotate else (fx, fy, fz)
+    finite = True
+    for j in range(3):
+        finite = finite and math.isfinite(p0_W[j]) and math.isfinite(f0_C[j]) and math.isfinite(
+            m0_C[j])
+    if not finite:
+        return nan, PHASE_NONE, _NON_FINITE, 0
+    if fx == 0.0 and fy == 0.0 and fz == 0.0:
+        return nan, PHASE_NONE, _NO_FORCE, 0
+    if single_contact_excess(f0_C, m0_C, dot_band, math.inf) > 1.0:
+        return nan, PHASE_NONE, _MULTI, 0
+    states = np.empty((MAX_CANDIDATES, 7))
+    found = contact_candidates(f0_C, m0_C, params, candidates, states)
+    status = 0
+    count = 0  # candidates on the rod (within the tip's band)
+    for i in range(found):
+        if candidates[i] <= 1.0 + max(S1_TOLERANCE, tip_band):
+            count += 1
+    if count == 0:
+        return nan, PHASE_NONE, _BEYOND, 0
+    chosen = 0
+    if previous_s1 == previous_s1:  # a previous contact: the candidates near it
+        near = 0
+        best = math.inf
+        for i in range(count):
+            gap = abs(candidates[i] - previous_s1)
+            if gap <= CONTINUITY_L:
+                near += 1
+            if gap < best:
+                best, chosen = gap, i
+        if near != 1:
+            status |= _AMBIGUOUS
+    elif count > 1:
+        status |= _AMBIGUOUS
+    s1 = candidates[chosen]
+    if s1 > 1.0 + S1_TOLERANCE:
+        status |= _TIP_WITHIN_NOISE
+    px, py, pz = states[chosen, 0], states[chosen, 1], states[chosen, 2]
+    if rotate:
+        px, py, pz = rotate_vector(R_WC, px, py, pz)
+    point[0], point[1], point[2] = p0_W[0] + px, p0_W[1] + py, p0_W[2] + pz
+    s1 = min(s1, 1.0)
+    phase = PHASE_TIP if s1 >= 1.0 - max(TIP_TOLERANCE, tip_band) else PHASE_TANGENTIAL
+    return s1, phase, status, count
+
+
+@compiled
+def _rows(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, R_WC: FloatArray,
+          params: FloatArray, previous_s1: FloatArray, chain: bool
+          ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64], FloatArray,
+                     NDArray[np.int64], FloatArray, NDArray[np.int64]]:
+    """:func:`reconstruct_rod_row` of every row; with ``chain`` a row's previous contact is the
+    row before it (a stream of one rod), else ``previous_s1[i]``. R_WC: 0, 1 or N rows."""
+    n = p0_W.shape[0]
+    point, force = np.empty((n, 3)), np.empty((n, 3))
+    s1, psi = np.empty(n), np.empty(n)
+    phase, status = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    candidates = np.full((n, MAX_CANDIDATES), np.nan)
+    count = np.empty(n, dtype=np.int64)
+    identity = np.eye(3)
+    rotate, per_row = R_WC.shape[0] > 0, R_WC.shape[0] > 1
+    previous = previous_s1[0] if chain and n > 0 else math.nan
+    for i in range(n):
+        r = R_WC[i if per_row else 0] if rotate else identity
+        before = previous if chain else previous_s1[i]
+        s1[i], phase[i], status[i], count[i] = reconstruct_rod_row(
+            p0_W[i], f0_C[i], m0_C[i], rotate, r, params, before, point[i], force[i],
+            candidates[i])
+        psi[i] = math.nan
+        if status[i] & _NO_CONTACT == 0:
+            dx, dy, dz = point[i, 0] - p0_W[i, 0], point[i, 1] - p0_W[i, 1], point[i, 2] - p0_W[
+                i, 2]
+            if rotate:  # back into C: R^T
+                dx, dy = (r[0, 0] * dx + r[1, 0] * dy + r[2, 0] * dz,
+                          r[0, 1] * dx + r[1, 1] * dy + r[2, 1] * dz)
+            psi[i] = math.atan2(dy, dx)
+            if chain:
+                previous = s1[i]
+    return point, s1, psi, phase, force, status, candidates, count
+
+
+def reconstruct_rod(p0: ArrayLike, f0: ArrayLike, m0: ArrayLike, shape: RodShape,
+                    R_WC: ArrayLike | None = None, previous_s1: ArrayLike | None = None,
+                    stream: bool = False) -> tuple[Reconstruction, FloatArray]:
+    """Step 2 for a rod of ``shape``: :func:`vibrissa.reconstruct.reconstruct`'s arguments and
+    result, and every candidate's arc length (N, ``MAX_CANDIDATES``; NaN-padded).
+
+    ``previous_s1`` (N,) is each sample's previous contact (NaN: none); with ``stream`` the rows
+    are one rod's samples in time order and each row's previous contact is the row before's
+    (``previous_s1``, if given, is the first row's). ``psi`` is the contact's azimuth about the
+    clamp axis (C). The straight uniform rod is :func:`reconstruct` itself (one candidate, the
+    first zero of the curvature).
+    """
+    p0_W, f0_C, m0_C = (np.ascontiguousarray(_as_vectors(n, v))
+                        for n, v in (("p0", p0), ("f0", f0), ("m0", m0)))
+    n = len(p0_W)
+    if not p0_W.shape == f0_C.shape == m0_C.shape:
+        raise ValueError(f"p0, f0, m0 must have the same number of samples, got {p0_W.shape}, "
+                         f"{f0_C.shape}, {m0_C.shape}")
+    if shape.uniform:
+        result = reconstruct(p0_W, f0_C, m0_C, R_WC)
+        first = np.full((n, MAX_CANDIDATES), np.nan)
+        first[:, 0] = np.where(result.valid, result.s1, np.nan)
+        return result, first
+    rotation = np.empty((0, 3, 3))
+    if R_WC is not None:
+        rotation = np.ascontiguousarray(np.asarray(R_WC, dtype=float).reshape(-1, 3, 3))
+        if len(rotation) not in (1, n):
+            raise ValueError(f"R_WC must have shape (3, 3) or ({n}, 3, 3), got "
+                             f"{np.shape(R_WC)}")
+    previous = np.full(n, np.nan) if previous_s1 is None else np.broadcast_to(
+        np.asarray(previous_s1, dtype=float), (n,)).copy()
+    point, s1, psi, phase, force, status, candidates, _count = _rows(
+        p0_W, f0_C, m0_C, rotation, shape.params, previous, stream)
+    return Reconstruction(point=point, s1=s1, phase=phase, psi=psi, force=force,
+                          status=status), candidates

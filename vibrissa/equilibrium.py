@@ -2,7 +2,10 @@
 on them, one row (one sweep attempt) at a time (``vibrissa.compiled``).
 
 ``vibrissa.sweep`` states the conditions and drives the sweeps; these kernels evaluate them.
-A row is q = (psi, Fu, Fv, kappa0) in the clamp frame C of its step, the clamp pose X_WC, the
+A row is q in the clamp frame C of its step (``Q_WIDTH`` wide: (psi, Fu, Fv, kappa0) for the
+straight uniform rod, the planar elastica in closed form; (s1, F, m0) for a tapered or
+pre-curved rod, the Kirchhoff rod of ``vibrissa.rods``, whose three extra conditions say that
+the rod's moment vanishes at s1), the rod's ``RodShape.params``, the clamp pose X_WC, the
 friction mu, the anchor (previous or held contact point, W), the mode (tip, tangential, stick)
 and whether psi is locked, and its object: the quadric g(p_B) = p_B' Q p_B + l' p_B + c in its
 body frame B, placed at X_WB (the rows of one call may touch different objects: the whiskers of
@@ -20,6 +23,7 @@ from numpy.typing import NDArray
 
 from vibrissa.compiled import compiled
 from vibrissa.elastica import planar_contact_scalar
+from vibrissa.rods import frame_of, integrate_to, moment_at
 
 FloatArray = NDArray[np.float64]
 
@@ -32,9 +36,16 @@ DIRECTION_TOL = 1e-8
 be as short as 1e-6 (first step, nearly stuck contacts), and round-off in P1 then limits the
 direction equations to about 1e-16 / |chord|."""
 NEWTON_MAX_ITER = 40
-STATE_WIDTH = 23
-"""A row's state: residual 0:4, p1 4:7, s1 7, tangent 8:11, normal 11:14, force 14:17,
-kappa0 17, e_w 18:21, status 21, converged 22 (1 or 0)."""
+Q_WIDTH = 7
+"""A row's unknowns: (psi, Fu, Fv, kappa0, 0, 0, 0) of the planar elastica, (s1, F (3), m0
+(3)) of the Kirchhoff rod."""
+STATE_WIDTH = 26
+"""A row's state: residual 0:7 (4:7 the Kirchhoff rod's moment at s1; 0 for the elastica), p1
+7:10, s1 10, tangent 11:14, normal 14:17, force 17:20, kappa0 20 (the elastica's), e_w 21:24
+(the elastica's), status 24, converged 25 (1 or 0)."""
+MAX_S1 = 1.5
+"""The largest s1 a Kirchhoff row is evaluated at (a tangential contact past the tip is
+refused, `admissible_rows`; the taper's law holds to 1 / (1 - r) >= 1.05)."""
 
 
 @compiled
@@ -121,27 +132,127 @@ def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
     else:
         out[0] = tangential if mode == MODE_TANGENTIAL else s1 - 1.0
         out[1], out[2], out[3] = gap, in_plane, along
+    out[4] = out[5] = out[6] = 0.0
+    _write_state(p1, s1, tangent, normal, force, status, held, out)
+    out[20] = kappa0
     for i in range(3):
-        out[4 + i] = p1[i]
-        out[8 + i] = tangent[i]
-        out[11 + i] = normal[i]
-        out[14 + i] = force[i]
-        out[18 + i] = e_w[i]
-    out[7] = s1
-    out[17] = kappa0
-    out[21] = status
-    # converged: strict geometry; a sliding row's friction direction to DIRECTION_TOL only
+        out[21 + i] = e_w[i]
+
+
+@compiled
+def _write_state(p1: FloatArray, s1: float, tangent: FloatArray, normal: FloatArray,
+                 force: FloatArray, status: int, held: bool, out: FloatArray) -> None:
+    """The geometry of a row's state and whether its residuals ``out[0:7]`` have converged:
+    strict geometry; a sliding row's friction direction to DIRECTION_TOL only."""
+    for i in range(3):
+        out[7 + i] = p1[i]
+        out[11 + i] = tangent[i]
+        out[14 + i] = normal[i]
+        out[17 + i] = force[i]
+    out[10] = s1
+    out[24] = status
     direction_tol = NEWTON_TOL if held else DIRECTION_TOL
     converged = (abs(out[0]) < NEWTON_TOL and abs(out[1]) < NEWTON_TOL
-                 and abs(out[2]) < direction_tol and abs(out[3]) < direction_tol)
-    out[22] = 1.0 if converged else 0.0
+                 and abs(out[2]) < direction_tol and abs(out[3]) < direction_tol
+                 and abs(out[4]) < NEWTON_TOL and abs(out[5]) < NEWTON_TOL
+                 and abs(out[6]) < NEWTON_TOL)
+    out[25] = 1.0 if converged else 0.0
+
+
+@compiled
+def evaluate_rod_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
+                     anchor: FloatArray, mode: int, Q: FloatArray, lin: FloatArray, c: float,
+                     R_WB: FloatArray, p_WB: FloatArray, params: FloatArray,
+                     out: FloatArray) -> None:
+    """The state of one Kirchhoff row at q = (s1, F, m0) (C) into ``out`` (``STATE_WIDTH``).
+
+    The rod is integrated from the clamp under the wrench (-F, m0) to s1; its moment there
+    (three residuals) vanishes at a contact. The contact conditions are the elastica's; the
+    friction direction's two equations are F / |F| and the Coulomb direction alike along two
+    axes normal to the object's normal at the anchor (both have a positive part along it)."""
+    s1 = q[0]
+    if not (s1 > 0.0 and s1 <= MAX_S1):
+        for i in range(STATE_WIDTH):
+            out[i] = math.nan
+        out[24] = 1.0
+        out[25] = 0.0
+        return
+    f0 = np.empty(3)
+    m0 = np.empty(3)
+    for i in range(3):
+        f0[i] = -q[1 + i]
+        m0[i] = q[4 + i]
+    y = integrate_to(s1, f0, m0, params)
+    moment = moment_at(y, f0, m0)
+    frame = frame_of(y)
+    p1, tangent, force = np.empty(3), np.empty(3), np.empty(3)
+    for i in range(3):
+        p1[i] = p_WC[i] + R_WC[i, 0] * y[0] + R_WC[i, 1] * y[1] + R_WC[i, 2] * y[2]
+        tangent[i] = R_WC[i, 0] * frame[0, 2] + R_WC[i, 1] * frame[1, 2] + R_WC[i, 2] * frame[2, 2]
+        force[i] = -(R_WC[i, 0] * f0[0] + R_WC[i, 1] * f0[1] + R_WC[i, 2] * f0[2])
+    normal = np.empty(3)
+    gap = quadric_gap(p1, Q, lin, c, R_WB, p_WB, normal)
+    tangential = tangent[0] * normal[0] + tangent[1] * normal[1] + tangent[2] * normal[2]
+    held = mode == MODE_STICK or mode == MODE_STICK_TANGENTIAL
+    if held:
+        out[0] = s1 - 1.0 if mode == MODE_STICK else tangential
+        out[1], out[2], out[3] = p1[0] - anchor[0], p1[1] - anchor[1], p1[2] - anchor[2]
+    else:
+        direction = np.empty(3)
+        coulomb_direction(p1, anchor, normal, mu, direction)
+        n_anchor = np.empty(3)
+        quadric_gap(anchor, Q, lin, c, R_WB, p_WB, n_anchor)
+        a, b = _normal_basis(n_anchor)
+        f = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
+        out[0] = tangential if mode == MODE_TANGENTIAL else s1 - 1.0
+        out[1] = gap
+        out[2] = sum_product(force, a) / f - sum_product(direction, a)
+        out[3] = sum_product(force, b) / f - sum_product(direction, b)
+    for i in range(3):
+        out[4 + i] = moment[i]
+    _write_state(p1, s1, tangent, normal, force, 0, held, out)
+    out[20] = math.nan
+    for i in range(3):
+        out[21 + i] = math.nan
+
+
+@compiled
+def sum_product(a: FloatArray, b: FloatArray) -> float:
+    """a . b of two 3-vectors."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@compiled
+def _normal_basis(n: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors spanning the plane normal to the unit vector ``n``, continuous in n
+    except where n_z = -1 changes side (Duff et al. 2017, "Building an orthonormal basis,
+    revisited")."""
+    sign = 1.0 if n[2] >= 0.0 else -1.0
+    a_ = -1.0 / (sign + n[2])
+    b_ = n[0] * n[1] * a_
+    e1 = np.array([1.0 + sign * n[0] * n[0] * a_, sign * b_, -sign * n[0]])
+    e2 = np.array([b_, sign + n[1] * n[1] * a_, -n[1]])
+    return e1, e2
+
+
+@compiled
+def evaluate_any(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
+                 anchor: FloatArray, mode: int, locked: bool, Q: FloatArray, lin: FloatArray,
+                 c: float, R_WB: FloatArray, p_WB: FloatArray, params: FloatArray,
+                 out: FloatArray) -> None:
+    """`evaluate_row` for the straight uniform rod (``params`` (1, 0, .)), `evaluate_rod_row`
+    for any other."""
+    if params[0] == 1.0 and params[1] == 0.0:
+        evaluate_row(q, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB, out)
+    else:
+        evaluate_rod_row(q, p_WC, R_WC, mu, anchor, mode, Q, lin, c, R_WB, p_WB, params, out)
 
 
 @compiled
 def _residual_norm(state: FloatArray) -> float:
     """max |residual|, NaN if any is NaN (as numpy's max)."""
     worst = 0.0
-    for i in range(4):
+    for i in range(7):
         value = abs(state[i])
         if value != value:
             return math.nan
@@ -152,59 +263,63 @@ def _residual_norm(state: FloatArray) -> float:
 @compiled
 def newton_row(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
                anchor: FloatArray, mode: int, locked: bool, Q: FloatArray, lin: FloatArray,
-               c: float, R_WB: FloatArray, p_WB: FloatArray, q: FloatArray,
+               c: float, R_WB: FloatArray, p_WB: FloatArray, params: FloatArray, q: FloatArray,
                state: FloatArray) -> None:
-    """Newton's method on one row from ``q0``: forward-difference Jacobian (loads perturbed
-    relative to the row's load), at most 0.3 rad of psi per step, step halving until the
-    residual decreases; the solution into ``q`` and its state into ``state``."""
-    for j in range(4):
+    """Newton's method on one row from ``q0`` (`evaluate_any`: 4 unknowns of the elastica, 7
+    of the Kirchhoff rod): forward-difference Jacobian (loads perturbed relative to the row's
+    load), at most 0.3 of q[0] (psi, rad, or s1, L) per step, step halving until the residual
+    decreases; the solution into ``q`` and its state into ``state``."""
+    n = 4 if params[0] == 1.0 and params[1] == 0.0 else 7
+    for j in range(Q_WIDTH):
         q[j] = q0[j]
-    evaluate_row(q, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB, state)
+    evaluate_any(q, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB, params, state)
     norm = _residual_norm(state)
     probe_state = np.empty(STATE_WIDTH)
     trial_state = np.empty(STATE_WIDTH)
-    probe = np.empty(4)
-    trial = np.empty(4)
-    jac = np.empty((4, 4))
-    rhs = np.empty(4)
-    h = np.empty(4)
+    probe = np.empty(Q_WIDTH)
+    trial = np.empty(Q_WIDTH)
+    jac = np.empty((n, n))
+    rhs = np.empty(n)
+    h = np.empty(n)
     for _ in range(NEWTON_MAX_ITER):
         if norm < NEWTON_TOL or not math.isfinite(norm):
             return
-        load = max(abs(q[1]), abs(q[2]), abs(q[3]))
-        for j in range(4):
+        load = 0.0
+        for j in range(1, n):
+            load = max(load, abs(q[j]))
+        for j in range(n):
             scale = 1.0 if j == 0 else 1e-3 * load
             h[j] = max(1e-8 * max(abs(q[j]), scale), 1e-300)
-        for j in range(4):
-            for k in range(4):
+        for j in range(n):
+            for k in range(Q_WIDTH):
                 probe[k] = q[k]
             probe[j] += h[j]
-            evaluate_row(probe, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB,
-                         probe_state)
-            for i in range(4):
+            evaluate_any(probe, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB,
+                         params, probe_state)
+            for i in range(n):
                 jac[i, j] = (probe_state[i] - state[i]) / h[j]
-        for i in range(4):
+        for i in range(n):
             rhs[i] = -state[i]
         delta = _solve(jac, rhs)
         limit = min(1.0, 0.3 / max(abs(delta[0]), 1e-300))  # keep the plane from spinning
-        for j in range(4):
+        for j in range(n):
             delta[j] *= limit
         accepted = False
         for _halving in range(10):
-            for j in range(4):
-                trial[j] = q[j] + delta[j]
-            evaluate_row(trial, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB,
-                         trial_state)
+            for j in range(Q_WIDTH):
+                trial[j] = q[j] + delta[j] if j < n else q[j]
+            evaluate_any(trial, p_WC, R_WC, mu, anchor, mode, locked, Q, lin, c, R_WB, p_WB,
+                         params, trial_state)
             trial_norm = _residual_norm(trial_state)
             if trial_norm < norm or trial_norm < NEWTON_TOL:
-                for j in range(4):
+                for j in range(Q_WIDTH):
                     q[j] = trial[j]
                 for k in range(STATE_WIDTH):
                     state[k] = trial_state[k]
                 norm = trial_norm
                 accepted = True
                 break
-            for j in range(4):
+            for j in range(n):
                 delta[j] *= 0.5
         if not accepted:
             return  # stalled: no further progress on this row
@@ -228,30 +343,30 @@ def _solve(jac: FloatArray, rhs: FloatArray) -> FloatArray:
 def evaluate_rows(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArray,
                   anchor: FloatArray, mode: NDArray[np.int64], locked: NDArray[np.bool_],
                   Q: FloatArray, lin: FloatArray, c: FloatArray, R_WB: FloatArray,
-                  p_WB: FloatArray) -> FloatArray:
-    """``evaluate_row`` of every row, each with its object (Q (n, 3, 3), lin (n, 3), c (n,),
-    R_WB (n, 3, 3), p_WB (n, 3)): states (n, ``STATE_WIDTH``)."""
+                  p_WB: FloatArray, params: FloatArray) -> FloatArray:
+    """``evaluate_any`` of every row, each with its object (Q (n, 3, 3), lin (n, 3), c (n,),
+    R_WB (n, 3, 3), p_WB (n, 3)) and rod (params (n, 3)): states (n, ``STATE_WIDTH``)."""
     n = q.shape[0]
     out = np.empty((n, STATE_WIDTH))
     for r in range(n):
-        evaluate_row(q[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q[r], lin[r],
-                     c[r], R_WB[r], p_WB[r], out[r])
+        evaluate_any(q[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q[r], lin[r],
+                     c[r], R_WB[r], p_WB[r], params[r], out[r])
     return out
 
 
 @compiled
 def newton_rows(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArray,
                 anchor: FloatArray, mode: NDArray[np.int64], locked: NDArray[np.bool_],
-                Q: FloatArray, lin: FloatArray, c: FloatArray, R_WB: FloatArray, p_WB: FloatArray
-                ) -> tuple[FloatArray, FloatArray]:
-    """``newton_row`` of every row, each with its object (as ``evaluate_rows``): solutions
-    q (n, 4) and their states."""
+                Q: FloatArray, lin: FloatArray, c: FloatArray, R_WB: FloatArray, p_WB: FloatArray,
+                params: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``newton_row`` of every row, each with its object and rod (as ``evaluate_rows``):
+    solutions q (n, ``Q_WIDTH``) and their states."""
     n = q0.shape[0]
-    q = np.empty((n, 4))
+    q = np.empty((n, Q_WIDTH))
     out = np.empty((n, STATE_WIDTH))
     for r in range(n):
         newton_row(q0[r], p_WC[r], R_WC[r], mu[r], anchor[r], mode[r], locked[r], Q[r], lin[r],
-                   c[r], R_WB[r], p_WB[r], q[r], out[r])
+                   c[r], R_WB[r], p_WB[r], params[r], q[r], out[r])
     return q, out
 
 
@@ -267,15 +382,15 @@ def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
     ok = np.empty(n, dtype=np.bool_)
     for r in range(n):
         row = state[r]
-        fn = row[14] * row[11] + row[15] * row[12] + row[16] * row[13]
-        dx, dy, dz = row[4] - previous[r, 0], row[5] - previous[r, 1], row[6] - previous[r, 2]
-        good = row[21] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump[r]
+        fn = row[17] * row[14] + row[18] * row[15] + row[19] * row[16]
+        dx, dy, dz = row[7] - previous[r, 0], row[8] - previous[r, 1], row[9] - previous[r, 2]
+        good = row[24] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump[r]
         if mode[r] == MODE_TANGENTIAL or mode[r] == MODE_STICK_TANGENTIAL:
-            good = good and row[7] <= 1.0 and row[7] > 0.0
+            good = good and row[10] <= 1.0 and row[10] > 0.0
         else:
-            good = good and row[8] * row[11] + row[9] * row[12] + row[10] * row[13] <= 1e-9
+            good = good and row[11] * row[14] + row[12] * row[15] + row[13] * row[16] <= 1e-9
         if mode[r] == MODE_STICK or mode[r] == MODE_STICK_TANGENTIAL:
-            tx, ty, tz = row[14] - fn * row[11], row[15] - fn * row[12], row[16] - fn * row[13]
+            tx, ty, tz = row[17] - fn * row[14], row[18] - fn * row[15], row[19] - fn * row[16]
             good = good and math.sqrt(tx * tx + ty * ty + tz * tz) <= mu[r] * fn * (1.0 + 1e-9)
         ok[r] = good
     return ok

@@ -27,6 +27,7 @@ from vibrissa.frames import (
     quaternion_turns,
     sampled_poses,
 )
+from vibrissa.rods import UNIFORM, RodShape, unloaded_polyline, unloaded_segments
 from vibrissa.surfaces import Surface, line_interval_world
 
 FloatArray = NDArray[np.float64]
@@ -158,12 +159,19 @@ class SampledPath:
             raise ValueError(f"x0 outside the path [{self.x_end}, 0]")
         return p_WC, R_WC
 
-    def penetrates(self, surface: Surface, x0: FloatArray) -> NDArray[np.bool_]:
-        """Whether the straight rod at ``x0`` (n,) has points inside the object."""
+    def penetrates(self, surface: Surface, x0: FloatArray, shape: RodShape = UNIFORM
+                   ) -> NDArray[np.bool_]:
+        """Whether the unloaded rod of ``shape`` (straight by default) at ``x0`` (n,) has
+        points inside the object (of its `unloaded_polyline`)."""
         p, R = self.clamp_pose(x0)
-        return surface.segment_inside(p, R[:, :, 2])
+        if shape.precurvature == 0.0:
+            return surface.segment_inside(p, R[:, :, 2])
+        starts, chords = unloaded_segments(shape, p, R)
+        inside = surface.segment_inside(starts, chords).reshape(len(p), -1)
+        return np.any(inside, axis=1)
 
-    def first_contact(self, surface: Surface) -> tuple[float, FloatArray] | None:
+    def first_contact(self, surface: Surface, shape: RodShape = UNIFORM
+                      ) -> tuple[float, FloatArray] | None:
         """The first x0 where the straight rod, free just before, touches the object, and the
         touch point in W: the tip, or the point of a side graze (the rod's line tangent to the
         object with 0 < s < 1). None when it never does on the path, or when the rod starts
@@ -175,12 +183,13 @@ class SampledPath:
         last bit.
         """
         grid = np.arange(self.n_samples, dtype=float)
-        inside = self.penetrates(surface, self.x0_of(grid))
+        inside = self.penetrates(surface, self.x0_of(grid), shape)
         if inside[0]:
             return None  # the rod starts inside: no touch from outside here (unresolved)
         hits = np.flatnonzero(inside)
         between = self._sub_samples(surface, int(hits[0]) if len(hits) else self.n_samples - 1)
-        met = self.penetrates(surface, self.x0_of(between)) if len(between) else np.zeros(0, bool)
+        met = (self.penetrates(surface, self.x0_of(between), shape) if len(between)
+               else np.zeros(0, bool))
         if np.any(met):  # the rod passes into the object between two free samples
             i = int(np.argmax(met))
             lo, hi = max(between[i - 1] if i else 0.0, math.floor(between[i])), between[i]
@@ -189,14 +198,26 @@ class SampledPath:
         else:
             return None
         Q, linear, c, R_WB, p_WB = surface.kernel_arrays
+        vertices = unloaded_polyline(shape)
         hi = _touch_bisection(float(lo), float(hi), self.h, self._t, self.p_WR, self.q_WR,
                               self.mount.translation, self.mount.R, Q[0], linear[0], float(c[0]),
-                              R_WB[0], p_WB[0])
+                              R_WB[0], p_WB[0], vertices)
         x_touch = float(self.x0_of(np.array([hi]))[0])
         p, R = (a[0] for a in self.clamp_pose(np.array([x_touch])))
-        t_in, t_out = surface.line_interval(p, R[:, 2])
-        s = 1.0 if t_in[0] <= 1.0 <= t_out[0] else float(np.clip(0.5 * (t_in[0] + t_out[0]), 0, 1))
-        return x_touch, p + s * R[:, 2]
+        if shape.precurvature == 0.0:
+            t_in, t_out = surface.line_interval(p, R[:, 2])
+            s = 1.0 if t_in[0] <= 1.0 <= t_out[0] else float(
+                np.clip(0.5 * (t_in[0] + t_out[0]), 0, 1))
+            return x_touch, p + s * R[:, 2]
+        starts, chords = unloaded_segments(shape, p[None], R[None])
+        t_in, t_out = surface.line_interval(starts, chords)
+        with np.errstate(invalid="ignore"):
+            meets = np.flatnonzero((t_in < 1.0) & (t_out > 0.0))
+        k = int(meets[0]) if len(meets) else len(chords) - 1  # the chord nearest the clamp
+        last = k == len(chords) - 1
+        t = 1.0 if last and t_in[k] <= 1.0 <= t_out[k] else float(
+            np.clip(0.5 * (t_in[k] + t_out[k]), 0, 1))
+        return x_touch, starts[k] + t * chords[k]
 
     def _sub_samples(self, surface: Surface, end: int) -> FloatArray:
         """Fractional sample indices between samples 0 .. ``end`` where a point of the rod
@@ -247,10 +268,12 @@ def clamp_poses(lam: FloatArray, t_s: FloatArray, p_WR: FloatArray, q_WR: FloatA
 @compiled
 def _touch_bisection(lo: float, hi: float, h: float, t_s: FloatArray, p_WR: FloatArray,
                      q_WR: FloatArray, p_RC: FloatArray, R_RC: FloatArray, Q: FloatArray,
-                     linear: FloatArray, c: float, R_WB: FloatArray, p_WB: FloatArray) -> float:
-    """The first fractional sample index in (lo, hi] where the straight rod (`clamp_poses`)
-    enters the object (the quadric (Q, linear, c) at (R_WB, p_WB)), by bisection to the last
-    bit: free at ``lo``, inside at ``hi``. Each index k is tried where `SampledPath.clamp_pose`
+                     linear: FloatArray, c: float, R_WB: FloatArray, p_WB: FloatArray,
+                     vertices: FloatArray) -> float:
+    """The first fractional sample index in (lo, hi] where the unloaded rod (the polyline of
+    ``vertices`` (K + 1, 3) in C, `vibrissa.rods.unloaded_polyline`, clamped as `clamp_poses`
+    says) enters the object (the quadric (Q, linear, c) at (R_WB, p_WB)), by bisection to the
+    last bit: free at ``lo``, inside at ``hi``. Each index k is tried where `SampledPath.clamp_pose`
     puts its x0 = -k h (``h`` the path's step): the touch found is inside there."""
     lam = np.empty(1)
     for _ in range(_TOUCH_ITERATIONS):
@@ -259,9 +282,22 @@ def _touch_bisection(lo: float, hi: float, h: float, t_s: FloatArray, p_WR: Floa
             break
         lam[0] = -(-mid * h) / h  # as clamp_pose(x0_of(mid))
         p_WC, R_WC, _ = clamp_poses(lam, t_s, p_WR, q_WR, p_RC, R_RC)
-        t_in, t_out = line_interval_world(p_WC[0, 0], p_WC[0, 1], p_WC[0, 2], R_WC[0, 0, 2],
-                                          R_WC[0, 1, 2], R_WC[0, 2, 2], Q, linear, c, R_WB, p_WB)
-        if t_in < 1.0 and t_out > 0.0:  # the segment 0 <= t <= 1 (the rod) meets the inside
+        p, R = p_WC[0], R_WC[0]
+        inside = False
+        for k in range(vertices.shape[0] - 1):
+            v, w = vertices[k], vertices[k + 1]
+            dx, dy, dz = w[0] - v[0], w[1] - v[1], w[2] - v[2]
+            t_in, t_out = line_interval_world(
+                p[0] + R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2],
+                p[1] + R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2],
+                p[2] + R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2],
+                R[0, 0] * dx + R[0, 1] * dy + R[0, 2] * dz,
+                R[1, 0] * dx + R[1, 1] * dy + R[1, 2] * dz,
+                R[2, 0] * dx + R[2, 1] * dy + R[2, 2] * dz, Q, linear, c, R_WB, p_WB)
+            if t_in < 1.0 and t_out > 0.0:  # the chord 0 <= t <= 1 meets the inside
+                inside = True
+                break
+        if inside:
             hi = mid
         else:
             lo = mid

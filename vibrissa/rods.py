@@ -43,6 +43,10 @@ MIN_TAPER = 0.05
 the base's)."""
 MAX_PRECURVATURE = 2.0 * math.pi
 """The largest pre-curvature, 1/L: a full circle."""
+UNLOADED_CHORDS = 64
+"""Chords of the polyline that stands for an unloaded pre-curved rod where the object is
+searched along it (a touch, a rod inside an object): within kappa_hat / (8 * 64^2) of the arc,
+2e-4 L at a full circle."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +85,38 @@ class RodShape:
     def params(self) -> FloatArray:
         """(taper_ratio, precurvature, 1 + nu), as the compiled kernels take them."""
         return np.array([self.taper_ratio, self.precurvature, 1.0 + self.poisson_ratio])
+
+
+UNIFORM = RodShape()
+"""The straight uniform cylinder."""
+
+
+def unloaded_points(shape: RodShape, s: FloatArray) -> FloatArray:
+    """Points (M, 3) of the unloaded rod at arc lengths ``s`` (M,), C: the circular arc in the
+    x-z plane, the segment along e_z without pre-curvature."""
+    s = np.asarray(s, dtype=float)
+    kappa = shape.precurvature
+    if kappa == 0.0:
+        return np.column_stack([np.zeros_like(s), np.zeros_like(s), s])
+    return np.column_stack([(1.0 - np.cos(kappa * s)) / kappa, np.zeros_like(s),
+                            np.sin(kappa * s) / kappa])
+
+
+def unloaded_polyline(shape: RodShape) -> FloatArray:
+    """Vertices (K + 1, 3) in C of the unloaded rod as a polyline: its two ends when straight
+    (exact), ``UNLOADED_CHORDS`` chords of the arc when pre-curved."""
+    chords = 1 if shape.precurvature == 0.0 else UNLOADED_CHORDS
+    return unloaded_points(shape, np.linspace(0.0, 1.0, chords + 1))
+
+
+def unloaded_segments(shape: RodShape, p_WC: FloatArray, R_WC: FloatArray
+                      ) -> tuple[FloatArray, FloatArray]:
+    """The chords of the `unloaded_polyline` clamped at poses (p_WC (n, 3), R_WC (n, 3, 3)):
+    starts and chord vectors (n K, 3), in W, pose by pose."""
+    vertices = unloaded_polyline(shape)
+    starts = p_WC[:, None, :] + np.einsum("nij,kj->nki", R_WC, vertices[:-1])
+    chords = np.einsum("nij,kj->nki", R_WC, np.diff(vertices, axis=0))
+    return starts.reshape(-1, 3), chords.reshape(-1, 3)
 
 
 def stiffness(shape: RodShape, s: FloatArray) -> FloatArray:

@@ -4,11 +4,11 @@ whisker along the path (``vibrissa.simulate``, ``vibrissa simulate SCENE.yaml``)
 SI at this boundary (m, N, N m, s); inside, each whisker is dimensionless in its own L and EI
 (``RodScale``): the objects and the path are scaled by 1/L for it.
 
-Along the path a whisker has contact episodes. Each starts where its straight rod first
+Along the path a whisker has contact episodes. Each starts where its unloaded rod first
 touches an object between two samples (at its tip, or a side graze of the shaft) and is one
 sweep of Step 1 (``vibrissa.sweep``) on that object, one equilibrium per path sample, until it
 ends: ``detachment`` (the rod came free smoothly), ``snap-off`` (no equilibrium near the last
-one) or ``path-end``. After a snap-off the straight rod may still be inside an object (the same
+one) or ``path-end``. After a snap-off the unloaded rod may still be inside an object (the same
 or another): the rod lands on it at the next sample, in the state a frictionless approach from
 the side it was pushed to reaches (`_WhiskerSteps._landing`), and a ``landing`` episode goes on
 from there (inside several objects: on the deepest where the landed rod enters no other).
@@ -20,7 +20,7 @@ steps after a touch may be taken as 2-16 samples at once, see ``vibrissa.sweep``
 Several objects: a whisker touches one at a time. An episode follows the object touched
 first; where its bent rod would enter another object, the episode ends (``another-object``:
 contact with two objects at once is not modelled) and the samples from there on are
-``unresolved`` until the straight rod is outside every object; then the next touch is searched
+``unresolved`` until the unloaded rod is outside every object; then the next touch is searched
 for.
 
 Whiskers are solved together: a group of them advances step by step, the equilibria of all
@@ -50,6 +50,7 @@ from vibrissa import two_contacts as two
 from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
 from vibrissa.paths import SUBSAMPLE_L, SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
+from vibrissa.rods import RodShape, unloaded_points, unloaded_segments
 from vibrissa.status import SNAP_KINDS, ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface, segments_meet
 from vibrissa.sweep import (
@@ -133,19 +134,38 @@ class SceneObject:
 
 @dataclass(frozen=True)
 class Whisker:
-    """A rod of length ``length_m`` and bending stiffness ``ei_nm2``, clamped at X_RC on the
-    robot; it leaves the clamp along C's +z. Its force/torque sensor measures in the frame S
-    at X_CS in the clamp frame (``vibrissa.calibration``; identity: S = C)."""
+    """A rod of length ``length_m`` and bending stiffness ``ei_nm2`` (at its base), clamped at
+    X_RC on the robot; it leaves the clamp along C's +z. Its force/torque sensor measures in
+    the frame S at X_CS in the clamp frame (``vibrissa.calibration``; identity: S = C).
+
+    A built whisker may taper (``taper_ratio``: tip over base diameter) and be pre-curved
+    (``precurvature_1pm``: the unloaded rod's curvature towards C's +x, 1/m), with torsion from
+    ``poisson_ratio`` (`vibrissa.rods.RodShape`); by default the straight uniform cylinder."""
 
     name: str
     length_m: float
     ei_nm2: float
     X_RC: Transform = field(default_factory=Transform)
     X_CS: Transform = field(default_factory=Transform)
+    taper_ratio: float = 1.0
+    precurvature_1pm: float = 0.0
+    poisson_ratio: float = 0.3
+
+    def __post_init__(self) -> None:
+        try:
+            self.shape  # noqa: B018 - checks the rod
+        except ValueError as exc:
+            raise ValueError(f"whisker {self.name!r}: {exc}") from None
 
     @property
     def scale(self) -> RodScale:
         return RodScale(self.length_m, self.ei_nm2)
+
+    @property
+    def shape(self) -> RodShape:
+        """The rod's shape in its own units (pre-curvature in 1/L)."""
+        return RodShape(self.taper_ratio, self.precurvature_1pm * self.length_m,
+                        self.poisson_ratio)
 
 
 @dataclass(frozen=True)
@@ -237,7 +257,7 @@ class Scene:
 
 
 EPISODE_STARTS = ("touch", "landing", "second-contact")
-"""How an episode begins: the straight rod touches an object, the rod lands on one after a
+"""How an episode begins: the unloaded rod touches an object, the rod lands on one after a
 snap-off, or the rod in contact with one meets a second (`Episode.second_object`) and goes on
 with both (its samples: the first object's contact in the usual columns, the second's in
 ``second_*``)."""
@@ -245,7 +265,7 @@ with both (its samples: the first object's contact in the usual columns, the sec
 
 @dataclass(frozen=True)
 class Episode:
-    """One contact of a whisker: the object, when it began (``start``: the straight rod's touch,
+    """One contact of a whisker: the object, when it began (``start``: the unloaded rod's touch,
     or a landing after a snap-off) and how it ended, the time of every phase change (t, from,
     to) and of every snap-through inside it (the contact jumped to another branch:
     `vibrissa.sweep.Sweep.jumped`)."""
@@ -351,7 +371,7 @@ def snaps(result: WhiskerResult, object_names: Sequence[str]) -> list[Snap]:
 
 def free_at_both_ends(results: Sequence[WhiskerResult]) -> list[str]:
     """The whiskers of ``results`` that are not free (`SamplePhase.NONE`: no contact, the
-    straight rod outside every object) at both the first and the last sample of their path,
+    unloaded rod outside every object) at both the first and the last sample of their path,
     by name. On a path that ends where it starts (`back_and_forth` with an even number of
     legs) a whisker free at both ends is in the same state at the end as at the start: Step 1
     keeps no state between contact episodes and does not depend on time, so driving the path
@@ -389,7 +409,7 @@ LANDING_SIDEWAYS = 0.01
 no side for the rod to land on."""
 
 LANDING_DISTANCES = 2.0 ** np.arange(-6.0, 2.0)
-"""How far back (units of L) a landing's approach starts: the first at which the straight rod
+"""How far back (units of L) a landing's approach starts: the first at which the unloaded rod
 is free."""
 
 LANDING_TURNS = np.pi / 4.0 * np.array([1.0, 2.0, 3.0])
@@ -400,7 +420,7 @@ LANDING_STEPS = (16, 256)
 """Fewest and most steps of a landing's approach (steps of the path's sample where they fit)."""
 
 PAUSE_L = 1e-12
-"""A sample where no point of the straight rod moved more than this (units of L) since the
+"""A sample where no point of the unloaded rod moved more than this (units of L) since the
 sample before is a pause: it repeats that sample."""
 
 
@@ -545,6 +565,7 @@ class _WhiskerSteps:
     def __init__(self, scene: Scene, whisker: Whisker) -> None:
         length = whisker.length_m
         self.scene, self.whisker = scene, whisker
+        self.shape = whisker.shape
         self.origin_m = local_origin(scene.path)
         self.surfaces = [obj.surface(length, self.origin_m) for obj in scene.objects]
         mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
@@ -595,7 +616,7 @@ class _WhiskerSteps:
                 if landing is not None:
                     rest = self.path.tail(self.k)
                     self.run = SweepRun(self.surfaces[self._object], [rest], rest.h,
-                                        landings=[landing])
+                                        landings=[landing], shape=self.shape)
                     self._landed = True
                     return
         if self._searched < self.k:  # (more samples may come: a skip may go on)
@@ -611,16 +632,16 @@ class _WhiskerSteps:
             return
         rest = self.path.tail(self.k)
         touches = [(touch, i) for i, surface in enumerate(self.surfaces)
-                   if (touch := rest.first_contact(surface)) is not None]
+                   if (touch := rest.first_contact(surface, self.shape)) is not None]
         if not touches:
             self._searched = n - 1
             self.ended = self.final
             return
         (_x_touch, _p), self._object = max(touches, key=lambda item: item[0][0])  # the first
-        self.run = SweepRun(self.surfaces[self._object], [rest], rest.h)
+        self.run = SweepRun(self.surfaces[self._object], [rest], rest.h, shape=self.shape)
 
     def _touch_after(self, j: int) -> bool:
-        """Whether the straight rod, free at moving sample ``j``, touches an object after it.
+        """Whether the unloaded rod, free at moving sample ``j``, touches an object after it.
 
         First, for all objects at once: none where the rod enters no object at any sample and
         moves at most `SUBSAMPLE_L` from one to the next (`SampledPath.first_contact` then has
@@ -628,10 +649,14 @@ class _WhiskerSteps:
         p_WR, q_WR = self._samples_from(j)
         window = SampledPath(p_WR, q_WR, self.scene.mu, self.mount, self.h)
         p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))
-        if (self.max_motion <= SUBSAMPLE_L
-                and not segments_meet(p_WC, np.ascontiguousarray(R_WC[:, :, 2]), *self._objects)):
+        if self.shape.precurvature == 0.0:
+            starts, chords = p_WC, np.ascontiguousarray(R_WC[:, :, 2])
+        else:
+            starts, chords = unloaded_segments(self.shape, p_WC, R_WC)
+        if self.max_motion <= SUBSAMPLE_L and not segments_meet(starts, chords, *self._objects):
             return False
-        return any(window.first_contact(surface) is not None for surface in self.surfaces)
+        return any(window.first_contact(surface, self.shape) is not None
+                   for surface in self.surfaces)
 
     @functools.cached_property
     def _objects(self) -> tuple[FloatArray, ...]:
@@ -655,7 +680,7 @@ class _WhiskerSteps:
         return self.path.h
 
     max_motion = float("inf")
-    """The most a point of the straight rod moved from one sample to the next, units of L
+    """The most a point of the unloaded rod moved from one sample to the next, units of L
     (unknown: inf)."""
 
     def where(self) -> tuple[int, int]:
@@ -687,7 +712,8 @@ class _WhiskerSteps:
                                      tuple(self._time_at(-x0 / h + k)
                                            for x0 in sweep.x0[:n][sweep.jumped[:n]])))
         snapped = sweep.force[-1] if len(sweep.force) else None
-        if (end is SweepEnd.ANOTHER_OBJECT and self.two_contacts and n >= 1
+        if (end is SweepEnd.ANOTHER_OBJECT and self.two_contacts and self.shape.uniform
+                and n >= 1
                 and self._start_pair(sweep, rows, n)):
             self.go_on_pair()
             return
@@ -701,7 +727,7 @@ class _WhiskerSteps:
         if end in (SweepEnd.PATH_END, SweepEnd.MAX_STEPS):
             self.ended = True
             return
-        # A rod that snaps off with its straight rod inside objects (the same or others) lands
+        # A rod that snaps off with its unloaded rod inside objects (the same or others) lands
         # on one of them, the deepest first (not twice from the same sample: a landing that
         # snaps off at once is left; not on the path's last sample, which, as for a touch,
         # starts no episode).
@@ -713,14 +739,14 @@ class _WhiskerSteps:
     def _lands(self, last: int, objects: Iterable[int], force: FloatArray | None) -> bool:
         """Whether the rod, last in contact at moving sample ``last`` with the contact force
         ``force`` on it (W, units of L), is to land at the next one on one of ``objects``
-        that its straight rod enters there, the deepest first (not on the path's last
+        that its unloaded rod enters there, the deepest first (not on the path's last
         sample, which, as for a touch, starts no episode)."""
         if force is None or last + 1 >= self.path.n_samples - 1:
             return False
         x0_next = self.path.x0_of(np.array([last + 1]))
-        on_rod = self._straight_rod(last + 1)[2]
+        on_rod = self._unloaded_rod(last + 1)[2]
         self._inside = sorted(
-            (j for j in objects if self.path.penetrates(self.surfaces[j], x0_next)[0]),
+            (j for j in objects if self.path.penetrates(self.surfaces[j], x0_next, self.shape)[0]),
             key=lambda j: float(self.surfaces[j].signed_distance(on_rod).min()))
         if not self._inside:
             return False
@@ -729,7 +755,7 @@ class _WhiskerSteps:
 
     two_contacts = True
     """Whether a rod in contact that meets a second object goes on with both contacts
-    (`vibrissa.two_contacts`)."""
+    (`vibrissa.two_contacts`: the straight uniform rod only)."""
 
     def _start_pair(self, sweep: Sweep, rows: NDArray[np.int64], n: int) -> bool:
         """Start both contacts from the sample after the episode's last row before its rod met
@@ -839,22 +865,22 @@ class _WhiskerSteps:
         self.refined[kept] = sweep.refined[part]
 
     def _landing(self, k: int, force_W: FloatArray) -> Landing | None:
-        """Where the rod lands at sample ``k`` after a snap-off, its straight rod inside the
+        """Where the rod lands at sample ``k`` after a snap-off, its unloaded rod inside the
         object ``_object``; None where it is not found.
 
         A quasi-static model cannot follow the jump. The state at k is found by approaching the
         object without friction: the clamp moved back perpendicular to its axis until the
-        straight rod is free (`LANDING_DISTANCES`), then forward to its pose at k in
+        unloaded rod is free (`LANDING_DISTANCES`), then forward to its pose at k in
         `LANDING_STEPS`, the contact followed from its touch. Sides are tried in order: the
         side the last contact force pushed the rod to, the shortest way out of the object (the
-        normal at the straight rod's deepest point), then the first turned about the rod
+        normal at the unloaded rod's deepest point), then the first turned about the rod
         (`LANDING_TURNS`); the first approach that reaches k without a fold of its own, the
         landed rod clear of every other object, gives the landing. The landed state's force
         is normal to the object, inside any friction cone: the contact holds where it landed,
         then goes on with the path's friction.
         """
         surface = self.surfaces[self._object]
-        p_WC, axis, on_rod = self._straight_rod(k)
+        p_WC, axis, on_rod = self._unloaded_rod(k)
         deepest = on_rod[np.argmin(surface.signed_distance(on_rod))]
         sides = []  # unit vectors perpendicular to the rod
         for side in (force_W, surface.normal(deepest[None])[0]):
@@ -868,34 +894,40 @@ class _WhiskerSteps:
                 sides += sorted(pair, key=lambda v: -float(v @ way_out))
             sides.append(-first)
         for away in sides:
-            landing = self._approach(k, surface, p_WC, axis, away)
+            landing = self._approach(k, surface, p_WC, axis, away, on_rod)
             if landing is not None:
                 return landing
         return None
 
-    def _straight_rod(self, k: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """The straight rod at moving sample ``k``: its clamp p_WC (3,), axis (3,) and
-        ``AXIS_SEGMENTS`` + 1 points from the clamp to the tip, units of L."""
+    def _unloaded_rod(self, k: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The unloaded rod at moving sample ``k``: its clamp p_WC (3,), the clamp's axis (3,)
+        and ``AXIS_SEGMENTS`` + 1 points from the clamp to the tip, units of L."""
         p_WC, R_WC = (a[0] for a in self.path.clamp_pose(self.path.x0_of(np.array([k]))))
         axis = R_WC[:, 2]
-        return p_WC, axis, p_WC + np.linspace(0.0, 1.0, AXIS_SEGMENTS + 1)[:, None] * axis
+        s = np.linspace(0.0, 1.0, AXIS_SEGMENTS + 1)
+        if self.shape.precurvature == 0.0:
+            return p_WC, axis, p_WC + s[:, None] * axis
+        return p_WC, axis, p_WC + unloaded_points(self.shape, s) @ R_WC.T
 
     def _approach(self, k: int, surface: Surface, p_WC: FloatArray, axis: FloatArray,
-                  away: FloatArray) -> Landing | None:
+                  away: FloatArray, on_rod: FloatArray) -> Landing | None:
         """The state at sample ``k`` reached by the clamp approaching it along -``away``
-        (perpendicular to its ``axis``) without friction, from where the straight rod is free;
+        (perpendicular to its ``axis``) without friction, from where the unloaded rod is free;
         None if there is no such start, the approach's contact snaps off on the way, or the
         landed rod (its axis as ``AXIS_SEGMENTS`` chords) enters another object."""
-        distance = next((d for d in LANDING_DISTANCES
-                         if not surface.segment_inside((p_WC + d * away)[None], axis[None])[0]),
-                        None)
+        def free(d: float) -> bool:
+            if self.shape.precurvature == 0.0:
+                return not surface.segment_inside((p_WC + d * away)[None], axis[None])[0]
+            return not surface.segment_inside(on_rod[:-1] + d * away, np.diff(on_rod, axis=0)).any()
+
+        distance = next((d for d in LANDING_DISTANCES if free(d)), None)
         if distance is None:
             return None
         steps = int(np.clip(np.ceil(distance / self.path.h), *LANDING_STEPS))
         back = np.linspace(distance, 0.0, steps + 1)[:, None] * away
         approach = SampledPath(self.path.p_WR[k] + back, self.path.q_WR[np.full(steps + 1, k)],
                                0.0, self.path.mount)
-        run = SweepRun(surface, [approach], approach.h)
+        run = SweepRun(surface, [approach], approach.h, shape=self.shape)
         while not run.done:
             run.advance()
         sweep = run.sweeps()[0]
@@ -947,11 +979,11 @@ class _WhiskerSteps:
                              self.second_touched[of_sample])
 
     def _skip_unresolved(self, k: int) -> int:
-        """The first sample from ``k`` on where the straight rod is outside every object."""
+        """The first sample from ``k`` on where the unloaded rod is outside every object."""
         path, n = self.path, self.path.n_samples
         while k < n:
-            p_WC, R_WC = path.clamp_pose(path.x0_of(np.array([k])))  # `SampledPath.penetrates`
-            if not any(s.segment_inside(p_WC, R_WC[:, :, 2])[0] for s in self.surfaces):
+            x0 = path.x0_of(np.array([k]))
+            if not any(path.penetrates(s, x0, self.shape)[0] for s in self.surfaces):
                 break
             self.phase[k], self.f0[k], self.m0[k] = SamplePhase.UNRESOLVED, np.nan, np.nan
             k += 1
@@ -981,14 +1013,21 @@ def clamp_inside(scene: Scene, whisker: Whisker) -> NDArray[np.int64]:
 
 
 def rod_inside_at_start(scene: Scene, whisker: Whisker) -> int:
-    """The index of the first object that the whisker's straight rod enters at the path's
+    """The index of the first object that the whisker's unloaded rod enters at the path's
     first sample (-1: none): Step 1 follows a contact from its touch, so such a rod has no state
-    to start from, and its samples are `SamplePhase.UNRESOLVED` until the straight rod is free."""
+    to start from, and its samples are `SamplePhase.UNRESOLVED` until the unloaded rod is free."""
     path, X_RC = scene.path, whisker.X_RC
     p_WC = path.p_WR[0] + path.R_WR[0].apply(np.array(X_RC.translation, dtype=float))
-    rod = (path.R_WR[0] * X_RC.rotation).apply([0.0, 0.0, whisker.length_m])
+    if whisker.precurvature_1pm == 0.0:
+        rod = (path.R_WR[0] * X_RC.rotation).apply([0.0, 0.0, whisker.length_m])
+        starts, rods = p_WC[None], rod[None]
+    else:
+        R_WC = (path.R_WR[0] * X_RC.rotation).as_matrix()
+        starts, rods = unloaded_segments(whisker.shape, p_WC[None] / whisker.length_m,
+                                         R_WC[None])
+        starts, rods = starts * whisker.length_m, rods * whisker.length_m
     for k, obj in enumerate(scene.objects):
-        if obj.surface(1.0).segment_inside(p_WC[None], rod[None])[0]:
+        if obj.surface(1.0).segment_inside(starts, rods).any():
             return k
     return -1
 

@@ -88,10 +88,12 @@ from vibrissa.equilibrium import (
     MODE_STICK_TANGENTIAL,
     MODE_TANGENTIAL,
     MODE_TIP,
+    Q_WIDTH,
     admissible_rows,
     evaluate_rows,
     newton_rows,
 )
+from vibrissa.rods import UNIFORM, RodShape, rod_line, unloaded_points, unloaded_polyline, unloaded_segments
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Surface
 
@@ -155,9 +157,10 @@ class ClampPath(Protocol):
         measures it) since ``x_from``; ``x_end`` where it never does."""
         ...
 
-    def first_contact(self, surface: Surface) -> tuple[float, FloatArray] | None:
-        """The first x0 at which the straight rod touches the object, and the touch point in
-        W; None when it never does."""
+    def first_contact(self, surface: Surface, shape: RodShape = UNIFORM
+                      ) -> tuple[float, FloatArray] | None:
+        """The first x0 at which the unloaded rod of ``shape`` (straight by default) touches
+        the object, and the touch point in W; None when it never does."""
         ...
 
     def symmetric(self, surface: Surface) -> bool:
@@ -176,9 +179,10 @@ class Trail:
     x_end: float = -math.inf
     x_grid: float | None = None
 
-    def first_contact(self, surface: Surface) -> tuple[float, FloatArray] | None:
+    def first_contact(self, surface: Surface, shape: RodShape = UNIFORM
+                      ) -> tuple[float, FloatArray] | None:
         """See :func:`first_contact`."""
-        return first_contact(surface, self.y0)
+        return first_contact(surface, self.y0, shape)
 
     def symmetric(self, surface: Surface) -> bool:
         """Whether the object is symmetric across the vertical plane y = y0 of the trail."""
@@ -250,6 +254,7 @@ class Sweep:
     s_touch: float  # where the straight rod touched, arc length from the clamp (NaN: none;
     # a sweep that starts from a `Landing`: the landed contact's s1), L
     _q: FloatArray = field(repr=False)
+    shape: RodShape = field(default_factory=RodShape)  # the rod (``vibrissa.rods``)
 
     @property
     def n_steps(self) -> int:
@@ -275,7 +280,12 @@ class Sweep:
         to the tip, in W."""
         indices = np.asarray(indices, dtype=np.int64).reshape(-1)
         s = np.linspace(0.0, 1.0, n_points)
-        uv = np.array([planar_line(fu, fv, kappa0, s) for _psi, fu, fv, kappa0 in self._q[indices]])
+        if not self.shape.uniform:
+            p_WC, R_WC = self.trail.clamp_pose(self.x0[indices])
+            lines_C = np.array([rod_line(self.shape, -q[1:4], q[4:7], q[0], s)
+                                for q in self._q[indices]]).reshape(len(indices), n_points, 3)
+            return p_WC[:, None] + np.einsum("nij,nkj->nki", R_WC, lines_C)
+        uv = np.array([planar_line(fu, fv, kappa0, s) for _psi, fu, fv, kappa0 in self._q[indices, :4]])
         e_u_C = bending_plane(self._q[indices, 0])[0]
         p_WC, R_WC = self.trail.clamp_pose(self.x0[indices])
         e_u_W, e_v_W = np.einsum("nij,nj->ni", R_WC, e_u_C), R_WC[:, :, 2]
@@ -337,12 +347,14 @@ class _Batch:
     c: FloatArray  # (n,)
     R_WB: FloatArray  # (n, 3, 3)
     p_WB: FloatArray  # (n, 3)
+    params: FloatArray  # (n, 3): each row's rod, `RodShape.params`
 
     def take(self, rows: NDArray[np.int64]) -> _Batch:
         return _Batch(*(getattr(self, name)[rows] for name in _BATCH_FIELDS))
 
 
-_BATCH_FIELDS = ("p_WC", "R_WC", "mu", "anchor", "mode", "locked", "Q", "lin", "c", "R_WB", "p_WB")
+_BATCH_FIELDS = ("p_WC", "R_WC", "mu", "anchor", "mode", "locked", "Q", "lin", "c", "R_WB", "p_WB",
+                 "params")
 
 
 @dataclass
@@ -354,29 +366,29 @@ class _State:
 
     @property
     def p1(self) -> FloatArray:
-        return self.rows[:, 4:7]
+        return self.rows[:, 7:10]
 
     @property
     def tangent(self) -> FloatArray:
-        return self.rows[:, 8:11]
-
-    @property
-    def normal(self) -> FloatArray:
         return self.rows[:, 11:14]
 
     @property
-    def force(self) -> FloatArray:
+    def normal(self) -> FloatArray:
         return self.rows[:, 14:17]
 
     @property
+    def force(self) -> FloatArray:
+        return self.rows[:, 17:20]
+
+    @property
     def s1(self) -> FloatArray:
-        return self.rows[:, 7]
+        return self.rows[:, 10]
 
     @property
     def converged(self) -> NDArray[np.bool_]:
         """Whether Newton's method converged (strict geometry; friction direction only as well
         as the chord of eq. 7 resolves it)."""
-        return self.rows[:, 22] != 0.0
+        return self.rows[:, 25] != 0.0
 
 
 def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -388,13 +400,14 @@ def bending_plane(psi: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _evaluate(q: FloatArray, batch: _Batch) -> _State:
-    """The residuals of q = (psi, Fu, Fv, kappa0) in the clamp frames C of the rows; geometry
-    and forces of the state in W, where the objects are (``vibrissa.equilibrium``)."""
-    return _State(evaluate_rows(np.ascontiguousarray(q[:, :4], dtype=float), *_row_arrays(batch)))
+    """The residuals of q (``vibrissa.equilibrium``) in the clamp frames C of the rows; geometry
+    and forces of the state in W, where the objects are."""
+    return _State(evaluate_rows(np.ascontiguousarray(q, dtype=float), *_row_arrays(batch)))
 
 
 def _newton(q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[np.bool_]]:
-    """Solve the four conditions for every row, starting from q0; returns q, state, converged."""
+    """Solve each row's conditions (four of the elastica, seven of the Kirchhoff rod) from q0;
+    returns q, state, converged."""
     q, out = newton_rows(np.ascontiguousarray(q0, dtype=float), *_row_arrays(batch))
     state = _State(out)
     return q, state, state.converged
@@ -402,7 +415,8 @@ def _newton(q0: FloatArray, batch: _Batch) -> tuple[FloatArray, _State, NDArray[
 
 def _row_arrays(batch: _Batch) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray,
                                         NDArray[np.int64], NDArray[np.bool_], FloatArray,
-                                        FloatArray, FloatArray, FloatArray, FloatArray]:
+                                        FloatArray, FloatArray, FloatArray, FloatArray,
+                                        FloatArray]:
     """The batch as the kernels take it; the object arrays are contiguous float64 already
     (``Surface.kernel_arrays``, stacked or indexed)."""
     return (np.ascontiguousarray(batch.p_WC, dtype=float),
@@ -411,7 +425,8 @@ def _row_arrays(batch: _Batch) -> tuple[FloatArray, FloatArray, FloatArray, Floa
             np.ascontiguousarray(batch.anchor, dtype=float),
             np.ascontiguousarray(batch.mode, dtype=np.int64),
             np.ascontiguousarray(batch.locked, dtype=np.bool_),
-            batch.Q, batch.lin, batch.c, batch.R_WB, batch.p_WB)
+            batch.Q, batch.lin, batch.c, batch.R_WB, batch.p_WB,
+            np.ascontiguousarray(batch.params, dtype=float))
 
 
 def _tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -515,13 +530,21 @@ def _small_slip_by_object(
 # Sweep driver
 
 
-def first_contact(surface: Surface, y0: float) -> tuple[float, FloatArray] | None:
-    """Largest x0 at which the straight rod on the trail touches the object, and the touch point.
+def first_contact(surface: Surface, y0: float, shape: RodShape = UNIFORM
+                  ) -> tuple[float, FloatArray] | None:
+    """Largest x0 at which the unloaded rod on the trail touches the object, and the touch point.
 
-    Returns None when the trail never touches the object.
+    The rod's point at arc length s, (X(s), 0, Z(s)) from the clamp (`unloaded_points`),
+    touches at x0 = x_max(Z(s)) - X(s), x_max the object's reach along x in the trail's plane
+    at height Z: the first touch is the largest over s. Returns None when the trail never
+    touches the object.
     """
+    def reach(s: FloatArray) -> FloatArray:
+        points = unloaded_points(shape, s)
+        return _slice_x_max(surface, y0, points[:, 2]) - points[:, 0]
+
     z = np.linspace(0.0, 1.0, 2001)
-    x_max = _slice_x_max(surface, y0, z)
+    x_max = reach(z)
     if not np.isfinite(x_max).any():
         return None
     i = int(np.nanargmax(x_max))
@@ -530,17 +553,17 @@ def first_contact(surface: Surface, y0: float) -> tuple[float, FloatArray] | Non
     golden = (np.sqrt(5.0) - 1.0) / 2.0
     for _ in range(80):
         a, b = hi - golden * (hi - lo), lo + golden * (hi - lo)
-        fa, fb = _slice_x_max(surface, y0, np.array([a, b]))
+        fa, fb = reach(np.array([a, b]))
         fa, fb = (np.nan_to_num(v, nan=-np.inf) for v in (fa, fb))
         if fa >= fb:
             hi = b
         else:
             lo = a
     candidates = np.array([lo, hi, z[i], 0.0, 1.0])
-    values = np.nan_to_num(_slice_x_max(surface, y0, candidates), nan=-np.inf)
+    values = np.nan_to_num(reach(candidates), nan=-np.inf)
     best = int(np.argmax(values))
-    z_touch = float(candidates[best])
-    return float(values[best]), np.array([values[best], y0, z_touch])
+    point = unloaded_points(shape, candidates[best:best + 1])[0]
+    return float(values[best]), np.array([values[best] + point[0], y0, point[2]])
 
 
 def _slice_x_max(surface: Surface, y0: float, z: FloatArray) -> FloatArray:
@@ -581,6 +604,8 @@ class _Track:
     s_touch: float = float("nan")  # arc length of the straight rod's touching point, units of L
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
     x_early: float = float("nan")  # where EARLY_TRAVEL_L of travel after the touch ends (NaN: not known yet)
+    shape: RodShape = field(default_factory=RodShape)
+    params: FloatArray = field(default_factory=lambda: RodShape().params)  # shape.params
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -658,11 +683,15 @@ class SweepRun:
         its own first contact.
     landings : sequence of Landing or None, optional
         Per trail, a state to start from instead of the trail's first contact.
+    shape : RodShape, optional
+        The rod (``vibrissa.rods``): the straight uniform cylinder by default, the planar
+        elastica in closed form; a tapered or pre-curved one is the Kirchhoff rod.
     """
 
     def __init__(self, surface: Surface, trails: Sequence[ClampPath], step: float = 0.001,
                  max_steps: int = 100_000, x_grid: float | None = None,
-                 landings: Sequence[Landing | None] | None = None) -> None:
+                 landings: Sequence[Landing | None] | None = None,
+                 shape: RodShape = UNIFORM) -> None:
         if not step > 0:
             raise ValueError(f"step must be > 0, got {step}")
         for trail in trails:
@@ -676,8 +705,9 @@ class SweepRun:
         starts = list(landings) if landings is not None else [None] * len(self.trails)
         if len(starts) != len(self.trails):
             raise ValueError(f"{len(starts)} landings for {len(self.trails)} trails")
-        self._tracks = [_start(surface, trail, step, max_steps, x_grid) if landing is None
-                        else _land(surface, trail, step, max_steps, x_grid, landing)
+        self.shape = shape
+        self._tracks = [_start(surface, trail, step, max_steps, x_grid, shape) if landing is None
+                        else _land(surface, trail, step, max_steps, x_grid, landing, shape)
                         for trail, landing in zip(self.trails, starts, strict=True)]
 
     @property
@@ -703,10 +733,10 @@ class SweepRun:
         track = self._tracks[index]
         rows = track.rows[start:]
         n = len(rows)
-        q = np.array([r[3] for r in rows]).reshape(n, 4)
+        q = np.array([r[3] for r in rows]).reshape(n, Q_WIDTH)
         x0 = np.array([r[0] for r in rows], dtype=float)
         f0, m0 = _clamp_reactions(q, np.array([r[6] for r in rows]).reshape(n, 3),
-                                  track.trail.clamp_pose(x0)[1])
+                                  track.trail.clamp_pose(x0)[1], track.shape)
         return x0, f0, m0
 
     def early(self, index: int) -> bool:
@@ -742,6 +772,7 @@ def simulate_sweeps(
     max_steps: int = 100_000,
     progress: ProgressCallback | None = None,
     x_grid: float | None = None,
+    shape: RodShape = UNIFORM,
 ) -> list[Sweep]:
     """Simulate several sweeps past one object, solved together step by step (`SweepRun`,
     whose parameters these are).
@@ -749,7 +780,7 @@ def simulate_sweeps(
     ``progress``, if given, is called as ``progress(finished_sweeps, total_sweeps)`` at the
     start and whenever a sweep ends.
     """
-    run = SweepRun(surface, trails, step, max_steps, x_grid)
+    run = SweepRun(surface, trails, step, max_steps, x_grid, shape=shape)
     done = sum(run.progress(i).end is not None for i in range(len(run.trails)))
     if progress:
         progress(done, len(run.trails))
@@ -762,9 +793,10 @@ def simulate_sweeps(
     return run.sweeps()
 
 
-def simulate_sweep(surface: Surface, y0: float, mu: float, step: float = 0.001) -> Sweep:
+def simulate_sweep(surface: Surface, y0: float, mu: float, step: float = 0.001,
+                   shape: RodShape = UNIFORM) -> Sweep:
     """One sweep at lateral offset ``y0`` with friction ``mu``; see :func:`simulate_sweeps`."""
-    return simulate_sweeps(surface, [Trail(y0, mu)], step)[0]
+    return simulate_sweeps(surface, [Trail(y0, mu)], step, shape=shape)[0]
 
 
 def contact_lines(sweeps: Sequence[Sweep]) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
@@ -781,33 +813,59 @@ def contact_lines(sweeps: Sequence[Sweep]) -> tuple[FloatArray, FloatArray, NDAr
 
 
 def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
-           x_grid: float | None) -> _Track:
-    locked = trail.symmetric(surface)
-    touch = trail.first_contact(surface)
+           x_grid: float | None, shape: RodShape) -> _Track:
+    locked = shape.uniform and trail.symmetric(surface)
+    touch = trail.first_contact(surface, shape)
     if touch is None:
-        track = _Track(surface, trail, step, max_steps, locked, np.nan, np.zeros(4), _MODE_TIP,
-                       np.zeros(3), np.zeros(3))
+        track = _Track(surface, trail, step, max_steps, locked, np.nan, np.zeros(Q_WIDTH),
+                       _MODE_TIP, np.zeros(3), np.zeros(3), shape=shape, params=shape.params)
         track.end = SweepEnd.NO_CONTACT
         return track
     x_start, p_touch = touch
     p_WC, R_WC = (a[0] for a in trail.clamp_pose(np.array([x_start])))
     n_W = surface.normal(p_touch)[0]
     normal = R_WC.T @ n_W  # in C
-    psi = 0.0 if locked or np.hypot(normal[0], normal[1]) == 0 else float(np.arctan2(normal[1], normal[0]))
-    n_u = normal[0] * np.cos(psi) + normal[1] * np.sin(psi)
-    s_touch = float((p_touch - p_WC) @ R_WC[:, 2])
     x_grid = _grid(x_grid, trail, x_start)
-    # Small-deflection guess for the first step: the touching point of the straight rod would
-    # go into the object by ``depth`` along n; a load P at s deflects it by P s^3 / 3.
     p_next, R_next = (a[0] for a in trail.clamp_pose(
         np.array([max(next_grid_point(x_start, x_grid, step), trail.x_end)])))
-    depth = abs((p_next + s_touch * R_next[:, 2] - p_touch) @ n_W)
-    magnitude = 3.0 * depth / (max(n_u * n_u, 0.05) * max(s_touch, 0.05) ** 3)
-    fu, fv = magnitude * n_u, magnitude * normal[2]
-    q = np.array([psi, fu, fv, -s_touch * fu])
+    q = np.zeros(Q_WIDTH)
+    # Small-deflection guess for the first step: the touching point of the unloaded rod would
+    # go into the object by ``depth`` along n; a load P at s deflects it by P s^3 / 3.
+    if shape.precurvature == 0.0:
+        s_touch = float((p_touch - p_WC) @ R_WC[:, 2])
+        along = R_WC[:, 2]
+        depth = abs((p_next + s_touch * R_next[:, 2] - p_touch) @ n_W)
+    else:
+        s_touch = _unloaded_arc_length(shape, R_WC.T @ (p_touch - p_WC))
+        angle = shape.precurvature * s_touch
+        along = R_WC @ np.array([math.sin(angle), 0.0, math.cos(angle)])
+        depth = abs((p_next + R_next @ unloaded_points(shape, np.array([s_touch]))[0]
+                     - p_touch) @ n_W)
+    if shape.uniform:
+        psi = 0.0 if locked or np.hypot(normal[0], normal[1]) == 0 else float(
+            np.arctan2(normal[1], normal[0]))
+        n_u = normal[0] * np.cos(psi) + normal[1] * np.sin(psi)
+        magnitude = 3.0 * depth / (max(n_u * n_u, 0.05) * max(s_touch, 0.05) ** 3)
+        fu, fv = magnitude * n_u, magnitude * normal[2]
+        q[:4] = psi, fu, fv, -s_touch * fu
+    else:
+        across = 1.0 - float(n_W @ along) ** 2
+        magnitude = 3.0 * depth / (max(across, 0.05) * max(s_touch, 0.05) ** 3)
+        force = magnitude * normal
+        r_touch = unloaded_points(shape, np.array([s_touch]))[0]
+        q[0], q[1:4], q[4:7] = s_touch, force, -np.cross(r_touch, force)
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
     return _Track(surface, trail, step, max_steps, locked, x_start, q, mode, p_touch,
-                  p_touch.copy(), x_touch=x_start, s_touch=s_touch, x_grid=x_grid)
+                  p_touch.copy(), x_touch=x_start, s_touch=s_touch, x_grid=x_grid, shape=shape,
+                  params=shape.params)
+
+
+def _unloaded_arc_length(shape: RodShape, point_C: FloatArray) -> float:
+    """The arc length (L) of the unloaded pre-curved rod's point nearest ``point_C`` (C)."""
+    kappa = shape.precurvature
+    # the arc is the circle of radius 1 / kappa about (1 / kappa, 0, 0) in the x-z plane
+    angle = math.atan2(point_C[2] * kappa, (1.0 - kappa * point_C[0]))
+    return float(min(max(angle / kappa, 0.0), 1.0))
 
 
 def _grid(x_grid: float | None, trail: ClampPath, x_start: float) -> float:
@@ -816,15 +874,16 @@ def _grid(x_grid: float | None, trail: ClampPath, x_start: float) -> float:
 
 
 def _land(surface: Surface, trail: ClampPath, step: float, max_steps: int,
-          x_grid: float | None, landing: Landing) -> _Track:
+          x_grid: float | None, landing: Landing, shape: RodShape) -> _Track:
     """A track whose first row is ``landing``: held where it landed when there is friction."""
     sliding = _MODE_TIP if landing.phase is ContactPhase.TIP else _MODE_TANGENTIAL
     held = _MODE_STICK if sliding == _MODE_TIP else _MODE_HELD
     mode = held if trail.mu > 0 else sliding
     x_grid = _grid(x_grid, trail, landing.x0)
-    track = _Track(surface, trail, step, max_steps, trail.symmetric(surface), landing.x0,
-                   landing.q.copy(), mode, landing.contact.copy(), landing.contact.copy(),
-                   x_touch=landing.x0, s_touch=landing.s1, x_grid=x_grid)
+    track = _Track(surface, trail, step, max_steps, shape.uniform and trail.symmetric(surface),
+                   landing.x0, landing.q.copy(), mode, landing.contact.copy(),
+                   landing.contact.copy(), x_touch=landing.x0, s_touch=landing.s1,
+                   x_grid=x_grid, shape=shape, params=shape.params)
     track.pending = (landing.contact.copy(), landing.normal.copy(), landing.force.copy(),
                      landing.s1)
     track.history = [track.q]
@@ -1048,7 +1107,8 @@ def _longer_step(track: _Track) -> bool:
             # the state before (zero load at the touch) lets the predictor take the next step.
             after = track.q
             if before is None:
-                before = np.array([after[0], 0.0, 0.0, 0.0])
+                before = np.zeros(Q_WIDTH)
+                before[0] = after[0]
             track.history = [before + (after - before) * (multiple - 1) / multiple, after]
             track.smooth = True
             return True
@@ -1063,7 +1123,7 @@ def _refine(track: _Track, target: float) -> None:
     """
     step = track.step
     if (_ending(track) is SweepEnd.DETACHMENT
-            and _straight_rod_clears(track.surface, track.trail, target)):
+            and _unloaded_rod_clears(track.surface, track.trail, target, track.shape)):
         track.end, track.x0_end = SweepEnd.DETACHMENT, track.x0
         return
     span = track.x0 - target  # one step, or less for the partial first step onto a shared grid
@@ -1090,24 +1150,36 @@ def _refine(track: _Track, target: float) -> None:
         # The reactions fade, but a rod that comes free must be on its way out of the object:
         # a straight rod deeper in at the target than at the last equilibrium is no free rod
         # (a tip whose force halved in a sub-step before a fold, on an independent check).
-        inside = _straight_rod_inside(track.surface, track.trail, np.array([track.x0, target]))
+        inside = _unloaded_rod_inside(track.surface, track.trail, np.array([track.x0, target]),
+                                      track.shape)
         if inside[1] > 0.0 and inside[1] >= inside[0]:
             track.end = SweepEnd.SNAP_OFF
     track.x0_end = track.rows[-1][0] if track.rows else track.x0
 
 
-def _straight_rod_clears(surface: Surface, trail: ClampPath, x0: float) -> bool:
-    """Whether the undeformed rod, clamped at x0 on the trail, lies outside the object."""
-    return bool(_straight_rod_inside(surface, trail, np.array([x0]))[0] == 0.0)
+def _unloaded_rod_clears(surface: Surface, trail: ClampPath, x0: float, shape: RodShape
+                         ) -> bool:
+    """Whether the unloaded rod, clamped at x0 on the trail, lies outside the object."""
+    return bool(_unloaded_rod_inside(surface, trail, np.array([x0]), shape)[0] == 0.0)
 
 
-def _straight_rod_inside(surface: Surface, trail: ClampPath, x0: FloatArray) -> FloatArray:
-    """The length of the undeformed rod inside the object (n,), L, clamped at each x0 (n,)."""
+def _unloaded_rod_inside(surface: Surface, trail: ClampPath, x0: FloatArray, shape: RodShape
+                         ) -> FloatArray:
+    """The length of the unloaded rod inside the object (n,), L, clamped at each x0 (n,): of
+    its `unloaded_polyline`."""
     p_WC, R_WC = trail.clamp_pose(x0)
-    t_in, t_out = surface.line_interval(p_WC, R_WC[:, :, 2])
-    with np.errstate(invalid="ignore"):  # NaN: the line misses the object
-        length = np.minimum(t_out, 1.0) - np.maximum(t_in, 0.0)
-    return np.where(length > 0.0, length, 0.0)
+    vertices = unloaded_polyline(shape)
+    if len(vertices) == 2:  # straight: the clamp's axis
+        t_in, t_out = surface.line_interval(p_WC, R_WC[:, :, 2])
+        with np.errstate(invalid="ignore"):  # NaN: the line misses the object
+            length = np.minimum(t_out, 1.0) - np.maximum(t_in, 0.0)
+        return np.where(length > 0.0, length, 0.0)
+    starts, chords = unloaded_segments(shape, p_WC, R_WC)
+    t_in, t_out = surface.line_interval(starts, chords)
+    with np.errstate(invalid="ignore"):
+        part = np.minimum(t_out, 1.0) - np.maximum(t_in, 0.0)
+    part = np.where(part > 0.0, part, 0.0) * np.linalg.norm(chords, axis=1)
+    return part.reshape(len(p_WC), -1).sum(axis=1)
 
 
 def _ending(track: _Track) -> SweepEnd:
@@ -1143,15 +1215,15 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     jump = np.maximum(20.0 * steps, 0.01)
     for i in np.flatnonzero(jump > 0.01).tolist():
         jump[i] = max(20.0 * tracks[i].trail.travel(targets[i] + steps[i], targets[i]), 0.01)
-    objects: tuple[FloatArray, ...]
+    objects: tuple[FloatArray, ...]  # each row's object (`Surface.kernel_arrays`) and rod
     if n == 1:
         p_WC, R_WC = tracks[0].trail.clamp_pose(targets)
-        objects = tracks[0].surface.kernel_arrays
+        objects = (*tracks[0].surface.kernel_arrays, tracks[0].params[None])
     else:
         poses = [t.trail.clamp_pose(targets[i : i + 1]) for i, t in enumerate(tracks)]
         p_WC, R_WC = np.concatenate([p for p, _ in poses]), np.concatenate([R for _, R in poses])
-        objects = tuple(np.concatenate(rows) for rows in zip(*(t.surface.kernel_arrays
-                                                               for t in tracks), strict=True))
+        objects = tuple(np.concatenate(rows) for rows in zip(
+            *((*t.surface.kernel_arrays, t.params[None]) for t in tracks), strict=True))
     mu = np.array([t.trail.mu for t in tracks])
     locked = np.array([t.locked for t in tracks])
     p1 = np.array([t.p1 for t in tracks])
@@ -1166,7 +1238,8 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
         if kind != "slide":
             rows = rows[mu[rows] > 0]
         if kind == "alternating":
-            alternates = np.array([_predict_alternating(tracks[i]) for i in rows]).reshape(-1, 4)
+            alternates = np.array([_predict_alternating(tracks[i]) for i in rows]).reshape(
+                -1, Q_WIDTH)
             finite = np.isfinite(alternates[:, 0])
             rows, alternates = rows[finite], alternates[finite]
         if kind == "anchored":
@@ -1203,14 +1276,14 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
             # only once it cannot hold any longer.
             back = [k for k in np.flatnonzero(ok)
                     if tracks[int(rows[k])].mode == _MODE_HELD
-                    or _turns_back(tracks[int(rows[k])], state.rows[k, 4:7])]
+                    or _turns_back(tracks[int(rows[k])], state.rows[k, 7:10])]
             if back:
                 ok[back] = ~hold(rows[back])
             # A far slide waits for the later stages: the contact may hold or slip a little
             # from where it holds (`_FAR_STEPS`).
             for k in np.flatnonzero(ok):
                 i = int(rows[k])
-                if mu[i] > 0 and _far(tracks[i], _chord(state.rows[k, 4:7], p1[i]), targets[i],
+                if mu[i] > 0 and _far(tracks[i], _chord(state.rows[k, 7:10], p1[i]), targets[i],
                                           steps[i]):
                     far.setdefault(i, (q[k].copy(), _take_state(state, int(k)), int(modes[i]), kind))
                     ok[k] = False
@@ -1222,7 +1295,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
                 stuck[int(rows[k])] = (q[k], _take_state(state, int(k)), int(k))
 
     def take(i: int, q_i: FloatArray, state_i: _State, mode: int, kind: str) -> None:
-        chord = _chord(state_i.rows[0, 4:7], p1[i])
+        chord = _chord(state_i.rows[0, 7:10], p1[i])
         _accept(tracks[i], float(targets[i]), q_i, state_i, 0, mode)
         # Extrapolate only along an even stretch: in stick-slip the slides alternate in length.
         tracks[i].smooth = kind == "slide" and 0.5 * tracks[i].chord <= chord <= 2.0 * tracks[i].chord
@@ -1310,7 +1383,7 @@ def _predict(track: _Track) -> FloatArray:
 def _predict_alternating(track: _Track) -> FloatArray:
     """Extrapolation of every other state (period-2 stick-slip), NaN without enough history."""
     if len(track.history) < 4 or track.smooth:
-        return np.full(4, np.nan)
+        return np.full(Q_WIDTH, np.nan)
     return 2.0 * track.history[-2] - track.history[-4]
 
 
@@ -1418,22 +1491,27 @@ def _record(track: _Track, refined: bool) -> None:
     track.jumped = False
 
 
-def _clamp_reactions(q: FloatArray, force_W: FloatArray, R_WC: FloatArray
+def _clamp_reactions(q: FloatArray, force_W: FloatArray, R_WC: FloatArray, shape: RodShape
                      ) -> tuple[FloatArray, FloatArray]:
-    """f0, m0 (n, 3) in the clamp frames C of states ``q`` (n, 4) with contact forces
-    ``force_W`` (n, 3) in W and clamp rotations ``R_WC`` (n, 3, 3).
+    """f0, m0 (n, 3) in the clamp frames C of states ``q`` (n, ``Q_WIDTH``) of a rod of
+    ``shape`` with contact forces ``force_W`` (n, 3) in W and clamp rotations ``R_WC``
+    (n, 3, 3).
 
     From the rod's own internal loads at s = 0 (not from r x F, so that the statics
-    m0 + r x F = 0 stays a check of the elastica): f0 = -F, m0 = -kappa0 e_w.
+    m0 + r x F = 0 stays a check of the rod): f0 = -F, m0 = -kappa0 e_w of the elastica, the
+    unknown m0 of the Kirchhoff rod.
     """
+    f0 = -np.matmul(force_W[:, None, :], R_WC)[:, 0, :]
+    if not shape.uniform:
+        return f0, q[:, 4:7].copy()
     e_w_C = bending_plane(q[:, 0])[1]
-    return -np.matmul(force_W[:, None, :], R_WC)[:, 0, :], -q[:, 3:4] * e_w_C
+    return f0, -q[:, 3:4] * e_w_C
 
 
 def _finish(track: _Track) -> Sweep:
     rows = track.rows
     n = len(rows)
-    q = np.array([r[3] for r in rows]).reshape(n, 4)
+    q = np.array([r[3] for r in rows]).reshape(n, Q_WIDTH)
     x0 = np.array([r[0] for r in rows], dtype=float)
     modes = np.array([r[1] for r in rows], dtype=np.int64)
     refined = np.array([r[2] for r in rows], dtype=bool)
@@ -1441,7 +1519,7 @@ def _finish(track: _Track) -> Sweep:
     contact = np.array([r[4] for r in rows]).reshape(n, 3)
     normal = np.array([r[5] for r in rows]).reshape(n, 3)
     force = np.array([r[6] for r in rows]).reshape(n, 3)
-    f0, m0 = _clamp_reactions(q, force, track.trail.clamp_pose(x0)[1])
+    f0, m0 = _clamp_reactions(q, force, track.trail.clamp_pose(x0)[1], track.shape)
     psi = -np.arctan2(m0[:, 0], m0[:, 1])
     fn = np.einsum("ni,ni->n", force, normal)
     ft = np.linalg.norm(force - fn[:, None] * normal, axis=1)
@@ -1470,4 +1548,5 @@ def _finish(track: _Track) -> Sweep:
         x_touch=float(track.x_touch),
         s_touch=float(track.s_touch),
         _q=q,
+        shape=track.shape,
     )

@@ -9,8 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import vibrissa.sweep
-from vibrissa.equilibrium import MODE_TIP, newton_rows
+from vibrissa.equilibrium import MODE_TIP, Q_WIDTH, newton_rows
 from vibrissa.frames import Transform
+from vibrissa.rods import RodShape
 from vibrissa.scene import (
     SamplePhase,
     Scene,
@@ -129,22 +130,31 @@ def test_two_workers_give_the_same_bits_in_the_scene_order(
 
 
 def test_kernel_rows_of_different_objects_are_the_bits_of_each_row_alone() -> None:
+    """Rows of different objects and rods (two uniform rods, the elastica; a tapered pre-curved
+    one, the Kirchhoff rod) solved in one call: each row's bits are its own alone."""
     surfaces = [parse_surface("paraboloid:a=0.5,b=1,h=0.4"),
-                parse_surface("sphere:r=0.3,cx=0.1,cy=0.05,cz=0.8,roll=0.3")]
-    rows = 2
-    q0 = np.array([[0.1, 0.02, -0.01, -0.02], [-0.2, 0.05, 0.01, -0.04]])
-    p_WC = np.array([[0.0, 0.2, 0.0], [0.05, 0.1, 0.02]])
+                parse_surface("sphere:r=0.3,cx=0.1,cy=0.05,cz=0.8,roll=0.3"),
+                parse_surface("sphere:r=0.3,cx=0.35,cy=0.05,cz=0.6")]
+    rows = 3
+    q0 = np.zeros((rows, Q_WIDTH))
+    q0[0, :4] = 0.1, 0.02, -0.01, -0.02
+    q0[1, :4] = -0.2, 0.05, 0.01, -0.04
+    q0[2] = 0.9, -0.05, 0.0, 0.01, 0.0, -0.04, 0.0
+    params = np.array([RodShape().params, RodShape().params,
+                       RodShape(taper_ratio=0.6, precurvature=1.0).params])
+    p_WC = np.array([[0.0, 0.2, 0.0], [0.05, 0.1, 0.02], [0.0, 0.05, 0.0]])
     R_WC = np.repeat(np.eye(3)[None], rows, axis=0)
-    mu = np.array([0.3, 0.5])
-    anchor = np.array([[0.1, 0.2, 0.5], [0.1, 0.1, 0.6]])
+    mu = np.array([0.3, 0.5, 0.3])
+    anchor = np.array([[0.1, 0.2, 0.5], [0.1, 0.1, 0.6], [0.06, 0.05, 0.6]])
     mode = np.full(rows, MODE_TIP, dtype=np.int64)
     locked = np.zeros(rows, dtype=bool)
     objects = [np.concatenate(parts) for parts in zip(*(s.kernel_arrays for s in surfaces),
                                                       strict=True)]
-    q, state = newton_rows(q0, p_WC, R_WC, mu, anchor, mode, locked, *objects)
+    q, state = newton_rows(q0, p_WC, R_WC, mu, anchor, mode, locked, *objects, params)
+    assert state[2, -1] == 1.0  # the Kirchhoff row converged
     for r, surface in enumerate(surfaces):
         one = slice(r, r + 1)
         q_r, state_r = newton_rows(q0[one], p_WC[one], R_WC[one], mu[one], anchor[one],
-                                   mode[one], locked[one], *surface.kernel_arrays)
+                                   mode[one], locked[one], *surface.kernel_arrays, params[one])
         np.testing.assert_array_equal(q[one], q_r)
         np.testing.assert_array_equal(state[one], state_r)

@@ -59,7 +59,16 @@ FloatArray = NDArray[np.float64]
 IVP_TOL = {"rtol": 1e-11, "atol": 1e-13}
 
 
-def _median_of(fn: Callable[[], object], repeat: int) -> float:
+def print_table(rows: list[tuple[str, str, str]]) -> None:
+    """One benchmark's table: quantity, value, note per row."""
+    width = max(len(r[0]) for r in rows)
+    print(f"\n{'quantity':<{width}}  {'value':>22}  note")
+    print("-" * (width + 40))
+    for name, value, note in rows:
+        print(f"{name:<{width}}  {value:>22}  {note}")
+
+
+def median_of(fn: Callable[[], object], repeat: int) -> float:
     """Median wall time of ``repeat`` calls, s (robust to other load on the machine)."""
     times = []
     for _ in range(repeat):
@@ -220,7 +229,7 @@ def main() -> None:
     rows.append(("Step 1 ratio baseline / library per step (study)", f"{shoot_step / lib_step:.0f}x",
                  ""))
     # One sweep alone, as `vibrissa sweep` runs it (no batching to hide per-step overhead).
-    single = _median_of(lambda: simulate_sweeps(surface, [Trail(0.2, 0.3)], 0.002), 3)
+    single = median_of(lambda: simulate_sweeps(surface, [Trail(0.2, 0.3)], 0.002), 3)
     n_single = simulate_sweeps(surface, [Trail(0.2, 0.3)], 0.002)[0].n_steps
     rows.append(("Step 1 library: one sweep y0=0.2 mu=0.3 step 0.002, per equilibrium",
                  f"{single / n_single * 1e3:.2f} ms", f"{n_single} equilibria, {single:.2f} s"))
@@ -236,10 +245,10 @@ def main() -> None:
     results = simulate(scene, workers=1)
     contacts = sum(int(np.sum((r.phase == 1) | (r.phase == 2))) for r in results)
     for workers in (1, 2):
-        scene_s = _median_of(functools.partial(simulate, scene, workers=workers), 3)
+        scene_s = median_of(functools.partial(simulate, scene, workers=workers), 3)
         rows.append((f"Step 1 library: scene of 8 whiskers x 2000 samples, {workers} worker(s)",
                      f"{scene_s:.2f} s", f"{contacts} contact samples"))
-    alone_s = _median_of(lambda: [simulate_whisker(scene, w) for w in scene.whiskers], 3)
+    alone_s = median_of(lambda: [simulate_whisker(scene, w) for w in scene.whiskers], 3)
     rows.append(("Step 1 baseline: the same scene, whisker after whisker, one process",
                  f"{alone_s:.2f} s", "no batching across whiskers"))
     alone = [simulate_whisker(scene, w) for w in scene.whiskers]
@@ -253,11 +262,11 @@ def main() -> None:
     sweep = study.case(0.2, 0.3).sweep
     reps = -(-args.samples // sweep.n_steps)
     p0, f0, m0 = (np.tile(a, (reps, 1))[: args.samples] for a in (sweep.p0, sweep.f0, sweep.m0))
-    batch = _median_of(lambda: reconstruct(p0, f0, m0), 3)
+    batch = median_of(lambda: reconstruct(p0, f0, m0), 3)
     rows.append((f"Step 2 library: reconstruct() on {args.samples:.0e} samples, one core",
                  f"{args.samples / batch:.3g} samples/s", f"{batch:.2f} s"))
     n_single = min(2000, sweep.n_steps)
-    single = _median_of(lambda: [reconstruct(sweep.p0[i], sweep.f0[i], sweep.m0[i])
+    single = median_of(lambda: [reconstruct(sweep.p0[i], sweep.f0[i], sweep.m0[i])
                                  for i in range(n_single)], 5) / n_single
     rows.append(("Step 2 library: single-sample latency, reconstruct() of (3,) vectors",
                  f"{single * 1e6:.1f} us", ""))
@@ -285,8 +294,8 @@ def main() -> None:
     sigma = 1e-4 * np.repeat([np.linalg.norm(sweep.f0, axis=1).max() * rod.force_n,
                               np.linalg.norm(sweep.m0, axis=1).max() * rod.moment_nm], 3)
     cov_w = np.diag(sigma**2)
-    plain_si = _median_of(lambda: reconstruct_si(q, p0_m, f0_n, m0_nm, rod), 3)
-    with_cov = _median_of(lambda: reconstruct_si(q, p0_m, f0_n, m0_nm, rod, cov_w), 3)
+    plain_si = median_of(lambda: reconstruct_si(q, p0_m, f0_n, m0_nm, rod), 3)
+    with_cov = median_of(lambda: reconstruct_si(q, p0_m, f0_n, m0_nm, rod, cov_w), 3)
     rows.append((f"Step 2 library: reconstruct_si() on {args.samples:.0e} samples, one core",
                  f"{args.samples / plain_si:.3g} samples/s", f"{plain_si:.2f} s"))
     rows.append(("Step 2 library: reconstruct_si() + covariance, one core",
@@ -320,11 +329,7 @@ def main() -> None:
                  f"{both.sum()} samples with both (at tip contacts the differences cross "
                  "the rod's end)"))
 
-    width = max(len(r[0]) for r in rows)
-    print(f"\n{'quantity':<{width}}  {'value':>22}  note")
-    print("-" * (width + 40))
-    for name, value, note in rows:
-        print(f"{name:<{width}}  {value:>22}  {note}")
+    print_table(rows)
 
 
 if __name__ == "__main__":

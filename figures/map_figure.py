@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vibrissa.mapping import FrameMap, TrueObject
+from vibrissa.rods import unloaded_points
 from vibrissa.scene import RobotPath, Scene, Whisker
 from vibrissa.surfaces import Ellipsoid, Paraboloid
 
@@ -178,14 +179,16 @@ def wireframe(true: TrueObject, near: FloatArray) -> FloatArray:
 def mounts(path: RobotPath, whiskers: Sequence[Whisker]
            ) -> list[tuple[Whisker, FloatArray, FloatArray]]:
     """Each whisker's clamp at the path's start, middle and end: (whisker, clamp origins
-    p_WC (K, 3), tips of the rod-axis segments (K, 3)), m."""
+    p_WC (K, 3), ends of the rod-axis segments (K, 3): the unloaded rod's point at
+    ``ROD_AXIS_FRACTION`` of its length, on its arc where it is pre-curved), m."""
     rows = np.unique([0, len(path.t) // 2, len(path.t) - 1])
     R_WR = path.R_WR[rows]
     out = []
     for whisker in whiskers:
         p_WC = path.p_WR[rows] + R_WR.apply(np.array(whisker.X_RC.translation))
-        z_WC = (R_WR * whisker.X_RC.rotation).apply([0.0, 0.0, 1.0])
-        out.append((whisker, p_WC, p_WC + ROD_AXIS_FRACTION * whisker.length_m * z_WC))
+        along = unloaded_points(whisker.shape, np.array([ROD_AXIS_FRACTION]))[0]
+        r_WC = (R_WR * whisker.X_RC.rotation).apply(along)
+        out.append((whisker, p_WC, p_WC + whisker.length_m * r_WC))
     return out
 
 

@@ -4,9 +4,10 @@ error names the file and the key or row.
 A scene file (SI, world frame W, z up) holds ``mu``, ``objects`` (name, shape sphere |
 ellipsoid | paraboloid, sizes, ``position_m``, ``quaternion_xyzw``), ``whiskers`` (name,
 ``length_m``, ``ei_nm2``, ``mount`` X_RC, optionally ``sensor`` X_CS: the force/torque
-sensor's frame in the clamp frame, identity when left out) and ``path`` (a CSV ``t,x,y,z,qx,qy,qz,qw`` of robot
-poses X_WR, relative to the scene file), and optionally ``explore`` (`load_explore`: the
-start pose, workspace box and body radius of an exploration; a file with ``explore`` may leave
+sensor's frame in the clamp frame, identity when left out, and the rod's ``taper_ratio``,
+``precurvature_1pm`` and ``poisson_ratio``: `vibrissa.scene.Whisker`) and ``path`` (a
+CSV ``t,x,y,z,qx,qy,qz,qw`` of robot poses X_WR, relative to the scene file), and optionally
+``explore`` (`load_explore`: the start pose, workspace box and body radius of an exploration; a file with ``explore`` may leave
 ``path`` out, and then stands still at the start). Its ``whiskers`` are also the robot
 description the nodes load (`load_robot`): one file, one truth.
 
@@ -290,13 +291,20 @@ def _explore(value: Any, where: str) -> Explore:
         raise SceneError(f"{where}: {exc}") from None
 
 
+_ROD_KEYS = ("taper_ratio", "precurvature_1pm", "poisson_ratio")
+
+
 def _whisker(value: Any, where: str) -> Whisker:
-    body = _mapping(value, where, ("name", "length_m", "ei_nm2", "mount", "sensor"),
+    body = _mapping(value, where, ("name", "length_m", "ei_nm2", "mount", "sensor", *_ROD_KEYS),
                     ("name", "length_m", "ei_nm2", "mount"))
     name = check_name(body["name"], f"{where}.name")
     length = _number(body["length_m"], f"{where}.length_m", "length_m")
     ei = _number(body["ei_nm2"], f"{where}.ei_nm2", "ei_nm2")
     mount = _mapping(body["mount"], f"{where}.mount", ("position_m", "quaternion_xyzw"), ())
     sensor = _mapping(body.get("sensor", {}), f"{where}.sensor", ("position_m", "quaternion_xyzw"), ())
-    return Whisker(name, length, ei, _pose(mount, f"{where}.mount"),
-                   _pose(sensor, f"{where}.sensor"))
+    rod = {key: _number(body[key], f"{where}.{key}") for key in _ROD_KEYS if key in body}
+    try:
+        return Whisker(name, length, ei, _pose(mount, f"{where}.mount"),
+                       _pose(sensor, f"{where}.sensor"), **rod)
+    except ValueError as exc:  # the rod's shape (vibrissa.rods.RodShape)
+        raise SceneError(f"{where}: {exc}") from None

@@ -17,6 +17,7 @@ from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import ContactPointArray, ContactStatus, WhiskerWrenchArray
 from vibrissa.reconstruct import TIP_SIGMAS, reconstruct_si
+from vibrissa.rods import UNIFORM, RodShape
 from vibrissa.scene import Whisker
 from vibrissa.units import RodScale, rod_units
 
@@ -31,13 +32,27 @@ _MAX_ROW_LISTS = 64
 
 
 class RodTable(Mapping[str, RodScale]):
-    """Each whisker's rod by name, and the rods of a tick's rows as Step 2 takes them: an
-    array sends the same whiskers tick after tick, so their units are made once."""
+    """Each whisker's rod by name (its scale, and its shape where it is tapered or pre-curved:
+    `vibrissa.rods.RodShape`), and the rods of a tick's rows as Step 2 takes them: an array
+    sends the same whiskers tick after tick, so their units are made once."""
 
-    def __init__(self, rods: Mapping[str, RodScale]) -> None:
+    def __init__(self, rods: Mapping[str, RodScale],
+                 shapes: Mapping[str, RodShape] | None = None) -> None:
         self._rods = dict(rods)
+        self._shapes = {name: shape for name, shape in (shapes or {}).items()
+                        if not shape.uniform}
         self._rows: dict[tuple[str, ...], tuple[FloatArray, list[int]]] = {}
         self._frames: dict[tuple[tuple[str, ...], tuple[str, ...]], list[int]] = {}
+
+    @property
+    def shaped(self) -> bool:
+        """Whether any whisker is tapered or pre-curved."""
+        return bool(self._shapes)
+
+    def shape_rows(self, whiskers: Sequence[str]) -> FloatArray:
+        """Each row's `RodShape.params` (N, 3) (an unknown whisker's: the uniform rod's)."""
+        return np.array([self._shapes.get(w, UNIFORM).params for w in whiskers],
+                        dtype=float).reshape(len(whiskers), 3)
 
     def __getitem__(self, name: str) -> RodScale:
         return self._rods[name]
@@ -119,6 +134,42 @@ class Reconstructed:
     multi_contact: int = 0
 
 
+class ContactMemory:
+    """Each tapered or pre-curved whisker's last contact, its arc length s1 (m; NaN: none), by
+    which Step 2 chooses among the points that fit a wrench (`vibrissa.reconstruct_rods`):
+    a stream's state, moved on with its rows in order."""
+
+    def __init__(self) -> None:
+        self._s1: dict[str, float] = {}
+
+    def links(self, whiskers: Sequence[str]) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+        """For rows of ``whiskers`` in order: each row's previous contact from before the
+        call (NaN: none) and the earlier row of its whisker in the call (-1: none), as
+        `vibrissa.reconstruct.reconstruct_si` takes them."""
+        previous = np.full(len(whiskers), math.nan)
+        chain = np.full(len(whiskers), -1, dtype=np.int64)
+        last: dict[str, int] = {}
+        for i, name in enumerate(whiskers):
+            j = last.get(name)
+            if j is None:
+                previous[i] = self._s1.get(name, math.nan)
+            else:
+                chain[i] = j
+            last[name] = i
+        return previous, chain
+
+    def update(self, whiskers: Sequence[str], s1_m: FloatArray,
+               valid: npt.NDArray[np.bool_]) -> None:
+        """Rows of ``whiskers`` reconstructed, in order: their contacts' s1 (m)."""
+        for name, s1, ok in zip(whiskers, s1_m.tolist(), valid.tolist(), strict=True):
+            self._s1[name] = s1 if ok else math.nan
+
+    def forget(self, whiskers: Sequence[str]) -> None:
+        """These whiskers are free: no contact to continue."""
+        for name in whiskers:
+            self._s1.pop(name, None)
+
+
 @dataclass
 class _Rows:
     """The rows of one tick on their way to Step 2: clamp poses in ``frame_id`` where
@@ -134,6 +185,7 @@ class _Rows:
     errors: list[str] = field(default_factory=list)
     free: int = 0
     wrong_frame: int = 0
+    free_rows: list[int] = field(default_factory=list)
 
 
 def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_frame: str,
@@ -179,17 +231,22 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
     if missing or wrong:
         placed[missing + wrong] = False
     free = 0
+    free_list: list[int] = []
     if detector is not None:  # every row moves its whisker's state, placed or not
         free_rows = placed & ~detector.update(whiskers, msg.f0, msg.m0)[0]
         free = int(np.count_nonzero(free_rows))
         placed &= ~free_rows
-    return _Rows(q, p, placed, units, frame_id, no_pose, len(missing), errors, free, len(wrong))
+        if free and table is not None and table.shaped:
+            free_list = np.flatnonzero(free_rows).tolist()
+    return _Rows(q, p, placed, units, frame_id, no_pose, len(missing), errors, free, len(wrong),
+                 free_list)
 
 
 def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_ROD,
                          frames: FrameBuffer | None = None, map_frame: str = WORLD_FRAME,
                          detector: ContactDetector | None = None,
-                         tip_sigmas: float = TIP_SIGMAS) -> list[Reconstructed]:
+                         tip_sigmas: float = TIP_SIGMAS,
+                         memory: ContactMemory | None = None) -> list[Reconstructed]:
     """Reconstruct a batch of ticks in one Step 2 call (``vibrissa.reconstruct.reconstruct_si``).
 
     A row's clamp pose is the one its tick carries, else its clamp frame in ``map_frame`` at
@@ -201,7 +258,9 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     the live run's points bit for bit, and a tick of one row gives the same bits as the same
     row of a larger tick. With a ``detector`` (the sensors' noise), rows of a free rod are left
     out (``free``) and points carry their covariance; the detector's state moves on with the
-    rows, in order.
+    rows, in order. A tapered or pre-curved whisker's point is chosen among the points that
+    fit its wrench by continuity with its last contact (``memory``, moved on with the rows;
+    without one, each batch starts afresh).
     """
     parts = [_rows(msg, rod, frames, map_frame, detector) for msg in msgs]
     whole = len(parts) == 1 and parts[0].placed.all()  # the rows as they are
@@ -220,10 +279,25 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         rods = cast(FloatArray, parts[0].units)
     else:
         rods = np.vstack([cast(FloatArray, part.units)[part.placed] for part in parts])
+    table = rod if isinstance(rod, RodTable) else None
+    shapes = previous = chain = None
+    names: list[str] = []
+    if table is not None and table.shaped:
+        names = [w for msg, part in zip(msgs, parts, strict=True)
+                 for w in compress(msg.whisker_ids, part.placed.tolist())]
+        if memory is not None:
+            memory.forget([msg.whisker_ids[i] for msg, part in zip(msgs, parts, strict=True)
+                           for i in part.free_rows])
+        shapes = table.shape_rows(names)
+        previous, chain = (memory or ContactMemory()).links(names)
     if detector is None:
-        result = reconstruct_si(q, p0, f0, m0, rods)
+        result = reconstruct_si(q, p0, f0, m0, rods, shapes=shapes, previous_s1_m=previous,
+                                chain=chain)
     else:
-        result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas)
+        result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas,
+                                shapes=shapes, previous_s1_m=previous, chain=chain)
+    if memory is not None and names:
+        memory.update(names, result.s1_m, result.valid)
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
     # a row whose result overflows (finite inputs near the float limit) is flagged

@@ -18,6 +18,7 @@ from vibrissa.scene import Whisker
 from vibrissa.streaming.pose_wait import PoseWait
 from vibrissa.streaming.step2 import (
     UNIT_ROD,
+    ContactMemory,
     Reconstructed,
     Rods,
     RodTable,
@@ -83,7 +84,10 @@ class StreamSettings:
 
     def rods(self) -> Rods:
         """Each whisker's rod by name (`RodTable`), or the one rod of every whisker."""
-        return RodTable({w.name: w.scale for w in self.whiskers}) if self.whiskers else self.rod
+        if not self.whiskers:
+            return self.rod
+        return RodTable({w.name: w.scale for w in self.whiskers},
+                        {w.name: w.shape for w in self.whiskers})
 
     def detector(self) -> ContactDetector | None:
         """A new contact detector of the noise model, or None without one."""
@@ -189,6 +193,7 @@ class Step2Stream:
         self.frames = (robot_frames(settings.whiskers, settings.robot_frame, settings.history_s,
                                     settings.max_pose_gap_s) if settings.whiskers else None)
         self.detector = settings.detector()
+        self.memory = ContactMemory()
         self._wait = PoseWait(self.frames, settings.map_frame, settings.pose_timeout_s, clock,
                               _ignore if self.frames is None
                               else pose_handler(self.frames, self.counts, self._warn),
@@ -219,7 +224,7 @@ class Step2Stream:
         if not ready:
             return ()
         outcomes = reconstruct_messages(ready, self.rods, self.frames, self.settings.map_frame,
-                                        self.detector, self.settings.tip_sigmas)
+                                        self.detector, self.settings.tip_sigmas, self.memory)
         counts = self.counts
         for outcome in outcomes:
             counts["contacts"] += len(outcome.contacts.whisker_ids)

@@ -39,10 +39,14 @@ NEWTON_MAX_ITER = 40
 Q_WIDTH = 7
 """A row's unknowns: (psi, Fu, Fv, kappa0, 0, 0, 0) of the planar elastica, (s1, F (3), m0
 (3)) of the Kirchhoff rod."""
-STATE_WIDTH = 26
-"""A row's state: residual 0:7 (4:7 the Kirchhoff rod's moment at s1; 0 for the elastica), p1
-7:10, s1 10, tangent 11:14, normal 14:17, force 17:20, kappa0 20 (the elastica's), e_w 21:24
-(the elastica's), status 24, converged 25 (1 or 0)."""
+STATE_WIDTH = 27
+"""A row's state: residual 0:7 (4:7 the Kirchhoff rod's moment at s1 over |F|, L; 0 for the
+elastica), p1 7:10, s1 10, tangent 11:14, normal 14:17, force 17:20, kappa0 20 (the
+elastica's), e_w 21:24 (the elastica's), status 24, converged 25 (1 or 0), the least gap of
+the free part beyond a tangential contact 26 (the Kirchhoff rod's; NaN otherwise)."""
+FREE_PART_POINTS = 4
+"""Points of the unloaded arc beyond a Kirchhoff rod's tangential contact checked against the
+object: a pre-curved rod's free part may curve into it (then the tip touches instead)."""
 MAX_S1 = 1.5
 """The largest s1 a Kirchhoff row is evaluated at (a tangential contact past the tip is
 refused, `admissible_rows`; the taper's law holds to 1 / (1 - r) >= 1.05)."""
@@ -125,18 +129,32 @@ def evaluate_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: float,
     if locked:
         in_plane = psi
     tangential = tangent[0] * normal[0] + tangent[1] * normal[1] + tangent[2] * normal[2]
+    held = _contact_residuals(mode, s1, tangential, gap, p1, anchor, out)
+    if not held:
+        out[2], out[3] = in_plane, along
+    out[4] = out[5] = out[6] = 0.0
+    _write_state(p1, s1, tangent, normal, force, status, held, out)
+    out[20] = kappa0
+    out[26] = math.nan
+    for i in range(3):
+        out[21 + i] = e_w[i]
+
+
+@compiled
+def _contact_residuals(mode: int, s1: float, tangential: float, gap: float, p1: FloatArray,
+                       anchor: FloatArray, out: FloatArray) -> bool:
+    """The contact's residuals of a row in ``mode`` into ``out``: a held contact's four
+    (s1 = 1 at the tip or tangency, the point at the anchor), a sliding one's first two (tip
+    s1 = 1 or tangency, the point on the object; its friction direction is the rod model's);
+    whether it is held."""
     held = mode == MODE_STICK or mode == MODE_STICK_TANGENTIAL
     if held:
         out[0] = s1 - 1.0 if mode == MODE_STICK else tangential
         out[1], out[2], out[3] = p1[0] - anchor[0], p1[1] - anchor[1], p1[2] - anchor[2]
     else:
         out[0] = tangential if mode == MODE_TANGENTIAL else s1 - 1.0
-        out[1], out[2], out[3] = gap, in_plane, along
-    out[4] = out[5] = out[6] = 0.0
-    _write_state(p1, s1, tangent, normal, force, status, held, out)
-    out[20] = kappa0
-    for i in range(3):
-        out[21 + i] = e_w[i]
+        out[1] = gap
+    return held
 
 
 @compiled
@@ -185,35 +203,44 @@ def evaluate_rod_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: floa
     y = integrate_to(s1, f0, m0, params)
     moment = moment_at(y, f0, m0)
     frame = frame_of(y)
-    p1, tangent, force = np.empty(3), np.empty(3), np.empty(3)
+    p1, tangent, force, bent = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for i in range(3):
         p1[i] = p_WC[i] + R_WC[i, 0] * y[0] + R_WC[i, 1] * y[1] + R_WC[i, 2] * y[2]
         tangent[i] = R_WC[i, 0] * frame[0, 2] + R_WC[i, 1] * frame[1, 2] + R_WC[i, 2] * frame[2, 2]
+        bent[i] = R_WC[i, 0] * frame[0, 0] + R_WC[i, 1] * frame[1, 0] + R_WC[i, 2] * frame[2, 0]
         force[i] = -(R_WC[i, 0] * f0[0] + R_WC[i, 1] * f0[1] + R_WC[i, 2] * f0[2])
+    f = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
     normal = np.empty(3)
     gap = quadric_gap(p1, Q, lin, c, R_WB, p_WB, normal)
     tangential = tangent[0] * normal[0] + tangent[1] * normal[1] + tangent[2] * normal[2]
-    held = mode == MODE_STICK or mode == MODE_STICK_TANGENTIAL
-    if held:
-        out[0] = s1 - 1.0 if mode == MODE_STICK else tangential
-        out[1], out[2], out[3] = p1[0] - anchor[0], p1[1] - anchor[1], p1[2] - anchor[2]
-    else:
+    held = _contact_residuals(mode, s1, tangential, gap, p1, anchor, out)
+    if not held:
         direction = np.empty(3)
         coulomb_direction(p1, anchor, normal, mu, direction)
         n_anchor = np.empty(3)
         quadric_gap(anchor, Q, lin, c, R_WB, p_WB, n_anchor)
         a, b = _normal_basis(n_anchor)
-        f = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
-        out[0] = tangential if mode == MODE_TANGENTIAL else s1 - 1.0
-        out[1] = gap
         out[2] = sum_product(force, a) / f - sum_product(direction, a)
         out[3] = sum_product(force, b) / f - sum_product(direction, b)
     for i in range(3):
-        out[4 + i] = moment[i]
+        out[4 + i] = moment[i] / f
     _write_state(p1, s1, tangent, normal, force, 0, held, out)
     out[20] = math.nan
     for i in range(3):
         out[21 + i] = math.nan
+    # beyond the contact the rod is its unloaded arc: curvature kappa_hat towards d1
+    kappa, free = params[1], 1.0 - s1
+    least = math.inf
+    point, probe_normal = np.empty(3), np.empty(3)
+    for k in range(1, FREE_PART_POINTS + 1):
+        sigma = free * k / FREE_PART_POINTS
+        across = 0.5 * kappa * sigma * sigma if kappa == 0.0 else (
+            1.0 - math.cos(kappa * sigma)) / kappa
+        along = sigma if kappa == 0.0 else math.sin(kappa * sigma) / kappa
+        for i in range(3):
+            point[i] = p1[i] + across * bent[i] + along * tangent[i]
+        least = min(least, quadric_gap(point, Q, lin, c, R_WB, p_WB, probe_normal))
+    out[26] = least if free > 0.0 else math.nan
 
 
 @compiled
@@ -370,13 +397,18 @@ def newton_rows(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArr
     return q, out
 
 
+FREE_GAP_TOL = 1e-12
+"""How far (L) the free part of a tangential contact may dip into the object (round-off)."""
+
+
 @compiled
 def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
                     previous: FloatArray, jump: FloatArray) -> NDArray[np.bool_]:
     """Which states (n, ``STATE_WIDTH``) are physically acceptable (n,): the contact pushes
     (F . n > 0), it is at most its row's ``jump`` (n,) from the previous contact point (n, 3),
     the rod stays outside the object (at the tip its tangent does not point out of the object; a
-    tangential contact lies on the rod, 0 < s1 <= 1) and a sticking contact's force is inside
+    tangential contact lies on the rod, 0 < s1 <= 1, its free part beyond outside the object)
+    and a sticking contact's force is inside
     the friction cone |F_t| <= mu F_n."""
     n = state.shape[0]
     ok = np.empty(n, dtype=np.bool_)
@@ -386,7 +418,7 @@ def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
         dx, dy, dz = row[7] - previous[r, 0], row[8] - previous[r, 1], row[9] - previous[r, 2]
         good = row[24] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump[r]
         if mode[r] == MODE_TANGENTIAL or mode[r] == MODE_STICK_TANGENTIAL:
-            good = good and row[10] <= 1.0 and row[10] > 0.0
+            good = good and row[10] <= 1.0 and row[10] > 0.0 and not row[26] < -FREE_GAP_TOL
         else:
             good = good and row[11] * row[14] + row[12] * row[15] + row[13] * row[16] <= 1e-9
         if mode[r] == MODE_STICK or mode[r] == MODE_STICK_TANGENTIAL:

@@ -335,7 +335,9 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
                    f0_C_n: NDArray[np.float64], m0_C_nm: NDArray[np.float64],
                    rod: RodScale | Sequence[RodScale] | NDArray[np.float64],
                    wrench_cov: NDArray[np.float64] | None = None,
-                   tip_sigmas: float = TIP_SIGMAS) -> ReconstructionSI:
+                   tip_sigmas: float = TIP_SIGMAS, shapes: NDArray[np.float64] | None = None,
+                   previous_s1_m: NDArray[np.float64] | None = None,
+                   chain: NDArray[np.int64] | None = None) -> ReconstructionSI:
     """Step 2 in SI: contact points from clamp poses and wrenches as a sensor graph has them.
 
     Each row is converted to the paper's units with its rod (``vibrissa.units.RodScale``),
@@ -361,6 +363,13 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         TIP_WITHIN_NOISE (instead of none on the rod), before it, at the s1 found.
     tip_sigmas
         See ``wrench_cov``.
+    shapes : ndarray, shape (N, 3), optional
+        Each row's rod shape (``vibrissa.rods.RodShape.params``): a tapered or pre-curved
+        row is the Kirchhoff rod's Step 2 (``vibrissa.reconstruct_rods``), which chooses
+        among the points that fit its wrench by continuity with ``previous_s1_m`` (N,), m
+        (NaN: none), or, where ``chain`` (N,) is >= 0, with the s1 found for that earlier row
+        of the call (the same whisker's previous sample). Without: every row is straight and
+        uniform.
     """
     # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
     q, p, f0, m0 = (_kernel_array(a) for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
@@ -385,8 +394,22 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         cov = np.ascontiguousarray(cov.reshape(-1, 6, 6))
         if not (tip_sigmas >= 0.0 and math.isfinite(tip_sigmas)):
             raise ValueError(f"tip_sigmas must be a finite number >= 0, got {tip_sigmas}")
-    floats, ints = _rows_si(q, p, f0, m0, units, cov, float(tip_sigmas))
-    # the kernel's two blocks (`_rows_si`), each field a contiguous view of its part
+    from vibrissa.reconstruct_rods import rows_si  # (it imports this module)
+
+    params, before, links = _NO_SHAPES, _NO_PREVIOUS, _NO_CHAIN  # every row straight, uniform
+    if shapes is not None:
+        params = _kernel_array(np.asarray(shapes, dtype=float))
+        before = (np.full(n, np.nan) if previous_s1_m is None
+                  else _kernel_array(np.asarray(previous_s1_m, dtype=float)))
+        links = (np.full(n, -1, dtype=np.int64) if chain is None
+                 else np.ascontiguousarray(chain, dtype=np.int64))
+        if params.shape != (n, 3):
+            raise ValueError(f"shapes must have shape ({n}, 3), got {params.shape}")
+        if before.shape != (n,) or links.shape != (n,) or not np.all(links < np.arange(n)):
+            raise ValueError("previous_s1_m and chain must have one entry per row, chain "
+                             "pointing to earlier rows")
+    floats, ints = rows_si(q, p, f0, m0, units, cov, float(tip_sigmas), params, before, links)
+    # the kernel's two blocks (`rows_si`), each field a contiguous view of its part
     return ReconstructionSI(
         ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n], ints[:n],
         floats[3 * n:6 * n].reshape(n, 3), ints[n:2 * n],
@@ -394,6 +417,8 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
 
 
 _NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
+_NO_SHAPES, _NO_PREVIOUS, _NO_CHAIN = np.empty((0, 3)), np.empty(0), np.empty(0, dtype=np.int64)
+"""The kernel's "every row a straight uniform rod"."""
 
 
 def _kernel_array(a: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -416,13 +441,9 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
     status, with the point (m) and force (N) written into ``point`` and ``force``, and with a
     wrench covariance ``cov`` (6, 6; else 0 rows) the point's into ``covariance`` (3, 3);
     ``work`` (19, 6) is scratch space."""
-    rotation = work[15:18, 0:3]
-    norm2 = quaternion_matrix(q_xyzw, rotation)
-    if not (norm2 > 0.0 and norm2 < math.inf):
+    if not row_in_rod_units(q_xyzw, p0, f0, m0, length_m, force_n, moment_nm, work):
         return False, math.nan, 0, 0
-    p0_L, f0_L, m0_L = work[18, 0:3], work[18, 3:6], work[17, 3:6]
-    for j in range(3):
-        p0_L[j], f0_L[j], m0_L[j] = p0[j] / length_m, f0[j] / force_n, m0[j] / moment_nm
+    rotation, p0_L, f0_L, m0_L = work[15:18, 0:3], work[18, 0:3], work[18, 3:6], work[17, 3:6]
     tip_band = 0.0
     dot_band = twist_band = -1.0
     known = False
@@ -438,6 +459,32 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
             tip_band = tip_sigmas * math.sqrt(max(s1_var, 0.0))
     s1, phase, _psi, status = reconstruct_row(p0_L, f0_L, m0_L, True, rotation, point, force,
                                               tip_band, dot_band, twist_band)
+    return row_in_si(s1, phase, status, length_m, force_n, point, force, cov, known, covariance)
+
+
+@compiled
+def row_in_rod_units(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64],
+                     f0: NDArray[np.float64], m0: NDArray[np.float64], length_m: float,
+                     force_n: float, moment_nm: float, work: NDArray[np.float64]) -> bool:
+    """A row of Step 2 in SI in its rod's units, into ``work`` (19, 6): R_WC at [15:18, 0:3],
+    p0 at [18, 0:3], f0 at [18, 3:6], m0 at [17, 3:6]; False where the clamp quaternion has
+    no finite, nonzero length."""
+    rotation = work[15:18, 0:3]
+    norm2 = quaternion_matrix(q_xyzw, rotation)
+    if not (norm2 > 0.0 and norm2 < math.inf):
+        return False
+    for j in range(3):
+        work[18, j], work[18, 3 + j] = p0[j] / length_m, f0[j] / force_n
+        work[17, 3 + j] = m0[j] / moment_nm
+    return True
+
+
+@compiled
+def row_in_si(s1: float, phase: int, status: int, length_m: float, force_n: float,
+              point: NDArray[np.float64], force: NDArray[np.float64], cov: NDArray[np.float64],
+              known: bool, covariance: NDArray[np.float64]) -> tuple[bool, float, int, int]:
+    """A row's Step 2 in its rod's units back in SI (the point and force in place): a result
+    that overflows is NON_FINITE_INPUT; the covariance NaN where it is not known."""
     for j in range(3):
         point[j] *= length_m
         force[j] *= force_n
@@ -448,33 +495,3 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
     if cov.shape[0] > 0 and not (known and status & _NO_CONTACT == 0):
         covariance[:, :] = math.nan
     return True, s1, phase, status
-
-
-@compiled
-def _rows_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
-             m0: NDArray[np.float64], units: NDArray[np.float64], cov: NDArray[np.float64],
-             tip_sigmas: float) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
-    """:func:`_row_si` of every row (N, ...), each with its rod's units (``units``: 1 row for
-    every row, or N; L, EI/L^2, EI/L) and the wrench covariance ``cov`` (0 rows: none; 1:
-    every row's; N). Returns two blocks, so that a call hands two arrays back to Python
-    instead of seven: floats (7 N, or 16 N with ``cov``) = point (N, 3), force (N, 3), s1 (N),
-    then the covariances (N, 3, 3); int32 (3 N) = phase, status, pose_ok (N each)."""
-    n = q_xyzw.shape[0]
-    with_cov = cov.shape[0] > 0
-    floats = np.empty(n * (16 if with_cov else 7))
-    ints = np.empty(3 * n, dtype=np.int32)
-    point, force = floats[:3 * n].reshape((n, 3)), floats[3 * n:6 * n].reshape((n, 3))
-    covariance = floats[7 * n:].reshape((n if with_cov else 0, 3, 3))
-    covariance[:] = math.nan
-    per_row_cov, per_row_rod = cov.shape[0] > 1, units.shape[0] > 1
-    row_cov, row_out = np.empty((0, 6)), np.empty((0, 3))
-    work = np.empty((19, 6))
-    for i in range(n):
-        if with_cov:
-            row_cov, row_out = cov[i if per_row_cov else 0], covariance[i]
-        rod = units[i if per_row_rod else 0]
-        pose_ok, floats[6 * n + i], ints[i], ints[n + i] = _row_si(
-            q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
-            point[i], force[i], row_out, work)
-        ints[2 * n + i] = pose_ok
-    return floats, ints

@@ -6,8 +6,9 @@ from the clamp; the contact is where the moment vanishes, the free part beyond i
 nothing. m(s) is normal to the force F = -f0 (a single contact has m0 . f0 = 0), and
 l(s) = F x m(s) / |F|^2 is the offset of the force's line from the rod's point r(s): a contact
 is a point where |l| has a local minimum (l . d3 changes sign from + to -) at which the line
-passes through the rod, |l| <= ``LINE_TOL`` (L). Integrated to ``S_MAX`` past the tip, so that
-a tip contact is found however round-off puts its zero.
+passes through the rod, |l| <= ``LINE_TOL`` (L), widened by the wrench's noise where it is
+known (a measured wrench's line misses the rod by about its noise over |F|). Integrated to
+``S_MAX`` past the tip, so that a tip contact is found however round-off puts its zero.
 
 A wrench may be satisfied by more than one point along the rod (the loaded line, continued
 past the contact, can meet the force's line again: in the plane, as the elastica's curvature
@@ -31,17 +32,23 @@ from vibrissa.compiled import compiled
 from vibrissa.elastica import S1_TOLERANCE
 from vibrissa.frames import rotate_vector
 from vibrissa.reconstruct import (
+    MULTI_SIGMAS,
     PHASE_NONE,
     PHASE_TANGENTIAL,
     PHASE_TIP,
     TIP_TOLERANCE,
     Reconstruction,
     _as_vectors,
+    _row_si,
     reconstruct,
+    row_in_rod_units,
+    row_in_si,
+    single_contact_bands,
     single_contact_excess,
 )
 from vibrissa.rods import N_STEPS, RodShape, clamp_state, rk4_step
 from vibrissa.status import NO_CONTACT, ContactStatus
+from vibrissa.uncertainty import propagate_row
 
 FloatArray = NDArray[np.float64]
 
@@ -79,21 +86,34 @@ def _offset(y: FloatArray, f0: FloatArray, m0: FloatArray, out: FloatArray) -> f
 
 
 @compiled
+def _side(y: FloatArray, f0: FloatArray, m0: FloatArray) -> float:
+    """(F x m) . d3 at state ``y``: the sign of l . d3 (`_offset`) without its divisions."""
+    mx = y[1] * f0[2] - y[2] * f0[1] - m0[0]
+    my = y[2] * f0[0] - y[0] * f0[2] - m0[1]
+    mz = y[0] * f0[1] - y[1] * f0[0] - m0[2]
+    qw, qx, qy, qz = y[3], y[4], y[5], y[6]
+    d3x, d3y, d3z = 2 * (qx * qz + qw * qy), 2 * (qy * qz - qw * qx), 1 - 2 * (qx * qx + qy * qy)
+    return -((f0[1] * mz - f0[2] * my) * d3x + (f0[2] * mx - f0[0] * mz) * d3y
+             + (f0[0] * my - f0[1] * mx) * d3z)
+
+
+@compiled
 def contact_candidates(f0: FloatArray, m0: FloatArray, params: FloatArray,
-                       s_out: FloatArray, y_out: FloatArray) -> int:
-    """Every point of the rod (up to ``S_MAX``) where the moment of the wrench vanishes: their
-    arc lengths into ``s_out`` and states into ``y_out`` (``MAX_CANDIDATES`` rows, 7), in order
-    from the clamp; returns how many."""
+                       s_out: FloatArray, y_out: FloatArray, line_band: float = 0.0) -> int:
+    """Every point of the rod (up to ``S_MAX``) where the moment of the wrench vanishes (the
+    force's line within ``LINE_TOL`` + ``line_band`` of the rod): their arc lengths into
+    ``s_out`` and states into ``y_out`` (``MAX_CANDIDATES`` rows, 7), in order from the clamp;
+    returns how many."""
     h = 1.0 / N_STEPS
     n_steps = int(math.ceil(S_MAX * N_STEPS - 1e-9))
     y = clamp_state()
     nxt, probe, offset = np.empty(7), np.empty(7), np.empty(3)
-    g = _offset(y, f0, m0, offset)
+    g = _side(y, f0, m0)
     count = 0
     for k in range(n_steps):
         s = k * h
         rk4_step(s, h, y, f0, m0, params, nxt)
-        g_next = _offset(nxt, f0, m0, offset)
+        g_next = _side(nxt, f0, m0)
         if g > 0.0 and g_next <= 0.0 and count < MAX_CANDIDATES:
             # regula falsi (Illinois) on the length of a partial step from y
             lo, hi, g_lo, g_hi = 0.0, h, g, g_next
@@ -105,7 +125,7 @@ def contact_candidates(f0: FloatArray, m0: FloatArray, params: FloatArray,
                     break
                 t = t_new
                 rk4_step(s, t, y, f0, m0, params, probe)
-                g_t = _offset(probe, f0, m0, offset)
+                g_t = _side(probe, f0, m0)
                 if g_t > 0.0:
                     lo, g_lo = t, g_t
                     if side == 1:
@@ -120,11 +140,11 @@ def contact_candidates(f0: FloatArray, m0: FloatArray, params: FloatArray,
                     break
             rk4_step(s, t, y, f0, m0, params, probe)
             _offset(probe, f0, m0, offset)
-            if math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2) <= LINE_TOL:
+            if math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2) <= LINE_TOL + line_band:
                 s_out[count] = s + t
                 y_out[count, :] = probe
                 count += 1
-        y[:] = nxt
+        y, nxt = nxt, y
         g = g_next
     return count
 
@@ -133,12 +153,13 @@ def contact_candidates(f0: FloatArray, m0: FloatArray, params: FloatArray,
 def reconstruct_rod_row(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, rotate: bool,
                         R_WC: FloatArray, params: FloatArray, previous_s1: float,
                         point: FloatArray, force: FloatArray, candidates: FloatArray,
-                        tip_band: float = 0.0, dot_band: float = -1.0
+                        tip_band: float = 0.0, dot_band: float = -1.0, line_band: float = 0.0
                         ) -> tuple[float, int, int, int]:
     """Step 2 of one sample of a rod of ``params`` (``RodShape.params``): as
     ``vibrissa.reconstruct.reconstruct_row`` (point and force in W into ``point``, ``force``),
     with the previous contact's arc length ``previous_s1`` (NaN: none) to choose among the
-    candidates, whose arc lengths go into ``candidates`` (``MAX_CANDIDATES``). Returns s1, phase,
+    candidates, whose arc lengths go into ``candidates`` (``MAX_CANDIDATES``); ``line_band``
+    (L) the wrench noise's miss of the force's line (`contact_candidates`). Returns s1, phase,
     status and the number of candidates."""
     nan = math.nan
     point[:] = nan
@@ -155,7 +176,7 @@ def reconstruct_rod_row(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, ro
     if single_contact_excess(f0_C, m0_C, dot_band, math.inf) > 1.0:
         return nan, PHASE_NONE, _MULTI, 0
     states = np.empty((MAX_CANDIDATES, 7))
-    found = contact_candidates(f0_C, m0_C, params, candidates, states)
+    found = contact_candidates(f0_C, m0_C, params, candidates, states, line_band)
     status = 0
     count = 0  # candidates on the rod (within the tip's band)
     for i in range(found):
@@ -259,3 +280,138 @@ def reconstruct_rod(p0: ArrayLike, f0: ArrayLike, m0: ArrayLike, shape: RodShape
         p0_W, f0_C, m0_C, rotation, shape.params, previous, stream)
     return Reconstruction(point=point, s1=s1, phase=phase, psi=psi, force=force,
                           status=status), candidates
+
+
+@compiled
+def _nearest(f0: FloatArray, m0: FloatArray, params: FloatArray, s1: float, s_out: FloatArray,
+             y_out: FloatArray, line_band: float) -> int:
+    """The row of the candidate nearest ``s1`` in ``s_out``/``y_out`` (-1: none)."""
+    found = contact_candidates(f0, m0, params, s_out, y_out, line_band)
+    best, chosen = math.inf, -1
+    for i in range(found):
+        if abs(s_out[i] - s1) < best:
+            best, chosen = abs(s_out[i] - s1), i
+    return chosen
+
+
+@compiled
+def rod_jacobian(f0: FloatArray, m0: FloatArray, params: FloatArray, s1: float,
+                 jacobian: FloatArray, line_band: float = 0.0) -> bool:
+    """d(P1 - P0, s1)/d(f0, m0) (4, 6) in C, paper units, of the contact at ``s1`` (rows x, y,
+    z of the point, then s1; as ``vibrissa.uncertainty.point_jacobian``), by forward
+    differences of the rod's Step 2 (each column one more integration, the candidate nearest
+    the contact); False where the contact is not found again (a fold of the wrench's map)."""
+    s_out, y_out = np.empty(MAX_CANDIDATES), np.empty((MAX_CANDIDATES, 7))
+    base = _nearest(f0, m0, params, s1, s_out, y_out, line_band)
+    if base < 0:
+        return False
+    p, s = y_out[base, :3].copy(), s_out[base]
+    f, m = f0.copy(), m0.copy()
+    scale = math.sqrt(f0[0] ** 2 + f0[1] ** 2 + f0[2] ** 2 + m0[0] ** 2 + m0[1] ** 2
+                      + m0[2] ** 2)
+    h = 1e-7 * scale
+    for j in range(6):
+        f[:] = f0
+        m[:] = m0
+        if j < 3:
+            f[j] += h
+        else:
+            m[j - 3] += h
+        k = _nearest(f, m, params, s, s_out, y_out, line_band)
+        if k < 0 or abs(s_out[k] - s) > CONTINUITY_L:
+            return False
+        for r in range(3):
+            jacobian[r, j] = (y_out[k, r] - p[r]) / h
+        jacobian[3, j] = (s_out[k] - s) / h
+    return True
+
+
+@compiled
+def _line_band(f0_L: FloatArray, cov: FloatArray, force_n: float, moment_nm: float) -> float:
+    """How far (L) the wrench noise ``cov`` (SI, C) moves the force's line: m(s) = r x f0 - m0
+    with |r| <= 1 moves by at most |d f0| + |d m0|, the line's offset F x m / |F|^2 by that
+    over |F|; ``MULTI_SIGMAS`` std of each."""
+    force_var = (cov[0, 0] + cov[1, 1] + cov[2, 2]) / (force_n * force_n)
+    moment_var = (cov[3, 3] + cov[4, 4] + cov[5, 5]) / (moment_nm * moment_nm)
+    f = math.sqrt(f0_L[0] ** 2 + f0_L[1] ** 2 + f0_L[2] ** 2)
+    return MULTI_SIGMAS * (math.sqrt(max(force_var, 0.0)) + math.sqrt(max(moment_var, 0.0))) / f
+
+
+@compiled
+def _row_si_rod(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
+                length_m: float, force_n: float, moment_nm: float, cov: FloatArray,
+                tip_sigmas: float, params: FloatArray, previous_s1_m: float, point: FloatArray,
+                force: FloatArray, covariance: FloatArray, work: FloatArray
+                ) -> tuple[bool, float, int, int]:
+    """``vibrissa.reconstruct._row_si`` of a tapered or pre-curved rod (``params``), its
+    previous contact at ``previous_s1_m`` (NaN: none); the covariance from `rod_jacobian`."""
+    if not row_in_rod_units(q_xyzw, p0, f0, m0, length_m, force_n, moment_nm, work):
+        return False, math.nan, 0, 0
+    rotation, p0_L, f0_L, m0_L = work[15:18, 0:3], work[18, 0:3], work[18, 3:6], work[17, 3:6]
+    dot_band = -1.0
+    line_band = 0.0
+    if cov.shape[0] > 0:
+        dot_band = single_contact_bands(f0, m0, cov, MULTI_SIGMAS)[0] / (force_n * moment_nm)
+        line_band = _line_band(f0_L, cov, force_n, moment_nm)
+    candidates = np.full(MAX_CANDIDATES, math.nan)
+    previous = previous_s1_m / length_m
+    s1, phase, status, _count = reconstruct_rod_row(
+        p0_L, f0_L, m0_L, True, rotation, params, previous, point, force, candidates, 0.0,
+        dot_band, line_band)
+    known = False
+    if cov.shape[0] > 0 and status & (_NO_CONTACT & ~_BEYOND) == 0:
+        # the std of s1 of the contact (or, none on the rod, of the first past the tip) says
+        # whether it is the tip within the noise: Step 2 again with that band
+        at = s1 if status & _NO_CONTACT == 0 else candidates[0]
+        jacobian = work[0:4]
+        known = at == at and rod_jacobian(f0_L, m0_L, params, at, jacobian, line_band)
+        if known:
+            s1_var = propagate_row(jacobian, rotation, length_m, force_n, moment_nm, cov,
+                                   covariance, work[7:15])
+            tip_band = tip_sigmas * math.sqrt(max(s1_var, 0.0))
+            if tip_band > 0.0:
+                s1, phase, status, _count = reconstruct_rod_row(
+                    p0_L, f0_L, m0_L, True, rotation, params, previous, point, force,
+                    candidates, tip_band, dot_band, line_band)
+    return row_in_si(s1, phase, status, length_m, force_n, point, force, cov, known, covariance)
+
+
+@compiled
+def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
+            units: FloatArray, cov: FloatArray, tip_sigmas: float, params: FloatArray,
+            previous_s1_m: FloatArray, chain: NDArray[np.int64]
+            ) -> tuple[FloatArray, NDArray[np.int32]]:
+    """Step 2 in SI of every row (``vibrissa.reconstruct.reconstruct_si``), each with its rod's
+    units (``units``: 1 row for every row, or N; L, EI/L^2, EI/L), the wrench covariance
+    ``cov`` (0 rows: none; 1: every row's; N) and its rod's shape ``params`` (N, 3; 0 rows:
+    every row straight and uniform). A straight uniform row is
+    ``vibrissa.reconstruct._row_si``; any other `_row_si_rod`, its previous contact the s1 (m)
+    of row ``chain[i]`` of this call (an earlier row of its whisker) or, where that is -1,
+    ``previous_s1_m[i]`` (NaN: none). Returns two blocks, so that a call hands two arrays back
+    to Python instead of seven: floats (7 N, or 16 N with ``cov``) = point (N, 3), force
+    (N, 3), s1 (N), then the covariances (N, 3, 3); int32 (3 N) = phase, status, pose_ok."""
+    n = q_xyzw.shape[0]
+    with_cov = cov.shape[0] > 0
+    floats = np.empty(n * (16 if with_cov else 7))
+    ints = np.empty(3 * n, dtype=np.int32)
+    point, force = floats[:3 * n].reshape((n, 3)), floats[3 * n:6 * n].reshape((n, 3))
+    covariance = floats[7 * n:].reshape((n if with_cov else 0, 3, 3))
+    covariance[:] = math.nan
+    per_row_cov, per_row_rod = cov.shape[0] > 1, units.shape[0] > 1
+    row_cov, row_out = np.empty((0, 6)), np.empty((0, 3))
+    work = np.empty((19, 6))
+    for i in range(n):
+        if with_cov:
+            row_cov, row_out = cov[i if per_row_cov else 0], covariance[i]
+        rod = units[i if per_row_rod else 0]
+        if params.shape[0] == 0 or (params[i, 0] == 1.0 and params[i, 1] == 0.0):
+            pose_ok, floats[6 * n + i], ints[i], ints[n + i] = _row_si(
+                q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
+                point[i], force[i], row_out, work)
+        else:
+            before = previous_s1_m[i] if chain[i] < 0 else floats[6 * n + chain[i]]
+            pose_ok, floats[6 * n + i], ints[i], ints[n + i] = _row_si_rod(
+                q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
+                params[i], before, point[i], force[i], row_out, work)
+        ints[2 * n + i] = pose_ok
+    return floats, ints

@@ -36,7 +36,7 @@ from vibrissa.compiled import compiled
 
 FloatArray = NDArray[np.float64]
 
-N_STEPS = 48
+N_STEPS = 40
 """Runge-Kutta steps per rod length."""
 MIN_TAPER = 0.05
 """The thinnest tip a rod may have, as a fraction of its base's diameter (EI down to 6e-6 of

@@ -1039,8 +1039,10 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
     Row i: whisker ``whisker[i]`` (by name; its own L, EI and mount), at time ``t_s[i]``, with
     the clamp's reaction ``f0_C_n[i]``, ``m0_C_nm[i]`` in its clamp frame C (N, N m). The clamp
     is at X_WC = X_WR(t) X_RC with the robot pose interpolated at t (`RobotPath.at`); a row
-    whose t the path does not cover has ``pose_ok`` False and no point. A row gives the same
-    bits alone or in any batch. ValueError names an unknown whisker and its index.
+    whose t the path does not cover has ``pose_ok`` False and no point. A row of a straight
+    uniform rod gives the same bits alone or in any batch; a tapered or pre-curved rod's point
+    is chosen by continuity with its whisker's row before (`vibrissa.reconstruct_rods`).
+    ValueError names an unknown whisker and its index.
     """
     t = np.asarray(t_s, dtype=float).reshape(-1)
     f0, m0 = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (f0_C_n, m0_C_nm))
@@ -1069,7 +1071,16 @@ def reconstruct_along(scene: Scene, t_s: ArrayLike, whisker: Sequence[str],
     p_WC = p_WR[rows] + R_WR[rows].apply(mount_p)
     q_WC = (R_WR[rows] * mount_R).as_quat()
     units = rod_units([w.scale for w in scene.whiskers])[which]  # each row's rod
-    part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], units)
+    shapes = chain = None
+    if any(not w.shape.uniform for w in scene.whiskers):
+        # a shaped rod's point by continuity with its whisker's row before (in row order)
+        shapes = np.array([w.shape.params for w in scene.whiskers])[which]
+        chain = np.full(len(rows), -1, dtype=np.int64)
+        last: dict[int, int] = {}
+        for i, w in enumerate(which.tolist()):
+            chain[i] = last.get(w, -1)
+            last[w] = i
+    part = reconstruct_si(q_WC, p_WC, f0[rows], m0[rows], units, shapes=shapes, chain=chain)
     for name in ("pose_ok", "point_m", "s1_m", "phase", "force_n", "status"):
         getattr(out, name)[rows] = getattr(part, name)
     return out
@@ -1234,6 +1245,7 @@ class _StreamSteps(_WhiskerSteps):
     def __init__(self, scene: Scene, whisker: Whisker, origin_m: FloatArray, h: float) -> None:
         length = whisker.length_m
         self.scene, self.whisker, self.origin_m, self._h = scene, whisker, origin_m, h
+        self.shape = whisker.shape
         self.surfaces = [obj.surface(length, origin_m) for obj in scene.objects]
         self._mount = Transform(whisker.X_RC.rotation, whisker.X_RC.translation / length)
         self.t_all = np.zeros(0)

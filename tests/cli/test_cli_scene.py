@@ -152,6 +152,16 @@ def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulat
     # numbers that overflow the rod's units or the geometry: refused, not simulated
     (("length_m: 0.05", "length_m: 1e308"), "whiskers[0].length_m: 1e+308 is outside"),
     (("ei_nm2: 2.0e-5", "ei_nm2: 1e308"), "whiskers[0].ei_nm2: 1e+308 is outside"),
+    # the rod's shape (vibrissa.rods.RodShape)
+    (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    taper_ratio: 0"),
+     "whiskers[0]: whisker 'w0': taper_ratio must be in [0.05, 1], got 0"),
+    (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    taper_ratio: thin"),
+     "whiskers[0].taper_ratio: expected a finite number, got 'thin'"),
+    (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    precurvature_1pm: 1000"),
+     "precurvature must be within +-2 pi per rod length"),
+    (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    poisson_ratio: 0.7"),
+     "whiskers[0]: whisker 'w0': poisson_ratio must be in [0, 0.5], got 0.7"),
+    (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    curvature: 3"), "whiskers[0]: unknown key"),
     (("radius_m: 0.015", "radius_m: 1e200"), "objects[0].radius_m: 1e+200 is outside"),
     (("radius_m: 0.015", "radius_m: -0.015"), "objects[0].radius_m: -0.015 is outside"),
     (("mount: {position_m: [0.0, 0.0, 0.0]}", "mount: {position_m: [1e308, 0.0, 0.0]}"),

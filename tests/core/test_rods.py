@@ -150,3 +150,85 @@ def test_a_rod_description_out_of_range_is_refused():
                 {"poisson_ratio": -0.1}, {"taper_ratio": float("nan")}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             RodShape(**bad)
+
+
+def _wrenches(shape, rng, n):
+    forces = rng.normal(size=(n, 3)) * rng.uniform(0.1, 1.0, (n, 1))
+    s1 = rng.uniform(0.3, 0.95, n)
+    m0 = np.array([loaded_rod(shape, f, s) for f, s in zip(forces, s1, strict=True)])
+    return -forces, m0, s1
+
+
+def test_step2_in_si_with_shapes_mixes_rods_row_by_row():
+    """reconstruct_si with each row's shape: shaped rows are reconstruct_rod's contacts in SI
+    (a rod of 40 mm, EI 2e-5), straight uniform rows the same bits as without shapes."""
+    from vibrissa.reconstruct import reconstruct_si
+    from vibrissa.units import RodScale
+
+    rng = np.random.default_rng(8)
+    shape, rod = RodShape(0.4, 2.0, 0.3), RodScale(0.04, 2e-5)
+    f0, m0, s1 = _wrenches(shape, rng, 20)
+    uniform_f0, uniform_m0 = rng.normal(size=(2, 20, 3)) * 0.3
+    q = Rotation.random(40, random_state=rng).as_quat()
+    p = rng.uniform(-1.0, 1.0, (40, 3))
+    f0_n, m0_nm = rod.wrench_to_si(np.vstack([f0, uniform_f0]), np.vstack([m0, uniform_m0]))
+    shapes = np.vstack([np.tile(shape.params, (20, 1)), np.tile(RodShape().params, (20, 1))])
+    mixed = reconstruct_si(q, p, f0_n, m0_nm, rod, shapes=shapes, previous_s1_m=np.r_[
+        s1 * rod.length_m, np.full(20, np.nan)])
+    plain = reconstruct_si(q[20:], p[20:], f0_n[20:], m0_nm[20:], rod)
+    for name in ("point_m", "s1_m", "phase", "force_n", "status"):
+        np.testing.assert_array_equal(getattr(mixed, name)[20:], getattr(plain, name))
+    alone, _ = reconstruct_rod(p[:20] / rod.length_m, f0, m0, shape,
+                               Rotation.from_quat(q[:20]).as_matrix(), previous_s1=s1)
+    np.testing.assert_allclose(mixed.point_m[:20], alone.point * rod.length_m, rtol=0,
+                               atol=1e-15)
+    np.testing.assert_allclose(mixed.s1_m[:20], s1 * rod.length_m, atol=1e-6 * rod.length_m)
+
+
+def test_a_chain_of_rows_is_the_stream_of_one_whisker():
+    from vibrissa.reconstruct import reconstruct_si
+    from vibrissa.units import RodScale
+
+    shape, rod = RodShape(0.5686, 2.9833), RodScale(0.05, 1e-5)
+    force, s1 = np.array([5.601, 0.0, -0.678]), 0.573  # two candidates (see above)
+    loads = (0.4, 0.6, 0.8, 1.0)
+    m0 = np.array([loaded_rod(shape, a * force, s1, load_steps=8) for a in loads])
+    f0_n, m0_nm = rod.wrench_to_si(-np.outer(loads, force), m0)
+    q, p = np.tile([0.0, 0.0, 0.0, 1.0], (4, 1)), np.zeros((4, 3))
+    shapes = np.tile(shape.params, (4, 1))
+    first = np.r_[s1 * rod.length_m, np.full(3, np.nan)]
+    chained = reconstruct_si(q, p, f0_n, m0_nm, rod, shapes=shapes, previous_s1_m=first,
+                             chain=np.array([-1, 0, 1, 2]))
+    np.testing.assert_allclose(chained.s1_m, s1 * rod.length_m, atol=1e-6 * rod.length_m)
+    assert not (chained.status & AMBIGUOUS).any()
+    alone = reconstruct_si(q, p, f0_n, m0_nm, rod, shapes=shapes)
+    assert (alone.status & AMBIGUOUS).all()
+    with pytest.raises(ValueError, match="chain"):
+        reconstruct_si(q, p, f0_n, m0_nm, rod, shapes=shapes, chain=np.array([0, 0, 1, 2]))
+
+
+def test_the_covariance_of_a_shaped_rods_point_is_its_scatter_under_noise():
+    """Gaussian wrench noise on a pre-curved tapered rod's wrench: the points' scatter matches
+    the first-order covariance (forward differences of the rod's Step 2) within 15 %."""
+    from vibrissa.reconstruct import reconstruct_si
+    from vibrissa.units import RodScale
+
+    shape, rod = RodShape(0.4, 1.5, 0.3), RodScale(0.04, 2e-5)
+    m0 = loaded_rod(shape, np.array([0.4, 0.2, -0.1]), 0.7)
+    f0_n, m0_nm = rod.wrench_to_si(-np.array([0.4, 0.2, -0.1]), m0)
+    sigma = np.r_[np.full(3, 2e-3 * np.abs(f0_n).max()), np.full(3, 2e-3 * np.abs(m0_nm).max())]
+    cov = np.diag(sigma ** 2)
+    rng = np.random.default_rng(5)
+    noise = rng.normal(size=(4000, 6)) * sigma
+    n = len(noise)
+    one = np.tile(shape.params, (1, 1))
+    predicted = reconstruct_si(np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), f0_n[None],
+                               m0_nm[None], rod, cov, shapes=one).covariance_m2[0]
+    noisy = reconstruct_si(np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), np.zeros((n, 3)),
+                           f0_n + noise[:, :3], m0_nm + noise[:, 3:], rod, cov,
+                           shapes=np.tile(shape.params, (n, 1)),
+                           previous_s1_m=np.full(n, 0.7 * rod.length_m))
+    assert noisy.valid.all()
+    scatter = np.cov(noisy.point_m.T)
+    big = np.abs(predicted) > 0.1 * np.abs(predicted).max()
+    np.testing.assert_allclose(scatter[big], predicted[big], rtol=0.15)

@@ -7,10 +7,11 @@ Lists whose product is the grid (each key a list, or one value for a list of one
     y0_m: [-0.4, -0.2, 0.0, 0.2, 0.4]            # trail offsets, m
     mu: [0.0, 0.1, 0.2, 0.3, 0.4]
     step: 0.001                                  # units of L; default 0.001
-    rods: [{length_m: 1.0, ei_nm2: 1.0}]         # default one rod of 1 m, 1 N m^2
+    rods: [{length_m: 1.0, ei_nm2: 1.0}]         # default one rod of 1 m, 1 N m^2; each may
+                                                 # taper and be pre-curved (SHAPE_KEYS)
 
-or an explicit list of cases (``cases: [{surface, y0_m, mu, step, length_m, ei_nm2}, ...]``,
-``step``, ``length_m`` and ``ei_nm2`` defaulting as above), not both. The product runs surfaces,
+or an explicit list of cases (``cases: [{surface, y0_m, mu, step, length_m, ei_nm2, ...}, ...]``,
+``step``, the rod's keys defaulting as above), not both. The product runs surfaces,
 then rods, steps, y0_m and mu (innermost).
 
 Or whole scenes along their robot paths instead of surfaces and trails::
@@ -26,6 +27,7 @@ columns. Every error names the file and the key.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -48,9 +50,12 @@ PAPER_GRID = Path(__file__).with_name("paper.yaml")
 
 DEFAULT_STEP = 0.001
 DEFAULT_ROD = {"length_m": 1.0, "ei_nm2": 1.0}
+SHAPE_KEYS = ("taper_ratio", "precurvature_1pm", "poisson_ratio")
+"""A trail grid's rod may taper and be pre-curved, as a scene file's whisker
+(`vibrissa.scene.Whisker`); a scene grid's rods replace only L and EI."""
 PRODUCT_KEYS = ("surfaces", "y0_m", "mu", "step", "rods")
 SCENE_PRODUCT_KEYS = ("scenes", "mu", "rods")
-CASE_KEYS = ("surface", "y0_m", "mu", "step", "length_m", "ei_nm2")
+CASE_KEYS = ("surface", "y0_m", "mu", "step", "length_m", "ei_nm2", *SHAPE_KEYS)
 SCENE_CASE_KEYS = ("scene", "mu", "length_m", "ei_nm2")
 ROD_KEYS = ("length_m", "ei_nm2")
 TOP_KEYS = ("name", *PRODUCT_KEYS, "scenes", "cases")
@@ -112,16 +117,16 @@ def load_grid(path: str | Path, step: float | None = None) -> Grid:
                 raise GridFileError(f"{where}: {key}: missing (or give cases)")
         surfaces = [_surface(v, f"{where}: surfaces[{i}]")
                     for i, v in enumerate(_values(doc, "surfaces", where))]
-        rods = [_rod(v, f"{where}: rods[{i}]")
+        rods = [_trail_rod(v, f"{where}: rods[{i}]")
                 for i, v in enumerate(_values(doc, "rods", where, default=[DEFAULT_ROD]))]
         steps, y0s, mus = (
             [_number(v, f"{where}: {key}[{i}]", key)
              for i, v in enumerate(_values(doc, key, where, default=default))]
             for key, default in (("step", [DEFAULT_STEP]), ("y0_m", None), ("mu", None)))
-        cases = [GridCase(surface, y0, mu, dx, rod.length_m, rod.ei_nm2)
+        cases = [GridCase(surface, y0, mu, dx, **rod)
                  for surface, rod, dx, y0, mu in itertools.product(surfaces, rods, steps, y0s, mus)]
     if step is not None:
-        cases = [GridCase(c.surface_m, c.y0_m, c.mu, step, c.length_m, c.ei_nm2) for c in cases]
+        cases = [dataclasses.replace(c, step=step) for c in cases]
     return Grid(name, tuple(cases))
 
 
@@ -265,7 +270,25 @@ def _case(value: Any, where: str) -> GridCase:
         if key not in value:
             raise GridFileError(f"{where}: {key}: missing")
     surface = _surface(value["surface"], f"{where}: surface")
-    rod = _rod({key: value[key] for key in ROD_KEYS if key in value}, where)
+    rod = _trail_rod({key: value[key] for key in (*ROD_KEYS, *SHAPE_KEYS) if key in value}, where)
     y0, mu, step = (_number(value.get(key, DEFAULT_STEP), f"{where}: {key}", key)
                     for key in ("y0_m", "mu", "step"))
-    return GridCase(surface, y0, mu, step, rod.length_m, rod.ei_nm2)
+    return GridCase(surface, y0, mu, step, **rod)
+
+
+def _trail_rod(value: Any, where: str) -> dict[str, float]:
+    """A trail grid's rod: `_rod`'s L and EI and the `SHAPE_KEYS` given, as `GridCase`'s
+    keyword arguments."""
+    if not isinstance(value, dict):
+        raise GridFileError(f"{where}: expected a mapping ({', '.join((*ROD_KEYS, *SHAPE_KEYS))}), "
+                            f"got {type(value).__name__}")
+    _known(value, (*ROD_KEYS, *SHAPE_KEYS), where)
+    scale = _rod({key: value[key] for key in ROD_KEYS if key in value}, where)
+    rod = {"length_m": scale.length_m, "ei_nm2": scale.ei_nm2}
+    rod.update({key: _number(value[key], f"{where}: {key}", key) for key in SHAPE_KEYS
+                if key in value})
+    try:
+        GridCase("sphere:r=1", 0.0, 0.0, DEFAULT_STEP, **rod)  # the shape's own checks
+    except ValueError as exc:
+        raise GridFileError(f"{where}: {exc}") from None
+    return rod

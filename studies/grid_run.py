@@ -62,7 +62,8 @@ from vibrissa.study import PAPER_SURFACE, StudyCase
 PACKAGE_VERSION = importlib.metadata.version("vibrissa")
 MAX_TASK_CASES = 32
 """Trail cases of one task at most (batching gains little beyond a dozen)."""
-PARAMETER_COLUMNS = ("surface_m", "y0_m", "mu", "step", "length_m", "ei_nm2")
+PARAMETER_COLUMNS = ("surface_m", "y0_m", "mu", "step", "length_m", "ei_nm2", "taper_ratio",
+                     "precurvature_1pm", "poisson_ratio")
 """A trail case's inputs, the first columns of every table after ``case`` (its index in the
 grid) and ``key`` (its file in the store)."""
 SCENE_PARAMETER_COLUMNS = ("scene", "mu", "length_m", "ei_nm2")

@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from vibrissa.frames import Transform
 from vibrissa.reconstruct import ReconstructionSI
+from vibrissa.rods import RodShape
 from vibrissa.scene import SamplePhase, Scene, WhiskerResult, reconstruct_along, scene_digest, simulate
 from vibrissa.status import ContactPhase
 from vibrissa.study import StudyCase, reconstruct_sweep
@@ -54,7 +55,10 @@ class GridCase:
     step : float
         Clamp displacement per step along -x, units of L (> 0).
     length_m, ei_nm2 : float
-        The rod: length L (m) and bending stiffness EI (N m^2).
+        The rod: length L (m) and bending stiffness EI (N m^2, at its base).
+    taper_ratio, precurvature_1pm, poisson_ratio : float
+        Its shape (`vibrissa.scene.Whisker`'s keys): tip over base diameter, the unloaded
+        rod's curvature towards the clamp's +x (1/m), nu; the straight uniform rod by default.
     """
 
     surface_m: str
@@ -63,10 +67,14 @@ class GridCase:
     step: float
     length_m: float = 1.0
     ei_nm2: float = 1.0
+    taper_ratio: float = 1.0
+    precurvature_1pm: float = 0.0
+    poisson_ratio: float = 0.3
 
     def __post_init__(self) -> None:
         parse_surface(self.surface_m)  # names the bad key
         RodScale(self.length_m, self.ei_nm2)
+        self.shape  # noqa: B018 - checks the rod's shape
         for name in ("y0_m", "mu", "step"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
@@ -78,6 +86,12 @@ class GridCase:
     @property
     def rod(self) -> RodScale:
         return RodScale(self.length_m, self.ei_nm2)
+
+    @property
+    def shape(self) -> RodShape:
+        """The rod's shape in its own units (`vibrissa.rods`)."""
+        return RodShape(self.taper_ratio, self.precurvature_1pm * self.length_m,
+                        self.poisson_ratio)
 
     @property
     def surface(self) -> Surface:
@@ -92,11 +106,18 @@ class GridCase:
     def parameters(self) -> dict[str, float | str]:
         """The case's inputs by name, as they appear in its tables' columns."""
         return {"surface_m": parse_surface(self.surface_m).spec, "y0_m": self.y0_m, "mu": self.mu,
-                "step": self.step, "length_m": self.length_m, "ei_nm2": self.ei_nm2}
+                "step": self.step, "length_m": self.length_m, "ei_nm2": self.ei_nm2,
+                "taper_ratio": self.taper_ratio, "precurvature_1pm": self.precurvature_1pm,
+                "poisson_ratio": self.poisson_ratio}
 
     def inputs(self) -> dict[str, float | str]:
-        """What the case's results depend on: its `parameters`."""
-        return self.parameters()
+        """What the case's results depend on: its `parameters`, the shape's only where the rod
+        is not the straight uniform one (whose results nu does not change)."""
+        inputs = self.parameters()
+        if self.shape.uniform:
+            for key in ("taper_ratio", "precurvature_1pm", "poisson_ratio"):
+                del inputs[key]
+        return inputs
 
 
 def scaled_surface(surface: Surface, length_m: float) -> Surface:
@@ -132,7 +153,8 @@ def run_cases(cases: Sequence[GridCase | SceneCase]) -> list[StudyCase | SceneSt
 
 def _run_trails(cases: Sequence[GridCase]) -> list[StudyCase]:
     surfaces = [case.surface for case in cases]
-    runs = [SweepRun(surface, [case.trail], case.step) for case, surface in zip(cases, surfaces, strict=True)]
+    runs = [SweepRun(surface, [case.trail], case.step, shape=case.shape)
+            for case, surface in zip(cases, surfaces, strict=True)]
     while not all(run.done for run in runs):
         advance_together(runs)
     return [reconstruct_sweep(surface, run.sweeps()[0]) for surface, run in zip(surfaces, runs, strict=True)]

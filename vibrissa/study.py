@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vibrissa.reconstruct import Reconstruction, reconstruct
+from vibrissa.reconstruct_rods import reconstruct_rod
 from vibrissa.surfaces import Surface, parse_surface
 from vibrissa.sweep import ProgressCallback, Sweep, Trail, simulate_sweeps
 
@@ -114,8 +115,13 @@ def reconstruction_error(surface: Surface, points: FloatArray) -> FloatArray:
 
 
 def reconstruct_sweep(surface: Surface, sweep: Sweep) -> StudyCase:
-    """Step 2 on every equilibrium of ``sweep`` and the error against ``surface``."""
-    rec = reconstruct(sweep.p0, sweep.f0, sweep.m0)
+    """Step 2 on every equilibrium of ``sweep`` and the error against ``surface`` (a tapered or
+    pre-curved rod's: its samples as one stream, each point by continuity with the one
+    before, `vibrissa.reconstruct_rods`)."""
+    if sweep.shape.uniform:
+        rec = reconstruct(sweep.p0, sweep.f0, sweep.m0)
+    else:
+        rec = reconstruct_rod(sweep.p0, sweep.f0, sweep.m0, sweep.shape, stream=True)[0]
     return StudyCase(sweep, rec, reconstruction_error(surface, rec.point))
 
 

@@ -201,3 +201,35 @@ def test_grid_case_refuses_bad_values() -> None:
         GridCase("sphere:r=0.3,cz=0.8", 0.0, -0.1, 0.01)
     with pytest.raises(ValueError, match="unknown key"):
         GridCase("sphere:r=0.3,q=0.8", 0.0, 0.1, 0.01)
+
+
+def test_a_grid_of_tapered_and_pre_curved_rods(tmp_path: Path) -> None:
+    """Rods that taper and are pre-curved in a trail grid: each case swept by its own rod
+    (the Kirchhoff rod), its contacts reconstructed from its wrenches, its key its own; the
+    straight uniform rod's key is the one it had before rods had shapes."""
+    text = """\
+surfaces: ["sphere:r=0.3,cz=0.6"]
+y0_m: [0.1]
+mu: [0.3]
+step: 0.01
+rods: [{length_m: 1.0, ei_nm2: 1.0},
+       {length_m: 1.0, ei_nm2: 1.0, taper_ratio: 0.5, precurvature_1pm: 1.5},
+       {length_m: 0.5, ei_nm2: 2.0, taper_ratio: 0.5, precurvature_1pm: 3.0, poisson_ratio: 0.4}]
+"""
+    grid = load_grid(grid_file(tmp_path, text))
+    assert [c.shape.uniform for c in grid.cases] == [True, False, False]
+    assert grid.cases[2].shape.precurvature == 1.5  # 3 / m on a 0.5 m rod
+    out = tmp_path / "out"
+    assert main(["study", "grid", str(grid_file(tmp_path, text)), "-o", str(out),
+                 "--workers", "1"]) == 0
+    equilibria, summary = read_tables(out)
+    assert summary.column("taper_ratio").to_pylist() == [1.0, 0.5, 0.5]
+    assert summary.column("end").to_pylist() == ["detachment"] * 3
+    assert max(summary.column("max_reconstruction_error").to_pylist()) < 1e-6
+    keys = summary.column("key").to_pylist()
+    assert len(set(keys)) == 3
+    uniform = GridCase("sphere:r=0.3,cz=0.6", 0.1, 0.3, 0.01)
+    assert "taper_ratio" not in uniform.inputs()
+    with pytest.raises(ValueError, match="taper_ratio"):
+        load_grid(grid_file(tmp_path, text.replace("taper_ratio: 0.5, precurvature_1pm: 1.5",
+                                                   "taper_ratio: 0.0")))

@@ -7,8 +7,8 @@ ellipsoid | paraboloid, sizes, ``position_m``, ``quaternion_xyzw``), ``whiskers`
 sensor's frame in the clamp frame, identity when left out, and the rod's ``taper_ratio``,
 ``precurvature_1pm`` and ``poisson_ratio``: `vibrissa.scene.Whisker`) and ``path`` (a
 CSV ``t,x,y,z,qx,qy,qz,qw`` of robot poses X_WR, relative to the scene file), and optionally
-``explore`` (`load_explore`: the start pose, workspace box and body radius of an exploration; a file with ``explore`` may leave
-``path`` out, and then stands still at the start). Its ``whiskers`` are also the robot
+``explore`` (`load_explore`: the start pose, workspace box and body radius of an exploration;
+a file with ``explore`` may leave ``path`` out, and then stands still at the start). Its ``whiskers`` are also the robot
 description the nodes load (`load_robot`): one file, one truth.
 
 The YAML is read strictly (`vibrissa.formats.yaml_numbers.load_strict`: no aliases, no repeated

@@ -24,9 +24,9 @@ drains its input into batches, hands them over and publishes what comes back. Co
 node's ``NodeStatus`` (besides the runtime's received, published, rejected, lost, anomalies) are
 the stream's (`vibrissa.streaming.COUNTS`), in rows: ``contacts``, ``free``,
 ``tip_within_noise``, ``no_covariance``, ``no_contact``, ``bad_pose``, ``no_pose``,
-``unknown_whisker``, ``wrong_frame``, ``multi_contact``; and ``robot_poses``, ``bad_robot_pose``,
-``pose_time_jumps``, ``pose_reparents``, ``batches`` and ``max_batch`` (batches and the largest,
-in messages). Samples without a consistent contact are counted, not sent. Undecodable input
+``unknown_whisker``, ``wrong_frame``, ``multi_contact``, ``ambiguous``; and ``robot_poses``,
+``bad_robot_pose``, ``pose_time_jumps``, ``pose_reparents``, ``batches`` and ``max_batch``
+(batches and the largest, in messages). Samples without a consistent contact are counted, not sent. Undecodable input
 (wrong type, version, field type, truncated bytes, NaN) is rejected and counted by the transport
 (``rejected``) and the node carries on.
 """

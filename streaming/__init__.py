@@ -41,10 +41,12 @@ threshold: the rod is free), ``tip_within_noise`` (points that are the tip withi
 ``no_covariance`` (points whose covariance is not defined, an axial load: they carry L^2 I, the
 rod's reach), ``no_contact`` (valid wrench, no consistent contact, or a result that overflows to
 inf near the float limit), ``multi_contact`` (of those, wrenches no single contact gives:
-two contacts on the rod, beyond the noise), ``bad_pose`` (clamp quaternion of zero or non-finite length),
-``no_pose`` (no clamp pose at the tick's stamp within ``pose_timeout_s``), ``unknown_whisker``
-(not in the robot description), ``wrong_frame`` (measured, by its ``frame_ids``, in another
-frame than its whisker's clamp frame: placed there it would get another whisker's mount); and
+two contacts on the rod, beyond the noise), ``ambiguous`` (points of a tapered or pre-curved
+rod chosen among several that fit, `ContactMemory` not deciding), ``bad_pose`` (clamp
+quaternion of zero or non-finite length), ``no_pose`` (no clamp pose at the tick's stamp
+within ``pose_timeout_s``), ``unknown_whisker`` (not in the robot description),
+``wrong_frame`` (measured, by its ``frame_ids``, in another frame than its whisker's clamp
+frame: placed there it would get another whisker's mount); and
 ``robot_poses``, ``bad_robot_pose`` (poses put in the frame buffer, refused),
 ``pose_time_jumps``, ``pose_reparents`` (histories dropped: a new timeline, a new parent frame;
 `vibrissa.frame_buffer`), ``batches`` and ``max_batch`` (Step 2 calls and the most ticks in

@@ -119,6 +119,9 @@ class Reconstructed:
     multi_contact
         Rows of ``no_contact`` whose wrench no single contact gives (MULTI_CONTACT: two
         contacts on the rod, beyond the noise).
+    ambiguous
+        Points in ``contacts`` of a tapered or pre-curved rod chosen among several that fit
+        their wrench without the last contact deciding (AMBIGUOUS_CONTACT).
     """
 
     contacts: ContactPointArray
@@ -132,6 +135,7 @@ class Reconstructed:
     tip_within_noise: int = 0
     no_covariance: int = 0
     multi_contact: int = 0
+    ambiguous: int = 0
 
 
 class ContactMemory:
@@ -304,6 +308,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     # NON_FINITE_INPUT by Step 2: not valid, so it counts as no consistent contact
     valid = result.valid
     multi = result.pose_ok & ((status & int(ContactStatus.MULTI_CONTACT)) != 0)
+    ambiguous = valid & ((status & int(ContactStatus.AMBIGUOUS_CONTACT)) != 0)
     covariance = result.covariance_m2
     # with a noise model: per row, a point that is the tip within the noise, or that has no
     # covariance (an axial load: it gets the rod's reach, L^2 I)
@@ -356,7 +361,8 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
                               else int(np.count_nonzero(tip_within_noise[rows]))),
             no_covariance=(0 if no_covariance is None
                            else int(np.count_nonzero(no_covariance[rows]))),
-            multi_contact=int(np.count_nonzero(multi[rows]))))
+            multi_contact=int(np.count_nonzero(multi[rows])),
+            ambiguous=int(np.count_nonzero(ambiguous[rows]))))
         first += n
     return outcomes
 

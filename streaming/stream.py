@@ -31,7 +31,8 @@ log = logging.getLogger(__name__)
 
 COUNTS = ("contacts", "free", "tip_within_noise", "no_covariance", "no_contact", "bad_pose",
           "no_pose", "unknown_whisker", "wrong_frame", "robot_poses", "bad_robot_pose",
-          "pose_time_jumps", "pose_reparents", "batches", "max_batch", "multi_contact")
+          "pose_time_jumps", "pose_reparents", "batches", "max_batch", "multi_contact",
+          "ambiguous")
 """The counters of a `Step2Stream`, in this order (`Step2Stream.counts`)."""
 
 
@@ -237,6 +238,7 @@ class Step2Stream:
             counts["tip_within_noise"] += outcome.tip_within_noise
             counts["no_covariance"] += outcome.no_covariance
             counts["multi_contact"] += outcome.multi_contact
+            counts["ambiguous"] += outcome.ambiguous
             for error in outcome.errors:
                 self._warn(error)
         counts["batches"] += 1

@@ -34,7 +34,9 @@ def test_a_recorded_stream_gives_the_recorded_bytes_and_counts(name: str) -> Non
     for (payload, counts), (want_payload, want_counts) in zip(published, recorded["output"],
                                                               strict=True):
         assert payload == want_payload
-        assert counts == want_counts
+        # the recorded counters alike; one added since (`ambiguous`: tapered rods) is 0
+        assert {key: counts[key] for key in want_counts} == want_counts
+        assert all(counts[key] == 0 for key in counts.keys() - want_counts.keys())
 
 
 def test_the_record_holds_full_and_partial_ticks() -> None:

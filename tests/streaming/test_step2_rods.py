@@ -53,6 +53,7 @@ def test_without_a_memory_the_choice_is_flagged() -> None:
     alone = [reconstruct_messages([tick], table)[0] for tick in ticks()]
     flagged = [bool(o.contacts.status[0] & AMBIGUOUS) for o in alone]
     assert flagged == [False] + [True] * 9
+    assert [o.ambiguous for o in alone] == [0] + [1] * 9
     assert np.abs(alone[-1].contacts.s1[0] - S1 * ROD.length_m) > 0.1 * ROD.length_m
 
 

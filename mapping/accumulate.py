@@ -12,6 +12,8 @@ from itertools import compress
 import numpy as np
 import numpy.typing as npt
 
+from vibrissa.status import ContactStatus
+
 FloatArray = npt.NDArray[np.float64]
 
 MAX_POINTS = 10_000_000
@@ -55,6 +57,10 @@ class ContactBatch:
         ``MapSettings.point_std_m``).
     stamp
         When the points were measured, s (the message's stamp).
+    status : ndarray of int, shape (N,), optional
+        Step 2's `vibrissa.status.ContactStatus` of each point; None: all 0. A point whose
+        place was chosen among several that fit its wrench (AMBIGUOUS_CONTACT: a tapered or
+        pre-curved rod) is not mapped (counted, ``ambiguous_contact``).
     """
 
     frame_id: str
@@ -64,6 +70,7 @@ class ContactBatch:
     seq: int = 0
     covariances_m2: FloatArray | None = None
     stamp: float = 0.0
+    status: npt.NDArray[np.integer] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.whisker_ids)
@@ -130,7 +137,8 @@ def _rows(batch: ContactBatch, rows: npt.NDArray[np.bool_]) -> ContactBatch:
         np.reshape(batch.forces_n, (-1, 3))[rows],
         list(compress(batch.whisker_ids, rows.tolist())), batch.seq,
         None if batch.covariances_m2 is None
-        else np.reshape(batch.covariances_m2, (-1, 3, 3))[rows], batch.stamp)
+        else np.reshape(batch.covariances_m2, (-1, 3, 3))[rows], batch.stamp,
+        None if batch.status is None else np.asarray(batch.status)[rows])
 
 
 def is_covariance(covariances: FloatArray) -> npt.NDArray[np.bool_]:
@@ -297,12 +305,15 @@ class Accumulator:
         point = np.abs(np.reshape(batch.points_m, (-1, 3))).max(axis=1)
         force = np.abs(np.reshape(batch.forces_n, (-1, 3))).max(axis=1)
         far, no_force = point > MAX_POSITION_M, ~((force > 0) & (force <= MAX_FORCE_N))
-        if not (far.any() or no_force.any()):
+        ambiguous = (np.zeros(len(point), dtype=bool) if batch.status is None
+                     else (np.asarray(batch.status) & int(ContactStatus.AMBIGUOUS_CONTACT)) != 0)
+        if not (far.any() or no_force.any() or ambiguous.any()):
             return None
-        for reason, rows in (("out_of_range", far), ("no_force_direction", no_force & ~far)):
+        for reason, rows in (("out_of_range", far), ("no_force_direction", no_force & ~far),
+                             ("ambiguous_contact", ambiguous & ~far & ~no_force)):
             if rows.any():
                 self.dropped[reason] += int(np.count_nonzero(rows))
-        return ~(far | no_force)
+        return ~(far | no_force | ambiguous)
 
     def _covariances(self, batch: ContactBatch, keep: npt.NDArray[np.bool_] | None,
                      kept: int) -> FloatArray:

@@ -83,7 +83,8 @@ idle robot's pose keeps no dead map alive).
 
 Points dropped are counted by reason (`vibrissa.mapping.Accumulator`; the report's ``dropped_points``): beyond
 the bounds (``max_points``, ``max_frames``) or not usable (``out_of_range``,
-``no_force_direction``); a point whose covariance is not symmetric positive semidefinite is
+``no_force_direction``, ``ambiguous_contact``: a tapered or pre-curved rod's point chosen among
+several that fit its wrench); a point whose covariance is not symmetric positive semidefinite is
 mapped as one without a covariance and counted in ``bad_covariance`` (the report's too). Counters in this node's
 ``NodeStatus`` (besides the runtime's received, published, rejected, lost): ``bad_covariance``
 and each of the dropped counts once it is not 0.
@@ -386,7 +387,8 @@ def contact_batch(msg: ContactPointArray) -> ContactBatch:
     return ContactBatch(
         msg.frame_id, np.reshape(msg.point, (-1, 3)), np.reshape(msg.force, (-1, 3)),
         msg.whisker_ids, msg.seq,
-        None if msg.covariance is None else np.reshape(msg.covariance, (-1, 3, 3)), msg.stamp)
+        None if msg.covariance is None else np.reshape(msg.covariance, (-1, 3, 3)), msg.stamp,
+        msg.status)
 
 
 def _file_part(text: str) -> str:

@@ -139,39 +139,43 @@ class Reconstructed:
 
 
 class ContactMemory:
-    """Each tapered or pre-curved whisker's last contact, its arc length s1 (m; NaN: none), by
-    which Step 2 chooses among the points that fit a wrench (`vibrissa.reconstruct_rods`):
-    a stream's state, moved on with its rows in order."""
+    """Each tapered or pre-curved whisker's last contact, its arc length s1 (m; NaN: none) and
+    whether its choice was ambiguous, by which Step 2 chooses among the points that fit a
+    wrench (`vibrissa.reconstruct_rods`): a stream's state, moved on with its rows in order."""
 
     def __init__(self) -> None:
-        self._s1: dict[str, float] = {}
+        self._last: dict[str, tuple[float, bool]] = {}
 
-    def links(self, whiskers: Sequence[str]) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    def links(self, whiskers: Sequence[str]
+              ) -> tuple[FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.int64]]:
         """For rows of ``whiskers`` in order: each row's previous contact from before the
-        call (NaN: none) and the earlier row of its whisker in the call (-1: none), as
-        `vibrissa.reconstruct.reconstruct_si` takes them."""
+        call (NaN: none), whether that was ambiguous, and the earlier row of its whisker in
+        the call (-1: none), as `vibrissa.reconstruct.reconstruct_si` takes them."""
         previous = np.full(len(whiskers), math.nan)
+        ambiguous = np.zeros(len(whiskers), dtype=np.bool_)
         chain = np.full(len(whiskers), -1, dtype=np.int64)
         last: dict[str, int] = {}
         for i, name in enumerate(whiskers):
             j = last.get(name)
             if j is None:
-                previous[i] = self._s1.get(name, math.nan)
+                previous[i], ambiguous[i] = self._last.get(name, (math.nan, False))
             else:
                 chain[i] = j
             last[name] = i
-        return previous, chain
+        return previous, ambiguous, chain
 
-    def update(self, whiskers: Sequence[str], s1_m: FloatArray,
-               valid: npt.NDArray[np.bool_]) -> None:
-        """Rows of ``whiskers`` reconstructed, in order: their contacts' s1 (m)."""
-        for name, s1, ok in zip(whiskers, s1_m.tolist(), valid.tolist(), strict=True):
-            self._s1[name] = s1 if ok else math.nan
+    def update(self, whiskers: Sequence[str], s1_m: FloatArray, valid: npt.NDArray[np.bool_],
+               status: npt.NDArray[np.int32]) -> None:
+        """Rows of ``whiskers`` reconstructed, in order: their contacts' s1 (m) and status."""
+        ambiguous = (status & int(ContactStatus.AMBIGUOUS_CONTACT)) != 0
+        for name, s1, ok, unsure in zip(whiskers, s1_m.tolist(), valid.tolist(),
+                                        ambiguous.tolist(), strict=True):
+            self._last[name] = (s1, unsure) if ok else (math.nan, False)
 
     def forget(self, whiskers: Sequence[str]) -> None:
         """These whiskers are free: no contact to continue."""
         for name in whiskers:
-            self._s1.pop(name, None)
+            self._last.pop(name, None)
 
 
 @dataclass
@@ -284,7 +288,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     else:
         rods = np.vstack([cast(FloatArray, part.units)[part.placed] for part in parts])
     table = rod if isinstance(rod, RodTable) else None
-    shapes = previous = chain = None
+    shapes = previous = uncertain = chain = None
     names: list[str] = []
     if table is not None and table.shaped:
         names = [w for msg, part in zip(msgs, parts, strict=True)
@@ -293,15 +297,16 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
             memory.forget([msg.whisker_ids[i] for msg, part in zip(msgs, parts, strict=True)
                            for i in part.free_rows])
         shapes = table.shape_rows(names)
-        previous, chain = (memory or ContactMemory()).links(names)
+        previous, uncertain, chain = (memory or ContactMemory()).links(names)
     if detector is None:
         result = reconstruct_si(q, p0, f0, m0, rods, shapes=shapes, previous_s1_m=previous,
-                                chain=chain)
+                                chain=chain, previous_ambiguous=uncertain)
     else:
         result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas,
-                                shapes=shapes, previous_s1_m=previous, chain=chain)
+                                shapes=shapes, previous_s1_m=previous, chain=chain,
+                                previous_ambiguous=uncertain)
     if memory is not None and names:
-        memory.update(names, result.s1_m, result.valid)
+        memory.update(names, result.s1_m, result.valid, result.status)
     point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
                                        result.force_n, result.status)
     # a row whose result overflows (finite inputs near the float limit) is flagged

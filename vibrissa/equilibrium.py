@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from vibrissa.compiled import compiled
 from vibrissa.elastica import planar_contact_scalar
-from vibrissa.rods import frame_of, integrate_to, moment_at
+from vibrissa.rods import N_STEPS, clamp_state, frame_of, moment_at, rk4_step
 
 FloatArray = NDArray[np.float64]
 
@@ -43,10 +43,13 @@ STATE_WIDTH = 27
 """A row's state: residual 0:7 (4:7 the Kirchhoff rod's moment at s1 over |F|, L; 0 for the
 elastica), p1 7:10, s1 10, tangent 11:14, normal 14:17, force 17:20, kappa0 20 (the
 elastica's), e_w 21:24 (the elastica's), status 24, converged 25 (1 or 0), the least gap of
-the free part beyond a tangential contact 26 (the Kirchhoff rod's; NaN otherwise)."""
+the rod away from its contact 26 (the Kirchhoff rod's: its integration's nodes before the
+contact and its free part beyond; NaN otherwise)."""
 FREE_PART_POINTS = 4
 """Points of the unloaded arc beyond a Kirchhoff rod's tangential contact checked against the
-object: a pre-curved rod's free part may curve into it (then the tip touches instead)."""
+object: a pre-curved rod's free part may curve into it (then the tip touches instead). Before
+the contact the integration's nodes are checked: a thin tip bent hard can cross the object
+just before its contact."""
 MAX_S1 = 1.5
 """The largest s1 a Kirchhoff row is evaluated at (a tangential contact past the tip is
 refused, `admissible_rows`; the taper's law holds to 1 / (1 - r) >= 1.05)."""
@@ -57,19 +60,21 @@ def quadric_gap(p: FloatArray, Q: FloatArray, lin: FloatArray, c: float, R_WB: F
                 p_WB: FloatArray, normal: FloatArray) -> float:
     """First-order signed distance of ``p`` (W) to the object's quadric g(p_B) = p_B' Q p_B +
     lin' p_B + c placed at X_WB (g / |grad g|), its outward normal in W into ``normal``."""
-    p_B = np.empty(3)
-    for j in range(3):
-        p_B[j] = ((p[0] - p_WB[0]) * R_WB[0, j] + (p[1] - p_WB[1]) * R_WB[1, j]
-                  + (p[2] - p_WB[2]) * R_WB[2, j])
+    d0, d1, d2 = p[0] - p_WB[0], p[1] - p_WB[1], p[2] - p_WB[2]
+    b0 = d0 * R_WB[0, 0] + d1 * R_WB[1, 0] + d2 * R_WB[2, 0]  # p_B (scalars: no allocation,
+    b1 = d0 * R_WB[0, 1] + d1 * R_WB[1, 1] + d2 * R_WB[2, 1]  # it is called along the rod)
+    b2 = d0 * R_WB[0, 2] + d1 * R_WB[1, 2] + d2 * R_WB[2, 2]
+    q0 = b0 * Q[0, 0] + b1 * Q[1, 0] + b2 * Q[2, 0]
+    q1 = b0 * Q[0, 1] + b1 * Q[1, 1] + b2 * Q[2, 1]
+    q2 = b0 * Q[0, 2] + b1 * Q[1, 2] + b2 * Q[2, 2]
     g = c
-    grad = np.empty(3)
-    for j in range(3):
-        qp = p_B[0] * Q[0, j] + p_B[1] * Q[1, j] + p_B[2] * Q[2, j]
-        g += p_B[j] * qp + lin[j] * p_B[j]
-        grad[j] = 2.0 * qp + lin[j]
-    grad_norm = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
+    g += b0 * q0 + lin[0] * b0
+    g += b1 * q1 + lin[1] * b1
+    g += b2 * q2 + lin[2] * b2
+    g0, g1, g2 = 2.0 * q0 + lin[0], 2.0 * q1 + lin[1], 2.0 * q2 + lin[2]
+    grad_norm = math.sqrt(g0 ** 2 + g1 ** 2 + g2 ** 2)
     for i in range(3):
-        normal[i] = (R_WB[i, 0] * grad[0] + R_WB[i, 1] * grad[1] + R_WB[i, 2] * grad[2]) / grad_norm
+        normal[i] = (R_WB[i, 0] * g0 + R_WB[i, 1] * g1 + R_WB[i, 2] * g2) / grad_norm
     return g / grad_norm
 
 
@@ -200,7 +205,7 @@ def evaluate_rod_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: floa
     for i in range(3):
         f0[i] = -q[1 + i]
         m0[i] = q[4 + i]
-    y = integrate_to(s1, f0, m0, params)
+    y, least = _loaded_rod(s1, f0, m0, params, p_WC, R_WC, Q, lin, c, R_WB, p_WB)
     moment = moment_at(y, f0, m0)
     frame = frame_of(y)
     p1, tangent, force, bent = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
@@ -230,9 +235,8 @@ def evaluate_rod_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: floa
         out[21 + i] = math.nan
     # beyond the contact the rod is its unloaded arc: curvature kappa_hat towards d1
     kappa, free = params[1], 1.0 - s1
-    least = math.inf
     point, probe_normal = np.empty(3), np.empty(3)
-    for k in range(1, FREE_PART_POINTS + 1):
+    for k in range(1, FREE_PART_POINTS + 1 if free > 0.0 else 1):
         sigma = free * k / FREE_PART_POINTS
         across = 0.5 * kappa * sigma * sigma if kappa == 0.0 else (
             1.0 - math.cos(kappa * sigma)) / kappa
@@ -240,7 +244,82 @@ def evaluate_rod_row(q: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: floa
         for i in range(3):
             point[i] = p1[i] + across * bent[i] + along * tangent[i]
         least = min(least, quadric_gap(point, Q, lin, c, R_WB, p_WB, probe_normal))
-    out[26] = least if free > 0.0 else math.nan
+    out[26] = least
+
+
+@compiled
+def _loaded_rod(s1: float, f0: FloatArray, m0: FloatArray, params: FloatArray,
+                p_WC: FloatArray, R_WC: FloatArray, Q: FloatArray, lin: FloatArray, c: float,
+                R_WB: FloatArray, p_WB: FloatArray) -> tuple[FloatArray, float]:
+    """`vibrissa.rods.integrate_to` s1 (the same steps and arithmetic) and the least gap to the
+    object of the rod before s1 (inf: none): at the integration's nodes, at each whole step's
+    middle (cubic Hermite interpolation of the points and tangents at its ends) and at five
+    points of the step that ends at the contact (integrated to), the last 3 % of it before
+    the contact: a rod curving into the object harder than the object curves away enters it
+    there."""
+    h = 1.0 / N_STEPS
+    y = clamp_state()
+    nxt, start = np.empty(7), np.empty(7)
+    before, after, t0, t1 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    work = np.empty(6)  # `_gap`'s scratch
+    _node(y, p_WC, R_WC, before, t0)
+    least = math.inf
+    k = 0
+    while (k + 1) * h <= s1:
+        start[:] = y
+        rk4_step(k * h, h, y, f0, m0, params, nxt)
+        y[:] = nxt
+        k += 1
+        _node(y, p_WC, R_WC, after, t1)
+        if k * h < s1:
+            least = min(least, _gap(after, Q, lin, c, R_WB, p_WB, work),
+                        _hermite_gap(before, t0, after, t1, h, 0.5, Q, lin, c, R_WB, p_WB,
+                                     work))
+        before[:], t0[:] = after, t1
+    rest = s1 - k * h
+    # the step that ends at the contact: a partial one, or the whole step before it
+    last_from, last_length, y_last = (k * h, rest, y) if rest > 0 else ((k - 1) * h, h, start)
+    for fraction in (0.25, 0.5, 0.75, 0.9, 0.97):  # the rod's own points (a thin tip bends hard)
+        rk4_step(last_from, fraction * last_length, y_last, f0, m0, params, nxt)
+        _node(nxt, p_WC, R_WC, after, t1)
+        least = min(least, _gap(after, Q, lin, c, R_WB, p_WB, work))
+    if rest > 0:
+        rk4_step(k * h, rest, y, f0, m0, params, nxt)
+        y[:] = nxt
+    return y, least
+
+
+@compiled
+def _node(y: FloatArray, p_WC: FloatArray, R_WC: FloatArray, point: FloatArray,
+          tangent: FloatArray) -> None:
+    """The rod's point and tangent d3 in W at state ``y`` into ``point`` and ``tangent``."""
+    qw, qx, qy, qz = y[3], y[4], y[5], y[6]
+    d3 = (2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
+    for i in range(3):
+        point[i] = p_WC[i] + R_WC[i, 0] * y[0] + R_WC[i, 1] * y[1] + R_WC[i, 2] * y[2]
+        tangent[i] = R_WC[i, 0] * d3[0] + R_WC[i, 1] * d3[1] + R_WC[i, 2] * d3[2]
+
+
+@compiled
+def _gap(point: FloatArray, Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray,
+         p_WB: FloatArray, work: FloatArray) -> float:
+    """`quadric_gap` without its normal (``work`` (6,): scratch)."""
+    return quadric_gap(point, Q, lin, c, R_WB, p_WB, work[3:6])
+
+
+@compiled
+def _hermite_gap(a: FloatArray, ta: FloatArray, b: FloatArray, tb: FloatArray, length: float,
+                 fraction: float, Q: FloatArray, lin: FloatArray, c: float, R_WB: FloatArray,
+                 p_WB: FloatArray, work: FloatArray) -> float:
+    """The gap of the cubic Hermite curve from point ``a`` (tangent ``ta``) to ``b`` (``tb``)
+    over an arc of ``length``, at ``fraction`` of it (``work`` (6,): scratch)."""
+    t = fraction
+    h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
+    h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
+    point = work[0:3]
+    for i in range(3):
+        point[i] = h00 * a[i] + h10 * length * ta[i] + h01 * b[i] + h11 * length * tb[i]
+    return _gap(point, Q, lin, c, R_WB, p_WB, work)
 
 
 @compiled
@@ -398,7 +477,7 @@ def newton_rows(q0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, mu: FloatArr
 
 
 FREE_GAP_TOL = 1e-12
-"""How far (L) the free part of a tangential contact may dip into the object (round-off)."""
+"""How far (L) a Kirchhoff rod away from its contact may dip into the object (round-off)."""
 
 
 @compiled
@@ -407,8 +486,8 @@ def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
     """Which states (n, ``STATE_WIDTH``) are physically acceptable (n,): the contact pushes
     (F . n > 0), it is at most its row's ``jump`` (n,) from the previous contact point (n, 3),
     the rod stays outside the object (at the tip its tangent does not point out of the object; a
-    tangential contact lies on the rod, 0 < s1 <= 1, its free part beyond outside the object)
-    and a sticking contact's force is inside
+    tangential contact lies on the rod, 0 < s1 <= 1; a Kirchhoff rod's nodes before the contact
+    and its free part beyond it outside the object) and a sticking contact's force is inside
     the friction cone |F_t| <= mu F_n."""
     n = state.shape[0]
     ok = np.empty(n, dtype=np.bool_)
@@ -417,8 +496,9 @@ def admissible_rows(state: FloatArray, mode: NDArray[np.int64], mu: FloatArray,
         fn = row[17] * row[14] + row[18] * row[15] + row[19] * row[16]
         dx, dy, dz = row[7] - previous[r, 0], row[8] - previous[r, 1], row[9] - previous[r, 2]
         good = row[24] == 0 and fn > 0 and math.sqrt(dx * dx + dy * dy + dz * dz) <= jump[r]
+        good = good and not row[26] < -FREE_GAP_TOL  # (NaN: the elastica's)
         if mode[r] == MODE_TANGENTIAL or mode[r] == MODE_STICK_TANGENTIAL:
-            good = good and row[10] <= 1.0 and row[10] > 0.0 and not row[26] < -FREE_GAP_TOL
+            good = good and row[10] <= 1.0 and row[10] > 0.0
         else:
             good = good and row[11] * row[14] + row[12] * row[15] + row[13] * row[16] <= 1e-9
         if mode[r] == MODE_STICK or mode[r] == MODE_STICK_TANGENTIAL:

@@ -337,7 +337,8 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
                    wrench_cov: NDArray[np.float64] | None = None,
                    tip_sigmas: float = TIP_SIGMAS, shapes: NDArray[np.float64] | None = None,
                    previous_s1_m: NDArray[np.float64] | None = None,
-                   chain: NDArray[np.int64] | None = None) -> ReconstructionSI:
+                   chain: NDArray[np.int64] | None = None,
+                   previous_ambiguous: NDArray[np.bool_] | None = None) -> ReconstructionSI:
     """Step 2 in SI: contact points from clamp poses and wrenches as a sensor graph has them.
 
     Each row is converted to the paper's units with its rod (``vibrissa.units.RodScale``),
@@ -367,7 +368,8 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         Each row's rod shape (``vibrissa.rods.RodShape.params``): a tapered or pre-curved
         row is the Kirchhoff rod's Step 2 (``vibrissa.reconstruct_rods``), which chooses
         among the points that fit its wrench by continuity with ``previous_s1_m`` (N,), m
-        (NaN: none), or, where ``chain`` (N,) is >= 0, with the s1 found for that earlier row
+        (NaN: none; ``previous_ambiguous`` (N,): whether that contact's own choice was
+        ambiguous), or, where ``chain`` (N,) is >= 0, with the s1 found for that earlier row
         of the call (the same whisker's previous sample). Without: every row is straight and
         uniform.
     """
@@ -396,19 +398,24 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
             raise ValueError(f"tip_sigmas must be a finite number >= 0, got {tip_sigmas}")
     from vibrissa.reconstruct_rods import rows_si  # (it imports this module)
 
-    params, before, links = _NO_SHAPES, _NO_PREVIOUS, _NO_CHAIN  # every row straight, uniform
+    # every row straight and uniform
+    params, before, uncertain, links = _NO_SHAPES, _NO_PREVIOUS, _NO_AMBIGUOUS, _NO_CHAIN
     if shapes is not None:
         params = _kernel_array(np.asarray(shapes, dtype=float))
         before = (np.full(n, np.nan) if previous_s1_m is None
                   else _kernel_array(np.asarray(previous_s1_m, dtype=float)))
         links = (np.full(n, -1, dtype=np.int64) if chain is None
                  else np.ascontiguousarray(chain, dtype=np.int64))
+        uncertain = (np.zeros(n, dtype=np.bool_) if previous_ambiguous is None
+                     else np.ascontiguousarray(previous_ambiguous, dtype=np.bool_))
         if params.shape != (n, 3):
             raise ValueError(f"shapes must have shape ({n}, 3), got {params.shape}")
-        if before.shape != (n,) or links.shape != (n,) or not np.all(links < np.arange(n)):
-            raise ValueError("previous_s1_m and chain must have one entry per row, chain "
-                             "pointing to earlier rows")
-    floats, ints = rows_si(q, p, f0, m0, units, cov, float(tip_sigmas), params, before, links)
+        if (before.shape != (n,) or links.shape != (n,) or uncertain.shape != (n,)
+                or not np.all(links < np.arange(n))):
+            raise ValueError("previous_s1_m, previous_ambiguous and chain must have one entry "
+                             "per row, chain pointing to earlier rows")
+    floats, ints = rows_si(q, p, f0, m0, units, cov, float(tip_sigmas), params, before,
+                           uncertain, links)
     # the kernel's two blocks (`rows_si`), each field a contiguous view of its part
     return ReconstructionSI(
         ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n], ints[:n],
@@ -418,6 +425,7 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
 
 _NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
 _NO_SHAPES, _NO_PREVIOUS, _NO_CHAIN = np.empty((0, 3)), np.empty(0), np.empty(0, dtype=np.int64)
+_NO_AMBIGUOUS = np.empty(0, dtype=np.bool_)
 """The kernel's "every row a straight uniform rod"."""
 
 

@@ -10,12 +10,14 @@ passes through the rod, |l| <= ``LINE_TOL`` (L), widened by the wrench's noise w
 known (a measured wrench's line misses the rod by about its noise over |F|). Integrated to
 ``S_MAX`` past the tip, so that a tip contact is found however round-off puts its zero.
 
-A wrench may be satisfied by more than one point along the rod (the loaded line, continued
-past the contact, can meet the force's line again: in the plane, as the elastica's curvature
-vanishes again): every such point is a candidate. Alone, a sample takes the first from the
-clamp; along a stream, the one within ``CONTINUITY_L`` of the previous contact. The choice is
-flagged ``AMBIGUOUS_CONTACT`` where it is not determined: more than one candidate and no
-previous contact, or not exactly one candidate within ``CONTINUITY_L`` of it.
+A wrench may be satisfied by more than one point along the rod (a line meets a pre-curved
+arc twice; the loaded line, continued past the contact, can meet the force's line again):
+every such point is a candidate. One candidate is the contact. Of several, a sample alone
+takes the first from the clamp; along a stream, the one nearest the previous contact. The
+choice is flagged ``AMBIGUOUS_CONTACT`` where it is not determined: several candidates and no
+previous contact, or a previous one whose own choice was not determined (a stream that began
+ambiguous stays so while the other candidates last), or not exactly one candidate within
+``CONTINUITY_L`` of it.
 
 The straight uniform rod has its closed form (``vibrissa.reconstruct``): :func:`reconstruct_rod`
 hands it there, bit for bit.
@@ -56,8 +58,11 @@ LINE_TOL = 1e-6
 """How far (L) the force's line may pass from the rod at a contact."""
 CONTINUITY_L = 0.05
 """Along a stream, a candidate this near (arc length, L) the previous contact continues it."""
-S_MAX = 1.0 + 1.0 / N_STEPS
-"""How far the rod is integrated: one step past the tip."""
+TIP_STEP = 0.25 / N_STEPS
+"""How far past the tip the rod is integrated (a quarter step, L): a tip contact's zero may
+fall just past it by round-off, or by the noise (TIP_WITHIN_NOISE); a thin tip's rod,
+continued much further, can curl through the force's line and back within one step."""
+S_MAX = 1.0 + TIP_STEP
 MAX_CANDIDATES = 8
 
 _NO_CONTACT = int(NO_CONTACT)
@@ -104,14 +109,14 @@ def contact_candidates(f0: FloatArray, m0: FloatArray, params: FloatArray,
     force's line within ``LINE_TOL`` + ``line_band`` of the rod): their arc lengths into
     ``s_out`` and states into ``y_out`` (``MAX_CANDIDATES`` rows, 7), in order from the clamp;
     returns how many."""
-    h = 1.0 / N_STEPS
-    n_steps = int(math.ceil(S_MAX * N_STEPS - 1e-9))
     y = clamp_state()
     nxt, probe, offset = np.empty(7), np.empty(7), np.empty(3)
     g = _side(y, f0, m0)
     count = 0
-    for k in range(n_steps):
-        s = k * h
+    grid = 1.0 / N_STEPS  # `vibrissa.rods.integrate_to`'s steps
+    for k in range(N_STEPS + 1):  # the rod's steps, then a quarter step past its tip
+        s = k * grid
+        h = grid if k < N_STEPS else TIP_STEP
         rk4_step(s, h, y, f0, m0, params, nxt)
         g_next = _side(nxt, f0, m0)
         if g > 0.0 and g_next <= 0.0 and count < MAX_CANDIDATES:
@@ -153,14 +158,15 @@ def contact_candidates(f0: FloatArray, m0: FloatArray, params: FloatArray,
 def reconstruct_rod_row(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, rotate: bool,
                         R_WC: FloatArray, params: FloatArray, previous_s1: float,
                         point: FloatArray, force: FloatArray, candidates: FloatArray,
-                        tip_band: float = 0.0, dot_band: float = -1.0, line_band: float = 0.0
-                        ) -> tuple[float, int, int, int]:
+                        tip_band: float = 0.0, dot_band: float = -1.0, line_band: float = 0.0,
+                        previous_ambiguous: bool = False) -> tuple[float, int, int, int]:
     """Step 2 of one sample of a rod of ``params`` (``RodShape.params``): as
     ``vibrissa.reconstruct.reconstruct_row`` (point and force in W into ``point``, ``force``),
     with the previous contact's arc length ``previous_s1`` (NaN: none) to choose among the
-    candidates, whose arc lengths go into ``candidates`` (``MAX_CANDIDATES``); ``line_band``
-    (L) the wrench noise's miss of the force's line (`contact_candidates`). Returns s1, phase,
-    status and the number of candidates."""
+    candidates, whose arc lengths go into ``candidates`` (``MAX_CANDIDATES``), and whether that
+    contact's own choice was ambiguous; ``line_band`` (L) the wrench noise's miss of the
+    force's line (`contact_candidates`). Returns s1, phase, status and the number of
+    candidates."""
     nan = math.nan
     point[:] = nan
     fx, fy, fz = -f0_C[0], -f0_C[1], -f0_C[2]
@@ -185,7 +191,7 @@ def reconstruct_rod_row(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, ro
     if count == 0:
         return nan, PHASE_NONE, _BEYOND, 0
     chosen = 0
-    if previous_s1 == previous_s1:  # a previous contact: the candidates near it
+    if count > 1 and previous_s1 == previous_s1:  # a previous contact: the candidates near it
         near = 0
         best = math.inf
         for i in range(count):
@@ -194,7 +200,7 @@ def reconstruct_rod_row(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, ro
                 near += 1
             if gap < best:
                 best, chosen = gap, i
-        if near != 1:
+        if near != 1 or previous_ambiguous:
             status |= _AMBIGUOUS
     elif count > 1:
         status |= _AMBIGUOUS
@@ -226,12 +232,17 @@ def _rows(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, R_WC: FloatArray
     identity = np.eye(3)
     rotate, per_row = R_WC.shape[0] > 0, R_WC.shape[0] > 1
     previous = previous_s1[0] if chain and n > 0 else math.nan
+    uncertain = False  # (chain) whether the previous row's choice was ambiguous
     for i in range(n):
         r = R_WC[i if per_row else 0] if rotate else identity
         before = previous if chain else previous_s1[i]
         s1[i], phase[i], status[i], count[i] = reconstruct_rod_row(
             p0_W[i], f0_C[i], m0_C[i], rotate, r, params, before, point[i], force[i],
-            candidates[i])
+            candidates[i], 0.0, -1.0, 0.0, chain and uncertain)
+        if chain:
+            contact = status[i] & _NO_CONTACT == 0
+            previous = s1[i] if contact else math.nan
+            uncertain = contact and status[i] & _AMBIGUOUS != 0
         psi[i] = math.nan
         if status[i] & _NO_CONTACT == 0:
             dx, dy, dz = point[i, 0] - p0_W[i, 0], point[i, 1] - p0_W[i, 1], point[i, 2] - p0_W[
@@ -240,8 +251,6 @@ def _rows(p0_W: FloatArray, f0_C: FloatArray, m0_C: FloatArray, R_WC: FloatArray
                 dx, dy = (r[0, 0] * dx + r[1, 0] * dy + r[2, 0] * dz,
                           r[0, 1] * dx + r[1, 1] * dy + r[2, 1] * dz)
             psi[i] = math.atan2(dy, dx)
-            if chain:
-                previous = s1[i]
     return point, s1, psi, phase, force, status, candidates, count
 
 
@@ -253,9 +262,9 @@ def reconstruct_rod(p0: ArrayLike, f0: ArrayLike, m0: ArrayLike, shape: RodShape
 
     ``previous_s1`` (N,) is each sample's previous contact (NaN: none); with ``stream`` the rows
     are one rod's samples in time order and each row's previous contact is the row before's
-    (``previous_s1``, if given, is the first row's). ``psi`` is the contact's azimuth about the
-    clamp axis (C). The straight uniform rod is :func:`reconstruct` itself (one candidate, the
-    first zero of the curvature).
+    (none after a row without contact; ``previous_s1``, if given, is the first row's). ``psi``
+    is the contact's azimuth about the clamp axis (C). The straight uniform rod is
+    :func:`reconstruct` itself (one candidate, the first zero of the curvature).
     """
     p0_W, f0_C, m0_C = (np.ascontiguousarray(_as_vectors(n, v))
                         for n, v in (("p0", p0), ("f0", f0), ("m0", m0)))
@@ -340,11 +349,13 @@ def _line_band(f0_L: FloatArray, cov: FloatArray, force_n: float, moment_nm: flo
 @compiled
 def _row_si_rod(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
                 length_m: float, force_n: float, moment_nm: float, cov: FloatArray,
-                tip_sigmas: float, params: FloatArray, previous_s1_m: float, point: FloatArray,
+                tip_sigmas: float, params: FloatArray, previous_s1_m: float,
+                previous_ambiguous: bool, point: FloatArray,
                 force: FloatArray, covariance: FloatArray, work: FloatArray
                 ) -> tuple[bool, float, int, int]:
     """``vibrissa.reconstruct._row_si`` of a tapered or pre-curved rod (``params``), its
-    previous contact at ``previous_s1_m`` (NaN: none); the covariance from `rod_jacobian`."""
+    previous contact at ``previous_s1_m`` (NaN: none), itself chosen ambiguously or not; the
+    covariance from `rod_jacobian`."""
     if not row_in_rod_units(q_xyzw, p0, f0, m0, length_m, force_n, moment_nm, work):
         return False, math.nan, 0, 0
     rotation, p0_L, f0_L, m0_L = work[15:18, 0:3], work[18, 0:3], work[18, 3:6], work[17, 3:6]
@@ -357,7 +368,7 @@ def _row_si_rod(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArr
     previous = previous_s1_m / length_m
     s1, phase, status, _count = reconstruct_rod_row(
         p0_L, f0_L, m0_L, True, rotation, params, previous, point, force, candidates, 0.0,
-        dot_band, line_band)
+        dot_band, line_band, previous_ambiguous)
     known = False
     if cov.shape[0] > 0 and status & (_NO_CONTACT & ~_BEYOND) == 0:
         # the std of s1 of the contact (or, none on the rod, of the first past the tip) says
@@ -372,22 +383,23 @@ def _row_si_rod(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArr
             if tip_band > 0.0:
                 s1, phase, status, _count = reconstruct_rod_row(
                     p0_L, f0_L, m0_L, True, rotation, params, previous, point, force,
-                    candidates, tip_band, dot_band, line_band)
+                    candidates, tip_band, dot_band, line_band, previous_ambiguous)
     return row_in_si(s1, phase, status, length_m, force_n, point, force, cov, known, covariance)
 
 
 @compiled
 def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
             units: FloatArray, cov: FloatArray, tip_sigmas: float, params: FloatArray,
-            previous_s1_m: FloatArray, chain: NDArray[np.int64]
-            ) -> tuple[FloatArray, NDArray[np.int32]]:
+            previous_s1_m: FloatArray, previous_ambiguous: NDArray[np.bool_],
+            chain: NDArray[np.int64]) -> tuple[FloatArray, NDArray[np.int32]]:
     """Step 2 in SI of every row (``vibrissa.reconstruct.reconstruct_si``), each with its rod's
     units (``units``: 1 row for every row, or N; L, EI/L^2, EI/L), the wrench covariance
     ``cov`` (0 rows: none; 1: every row's; N) and its rod's shape ``params`` (N, 3; 0 rows:
     every row straight and uniform). A straight uniform row is
     ``vibrissa.reconstruct._row_si``; any other `_row_si_rod`, its previous contact the s1 (m)
     of row ``chain[i]`` of this call (an earlier row of its whisker) or, where that is -1,
-    ``previous_s1_m[i]`` (NaN: none). Returns two blocks, so that a call hands two arrays back
+    ``previous_s1_m[i]`` (NaN: none) and ``previous_ambiguous[i]`` (whether that contact's own
+    choice was ambiguous). Returns two blocks, so that a call hands two arrays back
     to Python instead of seven: floats (7 N, or 16 N with ``cov``) = point (N, 3), force
     (N, 3), s1 (N), then the covariances (N, 3, 3); int32 (3 N) = phase, status, pose_ok."""
     n = q_xyzw.shape[0]
@@ -409,9 +421,13 @@ def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
                 q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
                 point[i], force[i], row_out, work)
         else:
-            before = previous_s1_m[i] if chain[i] < 0 else floats[6 * n + chain[i]]
+            if chain[i] < 0:
+                before, uncertain = previous_s1_m[i], previous_ambiguous[i]
+            else:
+                before = floats[6 * n + chain[i]]
+                uncertain = ints[n + chain[i]] & _AMBIGUOUS != 0
             pose_ok, floats[6 * n + i], ints[i], ints[n + i] = _row_si_rod(
                 q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
-                params[i], before, point[i], force[i], row_out, work)
+                params[i], before, uncertain, point[i], force[i], row_out, work)
         ints[2 * n + i] = pose_ok
     return floats, ints

@@ -9,6 +9,7 @@ from tests.core.rod_reference import solve_rod
 from vibrissa import parse_surface, simulate_sweep
 from vibrissa.reconstruct_rods import reconstruct_rod
 from vibrissa.rods import RodShape
+from vibrissa.status import ContactStatus
 from vibrissa.sweep import STICK
 
 SPHERE = "sphere:r=0.3,cx=0,cy=0,cz=0.6"
@@ -178,3 +179,19 @@ def test_shaped_whiskers_in_a_scene_touch_stick_slide_and_come_free():
         assert result.episodes and all(e.end in ("detachment", "snap-off", "path-end")
                                        for e in result.episodes)
     assert touching > 100
+
+
+def test_a_stream_that_begins_ambiguous_stays_flagged_while_the_choice_lasts():
+    """A tip poked into a paraboloid at mu 0.8 by a pre-curved rod: from its first sample the
+    wrench fits the tip and a point mid-rod. Step 2 of the sweep as one stream, knowing
+    nothing before it, takes the first and stays on it by continuity; every such point is
+    flagged AMBIGUOUS_CONTACT, and the tip is always among the candidates."""
+    shape = RodShape(taper_ratio=0.6, precurvature=-0.4633, poisson_ratio=0.3166)
+    sweep = simulate_sweep(parse_surface("paraboloid:a=0.5,b=1,h=0.4"), 0.1066, 0.8, 0.005,
+                           shape=shape)
+    assert sweep.n_steps > 20
+    result, candidates = reconstruct_rod(sweep.p0, sweep.f0, sweep.m0, shape, stream=True)
+    wrong = np.linalg.norm(result.point - sweep.contact, axis=1) > 1e-6
+    assert wrong[0]  # the first sample cannot tell
+    assert (result.status[wrong] & int(ContactStatus.AMBIGUOUS_CONTACT)).all()
+    assert np.all(np.nanmin(np.abs(candidates - sweep.s1[:, None]), axis=1) < 1e-6)

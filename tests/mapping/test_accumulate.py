@@ -151,3 +151,20 @@ except OSError as exc:
     result = run_with_file_size_limit(script, 20_000)  # the cloud alone is ~100 kB
     assert "error:" in result.stdout, result.stdout + result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no file at all, half or whole
+
+
+def test_ambiguous_points_are_counted_not_mapped() -> None:
+    """A point Step 2 chose among several that fit its wrench (a pre-curved rod: AMBIGUOUS_
+    CONTACT) is counted in ``dropped``, the others mapped; the message's statuses carry it."""
+    from vibrissa.status import ContactStatus
+
+    ambiguous = int(ContactStatus.AMBIGUOUS_CONTACT)
+    msg = ContactPointArray(
+        stamp=1.0, seq=0, frame_id="world", whisker_ids=["a", "a", "b"],
+        point=[[0.0, 0.0, 0.1], [0.001, 0.0, 0.1], [0.0, 0.002, 0.1]],
+        s1=[0.05, 0.05, 0.04], phase=[1, 1, 2], force=[[0.0, 0.0, 1.0]] * 3,
+        status=[0, ambiguous, ambiguous | int(ContactStatus.TIP_WITHIN_NOISE)])
+    acc = Accumulator()
+    acc.add(contact_batch(msg))
+    assert acc.n_points == 1
+    assert dict(acc.dropped) == {"ambiguous_contact": 2}

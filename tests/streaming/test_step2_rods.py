@@ -59,8 +59,10 @@ def test_without_a_memory_the_choice_is_flagged() -> None:
 
 def test_a_free_whisker_forgets_its_contact() -> None:
     memory = ContactMemory()
-    memory.update(["w", "v"], np.array([0.02, 0.01]), np.array([True, True]))
+    memory.update(["w", "v"], np.array([0.02, 0.01]), np.array([True, True]),
+                  np.array([0, AMBIGUOUS], dtype=np.int32))
     memory.forget(["w"])
-    previous, chain = memory.links(["w", "v", "w"])
+    previous, ambiguous, chain = memory.links(["w", "v", "w"])
     assert np.isnan(previous[0]) and previous[1] == 0.01
+    assert ambiguous.tolist() == [False, True, False]
     assert chain.tolist() == [-1, -1, 0]

@@ -133,14 +133,12 @@ def test_the_kirchhoff_rod_meets_the_closed_form_elastica():
     assert np.abs(near.f0 - exact.f0).max() < 1e-5 * np.abs(exact.f0).max()
 
 
-def test_shaped_whiskers_in_a_scene_touch_stick_slide_and_come_free():
-    """Tapered and pre-curved whiskers on a robot path past a ball and an ellipsoid: every
-    contact sample's wrench is the statics of its contact point (m0 = (P1 - P0) x f0 in C),
-    the point is on its object, and Step 2 of the wrench alone gives it back."""
+def _shaped_scene():
+    """Tapered and pre-curved whiskers on a yawing robot path past a ball and an ellipsoid."""
     from scipy.spatial.transform import Rotation
 
     from vibrissa.frames import Transform
-    from vibrissa.scene import Scene, SceneObject, Whisker, robot_path, simulate
+    from vibrissa.scene import Scene, SceneObject, Whisker, robot_path
 
     n = 500
     t = np.arange(n) * 0.002
@@ -154,7 +152,17 @@ def test_shaped_whiskers_in_a_scene_touch_stick_slide_and_come_free():
                 Whisker("bent", 0.05, 2e-5, X_RC=Transform(Rotation.from_euler("z", 0.5),
                                                            [0.0, -0.01, 0.0]),
                         taper_ratio=0.5, precurvature_1pm=-20.0, poisson_ratio=0.45))
-    scene = Scene(0.3, objects, whiskers, robot_path(t, p, q))
+    return Scene(0.3, objects, whiskers, robot_path(t, p, q))
+
+
+def test_shaped_whiskers_in_a_scene_touch_stick_slide_and_come_free():
+    """Tapered and pre-curved whiskers on a robot path past a ball and an ellipsoid: every
+    contact sample's wrench is the statics of its contact point (m0 = (P1 - P0) x f0 in C),
+    the point is on its object, and Step 2 of the wrench alone gives it back."""
+    from vibrissa.scene import simulate
+
+    scene = _shaped_scene()
+    objects, whiskers = scene.objects, scene.whiskers
     results = simulate(scene)
     touching = 0
     for whisker, result in zip(whiskers, results, strict=True):
@@ -195,3 +203,34 @@ def test_a_stream_that_begins_ambiguous_stays_flagged_while_the_choice_lasts():
     assert wrong[0]  # the first sample cannot tell
     assert (result.status[wrong] & int(ContactStatus.AMBIGUOUS_CONTACT)).all()
     assert np.all(np.nanmin(np.abs(candidates - sweep.s1[:, None]), axis=1) < 1e-6)
+
+
+def test_shaped_whiskers_streamed_in_chunks_are_simulate():
+    """The commanded robot's Step 1 (`SceneStream`, the path fed as it comes) of tapered and
+    pre-curved whiskers: the phases and wrenches of `simulate` on the whole path."""
+    from tests.core.test_scene_stream import assert_simulate_bits, fed, own_steps
+
+    scene = _shaped_scene()
+    rng = np.random.default_rng(5)
+    samples, _ = fed(scene, own_steps(scene), rng.integers(1, 40, size=60).tolist())
+    assert_simulate_bits(scene, samples)
+    assert (samples.phase > 0).sum() > 100
+
+
+def test_small_deflection_of_a_tapered_rod_is_euler_bernoulli():
+    """A force 1e-5 EI/L^2 across a straight tapered rod at s1: the deflection there is
+    int_0^s1 (s1 - t)^2 F / EI(t) dt (quad), to 1e-4 of it (the load's own nonlinearity is
+    1e-10 of it; the rest is the Runge-Kutta rod's)."""
+    from scipy.integrate import quad
+
+    from vibrissa.rods import integrate_to, loaded_rod, stiffness
+
+    for taper in (1.0, 0.6, 0.3, 0.1):
+        shape = RodShape(taper_ratio=taper)
+        for s1 in (0.4, 0.75, 1.0):
+            force = np.array([1e-5, 0.0, 0.0])
+            m0 = loaded_rod(shape, force, s1)
+            deflection = integrate_to(s1, -force, m0, shape.params)[0]
+            beam = quad(lambda t, s1=s1, shape=shape: (s1 - t) ** 2 * 1e-5
+                        / float(stiffness(shape, t)), 0.0, s1, epsabs=1e-16)[0]
+            assert abs(deflection - beam) < 1e-4 * beam, (taper, s1, deflection, beam)

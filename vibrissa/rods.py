@@ -26,6 +26,7 @@ The straight uniform rod (r = 1, kappa_hat = 0) is the planar elastica with its 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -81,9 +82,10 @@ class RodShape:
         """The straight uniform cylinder: the planar elastica in closed form."""
         return self.taper_ratio == 1.0 and self.precurvature == 0.0
 
-    @property
+    @functools.cached_property
     def params(self) -> FloatArray:
-        """(taper_ratio, precurvature, 1 + nu), as the compiled kernels take them."""
+        """(taper_ratio, precurvature, 1 + nu), as the compiled kernels take them (made once;
+        not to be written)."""
         return np.array([self.taper_ratio, self.precurvature, 1.0 + self.poisson_ratio])
 
 

@@ -605,7 +605,6 @@ class _Track:
     x_grid: float = float("nan")  # the steps' grid is x_grid - k step, units of L
     x_early: float = float("nan")  # where EARLY_TRAVEL_L of travel after the touch ends (NaN: not known yet)
     shape: RodShape = field(default_factory=RodShape)
-    params: FloatArray = field(default_factory=lambda: RodShape().params)  # shape.params
 
 
 ProgressCallback = Callable[[int, int], None]
@@ -705,7 +704,6 @@ class SweepRun:
         starts = list(landings) if landings is not None else [None] * len(self.trails)
         if len(starts) != len(self.trails):
             raise ValueError(f"{len(starts)} landings for {len(self.trails)} trails")
-        self.shape = shape
         self._tracks = [_start(surface, trail, step, max_steps, x_grid, shape) if landing is None
                         else _land(surface, trail, step, max_steps, x_grid, landing, shape)
                         for trail, landing in zip(self.trails, starts, strict=True)]
@@ -818,7 +816,7 @@ def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
     touch = trail.first_contact(surface, shape)
     if touch is None:
         track = _Track(surface, trail, step, max_steps, locked, np.nan, np.zeros(Q_WIDTH),
-                       _MODE_TIP, np.zeros(3), np.zeros(3), shape=shape, params=shape.params)
+                       _MODE_TIP, np.zeros(3), np.zeros(3), shape=shape)
         track.end = SweepEnd.NO_CONTACT
         return track
     x_start, p_touch = touch
@@ -856,8 +854,7 @@ def _start(surface: Surface, trail: ClampPath, step: float, max_steps: int,
         q[0], q[1:4], q[4:7] = s_touch, force, -np.cross(r_touch, force)
     mode = _MODE_TIP if s_touch >= 1.0 - 1e-9 else _MODE_TANGENTIAL
     return _Track(surface, trail, step, max_steps, locked, x_start, q, mode, p_touch,
-                  p_touch.copy(), x_touch=x_start, s_touch=s_touch, x_grid=x_grid, shape=shape,
-                  params=shape.params)
+                  p_touch.copy(), x_touch=x_start, s_touch=s_touch, x_grid=x_grid, shape=shape)
 
 
 def _unloaded_arc_length(shape: RodShape, point_C: FloatArray) -> float:
@@ -883,7 +880,7 @@ def _land(surface: Surface, trail: ClampPath, step: float, max_steps: int,
     track = _Track(surface, trail, step, max_steps, shape.uniform and trail.symmetric(surface),
                    landing.x0, landing.q.copy(), mode, landing.contact.copy(),
                    landing.contact.copy(), x_touch=landing.x0, s_touch=landing.s1,
-                   x_grid=x_grid, shape=shape, params=shape.params)
+                   x_grid=x_grid, shape=shape)
     track.pending = (landing.contact.copy(), landing.normal.copy(), landing.force.copy(),
                      landing.s1)
     track.history = [track.q]
@@ -1218,12 +1215,12 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     objects: tuple[FloatArray, ...]  # each row's object (`Surface.kernel_arrays`) and rod
     if n == 1:
         p_WC, R_WC = tracks[0].trail.clamp_pose(targets)
-        objects = (*tracks[0].surface.kernel_arrays, tracks[0].params[None])
+        objects = (*tracks[0].surface.kernel_arrays, tracks[0].shape.params[None])
     else:
         poses = [t.trail.clamp_pose(targets[i : i + 1]) for i, t in enumerate(tracks)]
         p_WC, R_WC = np.concatenate([p for p, _ in poses]), np.concatenate([R for _, R in poses])
         objects = tuple(np.concatenate(rows) for rows in zip(
-            *((*t.surface.kernel_arrays, t.params[None]) for t in tracks), strict=True))
+            *((*t.surface.kernel_arrays, t.shape.params[None]) for t in tracks), strict=True))
     mu = np.array([t.trail.mu for t in tracks])
     locked = np.array([t.locked for t in tracks])
     p1 = np.array([t.p1 for t in tracks])

@@ -164,8 +164,6 @@ class SampledPath:
         """Whether the unloaded rod of ``shape`` (straight by default) at ``x0`` (n,) has
         points inside the object (of its `unloaded_polyline`)."""
         p, R = self.clamp_pose(x0)
-        if shape.precurvature == 0.0:
-            return surface.segment_inside(p, R[:, :, 2])
         starts, chords = unloaded_segments(shape, p, R)
         inside = surface.segment_inside(starts, chords).reshape(len(p), -1)
         return np.any(inside, axis=1)

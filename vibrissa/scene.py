@@ -649,10 +649,7 @@ class _WhiskerSteps:
         p_WR, q_WR = self._samples_from(j)
         window = SampledPath(p_WR, q_WR, self.scene.mu, self.mount, self.h)
         p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))
-        if self.shape.precurvature == 0.0:
-            starts, chords = p_WC, np.ascontiguousarray(R_WC[:, :, 2])
-        else:
-            starts, chords = unloaded_segments(self.shape, p_WC, R_WC)
+        starts, chords = unloaded_segments(self.shape, p_WC, R_WC)
         if self.max_motion <= SUBSAMPLE_L and not segments_meet(starts, chords, *self._objects):
             return False
         return any(window.first_contact(surface, self.shape) is not None

@@ -93,7 +93,7 @@ from vibrissa.equilibrium import (
     evaluate_rows,
     newton_rows,
 )
-from vibrissa.rods import UNIFORM, RodShape, rod_line, unloaded_points, unloaded_polyline, unloaded_segments
+from vibrissa.rods import UNIFORM, RodShape, rod_line, unloaded_points, unloaded_segments
 from vibrissa.status import ContactPhase, SweepEnd
 from vibrissa.surfaces import Surface
 
@@ -1165,15 +1165,9 @@ def _unloaded_rod_inside(surface: Surface, trail: ClampPath, x0: FloatArray, sha
     """The length of the unloaded rod inside the object (n,), L, clamped at each x0 (n,): of
     its `unloaded_polyline`."""
     p_WC, R_WC = trail.clamp_pose(x0)
-    vertices = unloaded_polyline(shape)
-    if len(vertices) == 2:  # straight: the clamp's axis
-        t_in, t_out = surface.line_interval(p_WC, R_WC[:, :, 2])
-        with np.errstate(invalid="ignore"):  # NaN: the line misses the object
-            length = np.minimum(t_out, 1.0) - np.maximum(t_in, 0.0)
-        return np.where(length > 0.0, length, 0.0)
     starts, chords = unloaded_segments(shape, p_WC, R_WC)
     t_in, t_out = surface.line_interval(starts, chords)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"):  # NaN: the line misses the object
         part = np.minimum(t_out, 1.0) - np.maximum(t_in, 0.0)
     part = np.where(part > 0.0, part, 0.0) * np.linalg.norm(chords, axis=1)
     return part.reshape(len(p_WC), -1).sum(axis=1)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -232,29 +233,40 @@ class BatchCollector:
     many whiskers) goes out after at most that many decodes, not after the whole burst. A
     batch that reaches its limit means a backlog: the next one drains up to ``max_batch``
     and the limit drops back once a batch ends below it. A batch also ends once its stamps
-    span ``max_span_s`` (see :func:`collect_batch`). ``drained`` says whether the last batch
-    ended on an empty queue (everything sent before it has been read, poses too).
+    span ``max_span_s`` (see :func:`collect_batch`). ``drained_at`` is the ``clock``'s time
+    at which the queue was last seen empty (everything sent before it has been read, poses
+    too; -inf before): a process that is not scheduled between this and handling the batch
+    has not seen what came meanwhile.
     """
 
     def __init__(self, receive: Callable[[float], Received | None], drain_limit: int,
                  max_batch: int, on_pose: Callable[[RobotPose], None] = lambda pose: None,
-                 end_topic: str | None = None, max_span_s: float = math.inf) -> None:
+                 end_topic: str | None = None, max_span_s: float = math.inf,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self._receive = receive
+        self._clock = clock
         self._on_pose = on_pose
         self._end_topic = end_topic
         self.drain_limit = drain_limit
         self.max_batch = max_batch
         self.max_span_s = max_span_s
         self.limit = drain_limit
-        self.drained = True
+        self.drained_at = -math.inf
 
     def collect(self, timeout_s: float) -> tuple[list[WhiskerWrenchArray], EndOfStream | None]:
         """The next batch (see :func:`collect_batch`) and the limit for the one after."""
-        batch, eos, backlog = collect_batch(self._receive, timeout_s, self.limit, self._on_pose,
+        batch, eos, backlog = collect_batch(self._seen, timeout_s, self.limit, self._on_pose,
                                             self._end_topic, self.max_span_s)
-        self.drained = eos is None and not backlog
         self.limit = self.max_batch if backlog else self.drain_limit
         return batch, eos
+
+    def _seen(self, timeout_s: float) -> Received | None:
+        """``receive``, noting when it found the queue empty (the time before the call)."""
+        before = self._clock()
+        rx = self._receive(timeout_s)
+        if rx is None:
+            self.drained_at = before
+        return rx
 
 
 def run(node: Node, params: ReconstructorParams) -> None:
@@ -279,10 +291,10 @@ def run(node: Node, params: ReconstructorParams) -> None:
         stream.add_wrenches(batch)
         if eos is not None:
             ends.append(eos)
-        for outcome in stream.take(batches.drained):
+        for outcome in stream.take(batches.drained_at):
             publisher.publish(outcome.contacts)
         # the poses no wrench waited for, now that the points are out
-        stream.apply_poses(batches.drained)
+        stream.apply_poses(batches.drained_at)
         while ends and not len(stream):
             end = ends.pop(0)
             publisher.publish_end_of_stream(node.fqn)

@@ -25,9 +25,10 @@ class PoseWait:
     can be looked up in the map frame at its stamp (the pose stream has passed it; a frame the
     robot description does not have is left out: its rows count as ``unknown_whisker``); one that
     has waited ``timeout_s`` is let through too, and its rows then count as ``no_pose``, but
-    only once the input queue has been drained since (``take(drained=True)``): under a
-    backlog the pose it waits for may be queued behind other wrenches, and a pose that was
-    sent is not missing. A permanent backlog still ends the wait, after
+    only if the input queue was seen empty after that (``take(drained_at=...)``, the clock's
+    time the queue was last seen empty): under a backlog, or a process that was not scheduled
+    between reading its input and handling it, the pose it waits for may be queued behind, and
+    a pose that was sent is not missing. A permanent backlog still ends the wait, after
     ``BACKLOG_TIMEOUTS`` x ``timeout_s``. The order of the wrenches is kept: one that waits
     holds back those behind it.
 
@@ -76,35 +77,37 @@ class PoseWait:
         if len(self._poses) > MAX_HELD_POSES:
             self._on_pose(self._poses.popleft()[1])
 
-    def apply_poses(self, drained: bool = True) -> None:
+    def apply_poses(self, drained_at: float | None = None) -> None:
         """Hand the held robot poses to ``on_pose``, in arrival order, up to the first stamped
-        more than ``lead_s`` past the newest wrench that has not waited ``timeout_s`` without
-        a wrench coming, the input queue ``drained`` (under a backlog the wrenches are
-        queued, not missing: poses let in for them ahead of time would move the history
-        past the wrenches behind)."""
+        more than ``lead_s`` past the newest wrench that had not been held ``timeout_s``
+        without a wrench coming when the input queue was last seen empty (``drained_at``, the
+        clock's time; None: now). Under a backlog the wrenches are queued, not missing: poses
+        let in for them ahead of time would move the history past the wrenches behind."""
         limit = self._newest + self.lead_s if self.lead_s < math.inf else math.inf
-        quiet_since = self._clock() - self.timeout_s
+        quiet_since = (self._clock() if drained_at is None else drained_at) - self.timeout_s
         while self._poses:
             held_since, pose = self._poses[0]
-            if pose.stamp > limit and (not drained
-                                       or max(held_since, self._last_wrench) > quiet_since):
+            if pose.stamp > limit and max(held_since, self._last_wrench) > quiet_since:
                 break
             self._poses.popleft()
             self._on_pose(pose)
 
-    def take(self, drained: bool = True) -> list[WhiskerWrenchArray]:
+    def take(self, drained_at: float | None = None) -> list[WhiskerWrenchArray]:
         """The wrenches from the front that are ready or have waited long enough: ``timeout_s``
-        when the input queue is ``drained``, ``BACKLOG_TIMEOUTS`` x ``timeout_s`` when not.
-        While the front one is not ready and poses are held, they go in, oldest first."""
-        out = self._take(drained, expire=not self._poses)
+        before the input queue was last seen empty (``drained_at``, the clock's time; None:
+        now), or ``BACKLOG_TIMEOUTS`` x ``timeout_s`` before now. While the front one is not
+        ready and poses are held, they go in, oldest first."""
+        out = self._take(drained_at, expire=not self._poses)
         while self._queue and self._poses:  # the front one's pose may be held
             self._on_pose(self._poses.popleft()[1])
-            out += self._take(drained, expire=not self._poses)
+            out += self._take(drained_at, expire=not self._poses)
         return out
 
-    def _take(self, drained: bool, expire: bool) -> list[WhiskerWrenchArray]:
+    def _take(self, drained_at: float | None, expire: bool) -> list[WhiskerWrenchArray]:
         out: list[WhiskerWrenchArray] = []
-        deadline = (self._clock() - self.timeout_s * (1.0 if drained else BACKLOG_TIMEOUTS)
+        now = self._clock()
+        drained = now if drained_at is None else min(drained_at, now)
+        deadline = (max(drained - self.timeout_s, now - self.timeout_s * BACKLOG_TIMEOUTS)
                     if expire else -math.inf)
         while self._queue:
             arrived, msg = self._queue[0]

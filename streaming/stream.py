@@ -217,11 +217,11 @@ class Step2Stream:
         """Take ticks, in arrival order."""
         self._wait.add(ticks)
 
-    def take(self, drained: bool = True) -> Sequence[Reconstructed]:
-        """The outcomes of the ticks that are ready (or have waited ``pose_timeout_s``; 10 x
-        that while not ``drained``, the input still queued behind them: `PoseWait.take`), in
-        arrival order, counted."""
-        ready = self._wait.take(drained)
+    def take(self, drained_at: float | None = None) -> Sequence[Reconstructed]:
+        """The outcomes of the ticks that are ready (or had waited ``pose_timeout_s`` when the
+        input was last seen empty, at the clock's ``drained_at``, None: now; 10 x that under
+        a backlog: `PoseWait.take`), in arrival order, counted."""
+        ready = self._wait.take(drained_at)
         if not ready:
             return ()
         outcomes = reconstruct_messages(ready, self.rods, self.frames, self.settings.map_frame,
@@ -245,11 +245,11 @@ class Step2Stream:
         counts["max_batch"] = max(counts["max_batch"], len(ready))
         return outcomes
 
-    def apply_poses(self, drained: bool = True) -> None:
+    def apply_poses(self, drained_at: float | None = None) -> None:
         """Put the held poses no tick waited for into the frame buffer; call it after
-        publishing what `take` gave, so the points do not wait for it (``drained``: no input
-        queued behind, `PoseWait.apply_poses`)."""
-        self._wait.apply_poses(drained)
+        publishing what `take` gave, so the points do not wait for it (``drained_at``: when
+        the input was last seen empty, `PoseWait.apply_poses`)."""
+        self._wait.apply_poses(drained_at)
 
     def wait_s(self) -> float:
         """Seconds until the front tick times out (inf with none waiting)."""

@@ -101,28 +101,64 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
     counters = {"robot_poses": 0, "bad_robot_pose": 0}
     on_pose = pose_handler(frames, counters, Warnings("/robot/reconstructor"))
     rods = {w.name: w.scale for w in whiskers}
-    batches = BatchCollector(receive, drain_limit=2, max_batch=3, on_pose=on_pose)
+    batches = BatchCollector(receive, drain_limit=2, max_batch=3, on_pose=on_pose,
+                             clock=lambda: now[0])
     taken: list[tuple[int, int]] = []  # (seq, no_pose rows) as each wrench is let through
     while queue:
         batch, _ = batches.collect(0.0)
         wait.add(batch)
-        ready = wait.take(batches.drained)
+        ready = wait.take(batches.drained_at)
         if ready:
             taken += [(m.seq, out.no_pose) for m, out in
                       zip(ready, reconstruct_messages(ready, rods, frames, "world"), strict=True)]
     # each waited up to 2.4 s for its pose, and it came: none is no_pose
     assert taken == [(seq, 0) for seq in range(1, 9)]
     batches.collect(0.0)
-    assert batches.drained and len(wait) == 1  # seq 9 (stamp 0.2) is past the last pose
+    assert batches.drained_at == now[0] and len(wait) == 1  # seq 9 (0.2 s) is past the last pose
     now[0] += 0.5
-    (late,) = wait.take(batches.drained)
+    assert wait.take(batches.drained_at) == []  # not seen empty since it waited 0.5 s
+    batches.collect(0.0)
+    (late,) = wait.take(batches.drained_at)
     assert late.seq == 9 and reconstruct_messages([late], rods, frames, "world")[0].no_pose == 2
     # a backlog that never drains: wait BACKLOG_TIMEOUTS x timeout_s, not forever
     wait.add([_robot_wrench(0.3, 10)])
     now[0] += 0.5 * BACKLOG_TIMEOUTS - 0.01
-    assert wait.take(drained=False) == []
+    assert wait.take(drained_at=-math.inf) == []
     now[0] += 0.02
-    assert [m.seq for m in wait.take(drained=False)] == [10]
+    assert [m.seq for m in wait.take(drained_at=-math.inf)] == [10]
+
+
+def test_a_pose_that_came_while_the_node_was_not_scheduled_is_not_missing() -> None:
+    """The node saw its queue empty with a wrench waiting, then was not scheduled for 2 s (a
+    loaded machine) while the wrench's pose arrived: the wrench has waited past
+    ``pose_timeout_s``, but the queue has not been seen empty since, so it waits for the pose
+    the next read brings, and gets it."""
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0]))]
+    frames = robot_frames(whiskers)
+    now = [100.0]
+    queue: list[Any] = [_robot_wrench(0.005, 1, ("a",))]
+
+    def pose(stamp: float) -> RobotPose:
+        return RobotPose(stamp=stamp, frame_id="world", child_frame_id="base_link",
+                         position=[stamp, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0])
+
+    def receive(timeout_s: float) -> Received | None:
+        return _rx(queue.pop(0)) if queue else None
+
+    counters = {"robot_poses": 0, "bad_robot_pose": 0}
+    batches = BatchCollector(receive, drain_limit=15, max_batch=100, clock=lambda: now[0],
+                             on_pose=pose_handler(frames, counters, Warnings("/robot/x")))
+    wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
+    frames.add("world", "base_link", 0.0, Transform())  # a pose before the wrench's stamp
+    wait.add(batches.collect(0.0)[0])
+    assert wait.take(batches.drained_at) == [] and batches.drained_at == now[0]
+    now[0] += 2.0  # not scheduled; meanwhile the pose arrives
+    queue.append(pose(0.01))
+    assert wait.take(batches.drained_at) == []
+    wait.add(batches.collect(0.0)[0])
+    (ready,) = wait.take(batches.drained_at)
+    (out,) = reconstruct_messages([ready], {w.name: w.scale for w in whiskers}, frames, "world")
+    assert ready.seq == 1 and out.no_pose == 0 and counters["robot_poses"] == 1
 
 
 def test_held_poses_wait_until_a_wrench_needs_them_and_give_the_same_points() -> None:
@@ -220,7 +256,7 @@ def test_poses_far_ahead_of_the_wrenches_are_held_not_pushed_out_of_the_history(
     wait.apply_poses()
     assert counters["robot_poses"] == 302
     now[0] += 0.01  # held for the timeout with no wrench coming: they go in, but only once
-    wait.apply_poses(drained=False)  # no input waits behind (queued wrenches may need the
+    wait.apply_poses(drained_at=-math.inf)  # no input waits behind (queued wrenches may need the
     assert counters["robot_poses"] == 302  # history they would push out)
     wait.apply_poses()
     assert counters["robot_poses"] == 310
@@ -264,7 +300,7 @@ def test_a_stream_played_faster_than_real_time_keeps_the_poses_its_wrenches_need
     while queue or len(wait):
         batch, _ = batches.collect(0.0)
         wait.add(batch)
-        ready = wait.take(batches.drained)
+        ready = wait.take(batches.drained_at)
         for outcome in reconstruct_messages(ready, rods, frames, "world") if ready else ():
             no_pose += outcome.no_pose
             placed_ticks += outcome.no_pose == 0

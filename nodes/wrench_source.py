@@ -48,6 +48,8 @@ are the paper's dimensionless values, L = ``rod_length_m`` and EI = ``rod_ei_nm2
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import heapq
 import itertools
 import logging
@@ -56,6 +58,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -63,9 +66,11 @@ import numpy.typing as npt
 
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.formats.scene_results import read_results
+from vibrissa.formats.truth_poses import truth_writer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import EndOfStream, PathSegment, RobotPose, SnapEvent, WhiskerWrenchArray
 from vibrissa.msgs.codec import decodes_as
+from vibrissa.odometry import OdometryDrift
 from vibrissa.paths import CommandedPath, PathLimits
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import (
@@ -133,7 +138,16 @@ class WrenchSourceParams:
         `vibrissa.formats.scene_results.read_results` when the parameters load, and again at
         start); empty: simulate on start.
     pose_topic, map_frame, robot_frame
-        Mode ``scene``: where the robot's poses go, and the frames they join.
+        Mode ``scene``: where the robot's poses go, and the frames they join (with
+        ``odom_drift_per_m``, ``map_frame`` is the odometry's frame, REP 105's ``odom``).
+    odom_drift_per_m
+        Mode ``scene``: the poses are a drifting odometry's (`vibrissa.odometry.OdometryDrift`:
+        position and heading random walks of this standard deviation, m and rad, per metre
+        travelled, drawn from ``seed``, apart from the wrench noise's draws); the whiskers are
+        simulated on the true path. 0: the true poses.
+    truth_file
+        Mode ``scene``: a CSV (`vibrissa.formats.truth_poses`) of every published pose's truth
+        and odometry, written when the stream ends; for evaluation only. Empty: none.
     events_topic
         Mode ``scene``: where each jump of a whisker's path goes, as a `SnapEvent` at the
         stamp of the sample it is told at (`vibrissa.scene.snaps`), after that sample's
@@ -249,6 +263,8 @@ class WrenchSourceParams:
     noise_force_n: float = 0.0
     noise_moment_nm: float = 0.0
     seed: int = 0
+    odom_drift_per_m: float = 0.0
+    truth_file: str = ""
     passes: int = 1
     loop: bool = False
     workers: int = 0
@@ -296,7 +312,7 @@ class WrenchSourceParams:
             require_parsed("pose_topic", self.pose_topic, validate_name)
             require_parsed("events_topic", self.events_topic, validate_name)
             for key in ("pose_rate_hz", "pose_delay_s", "noise_force_n", "noise_moment_nm",
-                        "workers"):
+                        "workers", "odom_drift_per_m"):
                 require_non_negative(key, getattr(self, key))
             t = scene.path.t
             legs = 2 if self.loop else self.passes  # the poses of one simulated stream
@@ -314,6 +330,12 @@ class WrenchSourceParams:
                 f"a number in (0, {MAX_STEP:g}] (units of L)")
         require(not self.whisker_ids or len(self.whisker_ids) == len(self.y0), "whisker_ids",
                 self.whisker_ids, f"one name per y0 ({len(self.y0)})")
+
+    def odometry(self) -> OdometryDrift:
+        """The robot's odometry (``odom_drift_per_m``), its draws from ``seed`` apart from the
+        noise's."""
+        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(1,)))
+        return OdometryDrift(self.odom_drift_per_m, rng)
 
     @property
     def pose_waits(self) -> tuple[str, ...]:
@@ -459,13 +481,18 @@ def _progress(run: SweepRun, sent: int, elapsed_s: float) -> str:
             + f", {sent} published in {elapsed_s:.1f} s")
 
 
+TruthSink = Callable[[float, FloatArray, FloatArray, FloatArray, FloatArray], None]
+"""Takes each published pose's stamp (s), true position and quaternion, and the odometry's."""
+
+
 def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchSourceParams,
-                 repeat: bool = False
+                 repeat: bool = False, truth: TruthSink | None = None
                  ) -> Iterator[tuple[float, WhiskerWrenchArray | RobotPose]]:
     """The messages of mode ``scene`` in publishing order, each with its time in the stream
     (the path's clock): a WhiskerWrenchArray per path sample at its time, and the robot's
     poses at ``pose_rate_hz`` (and at the path's end; 0: the path's samples), each
-    ``pose_delay_s`` after its path time; a pose goes before a wrench of the same stream time.
+    ``pose_delay_s`` after its path time, its odometry's (``odom_drift_per_m``; the truth of
+    each goes to ``truth``); a pose goes before a wrench of the same stream time.
     Every message is stamped ``params.epoch_s`` + its path time.
 
     ``repeat``: the path (one that ends where it starts) again and again without end, each
@@ -505,11 +532,18 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
                     frame_ids=[frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])
                 seq += 1
 
+    odometry = params.odometry()
+
     def poses() -> Iterator[tuple[float, int, WhiskerWrenchArray | RobotPose]]:
         for n in passes():
-            for j in range(1 if n else 0, len(pose_t)):
+            first = 1 if n else 0
+            p_OR, q_OR, _ = odometry.odom(p_WR[first:], q_WR[first:])
+            for j in range(first, len(pose_t)):
                 at = float(pose_t[j]) + n * duration
-                yield at + params.pose_delay_s, 0, _pose(params, at, p_WR[j], q_WR[j])
+                if truth is not None:
+                    truth(params.epoch_s + at, p_WR[j], q_WR[j], p_OR[j - first], q_OR[j - first])
+                yield at + params.pose_delay_s, 0, _pose(params, at, p_OR[j - first],
+                                                          q_OR[j - first])
 
     # by stream time, a pose before a wrench of the same time
     for stream_t, _, msg in heapq.merge(poses(), wrenches(), key=lambda e: (e[0], e[1])):
@@ -541,6 +575,36 @@ def scene_events(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
 def _pose(params: WrenchSourceParams, stamp: float, p: FloatArray, q: FloatArray) -> RobotPose:
     return RobotPose(stamp=params.epoch_s + float(stamp), frame_id=params.map_frame,
                      child_frame_id=params.robot_frame, position=p, orientation=q)
+
+
+class TruthLog:
+    """The truth of the poses made (`told`, in order), written to a ``truth_file`` row as each
+    is published (`published`): a pose made but never sent (a stop) is not in the file."""
+
+    def __init__(self, add: TruthSink | None) -> None:
+        self._add = add
+        self._rows: collections.deque[tuple[float, FloatArray, FloatArray, FloatArray,
+                                            FloatArray]] = collections.deque()
+
+    def told(self, stamp_s: float, p_map: FloatArray, q_map: FloatArray, p_odom: FloatArray,
+             q_odom: FloatArray) -> None:
+        if self._add is not None:
+            self._rows.append((stamp_s, p_map, q_map, p_odom, q_odom))
+
+    def published(self) -> None:
+        if self._rows:
+            assert self._add is not None
+            self._add(*self._rows.popleft())
+
+
+@contextlib.contextmanager
+def _truth(params: WrenchSourceParams) -> Iterator[TruthLog]:
+    """The poses' truth log: into ``truth_file`` (written whole at the end), or nowhere."""
+    if not params.truth_file:
+        yield TruthLog(None)
+        return
+    with truth_writer(Path(params.truth_file)) as add:
+        yield TruthLog(add)
 
 
 def run_scene(node: Node, params: WrenchSourceParams) -> int:
@@ -592,20 +656,24 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
     wall_per_s = (len(t) - 1) / (params.rate_hz * (t[-1] - t[0])) if params.rate_hz else 0.0
     start = time.monotonic()
     count = 0
-    # the jumps after the wrench of their sample
-    stream = heapq.merge(scene_stream(scene, results, params, repeat=params.loop),
-                         scene_events(scene, results, params, repeat=params.loop),
-                         key=lambda e: (e[0], isinstance(e[1], SnapEvent)))
-    for stream_t, msg in stream:
-        if node.stop_requested:
-            break
-        if wall_per_s:
-            delay = start + (stream_t - t[0]) * wall_per_s - time.monotonic()
-            if delay > 0 and not node.sleep(delay):
+    with _truth(params) as truth:
+        # the jumps after the wrench of their sample
+        stream = heapq.merge(scene_stream(scene, results, params, params.loop, truth.told),
+                             scene_events(scene, results, params, repeat=params.loop),
+                             key=lambda e: (e[0], isinstance(e[1], SnapEvent)))
+        for stream_t, msg in stream:
+            if node.stop_requested:
                 break
-        (poses if isinstance(msg, RobotPose) else events if isinstance(msg, SnapEvent)
-         else wrenches).publish(msg)
-        count += 1
+            if wall_per_s:
+                delay = start + (stream_t - t[0]) * wall_per_s - time.monotonic()
+                if delay > 0 and not node.sleep(delay):
+                    break
+            if isinstance(msg, RobotPose):
+                poses.publish(msg)
+                truth.published()
+            else:
+                (events if isinstance(msg, SnapEvent) else wrenches).publish(msg)
+            count += 1
     for publisher in (wrenches, poses, events):
         publisher.publish_end_of_stream(node.fqn)
     log.info("%s: %d messages and EndOfStream on %s, %s and %s in %.1f s", node.fqn, count,
@@ -624,11 +692,14 @@ class CommandedMessages:
     has a wrench there, stamped ``epoch_s`` + its path time, ``seq`` from 0, noise drawn per
     sample; poses at ``pose_rate_hz`` of path time (0: one per sample) and one at the last
     sample of each batch (a wrench never waits for the next batch's simulation to be placed),
-    ``pose_delay_s`` late. Each with its time in the stream; a pose before a wrench of the
-    same time."""
+    ``pose_delay_s`` late, the odometry's (``odom_drift_per_m``; the truth of each goes to
+    ``truth``). Each with its time in the stream; a pose before a wrench of the same time."""
 
-    def __init__(self, scene: Scene, params: WrenchSourceParams) -> None:
+    def __init__(self, scene: Scene, params: WrenchSourceParams,
+                 truth: TruthSink | None = None) -> None:
         self.params = params
+        self.odometry = params.odometry()
+        self.truth = truth
         self.names = [w.name for w in scene.whiskers]
         self.frame_ids = [clamp_frame(name) for name in self.names]
         self.rng = np.random.default_rng(params.seed)
@@ -640,7 +711,8 @@ class CommandedMessages:
               ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose | SnapEvent]]:
         """The pose at path time 0, where the robot stands before any command."""
         self.next_pose, self.before = 1, (0.0, p_WR, q_WR)
-        return [(self.params.pose_delay_s, 0, _pose(self.params, 0.0, p_WR, q_WR))]
+        return [(self.params.pose_delay_s + t, 0, pose)
+                for t, pose in self._published([(0.0, p_WR, q_WR)])]
 
     def of(self, samples: StreamSamples
            ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose | SnapEvent]]:
@@ -659,8 +731,8 @@ class CommandedMessages:
                 stamp=params.epoch_s + t, seq=self.seq, whisker_ids=[self.names[i] for i in rows],
                 frame_ids=[self.frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])))
             self.seq += 1
-        out += [(t + params.pose_delay_s, 0, _pose(params, t, p, q))
-                for t, p, q in self._poses(samples)]
+        out += [(t + params.pose_delay_s, 0, pose)
+                for t, pose in self._published(self._poses(samples))]
         out += [(told.snap.t, 2, SnapEvent(
             stamp=params.epoch_s + told.snap.t, whisker_id=self.names[told.whisker],
             frame_id=self.frame_ids[told.whisker], kind=told.snap.kind, object=told.snap.object,
@@ -669,6 +741,20 @@ class CommandedMessages:
         if len(samples.t):
             self.before = (float(samples.t[-1]), samples.p_WR[-1], samples.q_WR[-1])
         return sorted(out, key=lambda e: (e[0], e[1]))
+
+    def _published(self, poses: list[tuple[float, FloatArray, FloatArray]]
+                   ) -> list[tuple[float, RobotPose]]:
+        """The odometry's messages of true poses (path time, X_WR), their truth told."""
+        if not poses:
+            return []
+        p_OR, q_OR, _ = self.odometry.odom(np.array([p for _, p, _ in poses]),
+                                           np.array([q for _, _, q in poses]))
+        out = []
+        for k, (t, p, q) in enumerate(poses):
+            if self.truth is not None:
+                self.truth(self.params.epoch_s + t, p, q, p_OR[k], q_OR[k])
+            out.append((t, _pose(self.params, t, p_OR[k], q_OR[k])))
+        return out
 
     def _poses(self, samples: StreamSamples
                ) -> list[tuple[float, FloatArray, FloatArray]]:
@@ -700,6 +786,11 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
     """Drive the robot along the segments that arrive on ``path_topic``, each sample simulated
     as it comes, its messages published as it is final; returns the number of messages sent,
     -1 when ``wait_for`` timed out."""
+    with _truth(params) as truth:
+        return _run_commanded(node, params, truth)
+
+
+def _run_commanded(node: Node, params: WrenchSourceParams, truth: TruthLog) -> int:
     wrenches = node.create_publisher(params.topic, WhiskerWrenchArray, wait_for=params.wait_for,
                                      hwm=DEFAULT_HWM * 10)
     poses = node.create_publisher(params.pose_topic, RobotPose, wait_for=params.pose_waits,
@@ -711,7 +802,7 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
     stream = SceneStream(scene, [limits.rod_step(w.X_RC, w.length_m) for w in scene.whiskers])
     p0, q0 = scene.path.p_WR[0], scene.path.R_WR[0].as_quat()
     path = CommandedPath(limits, p0, q0)
-    out = CommandedMessages(scene, params)
+    out = CommandedMessages(scene, params, truth.told)
     for topic, names in ((params.topic, params.wait_for), (params.pose_topic, params.pose_waits)):
         if names and not node.wait_for_subscribers(topic, names, params.wait_timeout_s):
             return -1
@@ -736,8 +827,11 @@ def run_commanded(node: Node, params: WrenchSourceParams) -> int:
                     - time.monotonic()
                 if delay > 0 and not node.sleep(delay):
                     return False
-            (poses if isinstance(msg, RobotPose) else events if isinstance(msg, SnapEvent)
-             else wrenches).publish(msg)
+            if isinstance(msg, RobotPose):
+                poses.publish(msg)
+                truth.published()
+            else:
+                (events if isinstance(msg, SnapEvent) else wrenches).publish(msg)
             count += 1
         return True
 

@@ -15,6 +15,7 @@ import pytest
 from tests.nodes.test_scene_results import FakeNode, FakePublisher
 from tests.nodes.test_scene_results import write_scene as write_scene_with_a_buried_whisker
 from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.truth_poses import read_truth
 from vibrissa.msgs import RobotPose, WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.nodes.wrench_source import MAX_POSES, WrenchSourceParams, run_scene, scene_stream
@@ -154,3 +155,34 @@ def test_the_pose_bound_counts_every_leg(scene_file: Path) -> None:
     for kwargs in ({"passes": 2}, {"loop": True}):
         with pytest.raises(ValueError, match=r"poses over the path's 1.99 s x 2 leg\(s\)"):
             params(scene_file, pose_rate_hz=rate, **kwargs)
+
+
+def test_a_drifting_odometry_publishes_odom_poses_and_writes_their_truth(
+        scene_file: Path, tmp_path: Path) -> None:
+    """With odom_drift_per_m the poses are odom -> base_link, drifting on through a loop's
+    cycles; truth_poses.csv holds each published pose's truth (the path's pose at its stamp)
+    and the published one; the wrenches are those without drift, bit for bit."""
+    truth_file = tmp_path / "truth_poses.csv"
+    runs = {}
+    for drift in (0.0, 0.05):
+        node = FakeNode()
+        node.publishers["wrench"] = StoppingPublisher("wrench", node, 6 * N)  # three cycles
+        run_scene(node, params(scene_file, loop=True, odom_drift_per_m=drift, map_frame="odom",
+                               seed=4, truth_file=str(truth_file) if drift else ""))  # type: ignore[arg-type]
+        runs[drift] = node.publishers
+    assert [encode(w) for w in runs[0.0]["wrench"].sent[:-1]] == \
+        [encode(w) for w in runs[0.05]["wrench"].sent[:-1]]
+    poses = [p for p in runs[0.05]["/robot/pose"].sent if p != "EOS"]
+    assert {p.frame_id for p in poses} == {"odom"}
+    truth = read_truth(truth_file)
+    assert len(truth.stamp_s) == len(poses)
+    np.testing.assert_array_equal(truth.stamp_s, [p.stamp for p in poses])
+    np.testing.assert_array_equal(truth.p_odom_m, [p.position for p in poses])
+    exact = [p for p in runs[0.0]["/robot/pose"].sent if p != "EOS"]
+    np.testing.assert_array_equal(truth.p_map_m, [p.position[:] for p in exact[:len(poses)]])
+    off = np.linalg.norm(truth.p_odom_m - truth.p_map_m, axis=1)
+    assert off[0] == 0 and off[-1] > 1e-4  # starts at the truth, then drifts
+    # the drift runs on through the cycles: the third cycle's poses are not the first's
+    cycle = len(poses) // 3
+    assert not np.allclose(truth.p_odom_m[1:cycle] - truth.p_map_m[1:cycle],
+                           truth.p_odom_m[2 * cycle + 1:3 * cycle] - truth.p_map_m[2 * cycle + 1:3 * cycle])

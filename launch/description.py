@@ -35,7 +35,8 @@ configurations), its default. Its nodes, transport and arguments join the launch
 in place; ``NAME:=VALUE`` on the command line may name an argument of any file of the launch.
 
 Substitutions inside strings: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME default)``,
-``$(equals A B)`` and ``$(not-equals A B)`` (``true`` or ``false``), ``$(dirname)`` (the launch
+``$(equals A B)`` and ``$(not-equals A B)`` (``true`` or ``false``), ``$(if C A B)`` (A when C
+is ``true``, B when ``false``; A and B one word each), ``$(dirname)`` (the launch
 file's directory), ``$(python)`` (the interpreter running the launch, for ``cmd`` nodes
 written in Python) and ``$(launch_time)`` (when the launch file was read, s since the Unix
 epoch, one value for the whole file: the default ``epoch`` of a simulated source); they nest,
@@ -381,6 +382,10 @@ class _Parser:
             )
         if kind in ("equals", "not-equals") and len(rest) == 2:
             return "true" if (rest[0] == rest[1]) == (kind == "equals") else "false"
+        if kind == "if" and len(rest) == 3:
+            if rest[0] not in ("true", "false"):
+                raise self.error(path, f"$(if C A B) needs C true or false, got {_show(rest[0])}")
+            return rest[1] if rest[0] == "true" else rest[2]
         if kind == "dirname" and not rest:
             return self.dirname
         if kind == "python" and not rest:
@@ -390,8 +395,8 @@ class _Parser:
         raise self.error(
             path,
             f"bad substitution {_show('$(' + body + ')')}; expected $(var NAME), $(env NAME), "
-            "$(env NAME default), $(equals A B), $(not-equals A B), $(dirname), $(python) or "
-            "$(launch_time)",
+            "$(env NAME default), $(equals A B), $(not-equals A B), $(if C A B), $(dirname), "
+            "$(python) or $(launch_time)",
         )
 
     def retyped(self, value: Any, path: str) -> Any:

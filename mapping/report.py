@@ -4,6 +4,7 @@ for the whole map (`MapReport`), with the dict of ``report.json`` (``as_dict``) 
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
@@ -203,6 +204,34 @@ class Exploration:
 
 
 @dataclass(frozen=True)
+class Localization:
+    """The localizer's correction (`vibrissa.mapping.localize`) as the map saw it: how many
+    ``map -> odom`` estimates came, the last one (a translation x, y, m) and the stamp it is
+    given for (s: the last estimate's, or with the truth known the run's end, where the last
+    estimate still holds); with the truth (``true_map_to_odom``: x, y in m and yaw in rad at
+    that stamp), the estimate's error and the true drift there, m (the translations' distance
+    and length: the end pose's position error with and without the correction)."""
+
+    corrections: int
+    stamp: float | None = None
+    map_to_odom_m: tuple[float, float] | None = None
+    true_map_to_odom: tuple[float, float, float] | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """``report.json``'s ``localization``."""
+        est, true = self.map_to_odom_m, self.true_map_to_odom
+        error = drift = None
+        if true is not None:
+            drift = math.hypot(true[0], true[1])
+            if est is not None:
+                error = math.hypot(est[0] - true[0], est[1] - true[1])
+        return {"corrections": self.corrections, "stamp": self.stamp,
+                "map_to_odom_m": None if est is None else list(est),
+                "true_map_to_odom": None if true is None else list(true),
+                "error_m": error, "true_drift_m": drift}
+
+
+@dataclass(frozen=True)
 class MapReport:
     """The whole map: its frames, the truth it was measured against, and what was lost or
     dropped on the way (``dropped_points`` by reason, `vibrissa.mapping.Accumulator`), and the
@@ -218,7 +247,8 @@ class MapReport:
     (`vibrissa.mapping.LiveMap.fits`: objects fitted in ``full``, ``conditioned`` on new points
     or ``kept``; frames ``clustered``, ``joined`` or ``unchanged``). ``exploration``: the
     coverage of an exploration along its path (`Exploration`), or None (``null``) when the run
-    is not one.
+    is not one; ``localization`` the correction of a drifting odometry (`Localization`), or
+    None when the map took none.
     """
 
     n_points: int
@@ -240,6 +270,7 @@ class MapReport:
     updates: int = 1
     update_fits: dict[str, int] = field(default_factory=dict)
     exploration: Exploration | None = None
+    localization: Localization | None = None
 
     @property
     def upstream_lost(self) -> int:
@@ -276,6 +307,7 @@ class MapReport:
             "updates": self.updates,
             "update_fits": dict(sorted(self.update_fits.items())),
             "exploration": None if self.exploration is None else self.exploration.as_dict(),
+            "localization": None if self.localization is None else self.localization.as_dict(),
         }
 
     def text(self) -> str:
@@ -311,6 +343,15 @@ def _format_report(report: dict[str, Any]) -> str:
              f"true surface: {truth}",
              f"max reconstruction error (cloud -> true surface): "
              f"{_mm(report['max_reconstruction_error_m'])}"]
+    localization = report.get("localization")
+    if localization is not None and localization["map_to_odom_m"] is not None:
+        x, y = localization["map_to_odom_m"]
+        line = (f"localization: {localization['corrections']} correction(s), map -> odom at the "
+                f"end ({_mm(x)}, {_mm(y)})")
+        if localization["error_m"] is not None:
+            line += (f", {_mm(localization['error_m'])} from the true one (the odometry "
+                     f"drifted {_mm(localization['true_drift_m'])})")
+        lines.append(line)
     exploration = report.get("exploration")
     if exploration is not None:
         final = exploration["coverage_final"]

@@ -127,9 +127,11 @@ import numpy as np
 from vibrissa.exploration import Explore
 from vibrissa.figures.map_figure import map_layers, plot_map
 from vibrissa.figures.map_page import write_page
+from vibrissa.formats.errors import SceneError
 from vibrissa.formats.files import whole_file
 from vibrissa.formats.ply import write_ply
 from vibrissa.formats.scene_file import load_explore, load_scene
+from vibrissa.formats.truth_poses import read_truth
 from vibrissa.frames import ROBOT_FRAME
 from vibrissa.mapping import (
     Accumulator,
@@ -140,11 +142,13 @@ from vibrissa.mapping import (
     FrameResult,
     InputStream,
     LiveMap,
+    Localization,
     MapReport,
     MapSettings,
     TrueObject,
     UpstreamNode,
     fit_frame,
+    true_map_to_odom,
 )
 from vibrissa.mapping.accumulate import MAX_FRAMES, MAX_POINTS
 from vibrissa.mapping.coverage import COVERAGE_TOL_M, coverage_samples
@@ -175,7 +179,7 @@ EXIT_EMPTY_MAP = 3
 """Exit status of a mapper whose streams ended without a single contact point."""
 
 SCENE_FRAME = "world"
-"""The frame of a scene file's objects, path and mounts (W)."""
+"""The frame of a scene file's objects, path and mounts (W), by default (``scene_frame``)."""
 
 
 @dataclass(frozen=True)
@@ -249,6 +253,16 @@ class MapperParams:
         ``explore_planner``); empty: none (the path length stays 0).
     coverage_tol_m
         A true surface's sample is covered when a known mesh vertex lies within this, m.
+    scene_frame
+        The frame of ``scene``'s objects: the frame they are the truth of, whose files carry
+        no suffix (``map`` for a robot whose contacts a localizer places there).
+    correction_topic
+        RobotPose topic of the localizer's ``map -> odom`` (`vibrissa.nodes.localizer`): the
+        report's ``localization`` gives the last one; empty: none (``localization`` null).
+    truth_poses
+        The wrench source's ``truth_file`` (`vibrissa.formats.truth_poses`), read when the
+        final report is written: the true ``map -> odom`` at the end, against the estimate;
+        for evaluation only. Empty: none.
     rod
         L as ``vibrissa.units.RodScale`` (derived, not a parameter).
     world
@@ -293,6 +307,9 @@ class MapperParams:
     explore_planner: str = ""
     pose_topic: str = ""
     coverage_tol_m: float = COVERAGE_TOL_M
+    scene_frame: str = SCENE_FRAME
+    correction_topic: str = ""
+    truth_poses: str = ""
     rod: RodScale = field(init=False, repr=False, compare=False)
     world: Scene | None = field(init=False, repr=False, compare=False)
     explore: Explore | None = field(init=False, repr=False, compare=False)
@@ -344,6 +361,10 @@ class MapperParams:
                     "empty without explore_planner (the path length is the exploration's)")
             require(self.pose_topic not in self.topics, "pose_topic", self.pose_topic,
                     "a topic other than the contact topics")
+        if self.correction_topic:
+            require_parsed("correction_topic", self.correction_topic, validate_name)
+            require(self.correction_topic not in self.topics, "correction_topic",
+                    self.correction_topic, "a topic other than the contact topics")
         require_positive("coverage_tol_m", self.coverage_tol_m)
         try:  # the map's settings check their own ranges
             settings = MapSettings(
@@ -372,7 +393,7 @@ class MapperParams:
             if self.true_surface:
                 truth = (TrueObject(self.true_surface, parse_surface(self.true_surface),
                                     self.rod_length_m),)
-            elif self.world is not None and frame_id == SCENE_FRAME:
+            elif self.world is not None and frame_id == self.scene_frame:
                 truth = tuple(TrueObject(obj.name, obj.surface(1.0)) for obj in self.world.objects)
             self._truths[frame_id] = truth
         return self._truths[frame_id]
@@ -401,9 +422,10 @@ def _file_part(text: str) -> str:
     return f"{safe[:40]}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
 
 
-def _suffix(frame_id: str) -> str:
-    """File name suffix of a frame: ``""`` for ``world``, else ``_`` and its file name part."""
-    return "" if frame_id == "world" else f"_{_file_part(frame_id)}"
+def _suffix(frame_id: str, scene_frame: str = SCENE_FRAME) -> str:
+    """File name suffix of a frame: ``""`` for the scene's frame, else ``_`` and its file name
+    part."""
+    return "" if frame_id == scene_frame else f"_{_file_part(frame_id)}"
 
 
 def receive(acc: Accumulator, msg: ContactPointArray | EndOfStream) -> None:
@@ -489,7 +511,7 @@ def write_frame_files(frame: FrameMap, params: MapperParams, out_dir: Path,
     (`vibrissa.formats.files.whole_file`); its result with the files and each object's mesh
     file. A frame or object without a surface is logged in the ``final`` map only."""
     frame_id, result = frame.result.frame_id, frame.result
-    sfx = _suffix(frame_id)
+    sfx = _suffix(frame_id, params.scene_frame)
     files = {"cloud": out_dir / f"cloud{sfx}.ply"}
     with whole_file(files["cloud"]) as partial:
         write_ply(str(partial), frame.points, normals=frame.normals)
@@ -524,7 +546,7 @@ def write_pictures(frame: FrameMap, params: MapperParams, out_dir: Path, status:
                    exploration: Exploration | None = None) -> dict[str, Path]:
     """A mapped frame's map.png and map.html with the line ``status`` (`write_frame_files`)."""
     frame_id = frame.result.frame_id
-    world = frame_id == SCENE_FRAME
+    world = frame_id == params.scene_frame
     scene = params.world if world else None
     if scene is not None and exploration is not None and exploration.base_path is not None \
             and len(exploration.base_path[0]) >= 2:  # the path driven, not the scene file's
@@ -533,8 +555,8 @@ def write_pictures(frame: FrameMap, params: MapperParams, out_dir: Path, status:
                                                positions, quaternions))
     layers = map_layers(frame, scene, status,
                         exploration.coverage if world and exploration is not None else None)
-    files = {"png": out_dir / f"map{_suffix(frame_id)}.png",
-             "html": out_dir / f"map{_suffix(frame_id)}.html"}
+    files = {"png": out_dir / f"map{_suffix(frame_id, params.scene_frame)}.png",
+             "html": out_dir / f"map{_suffix(frame_id, params.scene_frame)}.html"}
     with whole_file(files["png"]) as partial:
         plot_map(partial, layers)
     with whole_file(files["html"]) as partial:
@@ -586,6 +608,7 @@ def write_outputs(acc: Accumulator | AccumulatorCounts, params: MapperParams, ou
                   ended_by: str | None = "streams", updates: int = 1,
                   update_fits: dict[str, int] | None = None,
                   exploration: Exploration | None = None,
+                  localization: Localization | None = None,
                   ) -> tuple[MapReport, list[MapMessages]]:
     """Write the map of ``acc``: its frames' files (`write_frame_files`) and the reports, each
     file whole; returns (report, messages).
@@ -597,8 +620,9 @@ def write_outputs(acc: Accumulator | AccumulatorCounts, params: MapperParams, ou
     streams that ended (what each said was sent, what arrived, what was lost), ``lost`` the
     input messages lost in all and ``upstream`` what the nodes before the map moved
     (`vibrissa.runtime.traffic`), for the report; ``final``, ``ended_by`` and ``updates`` go
-    into it as they are, and ``update_fits`` and ``exploration`` (`vibrissa.mapping.MapReport`;
-    the exploration's coverage is plotted in frame ``world``'s map.png).
+    into it as they are, and ``update_fits``, ``exploration`` and ``localization``
+    (`vibrissa.mapping.MapReport`; the exploration's coverage is plotted in the scene frame's
+    map.png).
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     if frames is None:
@@ -624,7 +648,7 @@ def write_outputs(acc: Accumulator | AccumulatorCounts, params: MapperParams, ou
                        for u in upstream),
         files={"report_json": str(report_json), "report_txt": str(report_txt)},
         final=final, ended_by=ended_by, updates=updates, update_fits=dict(update_fits or {}),
-        exploration=exploration)
+        exploration=exploration, localization=localization)
     with whole_file(report_json) as partial:
         partial.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
     with whole_file(report_txt) as partial:
@@ -671,6 +695,10 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
     track = exploration_log(params)
     poses = {params.pose_topic: RobotPose} if params.pose_topic else {}
     pose_topic = node.resolve(params.pose_topic) if params.pose_topic else None
+    corrections = Corrections(params) if params.correction_topic else None
+    if corrections is not None:
+        poses[params.correction_topic] = RobotPose
+    correction_topic = node.resolve(params.correction_topic) if corrections is not None else None
     subscriber = node.create_subscriber(
         {**{t: ContactPointArray for t in params.topics}, **poses, STATUS_TOPIC: NodeStatus},
         hwm=200_000)
@@ -719,13 +747,14 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
             acc, params, Path(params.out_dir), list(subscriber.ended_streams),
             subscriber.totals()["lost"], traffic.upstream_of(node.fqn), frames, written=written,
             final=final, ended_by=ended_by, updates=updates, update_fits=live.fits,
-            exploration=track.result() if track is not None else None)
+            exploration=track.result() if track is not None else None,
+            localization=corrections.result(final) if corrections is not None else None)
         on_disk = remove_stale_files(on_disk, report)
         return report, messages
 
     def record_coverage(frames: Sequence[FrameMap]) -> None:
         if track is not None:  # the coverage of frame world's known mesh (none: no vertex)
-            world = [f.vertices for f in frames if f.result.frame_id == SCENE_FRAME]
+            world = [f.vertices for f in frames if f.result.frame_id == params.scene_frame]
             track.record(world[0] if world else np.zeros((0, 3)))
 
     node.counters["bad_covariance"] = 0
@@ -754,7 +783,8 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
                 traffic.upstream_of(node.fqn), of)
         job = partial(write_outputs, *args, written=None, final=False, ended_by=None,
                       updates=updates, update_fits=dict(live.fits),
-                      exploration=track.result() if track is not None else None)  # as of now
+                      exploration=track.result() if track is not None else None,  # as of now
+                      localization=corrections.result(False) if corrections is not None else None)
         pending = (files.submit(lambda: job()[0]), of)
 
     def collect(wait: bool) -> None:
@@ -791,6 +821,9 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
             took = rx is not None and not isinstance(rx.msg, NodeStatus)
             if rx is not None and isinstance(rx.msg, NodeStatus):
                 traffic.add(rx.msg)  # not input: the timeout of silence runs on
+            elif rx is not None and rx.topic == correction_topic:
+                if corrections is not None and isinstance(rx.msg, RobotPose):
+                    corrections.take(rx.msg)
             elif rx is not None and rx.topic == pose_topic:
                 if track is not None and isinstance(rx.msg, RobotPose) and take_pose(
                         node, track, rx.msg) > 0:
@@ -926,13 +959,47 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
     return report
 
 
+class Corrections:
+    """The localizer's ``map -> odom`` estimates as they come, for the report's
+    ``localization`` (against the truth of ``truth_poses`` in the final report)."""
+
+    def __init__(self, params: MapperParams) -> None:
+        self.params = params
+        self.count = 0
+        self.last: RobotPose | None = None
+
+    def take(self, msg: RobotPose) -> None:
+        if msg.frame_id == self.params.scene_frame:
+            self.count += 1
+            self.last = msg
+
+    def result(self, final: bool) -> Localization | None:
+        """The report's ``localization``: None before the first estimate."""
+        last = self.last
+        if last is None:
+            return None
+        truth, stamp = None, last.stamp
+        if final and self.params.truth_poses and Path(self.params.truth_poses).is_file():
+            try:
+                poses = read_truth(Path(self.params.truth_poses))
+            except SceneError as exc:
+                log.warning("the truth of the poses is not read: %s", exc)
+            else:
+                if len(poses.stamp_s):  # the run's end: the estimate holds until the next
+                    stamp = max(stamp, float(poses.stamp_s[-1]))
+                truth = true_map_to_odom(poses.stamp_s, poses.p_map_m, poses.q_map,
+                                         poses.p_odom_m, poses.q_odom, stamp)
+        return Localization(self.count, stamp,
+                            (float(last.position[0]), float(last.position[1])), truth)
+
+
 def exploration_log(params: MapperParams) -> ExplorationLog | None:
     """The exploration's log with the samples of its true surfaces (`coverage_samples`: within
     the longest whisker's length of the workspace box), or None without ``explore_planner``."""
     if params.explore is None or params.world is None:
         return None
     explore = params.explore
-    samples = coverage_samples(params.truth(SCENE_FRAME), explore.workspace_min_m,
+    samples = coverage_samples(params.truth(params.scene_frame), explore.workspace_min_m,
                                explore.workspace_max_m,
                                max(w.length_m for w in params.world.whiskers))
     log.info("coverage: %d samples of the true surfaces within reach of the workspace",

@@ -360,6 +360,22 @@ def test_conditions_leave_nodes_out_and_substitutions_nest(tmp_path: Path) -> No
     assert [n.cmd for n in again.nodes] == [("rec",), ("sim", "$(dirname)")]
 
 
+def test_if_chooses_a_value_by_a_condition(tmp_path: Path) -> None:
+    path = write(tmp_path, """\
+    launch:
+      - arg: {name: drift, default: "0"}
+      - node: {cmd: [src, "$(if $(equals $(var drift) 0) world odom)"], name: source}
+    """)
+    assert load_launch_file(path).nodes[0].cmd == ("src", "world")
+    assert load_launch_file(path, {"drift": "0.02"}).nodes[0].cmd == ("src", "odom")
+    bad = write(tmp_path, """\
+    launch:
+      - node: {cmd: [src, "$(if maybe a b)"], name: source}
+    """)
+    with pytest.raises(LaunchFileError, match=r"\$\(if C A B\) needs C true or false, got 'maybe'"):
+        load_launch_file(bad)
+
+
 @pytest.mark.parametrize(
     ("node", "expected"),
     [

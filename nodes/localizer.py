@@ -115,7 +115,8 @@ def run(node: Node, params: LocalizerParams) -> None:
                                          params.pose_topic: RobotPose})
     contacts = node.create_publisher(params.output_topic, ContactPointArray,
                                      wait_for=params.wait_for)
-    corrections = node.create_publisher(params.correction_topic, RobotPose)
+    corrections = node.create_publisher(params.correction_topic, RobotPose,
+                                        wait_for=params.wait_for)
     input_topic, pose_topic = node.resolve(params.input_topic), node.resolve(params.pose_topic)
     counters = node.counters
     counters.update(registered=0, unregistered=0, placed=0, wrong_frame=0, late_pose=0,

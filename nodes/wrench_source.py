@@ -70,7 +70,7 @@ from vibrissa.formats.truth_poses import truth_writer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import EndOfStream, PathSegment, RobotPose, SnapEvent, WhiskerWrenchArray
 from vibrissa.msgs.codec import decodes_as
-from vibrissa.odometry import OdometryDrift
+from vibrissa.odometry import OdometryDrift, drift_rng
 from vibrissa.paths import CommandedPath, PathLimits
 from vibrissa.runtime import Node, NodeArgs, configure_logging, load_params, run_main
 from vibrissa.runtime.params import (
@@ -221,8 +221,9 @@ class WrenchSourceParams:
         Node names (relative names resolve in the namespace) whose subscription to the output
         must be up before anything goes out; until then samples are buffered, never dropped.
     pose_wait_for
-        Mode ``scene``: nodes that must subscribe to ``pose_topic`` too (besides ``wait_for``)
-        before a pose goes out: a node that takes the poses and not the wrenches.
+        Modes ``scene`` and ``replay``: nodes that must subscribe to the pose topic too
+        (besides ``wait_for``) before a pose goes out: a node that takes the poses and not
+        the wrenches.
     wait_timeout_s
         Give up waiting for ``wait_for`` after this long, s (exit status 1).
     rod_length_m
@@ -334,8 +335,7 @@ class WrenchSourceParams:
     def odometry(self) -> OdometryDrift:
         """The robot's odometry (``odom_drift_per_m``), its draws from ``seed`` apart from the
         noise's."""
-        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(1,)))
-        return OdometryDrift(self.odom_drift_per_m, rng)
+        return OdometryDrift(self.odom_drift_per_m, drift_rng(self.seed))
 
     @property
     def pose_waits(self) -> tuple[str, ...]:
@@ -876,32 +876,35 @@ def _run_commanded(node: Node, params: WrenchSourceParams, truth: TruthLog) -> i
     return count
 
 
-def replay_topics(bag: str) -> dict[str, bool]:
-    """Topics of ``bag`` whose payloads decode as ``REPLAY_TYPES`` -> whether it holds an
-    EndOfStream on them."""
+def replay_topics(bag: str) -> dict[str, set[str]]:
+    """Topics of ``bag`` whose payloads decode as ``REPLAY_TYPES`` -> their type names (with
+    ``EndOfStream``'s when the bag ends the stream there)."""
     info = BagReader(bag).info()
     types: dict[str, set[str]] = {}
     for t in info.topics:
         types.setdefault(t.topic, set()).add(t.type_name)
-    return {topic: EndOfStream.TYPE_NAME in names for topic, names in types.items()
+    return {topic: names for topic, names in types.items()
             if any(decodes_as(name) in REPLAY_TYPES for name in names)}
 
 
 def run_replay(node: Node, params: WrenchSourceParams) -> int:
-    """Play the bag's wrench topics, held until ``wait_for`` nodes are ready
-    (``vibrissa.runtime.playback.play_bag_gated``); messages sent, -1 on failure."""
+    """Play the bag's wrench topics, held until ``wait_for`` nodes are ready (the pose topics
+    until ``pose_wait_for`` nodes too: ``vibrissa.runtime.playback.play_bag_gated``); messages
+    sent, -1 on failure."""
     topics = replay_topics(params.bag)
     if not topics:
         log.error("%s: %s has no %s topic", node.fqn, params.bag, " or ".join(t.TYPE_NAME for t in REPLAY_TYPES))
         return -1
     node.set_state("running", f"replaying {params.bag}")
+    poses = {topic: params.pose_wait_for for topic, names in topics.items()
+             if any(decodes_as(name) is RobotPose for name in names)}
     result, publishers = play_bag_gated(
         node, params.bag, params.wait_for, params.wait_timeout_s, rate=params.replay_rate or None,
-        topics=list(topics))
+        topics=list(topics), topic_wait_for=poses)
     if result.interrupted and not node.stop_requested:
         return -1
-    for topic, has_eos in topics.items():
-        if not has_eos:  # e.g. a bag cut off before its end: end the stream ourselves
+    for topic, names in topics.items():
+        if EndOfStream.TYPE_NAME not in names:  # e.g. a bag cut off: end the stream ourselves
             publishers[topic].publish_end_of_stream(node.fqn)
     log.info("%s: replayed %d message(s) from %s in %.3f s", node.fqn, result.total,
              params.bag, result.wall_s)

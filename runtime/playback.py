@@ -7,7 +7,7 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 from vibrissa.runtime.node import Node
 from vibrissa.wire.bag import PlayResult, play_bag
@@ -26,11 +26,13 @@ def play_bag_gated(
     topics: Iterable[str] | None = None,
     wait_s: float = 0.5,
     stop: threading.Event | None = None,
+    topic_wait_for: Mapping[str, Sequence[str]] | None = None,
 ) -> tuple[PlayResult, dict[str, Publisher]]:
     """Play ``path`` (``vibrissa.wire.bag.play_bag``) on publishers of ``node``.
 
     With ``wait_for`` node names, each topic's publisher starts held (its messages buffer, in
-    order) and playback begins once every named node reports the topic, or is abandoned
+    order) and playback begins once every named node reports the topic (and, for a topic of
+    ``topic_wait_for``, its nodes too: one that takes that topic alone), or is abandoned
     (``PlayResult.interrupted``) after ``timeout_s``; without, it begins after ``wait_s``.
     Played as fast as possible (``rate=None``) to named nodes, it keeps pace with them
     (`Intake`).
@@ -39,12 +41,18 @@ def play_bag_gated(
     """
     publishers: dict[str, Publisher] = {}
 
+    extra = topic_wait_for or {}
+
+    def waits(topic: str) -> list[str]:
+        return list(dict.fromkeys([*wait_for, *extra.get(topic, ())]))
+
     def make(topic: str, msg_type: MessageTypes, hwm: int) -> Publisher:
-        publishers[topic] = node.create_publisher(topic, msg_type, wait_for=wait_for, hwm=hwm)
+        publishers[topic] = node.create_publisher(topic, msg_type, wait_for=waits(topic),
+                                                  hwm=hwm)
         return publishers[topic]
 
     def ready(made: dict[str, Publisher]) -> bool:
-        return all(node.wait_for_subscribers(topic, wait_for, timeout_s) for topic in made)
+        return all(node.wait_for_subscribers(topic, waits(topic), timeout_s) for topic in made)
 
     stop = stop if stop is not None else node.stop_event
     intake = Intake(node, wait_for, timeout_s, stop) if wait_for and rate is None else None

@@ -25,7 +25,7 @@ README = ROOT / "README.md"
 PAGES = [README, *sorted(DOCS.glob("*.md"))]
 LAUNCH_FILES = sorted((ROOT / "launch").glob("*.yaml"))
 NODES = ("wrench_source", "reconstructor", "mapper", "recorder", "netft", "netft_sim",
-         "foxglove_bridge")
+         "foxglove_bridge", "localizer")
 
 _LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 _ALLOWED = re.compile(r"allowed: ([^)]*)\)")

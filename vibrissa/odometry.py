@@ -23,6 +23,12 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 
 
+def drift_rng(seed: int) -> np.random.Generator:
+    """The draws of the drift of a run seeded ``seed``: apart from the wrench noise's, which
+    ``numpy.random.default_rng(seed)`` draws."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
+
+
 class OdometryDrift:
     """The odometry of a robot along its true path, drifting (see the module).
 

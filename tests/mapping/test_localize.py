@@ -6,87 +6,19 @@ closer to the true surfaces; the same inputs give the same bits."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from vibrissa.formats.scene_file import load_scene
-from vibrissa.mapping.localize import Localizer, LocalizeSettings, true_map_to_odom
-from vibrissa.odometry import OdometryDrift
-from vibrissa.scene import SamplePhase, Scene, back_and_forth, reconstruct_along, robot_path, simulate
-from vibrissa.status import ContactStatus
-
-LAUNCH = Path(__file__).parents[2] / "launch"
-LEGS = 4
+from benchmarks.bench_localize import LEGS, Demo, contacts, localize, surface_error
+from benchmarks.bench_localize import demo as robot_demo
+from vibrissa.mapping.localize import LocalizeSettings, true_map_to_odom
 
 
 @pytest.fixture(scope="module")
-def demo() -> tuple[Scene, list[Any]]:
-    scene = load_scene(LAUNCH / "robot" / "scene.yaml")
-    scene = replace(scene, path=back_and_forth(scene.path, LEGS))
-    return scene, simulate(scene, workers=1)
-
-
-def contacts(demo: tuple[Scene, list[Any]], drift: float, seed: int) -> dict[str, Any]:
-    """The demo's contacts placed with the odometry's poses (the odom frame), the true ones,
-    their forces and whiskers, the odometry's poses and its true error map -> odom."""
-    scene, results = demo
-    path = scene.path
-    p_o, q_o, error = OdometryDrift(drift, np.random.default_rng(seed)).odom(
-        path.p_WR, path.R_WR.as_quat())
-    n = len(results)
-    t = np.repeat(path.t, n)
-    names = np.array([r.name for r in results] * len(path.t))
-    f0 = np.stack([r.f0_n for r in results], axis=1).reshape(-1, 3)
-    m0 = np.stack([r.m0_nm for r in results], axis=1).reshape(-1, 3)
-    ok = np.stack([r.phase != SamplePhase.UNRESOLVED for r in results], axis=1).reshape(-1)
-    odom = reconstruct_along(replace(scene, path=robot_path(path.t, p_o, q_o)), t[ok],
-                             list(names[ok]), f0[ok], m0[ok])
-    true = reconstruct_along(scene, t[ok], list(names[ok]), f0[ok], m0[ok])
-    keep = odom.pose_ok & np.isin(odom.status, [ContactStatus.OK, ContactStatus.AXIAL_LOAD])
-    return {"t": t[ok][keep], "names": names[ok][keep], "odom": odom.point_m[keep],
-            "force": odom.force_n[keep], "true": true.point_m[keep], "pose_t": path.t,
-            "pose_odom": p_o, "pose_q_odom": q_o, "pose_true": path.p_WR,
-            "pose_q_true": path.R_WR.as_quat(), "error": error}
-
-
-def localize(c: dict[str, Any], settings: LocalizeSettings, poses_first: bool = False
-             ) -> tuple[Localizer, np.ndarray, list[int]]:
-    """Feed the contacts tick by tick (each tick's poses before it, or every pose first), as
-    the node does; the placed points in input order and when each batch came out (ticks fed)."""
-    loc = Localizer(settings)
-    placed = np.full_like(c["odom"], np.nan)
-    out_at: list[int] = []
-    t = c["t"]
-    ticks = np.split(np.arange(len(t)), np.flatnonzero(np.diff(t) > 0) + 1)
-    k = 0
-    if poses_first:
-        for stamp, p in zip(c["pose_t"], c["pose_odom"], strict=True):
-            loc.add_pose(stamp, p)
-    for fed, rows in enumerate(ticks, 1):
-        while not poses_first and k < len(c["pose_t"]) and c["pose_t"][k] <= t[rows[0]]:
-            loc.add_pose(c["pose_t"][k], c["pose_odom"][k])
-            k += 1
-        loc.add(t[rows[0]], c["odom"][rows], c["force"][rows], list(c["names"][rows]), None,
-                tuple(rows))
-        for batch in loc.take():
-            placed[list(batch.token)] = batch.points_m
-            out_at.append(fed)
-    loc.finish()
-    for batch in loc.take():
-        placed[list(batch.token)] = batch.points_m
-        out_at.append(len(ticks))
-    return loc, placed, out_at
-
-
-def surface_error(demo: tuple[Scene, list[Any]], points: np.ndarray) -> float:
-    """Mean distance of ``points`` to the nearest true object, m."""
-    scene, _ = demo
-    return float(np.mean(np.min([np.abs(obj.surface(1.0).signed_distance(points))
-                                 for obj in scene.objects], axis=0)))
+def demo() -> Demo:
+    return robot_demo()
 
 
 def test_without_a_drift_model_the_contacts_pass_unchanged_at_once(demo: Any) -> None:

@@ -100,7 +100,7 @@ from vibrissa.ticks import Tick, array_ticks, sequential_ticks
 from vibrissa.units import RodScale
 from vibrissa.wire.bag import BagReader, check_bag_file
 from vibrissa.wire.topics import validate_name
-from vibrissa.wire.transport import DEFAULT_HWM
+from vibrissa.wire.transport import DEFAULT_HWM, Publisher
 
 log = logging.getLogger(__name__)
 
@@ -597,6 +597,16 @@ class TruthLog:
             self._add(*self._rows.popleft())
 
 
+def _send(msg: WhiskerWrenchArray | RobotPose | SnapEvent, wrenches: Publisher,
+          poses: Publisher, events: Publisher, truth: TruthLog) -> None:
+    """A message of mode ``scene`` on its topic (a pose's truth into the truth log)."""
+    if isinstance(msg, RobotPose):
+        poses.publish(msg)
+        truth.published()
+    else:
+        (events if isinstance(msg, SnapEvent) else wrenches).publish(msg)
+
+
 @contextlib.contextmanager
 def _truth(params: WrenchSourceParams) -> Iterator[TruthLog]:
     """The poses' truth log: into ``truth_file`` (written whole at the end), or nowhere."""
@@ -668,11 +678,7 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
                 delay = start + (stream_t - t[0]) * wall_per_s - time.monotonic()
                 if delay > 0 and not node.sleep(delay):
                     break
-            if isinstance(msg, RobotPose):
-                poses.publish(msg)
-                truth.published()
-            else:
-                (events if isinstance(msg, SnapEvent) else wrenches).publish(msg)
+            _send(msg, wrenches, poses, events, truth)
             count += 1
     for publisher in (wrenches, poses, events):
         publisher.publish_end_of_stream(node.fqn)
@@ -827,11 +833,7 @@ def _run_commanded(node: Node, params: WrenchSourceParams, truth: TruthLog) -> i
                     - time.monotonic()
                 if delay > 0 and not node.sleep(delay):
                     return False
-            if isinstance(msg, RobotPose):
-                poses.publish(msg)
-                truth.published()
-            else:
-                (events if isinstance(msg, SnapEvent) else wrenches).publish(msg)
+            _send(msg, wrenches, poses, events, truth)
             count += 1
         return True
 

@@ -2,7 +2,8 @@
 odom`` (REP 105) estimated from the contacts, and the contacts placed in ``map`` with it.
 
 The contacts come in *visits*: runs of contacts with less than ``visit_gap_m`` of travel
-between them and at most ``max_visit_m`` long (the whiskers sweeping past an object once).
+between them and at most ``max_visit_m`` long (the whiskers sweeping past an object once), or
+``max_visit_s`` of stamps (a robot that stands still while it touches).
 Over a visit the odometry's error is taken as constant, so a visit is a rigid patch of surface
 in ``odom``, and ``map -> odom`` is one translation in the floor's plane per visit (REP 103: z
 up). A heading error shows where the robot is as the translation it causes there (the lever
@@ -78,8 +79,8 @@ class LocalizeSettings:
         (their drift is the same), m.
     visit_gap_m
         Travel without contact that ends a visit, m.
-    max_visit_m
-        Longest visit, m of travel.
+    max_visit_m, max_visit_s
+        Longest visit, m of travel and s of stamps: its contacts wait for it to end.
     max_points
         Contacts of a visit used for its surface factors at most (evenly along the visit).
     """
@@ -92,6 +93,7 @@ class LocalizeSettings:
     min_separation_m: float = 0.03
     visit_gap_m: float = 0.01
     max_visit_m: float = 0.05
+    max_visit_s: float = 2.0
     max_points: int = 150
 
     def __post_init__(self) -> None:
@@ -99,7 +101,8 @@ class LocalizeSettings:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name!r} must be a finite number >= 0, got {value!r}")
-        for name in ("point_std_m", "match_radius_m", "visit_gap_m", "max_visit_m"):
+        for name in ("point_std_m", "match_radius_m", "visit_gap_m", "max_visit_m",
+                     "max_visit_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name!r} must be a finite number > 0, got {value!r}")
@@ -156,6 +159,7 @@ class _Visit:
     start_m: float
     end_m: float
     base_odom: FloatArray  # the base's odom position (2,) at its start
+    start_s: float  # the stamp of its first contacts
     whiten: FloatArray = field(default_factory=lambda: np.eye(2))  # its odometry factor's L^T
     batches: list[_Batch] = field(default_factory=list)
     points: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # used for factors
@@ -276,14 +280,15 @@ class Localizer:
         s, base = self.travel(stamp)
         visit = self._open
         if visit is not None and (s - visit.end_m > self.settings.visit_gap_m
-                                  or s - visit.start_m > self.settings.max_visit_m):
+                                  or s - visit.start_m > self.settings.max_visit_m
+                                  or stamp - visit.start_s > self.settings.max_visit_s):
             self._end_visit()
             visit = None
         if not len(points) and visit is None:  # nothing to hold: out at once
             self._place(batch, self.estimate_m)
             return
         if visit is None:
-            visit = self._open = _Visit(s, s, base)
+            visit = self._open = _Visit(s, s, base, stamp)
         if len(points):
             visit.end_m = s
         visit.batches.append(batch)

@@ -7,8 +7,8 @@ Subscribes
     The reconstructor's contacts in ``odom_frame`` (placed with the odometry's poses); its
     ``EndOfStream`` ends the node's streams once every contact is out.
 ``pose_topic`` (default ``pose``) : RobotPose
-    The odometry: ``odom_frame`` -> ``robot_frame`` (other frames are counted,
-    ``ignored_poses``); a contact waits for the pose at its stamp (the travel there), at most
+    The odometry: ``odom_frame`` -> ``robot_frame`` (other frames, and poses that are not
+    finite, are counted, ``ignored_poses``); a contact waits for the pose at its stamp (the travel there), at most
     ``pose_timeout_s``.
 
 Publishes
@@ -23,8 +23,9 @@ Publishes
     contact it placed; then ``EndOfStream``.
 
 Counters: ``registered`` and ``unregistered`` visits (with and without contacts near earlier
-ones to register against), ``placed`` contacts, ``wrong_frame`` contact messages refused,
-``late_pose`` messages placed without the pose at their stamp.
+ones to register against), ``placed`` contacts, ``refused`` contact messages (not in
+``odom_frame``, or not finite), ``late_pose`` messages placed without the pose at their stamp,
+``ignored_poses`` (other frames, or not finite).
 """
 
 from __future__ import annotations
@@ -119,7 +120,7 @@ def run(node: Node, params: LocalizerParams) -> None:
                                         wait_for=params.wait_for)
     input_topic, pose_topic = node.resolve(params.input_topic), node.resolve(params.pose_topic)
     counters = node.counters
-    counters.update(registered=0, unregistered=0, placed=0, wrong_frame=0, late_pose=0,
+    counters.update(registered=0, unregistered=0, placed=0, refused=0, late_pose=0,
                     ignored_poses=0)
     waiting: deque[tuple[float, ContactPointArray]] = deque()  # (arrived, message)
     newest_pose = -math.inf
@@ -152,7 +153,8 @@ def run(node: Node, params: LocalizerParams) -> None:
                 contacts_ended |= rx.topic == input_topic
                 poses_ended |= rx.topic == pose_topic
             elif isinstance(msg, RobotPose):
-                if msg.frame_id == params.odom_frame and msg.child_frame_id == params.robot_frame:
+                if (msg.frame_id == params.odom_frame and msg.child_frame_id == params.robot_frame
+                        and np.isfinite(msg.position).all() and math.isfinite(msg.stamp)):
                     localizer.add_pose(msg.stamp, np.asarray(msg.position))
                     newest_pose = max(newest_pose, msg.stamp)
                 else:
@@ -162,13 +164,17 @@ def run(node: Node, params: LocalizerParams) -> None:
                                     params.robot_frame, params.odom_frame)
                     counters["ignored_poses"] += 1
             elif isinstance(msg, ContactPointArray):
-                if msg.frame_id == params.odom_frame:
+                why = (f"in {msg.frame_id!r}, not {params.odom_frame!r}"
+                       if msg.frame_id != params.odom_frame else
+                       "" if np.isfinite(msg.point).all() and np.isfinite(msg.force).all()
+                       and math.isfinite(msg.stamp) else "not finite")
+                if not why:
                     waiting.append((time.monotonic(), msg))
                 else:
-                    if not counters["wrong_frame"]:
-                        log.warning("%s: contacts in %r refused: they must be in %r", node.fqn,
-                                    msg.frame_id, params.odom_frame)
-                    counters["wrong_frame"] += 1
+                    if not counters["refused"]:
+                        log.warning("%s: contacts refused: %s (counted in 'refused')", node.fqn,
+                                    why)
+                    counters["refused"] += 1
             rx = subscriber.receive(0.0)
         now = time.monotonic()
         while waiting:  # in order, each once the odometry has passed its stamp

@@ -13,7 +13,7 @@ import pytest
 
 from benchmarks.bench_localize import LEGS, Demo, contacts, localize, surface_error
 from benchmarks.bench_localize import demo as robot_demo
-from vibrissa.mapping.localize import LocalizeSettings, true_map_to_odom
+from vibrissa.mapping.localize import Localizer, LocalizeSettings, true_map_to_odom
 
 
 @pytest.fixture(scope="module")
@@ -94,3 +94,17 @@ def test_the_true_correction_is_the_odometry_error(demo: Any) -> None:
 def test_bad_settings_are_refused_naming_them(key: str, value: float) -> None:
     with pytest.raises(ValueError, match=key):
         LocalizeSettings(**{key: value})  # type: ignore[arg-type]
+
+
+def test_a_robot_standing_still_gets_its_contacts_placed_within_max_visit_s() -> None:
+    """No travel (one pose, contacts for 5 s at 100 Hz): the visits end every max_visit_s of
+    stamps, so the contacts go out as the stream goes on, not at its end."""
+    loc = Localizer(LocalizeSettings(max_visit_s=2.0))
+    loc.add_pose(0.0, np.zeros(3))
+    out = []
+    for k in range(500):
+        loc.add(0.01 * k, [[0.05, 0.0, 0.02]], [[-0.01, 0.0, 0.0]], ["w"], None, k)
+        out += [b.token for b in loc.take()]
+    assert out == list(range(len(out))) and len(out) >= 400  # in order, all but the last visit
+    loc.finish()
+    assert [b.token for b in loc.take()] == list(range(len(out), 500))

@@ -36,12 +36,12 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix
 from scipy.spatial import cKDTree
 
 from vibrissa.mapping.objects import contact_normals
@@ -83,6 +83,9 @@ class LocalizeSettings:
         Longest visit, m of travel and s of stamps: its contacts wait for it to end.
     max_points
         Contacts of a visit used for its surface factors at most (evenly along the visit).
+    window
+        The newest visits estimated together; those before stay where they were estimated
+        last (still surfaces to register against): the cost of an estimate is bounded.
     """
 
     drift_per_m: float = 0.02
@@ -92,9 +95,10 @@ class LocalizeSettings:
     min_neighbours: int = 8
     min_separation_m: float = 0.03
     visit_gap_m: float = 0.01
-    max_visit_m: float = 0.05
+    max_visit_m: float = 0.03
     max_visit_s: float = 2.0
     max_points: int = 150
+    window: int = 12
 
     def __post_init__(self) -> None:
         for name in ("drift_per_m", "min_separation_m"):
@@ -106,7 +110,8 @@ class LocalizeSettings:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name!r} must be a finite number > 0, got {value!r}")
-        for name, least in (("rounds", 1), ("min_neighbours", 6), ("max_points", 1)):
+        for name, least in (("rounds", 1), ("min_neighbours", 6), ("max_points", 1),
+                            ("window", 1)):
             if getattr(self, name) < least:
                 raise ValueError(f"{name!r} must be an integer >= {least}, got "
                                  f"{getattr(self, name)!r}")
@@ -145,13 +150,6 @@ class _Batch:
     covariances: FloatArray | None
 
 
-class _Quadric(NamedTuple):
-    centre: FloatArray
-    axes: FloatArray
-    coef: FloatArray
-    fit_var: float
-
-
 @dataclass
 class _Visit:
     """A visit's contacts in ``odom`` and where along the travel it was."""
@@ -163,12 +161,14 @@ class _Visit:
     whiten: FloatArray = field(default_factory=lambda: np.eye(2))  # its odometry factor's L^T
     batches: list[_Batch] = field(default_factory=list)
     points: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # used for factors
-    tree: cKDTree | None = None
-    quadrics: dict[tuple[int, float], _Quadric | None] = field(default_factory=dict)
+    tree: cKDTree | None = None  # of all its contacts
+    anchors: cKDTree | None = None  # of ``points``: where its quadrics are
+    quadrics: dict[float, _Quadrics] = field(default_factory=dict)  # by radius
 
     def close(self, max_points: int) -> None:
         """Its contacts' normals (`contact_normals`, each whisker's contacts a line) and the
-        contacts its surface factors use."""
+        contacts its factors use, evenly along it: they are matched, and its quadrics are
+        centred on them."""
         points = np.vstack([b.points for b in self.batches])
         forces = np.vstack([b.forces for b in self.batches])
         names = [name for b in self.batches for name in b.whisker_ids]
@@ -178,43 +178,71 @@ class _Visit:
         normals[order] = contact_normals(points[order], forces[order], lines[order])
         pick = np.unique(np.linspace(0, len(points) - 1, min(len(points), max_points)).astype(int))
         self.points = points[pick]
-        self.tree = cKDTree(points)
+        self.tree, self.anchors = cKDTree(points), cKDTree(self.points)
         self._all, self._normals = points, normals
 
-    def quadric(self, i: int, radius_m: float, settings: LocalizeSettings) -> _Quadric | None:
-        """The quadric height field through this visit's contacts within ``radius_m`` of its
-        contact ``i``, over the plane of their mean normal, fitted to their heights and to
-        the slopes their normals give: its centre, axes (3, 3) (u, v, normal as rows),
-        coefficients (6,) and the variance of its fit to the heights; None with fewer than
-        ``min_neighbours`` contacts."""
-        key = (i, radius_m)
-        if key in self.quadrics:
-            return self.quadrics[key]
+    def quadrics_at(self, anchors: IntArray, radius_m: float, settings: LocalizeSettings
+                    ) -> _Quadrics:
+        """The quadrics of radius ``radius_m`` at its contacts ``points[anchors]``, fitted on
+        first use (`_quadric`)."""
+        q = self.quadrics.get(radius_m)
+        if q is None:
+            n = len(self.points)
+            q = self.quadrics[radius_m] = _Quadrics(
+                np.zeros(n, bool), np.zeros(n, bool), np.zeros((n, 3)), np.zeros((n, 3, 3)),
+                np.zeros((n, 6)), np.zeros(n))
         assert self.tree is not None
-        idx = self.tree.query_ball_point(self._all[i], radius_m)
-        out = None
-        if len(idx) >= settings.min_neighbours:
-            q, nq = self._all[idx], self._normals[idx]
-            centre = q.mean(axis=0)
-            e_n = nq.mean(axis=0)
-            e_n /= np.linalg.norm(e_n)
-            e_u = np.cross(e_n, [1.0, 0.0, 0.0] if abs(e_n[0]) < 0.9 else [0.0, 1.0, 0.0])
-            e_u /= np.linalg.norm(e_u)
-            axes = np.array([e_u, np.cross(e_n, e_u), e_n])
-            d, m = (q - centre) @ axes.T, nq @ axes.T
-            u, v = d[:, 0], d[:, 1]
-            zero, one = np.zeros_like(u), np.ones_like(u)
-            # heights, and slopes dh/du = -n_u / n_n, dh/dv = -n_v / n_n weighted by the radius
-            A = np.vstack([_quadric_terms(u, v),
-                           radius_m * np.column_stack([2 * u, v, zero, one, zero, zero]),
-                           radius_m * np.column_stack([zero, u, 2 * v, zero, one, zero])])
-            y = np.concatenate([d[:, 2], -radius_m * m[:, 0] / m[:, 2],
-                                -radius_m * m[:, 1] / m[:, 2]])
-            coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-            res = d[:, 2] - _quadric_terms(u, v) @ coef
-            out = _Quadric(centre, axes, coef, float(res @ res) / len(q))
-        self.quadrics[key] = out
-        return out
+        for i in np.unique(anchors[~q.done[anchors]]).tolist():
+            q.done[i] = True
+            idx = self.tree.query_ball_point(self.points[i], radius_m)
+            if len(idx) >= settings.min_neighbours:
+                fitted = _quadric(self._all[idx], self._normals[idx], radius_m)
+                q.ok[i] = True
+                q.centre[i], q.axes[i], q.coef[i], q.fit_var[i] = fitted
+        return q
+
+
+class _Quadrics(NamedTuple):
+    """A visit's quadrics at its factor contacts: fitted yet, fitted with enough neighbours,
+    and each one's centre (3,), axes (3, 3) (u, v, normal as rows), coefficients (6,) and
+    the variance of its fit to the heights."""
+
+    done: npt.NDArray[np.bool_]
+    ok: npt.NDArray[np.bool_]
+    centre: FloatArray
+    axes: FloatArray
+    coef: FloatArray
+    fit_var: FloatArray
+
+
+def _quadric(q: FloatArray, nq: FloatArray, radius_m: float
+             ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    """The quadric height field through contacts ``q`` (k, 3) with normals ``nq`` (k, 3), over
+    the plane of their mean normal, fitted to their heights and to the slopes their normals
+    give (weighted by ``radius_m``): centre, axes (u, v, normal as rows), coefficients of
+    (u^2, uv, v^2, u, v, 1), and the variance of the fit to the heights."""
+    centre = q.mean(axis=0)
+    e_n = nq.mean(axis=0)
+    e_n /= math.sqrt(e_n @ e_n)
+    # a unit vector across e_n: e_n x (x or y axis, whichever is further from it)
+    e_u = (np.array([0.0, e_n[2], -e_n[1]]) if abs(e_n[0]) < 0.9
+           else np.array([-e_n[2], 0.0, e_n[0]]))
+    e_u /= math.sqrt(e_u @ e_u)
+    e_v = np.array([e_n[1] * e_u[2] - e_n[2] * e_u[1], e_n[2] * e_u[0] - e_n[0] * e_u[2],
+                    e_n[0] * e_u[1] - e_n[1] * e_u[0]])
+    axes = np.array([e_u, e_v, e_n])
+    d, m = (q - centre) @ axes.T, nq @ axes.T
+    u, v = d[:, 0], d[:, 1]
+    k = len(q)
+    A = np.zeros((3 * k, 6))
+    A[:k] = _quadric_terms(u, v)
+    # slopes dh/du = -n_u / n_n, dh/dv = -n_v / n_n, weighted by the radius
+    A[k:2 * k, 0], A[k:2 * k, 1], A[k:2 * k, 3] = 2 * radius_m * u, radius_m * v, radius_m
+    A[2 * k:, 1], A[2 * k:, 2], A[2 * k:, 4] = radius_m * u, 2 * radius_m * v, radius_m
+    y = np.concatenate([d[:, 2], -radius_m * m[:, 0] / m[:, 2], -radius_m * m[:, 1] / m[:, 2]])
+    coef = np.linalg.lstsq(A, y, rcond=None)[0]
+    res = d[:, 2] - A[:k] @ coef
+    return centre, axes, coef, float(res @ res) / k
 
 
 def _quadric_terms(u: FloatArray, v: FloatArray) -> FloatArray:
@@ -357,8 +385,9 @@ class Localizer:
         settings = self.settings
         visits = self._visits
         n = len(visits)
-        pairs = [(a, b) for a in range(n) for b in range(n) if a != b and _apart(
-            visits[a], visits[b], settings.min_separation_m)]
+        first = max(0, n - settings.window)
+        pairs = [(a, b) for a in range(n) for b in range(n) if a != b and max(a, b) >= first
+                 and _apart(visits[a], visits[b], settings.min_separation_m)]
         x = self._x.copy()
         registered = False
         whiten = np.array([visit.whiten for visit in visits])
@@ -367,36 +396,38 @@ class Localizer:
             if matches is None:
                 continue
             registered = True
-            problem = _Problem(whiten, matches, settings.point_std_m)
+            problem = _Problem(whiten, matches, settings.point_std_m, x, first)
             for _ in range(HUBER_ROUNDS):
-                fit = least_squares(problem.residuals, x.reshape(-1), jac=problem.jacobian,
-                                    x_scale=0.01, max_nfev=100)
-                x = fit.x.reshape(n, 2)
+                fit = least_squares(problem.residuals, x[first:].reshape(-1),
+                                    jac=problem.jacobian, x_scale=0.01, max_nfev=100)
+                x = problem.full(fit.x)
                 problem.reweight(fit.fun)
         self._x = x
         return registered
 
     def _matches(self, x: FloatArray, pairs: list[tuple[int, int]], radius: float
                  ) -> _Matches | None:
-        """Each contact of a visit a within ``radius`` of another visit b's contacts with a
-        quadric there (see `_Matches`), or None."""
-        rows: list[tuple[int, int, FloatArray, _Quadric]] = []
+        """Each factor contact of a visit a within ``radius`` of another visit b's factor
+        contacts, against b's quadric at the nearest of them (see `_Matches`), or None."""
+        parts = []
         for a, b in pairs:
             va, vb = self._visits[a], self._visits[b]
-            assert vb.tree is not None
+            assert vb.anchors is not None
             in_b = va.points.copy()
             in_b[:, :2] += x[a] - x[b]
-            dist, nearest = vb.tree.query(in_b, distance_upper_bound=radius)
-            for i in np.flatnonzero(np.isfinite(dist)):
-                quadric = vb.quadric(int(nearest[i]), radius, self.settings)
-                if quadric is not None:
-                    rows.append((a, b, va.points[i], quadric))
-        if not rows:
+            dist, nearest = vb.anchors.query(in_b, distance_upper_bound=radius)
+            near = np.isfinite(dist)
+            q = vb.quadrics_at(nearest[near], radius, self.settings)
+            at = nearest[near]
+            ok = q.ok[at]
+            at = at[ok]
+            if len(at):
+                parts.append(_Matches(np.full(len(at), a), np.full(len(at), b),
+                                      va.points[near][ok], q.centre[at], q.axes[at], q.coef[at],
+                                      q.fit_var[at]))
+        if not parts:
             return None
-        return _Matches(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
-                        np.array([r[2] for r in rows]), np.array([r[3].centre for r in rows]),
-                        np.array([r[3].axes for r in rows]), np.array([r[3].coef for r in rows]),
-                        np.array([r[3].fit_var for r in rows]))
+        return _Matches(*(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
 
 
 class _Matches(NamedTuple):
@@ -414,15 +445,25 @@ class _Matches(NamedTuple):
 
 
 class _Problem:
-    """The pose graph's residuals and Jacobian: odometry factors (2 per visit) then surface
-    factors (one per match), the latter with Huber weights (`reweight`)."""
+    """The pose graph's residuals and Jacobian over the visits from ``first`` on (those
+    before are fixed at ``xs``): odometry factors (2 per free visit) then surface factors
+    (one per match, each with a free visit), the latter with Huber weights (`reweight`)."""
 
-    def __init__(self, whiten: FloatArray, matches: _Matches, point_std_m: float) -> None:
+    def __init__(self, whiten: FloatArray, matches: _Matches, point_std_m: float,
+                 xs: FloatArray, first: int) -> None:
         self.n = len(whiten)
+        self.first = first
+        self.fixed = xs.copy()
         self.whiten = whiten
         self.m = matches
         self.base_weight = 1.0 / np.sqrt(point_std_m**2 + matches.fit_var)
         self.weight = self.base_weight.copy()
+
+    def full(self, free: FloatArray) -> FloatArray:
+        """Every visit's translation (n, 2): the fixed ones, then ``free``."""
+        xs = self.fixed.copy()
+        xs[self.first:] = free.reshape(-1, 2)
+        return xs
 
     def _surface(self, xs: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Heights (m,) m and the surface's gradient in map (m, 2) (x, y)."""
@@ -437,34 +478,37 @@ class _Problem:
                              -(c[:, 1] * u + 2 * c[:, 2] * v + c[:, 4]), np.ones_like(u)])
         return h, np.einsum("kij,ki->kj", m.axes, g)[:, :2]
 
-    def residuals(self, flat: FloatArray) -> FloatArray:
-        xs = flat.reshape(self.n, 2)
-        step = np.diff(np.vstack([np.zeros(2), xs]), axis=0)
-        odometry = np.einsum("vij,vj->vi", self.whiten, step)
+    def residuals(self, free: FloatArray) -> FloatArray:
+        xs = self.full(free)
+        step = np.diff(np.vstack([np.zeros(2), xs]), axis=0)[self.first:]
+        odometry = np.einsum("vij,vj->vi", self.whiten[self.first:], step)
         return np.concatenate([odometry.reshape(-1), self._surface(xs)[0] * self.weight])
 
-    def jacobian(self, flat: FloatArray) -> Any:
-        xs = flat.reshape(self.n, 2)
-        n, m = self.n, self.m
+    def jacobian(self, free: FloatArray) -> csr_matrix:
+        xs = self.full(free)
+        n, m, first = self.n, self.m, self.first
         rows, cols, vals = [], [], []
-        v = np.arange(n)
+        v = np.arange(first, n)  # the free visits' odometry factors, rows from 0
+        w = self.whiten[first:]
         for i in range(2):
             for k in range(2):  # d (W (x_v - x_{v-1}))_i / d x_v,k and x_{v-1},k
-                rows += [2 * v + i, 2 * v[1:] + i]
-                cols += [2 * v + k, 2 * v[1:] - 2 + k]
-                vals += [self.whiten[:, i, k], -self.whiten[1:, i, k]]
+                rows += [2 * (v - first) + i, 2 * (v - first) + i]
+                cols += [2 * v + k, 2 * v - 2 + k]
+                vals += [w[:, i, k], -w[:, i, k]]
         _, grad = self._surface(xs)
-        r = 2 * n + np.arange(len(m.a))
+        r = 2 * (n - first) + np.arange(len(m.a))
         for k in range(2):
             rows += [r, r]
             cols += [2 * m.a + k, 2 * m.b + k]
             vals += [grad[:, k] * self.weight, -grad[:, k] * self.weight]
-        return coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(2 * n + len(m.a), 2 * n)).tocsr()
+        row, col, val = np.concatenate(rows), np.concatenate(cols) - 2 * first, np.concatenate(vals)
+        keep = col >= 0  # a fixed visit is no unknown
+        return coo_matrix((val[keep], (row[keep], col[keep])),
+                          shape=(2 * (n - first) + len(m.a), 2 * (n - first))).tocsr()
 
     def reweight(self, fun: FloatArray) -> None:
         """Huber weights from the residuals ``fun`` of the last solve."""
-        scaled = np.abs(fun[2 * self.n:]) / self.weight * self.base_weight
+        scaled = np.abs(fun[2 * (self.n - self.first):]) / self.weight * self.base_weight
         self.weight = self.base_weight * np.sqrt(
             np.minimum(1.0, HUBER_SIGMAS / np.maximum(scaled, 1e-300)))
 

@@ -308,8 +308,8 @@ def test_names_follow_the_wire_rules(tmp_path: Path, key: str, value: str, words
 def test_an_unknown_node_is_refused_before_anything_starts(tmp_path: Path) -> None:
     message = error_of(tmp_path, "launch:\n  - node: {pkg: vibrissa, exec: reconstuctor}\n")
     assert "launch[0].node.exec: package 'vibrissa' has no node 'reconstuctor'" in message
-    assert ("known: explorer, foxglove_bridge, mapper, netft, netft_sim, reconstructor, recorder, "
-            "wrench_source") in message
+    assert ("known: explorer, foxglove_bridge, localizer, mapper, netft, netft_sim, "
+            "reconstructor, recorder, wrench_source") in message
     message = error_of(tmp_path, "launch:\n  - node: {pkg: nopkg, exec: reconstructor}\n")
     assert "no installed package 'nopkg' registers nodes" in message
 

@@ -30,15 +30,15 @@ def test_without_a_drift_model_the_contacts_pass_unchanged_at_once(demo: Any) ->
 
 
 def test_an_exact_odometry_is_left_almost_alone(demo: Any) -> None:
-    """Exact poses with a drift model of 0.02 per metre: the contacts stay within 1 mm of where
-    they were and 0.05 mm of the true surfaces on average (the quadrics and the contact
-    normals are not exact: measured 0.58 mm and 0.014 mm)."""
+    """Exact poses with a drift model of 0.02 per metre: the contacts stay within 2 mm of where
+    they were and 0.1 mm of the true surfaces on average (the quadrics and the contact
+    normals are not exact: measured 1.39 mm and 0.066 mm)."""
     c = contacts(demo, 0.0, 0)
     assert surface_error(demo, c["odom"]) < 1e-12
     loc, placed, _ = localize(c, LocalizeSettings(drift_per_m=0.02))
     assert loc.counts.registered >= 4  # the legs overlapped: it registered
-    assert np.abs(placed - c["odom"]).max() < 1e-3
-    assert surface_error(demo, placed) < 5e-5
+    assert np.abs(placed - c["odom"]).max() < 2e-3
+    assert surface_error(demo, placed) < 1e-4
     assert np.all(placed[:, 2] == c["odom"][:, 2])  # a translation in the floor's plane
 
 
@@ -55,8 +55,8 @@ def test_one_pass_has_nothing_to_register_against(demo: Any) -> None:
 @pytest.mark.slow  # six corrected runs: about a minute
 def test_the_corrected_contacts_lie_closer_to_the_true_surfaces(demo: Any) -> None:
     """Six drifts (D = 0.02 per metre, the launch's seeds 0-5): never more than 10 % worse
-    than without the correction (measured: 6 % at worst, where the drift was small), and
-    closer by 1.4x or more in the median (measured 2.2x). The first visit's own drift is not
+    than without the correction (measured: as close, at worst, where the drift was small),
+    and closer by 1.4x or more in the median (measured 2.4x). The first visit's own drift is not
     observable (nothing was mapped before it), which bounds what any correction can do."""
     ratios = []
     for seed in range(6):
@@ -108,3 +108,26 @@ def test_a_robot_standing_still_gets_its_contacts_placed_within_max_visit_s() ->
     assert out == list(range(len(out))) and len(out) >= 400  # in order, all but the last visit
     loc.finish()
     assert [b.token for b in loc.take()] == list(range(len(out), 500))
+
+
+def test_the_pose_graphs_jacobian_is_its_residuals_derivative() -> None:
+    """The analytic Jacobian (odometry and surface factors, fixed visits left out) against
+    central differences of the residuals, on a random graph."""
+    from vibrissa.mapping.localize import _Matches, _Problem
+
+    rng = np.random.default_rng(0)
+    n, m = 5, 9
+    axes = np.array([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(m)])
+    matches = _Matches(rng.integers(0, n, m), rng.integers(0, n, m), rng.normal(size=(m, 3)) * 0.1,
+                       rng.normal(size=(m, 3)) * 0.1, axes, rng.normal(size=(m, 6)),
+                       rng.uniform(1e-7, 2e-7, m))
+    for first in (0, 2):
+        problem = _Problem(rng.normal(size=(n, 2, 2)) * 50, matches, 1e-3,
+                           rng.normal(size=(n, 2)) * 0.01, first)
+        free = rng.normal(size=2 * (n - first)) * 0.05
+        J = problem.jacobian(free).toarray()
+        step = 1e-7
+        numeric = np.column_stack([
+            (problem.residuals(free + step * e) - problem.residuals(free - step * e)) / (2 * step)
+            for e in np.eye(len(free))])
+        np.testing.assert_allclose(J, numeric, rtol=0, atol=1e-6 * np.abs(J).max())

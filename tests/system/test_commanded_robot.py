@@ -25,7 +25,8 @@ def _source_only(tmp: Path) -> Launch:
     body = node(entries("robot.yaml"), "wrench_source")
     body.pop("unless", None)
     for key, value in (("path_topic", PATH), ("pose_rate_hz", 0.0), ("wait_for", ["/probe"]),
-                       ("epoch_s", 0.0), ("scene", str(SCENE)), ("mode", "scene")):
+                       ("pose_wait_for", []), ("truth_file", ""), ("epoch_s", 0.0),
+                       ("scene", str(SCENE)), ("mode", "scene")):
         set_param(body, key, value)
     body["param"] = [p for p in body["param"] if p["name"] not in ("simulated", "passes", "loop")]
     launch_entries.append({"node": body})

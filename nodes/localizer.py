@@ -49,6 +49,9 @@ from vibrissa.wire.topics import validate_name
 
 log = logging.getLogger(__name__)
 
+DRAIN = 1000
+"""Messages taken from the input at most before the ones waiting are handled."""
+
 
 @dataclass(frozen=True)
 class LocalizerParams:
@@ -147,6 +150,7 @@ def run(node: Node, params: LocalizerParams) -> None:
 
     while not node.stop_requested:
         rx = subscriber.receive(0.1)
+        taken = 0
         while rx is not None:
             msg = rx.msg
             if isinstance(msg, EndOfStream):
@@ -175,7 +179,8 @@ def run(node: Node, params: LocalizerParams) -> None:
                         log.warning("%s: contacts refused: %s (counted in 'refused')", node.fqn,
                                     why)
                     counters["refused"] += 1
-            rx = subscriber.receive(0.0)
+            taken += 1
+            rx = subscriber.receive(0.0) if taken < DRAIN else None
         now = time.monotonic()
         while waiting:  # in order, each once the odometry has passed its stamp
             arrived, msg = waiting[0]

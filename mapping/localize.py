@@ -8,9 +8,10 @@ Over a visit the odometry's error is taken as constant, so a visit is a rigid pa
 in ``odom``, and ``map -> odom`` is one translation in the floor's plane per visit (REP 103: z
 up). A heading error shows where the robot is as the translation it causes there (the lever
 is in the odometry factors below); over a visit's patch, a few centimetres, the rotation it
-leaves is a small fraction of that, and estimating it too made the estimates worse on the
-robot demo (a ball's patches turned about its centre). When a visit ends, the translations of
-all visits so far are estimated together (a pose graph, solved by scipy's ``least_squares``):
+leaves is a small fraction of that, and the contacts hardly see it (a patch of a ball turned
+about the ball's centre fits it as well). When a visit ends, the translations of the last
+``window`` visits are estimated together, the earlier ones held where they were (a pose graph,
+solved by scipy's ``least_squares``):
 
 * odometry factors: the first visit's translation from zero at the start, each next one from
   the one before, with the drift of the travel between them (the model of
@@ -85,7 +86,7 @@ class LocalizeSettings:
         Contacts of a visit used for its surface factors at most (evenly along the visit).
     window
         The newest visits estimated together; those before stay where they were estimated
-        last (still surfaces to register against): the cost of an estimate is bounded.
+        last (still surfaces to register against): the size of a solve is bounded.
     """
 
     drift_per_m: float = 0.02
@@ -352,6 +353,9 @@ class Localizer:
         visit.whiten = self._whitening(self._visits[-1].start_m if self._visits else 0.0,
                                        visit.start_m, visit.base_odom)
         self._visits.append(visit)
+        # the next visit's odometry factor needs the poses from this one's start on
+        keep = max(0, int(np.searchsorted(self._pose_s, visit.start_m)) - 1)
+        del self._pose_t[:keep], self._pose_xy[:keep], self._pose_s[:keep]
         self._x = np.vstack([self._x, self._x[-1] if len(self._x) else np.zeros(2)])
         if self._solve():
             self.counts.registered += 1

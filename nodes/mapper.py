@@ -969,7 +969,8 @@ class Corrections:
         self.last: RobotPose | None = None
 
     def take(self, msg: RobotPose) -> None:
-        if msg.frame_id == self.params.scene_frame:
+        """An estimate of ``scene_frame`` -> odom (others, and ones not finite, are left out)."""
+        if msg.frame_id == self.params.scene_frame and np.isfinite(msg.position).all():
             self.count += 1
             self.last = msg
 

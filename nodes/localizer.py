@@ -51,6 +51,9 @@ log = logging.getLogger(__name__)
 
 DRAIN = 1000
 """Messages taken from the input at most before the ones waiting are handled."""
+RECEIVE_HWM = 200_000
+"""Input messages queued at most (the reconstructor's and the mapper's bound): a stream played
+faster than the localizer takes it waits in the queue, not lost, up to this many."""
 
 
 @dataclass(frozen=True)
@@ -116,7 +119,7 @@ def run(node: Node, params: LocalizerParams) -> None:
     """Correct and place until the input's ``EndOfStream`` (or a stop)."""
     localizer = Localizer(params.settings)
     subscriber = node.create_subscriber({params.input_topic: ContactPointArray,
-                                         params.pose_topic: RobotPose})
+                                         params.pose_topic: RobotPose}, hwm=RECEIVE_HWM)
     contacts = node.create_publisher(params.output_topic, ContactPointArray,
                                      wait_for=params.wait_for)
     corrections = node.create_publisher(params.correction_topic, RobotPose,

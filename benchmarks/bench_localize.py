@@ -4,9 +4,12 @@ the same contacts uncorrected (the baseline, same run).
 
 Per drift seed: the contacts' mean distance to the true surfaces without and with the
 correction (their ratio), the end's ``map -> odom`` error with and without (the true drift),
-and the localizer's CPU time per second of robot time (the demo's path is 13.6 s of robot
-time at 500 Hz, 8 whiskers). ``--png FILE`` also runs ``launch/robot.yaml`` for the first seed
-with and without ``localize`` (real processes) and puts the two map.png side by side in FILE.
+what a perfect registration would reach (every contact moved by its true error less the first
+contact's, which nothing observes: the map is as far off as the first contact was, and the
+end as far as the drift since the last contact), and the localizer's CPU time per second of
+robot time (the demo's path is 13.6 s of robot time at 500 Hz, 8 whiskers). ``--png FILE``
+also runs ``launch/robot.yaml`` for the first seed with and without ``localize`` (real
+processes) and puts the two map.png side by side in FILE.
 
 Usage: ``python benchmarks/bench_localize.py [--seeds 6] [--drift 0.02] [--png FILE]``
 """
@@ -112,6 +115,20 @@ def surface_error(demo: Demo, points: np.ndarray) -> float:
                                  for obj in scene.objects], axis=0)))
 
 
+def perfect(demo: Demo, c: dict[str, Any]) -> tuple[float, float]:
+    """What a perfect registration of ``c``'s contacts reaches: the mean distance to the true
+    surfaces (m) of the contacts each moved by its true error less the first contact's (the map
+    is anchored where the first contact was placed: nothing before it observes the drift), and
+    the end's ``map -> odom`` error (m) of the estimate at the last contact, so anchored (the
+    drift after it is not observed either)."""
+    shift = c["true"] - c["odom"]
+    first = np.searchsorted(c["pose_t"], c["t"][0])
+    last = np.searchsorted(c["pose_t"], c["t"][-1])
+    error = c["error"][:, :2]
+    end = error[-1] - (error[last] - error[first])
+    return surface_error(demo, c["odom"] + shift - shift[0]), float(np.hypot(*end))
+
+
 def side_by_side(seed: int, drift: float, png: Path) -> None:
     """launch/robot.yaml for ``seed`` with and without ``localize``; their map.png in one."""
     import matplotlib
@@ -149,7 +166,8 @@ def main() -> None:
     robot_s = float(data[0].path.t[-1] - data[0].path.t[0])
     print(f"robot demo, {LEGS} legs ({robot_s:.1f} s of robot time), drift {args.drift} per m")
     print(f"{'seed':>4} {'without mm':>11} {'with mm':>8} {'ratio':>6} {'end drift mm':>13} "
-          f"{'end error mm':>13} {'CPU s per robot s':>18}")
+          f"{'end error mm':>13} {'perfect mm':>11} {'ratio':>6} {'end error mm':>13} "
+          f"{'CPU s per robot s':>18}")
     ratios, cpu = [], []
     for seed in range(args.seeds):
         c = contacts(data, args.drift, seed)
@@ -159,9 +177,11 @@ def main() -> None:
         before, after = surface_error(data, c["odom"]), surface_error(data, placed)
         ratios.append(before / after)
         true_end = c["error"][-1, :2]
+        best, best_end = perfect(data, c)
         print(f"{seed:>4} {before * 1e3:>11.2f} {after * 1e3:>8.2f} {before / after:>6.2f} "
               f"{np.hypot(*true_end) * 1e3:>13.2f} "
-              f"{np.hypot(*(loc.estimate_m - true_end)) * 1e3:>13.2f} {cpu[-1]:>18.2f}")
+              f"{np.hypot(*(loc.estimate_m - true_end)) * 1e3:>13.2f} {best * 1e3:>11.2f} "
+              f"{before / best:>6.2f} {best_end * 1e3:>13.2f} {cpu[-1]:>18.2f}")
     print(f"median ratio {np.median(ratios):.2f}, median CPU {np.median(cpu):.2f} s per second "
           "of robot time (the baseline: 1, keeping up live)")
     if args.png:

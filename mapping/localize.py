@@ -23,8 +23,14 @@ solved by scipy's ``least_squares``):
   that has contacts within the radius of it: the residual is its height over a quadric fitted
   to those contacts' positions and normals (`vibrissa.mapping.objects.contact_normals`), over
   ``point_std_m`` and the quadric's own fit, with Huber weights (a wrong match costs
-  linearly). Matches are made again at each of ``rounds`` rounds, the radius halving down to
-  ``match_radius_m``.
+  linearly). A contact matches a quadric only where their normals are within 60 degrees (not
+  the far side of a thin object). Matches are made again at each of ``rounds`` rounds, the
+  radius halving down to ``match_radius_m``.
+
+An estimate that moves a visit from the one before it by more than the odometry allows
+(``ODOMETRY_GATE`` standard deviations of the drift between them) rests on a wrong match (a
+patch slid along its surface, or another object's): it is refused, the estimates stay where
+they were and the visit is placed by the odometry (unregistered).
 
 The visit that ended is then placed with its estimate (earlier visits are not placed again:
 their points have gone out). With no surface factor at all (too few contacts near other
@@ -52,6 +58,13 @@ IntArray = npt.NDArray[np.int64]
 
 HUBER_SIGMAS = 2.0
 """A surface factor beyond this many standard deviations costs linearly (Huber)."""
+NORMAL_GATE_COS = 0.5
+"""A contact is matched to another visit's quadric only where its normal and the quadric's
+are within 60 degrees (not the other side of a thin object)."""
+ODOMETRY_GATE = 4.3
+"""A registration is refused where a visit moved from the one before it by more than this many
+standard deviations of the odometry's drift between them (chi-square of 2 degrees of freedom
+at 1e-4)."""
 HUBER_ROUNDS = 3
 """Solves per matching round, the Huber weights made again after each."""
 
@@ -162,6 +175,7 @@ class _Visit:
     whiten: FloatArray = field(default_factory=lambda: np.eye(2))  # its odometry factor's L^T
     batches: list[_Batch] = field(default_factory=list)
     points: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # used for factors
+    point_normals: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # theirs
     tree: cKDTree | None = None  # of all its contacts
     anchors: cKDTree | None = None  # of ``points``: where its quadrics are
     quadrics: dict[float, _Quadrics] = field(default_factory=dict)  # by radius
@@ -178,7 +192,7 @@ class _Visit:
         normals = np.empty_like(points)
         normals[order] = contact_normals(points[order], forces[order], lines[order])
         pick = np.unique(np.linspace(0, len(points) - 1, min(len(points), max_points)).astype(int))
-        self.points = points[pick]
+        self.points, self.point_normals = points[pick], normals[pick]
         self.tree, self.anchors = cKDTree(points), cKDTree(self.points)
         self._all, self._normals = points, normals
 
@@ -406,6 +420,9 @@ class Localizer:
                                     jac=problem.jacobian, x_scale=0.01, max_nfev=100)
                 x = problem.full(fit.x)
                 problem.reweight(fit.fun)
+        if registered and not _consistent(whiten[first:], x, first):
+            self._x[-1] = self._x[-2] if n > 1 else 0.0
+            return False
         self._x = x
         return registered
 
@@ -423,7 +440,8 @@ class Localizer:
             near = np.isfinite(dist)
             q = vb.quadrics_at(nearest[near], radius, self.settings)
             at = nearest[near]
-            ok = q.ok[at]
+            ok = q.ok[at] & (np.einsum("ki,ki->k", va.point_normals[near], q.axes[at, 2])
+                             > NORMAL_GATE_COS)
             at = at[ok]
             if len(at):
                 parts.append(_Matches(np.full(len(at), a), np.full(len(at), b),
@@ -515,6 +533,15 @@ class _Problem:
         scaled = np.abs(fun[2 * (self.n - self.first):]) / self.weight * self.base_weight
         self.weight = self.base_weight * np.sqrt(
             np.minimum(1.0, HUBER_SIGMAS / np.maximum(scaled, 1e-300)))
+
+
+def _consistent(whiten: FloatArray, x: FloatArray, first: int) -> bool:
+    """Whether each of the translations ``x[first:]`` moved from the one before it by what the
+    odometry's drift allows (its whitened step within ``ODOMETRY_GATE``): a registration that
+    needs more is a wrong match (another object's patch, or a patch slid along its surface)."""
+    step = np.diff(np.vstack([np.zeros(2), x]), axis=0)[first:]
+    whitened = np.einsum("vij,vj->vi", whiten, step)
+    return bool(np.all(np.einsum("vi,vi->v", whitened, whitened) <= ODOMETRY_GATE**2))
 
 
 def _apart(a: _Visit, b: _Visit, separation_m: float) -> bool:

@@ -11,7 +11,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from benchmarks.bench_localize import LEGS, Demo, contacts, localize, surface_error
+from benchmarks.bench_localize import (
+    LEGS,
+    Demo,
+    contacts,
+    localize,
+    random_objects,
+    surface_error,
+)
 from benchmarks.bench_localize import demo as robot_demo
 from vibrissa.mapping.localize import Localizer, LocalizeSettings, true_map_to_odom
 
@@ -32,7 +39,7 @@ def test_without_a_drift_model_the_contacts_pass_unchanged_at_once(demo: Any) ->
 def test_an_exact_odometry_is_left_almost_alone(demo: Any) -> None:
     """Exact poses with a drift model of 0.02 per metre: the contacts stay within 2 mm of where
     they were and 0.1 mm of the true surfaces on average (the quadrics and the contact
-    normals are not exact: measured 1.39 mm and 0.066 mm)."""
+    normals are not exact: measured 1.41 mm and 0.067 mm)."""
     c = contacts(demo, 0.0, 0)
     assert surface_error(demo, c["odom"]) < 1e-12
     loc, placed, _ = localize(c, LocalizeSettings(drift_per_m=0.02))
@@ -66,6 +73,26 @@ def test_the_corrected_contacts_lie_closer_to_the_true_surfaces(demo: Any) -> No
         assert after <= 1.1 * before, (seed, before, after)
         ratios.append(before / after)
     assert np.median(ratios) >= 1.4, ratios
+
+
+@pytest.mark.slow  # two scenes simulated, six corrected runs: about two minutes
+@pytest.mark.parametrize("scene_seed", [1, 3])
+def test_on_random_objects_the_corrected_contacts_lie_closer(scene_seed: int) -> None:
+    """The robot demo's path and whiskers past three random objects (spheres, turned
+    ellipsoids, mounds: `random_objects`), four legs, three drifts: never more than 10 % worse
+    than without the correction, and closer by 1.5x or more in the median (measured: 1.58,
+    2.13, 2.47 and 2.28, 2.20, 2.55). Scene 1's second drift is one where a wrong match
+    (another side of an object, or a patch slid along its surface) once dragged the map
+    2.6x further off than without the correction."""
+    scene = robot_demo(objects=random_objects(np.random.default_rng(scene_seed)))
+    ratios = []
+    for seed in (0, 2, 3):
+        c = contacts(scene, 0.02, seed)
+        _, placed, _ = localize(c, LocalizeSettings(drift_per_m=0.02))
+        before, after = surface_error(scene, c["odom"]), surface_error(scene, placed)
+        assert after <= 1.1 * before, (seed, before, after)
+        ratios.append(before / after)
+    assert np.median(ratios) >= 1.5, ratios
 
 
 def test_the_same_inputs_give_the_same_bits_however_the_poses_come(demo: Any) -> None:

@@ -6,6 +6,7 @@ closer to the true surfaces; the same inputs give the same bits."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -65,13 +66,7 @@ def test_the_corrected_contacts_lie_closer_to_the_true_surfaces(demo: Any) -> No
     than without the correction (measured: as close, at worst, where the drift was small),
     and closer by 1.4x or more in the median (measured 2.4x). The first visit's own drift is not
     observable (nothing was mapped before it), which bounds what any correction can do."""
-    ratios = []
-    for seed in range(6):
-        c = contacts(demo, 0.02, seed)
-        _, placed, _ = localize(c, LocalizeSettings(drift_per_m=0.02))
-        before, after = surface_error(demo, c["odom"]), surface_error(demo, placed)
-        assert after <= 1.1 * before, (seed, before, after)
-        ratios.append(before / after)
+    ratios = _ratios_never_10_percent_worse(demo, range(6))
     assert np.median(ratios) >= 1.4, ratios
 
 
@@ -85,14 +80,21 @@ def test_on_random_objects_the_corrected_contacts_lie_closer(scene_seed: int) ->
     (another side of an object, or a patch slid along its surface) once dragged the map
     2.6x further off than without the correction."""
     scene = robot_demo(objects=random_objects(np.random.default_rng(scene_seed)))
+    ratios = _ratios_never_10_percent_worse(scene, (0, 2, 3))
+    assert np.median(ratios) >= 1.5, ratios
+
+
+def _ratios_never_10_percent_worse(scene: Demo, seeds: Iterable[int]) -> list[float]:
+    """Per drift seed (D = 0.02), the contacts' mean distance to the true surfaces without the
+    correction over with it, each asserted at least 1/1.1."""
     ratios = []
-    for seed in (0, 2, 3):
+    for seed in seeds:
         c = contacts(scene, 0.02, seed)
         _, placed, _ = localize(c, LocalizeSettings(drift_per_m=0.02))
         before, after = surface_error(scene, c["odom"]), surface_error(scene, placed)
         assert after <= 1.1 * before, (seed, before, after)
         ratios.append(before / after)
-    assert np.median(ratios) >= 1.5, ratios
+    return ratios
 
 
 def test_the_same_inputs_give_the_same_bits_however_the_poses_come(demo: Any) -> None:

@@ -421,8 +421,7 @@ class Localizer:
                 x = problem.full(fit.x)
                 problem.reweight(fit.fun)
         if registered and not _consistent(whiten[first:], x, first):
-            self._x[-1] = self._x[-2] if n > 1 else 0.0
-            return False
+            return False  # every estimate as it was, the new visit's the one before it's
         self._x = x
         return registered
 

@@ -30,7 +30,7 @@ solved by scipy's ``least_squares``):
 An estimate that moves a visit from the one before it by more than the odometry allows
 (``ODOMETRY_GATE`` standard deviations of the drift between them) rests on a wrong match (a
 patch slid along its surface, or another object's): it is refused, the estimates stay where
-they were and the visit is placed by the odometry (unregistered).
+they were and the visit is placed by the odometry (`LocalizeCounts.inconsistent`).
 
 The visit that ended is then placed with its estimate (earlier visits are not placed again:
 their points have gone out). With no surface factor at all (too few contacts near other
@@ -133,11 +133,14 @@ class LocalizeSettings:
 
 @dataclass
 class LocalizeCounts:
-    """What a `Localizer` did: visits estimated with surface factors (``registered``) and
-    without (``unregistered``: too few contacts near other visits'), contacts placed."""
+    """What a `Localizer` did: visits estimated with surface factors (``registered``),
+    without (``unregistered``: too few contacts near other visits'), and refused
+    (``inconsistent``: the estimate moved a visit further than the odometry allows, and the
+    visit went by the odometry), contacts placed."""
 
     registered: int = 0
     unregistered: int = 0
+    inconsistent: int = 0
     placed: int = 0
 
 
@@ -371,7 +374,10 @@ class Localizer:
         keep = max(0, int(np.searchsorted(self._pose_s, visit.start_m)) - 1)
         del self._pose_t[:keep], self._pose_xy[:keep], self._pose_s[:keep]
         self._x = np.vstack([self._x, self._x[-1] if len(self._x) else np.zeros(2)])
-        if self._solve():
+        solved = self._solve()
+        if solved is None:
+            self.counts.inconsistent += 1
+        elif solved:
             self.counts.registered += 1
         else:
             self.counts.unregistered += 1
@@ -397,9 +403,9 @@ class Localizer:
                                                     + (perp * ds[:, None]).T @ perp)
         return np.asarray(np.linalg.cholesky(np.linalg.inv(cov)).T)
 
-    def _solve(self) -> bool:
-        """Estimate every visit's translation (see the module); True when a surface factor
-        was made."""
+    def _solve(self) -> bool | None:
+        """Estimate every visit's translation (see the module); whether a surface factor was
+        made, None when the estimate was refused (`_consistent`)."""
         settings = self.settings
         visits = self._visits
         n = len(visits)
@@ -421,7 +427,7 @@ class Localizer:
                 x = problem.full(fit.x)
                 problem.reweight(fit.fun)
         if registered and not _consistent(whiten[first:], x, first):
-            return False  # every estimate as it was, the new visit's the one before it's
+            return None  # every estimate as it was, the new visit's the one before it's
         self._x = x
         return registered
 

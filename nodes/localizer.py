@@ -23,7 +23,8 @@ Publishes
     contact it placed; then ``EndOfStream``.
 
 Counters: ``registered`` and ``unregistered`` visits (with and without contacts near earlier
-ones to register against), ``placed`` contacts, ``refused`` contact messages (not in
+ones to register against), ``inconsistent`` ones (a registration refused: it moved the visit
+further than the odometry allows), ``placed`` contacts, ``refused`` contact messages (not in
 ``odom_frame``, or not finite), ``late_pose`` messages placed without the pose at their stamp,
 ``ignored_poses`` (other frames, or not finite).
 """
@@ -126,7 +127,7 @@ def run(node: Node, params: LocalizerParams) -> None:
                                         wait_for=params.wait_for)
     input_topic, pose_topic = node.resolve(params.input_topic), node.resolve(params.pose_topic)
     counters = node.counters
-    counters.update(registered=0, unregistered=0, placed=0, refused=0, late_pose=0,
+    counters.update(registered=0, unregistered=0, inconsistent=0, placed=0, refused=0, late_pose=0,
                     ignored_poses=0)
     waiting: deque[tuple[float, ContactPointArray]] = deque()  # (arrived, message)
     newest_pose = -math.inf
@@ -149,6 +150,7 @@ def run(node: Node, params: LocalizerParams) -> None:
                                                  point=placed.points_m))
         counters.update(registered=localizer.counts.registered,
                         unregistered=localizer.counts.unregistered,
+                        inconsistent=localizer.counts.inconsistent,
                         placed=localizer.counts.placed)
 
     while not node.stop_requested:

@@ -66,35 +66,40 @@ def test_the_corrected_contacts_lie_closer_to_the_true_surfaces(demo: Any) -> No
     than without the correction (measured: as close, at worst, where the drift was small),
     and closer by 1.4x or more in the median (measured 2.4x). The first visit's own drift is not
     observable (nothing was mapped before it), which bounds what any correction can do."""
-    ratios = _ratios_never_10_percent_worse(demo, range(6))
+    ratios, _ = _ratios_never_10_percent_worse(demo, range(6))
     assert np.median(ratios) >= 1.4, ratios
 
 
 @pytest.mark.slow  # two scenes simulated, six corrected runs: about two minutes
-@pytest.mark.parametrize("scene_seed", [1, 3])
-def test_on_random_objects_the_corrected_contacts_lie_closer(scene_seed: int) -> None:
+@pytest.mark.parametrize(("scene_seed", "least_refused"), [(1, 1), (3, 0)])
+def test_on_random_objects_the_corrected_contacts_lie_closer(scene_seed: int,
+                                                             least_refused: int) -> None:
     """The robot demo's path and whiskers past three random objects (spheres, turned
     ellipsoids, mounds: `random_objects`), four legs, three drifts: never more than 10 % worse
     than without the correction, and closer by 1.5x or more in the median (measured: 1.58,
     2.13, 2.47 and 2.28, 2.20, 2.55). Scene 1's second drift is one where a wrong match
     (another side of an object, or a patch slid along its surface) once dragged the map
-    2.6x further off than without the correction."""
+    2.6x further off than without the correction: there the odometry's gate refuses such
+    registrations (`LocalizeCounts.inconsistent`, measured 3 over the three drifts)."""
     scene = robot_demo(objects=random_objects(np.random.default_rng(scene_seed)))
-    ratios = _ratios_never_10_percent_worse(scene, (0, 2, 3))
+    ratios, refused = _ratios_never_10_percent_worse(scene, (0, 2, 3))
     assert np.median(ratios) >= 1.5, ratios
+    assert refused >= least_refused
 
 
-def _ratios_never_10_percent_worse(scene: Demo, seeds: Iterable[int]) -> list[float]:
+def _ratios_never_10_percent_worse(scene: Demo, seeds: Iterable[int]
+                                   ) -> tuple[list[float], int]:
     """Per drift seed (D = 0.02), the contacts' mean distance to the true surfaces without the
-    correction over with it, each asserted at least 1/1.1."""
-    ratios = []
+    correction over with it, each asserted at least 1/1.1; and the registrations refused."""
+    ratios, refused = [], 0
     for seed in seeds:
         c = contacts(scene, 0.02, seed)
-        _, placed, _ = localize(c, LocalizeSettings(drift_per_m=0.02))
+        loc, placed, _ = localize(c, LocalizeSettings(drift_per_m=0.02))
         before, after = surface_error(scene, c["odom"]), surface_error(scene, placed)
         assert after <= 1.1 * before, (seed, before, after)
         ratios.append(before / after)
-    return ratios
+        refused += loc.counts.inconsistent
+    return ratios, refused
 
 
 def test_the_same_inputs_give_the_same_bits_however_the_poses_come(demo: Any) -> None:

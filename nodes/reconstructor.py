@@ -83,6 +83,10 @@ class ReconstructorParams:
     exit_on_eos
         Exit (status 0) after forwarding the first ``EndOfStream``; by default the node runs
         until stopped, like a sensor driver.
+    wait_timeout_s
+        With ``exit_on_eos``: how long the points still held for ``wait_for`` subscribers (not
+        ready yet: a mapper still starting on a loaded machine) wait for them at the end
+        before they are discarded (logged), s.
     rod_length_m
         L, m (every whisker, without ``robot``).
     rod_ei_nm2
@@ -131,6 +135,7 @@ class ReconstructorParams:
     max_batch: int = 4096
     receive_hwm: int = 200_000
     exit_on_eos: bool = False
+    wait_timeout_s: float = 60.0
     rod_length_m: float = 1.0
     rod_ei_nm2: float = 1.0
     robot: str = ""
@@ -155,6 +160,7 @@ class ReconstructorParams:
         for key in ("map_frame", "robot_frame"):
             require(bool(getattr(self, key)), key, getattr(self, key), "a frame name")
         require_non_negative("pose_timeout_s", self.pose_timeout_s)
+        require_non_negative("wait_timeout_s", self.wait_timeout_s)
         require_positive("history_s", self.history_s)
         require_positive("max_pose_gap_s", self.max_pose_gap_s)
         require_non_negative("noise_force_n", self.noise_force_n)
@@ -301,6 +307,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
             log.info("%s: EndOfStream from %s (%d samples); %s", node.fqn, end.source,
                      end.count, ", ".join(f"{k} {v}" for k, v in counters.items()))
             if params.exit_on_eos:
+                node.close(drain_s=params.wait_timeout_s)
                 return
 
 

@@ -446,6 +446,34 @@ def test_bad_messages_are_rejected_and_counted_and_the_node_carries_on(tmp_path:
         launch.kill()
 
 
+def test_points_held_for_a_late_subscriber_wait_for_it_at_the_end(tmp_path: Path) -> None:
+    """A reconstructor that exits on its input's end (exit_on_eos) holds its points for its
+    ``wait_for`` subscriber until that comes, within ``wait_timeout_s``: here it comes 3 s after
+    the stream ended (a mapper still starting on a loaded machine), and gets every point and
+    the EndOfStream."""
+    launch_entries = [e for e in entries("demo.yaml") if "arg" in e]
+    source = node(entries("demo.yaml"), "wrench_source")
+    reconstructor = node(entries("demo.yaml"), "reconstructor")
+    reconstructor.pop("respawn", None)
+    set_param(reconstructor, "wait_for", ["/probe"])
+    set_param(reconstructor, "exit_on_eos", True)
+    launch_entries += [{"node": source}, {"node": reconstructor}]
+    launch = Launch(tmp_path, launch_entries, "step:=0.01")
+    probe = None
+    try:
+        endpoints = launch.endpoints()
+        ended = launch.wait_line(r"reconstructor.*EndOfStream from \S+ \((\d+) samples\)", 300)
+        time.sleep(3.0)  # the subscriber comes late: longer than a close's default drain (1 s)
+        probe = Probe(endpoints, [CONTACT])
+        msgs, _eos = probe.collect()
+        assert len(msgs) == int(ended.group(1)), launch.text()
+        assert launch.wait() == 0, launch.text()
+    finally:
+        if probe is not None:
+            probe.close()
+        launch.kill()
+
+
 def _sweep_ticks(length: float, ei: float, whiskers: int) -> tuple[list[WhiskerWrenchArray],
                                                                     np.ndarray]:
     """The sweeps' samples as ticks of ``whiskers`` rows (SI, a turned clamp) plus one row per

@@ -432,15 +432,22 @@ class Node:
         """Report the final state and close everything (idempotent).
 
         Held messages wait up to ``drain_s`` for their gate; queued ones get up to
-        ``drain_s`` to leave the sockets (linger), then are discarded.
+        ``drain_s`` to leave the sockets (linger), then are discarded. A stop request (a
+        signal) that comes while it waits cuts both short: the held ones are discarded, the
+        queued get at most 1 s more.
         """
         if self._closing.is_set():
             return
         deadline = time.monotonic() + drain_s
         with self._lock:
             waiting = [g for g in self._gates if g.publisher.pending]
-        for gate in waiting:
-            gate.opened.wait(max(0.0, deadline - time.monotonic()))
+        stopped = self._stop.is_set()
+        for gate in waiting:  # a signal that comes meanwhile cuts the wait short
+            while not (gate.opened.wait(0.1) or time.monotonic() >= deadline
+                       or (self._stop.is_set() and not stopped)):
+                pass
+        if self._stop.is_set() and not stopped:
+            deadline = min(deadline, time.monotonic() + 1.0)
         if self._state != "error":
             self._state = "finished"
             if self._stopped_by:  # the last status says why, to the launchers of other hosts

@@ -126,6 +126,19 @@ def test_wait_for_subscribers_times_out_and_keeps_buffering(endpoints: Endpoints
         lonely.close(drain_s=0.1)
 
 
+def test_a_stop_while_held_messages_wait_at_close_cuts_the_wait_short(
+        endpoints: Endpoints) -> None:
+    """close(drain_s=60) holds a gated message for its subscriber; a stop request (a signal)
+    that comes meanwhile ends the wait within a second or two, not after 60 s."""
+    with node("lonely", endpoints) as lonely:
+        pub = lonely.create_publisher("out", EndOfStream, wait_for=["/nobody"])
+        pub.publish(EndOfStream(stamp=0.0, source="x", count=0))
+        threading.Timer(0.5, lonely.request_stop).start()
+        t0 = time.monotonic()
+        lonely.close(drain_s=60.0)
+        assert 0.4 < time.monotonic() - t0 < 10.0
+
+
 def test_a_gate_says_when_its_node_runs_but_subscribes_elsewhere(
         endpoints: Endpoints, caplog: pytest.LogCaptureFixture) -> None:
     """A replay whose topic the downstream node does not take (a missing remap) is told so

@@ -443,8 +443,8 @@ class Node:
             waiting = [g for g in self._gates if g.publisher.pending]
         stopped = self._stop.is_set()
         for gate in waiting:  # a signal that comes meanwhile cuts the wait short
-            while not (gate.opened.wait(0.1) or time.monotonic() >= deadline
-                       or (self._stop.is_set() and not stopped)):
+            while not (gate.opened.wait(min(0.1, max(0.0, deadline - time.monotonic())))
+                       or time.monotonic() >= deadline or (self._stop.is_set() and not stopped)):
                 pass
         if self._stop.is_set() and not stopped:
             deadline = min(deadline, time.monotonic() + 1.0)

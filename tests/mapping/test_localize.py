@@ -77,10 +77,9 @@ def test_on_random_objects_the_corrected_contacts_lie_closer(scene_seed: int,
     """The robot demo's path and whiskers past three random objects (spheres, turned
     ellipsoids, mounds: `random_objects`), four legs, three drifts: never more than 10 % worse
     than without the correction, and closer by 1.5x or more in the median (measured: 1.58,
-    2.13, 2.47 and 2.28, 2.20, 2.55). Scene 1's second drift is one where a wrong match
-    (another side of an object, or a patch slid along its surface) once dragged the map
-    2.6x further off than without the correction: there the odometry's gate refuses such
-    registrations (`LocalizeCounts.inconsistent`, measured 3 over the three drifts)."""
+    2.13, 2.47 and 2.28, 2.20, 2.55). In scene 1 wrong matches (a patch slid along its
+    surface, another object's) would drag visits centimetres: the odometry's gate refuses
+    them (`LocalizeCounts.inconsistent`, measured 3 over the three drifts)."""
     scene = robot_demo(objects=random_objects(np.random.default_rng(scene_seed)))
     ratios, refused = _ratios_never_10_percent_worse(scene, (0, 2, 3))
     assert np.median(ratios) >= 1.5, ratios

@@ -597,6 +597,7 @@ class _Track:
     slid: FloatArray | None = None  # the contact's last displacement by a slide, units of L
     pending: tuple[FloatArray, FloatArray, FloatArray, float] = ()  # type: ignore[assignment]  # p1, normal, force, s1 of the last accepted state
     history: list[FloatArray] = field(default_factory=list)  # the last accepted q, newest last
+    history_x: list[float] = field(default_factory=list)  # ... and the clamp x0 of each
     trace: list[FloatArray] = field(default_factory=list)  # the slide's last contact points, newest last
     jumped: bool = False  # the last step jumped (a far slide, or the force inside the step)
     pace: float = math.nan  # the contact force's change per unit of clamp travel in the last row
@@ -883,7 +884,7 @@ def _land(surface: Surface, trail: ClampPath, step: float, max_steps: int,
                    x_grid=x_grid, shape=shape)
     track.pending = (landing.contact.copy(), landing.normal.copy(), landing.force.copy(),
                      landing.s1)
-    track.history = [track.q]
+    track.history, track.history_x = [track.q], [landing.x0]
     track.smooth = False
     _record(track, refined=False)
     return track
@@ -972,7 +973,7 @@ def _through_steep_step(track: _Track, before: _Undo, target: float) -> bool:
         # the step's own chord and predictor, not its last sub-step's: the next step is whole
         track.jumped = jumped
         track.chord_before, track.chord = chord_start, _chord(track.p1, p_start)
-        track.history = [q_start, track.q]
+        track.history, track.history_x = [q_start, track.q], [before.x0, track.x0]
         return True
     taken.restore(track)
     track.phase_changes[:] = changes
@@ -1051,7 +1052,7 @@ class _Undo:
     """What an attempt changes of a track, to take the step back."""
 
     _FIELDS = ("x0", "q", "mode", "p1", "anchor", "smooth", "chord", "chord_before", "slid",
-               "pending", "history", "trace", "jumped")
+               "pending", "history", "history_x", "trace", "jumped")
     _get = operator.attrgetter(*_FIELDS)  # one call: every step of every track takes one
 
     def __init__(self, track: _Track) -> None:
@@ -1107,6 +1108,7 @@ def _longer_step(track: _Track) -> bool:
                 before = np.zeros(Q_WIDTH)
                 before[0] = after[0]
             track.history = [before + (after - before) * (multiple - 1) / multiple, after]
+            track.history_x = [target + step, target]
             track.smooth = True
             return True
     return False
@@ -1219,7 +1221,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
     locked = np.array([t.locked for t in tracks])
     p1 = np.array([t.p1 for t in tracks])
     anchor = np.array([t.anchor for t in tracks])
-    predictors = np.array([_predict(t) for t in tracks])
+    predictors = np.array([_predict(t, float(x)) for t, x in zip(tracks, targets, strict=True)])
     sliding_mode = np.array([_sliding(t.mode) for t in tracks])
     stuck: dict[int, tuple[FloatArray, _State, int]] = {}
     far: dict[int, tuple[FloatArray, _State, int, str]] = {}  # the first far slide of each row
@@ -1364,11 +1366,17 @@ def _newton_friction_continuation(
     return q, state, alive
 
 
-def _predict(track: _Track) -> FloatArray:
-    """Linear extrapolation along a smooth stretch; the last state after a hard step."""
+def _predict(track: _Track, target: float) -> FloatArray:
+    """Linear extrapolation to ``target`` along a smooth stretch, never further than the last
+    step's length (a sub-step of a failed step near a fold must not be predicted past the
+    fold that failed it); the last state after a hard step."""
     if len(track.history) < 2 or not track.smooth:
         return track.q.copy()
-    return 2.0 * track.history[-1] - track.history[-2]
+    x_before, x_last = track.history_x[-2:]
+    fraction = (x_last - target) / (x_before - x_last) if x_before > x_last else 1.0
+    if fraction >= 1.0 - 1e-9:
+        return 2.0 * track.history[-1] - track.history[-2]
+    return track.history[-1] + fraction * (track.history[-1] - track.history[-2])
 
 
 def _predict_alternating(track: _Track) -> FloatArray:
@@ -1449,6 +1457,7 @@ def _accept(track: _Track, x0: float, q: FloatArray, state: _State, k: int, mode
         track.slid = state.p1[k] - track.p1
     track.q = q.copy()
     track.history = [*track.history[-3:], track.q]
+    track.history_x = [*track.history_x[-3:], x0]
     track.x0 = x0
     phase_before = _phase_of(track.mode)
     track.mode = mode

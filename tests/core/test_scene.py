@@ -150,10 +150,13 @@ def test_moving_the_whole_scene_moves_the_contacts_and_keeps_every_clamp_wrench(
     # Far away the moved scene's own numbers carry far_m * 1.1e-16 m of round-off (1.7e-13 m,
     # 3.7e-12 L at 1.5 km): its contacts can only agree to that.
     point_tol = 1e-12 * whisker.length_m + 4 * np.finfo(float).eps * far_m
-    np.testing.assert_allclose(b.f0_n[rows] / scale_f, a.f0_n[rows] / scale_f, rtol=0,
-                               atol=wrench_tol)
-    np.testing.assert_allclose(b.m0_nm[rows] / scale_m, a.m0_nm[rows] / scale_m, rtol=0,
-                               atol=wrench_tol)
+    # A sample reached in sub-steps towards a fold (``refined``) lies where the equilibrium's
+    # Jacobian is nearly singular, which magnifies that residual: 1.05e-10 in f0 at 1.5 km.
+    for near_fold, tol in ((False, wrench_tol), (True, 1e-9)):
+        at = rows[a.refined[rows] == near_fold]
+        np.testing.assert_allclose(b.f0_n[at] / scale_f, a.f0_n[at] / scale_f, rtol=0, atol=tol)
+        np.testing.assert_allclose(b.m0_nm[at] / scale_m, a.m0_nm[at] / scale_m, rtol=0,
+                                   atol=tol)
     np.testing.assert_allclose(b.p_W_m[rows], X.apply(a.p_W_m[rows]), rtol=0, atol=point_tol)
 
 

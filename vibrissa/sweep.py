@@ -1091,10 +1091,16 @@ def _longer_step(track: _Track) -> bool:
     window = min(track.x_touch - EARLY_TRAVEL_L, _early_end(track))
     last_chord = max(track.chord, RESOLVED_CHORD_L)
     slow = _slow_slide(track)
+    # Still at the touch, the guess of the loads was for the span to the next grid point
+    # (`_start`): a longer step pushes the rod in further, the loads in proportion.
+    touch_guess = None if track.history else track.q.copy()
     for multiple in EARLY_MULTIPLES:
         target = next_point - (multiple - 1) * step
         if target < max(track.trail.x_end, -math.inf if slow else window) - 1e-9 * step:
             break
+        if touch_guess is not None:
+            scale = (track.x0 - target) / (track.x0 - next_point)
+            track.q = np.concatenate([touch_guess[:1], touch_guess[1:] * scale])
         undo = _Undo(track)
         if _attempt([track], np.array([target]), np.array([multiple * step]))[0]:
             if target < window and track.chord > _SLOW_GROWTH * multiple * last_chord:
@@ -1111,6 +1117,8 @@ def _longer_step(track: _Track) -> bool:
             track.history_x = [target + step, target]
             track.smooth = True
             return True
+    if touch_guess is not None:
+        track.q = touch_guess
     return False
 
 

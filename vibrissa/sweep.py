@@ -1250,7 +1250,8 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
             rows = np.array([i for i in rows if i not in far], dtype=np.int64)
         origin = p1[rows]  # where eq. 7's chord starts
         if kind == "secant":  # only here: a slide too short for its chord
-            origin = np.array([_chord_origin(tracks[i]) for i in rows]).reshape(-1, 3)
+            origin = np.array([_chord_origin(tracks[i], float(targets[i]))
+                               for i in rows]).reshape(-1, 3)
             further = np.any(origin != p1[rows], axis=1)
             rows, origin = rows[further], origin[further]
         if len(rows) == 0:
@@ -1380,11 +1381,19 @@ def _predict(track: _Track, target: float) -> FloatArray:
     fold that failed it); the last state after a hard step."""
     if len(track.history) < 2 or not track.smooth:
         return track.q.copy()
-    x_before, x_last = track.history_x[-2:]
-    fraction = (x_last - target) / (x_before - x_last) if x_before > x_last else 1.0
+    fraction = _fraction(track, target)
     if fraction >= 1.0 - 1e-9:
         return 2.0 * track.history[-1] - track.history[-2]
     return track.history[-1] + fraction * (track.history[-1] - track.history[-2])
+
+
+def _fraction(track: _Track, target: float) -> float:
+    """The step to ``target`` as a fraction of the last step (1 without two states to tell),
+    at most 1."""
+    if len(track.history_x) < 2:
+        return 1.0
+    x_before, x_last = track.history_x[-2:]
+    return min(1.0, (x_last - target) / (x_before - x_last)) if x_before > x_last else 1.0
 
 
 def _predict_alternating(track: _Track) -> FloatArray:
@@ -1428,15 +1437,17 @@ predictor: refining the step only shortens the chord further."""
 _TRACE_POINTS = 64
 
 
-def _chord_origin(track: _Track) -> FloatArray:
-    """Where the friction direction of a slide from ``track`` points back to (3,), L: the last
-    contact point, or the newest one of the slide's track at least ``RESOLVED_CHORD_L`` from
-    where it is going when the last step moved it less (the secant of the last steps: the
-    direction of the slip over a resolvable length)."""
-    if track.chord >= RESOLVED_CHORD_L or len(track.trace) < 2:
+def _chord_origin(track: _Track, target: float) -> FloatArray:
+    """Where the friction direction of a slide from ``track`` to ``target`` points back to
+    (3,), L: the last contact point, or the newest one of the slide's track at least
+    ``RESOLVED_CHORD_L`` from where it is going when the step would move it less at the last
+    step's pace (the secant of the last steps: the direction of the slip over a resolvable
+    length; a sub-step of a step that failed moves it less than the step did)."""
+    expected = track.chord * _fraction(track, target)
+    if expected >= RESOLVED_CHORD_L or len(track.trace) < 2:
         return track.p1
     for p in reversed(track.trace[:-1]):
-        if _chord(track.p1, p) + track.chord >= RESOLVED_CHORD_L:
+        if _chord(track.p1, p) + expected >= RESOLVED_CHORD_L:
             return p
     return track.trace[0]
 

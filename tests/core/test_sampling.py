@@ -49,7 +49,13 @@ def yawing_scene(tilt_deg: float, elevation_deg: float, mu: float, radius_m: flo
 
 @pytest.mark.parametrize("tilt_deg, elevation_deg, mu, radius_m", [
     (50.0, 40.0, 0.5, 0.02), (45.0, -20.0, 0.5, 0.01), (40.0, 10.0, 0.3, 0.005),
-    (45.0, 10.0, 0.8, 0.005), (55.0, -20.0, 0.8, 0.01)])
+    (45.0, 10.0, 0.8, 0.005), (55.0, -20.0, 0.8, 0.01),
+    # a sub-step's predictor within the sub-step: the 1x run stopped 1.2 samples before the fold
+    (45.0, 10.0, 0.5, 0.005),
+    # the touch's load guess scaled to a longer early step: at 10x no step was found at all
+    (40.0, -20.0, 0.5, 0.005),
+    # the secant stage for a sub-step's shorter chord: a creeping tip snapped off at 4x only
+    (40.0, -20.0, 0.3, 0.005)])
 def test_the_episodes_are_the_same_at_1_4_and_10_samples(
         tilt_deg: float, elevation_deg: float, mu: float, radius_m: float) -> None:
     episodes, events = {}, {}

@@ -689,7 +689,7 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
 
 COMMAND_CHUNK = 100
 """Commanded samples simulated at a time (0.2 s of path at 500 Hz): their messages go out
-together, and Step 1 looks at most 16 samples ahead (`vibrissa.scene.SceneStream`)."""
+together, and Step 1 looks at most 32 samples ahead (`vibrissa.scene.SceneStream`)."""
 
 
 class CommandedMessages:

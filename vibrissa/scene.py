@@ -14,7 +14,7 @@ the side it was pushed to reaches (`_WhiskerSteps._landing`), and a ``landing`` 
 from there (inside several objects: on the deepest where the landed rod enters no other).
 Where no landing is found, those samples are ``unresolved`` (no wrench, no point) until it is
 free again; then the next touch is searched for. Samples that Step 1 stepped over (the first
-steps after a touch may be taken as 2-16 samples at once, see ``vibrissa.sweep``) are
+steps after a touch may be taken as 2-32 samples at once, see ``vibrissa.sweep``) are
 ``unresolved`` as well.
 
 Several objects: a whisker touches one at a time. An episode follows the object touched
@@ -1148,7 +1148,7 @@ class SceneStream:
     the samples that hold the sample each is told at (`StreamSamples.snaps`).
 
     What may wait for later samples: a contact in its first `vibrissa.sweep.EARLY_TRAVEL_L` of
-    travel looks up to 16 samples ahead (`vibrissa.sweep.EARLY_MULTIPLES`), and a snap-off two
+    travel looks up to 32 samples ahead (`vibrissa.sweep.EARLY_MULTIPLES`), and a snap-off two
     samples (a landing is never on the path's last sample); `advance` with ``hold`` False
     steps as far as the samples go, as if the path ended there for the look-ahead (a robot
     that stopped: it gives up the longer early steps past that end); `finish` ends the path.

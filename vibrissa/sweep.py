@@ -56,7 +56,7 @@ stretch by extrapolating every other state.
 Early steps (not in the paper): right after a tip touch the tip slips only by the rod's axial
 shortening (the rod is inextensible and cannot reach where it touched), ~1e-7 per step at
 steps below 1e-3, too short to resolve the direction of eq. 7. Within 0.01 L of the touch a
-step that fails is retried as 2, 4, 8 or 16 steps on the same grid, as far as they stay within
+step that fails is retried as 2, 4, 8, 16 or 32 steps on the same grid, as far as they stay within
 0.01 L of the touch, before it is refined.
 
 Symmetric trails: when the object is its own mirror image across the vertical plane of the trail
@@ -110,7 +110,7 @@ _DETACHMENT_STEPS = 1.5  # ... or steps within which the last decrease of the fo
 EARLY_TRAVEL_L = 0.01
 """Clamp travel from the touch (units of L) within which a failed step tries longer ones
 (`SweepRun.early`)."""
-EARLY_MULTIPLES = (2, 4, 8, 16)
+EARLY_MULTIPLES = (2, 4, 8, 16, 32)
 """The longer steps a failed early step tries, in steps: a sweep looks this far ahead."""
 CLAMP_TOUCH_L = 1e-6
 """A first touch nearer the clamp than this (arc length, units of L) is the object meeting the
@@ -223,7 +223,7 @@ class Sweep:
 
     Rows are one per step of ``step`` along the grid x_grid - k step (x_grid: the first contact,
     or the grid shared by the trails of an array, see :func:`simulate_sweeps`), except that a step
-    just after the first contact that finds no equilibrium is taken as 2-16 steps (the positions
+    just after the first contact that finds no equilibrium is taken as 2-32 steps (the positions
     in between are missing, the row is ``refined``): see ``_longer_step``. ``refined`` also marks
     steps reached through sub-steps (the chord of eq. 7 is then a sub-step's). ``jumped`` marks
     rows the contact jumped to: a far slide (``_FAR_STEPS``), taken where no nearer state was
@@ -1071,7 +1071,7 @@ class _Undo:
 
 
 def _longer_step(track: _Track) -> bool:
-    """Take a failed early step as 2, 4, 8 or 16 steps; whether one succeeded.
+    """Take a failed early step as 2, 4, 8, 16 or 32 steps; whether one succeeded.
 
     Just after a tip touch the tip slips only by the rod's axial shortening (the tip cannot stay
     put: the clamp moved and the rod is inextensible), about 1.2 d dx for a deflection d and a

@@ -51,6 +51,7 @@ def test_poses_in_pieces_drift_as_in_one_call() -> None:
         np.testing.assert_array_equal(np.concatenate([part[k] for part in parts]), whole[k])
 
 
+@pytest.mark.slow
 def test_a_straight_run_drifts_as_the_random_walk_says() -> None:
     """1 m along x in 1 cm steps, 3 000 seeds: heading error std D sqrt(L); the odometry's
     position error std D sqrt(L) along the run and D sqrt(L + L^3/3) across it (the heading

@@ -47,6 +47,7 @@ def yawing_scene(tilt_deg: float, elevation_deg: float, mu: float, radius_m: flo
     return Scene(mu, (ball,), (rod,), path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tilt_deg, elevation_deg, mu, radius_m", [
     (50.0, 40.0, 0.5, 0.02), (45.0, -20.0, 0.5, 0.01), (40.0, 10.0, 0.3, 0.005),
     (45.0, 10.0, 0.8, 0.005), (55.0, -20.0, 0.8, 0.01),
@@ -81,6 +82,7 @@ def test_the_episodes_are_the_same_at_1_4_and_10_samples(
                    in zip(events[n], events[1], strict=True)), events
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tilt_deg, elevation_deg, mu, radius_m", [
     (50.0, 40.0, 0.5, 0.02), (40.0, 10.0, 0.3, 0.005), (45.0, 10.0, 0.8, 0.005)])
 def test_no_jump_of_the_wrench_inside_an_episode_is_left_untold(

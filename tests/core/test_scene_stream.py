@@ -117,6 +117,7 @@ def test_with_a_larger_step_the_wrenches_agree_within_newtons_tolerance() -> Non
         np.testing.assert_allclose(samples.m0_nm[:, i], r.m0_nm, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tilt_deg, elevation_deg, mu, radius_m, per_sample", [
     (50.0, 40.0, 0.5, 0.02, 4), (45.0, -20.0, 0.5, 0.01, 1), (40.0, 10.0, 0.3, 0.005, 4)])
 @pytest.mark.parametrize("slower", [10, 100])
@@ -223,6 +224,7 @@ def test_the_step_bounds_the_rod_motion_of_a_sample() -> None:
     assert h == pytest.approx((0.1 + 1.0 * reach) / 500.0 / length, rel=1e-15)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("chunk", [7, 100])
 def test_the_jumps_of_a_streamed_path_are_simulates(chunk: int) -> None:
     """A tip on a ball slowing to a hold (tests/core/test_sampling.py): snap-off, landing and

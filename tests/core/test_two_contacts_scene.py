@@ -108,6 +108,7 @@ def two_contacts_worst(scene: Scene, whisker: Whisker, result: WhiskerResult
     return worst
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lift_m", [0.001, 0.003])
 def test_two_contacts_against_the_rod_integrated_from_the_clamp_wrench(lift_m: float) -> None:
     scene = leaning_scene(lift_m)

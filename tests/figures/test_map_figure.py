@@ -190,6 +190,7 @@ def test_the_colour_bar_ends_at_the_largest_when_nothing_is_above() -> None:
 STATUS = "periodic map, update 7 of a live stream, 12 345 points <at> $x$, 2026-11-29 03:12:04 UTC"
 
 
+@pytest.mark.slow
 def test_the_status_line_is_under_the_title_of_map_png(fitted: tuple[Any, MapLayers],
                                                        tmp_path: Path) -> None:
     frame, layers = fitted

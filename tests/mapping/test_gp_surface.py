@@ -117,6 +117,7 @@ def test_std_grows_away_from_the_lines(paraboloid):
     assert np.all(surface.position_std(on_line) < surface.position_std(away))
 
 
+@pytest.mark.slow
 def test_same_points_give_the_same_bits(paraboloid):
     first_surface, first = fitted(paraboloid)
     second_surface, second = fitted(paraboloid)

@@ -61,6 +61,7 @@ def assert_same_map(a: FrameMap, b: FrameMap) -> None:
         [p.offset_m for p in obj] for obj in b.proposals]
 
 
+@pytest.mark.slow
 def test_the_final_map_of_a_stream_is_the_single_fit_bit_for_bit() -> None:
     """Two balls touched line by line, in turns, with an update after each line: the updates
     condition the grown objects; the final map is `fit_frame`'s on the same points."""
@@ -79,6 +80,7 @@ def test_the_final_map_of_a_stream_is_the_single_fit_bit_for_bit() -> None:
     assert live.fits["full"] == fits["full"]  # a second final keeps every fit
 
 
+@pytest.mark.slow
 def test_only_the_object_that_received_points_is_refitted() -> None:
     """A line on one ball leaves the other's surface as it was (the same object) and conditions
     the touched one's GP on the new points, without clustering the frame again; its surface is

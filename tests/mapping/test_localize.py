@@ -37,6 +37,7 @@ def test_without_a_drift_model_the_contacts_pass_unchanged_at_once(demo: Any) ->
     assert loc.counts.placed == len(c["t"]) and loc.counts.registered == 0
 
 
+@pytest.mark.slow
 def test_an_exact_odometry_is_left_almost_alone(demo: Any) -> None:
     """Exact poses with a drift model of 0.02 per metre: the contacts stay within 2 mm of where
     they were and 0.1 mm of the true surfaces on average (the quadrics and the contact
@@ -101,6 +102,7 @@ def _ratios_never_10_percent_worse(scene: Demo, seeds: Iterable[int]
     return ratios, refused
 
 
+@pytest.mark.slow
 def test_the_same_inputs_give_the_same_bits_however_the_poses_come(demo: Any) -> None:
     c = contacts(demo, 0.02, 2)
     _, a, _ = localize(c, LocalizeSettings())

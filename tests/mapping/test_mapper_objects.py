@@ -259,6 +259,7 @@ def test_the_png_is_an_image_a_person_can_read(scene_map: dict[str, Any]) -> Non
     assert len(colours) > 50  # not blank: wireframes, path, contacts in colours, meshes
 
 
+@pytest.mark.slow
 def test_identical_input_gives_identical_labels_and_files(
     scene_map: dict[str, Any], tmp_path: Path
 ) -> None:
@@ -310,6 +311,7 @@ def test_without_a_scene_objects_are_numbered_by_their_first_point(tmp_path: Pat
     assert frame["cloud_to_surface_max"] is None and report["max_reconstruction_error_m"] is None
 
 
+@pytest.mark.slow
 def test_the_scene_is_the_truth_of_frame_world_only(scene_map: dict[str, Any],
                                                     tmp_path: Path) -> None:
     report, _ = write_outputs(accumulate(messages("arm")), scene_map["params"], tmp_path)
@@ -319,6 +321,7 @@ def test_the_scene_is_the_truth_of_frame_world_only(scene_map: dict[str, Any],
     assert (tmp_path / "mesh_object0_arm.ply").is_file()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("join", [False, True])
 def test_two_clusters_on_one_object_are_told_apart_or_joined(tmp_path: Path, join: bool) -> None:
     """Lines on opposite sides of the ball, 19 mm apart at the closest: with eps 6 mm DBSCAN
@@ -495,6 +498,7 @@ def test_a_figure_of_many_whiskers_and_objects_is_drawn(tmp_path: Path) -> None:
     assert width >= 1200 and height >= 700
 
 
+@pytest.mark.slow
 def test_hostile_covariances_do_not_break_the_map(scene_map: dict[str, Any], tmp_path: Path
                                                   ) -> None:
     # the same points with covariances as an adversary might send them (finite, so the codec

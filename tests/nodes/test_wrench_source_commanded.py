@@ -224,6 +224,7 @@ def test_a_robot_that_stands_between_segments_gives_one_pose_per_stamp_and_cover
     np.testing.assert_array_equal(poses[-1].position, start + [0.07, 0.0, 0.0])
 
 
+@pytest.mark.slow
 def test_the_jumps_of_a_commanded_path_go_out_after_their_wrench(tmp_path: Path) -> None:
     """A tip on a ball slowing to a hold (tests/core/test_sampling.py), its path commanded:
     the snap-off, the landing and the snap-through of the fixed path, in that order, each a

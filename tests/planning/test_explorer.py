@@ -100,6 +100,7 @@ def random_circles(rng: np.random.Generator, n: int) -> list[tuple[np.ndarray, f
     return circles
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planner", ["uncertainty", "lawnmower"])
 @pytest.mark.parametrize("seed", [1, 2])
 def test_the_body_never_enters_an_object_and_the_exploration_ends_within_its_budget(

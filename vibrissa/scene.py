@@ -709,8 +709,7 @@ class _WhiskerSteps:
                                      tuple(self._time_at(-x0 / h + k)
                                            for x0 in sweep.x0[:n][sweep.jumped[:n]])))
         snapped = sweep.force[-1] if len(sweep.force) else None
-        if (end is SweepEnd.ANOTHER_OBJECT and self.two_contacts and self.shape.uniform
-                and n >= 1
+        if (end is SweepEnd.ANOTHER_OBJECT and self.two_contacts and n >= 1
                 and self._start_pair(sweep, rows, n)):
             self.go_on_pair()
             return
@@ -752,7 +751,7 @@ class _WhiskerSteps:
 
     two_contacts = True
     """Whether a rod in contact that meets a second object goes on with both contacts
-    (`vibrissa.two_contacts`: the straight uniform rod only)."""
+    (`vibrissa.two_contacts`)."""
 
     def _start_pair(self, sweep: Sweep, rows: NDArray[np.int64], n: int) -> bool:
         """Start both contacts from the sample after the episode's last row before its rod met
@@ -761,11 +760,10 @@ class _WhiskerSteps:
         k_first = int(rows[n - 1]) + 1
         if k_first >= self.path.n_samples or k_first > int(rows[n]):
             return False
-        line = sweep.elastic_lines([n], AXIS_SEGMENTS + 1)[0]  # the rod of row n, in the other
-        depth, other = min((float(surface.signed_distance(line).min()), j)
-                           for j, surface in enumerate(self.surfaces) if j != self._object)
-        if not depth < 0.0:
-            return False
+        # the rod of row n, in the other object (its chords: its points may lie just outside)
+        line = sweep.elastic_lines([n], AXIS_SEGMENTS + 1)[0]
+        _depth, other = min((float(surface.signed_distance(line).min()), j)
+                            for j, surface in enumerate(self.surfaces) if j != self._object)
         deepest = int(np.argmin(self.surfaces[other].signed_distance(line)))
         s_other = deepest / AXIS_SEGMENTS
         s_own, mode_own = float(sweep.s1[n - 1]), (two.MODE_TIP if sweep.phase[n - 1]
@@ -778,10 +776,13 @@ class _WhiskerSteps:
         own = (s_own, force_own, mode_own, sweep.contact[n - 1], self._object)
         theirs = (s_other, force_other, mode_other, line[deepest], other)
         inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)
-        x_start = np.concatenate([moment[:2], inner[1], outer[1], [inner[0], outer[0]]])
+        # (the straight rod's unknowns leave out the twist about the clamp's axis: it has none)
+        clamp_moment = moment[:2] if self.shape.uniform else moment
+        x_start = np.concatenate([clamp_moment, inner[1], outer[1], [inner[0], outer[0]]])
         follower = two.TwoContactFollower(
             self.surfaces, (inner[4], outer[4]), k_first, x_start,
-            np.array([inner[2], outer[2]], dtype=np.int64), np.array([inner[3], outer[3]]))
+            np.array([inner[2], outer[2]], dtype=np.int64), np.array([inner[3], outer[3]]),
+            self.shape)
         follower.advance(self.path, k_first + 1)
         if not follower.stretch.rows:
             return False
@@ -806,7 +807,7 @@ class _WhiskerSteps:
             second, _t, _n, _f = two.contact_info(row.state, 1 - mine)
             self.phase[k] = (SamplePhase.TIP if row.modes[mine] in (two.MODE_TIP, two.MODE_STICK)
                              else SamplePhase.TANGENTIAL)
-            self.s1[k], self.second_s[k] = row.x[8 + mine] * length, row.x[9 - mine] * length
+            self.s1[k], self.second_s[k] = row.x[-2 + mine] * length, row.x[-1 - mine] * length
             self.contact[k] = point * length + self.origin_m
             self.second_contact[k] = second * length + self.origin_m
             self.touched[k], self.second_touched[k] = self._object, pair.other

@@ -14,9 +14,9 @@ unloaded, so m vanishes there. Integrated by classical Runge-Kutta with ``SEGMEN
 steps on each of the two loaded segments (clamp to inner contact, inner to outer), so that
 each contact is a step boundary.
 
-Unknowns x = (m0_x, m0_y, F_0 (3), F_1 (3), s_0, s_1): the clamp moment in C (its z component
-is zero), the contact forces on the rod in W, and the arc lengths, s_0 <= s_1 (contact 0 is
-the inner one). Ten conditions:
+Unknowns x = (m0_x, m0_y, F_0 (3), F_1 (3), s_0, s_1): the rod's internal moment at the clamp
+in C (its z component is zero), the contact forces on the rod in W, and the arc lengths,
+s_0 <= s_1 (contact 0 is the inner one). Ten conditions:
 
 * m(s_1) = 0, its two components across t(s_1);
 * each contact, four: sliding (``MODE_TIP`` for the outer contact only: s_1 = 1; or
@@ -24,6 +24,15 @@ the inner one). Ten conditions:
   (eq. 7's Coulomb friction, c the unit chord towards the contact's previous point, ``anchor``,
   in the tangent plane: two components of F across that direction); or held (``MODE_STICK``
   at the tip, ``MODE_STICK_TANGENTIAL`` rolling over the point) at its anchor (three).
+
+A tapered or pre-curved rod (`vibrissa.rods`: bending and torsion, its natural curvature)
+twists: its state is ``vibrissa.rods``' (r and the material frame, in C) with the internal
+moment from the statics of the forces beyond s, m = r x f0 - m0 between the clamp and the inner
+contact and m = r x (-F_1) - (m0 + r(s_0) x F_0) between the contacts (the clamp's
+reactions f0 = -(F_0 + F_1) and m0 = -m(0), all in C; the rod's own
+Runge-Kutta step, ``SEGMENT_STEPS`` on each segment). Its unknowns add the clamp moment's twist
+(x = (m(0) (3, C), F_0, F_1, s_0, s_1), `N_UNKNOWNS_SHAPED`), its conditions all three
+components of m(s_1) = 0; beyond the outer contact it keeps its natural arc.
 
 Units of L throughout, the objects as the quadrics of ``vibrissa.equilibrium`` (each contact
 its own). Newton's method with a forward-difference Jacobian, compiled (``vibrissa.compiled``).
@@ -50,6 +59,7 @@ from vibrissa.equilibrium import (
     quadric_gap,
 )
 from vibrissa.paths import SampledPath
+from vibrissa.rods import RodShape, clamp_state, frame_of, moment_at, rk4_step
 from vibrissa.surfaces import Surface
 
 FloatArray = NDArray[np.float64]
@@ -58,10 +68,16 @@ SEGMENT_STEPS = 256
 """Runge-Kutta steps on each loaded segment (the error falls as the fourth power of the
 step: tests/core/test_two_contacts*.py give the closures against scipy's `solve_ivp`)."""
 N_UNKNOWNS = 10
-STATE_WIDTH = 34
-"""A solution's state: the ten conditions 0:10, then per contact j from 10 + 12 j its point,
-the rod's tangent there, the object's outward normal and the force on the rod (3 each)."""
+"""The straight uniform rod's unknowns; a shaped rod has one more (`N_UNKNOWNS_SHAPED`)."""
+N_UNKNOWNS_SHAPED = 11
 _CONTACT = 12
+STATE_WIDTH = N_UNKNOWNS + 2 * _CONTACT
+"""A solution's state (n unknowns): the n conditions 0:n, then per contact j from n + 12 j its
+point, the rod's tangent there, the object's outward normal and the force on the rod (3 each);
+``N_UNKNOWNS_SHAPED + 24`` wide for a shaped rod."""
+STRAIGHT_ROD = RodShape()
+STRAIGHT = STRAIGHT_ROD.params
+"""The shape parameters of the straight uniform rod (`vibrissa.rods.RodShape.params`)."""
 
 
 @compiled
@@ -100,9 +116,74 @@ def _segment(y: FloatArray, n: FloatArray, length: float, steps: int) -> None:
 
 
 @compiled
-def rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: int) -> FloatArray:
+def _shaped_segment(y: FloatArray, s_from: float, s_to: float, f0: FloatArray, m0: FloatArray,
+                    params: FloatArray, steps: int) -> None:
+    """Integrate the shaped rod's state ``y`` (`vibrissa.rods`: r and the frame's quaternion,
+    in C) in place from ``s_from`` to ``s_to`` under the clamp wrench (f0, m0) that gives the
+    internal moment there (classical Runge-Kutta, ``steps`` steps)."""
+    h = (s_to - s_from) / steps
+    nxt = np.empty(7)
+    for k in range(steps):
+        rk4_step(s_from + k * h, h, y, f0, m0, params, nxt)
+        y[:] = nxt
+
+
+@compiled
+def _shaped_loads(x: FloatArray, R_WC: FloatArray, y_inner: FloatArray
+                  ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The clamp wrenches (f0, m0, C) that give the shaped rod's internal moment
+    m = r x f0 - m0 between the clamp and the inner contact and, given the inner contact's
+    state ``y_inner``, between the contacts: (f0, m0, f0_between, m0_between)."""
+    f0, m0 = np.empty(3), np.empty(3)
+    inner, outer = np.empty(3), np.empty(3)
+    for i in range(3):
+        inner[i] = R_WC[0, i] * x[3] + R_WC[1, i] * x[4] + R_WC[2, i] * x[5]
+        outer[i] = R_WC[0, i] * x[6] + R_WC[1, i] * x[7] + R_WC[2, i] * x[8]
+        f0[i] = -(inner[i] + outer[i])
+        m0[i] = -x[i]
+    r = y_inner
+    f0b, m0b = -outer, np.empty(3)
+    m0b[0] = m0[0] + r[1] * inner[2] - r[2] * inner[1]
+    m0b[1] = m0[1] + r[2] * inner[0] - r[0] * inner[2]
+    m0b[2] = m0[2] + r[0] * inner[1] - r[1] * inner[0]
+    return f0, m0, f0b, m0b
+
+
+@compiled
+def _shaped_rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: int,
+                     params: FloatArray) -> FloatArray:
+    """`rod_line` of a shaped rod: loaded to the outer contact, its unloaded (pre-curved)
+    rest beyond."""
+    s0, s1 = x[-2], x[-1]
+    y = clamp_state()
+    zero = np.zeros(3)
+    f0, m0, f0b, m0b = _shaped_loads(x, R_WC, y)  # (the segment beyond: after s0, below)
+    out = np.empty((points, 3))
+    s = 0.0
+    for k in range(points):
+        target = k / (points - 1)
+        while s < target:
+            boundary = s0 if s < s0 else s1 if s < s1 else math.inf
+            end = min(target, boundary)
+            load_f, load_m = (f0, m0) if s < s0 else (f0b, m0b) if s < s1 else (zero, zero)
+            _shaped_segment(y, s, end, load_f, load_m, params,
+                            max(1, int(math.ceil((end - s) * SEGMENT_STEPS))))
+            s = end
+            if s == s0:
+                f0, m0, f0b, m0b = _shaped_loads(x, R_WC, y)
+        for i in range(3):
+            out[k, i] = p_WC[i] + R_WC[i, 0] * y[0] + R_WC[i, 1] * y[1] + R_WC[i, 2] * y[2]
+    return out
+
+
+@compiled
+def rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: int,
+             params: FloatArray) -> FloatArray:
     """The rod's axis (``points``, 3) in W at evenly spaced arc lengths from the clamp to the
-    tip, for the unknowns ``x``."""
+    tip, for the unknowns ``x`` (``params``: the rod's shape, used where ``x`` is a shaped
+    rod's)."""
+    if len(x) == N_UNKNOWNS_SHAPED:
+        return _shaped_rod_line(x, p_WC, R_WC, points, params)
     y = np.empty(9)
     for i in range(3):
         y[i] = p_WC[i]
@@ -164,17 +245,62 @@ def _contact_conditions(mode: int, s: float, p: FloatArray, t: FloatArray, force
 
 
 @compiled
+def _shaped_rod(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, params: FloatArray,
+                points: FloatArray, tangents: FloatArray, out: FloatArray) -> None:
+    """A shaped rod's contact points and tangents (W) into ``points`` and ``tangents`` (2, 3),
+    m(s_1) = 0 (its three components in C) into ``out[0:3]``."""
+    y = clamp_state()
+    f0, m0, _f, _m = _shaped_loads(x, R_WC, y)
+    _shaped_segment(y, 0.0, x[-2], f0, m0, params, SEGMENT_STEPS)
+    for j in range(2):
+        if j == 1:
+            _f, _m, f0b, m0b = _shaped_loads(x, R_WC, y)
+            _shaped_segment(y, x[-2], x[-1], f0b, m0b, params, SEGMENT_STEPS)
+            m = moment_at(y, f0b, m0b)
+            out[0], out[1], out[2] = m[0], m[1], m[2]
+        frame = frame_of(y)
+        for i in range(3):
+            points[j, i] = p_WC[i] + R_WC[i, 0] * y[0] + R_WC[i, 1] * y[1] + R_WC[i, 2] * y[2]
+            tangents[j, i] = (R_WC[i, 0] * frame[0, 2] + R_WC[i, 1] * frame[1, 2]
+                              + R_WC[i, 2] * frame[2, 2])
+
+
+@compiled
 def evaluate(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[np.int64],
-             anchors: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: FloatArray,
-             R_WB: FloatArray, p_WB: FloatArray, out: FloatArray) -> None:
-    """The ten conditions at ``x`` into ``out[0:10]`` and each contact's point, tangent, normal
-    and force into ``out[10 + 12 i : 22 + 12 i]``; the objects' quadrics per contact (Q (2,
-    3, 3), ...). NaN conditions where the arc lengths are out of order (a rod longer than 1
-    is evaluated: Newton probes past a tip; `admissible` keeps s_1 <= 1)."""
-    s0, s1 = x[8], x[9]
+             anchors: FloatArray, mu: float, params: FloatArray, Q: FloatArray, lin: FloatArray,
+             c: FloatArray, R_WB: FloatArray, p_WB: FloatArray, out: FloatArray) -> None:
+    """The n conditions at ``x`` (n unknowns: `N_UNKNOWNS`, or `N_UNKNOWNS_SHAPED` for the rod
+    of shape ``params``) into ``out[0:n]`` and each contact's point, tangent, normal and force
+    into ``out[n + 12 i : n + 12 + 12 i]``; the objects' quadrics per contact (Q (2, 3, 3),
+    ...). NaN conditions where the arc lengths are out of order (a rod longer than 1 is
+    evaluated: Newton probes past a tip; `admissible` keeps s_1 <= 1)."""
+    n_x = len(x)
+    moments = n_x - 8
+    s0, s1 = x[-2], x[-1]
     if not (0.0 < s0 <= s1 < 2.0):
         out[:] = math.nan
         return
+    points = np.empty((2, 3))
+    tangents = np.empty((2, 3))
+    if n_x == N_UNKNOWNS_SHAPED:
+        _shaped_rod(x, p_WC, R_WC, params, points, tangents, out)
+    else:
+        _straight_rod(x, p_WC, R_WC, points, tangents, out)
+    block = np.empty(4)
+    for j in range(2):
+        force = x[moments + 3 * j: moments + 3 + 3 * j]
+        _contact_conditions(modes[j], x[n_x - 2 + j], points[j], tangents[j], force, anchors[j],
+                            mu, Q[j], lin[j], c[j], R_WB[j], p_WB[j], block,
+                            out[n_x + _CONTACT * j: n_x + _CONTACT * (j + 1)])
+        for k in range(4):
+            out[moments + 4 * j + k] = block[k]
+
+
+@compiled
+def _straight_rod(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: FloatArray,
+                  tangents: FloatArray, out: FloatArray) -> None:
+    """`_shaped_rod` of the straight uniform rod: m(s_1) = 0 across t(s_1) into ``out[0:2]``."""
+    s0, s1 = x[8], x[9]
     y = np.empty(9)
     for i in range(3):
         y[i] = p_WC[i]
@@ -184,8 +310,6 @@ def evaluate(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[n
     for i in range(3):
         n[i] = x[2 + i] + x[5 + i]
     _segment(y, n, s0, SEGMENT_STEPS)
-    points = np.empty((2, 3))
-    tangents = np.empty((2, 3))
     for i in range(3):
         points[0, i], tangents[0, i] = y[i], y[3 + i]
         n[i] = x[5 + i]
@@ -200,28 +324,21 @@ def evaluate(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[n
         for i in range(3):
             e[i] = R_WC[i, k] - et * t[i]
         out[k] = y[6] * e[0] + y[7] * e[1] + y[8] * e[2]
-    block = np.empty(4)
-    for j in range(2):
-        force = x[2 + 3 * j: 5 + 3 * j]
-        _contact_conditions(modes[j], x[8 + j], points[j], tangents[j], force, anchors[j], mu,
-                            Q[j], lin[j], c[j], R_WB[j], p_WB[j], block,
-                            out[10 + _CONTACT * j: 10 + _CONTACT * (j + 1)])
-        for k in range(4):
-            out[2 + 4 * j + k] = block[k]
 
 
 @compiled
 def converged(state: FloatArray, modes: NDArray[np.int64]) -> bool:
     """Whether ``state``'s conditions hold: geometry to ``NEWTON_TOL``, a sliding contact's
     friction direction to ``DIRECTION_TOL`` (as for one contact)."""
-    for k in range(2):
+    moments = len(state) - 2 * _CONTACT - 8
+    for k in range(moments):
         if not abs(state[k]) < NEWTON_TOL:
             return False
     for j in range(2):
         held = modes[j] == MODE_STICK or modes[j] == MODE_STICK_TANGENTIAL
         for k in range(4):
             tol = DIRECTION_TOL if (k >= 2 and not held) else NEWTON_TOL
-            if not abs(state[2 + 4 * j + k]) < tol:
+            if not abs(state[moments + 4 * j + k]) < tol:
                 return False
     return True
 
@@ -229,7 +346,7 @@ def converged(state: FloatArray, modes: NDArray[np.int64]) -> bool:
 @compiled
 def _norm(state: FloatArray) -> float:
     worst = 0.0
-    for i in range(N_UNKNOWNS):
+    for i in range(len(state) - 2 * _CONTACT):
         value = abs(state[i])
         if value != value:
             return math.nan
@@ -239,33 +356,36 @@ def _norm(state: FloatArray) -> float:
 
 @compiled
 def newton(x0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[np.int64],
-           anchors: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: FloatArray,
-           R_WB: FloatArray, p_WB: FloatArray, max_iter: int = 40
+           anchors: FloatArray, mu: float, params: FloatArray, Q: FloatArray, lin: FloatArray,
+           c: FloatArray, R_WB: FloatArray, p_WB: FloatArray, max_iter: int = 40
            ) -> tuple[FloatArray, FloatArray]:
-    """Newton's method on the ten conditions from ``x0``: forward-difference Jacobian, step
-    halving until the residual decreases; the last iterate and its state."""
+    """Newton's method on the n conditions from ``x0`` (n unknowns, the rod's shape
+    ``params``: `evaluate`): forward-difference Jacobian, step halving until the residual
+    decreases; the last iterate and its state."""
     x = x0.copy()
-    state = np.empty(STATE_WIDTH)
-    evaluate(x, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB, state)
+    n_x = len(x)
+    state = np.empty(n_x + 2 * _CONTACT)
+    evaluate(x, p_WC, R_WC, modes, anchors, mu, params, Q, lin, c, R_WB, p_WB, state)
     norm = _norm(state)
-    probe_state = np.empty(STATE_WIDTH)
-    trial_state = np.empty(STATE_WIDTH)
-    jac = np.empty((N_UNKNOWNS, N_UNKNOWNS))
+    probe_state = np.empty(n_x + 2 * _CONTACT)
+    trial_state = np.empty(n_x + 2 * _CONTACT)
+    jac = np.empty((n_x, n_x))
     for _ in range(max_iter):
         if not math.isfinite(norm) or converged(state, modes):
             break
         load = 0.0
-        for j in range(8):
+        for j in range(n_x - 2):
             load = max(load, abs(x[j]))
-        for j in range(N_UNKNOWNS):
-            scale = 1e-3 * load if j < 8 else 1.0
+        for j in range(n_x):
+            scale = 1e-3 * load if j < n_x - 2 else 1.0
             h = max(1e-8 * max(abs(x[j]), scale), 1e-300)
             probe = x.copy()
             probe[j] += h
-            evaluate(probe, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB, probe_state)
-            for i in range(N_UNKNOWNS):
+            evaluate(probe, p_WC, R_WC, modes, anchors, mu, params, Q, lin, c, R_WB, p_WB,
+                     probe_state)
+            for i in range(n_x):
                 jac[i, j] = (probe_state[i] - state[i]) / h
-        rhs = -state[:N_UNKNOWNS].copy()
+        rhs = -state[:n_x].copy()
         if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(rhs))):
             break
         try:
@@ -275,7 +395,8 @@ def newton(x0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[np
         accepted = False
         for _halving in range(12):
             trial = x + delta
-            evaluate(trial, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB, trial_state)
+            evaluate(trial, p_WC, R_WC, modes, anchors, mu, params, Q, lin, c, R_WB, p_WB,
+                     trial_state)
             trial_norm = _norm(trial_state)
             if trial_norm < norm or converged(trial_state, modes):
                 x = trial
@@ -293,16 +414,17 @@ FRICTION_STAGES = 8
 
 
 def solve(x0: FloatArray, p_WC: FloatArray, R_WC: FloatArray, modes: NDArray[np.int64],
-          anchors: FloatArray, mu: float, Q: FloatArray, lin: FloatArray, c: FloatArray,
-          R_WB: FloatArray, p_WB: FloatArray) -> tuple[FloatArray, FloatArray]:
+          anchors: FloatArray, mu: float, params: FloatArray, Q: FloatArray, lin: FloatArray,
+          c: FloatArray, R_WB: FloatArray, p_WB: FloatArray) -> tuple[FloatArray, FloatArray]:
     """`newton` from ``x0``; where it does not converge, again along mu = 0 -> ``mu`` in
     ``FRICTION_STAGES`` steps, each from the last (as one contact's friction continuation)."""
-    x, state = newton(x0, p_WC, R_WC, modes, anchors, mu, Q, lin, c, R_WB, p_WB)
+    x, state = newton(x0, p_WC, R_WC, modes, anchors, mu, params, Q, lin, c, R_WB, p_WB)
     if converged(state, modes) or mu == 0.0:
         return x, state
     x = x0.copy()
     for fraction in np.linspace(0.0, 1.0, FRICTION_STAGES + 1):
-        x, state = newton(x, p_WC, R_WC, modes, anchors, fraction * mu, Q, lin, c, R_WB, p_WB)
+        x, state = newton(x, p_WC, R_WC, modes, anchors, fraction * mu, params, Q, lin, c,
+                          R_WB, p_WB)
         if not converged(state, modes):
             break
     return x, state
@@ -312,7 +434,7 @@ def contact_info(state: FloatArray, j: int) -> tuple[FloatArray, FloatArray, Flo
                                                       FloatArray]:
     """Contact ``j``'s point, rod tangent, object normal and force on the rod (W, units of L
     and EI/L^2) from a state of `evaluate`."""
-    base = 10 + _CONTACT * j
+    base = len(state) - 2 * _CONTACT + _CONTACT * j
     return (state[base:base + 3], state[base + 3:base + 6], state[base + 6:base + 9],
             state[base + 9:base + 12])
 
@@ -336,7 +458,7 @@ def admissible(x: FloatArray, state: FloatArray, modes: NDArray[np.int64], mu: f
     not push (-1: another reason): both contacts push (F . n > 0), their arc lengths in order
     on the rod, an outer tip's tangent not pointing out of its object, a held contact's force
     inside the friction cone (to 1e-9 of mu F_n, as for one contact)."""
-    if not 0.0 < x[8] <= x[9] <= 1.0 + 1e-9:
+    if not 0.0 < x[-2] <= x[-1] <= 1.0 + 1e-9:
         return False, -1
     for j in range(2):
         _p, tangent, normal, force = contact_info(state, j)
@@ -393,7 +515,8 @@ class TwoContactFollower:
     """Two contacts followed sample by sample along a path that may grow (`advance`): contact 0
     (inner) on ``surfaces[objects[0]]``, contact 1 on ``surfaces[objects[1]]``, from moving
     sample ``k_first`` and the state ``x_start`` (the unknowns just before it, or a guess of
-    them) with sliding ``modes`` and the contacts' last points ``anchors`` (W, units of L).
+    them; a shaped rod's where ``shape`` is not the straight uniform one) with sliding
+    ``modes`` and the contacts' last points ``anchors`` (W, units of L).
 
     At each sample the contacts slide, else hold (each, then both), else the outer contact
     changes between tip and tangential; each solution must converge, push at both contacts
@@ -404,8 +527,13 @@ class TwoContactFollower:
     or where no equilibrium is near (snap-off)."""
 
     def __init__(self, surfaces: Sequence[Surface], objects: tuple[int, int], k_first: int,
-                 x_start: FloatArray, modes: NDArray[np.int64], anchors: FloatArray) -> None:
+                 x_start: FloatArray, modes: NDArray[np.int64], anchors: FloatArray,
+                 shape: RodShape = STRAIGHT_ROD) -> None:
+        if len(x_start) != (N_UNKNOWNS if shape.uniform else N_UNKNOWNS_SHAPED):
+            raise ValueError(f"{len(x_start)} unknowns for a "
+                             f"{'straight' if shape.uniform else 'shaped'} rod")
         self.surfaces = surfaces
+        self._params = shape.params
         self.stretch = Stretch([], "")
         self.k = k_first  # the next sample to reach
         self._x_last, self._last_step = x_start.copy(), math.nan  # the state, the step to it
@@ -438,7 +566,7 @@ class TwoContactFollower:
                     predictor = (x_last if not last_step > 0
                                  else x_last + (x_last - x_before) * (sub / last_step))
                     found, why = _step(predictor, x_last, p_WC, R_WC, self._sliding,
-                                       self._anchors, mu, kernel, surfaces)
+                                       self._anchors, mu, self._params, kernel, surfaces)
                     if found is None:
                         break
                     x_before, x_last, last_step, x0_at = x_last, found[0], sub, x0
@@ -464,10 +592,10 @@ class TwoContactFollower:
 
 def follow_two_contacts(path: SampledPath, surfaces: Sequence[Surface], objects: tuple[int, int],
                         k_first: int, x_start: FloatArray, modes: NDArray[np.int64],
-                        anchors: FloatArray) -> Stretch:
+                        anchors: FloatArray, shape: RodShape = STRAIGHT_ROD) -> Stretch:
     """Two contacts along the whole of ``path`` from moving sample ``k_first``
     (`TwoContactFollower`); a stretch that reaches the path's last sample ends ``path-end``."""
-    follower = TwoContactFollower(surfaces, objects, k_first, x_start, modes, anchors)
+    follower = TwoContactFollower(surfaces, objects, k_first, x_start, modes, anchors, shape)
     follower.advance(path, path.n_samples)
     if not follower.stretch.end:
         follower.stretch.end = "path-end"
@@ -480,7 +608,7 @@ def _sliding(mode: int) -> int:
 
 
 def _step(predictor: FloatArray, last: FloatArray, p_WC: FloatArray, R_WC: FloatArray,
-          sliding: NDArray[np.int64], anchors: FloatArray, mu: float,
+          sliding: NDArray[np.int64], anchors: FloatArray, mu: float, params: FloatArray,
           kernel: list[FloatArray], surfaces: Sequence[Surface]
           ) -> tuple[tuple[FloatArray, FloatArray, NDArray[np.int64]] | None, str]:
     """The first admissible state at one clamp pose over the contacts' modes (`follow_two_contacts`),
@@ -496,7 +624,7 @@ def _step(predictor: FloatArray, last: FloatArray, p_WC: FloatArray, R_WC: Float
     for combo in combos:
         modes = np.array(combo, dtype=np.int64)
         for start in (predictor, last) if predictor is not last else (last,):
-            x, state = solve(start, p_WC, R_WC, modes, anchors, mu, *kernel)
+            x, state = solve(start, p_WC, R_WC, modes, anchors, mu, params, *kernel)
             if not converged(state, modes):
                 continue
             ok, pulls = admissible(x, state, modes, mu)
@@ -504,7 +632,7 @@ def _step(predictor: FloatArray, last: FloatArray, p_WC: FloatArray, R_WC: Float
                 if pulls >= 0 and why == "none":
                     why = f"left {pulls}"
                 continue
-            line = rod_line(x, p_WC, R_WC, CLEAR_POINTS)
+            line = rod_line(x, p_WC, R_WC, CLEAR_POINTS, params)
             if any(float(surface.signed_distance(line).min()) < -1e-9 for surface in surfaces):
                 why = "another-object"
                 continue

@@ -65,10 +65,10 @@ def test_a_second_contact_that_carries_nothing_leaves_the_closed_form_tip_equili
     rows = objects(ball_a, ball_b)
     state = np.empty(tc.STATE_WIDTH)
     tc.evaluate(exact, np.zeros(3), np.eye(3), TANGENTIAL_TIP, np.array([side, tip]), 0.0,
-                *rows, state)
+                tc.STRAIGHT, *rows, state)
     assert np.abs(state[:10]).max() < 1e-12  # the closed form satisfies the ten conditions
     x, state = tc.newton(0.98 * exact, np.zeros(3), np.eye(3), TANGENTIAL_TIP,
-                         np.array([side, tip]), 0.0, *rows)
+                         np.array([side, tip]), 0.0, tc.STRAIGHT, *rows)
     assert tc.converged(state, TANGENTIAL_TIP)
     p_a, _t, _n, f_a = tc.contact_info(state, 0)
     p_b, _t, _n, f_b = tc.contact_info(state, 1)
@@ -85,7 +85,7 @@ def solved(mu: float, lift: float) -> tuple[np.ndarray, np.ndarray, list[Sphere]
     ball_a, ball_b = sphere(0.2, np.array([-0.22, lift, 0.5])), sphere(0.5, np.array([0.4, 0.0, 1.0]))
     anchors = np.array([[-0.02, lift, 0.51], [-0.1, 0.0, 0.99]])
     x0 = np.array([0.0, -0.25, 0.1, 0.0, 0.0, -0.3, 0.0, 0.0, 0.5, 0.9])
-    x, state = tc.solve(x0, np.zeros(3), np.eye(3), BOTH_TANGENTIAL, anchors, mu,
+    x, state = tc.solve(x0, np.zeros(3), np.eye(3), BOTH_TANGENTIAL, anchors, mu, tc.STRAIGHT,
                         *objects(ball_a, ball_b))
     assert tc.converged(state, BOTH_TANGENTIAL)
     assert tc.admissible(x, state, BOTH_TANGENTIAL, mu)[0]
@@ -134,7 +134,7 @@ def test_two_contacts_against_an_independent_integration_the_balls_and_coulomb(
     np.testing.assert_allclose(f0, -forces.sum(axis=0), atol=1e-14)
     np.testing.assert_allclose(m0, -np.cross(points, forces).sum(axis=0), atol=1e-14)
     # the rod stays outside both balls along its whole length
-    line = tc.rod_line(x, np.zeros(3), np.eye(3), 401)
+    line = tc.rod_line(x, np.zeros(3), np.eye(3), 401, tc.STRAIGHT)
     for ball in balls:
         assert np.min(np.linalg.norm(line - ball.pose.translation, axis=1)) > ball.radii[0] - 1e-9
 

@@ -146,7 +146,8 @@ def test_play_delivers_identical_payloads_in_order(
     tmp_path: Path, endpoints: Endpoints, context: zmq.Context[Any], rate: float | None
 ) -> None:
     path = tmp_path / "in.mcap"
-    written = make_bag(path)
+    # paced: 0.5 s of bag time; as fast as it goes: 25 s, which it must take far less than
+    written = make_bag(path, dt_ns=10_000_000 if rate else 500_000_000)
     with Subscriber(None, endpoints, context) as sub:
         result_box: list[Any] = []
         player = threading.Thread(target=lambda: result_box.append(play_bag(
@@ -160,8 +161,8 @@ def test_play_delivers_identical_payloads_in_order(
     span = got[-1][2] - got[0][2]
     if rate == 1.0:  # 0.5 s of bag time, played in real time
         assert 0.4 < span < 1.5
-    else:
-        assert span < 0.4
+    else:  # no pacing (on a machine under any load)
+        assert span < 5.0
 
 
 def test_play_topic_filter_and_rate(

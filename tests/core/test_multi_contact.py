@@ -9,6 +9,8 @@ import pytest
 
 from vibrissa import reconstruct
 from vibrissa.reconstruct import MULTI_SIGMAS, reconstruct_si, single_contact_excess
+from vibrissa.reconstruct_rods import reconstruct_rod
+from vibrissa.rods import RodShape
 from vibrissa.status import NO_CONTACT, ContactStatus
 from vibrissa.units import RodScale
 
@@ -131,3 +133,13 @@ def test_the_status_is_a_no_contact_flag_and_reconstruct_reports_it():
     assert rec.status[0] & MULTI and np.isnan(rec.point).all() and not rec.valid[0]
     twisted = reconstruct([0, 0, 0], [0.3, 0.0, 0.0], [0.0, 0.4, 0.01])  # m0 . f0 = 0, m0z != 0
     assert twisted.status[0] & MULTI
+
+
+def test_two_contacts_on_a_tapered_pre_curved_rod_get_no_point():
+    """The same 10 000 two-contact wrenches, Step 2 of a tapered (0.4), pre-curved (2 / L) rod
+    (`vibrissa.reconstruct_rods`): none gives a point."""
+    f0, m0 = two_contacts(10_000, 2)
+    rec, _ = reconstruct_rod(np.zeros_like(f0), f0 / ROD.force_n, m0 / ROD.moment_nm,
+                             RodShape(taper_ratio=0.4, precurvature=2.0))
+    assert not rec.valid.any() and np.isnan(rec.point).all()
+    assert np.all(rec.status & MULTI)

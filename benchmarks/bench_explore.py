@@ -10,7 +10,7 @@ run that touched nothing fails the launch, the mapper's map being empty: coverag
 ``--default`` adds the shipped scene. Not a test: minutes per run.
 
 Usage: ``python benchmarks/bench_explore.py [--scenes 2] [--seed 1] [--budget 0.3] [--default]
-[--planners uncertainty,lawnmower]``
+[--planners uncertainty,lawnmower] [--cluster-eps M]``
 """
 
 from __future__ import annotations
@@ -74,12 +74,15 @@ def random_scene(rng: np.random.Generator, n: int) -> dict[str, Any]:
     return {**base, "objects": random_objects(rng, n, base["explore"]["workspace_m"], clear_m)}
 
 
-def explore(scene: Path, planner: str, budget_m: float, out: Path) -> dict[str, Any]:
-    """One exploration in real processes; its report's exploration and the wall time."""
+def explore(scene: Path, planner: str, budget_m: float, out: Path,
+            cluster_eps: str = "") -> dict[str, Any]:
+    """One exploration in real processes (``cluster_eps``: the launch's argument, m; empty:
+    its default); its report's exploration and the wall time."""
     start = time.monotonic()
     run = subprocess.run(
         [sys.executable, "-m", "vibrissa.cli.main", "launch", str(LAUNCH / "explore.yaml"),
-         f"scene:={scene}", f"out:={out}", f"budget_m:={budget_m}", f"planner:={planner}"],
+         f"scene:={scene}", f"out:={out}", f"budget_m:={budget_m}", f"planner:={planner}",
+         *([f"cluster_eps:={cluster_eps}"] if cluster_eps else [])],
         capture_output=True, text=True)
     report_path = out / "report.json"
     empty = report_path.exists() and json.loads(report_path.read_text())["n_points"] == 0
@@ -97,6 +100,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--budget", type=float, default=0.3)
     parser.add_argument("--default", action="store_true", help="the shipped scene too")
+    parser.add_argument("--cluster-eps", default="",
+                        help="the launch's cluster_eps, m (0: the mapper's from the data)")
     parser.add_argument("--planners", default=",".join(PLANNERS),
                         help="comma-separated, of: " + ", ".join(PLANNERS))
     args = parser.parse_args()
@@ -113,7 +118,8 @@ def main() -> None:
     print("|---|---|---|---|---|")
     for name, path in scenes:
         for planner in args.planners.split(","):
-            result = explore(path, planner, args.budget, work / f"{path.stem}-{planner}")
+            result = explore(path, planner, args.budget, work / f"{path.stem}-{planner}",
+                             args.cluster_eps)
             print(f"| {name} | {planner} | {result['path_length_m']:.3f} | "
                   f"{result['coverage_final']:.3f} | {result['wall_s']:.0f} |", flush=True)
 

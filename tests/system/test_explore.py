@@ -85,7 +85,8 @@ def test_the_robot_explores_by_itself_never_enters_an_object_and_its_bag_replays
 
     replay = tmp_path / "replay"
     again = Launch(LAUNCH / "robot.yaml", "mode:=replay", f"bag:={out / 'explore.mcap'}",
-                   f"scene:={SCENE}", f"out:={replay}", domain=DOMAIN + 1)  # as recorded
+                   f"scene:={SCENE}", "cluster_eps:=0.01", f"out:={replay}",
+                   domain=DOMAIN + 1)  # as recorded, with the exploration's radius
     assert again.wait(400) == 0, again.text()
     plys = sorted(p.name for p in out.glob("*.ply"))
     assert plys == sorted(p.name for p in replay.glob("*.ply"))  # no file of an earlier map
@@ -99,7 +100,8 @@ def test_the_robot_explores_by_itself_never_enters_an_object_and_its_bag_replays
     # reconstructor (its tail and EndOfStream dropped, the graph waiting for an end)
     fast = tmp_path / "fast"
     again = Launch(LAUNCH / "robot.yaml", "mode:=replay", f"bag:={out / 'explore.mcap'}",
-                   "replay_rate:=0", f"scene:={SCENE}", f"out:={fast}", domain=DOMAIN + 1)
+                   "replay_rate:=0", f"scene:={SCENE}", "cluster_eps:=0.01", f"out:={fast}",
+                   domain=DOMAIN + 1)
     assert again.wait(400) == 0, again.text()
     for name in plys:
         assert digest(fast / name) == digest(out / name), name

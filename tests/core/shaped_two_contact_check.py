@@ -1,5 +1,5 @@
 """Independent checks of Step 1 samples of a tapered and/or pre-curved Kirchhoff rod touching
-one or two objects (tests only; imports nothing of `vibrissa.rods` or `vibrissa.two_contacts`).
+two objects (tests only; imports nothing of `vibrissa.rods` or `vibrissa.two_contacts`).
 
 SI throughout. The state along the rod is the centreline r and the director matrix
 R = [d1 d2 d3] (W); the internal moment m (distal part on proximal, about r(s)) is not
@@ -139,32 +139,6 @@ def shaped_two_contacts_worst(scene: Scene, whisker: Whisker, result: WhiskerRes
         *_, pts3 = rod.piece(s_out, L, r_out, R_out, np.zeros(3), np.zeros(3))
         worst["inside"] = max(worst["inside"],
                               _depth(surfaces, np.concatenate([pts1, pts2, pts3])) / L)
-    return worst
-
-
-def shaped_single_contact_worst(scene: Scene, whisker: Whisker, result: WhiskerResult
-                                ) -> dict[str, float]:
-    """The worst of the independent checks over a whisker's samples with exactly one contact
-    (lengths in its L): the contact on its object (``on``); from the clamp wrench the rod
-    reaching it (``inner``) with no moment left there (``moment``, of |m(0)|); |d3 . n| at a
-    tangential contact (``tangent``); the rod's depth in any object (``inside``)."""
-    rod, L = _Rod(whisker), whisker.length_m
-    surfaces = [obj.surface(1.0) for obj in scene.objects]
-    worst = dict.fromkeys(("on", "inner", "moment", "tangent", "inside"), 0.0)
-    worst["samples"] = 0
-    for k in map(int, np.flatnonzero((result.second_object < 0) & (result.object >= 0)
-                                     & np.isfinite(result.s1_m))):
-        worst["samples"] += 1
-        p0, R0, f0, m0 = _clamp(scene, whisker, result, k)
-        s1, p1, j = float(result.s1_m[k]), result.p_W_m[k], int(result.object[k])
-        worst["on"] = max(worst["on"], abs(float(surfaces[j].signed_distance(p1[None])[0])) / L)
-        r1, R1, m1, pts1 = rod.piece(0.0, s1, p0, R0, -m0, -f0)
-        worst["inner"] = max(worst["inner"], float(np.linalg.norm(r1 - p1)) / L)
-        worst["moment"] = max(worst["moment"],
-                              float(np.linalg.norm(m1) / (np.linalg.norm(m0) + 1e-300)))
-        worst["tangent"] = max(worst["tangent"], _tangent_miss(surfaces[j], p1, R1, s1, L))
-        *_, pts2 = rod.piece(s1, L, r1, R1, np.zeros(3), np.zeros(3))
-        worst["inside"] = max(worst["inside"], _depth(surfaces, np.concatenate([pts1, pts2])) / L)
     return worst
 
 

@@ -62,9 +62,9 @@ def test_tapered_and_pre_curved_rods_go_on_with_two_contacts(taper: float, kappa
     assert worst["outer"] < 1e-9 and worst["tangent"] < 1e-8 and worst["inside"] < 1e-9, worst
     assert worst["statics"] < 1e-12, worst
     # Step 2 from the clamp wrench alone (the rod's units): no single contact gives it
-    force, moment = whisker.ei_nm2 / whisker.length_m**2, whisker.ei_nm2 / whisker.length_m
-    rec, _ = reconstruct_rod(np.zeros((len(two), 3)), result.f0_n[two] / force,
-                             result.m0_nm[two] / moment, whisker.shape)
+    rec, _ = reconstruct_rod(np.zeros((len(two), 3)),
+                             *whisker.scale.wrench_from_si(result.f0_n[two], result.m0_nm[two]),
+                             whisker.shape)
     assert np.all(rec.status & int(ContactStatus.MULTI_CONTACT)) and np.isnan(rec.point).all()
 
 

@@ -770,11 +770,16 @@ class _WhiskerSteps:
                                                     == SamplePhase.TIP else two.MODE_TANGENTIAL)
         mode_other = two.MODE_TIP if deepest == AXIS_SEGMENTS else two.MODE_TANGENTIAL
         normal = self.surfaces[other].normal(line[deepest][None])[0]
+        # where the rod touched it: the surface's point nearest to the rod of the last row
+        # clear of it (eq. 7's chord of the new contact starts there, as a touch's does)
+        before = sweep.elastic_lines([n - 1], AXIS_SEGMENTS + 1)[0]
+        nearest = int(np.argmin(self.surfaces[other].signed_distance(before)))
+        touch = self.surfaces[other].closest_point(before[nearest][None])[0]
         force_own = sweep.force[n - 1]
         force_other = 1e-3 * float(np.linalg.norm(force_own)) * normal
         moment = -sweep.m0[n - 1]  # the rod's internal moment at the clamp, C
         own = (s_own, force_own, mode_own, sweep.contact[n - 1], self._object)
-        theirs = (s_other, force_other, mode_other, line[deepest], other)
+        theirs = (s_other, force_other, mode_other, touch, other)
         inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)
         # (the straight rod's unknowns leave out the twist about the clamp's axis: it has none)
         clamp_moment = moment[:2] if self.shape.uniform else moment

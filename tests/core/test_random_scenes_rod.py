@@ -89,6 +89,8 @@ def check_against_the_rod(scene: Scene, whisker: int = 0, every: int = 1) -> dic
     worst["reach"] = max(worst["reach"], two["on"], two["inner"], two["outer"])
     worst["tangent"] = max(worst["tangent"], two["tangent"])
     worst["inside"] = max(worst["inside"], two["inside"])
+    worst["cone"] = max(worst["cone"], two["cone"])
+    assert two["push"] > 0.0, f"a contact of two pulls the rod (F . n / |F| = {two['push']})"
     free = np.flatnonzero(result.phase == SamplePhase.NONE)
     rod_C = np.outer(np.linspace(0.0, 1.0, 50), [0.0, 0.0, 1.0])  # a free rod is straight
     R_WC = scene.path.R_WR[free] * w.X_RC.rotation

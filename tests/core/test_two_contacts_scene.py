@@ -58,11 +58,16 @@ def two_contacts_worst(scene: Scene, whisker: Whisker, result: WhiskerResult
     the inner point (``inner``); the moment left there about the chord to the outer point
     (``chord``, of |m|); the outer point reached with the one unknown left fitted (``outer``);
     the rod tangent to each object at a tangential contact (``tangent``); its depth in any
-    object, the straight rest past the outer contact included (``inside``)."""
+    object, the straight rest past the outer contact included (``inside``); each contact's
+    force (the outer one fitted, the inner one what balances the clamp's and it) outside the
+    friction cone (``cone``, (|F_t| - mu F_n) / |F|) beyond what the fit resolves, and least
+    pushing (``push``, F_n / |F|). Statics leaves the outer force's part along the chord to the
+    rod's shape between the contacts, which hardly depends on it where that piece is nearly
+    straight: a miss of 1e-9 L resolves it to 1e-9 L over the miss per N along the chord."""
     L, EI = whisker.length_m, whisker.ei_nm2
     surfaces = [obj.surface(1.0) for obj in scene.objects]
-    worst = dict.fromkeys(("on", "inner", "chord", "outer", "tangent", "inside"), 0.0)
-    worst["samples"] = 0
+    worst = dict.fromkeys(("on", "inner", "chord", "outer", "tangent", "inside", "cone"), 0.0)
+    worst["push"], worst["samples"] = 1.0, 0
     for k in np.flatnonzero(result.second_object >= 0):
         worst["samples"] += 1
         R_WR = scene.path.R_WR[k]
@@ -92,6 +97,17 @@ def two_contacts_worst(scene: Scene, whisker: Whisker, result: WhiskerResult
         fit = least_squares(miss, [0.0], xtol=1e-15, ftol=1e-15, gtol=1e-15)
         worst["outer"] = max(worst["outer"], float(np.linalg.norm(fit.fun)))
         outer_force = across + fit.x[0] * chord
+        step_n = 1e-6 * float(np.linalg.norm(f0))  # along the chord
+        per_n = float(np.linalg.norm(miss(fit.x + step_n / np.linalg.norm(chord))
+                                     - miss(fit.x - step_n / np.linalg.norm(chord)))) / (2 * step_n)
+        resolved_n = 1e-9 / per_n
+        for force, p, j in ((-f0 - outer_force, p_in, j_in), (outer_force, p_out, j_out)):
+            n = surfaces[j].normal(p[None])[0]
+            normal, size = float(force @ n), float(np.linalg.norm(force))
+            tangential = float(np.linalg.norm(force - normal * n))
+            worst["cone"] = max(worst["cone"],
+                                (tangential - scene.mu * normal - resolved_n) / size)
+            worst["push"] = min(worst["push"], normal / size)
         end = rod_from(y[:3], y[3:6], y[6:9], outer_force, s_out - s_in, EI)
         for t, p, j, s in ((y[3:6], p_in, j_in, s_in), (end[3:6], p_out, j_out, s_out)):
             if s < L * (1.0 - 1e-9):  # a tangential contact
@@ -120,10 +136,44 @@ def test_two_contacts_against_the_rod_integrated_from_the_clamp_wrench(lift_m: f
     worst = two_contacts_worst(scene, scene.whiskers[0], result)
     assert worst["on"] < 1e-12 and worst["inner"] < 1e-10 and worst["chord"] < 1e-8, worst
     assert worst["outer"] < 1e-10 and worst["tangent"] < 1e-8 and worst["inside"] <= 1e-12, worst
+    assert worst["cone"] < 1e-8 and worst["push"] > 0.0, worst
     # Step 2 from the clamp wrench alone: no single contact gives it, and it says so
     rec = reconstruct_si(np.tile([0.0, 0.0, 0.0, 1.0], (len(two), 1)), scene.path.p_WR[two],
                          result.f0_n[two], result.m0_nm[two], [scene.whiskers[0].scale] * len(two))
     assert np.all(rec.status & int(ContactStatus.MULTI_CONTACT)) and not rec.valid.any()
+
+
+def egg_below_scene() -> Scene:
+    """A tilted rod, mu 0.67, on a robot driving along x and yawing 0.04 rad: it leans on ball
+    a and runs into a small turned egg b low on its way, sliding along b as it touches."""
+    x = np.linspace(-0.02, 0.045, 700)
+    yaw = np.linspace(0.0, -0.041623, len(x))
+    path = RobotPath(0.01 * np.arange(len(x)), np.column_stack([x, 0 * x, 0 * x]),
+                     Rotation.from_euler("z", yaw[:, None]))
+    a = SceneObject("a", "sphere", {"radius_m": 0.0090278},
+                    Transform(Rotation.identity(), [0.020721, 0.0, 0.029736]))
+    b = SceneObject("b", "ellipsoid", {"semi_axes_m": [0.0059108, 0.0038152, 0.0044715]},
+                    Transform(Rotation.from_quat([-0.73749, -0.011138, 0.67199, 0.066458]),
+                              [0.022218, -0.00016759, 0.0055061]))
+    mount = Transform(Rotation.from_quat([0.017339, 0.047542, -0.00082541, 0.99872]),
+                      np.zeros(3))
+    return Scene(0.66939, (a, b), (Whisker("w", L_M, EI_NM2, mount),), path)
+
+
+@pytest.mark.slow
+def test_a_second_contact_slides_from_where_it_touched() -> None:
+    """The new contact's friction at its first sample opposes its slide from where the rod
+    touched the object (eq. 7's chord from the touch, as for a first contact), not from a point
+    inside it: from there the pair has an equilibrium, and the rod leans on both."""
+    scene = egg_below_scene()
+    (result,) = simulate(scene, workers=1)
+    starts = [(e.start, e.object, e.second_object) for e in result.episodes]
+    assert ("second-contact", "a", "b") in starts, starts
+    worst = two_contacts_worst(scene, scene.whiskers[0], result)
+    assert worst["samples"] >= 5, worst
+    assert worst["on"] < 1e-12 and worst["inner"] < 1e-10 and worst["chord"] < 1e-8, worst
+    assert worst["outer"] < 1e-9 and worst["tangent"] < 1e-8 and worst["inside"] <= 1e-12, worst
+    assert worst["cone"] < 1e-8 and worst["push"] > 0.0, worst
 
 
 def test_the_second_contact_is_written_and_read_back_bit_for_bit(tmp_path: Path) -> None:

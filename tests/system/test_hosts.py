@@ -10,6 +10,7 @@ import os
 import re
 import shutil
 import signal
+import statistics
 import subprocess
 import sys
 import time
@@ -188,7 +189,9 @@ def test_a_link_cut_for_3_s_mid_stream_is_counted_in_both_summaries_and_the_grap
              str(keys / "clients" / "station"), "--duration", "3"],
             capture_output=True, text=True, timeout=120)
         rates = [float(r) for r in re.findall(r"average rate: ([\d.]+) Hz", tool.stdout)]
-    assert rates and 200 < rates[-1] < 400, tool.stdout + tool.stderr  # rate:=300
+    # rate:=300; the median of the tool's reports: one after a stall of a loaded machine
+    # counts the catch-up burst (435 Hz beside 300 and 303)
+    assert rates and 200 < statistics.median(rates) < 400, tool.stdout + tool.stderr
     ip("-n", hosts.robot, "link", "set", hosts.link, "down")
     time.sleep(3.0)  # the fault's length, not a wait for a condition
     ip("-n", hosts.robot, "link", "set", hosts.link, "up")

@@ -84,6 +84,12 @@ def load_scene(path: str | Path) -> Scene:
             robot = load_path(path.parent / body["path"])
         except SceneError as exc:
             raise SceneError(f"{where}: path: {exc}") from None
+    if explore is not None and (entered := explore.objects_in_body(objects)):
+        raise SceneError(
+            f"{where}: explore.start: the robot's body (a vertical cylinder of radius "
+            f"{explore.body_radius_m} m around base_link, at the workspace's heights) is inside "
+            f"{', '.join(repr(name) for name in entered)} at the start; it must never enter an "
+            "object: move the start or the object")
     try:
         return Scene(mu, objects, whiskers, robot)
     except ValueError as exc:

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from vibrissa.formats.csv_text import cells, read_csv, write_csv
 from vibrissa.formats.scene_file import SceneError, check_name
@@ -94,11 +95,14 @@ def result_files(out: Path, scene: Scene) -> list[Path]:
 def _snap(result: WhiskerResult, snap: Snap) -> dict[str, Any]:
     """A jump of the path (`vibrissa.scene.snaps`): its time, kind, object and the wrenches of
     the samples before and at it."""
+    def wrench(a: npt.NDArray[np.float64]) -> list[float] | None:  # null: unresolved there
+        return a.tolist() if np.isfinite(a).all() else None
+
     return {"t": snap.t, "kind": snap.kind, "object": snap.object,
-            "f0_before": result.f0_n[snap.before].tolist(),
-            "m0_before": result.m0_nm[snap.before].tolist(),
-            "f0_after": result.f0_n[snap.after].tolist(),
-            "m0_after": result.m0_nm[snap.after].tolist()}
+            "f0_before": wrench(result.f0_n[snap.before]),
+            "m0_before": wrench(result.m0_nm[snap.before]),
+            "f0_after": wrench(result.f0_n[snap.after]),
+            "m0_after": wrench(result.m0_nm[snap.after])}
 
 
 def write_results(out: Path, scene: Scene, results: Sequence[WhiskerResult]) -> list[Path]:

@@ -517,7 +517,9 @@ class SnapEvent(Message):
     """A jump of a whisker's equilibrium path between two samples of a simulated stream
     (`vibrissa.scene.snaps`): the wrench changes by more than a step of the continuation
     allows. Stamped as the wrench sample it is told at (``after``); wrenches in the clamp frame
-    ``frame_id`` as the whisker's `WhiskerWrenchArray` rows, without noise."""
+    ``frame_id`` as the whisker's `WhiskerWrenchArray` rows, without noise, each pair left out
+    where its sample is unresolved (Step 1 found no equilibrium there: the whisker's stream has
+    no row for it)."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/SnapEvent"
     VERSION: ClassVar[int] = 1
@@ -528,11 +530,20 @@ class SnapEvent(Message):
     kind: str = _text("'snap-off', 'snap-through' (to another branch inside a contact) or "
                       "'landing' (on the sample after a snap-off)", choices=SNAP_KINDS)
     object: str = _text("the scene object of the contact")
-    f0_before: FloatArray = _array((3,), "N", "clamp force on the rod at the sample before, in C")
-    m0_before: FloatArray = _array((3,), "N m", "clamp moment about the clamp point at the "
-                                   "sample before, in C")
-    f0_after: FloatArray = _array((3,), "N", "clamp force at the sample told, in C")
-    m0_after: FloatArray = _array((3,), "N m", "clamp moment at the sample told, in C")
+    f0_before: FloatArray | None = _optional(
+        kind=ARRAY, shape=(3,), unit="N", dtype=FLOAT64,
+        doc="clamp force on the rod at the sample before, in C; omitted: unresolved there")
+    m0_before: FloatArray | None = _optional(
+        kind=ARRAY, shape=(3,), unit="N m", dtype=FLOAT64,
+        doc="clamp moment about the clamp point at the sample before, in C; omitted: "
+            "unresolved there")
+    f0_after: FloatArray | None = _optional(
+        kind=ARRAY, shape=(3,), unit="N", dtype=FLOAT64,
+        doc="clamp force at the sample told, in C; omitted: unresolved there (a snap-off "
+            "that no landing follows)")
+    m0_after: FloatArray | None = _optional(
+        kind=ARRAY, shape=(3,), unit="N m", dtype=FLOAT64,
+        doc="clamp moment at the sample told, in C; omitted: unresolved there")
 
 
 SENSOR_COMMANDS = ("bias",)

@@ -85,6 +85,7 @@ from vibrissa.scene import (
     Scene,
     SceneStream,
     SimulationStopped,
+    Snap,
     StreamSamples,
     WhiskerResult,
     back_and_forth,
@@ -550,6 +551,18 @@ def scene_stream(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
         yield stream_t, msg
 
 
+def snap_event(stamp: float, whisker_id: str, frame_id: str, snap: Snap,
+               before: tuple[FloatArray, FloatArray], after: tuple[FloatArray, FloatArray]
+               ) -> SnapEvent:
+    """``snap`` as told on the wire, with the wrenches (f0, m0) of its samples before and
+    after; an unresolved sample's (NaN) is left out."""
+    wrenches = [pair if all(np.isfinite(a).all() for a in pair) else (None, None)
+                for pair in (before, after)]
+    return SnapEvent(stamp=stamp, whisker_id=whisker_id, frame_id=frame_id, kind=snap.kind,
+                     object=snap.object, f0_before=wrenches[0][0], m0_before=wrenches[0][1],
+                     f0_after=wrenches[1][0], m0_after=wrenches[1][1])
+
+
 def scene_events(scene: Scene, results: Sequence[WhiskerResult], params: WrenchSourceParams,
                  repeat: bool = False) -> Iterator[tuple[float, SnapEvent]]:
     """The jumps of every whisker's path (`vibrissa.scene.snaps`) as `SnapEvent`s, each with
@@ -563,11 +576,9 @@ def scene_events(scene: Scene, results: Sequence[WhiskerResult], params: WrenchS
     for n in itertools.count() if repeat else range(1):
         for at, result, snap in found:
             stamp = at + n * duration
-            yield stamp, SnapEvent(
-                stamp=params.epoch_s + stamp, whisker_id=result.name,
-                frame_id=clamp_frame(result.name), kind=snap.kind, object=snap.object,
-                f0_before=result.f0_n[snap.before], m0_before=result.m0_nm[snap.before],
-                f0_after=result.f0_n[snap.after], m0_after=result.m0_nm[snap.after])
+            yield stamp, snap_event(params.epoch_s + stamp, result.name, clamp_frame(result.name),
+                                    snap, (result.f0_n[snap.before], result.m0_nm[snap.before]),
+                                    (result.f0_n[snap.after], result.m0_nm[snap.after]))
         if not found:
             return
 
@@ -739,11 +750,10 @@ class CommandedMessages:
             self.seq += 1
         out += [(t + params.pose_delay_s, 0, pose)
                 for t, pose in self._published(self._poses(samples))]
-        out += [(told.snap.t, 2, SnapEvent(
-            stamp=params.epoch_s + told.snap.t, whisker_id=self.names[told.whisker],
-            frame_id=self.frame_ids[told.whisker], kind=told.snap.kind, object=told.snap.object,
-            f0_before=told.f0_before, m0_before=told.m0_before, f0_after=told.f0_after,
-            m0_after=told.m0_after)) for told in samples.snaps]
+        out += [(told.snap.t, 2, snap_event(
+            params.epoch_s + told.snap.t, self.names[told.whisker], self.frame_ids[told.whisker],
+            told.snap, (told.f0_before, told.m0_before), (told.f0_after, told.m0_after)))
+            for told in samples.snaps]
         if len(samples.t):
             self.before = (float(samples.t[-1]), samples.p_WR[-1], samples.q_WR[-1])
         return sorted(out, key=lambda e: (e[0], e[1]))

@@ -3,12 +3,17 @@ extent of its body (a scene file's ``explore``, `vibrissa.formats.scene_file.loa
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from vibrissa.frames import Transform
-from vibrissa.scene import RobotPath, robot_path
+from vibrissa.scene import RobotPath, SceneObject, robot_path
+
+BODY_SAMPLE_M = 2e-3
+"""`Explore.objects_in_body` samples the body's volume this finely at most, m."""
 
 
 @dataclass(frozen=True)
@@ -50,3 +55,22 @@ class Explore:
         """The robot standing at ``start``: a path of one sample at t = 0 s."""
         return robot_path(np.zeros(1), self.start.translation[None],
                           self.start.quaternion_xyzw[None])
+
+    def objects_in_body(self, objects: Sequence[SceneObject]) -> list[str]:
+        """The names of ``objects`` that the body at ``start`` enters, within the workspace's
+        heights: its volume sampled every `BODY_SAMPLE_M` (a quarter of its radius at most)."""
+        radius = self.body_radius_m
+        step = min(BODY_SAMPLE_M, radius / 4)
+        grid = np.arange(-radius, radius + step / 2, step)
+        x, y = (a.ravel() for a in np.meshgrid(grid, grid))
+        inside = np.hypot(x, y) <= radius
+        angle = np.linspace(0.0, 2 * math.pi, max(16, math.ceil(2 * math.pi * radius / step)),
+                            endpoint=False)
+        disc = np.concatenate([np.column_stack([x[inside], y[inside]]),
+                               radius * np.column_stack([np.cos(angle), np.sin(angle)])])
+        low, high = self.workspace_min_m[2], self.workspace_max_m[2]
+        heights = np.linspace(low, high, max(2, math.ceil((high - low) / step) + 1))
+        centre = np.asarray(self.start.translation, dtype=float)
+        points = np.column_stack([np.tile(disc + centre[:2], (len(heights), 1)),
+                                  np.repeat(heights, len(disc))])
+        return [obj.name for obj in objects if bool((obj.surface(1.0).value(points) < 0).any())]

@@ -646,6 +646,8 @@ class _WhiskerSteps:
         First, for all objects at once: none where the rod enters no object at any sample and
         moves at most `SUBSAMPLE_L` from one to the next (`SampledPath.first_contact` then has
         no sub-samples to check)."""
+        if not self.surfaces:
+            return False
         p_WR, q_WR = self._samples_from(j)
         window = SampledPath(p_WR, q_WR, self.scene.mu, self.mount, self.h)
         p_WC, R_WC = window.clamp_pose(window.x0_of(np.arange(window.n_samples, dtype=float)))

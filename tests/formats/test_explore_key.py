@@ -129,3 +129,33 @@ def test_the_explore_dataclass_checks_itself() -> None:
     explore = Explore(start, (-1, -1, -1), (1, 1, 1), 1)  # type: ignore[arg-type]
     assert explore.workspace_min_m == (-1.0, -1.0, -1.0) and explore.body_radius_m == 1.0
     assert all(isinstance(v, float) for v in explore.workspace_max_m)
+
+
+@pytest.mark.parametrize("gap_m, refused", [(-0.003, True), (0.003, False)])
+def test_a_start_with_the_body_in_an_object_is_refused_naming_it(
+        tmp_path: Path, gap_m: float, refused: bool) -> None:
+    """The body at the start, a vertical cylinder of 30 mm (EXPLORE), and a ball of 20 mm at
+    the workspace's mid-height, its centre 50 mm + ``gap_m`` away across the floor: closer
+    than the two radii it is inside the ball, and the file is refused; 3 mm apart it is not."""
+    start = np.array(EXPLORE["start"]["position_m"])  # type: ignore[index]
+    direction = np.array([0.6, 0.8, 0.0])
+    centre = start + (0.05 + gap_m) * direction
+    centre[2] = 0.025
+    ball = {"name": "ball", "shape": "sphere", "radius_m": 0.02, "position_m": centre.tolist()}
+    far = {"name": "far", "shape": "sphere", "radius_m": 0.02, "position_m": [0.25, 0.05, 0.02]}
+    path = write(tmp_path, scene_doc(objects=[far, ball]))
+    if refused:
+        with pytest.raises(SceneError, match=r"explore\.start: .* inside 'ball' at the start"):
+            load_scene(path)
+    else:
+        assert [o.name for o in load_scene(path).objects] == ["far", "ball"]
+
+
+def test_an_object_above_the_workspace_is_not_in_the_body(tmp_path: Path) -> None:
+    """The body is checked at the workspace's heights (0 to 50 mm): a ball over the start from
+    53 mm up does not count."""
+    ball = {"name": "lamp", "shape": "sphere", "radius_m": 0.02, "position_m": [0.0, -0.05, 0.073]}
+    assert load_scene(write(tmp_path, scene_doc(objects=[ball]))).objects[0].name == "lamp"
+    ball["position_m"] = [0.0, -0.05, 0.068]  # from 48 mm up: in the body
+    with pytest.raises(SceneError, match="inside 'lamp'"):
+        load_scene(write(tmp_path, scene_doc(objects=[ball])))

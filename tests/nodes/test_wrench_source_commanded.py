@@ -7,6 +7,7 @@ counted and logged and the node goes on; the stream ends on the commander's EndO
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 from collections import deque
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ import pytest
 
 from tests.nodes.test_scene_results import FakePublisher
 from vibrissa.formats.scene_file import load_scene
+from vibrissa.formats.scene_results import write_results
 from vibrissa.msgs import EndOfStream, Message, PathSegment, RobotPose, WhiskerWrenchArray
 from vibrissa.msgs.codec import encode
 from vibrissa.nodes.wrench_source import WrenchSourceParams, run_commanded, scene_stream
@@ -268,3 +270,90 @@ def test_the_jumps_of_a_commanded_path_go_out_after_their_wrench(tmp_path: Path)
         assert abs(event.stamp - (1000.0 + w.t)) <= 2.5 / 500  # the commanded step is its own
         told = wrenches[event.stamp]
         np.testing.assert_array_equal(event.f0_after, told.f0[0])
+
+
+@pytest.mark.slow
+def test_a_snap_off_onto_an_unresolved_sample_goes_out_without_its_after_wrench(
+        tmp_path: Path) -> None:
+    """A robot standing with its body in a ball (a scene file refuses that with an ``explore``
+    key, not without one) turns and drives: its rod, in contact near the clamp, snaps off where
+    its unloaded shape is inside the ball and no landing is found, so the sample after is
+    unresolved (no row in the stream). The SnapEvent goes out with the wrench before and
+    without one after (on the wire: the field left out), and the stream goes on."""
+    from vibrissa.msgs import SnapEvent
+    from vibrissa.msgs.codec import decode
+
+    (tmp_path / "scene.yaml").write_text(
+        "mu: 0.2\nobjects:\n  - {name: ball, shape: sphere, radius_m: 0.03, position_m: "
+        "[0.01, 0.0, 0.03]}\nwhiskers:\n  - {name: w03, length_m: 0.05, ei_nm2: 0.00023, mount: "
+        "{position_m: [0.005176380902, 0.019318516526, 0.015], quaternion_xyzw: "
+        "[-0.6830127018922193, 0.1830127018922193, 0, 0.7071067811865476]}}\n"
+        "path: path.csv\n")
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,0,0,0,0,0,0,1\n")
+    s = 0.5 ** 0.5
+    look = [[0, 0, 0, 1], [0, 0, s, s], [0, 0, 1, 0], [0, 0, s, -s], [0, 0, 0, -1]]
+    c, d = np.cos(np.pi / 8), np.sin(np.pi / 8)
+    route = [[0, 0, 0, -1], [0, 0, 0, 1], [0, 0, d, c], [0, 0, c, d], [0, 0, c, -d],
+             [0, 0, d, -c], [0, 0, -d, -c]]
+    node = CommandedNode([
+        segment(np.zeros((5, 3)), look, speed_mps=0.05),
+        segment([[0, 0, 0], [0.004, 0, 0], *[[0.032, 0.028, 0]] * 5], route, speed_mps=0.05),
+        end()])
+    run_commanded(node, WrenchSourceParams(  # type: ignore[arg-type]
+        mode="scene", scene=str(tmp_path / "scene.yaml"), path_topic=PATH, pose_rate_hz=0.0,
+        epoch_s=1000.0))
+    events = [m for m in node.publishers["events"].sent if m != "EOS"]
+    assert node.publishers["events"].sent[-1] == "EOS"
+    wrenches = {w.stamp: w for w in node.publishers["wrench"].sent if w != "EOS"}
+    unresolved = [e for e in events if isinstance(e, SnapEvent) and e.f0_after is None]
+    assert unresolved and all(e.kind == "snap-off" and e.m0_after is None for e in unresolved)
+    for event in unresolved:
+        assert event.f0_before is not None and np.isfinite(event.f0_before).all()
+        assert wrenches[event.stamp].whisker_ids == []  # no row at the sample told
+        back = decode(encode(event))
+        assert isinstance(back, SnapEvent) and back.f0_after is None and back.m0_after is None
+        np.testing.assert_array_equal(back.f0_before, event.f0_before)
+    # the stream went on: wrenches after the first of them, the last the robot's end
+    assert max(wrenches) > unresolved[0].stamp + 1.0
+    for event in events:  # as the real publisher does (a NaN there stopped the node)
+        encode(event)
+
+    # the same path fixed: simulate's results tell the same jumps, summary.json with null for
+    # the wrench of an unresolved sample (strict JSON: no NaN)
+    poses = [p for p in node.publishers["/robot/pose"].sent if isinstance(p, RobotPose)]
+    scene = load_scene(tmp_path / "scene.yaml")
+    scene = dataclasses.replace(scene, path=robot_path(
+        np.array([p.stamp - 1000.0 for p in poses]), np.array([p.position for p in poses]),
+        np.array([p.orientation for p in poses])))
+    (result,) = simulate(scene, workers=1)
+    write_results(tmp_path / "out", scene, [result])
+
+    def no_nan(token: str) -> None:
+        raise AssertionError(f"{token} in summary.json")
+
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text(), parse_constant=no_nan)
+    told = summary["whiskers"]["w03"]["snaps"]
+    assert [(s["kind"], s["f0_after"] is None) for s in told] == [
+        (e.kind, e.f0_after is None) for e in events]
+
+
+def test_a_commanded_robot_in_a_scene_without_objects_is_free_all_along(tmp_path: Path
+                                                                       ) -> None:
+    """No objects (an empty room): every commanded sample goes out, each row a free rod's
+    zero wrench, and the stream ends on the commander's EndOfStream."""
+    (tmp_path / "scene.yaml").write_text(
+        "mu: 0.2\nobjects: []\nwhiskers:\n  - {name: w, length_m: 0.05, ei_nm2: 0.00023, "
+        "mount: {position_m: [0.02, 0, 0.015], quaternion_xyzw: [0, 0.7071067811865476, 0, "
+        "0.7071067811865476]}}\nexplore: {start: {position_m: [0, 0, 0]}, workspace_m: "
+        "[[-0.1, -0.1, 0], [0.1, 0.1, 0.1]], body_radius_m: 0.02}\n")
+    s = 0.5 ** 0.5
+    node = CommandedNode([segment([[0, 0, 0], [0.03, 0, 0], [0.03, 0, 0]],
+                                  [[0, 0, 0, 1], [0, 0, 0, 1], [0, 0, s, s]]), end()])
+    run_commanded(node, WrenchSourceParams(  # type: ignore[arg-type]
+        mode="scene", scene=str(tmp_path / "scene.yaml"), path_topic=PATH, pose_rate_hz=0.0,
+        epoch_s=1000.0))
+    wrenches = [w for w in node.publishers["wrench"].sent if w != "EOS"]
+    assert node.publishers["wrench"].sent[-1] == "EOS"
+    # 30 mm at 0.1 m/s and a quarter turn at 1 rad/s, 500 samples/s: 150 + 785 samples
+    assert len(wrenches) >= 900
+    assert all(w.whisker_ids == ["w"] and not w.f0.any() and not w.m0.any() for w in wrenches)

@@ -536,6 +536,13 @@ def local_origin(path: RobotPath) -> FloatArray:
     return np.round((path.p_WR.min(axis=0) + path.p_WR.max(axis=0)) / 2.0)
 
 
+PAIR_START_LOADS = (1e-3, 1e-2, 0.1, 0.3, 1.0, 3.0)
+"""Guesses of a second contact's force at its first sample, in units of the first contact's,
+tried in turn (`_WhiskerSteps._start_pair`): the first from which Newton reaches an admissible
+state of both contacts. A second object entered deeply within one sample bears a load of the
+first's order there, which Newton does not find from a small guess."""
+
+
 @dataclass
 class _Pair:
     """A stretch of two contacts being followed (`_WhiskerSteps.go_on_pair`): its follower,
@@ -778,20 +785,23 @@ class _WhiskerSteps:
         nearest = int(np.argmin(self.surfaces[other].signed_distance(before)))
         touch = self.surfaces[other].closest_point(before[nearest][None])[0]
         force_own = sweep.force[n - 1]
-        force_other = 1e-3 * float(np.linalg.norm(force_own)) * normal
-        moment = -sweep.m0[n - 1]  # the rod's internal moment at the clamp, C
         own = (s_own, force_own, mode_own, sweep.contact[n - 1], self._object)
-        theirs = (s_other, force_other, mode_other, touch, other)
-        inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)
+        moment = -sweep.m0[n - 1]  # the rod's internal moment at the clamp, C
         # (the straight rod's unknowns leave out the twist about the clamp's axis: it has none)
         clamp_moment = moment[:2] if self.shape.uniform else moment
-        x_start = np.concatenate([clamp_moment, inner[1], outer[1], [inner[0], outer[0]]])
-        follower = two.TwoContactFollower(
-            self.surfaces, (inner[4], outer[4]), k_first, x_start,
-            np.array([inner[2], outer[2]], dtype=np.int64), np.array([inner[3], outer[3]]),
-            self.shape)
-        follower.advance(self.path, k_first + 1)
-        if not follower.stretch.rows:
+        for load in PAIR_START_LOADS:
+            force_other = load * float(np.linalg.norm(force_own)) * normal
+            theirs = (s_other, force_other, mode_other, touch, other)
+            inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)
+            x_start = np.concatenate([clamp_moment, inner[1], outer[1], [inner[0], outer[0]]])
+            follower = two.TwoContactFollower(
+                self.surfaces, (inner[4], outer[4]), k_first, x_start,
+                np.array([inner[2], outer[2]], dtype=np.int64), np.array([inner[3], outer[3]]),
+                self.shape)
+            follower.advance(self.path, k_first + 1)
+            if follower.stretch.rows:
+                break
+        else:
             return False
         self._pair = _Pair(follower, (inner[4], outer[4]), 0 if inner[4] == self._object else 1,
                            other, k_first, len(rows))

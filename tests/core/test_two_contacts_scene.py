@@ -199,3 +199,53 @@ def test_a_rod_that_meets_nothing_else_is_as_before() -> None:
     assert not np.any(a.second_object >= 0)
     np.testing.assert_array_equal(a.f0_n, b.f0_n)
     np.testing.assert_array_equal(a.p_W_m, b.p_W_m)
+
+
+def deep_egg_scene(samples: int) -> Scene:
+    """egg_below_scene's kind with another ball, egg and friction: at 590 samples (0.11 mm of
+    travel each) the rod, leaning on ball a, is 0.1 mm inside egg b at the first sample past
+    the touch."""
+    x = np.linspace(-0.02, 0.045, samples)
+    yaw = np.linspace(0.0, -0.04, len(x))
+    path = RobotPath(0.01 * np.arange(len(x)), np.column_stack([x, 0 * x, 0 * x]),
+                     Rotation.from_euler("z", yaw[:, None]))
+    a = SceneObject("a", "sphere", {"radius_m": 0.0087503},
+                    Transform(Rotation.identity(), [0.020461, 0.0, 0.031685]))
+    b = SceneObject("b", "ellipsoid", {"semi_axes_m": [0.0058456, 0.0042664, 0.0049674]},
+                    Transform(Rotation.from_quat([-0.85270, 0.0083982, -0.48241, -0.20028]),
+                              [0.024098, -0.00021675, 0.0046554]))
+    mount = Transform(Rotation.from_quat([0.017339, 0.047542, -0.00082541, 0.99872]),
+                      np.zeros(3))
+    return Scene(0.43838, (a, b), (Whisker("w", L_M, EI_NM2, mount),), path)
+
+
+@pytest.mark.slow
+def test_an_object_entered_deeply_within_a_sample_starts_the_pair_that_finer_samples_follow(
+        ) -> None:
+    """From a small guess of the new contact's load Newton reaches no admissible state at the
+    pair's first sample (the episode ended `another-object`, its samples unresolved); a
+    larger guess (`PAIR_START_LOADS`) reaches the state that 4x finer sampling follows from
+    the touch: the same episodes, started within a sample of each other, and at the samples
+    both have the same wrench within 5e-3 of its size (friction's chords differ with the
+    step), every one passing the independent check."""
+    results = {}
+    for n in (590, 2357):  # sample k of the first is sample 4 k of the second
+        scene = deep_egg_scene(n)
+        (results[n],) = simulate(scene, workers=1)
+        worst = two_contacts_worst(scene, scene.whiskers[0], results[n])
+        assert worst["samples"] >= 5, worst
+        assert worst["on"] < 1e-12 and worst["inner"] < 1e-10 and worst["chord"] < 1e-8, worst
+        assert worst["outer"] < 1e-9 and worst["tangent"] < 1e-8, worst
+        assert worst["inside"] <= 1e-12 and worst["cone"] < 1e-8 and worst["push"] > 0.0, worst
+    coarse, fine = results[590], results[2357]
+    assert [(e.start, e.end) for e in coarse.episodes][:2] == [
+        (e.start, e.end) for e in fine.episodes][:2] == [
+        ("touch", "another-object"), ("second-contact", "detachment")]
+    starts = [e.t_first_contact / 0.01 / scale for e, scale in ((coarse.episodes[1], 1),
+                                                               (fine.episodes[1], 4))]
+    assert abs(starts[0] - starts[1]) <= 1.0, starts
+    pair = np.flatnonzero(coarse.second_object >= 0)
+    assert np.all(fine.second_object[4 * pair] >= 0)
+    for k in pair:
+        size = np.linalg.norm(coarse.f0_n[k])
+        assert np.linalg.norm(coarse.f0_n[k] - fine.f0_n[4 * k]) <= 5e-3 * size, k

@@ -63,7 +63,8 @@ def two_contacts_worst(scene: Scene, whisker: Whisker, result: WhiskerResult
     friction cone (``cone``, (|F_t| - mu F_n) / |F|) beyond what the fit resolves, and least
     pushing (``push``, F_n / |F|). Statics leaves the outer force's part along the chord to the
     rod's shape between the contacts, which hardly depends on it where that piece is nearly
-    straight: a miss of 1e-9 L resolves it to 1e-9 L over the miss per N along the chord."""
+    straight: the fit's miss of the outer point (at least 1e-9 L) resolves it to that miss over
+    the miss per N along the chord."""
     L, EI = whisker.length_m, whisker.ei_nm2
     surfaces = [obj.surface(1.0) for obj in scene.objects]
     worst = dict.fromkeys(("on", "inner", "chord", "outer", "tangent", "inside", "cone"), 0.0)
@@ -100,7 +101,7 @@ def two_contacts_worst(scene: Scene, whisker: Whisker, result: WhiskerResult
         step_n = 1e-6 * float(np.linalg.norm(f0))  # along the chord
         per_n = float(np.linalg.norm(miss(fit.x + step_n / np.linalg.norm(chord))
                                      - miss(fit.x - step_n / np.linalg.norm(chord)))) / (2 * step_n)
-        resolved_n = 1e-9 / per_n
+        resolved_n = max(1e-9, float(np.linalg.norm(fit.fun))) / per_n
         for force, p, j in ((-f0 - outer_force, p_in, j_in), (outer_force, p_out, j_out)):
             n = surfaces[j].normal(p[None])[0]
             normal, size = float(force @ n), float(np.linalg.norm(force))

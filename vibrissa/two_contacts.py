@@ -150,6 +150,15 @@ def _shaped_loads(x: FloatArray, R_WC: FloatArray, y_inner: FloatArray
 
 
 @compiled
+def _line_steps(s: float, end: float, s0: float, s1: float) -> int:
+    """Runge-Kutta steps of `rod_line` from ``s`` to ``end`` on the loaded segment holding
+    them: no longer than the solve's own (`SEGMENT_STEPS` per segment), so that the line is the
+    solved rod to its accuracy; 1 / `SEGMENT_STEPS` beyond the outer contact."""
+    segment = s0 if s < s0 else s1 - s0 if s < s1 else 1.0
+    return max(1, int(math.ceil((end - s) * SEGMENT_STEPS / segment - 1e-9)))
+
+
+@compiled
 def _shaped_rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: int,
                      params: FloatArray) -> FloatArray:
     """`rod_line` of a shaped rod: loaded to the outer contact, its unloaded (pre-curved)
@@ -166,8 +175,7 @@ def _shaped_rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: 
             boundary = s0 if s < s0 else s1 if s < s1 else math.inf
             end = min(target, boundary)
             load_f, load_m = (f0, m0) if s < s0 else (f0b, m0b) if s < s1 else (zero, zero)
-            _shaped_segment(y, s, end, load_f, load_m, params,
-                            max(1, int(math.ceil((end - s) * SEGMENT_STEPS))))
+            _shaped_segment(y, s, end, load_f, load_m, params, _line_steps(s, end, s0, s1))
             s = end
             if s == s0:
                 f0, m0, f0b, m0b = _shaped_loads(x, R_WC, y)
@@ -201,7 +209,7 @@ def rod_line(x: FloatArray, p_WC: FloatArray, R_WC: FloatArray, points: int,
             end = min(target, boundary)
             for i in range(3):
                 n[i] = x[2 + i] + x[5 + i] if s < s0 else x[5 + i] if s < s1 else 0.0
-            _segment(y, n, end - s, max(1, int(math.ceil((end - s) * SEGMENT_STEPS))))
+            _segment(y, n, end - s, _line_steps(s, end, s0, s1))
             s = end
         out[k, 0], out[k, 1], out[k, 2] = y[0], y[1], y[2]
     return out

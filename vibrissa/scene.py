@@ -842,8 +842,8 @@ class _WhiskerSteps:
         end = SweepEnd(stretch.end) if stretch.end != "left" else SweepEnd.DETACHMENT
         self.episodes.append(Episode(self.scene.objects[self._object].name,
                                      self._time_at(pair.k_first - 0.5), str(end), [],
-                                     "second-contact",
-                                     second_object=self.scene.objects[pair.other].name))
+                                     "second-contact", self._pair_jumps(pair),
+                                     self.scene.objects[pair.other].name))
         final = stretch.rows[-1].state
         force = two.contact_info(final, 1 if stretch.left != 1 else 0)[3]
         if end is SweepEnd.DETACHMENT:  # one contact left: the other goes on alone
@@ -853,6 +853,11 @@ class _WhiskerSteps:
             self.k = self._skip_unresolved(last + 1)
             return
         self._after_episode(end, last, force, pair.rows_before)
+
+    def _pair_jumps(self, pair: _Pair) -> tuple[float, ...]:
+        """The times of the samples a contact of ``pair`` jumped to (a far slide,
+        `vibrissa.two_contacts.StretchRow`): the stretch's snap-throughs so far."""
+        return tuple(self._time_at(row.k) for row in pair.follower.stretch.rows if row.jumped)
 
     def _span_start(self, sweep: Sweep) -> int:
         """The episode's first sample: its landing's, or the first past the touch (on the
@@ -1447,7 +1452,7 @@ class _StreamSteps(_WhiskerSteps):
         if self._pair is not None:  # where the stretch of two contacts in progress begins
             episodes.append(Episode(self.scene.objects[self._object].name,
                                     self._time_at(self._pair.k_first - 0.5), "", [],
-                                    "second-contact"))
+                                    "second-contact", self._pair_jumps(self._pair)))
         elif self.run is not None or self._snapped is not None:  # where the next one begins
             at = float(t[np.searchsorted(of_sample, self.k)]) if self.k <= of_sample[-1] else t[-1]
             episodes.append(Episode(self.scene.objects[self._object].name, at, "", [],

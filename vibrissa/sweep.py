@@ -226,7 +226,7 @@ class Sweep:
     just after the first contact that finds no equilibrium is taken as 2-32 steps (the positions
     in between are missing, the row is ``refined``): see ``_longer_step``. ``refined`` also marks
     steps reached through sub-steps (the chord of eq. 7 is then a sub-step's). ``jumped`` marks
-    rows the contact jumped to: a far slide (``_FAR_STEPS``), taken where no nearer state was
+    rows the contact jumped to: a far slide (``FAR_STEPS``), taken where no nearer state was
     found, or a jump of the contact force inside a step retaken in sub-steps
     (`_through_steep_step`): a snap-through to another branch.
     """
@@ -1282,7 +1282,7 @@ def _attempt(tracks: list[_Track], targets: FloatArray, steps: FloatArray) -> ND
             if back:
                 ok[back] = ~hold(rows[back])
             # A far slide waits for the later stages: the contact may hold or slip a little
-            # from where it holds (`_FAR_STEPS`).
+            # from where it holds (`FAR_STEPS`).
             for k in np.flatnonzero(ok):
                 i = int(rows[k])
                 if mu[i] > 0 and _far(tracks[i], _chord(state.rows[k, 7:10], p1[i]), targets[i],
@@ -1403,10 +1403,10 @@ def _predict_alternating(track: _Track) -> FloatArray:
     return 2.0 * track.history[-2] - track.history[-4]
 
 
-_FAR_STEPS = 2.0
-_FAR_GROWTH = 4.0
-"""A slide is far when it moves the contact further than both ``_FAR_STEPS`` steps (a step: the
-furthest any point of the straight rod moves) and ``_FAR_GROWTH`` times the last step's move. A
+FAR_STEPS = 2.0
+FAR_GROWTH = 4.0
+"""A slide is far when it moves the contact further than both ``FAR_STEPS`` steps (a step: the
+furthest any point of the straight rod moves) and ``FAR_GROWTH`` times the last step's move. A
 far slide is taken only where no later stage finds the contact held (inside the cone) or, a
 tip, slipping a little from where it holds: the return mapping of frictional contact, whose
 state goes on from the last one. Far slides are jumps to another branch: a tip on a ball (mu
@@ -1418,12 +1418,12 @@ growing by less than 2x)."""
 
 def _far(track: _Track, chord: float, target: float, step: float) -> bool:
     """Whether a slide moving the contact by ``chord`` in the step of ``step`` to ``target``
-    is far (``_FAR_STEPS`` of the rod's travel in it); not when it repeats the move two steps
+    is far (``FAR_STEPS`` of the rod's travel in it); not when it repeats the move two steps
     back (within 2x): in stick-slip, jumps alternate with creeps where each creep's branch
     folds, and checking every jump cost the paper's trail at mu 0.4 3x the time for the same
     states."""
-    return (chord > _FAR_GROWTH * track.chord
-            and chord > _FAR_STEPS * track.trail.travel(target + step, target)
+    return (chord > FAR_GROWTH * track.chord
+            and chord > FAR_STEPS * track.trail.travel(target + step, target)
             and not 0.5 * track.chord_before <= chord <= 2.0 * track.chord_before)
 
 

@@ -61,6 +61,7 @@ from vibrissa.equilibrium import (
 from vibrissa.paths import SampledPath
 from vibrissa.rods import RodShape, clamp_state, frame_of, moment_at, rk4_step
 from vibrissa.surfaces import Surface
+from vibrissa.sweep import FAR_GROWTH, FAR_STEPS
 
 FloatArray = NDArray[np.float64]
 
@@ -496,8 +497,10 @@ _OTHER_PHASE = {MODE_TIP: MODE_TANGENTIAL, MODE_TANGENTIAL: MODE_TIP}
 @dataclass
 class StretchRow:
     """One sample of a stretch of two contacts: the moving sample ``k``, the unknowns ``x``, the
-    state, the contacts' modes, the clamp's reaction f0, m0 in C (units of EI/L^2, EI/L) and
-    whether sub-steps reached it."""
+    state, the contacts' modes, the clamp's reaction f0, m0 in C (units of EI/L^2, EI/L),
+    whether sub-steps reached it and whether a contact jumped there: it moved further than
+    both `vibrissa.sweep.FAR_STEPS` samples of the rod's travel and `vibrissa.sweep.FAR_GROWTH`
+    times its move at the sample before (a snap-through, as a single contact's far slide)."""
 
     k: int
     x: FloatArray
@@ -506,6 +509,7 @@ class StretchRow:
     f0: FloatArray
     m0: FloatArray
     refined: bool
+    jumped: bool = False
 
 
 @dataclass
@@ -548,6 +552,7 @@ class TwoContactFollower:
         self._x_before = x_start
         self._sliding = modes.copy()
         self._anchors = anchors.copy()
+        self._moves = np.full(2, np.inf)  # each contact's move at the last sample (none yet)
         self._kernel = [np.ascontiguousarray(np.concatenate([surfaces[j].kernel_arrays[i]
                                                              for j in objects]))
                         for i in range(5)]
@@ -593,7 +598,15 @@ class TwoContactFollower:
                 break
             p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0_k])))
             f0, m0 = clamp_reactions(x_last, state, p_WC, R_WC)
-            rows.append(StretchRow(k, x_last, state, modes_now, f0, m0, refined))
+            jumped = False
+            if rows:
+                moves = np.array([np.linalg.norm(contact_info(state, j)[0]
+                                                 - contact_info(rows[-1].state, j)[0])
+                                  for j in range(2)])
+                jumped = bool(np.any((moves > FAR_STEPS * span) & (moves > FAR_GROWTH
+                                                                   * self._moves)))
+                self._moves = moves
+            rows.append(StretchRow(k, x_last, state, modes_now, f0, m0, refined, jumped))
             self.k = k + 1
         self._x_last, self._x_before, self._last_step = x_last, x_before, last_step
 

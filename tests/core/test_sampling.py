@@ -125,7 +125,7 @@ def test_a_jump_of_the_contact_inside_an_episode_is_told_with_its_wrenches(tmp_p
     for t in jumps:
         k = int(np.flatnonzero(result.t == t)[0])
         moved_m = np.linalg.norm(result.p_W_m[k] - result.p_W_m[k - 1])
-        assert moved_m > 2 * tip_step_m  # `vibrissa.sweep._FAR_STEPS`: more than two steps
+        assert moved_m > 2 * tip_step_m  # `vibrissa.sweep.FAR_STEPS`: more than two steps
 
     write_results(tmp_path, scene, [result])
     summary = json.loads((tmp_path / "summary.json").read_text())

@@ -18,6 +18,7 @@ from pathlib import Path
 from vibrissa.runtime.node import EXIT_LOST_DATA
 
 DEMO = Path(__file__).parents[2] / "launch" / "demo.yaml"
+DOMAIN = 500 + os.getpid() % 90 * 2  # its own graph: no tool of another test finds it at 0
 DEADLINE_S = 300.0  # generous: the demo takes 10-20 s idle, minutes at load 20
 
 
@@ -45,7 +46,8 @@ def test_a_node_respawned_after_its_input_ended_ends_the_launch_with_the_loss(tm
     assert "respawn_delay: 20" in launch_file.read_text()
     proc = subprocess.Popen([sys.executable, "-m", "vibrissa.cli.launch", str(launch_file),
                              "rate:=1000", f"out:={tmp_path / 'out'}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env=os.environ | {"VIBRISSA_DOMAIN_ID": str(DOMAIN)})
     lines: queue.Queue[str | None] = queue.Queue()
 
     def read() -> None:
@@ -85,7 +87,8 @@ def test_the_map_report_states_what_was_lost_before_the_map(tmp_path: Path) -> N
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "vibrissa.cli.launch", str(launch_file),
                              "rate:=400", f"out:={out}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env=os.environ | {"VIBRISSA_DOMAIN_ID": str(DOMAIN)})
     assert proc.stderr is not None
     deadline = time.monotonic() + DEADLINE_S
     seen: list[str] = []

@@ -12,6 +12,7 @@ GJ = EI / (1 + nu); at the clamp R = R_WC (C's axes in W).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -92,8 +93,18 @@ def _outer_fit(rod: _Rod, s: tuple[float, float], r_in: Vec, R_in: Vec, m_in: Ve
     def outer(lam: float) -> tuple[Vec, Vec, Vec, Vec]:
         return rod.piece(s[0], s[1], r_in, R_in, m_in, across + lam * chord)
 
-    fit = least_squares(lambda x: (outer(x[0])[0] - r_in - chord) / rod.L, [0.0],
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    def fitted(start: float) -> Any:
+        return least_squares(lambda x: (outer(x[0])[0] - r_in - chord) / rod.L, [start],
+                             xtol=1e-15, ftol=1e-15, gtol=1e-15)
+
+    # from no force along the chord, else (a miss over 1e-9 L: a local minimum) from forces
+    # along it up to 1e3 times the one across it, the best fit
+    fit = fitted(0.0)
+    size = float(np.linalg.norm(across) / np.linalg.norm(chord)) + 1e-300
+    for start in (10.0 ** np.arange(-1, 4)[:, None] * [1.0, -1.0]).ravel() * size:
+        if np.linalg.norm(fit.fun) <= 1e-9:
+            break
+        fit = min(fit, fitted(float(start)), key=lambda f: float(np.linalg.norm(f.fun)))
     force = across + fit.x[0] * chord
     return float(np.linalg.norm(fit.fun)), force, outer(fit.x[0])
 

@@ -95,6 +95,7 @@ from vibrissa.scene import (
     snaps,
 )
 from vibrissa.status import SweepEnd
+from vibrissa.streaming import Warnings
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import CLAMP_TOUCH_L, SweepRun, Trail, first_contact
 from vibrissa.ticks import Tick, array_ticks, sequential_ticks
@@ -192,6 +193,9 @@ class WrenchSourceParams:
         Commanded: the fastest a segment may drive (m/s, rad/s; they set Step 1's step,
         `vibrissa.paths.PathLimits.rod_step`), and how far its first waypoint may be from
         where it starts (m, rad); a command beyond is refused.
+    max_queued_s
+        Commanded: the most path time queued at once, s; a segment that would queue more is
+        refused.
     surface
         Object spec for ``vibrissa.surfaces.parse_surface``, units of L (mode ``sim``).
     y0
@@ -276,6 +280,7 @@ class WrenchSourceParams:
     max_turn_rate_rps: float = 1.0
     max_jump_m: float = 0.1
     max_jump_rad: float = 0.5
+    max_queued_s: float = 600.0
     rod: RodScale = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -347,7 +352,7 @@ class WrenchSourceParams:
     def path_limits(self) -> PathLimits:
         """What the commanded robot accepts (``path_topic``)."""
         return PathLimits(self.path_rate_hz, self.max_speed_mps, self.max_turn_rate_rps,
-                          self.max_jump_m, self.max_jump_rad)
+                          self.max_jump_m, self.max_jump_rad, self.max_queued_s)
 
     @property
     def array_whisker_ids(self) -> list[str]:
@@ -710,7 +715,9 @@ class CommandedMessages:
     sample; poses at ``pose_rate_hz`` of path time (0: one per sample) and one at the last
     sample of each batch (a wrench never waits for the next batch's simulation to be placed),
     ``pose_delay_s`` late, the odometry's (``odom_drift_per_m``; the truth of each goes to
-    ``truth``). Each with its time in the stream; a pose before a wrench of the same time."""
+    ``truth``). Each with its time in the stream; a pose before a wrench of the same time.
+    ``unresolved_rows`` counts the rows left out (no equilibrium found: `SamplePhase.UNRESOLVED`),
+    and the start of each whisker's run of them is logged."""
 
     def __init__(self, scene: Scene, params: WrenchSourceParams,
                  truth: TruthSink | None = None) -> None:
@@ -723,6 +730,9 @@ class CommandedMessages:
         self.seq = 0
         self.before: tuple[float, FloatArray, FloatArray] | None = None  # the last sample
         self.next_pose = 0  # index of the next pose time on the pose_rate_hz grid
+        self.unresolved_rows = 0
+        self._unresolved: set[int] = set()  # whiskers whose last sample was unresolved
+        self._warn = Warnings("wrench_source", log)  # once per kind, then every 1000th
 
     def start(self, p_WR: FloatArray, q_WR: FloatArray
               ) -> list[tuple[float, int, WhiskerWrenchArray | RobotPose | SnapEvent]]:
@@ -742,8 +752,11 @@ class CommandedMessages:
             f0 = f0 + self.rng.normal(0.0, params.noise_force_n, f0.shape)
         if params.noise_moment_nm:
             m0 = m0 + self.rng.normal(0.0, params.noise_moment_nm, m0.shape)
+        unresolved = samples.phase == SamplePhase.UNRESOLVED
+        self.unresolved_rows += int(np.count_nonzero(unresolved))
         for k, t in enumerate(samples.t.tolist()):
-            rows = np.flatnonzero(samples.phase[k] != SamplePhase.UNRESOLVED)
+            self._tell_unresolved(t, np.flatnonzero(unresolved[k]).tolist())
+            rows = np.flatnonzero(~unresolved[k])
             out.append((t, 1, WhiskerWrenchArray(
                 stamp=params.epoch_s + t, seq=self.seq, whisker_ids=[self.names[i] for i in rows],
                 frame_ids=[self.frame_ids[i] for i in rows], f0=f0[k, rows], m0=m0[k, rows])))
@@ -757,6 +770,14 @@ class CommandedMessages:
         if len(samples.t):
             self.before = (float(samples.t[-1]), samples.p_WR[-1], samples.q_WR[-1])
         return sorted(out, key=lambda e: (e[0], e[1]))
+
+    def _tell_unresolved(self, t: float, whiskers: list[int]) -> None:
+        """Log the whiskers whose rows are left out from path time ``t`` on."""
+        for i in sorted(set(whiskers) - self._unresolved):
+            self._warn(f"whisker {self.names[i]!r}: no equilibrium found from path time "
+                       f"{t:.4f} s on: its rows are left out until it has one (a clamp or the "
+                       "rod inside an object?)")
+        self._unresolved = set(whiskers)
 
     def _published(self, poses: list[tuple[float, FloatArray, FloatArray]]
                    ) -> list[tuple[float, RobotPose]]:
@@ -827,7 +848,7 @@ def _run_commanded(node: Node, params: WrenchSourceParams, truth: TruthLog) -> i
     _say_epoch(node, params, "path time 0")
     stream.extend([0.0], p0[None], q0[None])  # the robot stands at the start
     counters = node.counters
-    counters.update(commands_accepted=0, commands_rejected=0)
+    counters.update(commands_accepted=0, commands_rejected=0, unresolved_rows=0)
     count, taken, ended = 0, 1, False
     pace = params.rate_hz / params.path_rate_hz if params.rate_hz else 0.0
     anchor: tuple[float, float] | None = None  # (wall, stream time) the pacing runs from
@@ -849,10 +870,15 @@ def _run_commanded(node: Node, params: WrenchSourceParams, truth: TruthLog) -> i
 
     publish(out.start(p0, q0))  # where the robot stands (its wrench once it is final)
     while not node.stop_requested and (path.queued or not ended):
-        rx = None if ended else commands.receive(0.0 if path.queued else 0.1)
-        while rx is not None and not ended:
+        rx = commands.receive(0.0 if path.queued or ended else 0.1)
+        while rx is not None:
             msg = rx.msg
-            if isinstance(msg, EndOfStream):
+            if ended:  # the commander said it was done: what it sends after is not driven
+                if isinstance(msg, PathSegment):
+                    counters["commands_rejected"] += 1
+                    log.warning("%s: path segment %d refused: it came after the commander's "
+                                "EndOfStream", node.fqn, msg.segment_id)
+            elif isinstance(msg, EndOfStream):
                 ended = True
             elif isinstance(msg, PathSegment):
                 why = (f"frame {msg.frame_id!r} is not {params.map_frame!r}"
@@ -876,10 +902,13 @@ def _run_commanded(node: Node, params: WrenchSourceParams, truth: TruthLog) -> i
         # the queue ran empty: the robot stops there and every sample up to it goes out; each
         # batch ends with a pose at its last sample (off the pose_rate_hz grid: the poses cover
         # every wrench published, and where the robot stands)
-        if not publish(out.of(stream.advance(hold=bool(path.queued)))):
+        sent = publish(out.of(stream.advance(hold=bool(path.queued))))
+        counters["unresolved_rows"] = out.unresolved_rows
+        if not sent:
             break
     if not node.stop_requested:
         publish(out.of(stream.finish()))
+        counters["unresolved_rows"] = out.unresolved_rows
     for publisher in (wrenches, poses, events):
         publisher.publish_end_of_stream(node.fqn)
     log.info("%s: %d messages and EndOfStream on %s, %s and %s; %s", node.fqn, count,

@@ -316,6 +316,10 @@ class PathLimits:
     max_jump_m, max_jump_rad : float
         Largest distance (m) and turn (rad) from the pose a segment starts from to its first
         waypoint: a command further off is refused (a wrong frame, a stale plan).
+    max_queued_s : float
+        Most path time queued at once, s: a segment that would queue more (a leg of many km,
+        or at a crawl) is refused, so that what a robot holds stays bounded (600 s at 500 Hz:
+        300 000 poses, 17 MB).
     """
 
     rate_hz: float = 500.0
@@ -323,10 +327,11 @@ class PathLimits:
     max_turn_rate_rps: float = 1.0
     max_jump_m: float = 0.1
     max_jump_rad: float = 0.5
+    max_queued_s: float = 600.0
 
     def __post_init__(self) -> None:
         for name in ("rate_hz", "max_speed_mps", "max_turn_rate_rps", "max_jump_m",
-                     "max_jump_rad"):
+                     "max_jump_rad", "max_queued_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
@@ -372,16 +377,32 @@ def check_segment(limits: PathLimits, p_start: ArrayLike, q_start_xyzw: ArrayLik
     return None
 
 
+def leg_durations_s(p_start: ArrayLike, q_start_xyzw: ArrayLike, position: ArrayLike,
+                    orientation_xyzw: ArrayLike, speed_mps: float, turn_rate_rps: float
+                    ) -> FloatArray:
+    """How long each leg of a segment takes (from one pose to the next waypoint), s:
+    max(distance / ``speed_mps``, angle / ``turn_rate_rps``) (inf where that overflows)."""
+    from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
+
+    p = np.vstack([np.asarray(p_start, dtype=float)[None], np.asarray(position, dtype=float)])
+    q = np.vstack([np.asarray(q_start_xyzw, dtype=float)[None],
+                   np.asarray(orientation_xyzw, dtype=float)])
+    with np.errstate(over="ignore"):
+        distance = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        turn = quaternion_turns(np.ascontiguousarray(Rotation.from_quat(q).as_quat()))
+        return np.maximum(distance / speed_mps, turn / turn_rate_rps)
+
+
 def waypoint_samples(p_start: ArrayLike, q_start_xyzw: ArrayLike, position: ArrayLike,
                      orientation_xyzw: ArrayLike, speed_mps: float, turn_rate_rps: float,
                      rate_hz: float) -> tuple[FloatArray, FloatArray]:
     """The robot's poses X_WR every 1 / ``rate_hz`` s from the start pose through the
     waypoints, the start excluded: positions (M, 3) m and unit quaternions (M, 4) (x, y, z, w).
 
-    Each leg, from one pose to the next waypoint, takes n = ceil(T rate_hz) samples with
-    T = max(distance / ``speed_mps``, angle / ``turn_rate_rps``) (at most those speeds), at
-    fractions j / n (j = 1 .. n; position linear, orientation slerp as `PoseSamples`), its last
-    sample the waypoint itself, to the bit; a waypoint where the robot already is adds none.
+    Each leg, from one pose to the next waypoint, takes n = ceil(T rate_hz) samples with T its
+    duration (`leg_durations_s`: at most those speeds), at fractions j / n (j = 1 .. n;
+    position linear, orientation slerp as `PoseSamples`), its last sample the waypoint itself,
+    to the bit; a waypoint where the robot already is adds none.
     """
     from scipy.spatial.transform import Rotation  # on first use (vibrissa.frames)
 
@@ -389,9 +410,8 @@ def waypoint_samples(p_start: ArrayLike, q_start_xyzw: ArrayLike, position: Arra
     q = np.vstack([np.asarray(q_start_xyzw, dtype=float)[None],
                    np.asarray(orientation_xyzw, dtype=float)])
     rotations = Rotation.from_quat(q)
-    distance = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    turn = quaternion_turns(np.ascontiguousarray(rotations.as_quat()))
-    duration = np.maximum(distance / speed_mps, turn / turn_rate_rps)
+    duration = leg_durations_s(p_start, q_start_xyzw, position, orientation_xyzw, speed_mps,
+                               turn_rate_rps)
     counts = np.where(duration > 0, np.ceil(duration * rate_hz - 1e-9), 0).astype(np.int64)
     counts[(duration > 0) & (counts == 0)] = 1
     legs = np.repeat(np.arange(len(counts)), counts)
@@ -413,8 +433,8 @@ class CommandedPath:
 
     The robot starts at (``p_start``, ``q_start_xyzw``). A segment is driven from the end of
     the queue (``replace`` False) or, the queue dropped, from the last pose taken (``replace``
-    True); `command` refuses a bad one (`check_segment`) with the reason, and the queue is
-    then as before.
+    True); `command` refuses a bad one (`check_segment`, or one that would queue more than
+    ``limits.max_queued_s`` of path time) with the reason, and the queue is then as before.
     """
 
     def __init__(self, limits: PathLimits, p_start: ArrayLike, q_start_xyzw: ArrayLike) -> None:
@@ -442,6 +462,12 @@ class CommandedPath:
                             turn_rate_rps)
         if why is not None:
             return why
+        room_s = self.limits.max_queued_s - (0 if replace else self.queued / self.limits.rate_hz)
+        duration_s = float(leg_durations_s(p0, q0, position, orientation_xyzw, speed_mps,
+                                           turn_rate_rps).sum())
+        if not duration_s <= room_s:
+            return (f"it takes {duration_s:.4g} s to drive, more than the {room_s:.4g} s of path "
+                    f"time left in the queue (max_queued_s {self.limits.max_queued_s:g})")
         p, q = waypoint_samples(p0, q0, position, orientation_xyzw, speed_mps, turn_rate_rps,
                                 self.limits.rate_hz)
         if replace:

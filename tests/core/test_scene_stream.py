@@ -6,6 +6,7 @@ or two."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -213,6 +214,45 @@ def test_bad_segments_are_refused_with_the_reason(change: dict[str, object], why
     path = CommandedPath(limits, np.zeros(3), [0.0, 0.0, 0.0, 1.0])
     assert path.command(args["position"], args["orientation"], args["speed"],  # type: ignore[arg-type]
                         args["turn"]) == reason and path.queued == 0  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("waypoints", "speed", "takes"), [
+    ([[0.01, 0.0, 0.0], [1e300, 0.0, 0.0]], 0.05, "inf s"),  # the leg's time overflows
+    ([[0.01, 0.0, 0.0]], 1e-300, "1e+298 s"),  # a crawl
+    ([[0.01, 0.0, 0.0], [2000.0, 0.0, 0.0]], 0.1, "2e+04 s"),  # 10 million samples
+])
+def test_a_segment_that_would_queue_more_than_max_queued_s_is_refused(
+        waypoints: list[list[float]], speed: float, takes: str) -> None:
+    """A leg of finite numbers can still take forever (or overflow): the queue holds at most
+    ``max_queued_s`` of path time, so what a robot holds stays bounded; refused, the queue is
+    as before and the robot takes the next good segment."""
+    limits = PathLimits(rate_hz=500.0, max_speed_mps=0.1, max_turn_rate_rps=1.0,
+                        max_queued_s=60.0)
+    path = CommandedPath(limits, np.zeros(3), [0.0, 0.0, 0.0, 1.0])
+    quaternions = [[0.0, 0.0, 0.0, 1.0]] * len(waypoints)
+    reason = path.command(waypoints, quaternions, speed, 1.0)
+    assert reason is not None and takes in reason and "max_queued_s 60" in reason, reason
+    assert path.queued == 0
+    assert path.command([[0.01, 0.0, 0.0]], [[0.0, 0.0, 0.0, 1.0]], 0.05, 1.0) is None
+    assert path.queued == 100  # 0.01 m at 0.05 m/s, 500 Hz
+
+
+def test_the_queue_bound_counts_what_is_queued_and_a_replace_drops_it() -> None:
+    """0.6 s queued of 1 s: another 0.6 s is refused, 0.3 s is not; a replace of 0.9 s
+    drops the queue first."""
+    limits = PathLimits(rate_hz=100.0, max_speed_mps=0.1, max_turn_rate_rps=1.0,
+                        max_queued_s=1.0)
+    path = CommandedPath(limits, np.zeros(3), [0.0, 0.0, 0.0, 1.0])
+    unit = [[0.0, 0.0, 0.0, 1.0]]
+    assert path.command([[0.06, 0.0, 0.0]], unit, 0.1, 1.0) is None and path.queued == 60
+    why = path.command([[0.12, 0.0, 0.0]], unit, 0.1, 1.0)
+    assert why is not None and "0.4 s of path time left" in why and path.queued == 60
+    assert path.command([[0.09, 0.0, 0.0]], unit, 0.1, 1.0) is None and path.queued == 90
+    assert path.command([[0.09, 0.0, 0.0]], unit, 0.1, 1.0, replace=True) is None
+    assert path.queued == 90  # from the start, where the robot still stands: 0.09 m
+    assert PathLimits().max_queued_s == 600.0
+    with pytest.raises(ValueError, match="max_queued_s must be a finite number > 0"):
+        PathLimits(max_queued_s=math.inf)
 
 
 def test_the_step_bounds_the_rod_motion_of_a_sample() -> None:

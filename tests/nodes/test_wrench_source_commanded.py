@@ -116,7 +116,8 @@ def test_the_scenes_path_commanded_gives_its_wrenches_and_poses() -> None:
         np.testing.assert_allclose(got.m0, want.m0, rtol=0, atol=1e-12)
     assert sum(len(w.whisker_ids) for w in wrenches) == len(wrenches) * len(scene.whiskers)
     assert any(np.any(w.f0 != 0) for w in wrenches)  # it touched
-    assert node.counters == {"commands_accepted": 1, "commands_rejected": 0}
+    assert node.counters == {"commands_accepted": 1, "commands_rejected": 0,
+                             "unresolved_rows": 0}
     assert all(r.phase[-1] == SamplePhase.NONE for r in results)
 
 
@@ -132,7 +133,8 @@ def test_two_segments_appended_are_one_segment_of_both() -> None:
     one, one_poses, _ = run([segment(p[1:], q[1:]), end()], noise_force_n=1e-4)
     two, two_poses, node = run([segment(p[1:3], q[1:3], 1), segment(p[3:], q[3:], 2), end()],
                                noise_force_n=1e-4)
-    assert node.counters == {"commands_accepted": 2, "commands_rejected": 0}
+    assert node.counters == {"commands_accepted": 2, "commands_rejected": 0,
+                             "unresolved_rows": 0}
     assert len(one) > 1000 and any(np.any(w.f0 != 0) for w in one[:-1])
     assert [encode(m) for m in one[:-1]] == [encode(m) for m in two[:-1]]
     assert [encode(m) for m in one_poses[:-1]] == [encode(m) for m in two_poses[:-1]]
@@ -148,7 +150,8 @@ def test_bad_commands_are_counted_and_logged_and_the_robot_goes_on(
            segment(p[1:2], q[1:2], 5, speed_mps=1.0)]  # beyond max_speed_mps
     with caplog.at_level(logging.WARNING):
         wrenches, poses, node = run([*bad, segment(p[1:2], q[1:2], 6), end()])
-    assert node.counters == {"commands_accepted": 1, "commands_rejected": 5}
+    assert node.counters == {"commands_accepted": 1, "commands_rejected": 5,
+                             "unresolved_rows": 0}
     for k in range(1, 6):
         assert f"path segment {k} refused" in caplog.text
     assert "frame 'odom' is not 'world'" in caplog.text
@@ -168,6 +171,37 @@ def test_the_stream_ends_on_the_commanders_end_with_the_robot_standing() -> None
     n = len(wrenches) - 1
     assert stamps[0] == 0.0 and stamps[-1] == pytest.approx((n - 1) / 500.0, abs=1e-9)
     np.testing.assert_allclose(np.diff(stamps[:-1]), 1 / 30.0, rtol=1e-9)
+
+
+def test_a_segment_after_the_commanders_end_is_refused_counted_and_logged(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """The commander said it was done: a segment it sends after is not driven, and not lost
+    without a word either."""
+    p, q = waypoints()
+    with caplog.at_level(logging.WARNING):
+        wrenches, poses, node = run([segment(p[1:2], q[1:2], 1), end(),
+                                     segment(p[2:3], q[2:3], 2)])
+    assert node.counters["commands_accepted"] == 1 and node.counters["commands_rejected"] == 1
+    assert "path segment 2 refused: it came after the commander's EndOfStream" in caplog.text
+    np.testing.assert_array_equal(poses[-2].position, p[1])  # it stopped at the first one
+    assert wrenches[-1] == poses[-1] == "EOS"
+
+
+def test_a_segment_too_long_to_queue_is_refused_and_the_robot_goes_on(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A finite leg whose driving time overflows, or a crawl: refused by the queue's bound
+    (``max_queued_s``), logged and counted; the node drives the next segment."""
+    p, q = waypoints()
+    far = [[*p[1, :2], p[1, 2]], [1e300, 0.0, 0.0]]
+    with caplog.at_level(logging.WARNING):
+        wrenches, poses, node = run([segment(far, [q[1], q[1]], 1),
+                                     segment(p[1:2], q[1:2], 2, speed_mps=1e-300),
+                                     segment(p[1:2], q[1:2], 3), end()])
+    assert node.counters["commands_accepted"] == 1 and node.counters["commands_rejected"] == 2
+    assert "path segment 1 refused: it takes inf s to drive" in caplog.text
+    assert "path segment 2 refused" in caplog.text and "max_queued_s 600" in caplog.text
+    np.testing.assert_array_equal(poses[-2].position, p[1])
+    assert wrenches[-1] == poses[-1] == "EOS"
 
 
 def test_the_commanded_mode_is_checked_when_the_parameters_load() -> None:
@@ -274,7 +308,7 @@ def test_the_jumps_of_a_commanded_path_go_out_after_their_wrench(tmp_path: Path)
 
 @pytest.mark.slow
 def test_a_snap_off_onto_an_unresolved_sample_goes_out_without_its_after_wrench(
-        tmp_path: Path) -> None:
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     """A robot standing with its body in a ball (a scene file refuses that with an ``explore``
     key, not without one) turns and drives: its rod, in contact near the clamp, snaps off where
     its unloaded shape is inside the ball and no landing is found, so the sample after is
@@ -299,9 +333,10 @@ def test_a_snap_off_onto_an_unresolved_sample_goes_out_without_its_after_wrench(
         segment(np.zeros((5, 3)), look, speed_mps=0.05),
         segment([[0, 0, 0], [0.004, 0, 0], *[[0.032, 0.028, 0]] * 5], route, speed_mps=0.05),
         end()])
-    run_commanded(node, WrenchSourceParams(  # type: ignore[arg-type]
-        mode="scene", scene=str(tmp_path / "scene.yaml"), path_topic=PATH, pose_rate_hz=0.0,
-        epoch_s=1000.0))
+    with caplog.at_level(logging.WARNING):
+        run_commanded(node, WrenchSourceParams(  # type: ignore[arg-type]
+            mode="scene", scene=str(tmp_path / "scene.yaml"), path_topic=PATH,
+            pose_rate_hz=0.0, epoch_s=1000.0))
     events = [m for m in node.publishers["events"].sent if m != "EOS"]
     assert node.publishers["events"].sent[-1] == "EOS"
     wrenches = {w.stamp: w for w in node.publishers["wrench"].sent if w != "EOS"}
@@ -315,6 +350,10 @@ def test_a_snap_off_onto_an_unresolved_sample_goes_out_without_its_after_wrench(
         np.testing.assert_array_equal(back.f0_before, event.f0_before)
     # the stream went on: wrenches after the first of them, the last the robot's end
     assert max(wrenches) > unresolved[0].stamp + 1.0
+    # every row left out is counted, and the start of the run of them logged
+    assert node.counters["unresolved_rows"] == sum(1 for w in wrenches.values()
+                                                   if not w.whisker_ids) > 0
+    assert "whisker 'w03': no equilibrium found from path time" in caplog.text
     for event in events:  # as the real publisher does (a NaN there stopped the node)
         encode(event)
 

@@ -142,7 +142,7 @@ class FrameResult:
 @dataclass(frozen=True)
 class InputStream:
     """One input stream (a publisher on a topic) that ended: what it said was sent, what
-    arrived, what was lost."""
+    arrived, what was lost, what arrived and did not decode (rejected)."""
 
     topic: str
     pub: int
@@ -150,6 +150,7 @@ class InputStream:
     sent: int
     received: int
     lost: int
+    rejected: int = 0
 
 
 @dataclass(frozen=True)
@@ -371,7 +372,8 @@ def _format_report(report: dict[str, Any]) -> str:
                      "without one (point_std_m)")
     for stream in report["streams"]:
         lines.append(f"input {stream['topic']} from {stream['source']}: {stream['sent']} sent, "
-                     f"{stream['received']} received, {stream['lost']} lost")
+                     f"{stream['received']} received, {stream['lost']} lost"
+                     + (f", {stream['rejected']} rejected" if stream.get("rejected") else ""))
     if report.get("upstream_lost") and report.get("ended_by") == "stop":
         lines.append(f"UPSTREAM AT THE STOP: {report['upstream_lost']} message(s) had not "
                      "reached the nodes before the map when the graph stopped (on their way, "

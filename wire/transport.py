@@ -792,11 +792,14 @@ class StreamEnd:
     sent: int
     received: int
     lost: int
+    rejected: int = 0
 
     def describe(self) -> str:
-        """``stream of /src (pub 0123...) ended: 100 sent, 98 received, 2 lost``."""
+        """``stream of /src (pub 0123...) ended: 100 sent, 97 received, 2 lost, 1 rejected``
+        (rejected: arrived, but did not decode)."""
         return (f"stream of {self.source} (pub {self.pub:016x}) ended: {self.sent} sent, "
-                f"{self.received} received, {self.lost} lost")
+                f"{self.received} received, {self.lost} lost"
+                + (f", {self.rejected} rejected" if self.rejected else ""))
 
 
 @dataclass
@@ -851,7 +854,10 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         self._seen_pubs: OrderedDict[int, None] = OrderedDict()  # at most MAX_PUBLISHERS
         # per (topic, publisher id), least recently heard first; at most MAX_PUBLISHERS
         self._next_seq: OrderedDict[tuple[str, int], int] = OrderedDict()
-        self._stream_counts: dict[tuple[str, int], list[int]] = {}  # [data received, lost]
+        # per stream (a publisher on a topic): [data received, lost, rejected] from its start
+        self._stream_counts: dict[tuple[str, int], list[int]] = {}
+        self._ended: OrderedDict[tuple[str, int], None] = OrderedDict()  # streams ended and
+        # not heard from since (a repeated EndOfStream is no end of its own)
         self.ended_streams: deque[StreamEnd] = deque(maxlen=MAX_PUBLISHERS)
         # Direct publishers: discovered from statuses when any topic but the status is taken.
         self._discover = topics is None or any(t != STATUS_TOPIC for t in topics)
@@ -1006,13 +1012,13 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         if cut:
             self._track(topic, counters, header, is_ping=False)  # it did use its seq
             self._reject(topic, f"payload of {cut} bytes, more than the "
-                                f"{self._payload_limit(raw_topic)} taken on {topic}")
+                                f"{self._payload_limit(raw_topic)} taken on {topic}", header)
             return None
         try:
             msg = decode(payload, self._expected.get(topic))
         except DecodeError as exc:
             self._track(topic, counters, header, is_ping=False)  # it did use its seq
-            self._reject(topic, str(exc))
+            self._reject(topic, str(exc), header)
             return None
         if self._discover and isinstance(msg, NodeStatus):
             self._connect_announced(msg)  # a status the caller takes too
@@ -1030,21 +1036,35 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         if isinstance(msg, EndOfStream):
             self._end_stream(topic, counters, header, msg)
         else:
-            self._stream_counts.setdefault((topic, header.pub), [0, 0])[0] += 1
+            self._stream_counts.setdefault((topic, header.pub), [0, 0, 0])[0] += 1
+            self._ended.pop((topic, header.pub), None)
         return Received(topic, msg, payload, header, now)
 
     def _end_stream(self, topic: str, counters: TopicCounters, header: Header,
                     eos: EndOfStream) -> None:
-        """Compare what the stream's end says was sent with what arrived; messages missing
-        from before the first one heard (no seq gap shows them) count as lost too."""
-        received, lost = self._stream_counts.pop((topic, header.pub), [0, 0])
-        missing = eos.count - received - lost
+        """Compare what the stream's end says was sent (its publisher's count from its start)
+        with what arrived and what was rejected since then; messages missing from before the
+        first one heard (no seq gap shows them) count as lost too. An end repeated with nothing
+        heard since is an anomaly, not another end."""
+        key = (topic, header.pub)
+        if key in self._ended:
+            counters.anomalies += 1
+            log.warning("%s: EndOfStream from %s (pub %016x) again, nothing heard since its "
+                        "last: ignored", topic, eos.source, header.pub)
+            return
+        counts = self._stream_counts.setdefault(key, [0, 0, 0])
+        received, lost, rejected = counts
+        self._ended[key] = None
+        if len(self._ended) > MAX_PUBLISHERS:
+            self._ended.popitem(last=False)
+        missing = eos.count - received - lost - rejected
         if missing > 0:
             counters.lost += missing
             lost += missing
+            counts[1] = lost
         elif missing < 0:
             counters.anomalies += 1  # more arrived than were sent: forged or repeated
-        end = StreamEnd(topic, header.pub, eos.source, eos.count, received, lost)
+        end = StreamEnd(topic, header.pub, eos.source, eos.count, received, lost, rejected)
         self.ended_streams.append(end)
         if lost or missing < 0:
             log.warning("%s: %s", topic, end.describe())
@@ -1069,6 +1089,7 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
             # one heard from least recently (if it comes back, its counting starts over)
             forgotten, _ = self._next_seq.popitem(last=False)
             self._stream_counts.pop(forgotten, None)
+            self._ended.pop(forgotten, None)
         elif expected is not None:
             self._next_seq.move_to_end(key)
         if expected is not None:
@@ -1080,7 +1101,7 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
                             header.seq)
             elif gap > 0:
                 counters.lost += gap
-                self._stream_counts.setdefault(key, [0, 0])[1] += gap
+                self._stream_counts.setdefault(key, [0, 0, 0])[1] += gap
                 log.warning(
                     "%s: lost %d message(s) from publisher %016x (seq %d..%d)",
                     topic, gap, header.pub, expected, header.seq - 1,
@@ -1095,9 +1116,13 @@ class Subscriber(contextlib.AbstractContextManager["Subscriber"]):
         # A ping announces the seq of the next message; a message is followed by seq + 1.
         self._next_seq[key] = header.seq if is_ping else header.seq + 1
 
-    def _reject(self, topic: str, reason: str) -> None:
+    def _reject(self, topic: str, reason: str, header: Header | None = None) -> None:
+        """Count and log a message refused; with its ``header``, against its stream too."""
         counters = self.counters.setdefault(topic, TopicCounters())
         counters.rejected += 1
+        if header is not None:
+            self._stream_counts.setdefault((topic, header.pub), [0, 0, 0])[2] += 1
+            self._ended.pop((topic, header.pub), None)
         log.warning("%s: rejected message: %s", topic, reason)
 
     def close(self) -> None:

@@ -118,6 +118,46 @@ def test_rejected_payloads_are_counted_and_delivery_goes_on(
         assert any("rejected" in m and "WhiskerWrenchArray.f0" in m for m in messages)
 
 
+def test_a_stream_end_counts_what_was_rejected_apart_from_what_was_lost(
+    proxy: Proxy, context: zmq.Context[Any], caplog: pytest.LogCaptureFixture
+) -> None:
+    """A message that arrived and did not decode is rejected, not lost: the stream's end says
+    so (received + lost + rejected = sent). An end repeated with nothing sent since is an
+    anomaly, not a stream whose every message was lost."""
+    nan_payload = msgpack.unpackb(encode(wrench(1)))
+    nan_payload["f0"]["data"] = np.array([0.0, np.nan, 0.0]).tobytes()
+    with Publisher("/w0/wrench", WhiskerWrenchArray, proxy.endpoints, context) as pub, \
+            Subscriber({"/w0/wrench": WhiskerWrenchArray}, proxy.endpoints, context) as sub:
+        connect(pub, sub)
+        pub.publish(wrench(0))
+        pub.publish_raw(msgpack.packb(nan_payload))
+        pub.publish(wrench(2))
+        pub.publish_end_of_stream("/test")
+        with caplog.at_level(logging.WARNING, logger="vibrissa.wire.transport"):
+            pub.publish_end_of_stream("/test")  # again: nothing sent since
+            got = []
+            while (rx := sub.receive(TIMEOUT_S)) is not None and len(got) < 4:
+                got.append(rx.msg)
+        assert [type(m).__name__ for m in got] == ["WhiskerWrenchArray", "WhiskerWrenchArray",
+                                                   "EndOfStream", "EndOfStream"]
+        [end] = sub.ended_streams
+        assert (end.sent, end.received, end.lost, end.rejected) == (3, 2, 0, 1)
+        assert "3 sent, 2 received, 0 lost, 1 rejected" in end.describe()
+        counters = sub.counters["/w0/wrench"]
+        assert (counters.lost, counters.rejected, counters.anomalies) == (0, 1, 1)
+        assert any("EndOfStream from /test" in r.getMessage() and "again" in r.getMessage()
+                   for r in caplog.records)
+        # the stream goes on after its end, and ends again: counted from its start (as its
+        # publisher counts what it sent)
+        pub.publish(wrench(3))
+        pub.publish_end_of_stream("/test")
+        while (rx := sub.receive(TIMEOUT_S)) is not None and not isinstance(rx.msg, EndOfStream):
+            pass
+        assert [(e.sent, e.received, e.lost, e.rejected) for e in sub.ended_streams] == [
+            (3, 2, 0, 1), (4, 3, 0, 1)]
+        assert sub.counters["/w0/wrench"].lost == 0
+
+
 def test_wrong_type_on_a_topic_is_rejected(proxy: Proxy, context: zmq.Context[Any]) -> None:
     with Publisher("/t", ContactPointArray, proxy.endpoints, context) as pub, \
             Subscriber({"/t": WhiskerWrenchArray}, proxy.endpoints, context) as sub:

@@ -98,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 128 + signal.SIGINT
     except Exception as exc:  # noqa: BLE001 - one line for the user, the traceback on demand
+        stopped = _stop_status(exc)
+        if stopped is not None:
+            return stopped
         from vibrissa.runtime.node import DEBUG_ENV  # the node runtime (ZeroMQ) only here
 
         if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
@@ -108,6 +111,21 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vibrissa {command}: error: {type(exc).__name__}: {exc} (for the "
               f"traceback: {DEBUG_ENV}=1)", file=sys.stderr)
         return EXIT_FAILED
+
+
+def _stop_status(exc: BaseException) -> int | None:
+    """The status of a SIGTERM or Ctrl-C that ``exc`` wraps (raised inside a compiled kernel's
+    call back into Python, it comes out as a SystemError caused by it), else None."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        seen.add(id(cause))
+        if isinstance(cause, SystemExit) and isinstance(cause.code, int):
+            return cause.code
+        if isinstance(cause, KeyboardInterrupt):
+            return 128 + signal.SIGINT
+        cause = cause.__cause__ or cause.__context__
+    return None
 
 
 def _terminated(signum: int, _frame: object) -> None:

@@ -74,6 +74,10 @@ def print_sample_progress(whisker: str, sample: int, samples: int) -> None:
 def run_simulate(args: argparse.Namespace) -> int:
     """The ``simulate`` subcommand."""
     scene = load_scene(args.scene)
+    if len(scene.path.t) < 2:  # an exploration's scene: its explore key gives only the start
+        raise SceneError(f"{args.scene}: path: `vibrissa simulate` needs a path of 2 samples or "
+                         "more; this scene has none but the explore start (explore it with "
+                         "`vibrissa launch launch/explore.yaml scene:=...`, or add a path)")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise SceneError(f"{out}: exists and is not a folder")

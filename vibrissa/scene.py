@@ -183,10 +183,15 @@ class RobotPath:
             raise ValueError(f"path times must be one column, got shape {t.shape}")
         if len(t) < 1:  # one sample: a robot standing still
             raise ValueError(f"a path needs at least 1 sample, got {len(t)}")
-        steps = np.diff(t)
+        with np.errstate(over="ignore"):
+            steps = np.diff(t)
+            span = float(t[-1]) - float(t[0])
         if not np.all(steps > 0):
             first = int(np.flatnonzero(~(steps > 0))[0]) + 2  # 1-based row of the later sample
             raise ValueError(f"path times must increase strictly (row {first})")
+        if not (np.isfinite(t).all() and math.isfinite(span)):
+            raise ValueError(f"path times must be finite and span a finite time, got "
+                             f"{float(t[0])!r} .. {float(t[-1])!r} s")
         p = np.asarray(self.p_WR, dtype=float)
         if p.shape != (len(t), 3) or len(self.R_WR) != len(t):
             raise ValueError(f"path: {len(t)} times, positions {p.shape}, {len(self.R_WR)} rotations")

@@ -193,10 +193,14 @@ def line_interval_body(ax: float, ay: float, az: float, dx: float, dy: float, dz
             qc += a[i] * Q[i, j] * a[j]
     qb = 2.0 * qb_half + d[0] * linear[0] + d[1] * linear[1] + d[2] * linear[2]
     qc += a[0] * linear[0] + a[1] * linear[1] + a[2] * linear[2] + c
+    disc = qb * qb - 4.0 * qa * qc
+    if qa > 0.0 and not disc >= 0.0:  # (an object 1e7 L away: qa below the linear test)
+        return math.nan, math.nan
     if qa <= 1e-14 * (abs(qb) + abs(qc) + 1.0):
+        if qb == 0.0:
+            return (-math.inf, math.inf) if qc < 0.0 else (math.nan, math.nan)
         t_lin = -qc / qb
         return (-math.inf, t_lin) if qb > 0 else (t_lin, math.inf)
-    disc = qb * qb - 4.0 * qa * qc
     if not disc >= 0.0:
         return math.nan, math.nan
     big = -0.5 * (qb + math.copysign(math.sqrt(disc), qb))

@@ -126,6 +126,28 @@ def test_a_whisker_named_like_the_file_of_all_wrenches_is_refused_before_simulat
     assert not (tmp_path / "out").exists()
 
 
+def test_an_exploration_scene_without_a_path_is_refused_naming_the_file_and_the_key(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "scene.yaml").write_text(SCENE.replace(
+        "path: path.csv", "explore: {start: {position_m: [0.2, 0.0, 0.0]}, workspace_m: "
+        "[[0.15, -0.1, 0.0], [0.3, 0.1, 0.05]], body_radius_m: 0.02}"))
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "scene.yaml: path: `vibrissa simulate` needs a path of 2 samples or more" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_path_whose_times_span_no_finite_time_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Two finite stamps 3.4e308 s apart: their span overflows (summary.json's times were
+    Infinity, which is not JSON)."""
+    (tmp_path / "scene.yaml").write_text(SCENE)
+    (tmp_path / "path.csv").write_text("t,x,y,z,qx,qy,qz,qw\n-1.7e308,0.1,0,0,0,0,0,1\n"
+                                       "1.7e308,-0.06,0,0,0,0,0,1\n")
+    assert main(["simulate", str(tmp_path / "scene.yaml"), "-o", str(tmp_path / "out")]) == 2
+    assert "path times must be finite and span a finite time" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("change", "message"), [
     (("radius_m: 0.015", "radius: 0.015"), "scene.yaml: objects[0]: unknown key 'radius'"),
     (("    ei_nm2: 2.0e-5\n", ""), "scene.yaml: whiskers[0]: missing 'ei_nm2'"),

@@ -279,3 +279,25 @@ def test_ctrl_c_while_the_package_loads_ends_quietly_with_130(module: str) -> No
     _, err = proc.communicate(timeout=240)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err
     assert proc.returncode == 130
+
+
+@pytest.mark.parametrize("stop, status", [(SystemExit(128 + signal.SIGTERM), 143),
+                                          (KeyboardInterrupt(), 130)])
+def test_a_stop_inside_a_compiled_kernel_ends_with_its_status_and_no_error(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+        stop: BaseException, status: int) -> None:
+    """SIGTERM or Ctrl-C while numba's kernel calls back into Python comes out of the kernel
+    as a SystemError caused by the stop (`vibrissa simulate` ended 1 with "CPUDispatcher(...)
+    returned a result with an exception set"): it ends as the stop does, quietly."""
+    import vibrissa.cli.scenes
+
+    def stopped_in_a_kernel(args: object) -> int:
+        try:
+            raise stop
+        except BaseException as exc:
+            raise SystemError("CPUDispatcher(<function newton>) returned a result with an "
+                              "exception set") from exc
+
+    monkeypatch.setattr(vibrissa.cli.scenes, "run_simulate", stopped_in_a_kernel)
+    assert vibrissa_main(["simulate", "scene.yaml", "-o", "out"]) == status
+    assert capsys.readouterr().err == ""

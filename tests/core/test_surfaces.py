@@ -97,3 +97,22 @@ def test_mirror_symmetry_detection():
 def test_bad_specs_name_the_problem(spec, words):
     with pytest.raises(ValueError, match=words):
         parse_surface(spec)
+
+
+@pytest.mark.parametrize("distance", [1e6, 1e7, 4e7])
+@pytest.mark.parametrize("radius", [1.0, 5e4])
+def test_a_segment_far_from_an_object_is_outside_it(distance, radius):
+    """An object 1e6-4e7 rod lengths away (a 0.2 mm whisker and a tower 2 km off): the
+    quadratic's t^2 term falls below the test for a paraboloid's axis, and the segment was
+    taken for inside all along. Against the distance to the centre, exact here: outside; and
+    a segment through the same far ball is inside it where the points are."""
+    from vibrissa.frames import Transform
+    from vibrissa.surfaces import Sphere
+
+    surface = Sphere(radius, Transform(translation=[distance, 0.0, 0.0]))
+    starts = np.array([[0.0, 0.0, 0.0], [0.0, 0.3, 0.0], [0.0, 0.0, -0.7]])
+    chords = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.2, 0.7, 0.1]])
+    assert not surface.segment_inside(starts, chords).any()
+    through = np.array([[distance - 0.5, 0.0, 0.0]]), np.array([[1.0, 0.0, 0.0]])
+    assert surface.segment_inside(*through).all()
+    assert np.linalg.norm(through[0] + 0.5 * through[1] - [distance, 0.0, 0.0]) < radius

@@ -159,3 +159,24 @@ def test_an_object_above_the_workspace_is_not_in_the_body(tmp_path: Path) -> Non
     ball["position_m"] = [0.0, -0.05, 0.068]  # from 48 mm up: in the body
     with pytest.raises(SceneError, match="inside 'lamp'"):
         load_scene(write(tmp_path, scene_doc(objects=[ball])))
+
+
+@pytest.mark.parametrize("gap_m, inside", [(-0.012, True), (0.012, False)])
+def test_a_large_body_is_checked_in_bounded_memory(gap_m: float, inside: bool) -> None:
+    """A body of 0.5 m radius over 2 m of heights (2 mm everywhere: 4e8 points, 10 GB) is
+    sampled more coarsely (at most `BODY_SAMPLES` points, a layer at a time): a ball of 0.1 m
+    whose centre lies 0.6 m + ``gap_m`` across the floor (12 mm into the body, or short of
+    it, more than the sampling's step) is found inside or not. Over heights of +-1e7 m, whose
+    layers lie 800 m apart, a ball of 1 km that the body enters at the height of its centre
+    is found."""
+    from vibrissa.exploration import BODY_SAMPLES
+    from vibrissa.scene import SceneObject
+
+    explore = Explore(Transform(), (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), 0.5)
+    centre = (0.6 + gap_m) * np.array([0.6, 0.8, 0.0]) + [0.0, 0.0, 0.3]
+    ball = SceneObject("ball", "sphere", {"radius_m": 0.1}, Transform(translation=centre))
+    assert explore.objects_in_body([ball]) == (["ball"] if inside else [])
+    huge = Explore(Transform(), (-1e7, -1e7, -1e7), (1e7, 1e7, 1e7), 0.03)
+    near = SceneObject("near", "sphere", {"radius_m": 1e3}, Transform(translation=[1e3, 0, 0.0]))
+    assert huge.objects_in_body([near]) == ["near"]
+    assert BODY_SAMPLES <= 2_000_000

@@ -177,6 +177,7 @@ def load_path(path: Path) -> RobotPath:
         missing = [c for c in _PATH_COLUMNS if c not in header]
         got = ("an empty file" if first is None else
                f"a first row without {', '.join(missing)}" if missing else
+               f"{','.join(header)}" if len(header) == len(_PATH_COLUMNS) else
                f"a first row of {len(header)} cells")
         raise SceneError(f"{path.name}: the header must be {','.join(_PATH_COLUMNS)}, got {got}")
     values = array("d")

@@ -50,7 +50,7 @@ from vibrissa import two_contacts as two
 from vibrissa.frames import PoseSamples, Transform, non_unit_quaternion
 from vibrissa.paths import SUBSAMPLE_L, SampledPath, rod_motion
 from vibrissa.reconstruct import ReconstructionSI, reconstruct_si
-from vibrissa.rods import RodShape, unloaded_points, unloaded_segments
+from vibrissa.rods import MAX_PRECURVATURE, RodShape, unloaded_points, unloaded_segments
 from vibrissa.status import SNAP_KINDS, ContactPhase, SweepEnd
 from vibrissa.surfaces import Ellipsoid, Paraboloid, Sphere, Surface, segments_meet
 from vibrissa.sweep import (
@@ -152,6 +152,10 @@ class Whisker:
     poisson_ratio: float = 0.3
 
     def __post_init__(self) -> None:
+        bound = MAX_PRECURVATURE / self.length_m
+        if not abs(self.precurvature_1pm) <= bound:  # in the unit it is given in
+            raise ValueError(f"whisker {self.name!r}: precurvature_1pm must be within +-2 pi / "
+                             f"length_m = +-{bound:.6g} /m, got {self.precurvature_1pm!r}")
         try:
             self.shape  # noqa: B018 - checks the rod
         except ValueError as exc:

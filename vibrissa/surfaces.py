@@ -69,7 +69,8 @@ class Surface(ABC):
         Q, linear, c = self._quadric()
         g = np.einsum("ni,ij,nj->n", p_B, Q, p_B) + p_B @ linear + c
         grad = 2.0 * p_B @ Q + linear
-        return g / np.linalg.norm(grad, axis=1)
+        with np.errstate(divide="ignore"):  # an ellipsoid's centre: -inf, inside
+            return g / np.linalg.norm(grad, axis=1)
 
     def normal(self, p_W: ArrayLike) -> FloatArray:
         """Outward unit normal (N, 3) in W of the level set through p_W."""

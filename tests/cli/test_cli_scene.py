@@ -180,7 +180,8 @@ def test_a_path_whose_times_span_no_finite_time_is_refused(
     (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    taper_ratio: thin"),
      "whiskers[0].taper_ratio: expected a finite number, got 'thin'"),
     (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    precurvature_1pm: 1000"),
-     "precurvature must be within +-2 pi per rod length"),
+     "whiskers[0]: whisker 'w0': precurvature_1pm must be within +-2 pi / length_m = "
+     "+-125.664 /m, got 1000.0"),
     (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    poisson_ratio: 0.7"),
      "whiskers[0]: whisker 'w0': poisson_ratio must be in [0, 0.5], got 0.7"),
     (("ei_nm2: 2.0e-5", "ei_nm2: 2.0e-5\n    curvature: 3"), "whiskers[0]: unknown key"),

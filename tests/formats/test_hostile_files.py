@@ -73,6 +73,16 @@ def test_an_error_never_quotes_the_file(tmp_path: Path, body: str) -> None:
     assert "SECRET" not in done.stderr and "root" not in done.stderr, done.stderr
 
 
+def test_a_header_of_the_columns_in_another_order_is_shown_as_read(tmp_path: Path) -> None:
+    """Every column there, in another order: the error shows that order (only the column
+    names can be in it), not a count of cells."""
+    path = tmp_path / "path.csv"
+    path.write_text("x,t,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0,1,0,0,0,0,0,1\n")
+    with pytest.raises(SceneError, match="header must be t,x,y,z,qx,qy,qz,qw, got "
+                                         "x,t,y,z,qx,qy,qz,qw$"):
+        load_path(path)
+
+
 def test_a_missing_path_names_the_scene_file_and_key(tmp_path: Path) -> None:
     (tmp_path / "scene.yaml").write_text(SCENE.replace("{path}", "nopath.csv"))
     with pytest.raises(SceneError, match=r"scene.yaml: path: .*nopath.csv: cannot read \(No such file"):

@@ -547,8 +547,8 @@ class Launcher:
             got = (self.traffic.of(node.spec.fqn) or {}).get("received", 0)
             why = ", ".join(f"'{name}' {what}" for name, what in gone.items())
             self._stranded.append(f"'{node.spec.name}' waits for input that can no longer "
-                                  f"arrive ({why}): it received {got} of the {sent} message(s) "
-                                  f"its inputs' publishers sent")
+                                  f"arrive ({why}): its inputs' publishers sent {sent} "
+                                  f"message(s); it received {got} on all its topics")
             self.out.log(f"{self._stranded[-1]}; shutting down")
             self._shutting_down = True
             return

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import compress
+from itertools import accumulate, compress
 from typing import TypeAlias, cast
 
 import numpy as np
@@ -16,7 +16,7 @@ from vibrissa.contact_detection import ContactDetector
 from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import ContactPointArray, ContactStatus, WhiskerWrenchArray
-from vibrissa.reconstruct import TIP_SIGMAS, reconstruct_si
+from vibrissa.reconstruct import TALLY, TIP_SIGMAS, reconstruct_si
 from vibrissa.rods import UNIFORM, RodShape
 from vibrissa.scene import Whisker
 from vibrissa.units import RodScale, rod_units
@@ -29,6 +29,7 @@ Rods: TypeAlias = RodScale | Mapping[str, RodScale]
 """One rod for every whisker, or each whisker's by name (the robot description)."""
 
 _MAX_ROW_LISTS = 64
+_NO_COVARIANCE = TALLY.index("no_covariance")
 
 
 class RodTable(Mapping[str, RodScale]):
@@ -186,6 +187,7 @@ class _Rows:
     q: FloatArray
     p: FloatArray
     placed: npt.NDArray[np.bool_]
+    n_placed: int  # rows placed
     units: FloatArray | None  # of each row's rod (N, 3) (None: the one rod of every row)
     frame_id: str
     no_pose: int = 0
@@ -246,8 +248,9 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
         placed &= ~free_rows
         if free and table is not None and table.shaped:
             free_list = np.flatnonzero(free_rows).tolist()
-    return _Rows(q, p, placed, units, frame_id, no_pose, len(missing), errors, free, len(wrong),
-                 free_list)
+    every = msg.pose_frame_id is not None and detector is None and not missing  # all placed
+    return _Rows(q, p, placed, n if every else int(np.count_nonzero(placed)), units, frame_id,
+                 no_pose, len(missing), errors, free, len(wrong), free_list)
 
 
 def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_ROD,
@@ -271,7 +274,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     without one, each batch starts afresh).
     """
     parts = [_rows(msg, rod, frames, map_frame, detector) for msg in msgs]
-    whole = len(parts) == 1 and parts[0].placed.all()  # the rows as they are
+    whole = len(parts) == 1 and parts[0].n_placed == len(parts[0].placed)  # rows as they are
     if whole:
         part, msg = parts[0], msgs[0]
         q, p0, f0, m0 = part.q, part.p, msg.f0, msg.m0
@@ -311,41 +314,35 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
                                        result.force_n, result.status)
     # a row whose result overflows (finite inputs near the float limit) is flagged
     # NON_FINITE_INPUT by Step 2: not valid, so it counts as no consistent contact
-    valid = result.valid
-    multi = result.pose_ok & ((status & int(ContactStatus.MULTI_CONTACT)) != 0)
-    ambiguous = valid & ((status & int(ContactStatus.AMBIGUOUS_CONTACT)) != 0)
+    valid, tallies = result.tally(np.array(list(accumulate(part.n_placed for part in parts))))
+    counts = tallies.tolist()
     covariance = result.covariance_m2
-    # with a noise model: per row, a point that is the tip within the noise, or that has no
-    # covariance (an axial load: it gets the rod's reach, L^2 I)
-    tip_within_noise = no_covariance = None
-    if covariance is not None:
-        tip_within_noise = valid & ((status & int(ContactStatus.TIP_WITHIN_NOISE)) != 0)
+    # with a noise model, a point that has no covariance (an axial load) gets the rod's
+    # reach, L^2 I
+    if covariance is not None and tallies[:, _NO_COVARIANCE].any():
         no_covariance = valid & ~np.isfinite(covariance).all(axis=(1, 2))
-        if no_covariance.any():
-            length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
-                        else rods[:, 0])
-            covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
+        length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
+                    else rods[:, 0])
+        covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
     fields = (point, s1, phase, force, status) if covariance is None else (
         point, s1, phase, force, status, covariance)
     for value in fields:
         value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
     outcomes = []
     first = 0
-    for msg, part in zip(msgs, parts, strict=True):
-        n = int(np.count_nonzero(part.placed))
+    for msg, part, (good, kept, multi, ambiguous, tip_within_noise, no_covariance) in zip(
+            msgs, parts, counts, strict=True):
+        n = part.n_placed
         rows = slice(first, first + n)
-        good = int(np.count_nonzero(result.pose_ok[rows]))
-        valid_rows = valid[rows]
-        kept = int(np.count_nonzero(valid_rows))
         whisker_ids = msg.whisker_ids
         if kept == len(whisker_ids):  # every row of the message: views of the call's arrays
             kept_fields = [value[rows] for value in fields]
             whisker_ids = list(whisker_ids)
         else:
             in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
-            in_message[part.placed] = valid_rows
+            in_message[part.placed] = valid[rows]
             whisker_ids = list(compress(whisker_ids, in_message.tolist()))
-            rows_kept = first + np.flatnonzero(valid_rows)
+            rows_kept = first + np.flatnonzero(valid[rows])
             kept_fields = [value[rows_kept] for value in fields]
             for value in kept_fields:
                 value.flags.writeable = False
@@ -361,13 +358,8 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         outcomes.append(Reconstructed(
             contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
             unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,
-            wrong_frame=part.wrong_frame,
-            tip_within_noise=(0 if tip_within_noise is None
-                              else int(np.count_nonzero(tip_within_noise[rows]))),
-            no_covariance=(0 if no_covariance is None
-                           else int(np.count_nonzero(no_covariance[rows]))),
-            multi_contact=int(np.count_nonzero(multi[rows])),
-            ambiguous=int(np.count_nonzero(ambiguous[rows]))))
+            wrong_frame=part.wrong_frame, tip_within_noise=tip_within_noise,
+            no_covariance=no_covariance, multi_contact=multi, ambiguous=ambiguous))
         first += n
     return outcomes
 

@@ -5,8 +5,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vibrissa.elastica import planar_contact, planar_contact_scalar
-from vibrissa.reconstruct import Reconstruction, reconstruct, reconstruct_si
-from vibrissa.status import ContactStatus
+from vibrissa.reconstruct import (
+    TALLY,
+    Reconstruction,
+    ReconstructionSI,
+    reconstruct,
+    reconstruct_si,
+)
+from vibrissa.status import NO_CONTACT, ContactStatus
 from vibrissa.surfaces import parse_surface
 from vibrissa.sweep import simulate_sweep
 from vibrissa.units import RodScale
@@ -161,3 +167,36 @@ def test_step2_flags_finite_inputs_whose_contact_overflows() -> None:
     si = reconstruct_si(q_turned, np.zeros((1, 3)), [[0.0, -1.3e308, -1.3e308]],
                         [[1e300, 0.0, 0.0]], RodScale())
     assert si.status[0] == ContactStatus.NON_FINITE_INPUT and not si.valid[0]
+
+
+@pytest.mark.parametrize("with_covariance", [False, True])
+def test_the_tally_counts_each_tick_as_the_flags_say(with_covariance: bool) -> None:
+    """`ReconstructionSI.tally` against masks of the flags, tick by tick, on random rows."""
+    rng = np.random.default_rng(7)
+    n = 200
+    flags = [int(f) for f in ContactStatus]
+    status = np.zeros(n, np.int32)
+    for flag in flags:
+        status[rng.random(n) < 0.15] |= flag
+    pose_ok = rng.random(n) < 0.9
+    covariance = rng.normal(size=(n, 3, 3))
+    covariance[rng.random(n) < 0.2, 1, 2] = np.nan
+    result = ReconstructionSI(pose_ok, np.zeros((n, 3)), np.zeros(n), np.zeros(n, np.int32),
+                              np.zeros((n, 3)), status,
+                              covariance if with_covariance else None)
+    ends = np.array([0, 17, 17, 90, 199, n])
+    valid, counts = result.tally(ends)
+    expected_valid = pose_ok & ((status & int(NO_CONTACT)) == 0)
+    np.testing.assert_array_equal(valid, expected_valid)
+    assert counts.shape == (len(ends), len(TALLY))
+    for k, (start, stop) in enumerate(zip([0, *ends[:-1]], ends, strict=True)):
+        ok, good, st = pose_ok[start:stop], expected_valid[start:stop], status[start:stop]
+        finite = np.isfinite(covariance[start:stop]).all(axis=(1, 2))
+        want = {"pose_ok": ok.sum(), "valid": good.sum(),
+                "multi_contact": (ok & (st & int(ContactStatus.MULTI_CONTACT) != 0)).sum(),
+                "ambiguous": (good & (st & int(ContactStatus.AMBIGUOUS_CONTACT) != 0)).sum(),
+                "tip_within_noise": (good & (st & int(ContactStatus.TIP_WITHIN_NOISE) != 0)
+                                     ).sum() if with_covariance else 0,
+                "no_covariance": (good & ~finite).sum() if with_covariance else 0}
+        assert dict(zip(TALLY, counts[k].tolist(), strict=True)) == want
+    assert counts[:, TALLY.index("valid")].sum() >= 10  # the flags left valid rows to count

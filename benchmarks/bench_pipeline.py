@@ -120,6 +120,7 @@ LATE_S = 0.002  # the target's p99, s: the table counts the messages later than 
 ROBOT_MODES = ("robot", "robot-rt")
 POSE_TOPIC = "/bench/pose"
 POSE_PERIOD_S = 0.01  # the robot's poses at 100 Hz
+RECONSTRUCTOR = ["-m", "vibrissa.nodes.reconstructor"]  # how the chains start the node
 ROW_COUNTERS = ("contacts", "no_contact", "bad_pose", "no_pose", "unknown_whisker", "wrong_frame")
 # the reconstructor's counters of rows: each row lands in one
 
@@ -617,7 +618,7 @@ def measure(mode: str, unit: str, rate: float, duration_s: float, tmp: Path,
                 _write_robot(tmp / "robot.yaml")
                 params = ["--param", f"robot:={tmp / 'robot.yaml'}",
                           "--param", f"pose_topic:={POSE_TOPIC}"]
-            helpers.append(_python("-m", "vibrissa.nodes.reconstructor", "--name",
+            helpers.append(_python(*RECONSTRUCTOR, "--name",
                                    "reconstructor", "--namespace", "/bench", *params, env=env,
                                    netns=netns))
             endpoints = Endpoints(pub_ep, sub_ep, keys)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -16,6 +17,7 @@ from vibrissa.formats.errors import SceneError
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)  # read once, at import (setting it is process-wide)
+_STOPS = {signal.SIGINT, signal.SIGTERM}
 
 
 @contextmanager
@@ -28,13 +30,21 @@ def whole_file(path: Path) -> Iterator[Path]:
     target = Path(os.path.realpath(path))
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        handle, name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.stem}.",
-                                        suffix=f".partial{target.suffix}")
     except OSError as exc:
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
-    os.close(handle)
-    partial = Path(name)
+    # Ctrl-C or SIGTERM (raised by its Python handler) is held while the file is made and
+    # its name kept, and comes in at the first step inside the block that removes it.
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
+    partial: Path | None = None
     try:
+        try:
+            handle, name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.stem}.",
+                                            suffix=f".partial{target.suffix}")
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
+        partial = Path(name)
+        os.close(handle)
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
         yield partial
         if target.is_file():
             shutil.copymode(target, partial)
@@ -42,7 +52,9 @@ def whole_file(path: Path) -> Iterator[Path]:
             os.chmod(partial, 0o666 & ~_UMASK)
         os.replace(partial, target)
     finally:
-        partial.unlink(missing_ok=True)
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        if partial is not None:
+            partial.unlink(missing_ok=True)
 
 
 def is_stream(path: Path) -> bool:

@@ -8,6 +8,7 @@ import signal
 import stat
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -72,6 +73,30 @@ def test_an_unwritable_folder_is_named_as_given(tmp_path: Path) -> None:
     blocked.write_text("")
     with pytest.raises(OSError, match=rf"cannot write {blocked}/x.csv: "), whole_file(blocked / "x.csv"):
         pass
+
+
+def test_a_stop_just_as_the_temporary_file_is_made_removes_it(tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """SIGTERM arriving right after the temporary file exists, before the block has its name
+    (as under load, when the process is put aside there), still leaves nothing behind."""
+    made = tempfile.mkstemp
+
+    def made_then_stopped(**kwargs: object) -> tuple[int, str]:
+        result = made(**kwargs)  # type: ignore[call-overload]
+        os.kill(os.getpid(), signal.SIGTERM)
+        return result  # type: ignore[no-any-return]
+
+    def stop(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    monkeypatch.setattr(tempfile, "mkstemp", made_then_stopped)
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        with pytest.raises(SystemExit), whole_file(tmp_path / "out" / "x.csv") as partial:
+            partial.write_text("never\n")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert list((tmp_path / "out").iterdir()) == []
 
 
 def test_streams_are_pipes_devices_and_dev_names(tmp_path: Path) -> None:

@@ -104,7 +104,8 @@ class ReconstructorParams:
         the mounts hang on.
     pose_timeout_s
         How long a wrench waits for the robot pose at its stamp (the pose stream may lag),
-        s; then its rows count as ``no_pose`` and the node moves on.
+        s, while the wrenches go on (a stalled sensor waits 10 times as long); then its rows
+        count as ``no_pose`` and the node moves on.
     history_s
         Robot poses kept for interpolation, s: a wrench older than the newest pose by more
         than this counts as ``no_pose``. A batch ends once its stamps span half of it.
@@ -297,6 +298,7 @@ def run(node: Node, params: ReconstructorParams) -> None:
         stream.add_wrenches(batch)
         if eos is not None:
             ends.append(eos)
+            stream.end_wrenches()
         for outcome in stream.take(batches.drained_at):
             publisher.publish(outcome.contacts)
         # the poses no wrench waited for, now that the points are out

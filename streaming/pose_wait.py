@@ -28,9 +28,12 @@ class PoseWait:
     only if the input queue was seen empty after that (``take(drained_at=...)``, the clock's
     time the queue was last seen empty): under a backlog, or a process that was not scheduled
     between reading its input and handling it, the pose it waits for may be queued behind, and
-    a pose that was sent is not missing. A permanent backlog still ends the wait, after
-    ``BACKLOG_TIMEOUTS`` x ``timeout_s``. The order of the wrenches is kept: one that waits
-    holds back those behind it.
+    a pose that was sent is not missing. Likewise the wrench stream must have gone on: a wrench
+    arrived ``timeout_s`` after it, or the input ended (`end`); a sensor that stopped sending
+    between a wrench and its pose (its process not scheduled, on a loaded machine) has not
+    lost the pose. A permanent backlog, or a sensor silent for good, still ends the wait,
+    after ``BACKLOG_TIMEOUTS`` x ``timeout_s``. The order of the wrenches is kept: one that
+    waits holds back those behind it.
 
     Robot poses given to `hold` go to ``on_pose`` (into ``frames``) in arrival order: as many
     as the front wrench needs when it is not ready without them (in `take`, before any wrench
@@ -60,6 +63,7 @@ class PoseWait:
         self._poses: deque[tuple[float, RobotPose]] = deque()  # held since, in arrival order
         self._newest = -math.inf  # the newest wrench's stamp
         self._last_wrench = -math.inf  # when the last wrench arrived
+        self._ended = False  # the wrench input ended, and no wrench came since
 
     def __len__(self) -> int:
         return len(self._queue)
@@ -70,6 +74,12 @@ class PoseWait:
         if msgs:
             self._newest = max([self._newest, *(msg.stamp for msg in msgs)])
             self._last_wrench = now
+            self._ended = False
+
+    def end(self) -> None:
+        """The wrench input has ended (its EndOfStream): no wrench will come to show that the
+        stream went on, so the waiting ones time out ``timeout_s`` after they arrived."""
+        self._ended = True
 
     def hold(self, pose: RobotPose) -> None:
         """Keep a robot pose until a wrench needs it, or until `apply_poses`."""
@@ -95,8 +105,9 @@ class PoseWait:
     def take(self, drained_at: float | None = None) -> list[WhiskerWrenchArray]:
         """The wrenches from the front that are ready or have waited long enough: ``timeout_s``
         before the input queue was last seen empty (``drained_at``, the clock's time; None:
-        now), or ``BACKLOG_TIMEOUTS`` x ``timeout_s`` before now. While the front one is not
-        ready and poses are held, they go in, oldest first."""
+        now) with a wrench arriving ``timeout_s`` after it or the input ended, or
+        ``BACKLOG_TIMEOUTS`` x ``timeout_s`` before now. While the front one is not ready and
+        poses are held, they go in, oldest first."""
         out = self._take(drained_at, expire=not self._poses)
         while self._queue and self._poses:  # the front one's pose may be held
             self._on_pose(self._poses.popleft()[1])
@@ -106,8 +117,10 @@ class PoseWait:
     def _take(self, drained_at: float | None, expire: bool) -> list[WhiskerWrenchArray]:
         out: list[WhiskerWrenchArray] = []
         now = self._clock()
-        drained = now if drained_at is None else min(drained_at, now)
-        deadline = (max(drained - self.timeout_s, now - self.timeout_s * BACKLOG_TIMEOUTS)
+        went_on = now if drained_at is None else min(drained_at, now)
+        if not self._ended:
+            went_on = min(went_on, self._last_wrench)
+        deadline = (max(went_on - self.timeout_s, now - self.timeout_s * BACKLOG_TIMEOUTS)
                     if expire else -math.inf)
         while self._queue:
             arrived, msg = self._queue[0]
@@ -117,10 +130,14 @@ class PoseWait:
         return out
 
     def wait_s(self) -> float:
-        """Seconds until the front wrench times out (inf with none waiting)."""
+        """Seconds until the front wrench times out (inf with none waiting), unless a
+        wrench comes first."""
         if not self._queue:
             return math.inf
-        return max(0.0, self._queue[0][0] + self.timeout_s - self._clock())
+        arrived = self._queue[0][0]
+        went_on = self._ended or self._last_wrench >= arrived + self.timeout_s
+        waits = self.timeout_s * (1.0 if went_on else BACKLOG_TIMEOUTS)
+        return max(0.0, arrived + waits - self._clock())
 
     def _ready(self, msg: WhiskerWrenchArray) -> bool:
         if msg.has_pose or self.frames is None:

@@ -52,8 +52,8 @@ class StreamSettings:
         Frame of the contact points of ticks without clamp poses, and the robot's body frame
         the mounts hang on.
     pose_timeout_s
-        How long a tick waits for the robot pose at its stamp (the pose stream may lag), s;
-        then its rows count as ``no_pose`` (0: no wait).
+        How long a tick waits for the robot pose at its stamp (the pose stream may lag), s,
+        while the ticks go on; then its rows count as ``no_pose`` (0: no wait; `PoseWait`).
     history_s
         Robot poses kept for interpolation, s; poses more than half of it ahead of the newest
         tick are held back (`PoseWait.lead_s`).
@@ -217,10 +217,16 @@ class Step2Stream:
         """Take ticks, in arrival order."""
         self._wait.add(ticks)
 
+    def end_wrenches(self) -> None:
+        """The ticks' input has ended (its EndOfStream): the waiting ticks time out
+        ``pose_timeout_s`` after they came (`PoseWait.end`)."""
+        self._wait.end()
+
     def take(self, drained_at: float | None = None) -> Sequence[Reconstructed]:
         """The outcomes of the ticks that are ready (or had waited ``pose_timeout_s`` when the
-        input was last seen empty, at the clock's ``drained_at``, None: now; 10 x that under
-        a backlog: `PoseWait.take`), in arrival order, counted."""
+        input was last seen empty, at the clock's ``drained_at``, None: now, and a tick came
+        that long after them or the input ended; 10 x that under a backlog or a silent
+        sensor: `PoseWait.take`), in arrival order, counted."""
         ready = self._wait.take(drained_at)
         if not ready:
             return ()

@@ -51,12 +51,16 @@ def test_a_pose_stream_that_stops_makes_wrenches_no_pose_after_the_timeout() -> 
     wait.add([_robot_wrench(0.005, 0), _robot_wrench(0.02, 1), _robot_wrench(0.008, 2)])
     ready = wait.take()
     assert [m.seq for m in ready] == [0]  # seq 1 is newer than the last pose: it waits (and 2 behind it)
-    assert wait.wait_s() == pytest.approx(0.5)
+    assert wait.wait_s() == pytest.approx(0.5 * BACKLOG_TIMEOUTS)  # unless a wrench comes
     now[0] += 0.49
-    assert wait.take() == []
-    now[0] += 0.02  # the pose stream has stopped: after pose_timeout_s, on without a pose
+    wait.add([_robot_wrench(0.03, 3)])  # the wrenches go on
+    assert wait.take() == [] and wait.wait_s() == pytest.approx(0.5 * BACKLOG_TIMEOUTS - 0.49)
+    now[0] += 0.02  # the pose stream has stopped: after pose_timeout_s, on without a pose,
+    assert wait.take() == []  # once a wrench came that long after them
+    wait.add([_robot_wrench(0.04, 4)])
+    assert wait.wait_s() == 0.0
     late = wait.take()
-    assert [m.seq for m in late] == [1, 2] and len(wait) == 0
+    assert [m.seq for m in late] == [1, 2] and len(wait) == 2
     rods = {w.name: w.scale for w in whiskers}
     out = reconstruct_messages(ready + late, rods, frames, "world")
     assert [(o.no_pose, o.unknown_whisker) for o in out] == [(0, 0), (2, 0), (0, 0)]
@@ -70,6 +74,40 @@ def test_a_pose_stream_that_stops_makes_wrenches_no_pose_after_the_timeout() -> 
     assert "b" in rows
     np.testing.assert_allclose(out[0].contacts.point[rows.index("b")], expected.point_m[0],
                                rtol=0, atol=1e-15)
+
+
+def test_a_sensor_that_stalls_between_a_wrench_and_its_pose_loses_no_pose() -> None:
+    """The sensor's process sent a wrench, then was not scheduled for 2 s (a loaded machine)
+    before the pose that covers it: the node saw its queue empty all along, but no wrench came
+    after it, so it waits for the pose and gets it. A sensor silent for good ends the wait
+    after ``BACKLOG_TIMEOUTS`` x ``pose_timeout_s``; the wrenches' end after ``pose_timeout_s``."""
+    whiskers = [Whisker("a", 0.05, 2e-4, Transform.from_xyz_rpy([0, -0.02, 0], [1.2, 0, 0]))]
+    frames = robot_frames(whiskers)
+    now = [100.0]
+    wait = PoseWait(frames, "world", timeout_s=0.5, clock=lambda: now[0])
+    frames.add("world", "base_link", 0.0, Transform())
+    wait.add([_robot_wrench(0.005, 1, ("a",))])
+    for _ in range(20):  # 2 s, the queue seen empty every 0.1 s
+        now[0] += 0.1
+        assert wait.take(drained_at=now[0]) == []
+    frames.add("world", "base_link", 0.01, Transform())  # the pose, at last
+    (ready,) = wait.take(drained_at=now[0])
+    (out,) = reconstruct_messages([ready], {w.name: w.scale for w in whiskers}, frames, "world")
+    assert ready.seq == 1 and out.no_pose == 0
+    # silent for good: no pose, no wrench
+    wait.add([_robot_wrench(0.02, 2, ("a",))])
+    now[0] += 0.5 * BACKLOG_TIMEOUTS - 0.01
+    assert wait.take(drained_at=now[0]) == [] and wait.wait_s() == pytest.approx(0.01)
+    now[0] += 0.02
+    assert [m.seq for m in wait.take(drained_at=now[0])] == [2]
+    # the wrenches' EndOfStream: no wrench will come, pose_timeout_s is the wait
+    wait.add([_robot_wrench(0.03, 3, ("a",))])
+    wait.end()
+    assert wait.wait_s() == pytest.approx(0.5)
+    now[0] += 0.49
+    assert wait.take(drained_at=now[0]) == []
+    now[0] += 0.02
+    assert [m.seq for m in wait.take(drained_at=now[0])] == [3]
 
 
 def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> None:
@@ -113,6 +151,7 @@ def test_a_pose_queued_behind_a_backlog_is_waited_for_not_counted_missing() -> N
                       zip(ready, reconstruct_messages(ready, rods, frames, "world"), strict=True)]
     # each waited up to 2.4 s for its pose, and it came: none is no_pose
     assert taken == [(seq, 0) for seq in range(1, 9)]
+    wait.end()  # the wrenches' EndOfStream: no wrench comes after seq 9
     batches.collect(0.0)
     assert batches.drained_at == now[0] and len(wait) == 1  # seq 9 (0.2 s) is past the last pose
     now[0] += 0.5

@@ -1,7 +1,7 @@
 """The reconstructor as a process on a robot, fed by the test over loopback: a pose stream that
-stops makes wrenches count as ``no_pose`` after ``pose_timeout_s`` while the node keeps
-running, a pose stamped far ahead costs the stream a few poses, and a bad robot description
-stops the launch naming the problem."""
+stops while the wrenches go on makes them count as ``no_pose`` after ``pose_timeout_s``, and
+the node keeps running, a pose stamped far ahead costs the stream a few poses, and a bad robot
+description stops the launch naming the problem."""
 
 from __future__ import annotations
 
@@ -60,9 +60,10 @@ def test_a_pose_stream_that_stops_gives_no_pose_and_the_node_goes_on(tmp_path: P
     f0 = np.array([[0.1 * w.scale.force_n, 0.0, 0.0] for w in whiskers])
     m0 = np.array([[0.0, 0.05 * w.scale.moment_nm, 0.0] for w in whiskers])
 
-    def tick(seq: int) -> WhiskerWrenchArray:
-        return WhiskerWrenchArray(stamp=0.01 * seq, seq=seq, whisker_ids=names,
-                                  frame_ids=[clamp_frame(n) for n in names], f0=f0, m0=m0)
+    def tick(seq: int, stamp: float | None = None) -> WhiskerWrenchArray:
+        return WhiskerWrenchArray(stamp=0.01 * seq if stamp is None else stamp, seq=seq,
+                                  whisker_ids=names, frame_ids=[clamp_frame(n) for n in names],
+                                  f0=f0, m0=m0)
 
     launch = _reconstructor_only(tmp_path, SCENE)
     probe = Probe(launch.endpoints(), [CONTACT])
@@ -77,14 +78,24 @@ def test_a_pose_stream_that_stops_gives_no_pose_and_the_node_goes_on(tmp_path: P
         sent = time.monotonic()
         for seq in range(101):
             wrenches.publish(tick(seq))
+        # the wrenches go on (a wrench every 0.1 s, stamped within the poses, seq 1000 on):
+        # what waits is let through once one came pose_timeout_s after it
         got: list[ContactPointArray] = []
-        while len(got) < 101 and time.monotonic() < sent + 20:
-            rx = probe.sub.receive(0.1)
+        going_on: list[ContactPointArray] = []
+        prods = 0
+        while len(got) < 101 or len(going_on) < prods:
+            assert time.monotonic() < sent + 20, launch.text()
+            if len(got) <= 51 and time.monotonic() > sent + 0.1 * prods:
+                wrenches.publish(tick(1000 + prods, stamp=0.25))
+                prods += 1
+            rx = probe.sub.receive(0.02)
             if rx is not None and isinstance(rx.msg, ContactPointArray):
-                got.append(rx.msg)
+                (got if rx.msg.seq < 1000 else going_on).append(rx.msg)
                 if rx.msg.seq == 51:
                     waited = time.monotonic() - sent
         assert [a.seq for a in got] == list(range(101)), launch.text()  # every tick answered
+        assert [a.seq for a in going_on] == list(range(1000, 1000 + prods))
+        assert all(a.whisker_ids == names for a in going_on)
         assert all(a.whisker_ids == names for a in got[:51])  # placed: the poses cover them
         assert all(a.whisker_ids == [] for a in got[51:])  # newer than the last pose
         assert TIMEOUT_S <= waited < TIMEOUT_S + 2.0  # a bounded wait, then on without a pose
@@ -111,7 +122,8 @@ def test_a_pose_stream_that_stops_gives_no_pose_and_the_node_goes_on(tmp_path: P
         more = _arrays(probe, 20)
         assert [a.seq for a in more] == list(range(101, 121))
         assert all(a.whisker_ids == names for a in more)
-        status = probe.status_of(FQN, lambda s: s.counters.get("contacts", 0) >= 71 * len(names))
+        status = probe.status_of(FQN, lambda s: s.counters.get("contacts", 0)
+                                 >= (71 + prods) * len(names))
         assert status.counters["no_pose"] == 50 * len(names) and status.state == "running"
         # a row of a whisker the robot does not have: counted, named, the others placed
         ghost = tick(119)

@@ -16,9 +16,9 @@ AXIAL_LOAD), in the order the ticks came::
 Placing: a tick without clamp poses is placed through the robot description's mounts
 (``whiskers``: each whisker's clamp frame at X_RC on ``robot_frame``) and the robot's poses,
 interpolated at the tick's stamp in a frame buffer (`vibrissa.frame_buffer`, no extrapolation).
-A tick waits until the poses cover its stamp (`PoseWait`), or ``pose_timeout_s``; poses are
-held until a tick needs them or `Step2Stream.apply_poses`, so a tick is not late by a pose it
-does not need.
+A tick waits until the poses cover its stamp (`PoseWait`), or ``pose_timeout_s`` while the
+ticks go on (`Step2Stream.end_wrenches` when they have ended); poses are held until a tick
+needs them or `Step2Stream.apply_poses`, so a tick is not late by a pose it does not need.
 
 Step 2 in SI, with the clamp pose and each row's ``vibrissa.units.RodScale`` (its whisker's
 from ``whiskers``, else ``rod``), is the core's ``vibrissa.reconstruct.reconstruct_si``; the

@@ -12,9 +12,9 @@ run; the reconstructor is the real node, started through this file, which notes 
 * ``to publish``: -> the points' publish starts (the stream's counters);
 * ``encode``, ``send``: the publish's encode and its three frames onto the socket.
 
-Medians over the ticks of every run, us, and the chains' end-to-end p50 / p99 (send by the
-load -> receipt by the sink). Wall above CPU time in a step is time the node's thread was not
-running (another thread or process had the core). Not a test.
+Medians and 99th percentiles over the ticks of every run, us, and the chains' end-to-end p50 /
+p99 (send by the load -> receipt by the sink). Wall above CPU time in a step is time the node's
+thread was not running (another thread or process had the core). Not a test.
 
 Usage: ``python benchmarks/bench_tick_live.py [--duration 8] [--repeat 3]``
 """
@@ -143,14 +143,17 @@ def main() -> None:
                     for name, (w, c) in _intervals(steps).items():
                         wall[name].append(w)
                         cpu[name].append(c)
-    print("\nthe reconstructor's steps of a tick, medians over every run's ticks, us")
-    print(f"{'step':>12} {'wall':>7} {'cpu':>7}")
+    print("\nthe reconstructor's steps of a tick over every run's ticks, medians and 99th "
+          "percentiles, us")
+    print(f"{'step':>12} {'wall':>7} {'cpu':>7} {'wall p99':>9} {'cpu p99':>8}")
+
+    def row(name: str, w: np.ndarray, c: np.ndarray) -> None:
+        print(f"{name:>12} {np.median(w) * 1e6:7.1f} {np.median(c) * 1e6:7.1f} "
+              f"{np.percentile(w, 99) * 1e6:9.1f} {np.percentile(c, 99) * 1e6:8.1f}")
     for name in INTERVALS:
-        print(f"{name:>12} {np.median(np.concatenate(wall[name])) * 1e6:7.1f} "
-              f"{np.median(np.concatenate(cpu[name])) * 1e6:7.1f}")
-    total_wall = sum(np.concatenate(wall[name]) for name in INTERVALS)
-    total_cpu = sum(np.concatenate(cpu[name]) for name in INTERVALS)
-    print(f"{'in the node':>12} {np.median(total_wall) * 1e6:7.1f} {np.median(total_cpu) * 1e6:7.1f}")
+        row(name, np.concatenate(wall[name]), np.concatenate(cpu[name]))
+    row("in the node", sum(np.concatenate(wall[name]) for name in INTERVALS),
+        sum(np.concatenate(cpu[name]) for name in INTERVALS))
     print("\nend to end, all runs together, us")
     for mode, runs in latency.items():
         both = np.concatenate(runs)

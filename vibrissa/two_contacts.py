@@ -534,9 +534,13 @@ class TwoContactFollower:
     changes between tip and tangential; each solution must converge, push at both contacts
     and keep the rod (``CLEAR_POINTS`` points of it) outside every object. A sample none of
     them reaches is tried in ever shorter sub-steps from as far as the longer ones got
-    (``SUB_STEP_LEVELS``). The stretch (``stretch``, its ``end`` empty while it goes on) ends
-    where a contact's force would pull (it leaves), where the rod would enter another object,
-    or where no equilibrium is near (snap-off)."""
+    (``SUB_STEP_LEVELS``). A step is not taken onto another branch past where a contact
+    leaves: a contact whose force falls so that its last decrease, carried on, reaches zero
+    within the step, and that comes out of the step with more force, is taken to leave there
+    (the step is tried in sub-steps, and the shortest ends the stretch there). The stretch
+    (``stretch``, its ``end`` empty while it goes on) ends where a contact's force would pull
+    (it leaves), where the rod would enter another object, or where no equilibrium is near
+    (snap-off)."""
 
     def __init__(self, surfaces: Sequence[Surface], objects: tuple[int, int], k_first: int,
                  x_start: FloatArray, modes: NDArray[np.int64], anchors: FloatArray,
@@ -553,6 +557,8 @@ class TwoContactFollower:
         self._sliding = modes.copy()
         self._anchors = anchors.copy()
         self._moves = np.full(2, np.inf)  # each contact's move at the last sample (none yet)
+        self._forces = np.full(2, np.nan)  # each contact's force at the last (sub-)step
+        self._drops = np.full(2, np.nan)  # and its decrease over that step, per unit of x0
         self._kernel = [np.ascontiguousarray(np.concatenate([surfaces[j].kernel_arrays[i]
                                                              for j in objects]))
                         for i in range(5)]
@@ -562,6 +568,7 @@ class TwoContactFollower:
         ends."""
         rows, mu, surfaces, kernel = self.stretch.rows, path.mu, self.surfaces, self._kernel
         x_last, x_before, last_step = self._x_last, self._x_before, self._last_step
+        forces, drops = self._forces, self._drops
         while self.k < k_stop and not self.stretch.end:
             k = self.k
             x0_k = float(path.x0_of(np.array([k]))[0])
@@ -582,6 +589,14 @@ class TwoContactFollower:
                                        self._anchors, mu, self._params, kernel, surfaces)
                     if found is None:
                         break
+                    forces_now = np.array([np.linalg.norm(contact_info(found[1], j)[3])
+                                           for j in range(2)])
+                    leaving = (drops * sub >= forces) & (forces_now > forces)
+                    if leaving.any():  # onto another branch past where it leaves
+                        why = f"left {int(np.argmax(leaving))}"
+                        break
+                    drops = (forces - forces_now) / sub
+                    forces = forces_now
                     x_before, x_last, last_step, x0_at = x_last, found[0], sub, x0
                     state, modes_now = found[1], found[2]
                     self._sliding = np.array([_sliding(m) for m in modes_now])
@@ -609,6 +624,7 @@ class TwoContactFollower:
             rows.append(StretchRow(k, x_last, state, modes_now, f0, m0, refined, jumped))
             self.k = k + 1
         self._x_last, self._x_before, self._last_step = x_last, x_before, last_step
+        self._forces, self._drops = forces, drops
 
 
 def follow_two_contacts(path: SampledPath, surfaces: Sequence[Surface], objects: tuple[int, int],

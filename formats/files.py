@@ -4,10 +4,9 @@ within bounds."""
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
-import signal
 import stat
-import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -17,7 +16,7 @@ from vibrissa.formats.errors import SceneError
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)  # read once, at import (setting it is process-wide)
-_STOPS = {signal.SIGINT, signal.SIGTERM}
+_NEW = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
 
 
 @contextmanager
@@ -32,27 +31,28 @@ def whole_file(path: Path) -> Iterator[Path]:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
-    # Ctrl-C or SIGTERM (raised by its Python handler) is held while the file is made and
-    # its name kept, and comes in at the first step inside the block that removes it.
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
+    # The name is kept before the file exists, so that Ctrl-C or SIGTERM (raised by its
+    # Python handler, in the main thread, whichever thread the signal came to) at any step
+    # after the file is made finds it named in the block that removes it.
     partial: Path | None = None
     try:
-        try:
-            handle, name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.stem}.",
-                                            suffix=f".partial{target.suffix}")
-        except OSError as exc:
-            raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
-        partial = Path(name)
-        os.close(handle)
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        while partial is None:
+            partial = target.parent / (f".{target.stem}.{secrets.token_hex(6)}"
+                                       f".partial{target.suffix}")
+            try:
+                os.close(os.open(partial, _NEW, 0o600))
+            except FileExistsError:  # another writer's name: not ours to remove
+                partial = None
+            except OSError as exc:
+                partial = None
+                raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
         yield partial
         if target.is_file():
             shutil.copymode(target, partial)
-        else:  # as a new file is made (mkstemp makes it private)
+        else:  # as a new file is made (it is made private)
             os.chmod(partial, 0o666 & ~_UMASK)
         os.replace(partial, target)
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
         if partial is not None:
             partial.unlink(missing_ok=True)
 

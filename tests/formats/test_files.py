@@ -4,11 +4,12 @@ and the command that streams the most (`vibrissa reconstruct --scene`)."""
 from __future__ import annotations
 
 import os
+import select
 import signal
 import stat
 import subprocess
 import sys
-import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -77,25 +78,39 @@ def test_an_unwritable_folder_is_named_as_given(tmp_path: Path) -> None:
 
 def test_a_stop_just_as_the_temporary_file_is_made_removes_it(tmp_path: Path,
                                                              monkeypatch: pytest.MonkeyPatch) -> None:
-    """SIGTERM arriving right after the temporary file exists, before the block has its name
-    (as under load, when the process is put aside there), still leaves nothing behind."""
-    made = tempfile.mkstemp
+    """SIGTERM arriving right after the temporary file exists (as under load, when the process
+    is put aside there) to another thread of the process (as to a test runner's), still leaves
+    nothing behind."""
+    made = os.open
 
-    def made_then_stopped(**kwargs: object) -> tuple[int, str]:
-        result = made(**kwargs)  # type: ignore[call-overload]
-        os.kill(os.getpid(), signal.SIGTERM)
-        return result  # type: ignore[no-any-return]
+    def made_then_stopped(name: str, flags: int, *args: int, **kwargs: int) -> int:
+        handle = made(name, flags, *args, **kwargs)
+        if flags & os.O_CREAT:
+            signal.pthread_kill(waiting.ident or 0, signal.SIGTERM)
+            select.select([tripped], [], [], 60.0)  # its handler has run in the other thread
+        return handle
 
     def stop(signum: int, _frame: object) -> None:
         raise SystemExit(128 + signum)
 
-    monkeypatch.setattr(tempfile, "mkstemp", made_then_stopped)
+    other = threading.Event()
+    waiting = threading.Thread(target=other.wait, daemon=True)
+    waiting.start()
+    tripped, trips = os.pipe()
+    os.set_blocking(trips, False)
+    monkeypatch.setattr(os, "open", made_then_stopped)
     previous = signal.signal(signal.SIGTERM, stop)
+    previous_fd = signal.set_wakeup_fd(trips)
     try:
         with pytest.raises(SystemExit), whole_file(tmp_path / "out" / "x.csv") as partial:
             partial.write_text("never\n")
     finally:
+        signal.set_wakeup_fd(previous_fd)
         signal.signal(signal.SIGTERM, previous)
+        monkeypatch.undo()
+        other.set()
+        os.close(tripped)
+        os.close(trips)
     assert list((tmp_path / "out").iterdir()) == []
 
 

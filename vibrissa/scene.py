@@ -34,6 +34,7 @@ from __future__ import annotations
 import enum
 import functools
 import hashlib
+import itertools
 import math
 import multiprocessing
 import os
@@ -549,7 +550,9 @@ PAIR_START_LOADS = (1e-3, 1e-2, 0.1, 0.3, 1.0, 3.0)
 """Guesses of a second contact's force at its first sample, in units of the first contact's,
 tried in turn (`_WhiskerSteps._start_pair`): the first from which Newton reaches an admissible
 state of both contacts. A second object entered deeply within one sample bears a load of the
-first's order there, which Newton does not find from a small guess."""
+first's order there, which Newton does not find from a small guess. Where none reaches it at
+once, each is tried again from where the second contact has just touched
+(`vibrissa.two_contacts.TwoContactFollower`'s ``from_touch``)."""
 
 
 @dataclass
@@ -798,7 +801,7 @@ class _WhiskerSteps:
         moment = -sweep.m0[n - 1]  # the rod's internal moment at the clamp, C
         # (the straight rod's unknowns leave out the twist about the clamp's axis: it has none)
         clamp_moment = moment[:2] if self.shape.uniform else moment
-        for load in PAIR_START_LOADS:
+        for from_touch, load in itertools.product((False, True), PAIR_START_LOADS):
             force_other = load * float(np.linalg.norm(force_own)) * normal
             theirs = (s_other, force_other, mode_other, touch, other)
             inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)
@@ -806,7 +809,7 @@ class _WhiskerSteps:
             follower = two.TwoContactFollower(
                 self.surfaces, (inner[4], outer[4]), k_first, x_start,
                 np.array([inner[2], outer[2]], dtype=np.int64), np.array([inner[3], outer[3]]),
-                self.shape)
+                self.shape, from_touch)
             follower.advance(self.path, k_first + 1)
             if follower.stretch.rows:
                 break

@@ -528,7 +528,10 @@ class TwoContactFollower:
     (inner) on ``surfaces[objects[0]]``, contact 1 on ``surfaces[objects[1]]``, from moving
     sample ``k_first`` and the state ``x_start`` (the unknowns just before it, or a guess of
     them; a shaped rod's where ``shape`` is not the straight uniform one) with sliding
-    ``modes`` and the contacts' last points ``anchors`` (W, units of L).
+    ``modes`` and the contacts' last points ``anchors`` (W, units of L). The first sample is
+    reached from ``x_start`` at once, or, ``from_touch``, from where the second contact has
+    just touched: the first of its finest sub-steps (``SUB_STEP_LEVELS``) from the sample
+    before reached at once, then on in sub-steps.
 
     At each sample the contacts slide, else hold (each, then both), else the outer contact
     changes between tip and tangential; each solution must converge, push at both contacts
@@ -544,12 +547,13 @@ class TwoContactFollower:
 
     def __init__(self, surfaces: Sequence[Surface], objects: tuple[int, int], k_first: int,
                  x_start: FloatArray, modes: NDArray[np.int64], anchors: FloatArray,
-                 shape: RodShape = STRAIGHT_ROD) -> None:
+                 shape: RodShape = STRAIGHT_ROD, from_touch: bool = False) -> None:
         if len(x_start) != (N_UNKNOWNS if shape.uniform else N_UNKNOWNS_SHAPED):
             raise ValueError(f"{len(x_start)} unknowns for a "
                              f"{'straight' if shape.uniform else 'shaped'} rod")
         self.surfaces = surfaces
         self._params = shape.params
+        self._from_touch = from_touch
         self.stretch = Stretch([], "")
         self.k = k_first  # the next sample to reach
         self._x_last, self._last_step = x_start.copy(), math.nan  # the state, the step to it
@@ -569,6 +573,7 @@ class TwoContactFollower:
         rows, mu, surfaces, kernel = self.stretch.rows, path.mu, self.surfaces, self._kernel
         x_last, x_before, last_step = self._x_last, self._x_before, self._last_step
         forces, drops = self._forces, self._drops
+        state, modes_now = x_last, self._sliding  # (each sample reached sets both)
         while self.k < k_stop and not self.stretch.end:
             k = self.k
             x0_k = float(path.x0_of(np.array([k]))[0])
@@ -576,32 +581,45 @@ class TwoContactFollower:
             span = x0_at - x0_k
             why = ""
             refined = False
-            # the first sample is reached from the guess at once: sub-steps from the sample
-            # before would start before the second contact touches
-            for level in range(SUB_STEP_LEVELS + 1 if rows else 1):
+
+            def reach(x0: float, sub: float) -> bool:
+                """Take the (sub-)step to ``x0``, ``sub`` long; whether it is taken."""
+                nonlocal why, drops, forces, x_before, x_last, last_step, x0_at, state
+                nonlocal modes_now
+                p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0])))
+                predictor = (x_last if not last_step > 0
+                             else x_last + (x_last - x_before) * (sub / last_step))
+                found, why = _step(predictor, x_last, p_WC, R_WC, self._sliding,
+                                   self._anchors, mu, self._params, kernel, surfaces)
+                if found is None:
+                    return False
+                forces_now = np.array([np.linalg.norm(contact_info(found[1], j)[3])
+                                       for j in range(2)])
+                leaving = (drops * sub >= forces) & (forces_now > forces)
+                if leaving.any():  # onto another branch past where it leaves
+                    why = f"left {int(np.argmax(leaving))}"
+                    return False
+                drops = (forces - forces_now) / sub
+                forces = forces_now
+                x_before, x_last, last_step, x0_at = x_last, found[0], sub, x0
+                state, modes_now = found[1], found[2]
+                self._sliding = np.array([_sliding(m) for m in modes_now])
+                for j in range(2):
+                    self._anchors[j] = contact_info(state, j)[0]
+                return True
+
+            if not rows and not self._from_touch:
+                reach(x0_k, span)  # at once: sub-steps would start before the touch
+            elif not rows:  # the first of the finest sub-steps reached at once, then on
+                finest = span / 2**SUB_STEP_LEVELS
+                refined = any(reach(x0_at - j * finest, j * finest)
+                              for j in range(1, 2**SUB_STEP_LEVELS))
+            for level in range(SUB_STEP_LEVELS + 1 if rows else
+                               SUB_STEP_LEVELS + 1 if refined else 0):
                 sub = span / 2**level
                 while x0_at - sub >= x0_k - 1e-12 * span:
-                    x0 = max(x0_at - sub, x0_k)
-                    p_WC, R_WC = (a[0] for a in path.clamp_pose(np.array([x0])))
-                    predictor = (x_last if not last_step > 0
-                                 else x_last + (x_last - x_before) * (sub / last_step))
-                    found, why = _step(predictor, x_last, p_WC, R_WC, self._sliding,
-                                       self._anchors, mu, self._params, kernel, surfaces)
-                    if found is None:
+                    if not reach(max(x0_at - sub, x0_k), sub):
                         break
-                    forces_now = np.array([np.linalg.norm(contact_info(found[1], j)[3])
-                                           for j in range(2)])
-                    leaving = (drops * sub >= forces) & (forces_now > forces)
-                    if leaving.any():  # onto another branch past where it leaves
-                        why = f"left {int(np.argmax(leaving))}"
-                        break
-                    drops = (forces - forces_now) / sub
-                    forces = forces_now
-                    x_before, x_last, last_step, x0_at = x_last, found[0], sub, x0
-                    state, modes_now = found[1], found[2]
-                    self._sliding = np.array([_sliding(m) for m in modes_now])
-                    for j in range(2):
-                        self._anchors[j] = contact_info(state, j)[0]
                     refined = refined or level > 0
                 if abs(x0_at - x0_k) <= 1e-12 * span:
                     break

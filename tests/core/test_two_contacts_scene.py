@@ -20,7 +20,15 @@ from scipy.spatial.transform import Rotation
 from vibrissa.formats.scene_results import read_results, write_results
 from vibrissa.frames import Transform
 from vibrissa.reconstruct import reconstruct_si
-from vibrissa.scene import RobotPath, Scene, SceneObject, Whisker, WhiskerResult, simulate
+from vibrissa.scene import (
+    RobotPath,
+    SamplePhase,
+    Scene,
+    SceneObject,
+    Whisker,
+    WhiskerResult,
+    simulate,
+)
 from vibrissa.status import ContactStatus
 
 L_M, EI_NM2 = 0.05, 1e-4
@@ -162,6 +170,36 @@ def egg_below_scene() -> Scene:
 
 
 @pytest.mark.slow
+def test_a_pair_whose_new_contact_touches_within_a_sample_starts_there_at_every_sampling(
+        ) -> None:
+    """At the first sample past egg b's touch, reached at once from the rod leaning on ball a,
+    no guess of egg b's load reaches both contacts pushing (Newton converges to egg b pulling,
+    or not at all): the pair starts where the rod has just touched the egg (the first of the
+    finest sub-steps of that sample that reaches both pushing), as 4x finer sampling starts
+    it. Both samplings give the same episodes, started within a coarse sample of each other,
+    no sample unresolved, every sample of both contacts passing the independent check."""
+    results = {}
+    for n in (590, 2357):  # sample k of the first is sample 4 k of the second
+        scene = egg_scene(n, "within")
+        (results[n],) = simulate(scene, workers=1)
+        worst = two_contacts_worst(scene, scene.whiskers[0], results[n])
+        assert worst["samples"] >= 3, worst
+        assert worst["on"] < 1e-12 and worst["inner"] < 1e-10 and worst["chord"] < 1e-8, worst
+        assert worst["outer"] < 1e-9 and worst["tangent"] < 1e-8, worst
+        assert worst["inside"] <= 1e-12 and worst["cone"] < 1e-8 and worst["push"] > 0.0, worst
+    coarse, fine = results[590], results[2357]
+    assert [(e.start, e.end) for e in coarse.episodes] == [
+        (e.start, e.end) for e in fine.episodes] == [
+        ("touch", "another-object"), ("second-contact", "detachment"), ("landing", "detachment")]
+    for i in (1, 2):
+        starts = [e.t_first_contact / 0.01 / scale for e, scale in ((coarse.episodes[i], 1),
+                                                                   (fine.episodes[i], 4))]
+        assert abs(starts[0] - starts[1]) <= 1.0, (i, starts)
+    for result in (coarse, fine):
+        assert not np.any(result.phase == SamplePhase.UNRESOLVED)
+
+
+@pytest.mark.slow
 def test_a_second_contact_slides_from_where_it_touched() -> None:
     """The new contact's friction at its first sample opposes its slide from where the rod
     touched the object (eq. 7's chord from the touch, as for a first contact), not from a point
@@ -214,7 +252,13 @@ EGG_SCENES = {  # ball a (radius, centre), egg b (semi-axes, quaternion, centre)
                [0.5799686609772983, 0.13155995106814497, 0.32178033684031665,
                 0.7367399448801996],
                [0.02442654310306872, 0.00013769793659039903, 0.005359062478663557],
-               0.6740289695151073)}
+               0.6740289695151073),
+    "within": (0.012154916594445557, [0.02008284000050277, 0.0, 0.032108217916746166],
+               [0.005822320723962005, 0.005231557198128045, 0.004980580663795947],
+               [0.9914331562476824, 0.05060637596200202, 0.11118529628315307,
+                -0.04622900923855653],
+               [0.02504925369012477, 0.00012978862958402428, 0.00516792188477713],
+               0.5289835752730587)}
 
 
 def egg_scene(samples: int, case: str) -> Scene:

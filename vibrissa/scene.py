@@ -60,6 +60,7 @@ from vibrissa.sweep import (
     Sweep,
     SweepRun,
     advance_together,
+    carried_on,
     next_grid_point,
 )
 from vibrissa.units import RodScale, finite_number, rod_units
@@ -620,6 +621,7 @@ class _WhiskerSteps:
         self._object = -1  # the episode's object
         self._snapped: FloatArray | None = None  # a snap-off's last contact force: land at k
         self._inside: list[int] = []  # ... on one of these objects, the deepest first
+        self._carried: Landing | None = None  # ... or in this state: a pair's contact goes on
         self._landed = False  # the episode started from a landing
         self._pair: _Pair | None = None  # two contacts being followed
 
@@ -629,9 +631,14 @@ class _WhiskerSteps:
         self._landed = False
         if self._snapped is not None:
             force, self._snapped = self._snapped, None
+            carried, self._carried = self._carried, None
             for j in self._inside:
                 self._object = j
-                landing = self._landing(self.k, force)
+                # (a pair's contact goes on where no approach lands, or its rod is not inside)
+                inside = self.path.penetrates(self.surfaces[j], self.path.x0_of(
+                    np.array([self.k])), self.shape)[0]
+                landing = self._landing(self.k, force) if inside else None
+                landing = carried if landing is None else landing
                 if landing is not None:
                     rest = self.path.tail(self.k)
                     self.run = SweepRun(self.surfaces[self._object], [rest], rest.h,
@@ -860,11 +867,33 @@ class _WhiskerSteps:
         force = two.contact_info(final, 1 if stretch.left != 1 else 0)[3]
         if end is SweepEnd.DETACHMENT:  # one contact left: the other goes on alone
             remaining = pair.objects[1 - stretch.left]
-            if self._lands(last, [remaining], force):
+            carried = self._carried_on(last, remaining, stretch.rows[-1], 1 - stretch.left)
+            if self._lands(last, [remaining], force) or carried is not None:
+                self.k, self._snapped, self._inside = last + 1, force, [remaining]
+                self._carried = carried
                 return
             self.k = self._skip_unresolved(last + 1)
             return
         self._after_episode(end, last, force, pair.rows_before)
+
+    def _carried_on(self, last: int, remaining: int, row: two.StretchRow, j: int
+                    ) -> Landing | None:
+        """Contact ``j`` of the stretch's ``row`` at moving sample ``last`` (its other contact
+        left there), on object ``remaining``, gone on alone to the next sample with its friction
+        from where it was (`vibrissa.sweep.carried_on`): what the rod lands in where no
+        approach lands it; None where it does not go on (or the next sample is the path's
+        last, which, as for a touch, starts no episode)."""
+        if last + 1 >= self.path.n_samples - 1:
+            return None
+        point, _t, _n, _force = two.contact_info(row.state, j)
+        x_last, x_next = self.path.x0_of(np.array([last, last + 1])).tolist()
+        step = self.path.travel(x_last, x_next)  # the rod's, as a step's largest slide
+        return carried_on(
+            self.surfaces[remaining], self.path.tail(last + 1), row.f0, row.m0,
+            float(row.x[-2 + j]), point,
+            ContactPhase.TIP if row.modes[j] in (two.MODE_TIP, two.MODE_STICK)
+            else ContactPhase.TANGENTIAL, row.modes[j] in (two.MODE_TIP, two.MODE_TANGENTIAL),
+            max(20.0 * step, 0.01), self.shape)
 
     def _pair_jumps(self, pair: _Pair) -> tuple[float, ...]:
         """The times of the samples a contact of ``pair`` jumped to (a far slide,

@@ -890,6 +890,42 @@ def _land(surface: Surface, trail: ClampPath, step: float, max_steps: int,
     return track
 
 
+def carried_on(surface: Surface, trail: ClampPath, f0_C: FloatArray, m0_C: FloatArray,
+               s1: float, contact: FloatArray, phase: ContactPhase, sliding_first: bool,
+               jump: float, shape: RodShape = UNIFORM) -> Landing | None:
+    """The state at the start of ``trail`` (x0 = 0) of a contact that goes on alone from
+    ``contact`` (W, units of L), where it was at the sample before with the clamp reactions
+    ``f0_C``, ``m0_C`` (C, units of EI/L^2 and EI/L; the guess) and the arc length ``s1``:
+    sliding from it (eq. 7's chord) or held there in ``phase``, the one ``sliding_first``
+    says first; None where neither converges to an admissible state within ``jump`` of
+    ``contact``. A `Landing` whose first row is this state (a contact of two whose other one
+    left, `vibrissa.scene`)."""
+    if shape.uniform:
+        psi = -math.atan2(m0_C[0], m0_C[1])
+        e_u, e_w = (a[0] for a in bending_plane(np.array([psi])))
+        force = -f0_C
+        q0 = np.array([psi, force @ e_u, force[2], -(m0_C @ e_w), 0.0, 0.0, 0.0])
+    else:
+        q0 = np.concatenate([[s1], -f0_C, m0_C])
+    p_WC, R_WC = trail.clamp_pose(np.zeros(1))
+    sliding = _MODE_TIP if phase is ContactPhase.TIP else _MODE_TANGENTIAL
+    held = _MODE_STICK if phase is ContactPhase.TIP else _MODE_HELD
+    mu = np.array([trail.mu])
+    for mode in (sliding, held) if sliding_first else (held, sliding):
+        if mode == held and trail.mu <= 0:
+            continue
+        modes = np.array([mode], dtype=np.int64)
+        batch = _Batch(p_WC, R_WC, mu, contact[None], modes,
+                       np.array([shape.uniform and trail.symmetric(surface)]),
+                       *surface.kernel_arrays, shape.params[None])
+        q, state, converged = _newton(q0[None], batch)
+        if converged[0] and admissible_rows(state.rows, modes, mu, contact[None],
+                                            np.array([jump]))[0]:
+            return Landing(0.0, q[0], phase, state.p1[0].copy(), state.normal[0].copy(),
+                           state.force[0].copy(), float(state.s1[0]))
+    return None
+
+
 def next_grid_point(x0: float, x_grid: float, step: float) -> float:
     """The first x_grid - k step (k integer) below x0 by more than 1e-9 step."""
     k = math.floor((x_grid - x0) / step + 1e-9) + 1

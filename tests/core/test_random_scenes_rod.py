@@ -22,7 +22,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from tests.core.test_random_scenes import random_scene
-from tests.core.test_two_contacts_scene import two_contacts_worst
+from tests.core.test_two_contacts_scene import egg_scene, two_contacts_worst
 from vibrissa.formats.scene_file import load_scene
 from vibrissa.frames import Transform
 from vibrissa.scene import SamplePhase, Scene, SceneObject, Whisker, robot_path, simulate_whisker
@@ -163,3 +163,25 @@ def test_a_rod_leaning_on_one_object_never_enters_another(mu: float) -> None:
     rod_W = np.vstack([rod_C, rod_C[-1] + np.outer(np.linspace(0, 1 - result.s1_m[last] / L, 50),
                                                    tangent_C)]) + [x[last] / L, 0.0, 0.0]
     assert 0.0 < b.surface(L).signed_distance(rod_W).min() <= 0.005
+
+
+@pytest.mark.slow
+def test_a_contact_left_alone_by_its_pair_goes_on_where_no_approach_lands_it() -> None:
+    """Ball a's contact leaves the pair with the rod pressed onto egg b at about 100 EI/L^2:
+    at 4x finer sampling no frictionless approach reaches the rod's state at the next sample
+    (all ten sides fold on the way), and egg b's contact goes on from where it was, with its
+    friction. Both samplings give the same episodes, no sample unresolved, and every sample,
+    the one gone on from included, is the rod integrated from its clamp wrench."""
+    episodes = []
+    for n in (590, 2357):
+        scene = egg_scene(n, "goes-on")
+        worst = check_against_the_rod(scene)
+        assert worst["reach"] <= 1e-10 and worst["tangent"] <= 1e-10, worst
+        assert worst["inside"] <= 1e-10 and worst["cone"] <= 1e-10, worst
+        assert worst["free inside"] <= 0.0 and worst["two-contact samples"] >= 8, worst
+        result = simulate_whisker(scene, scene.whiskers[0])
+        assert not np.any(result.phase == SamplePhase.UNRESOLVED)
+        episodes.append([(e.start, e.end, e.object) for e in result.episodes])
+    assert episodes[0] == episodes[1] == [("touch", "another-object", "a"),
+                                          ("second-contact", "detachment", "a"),
+                                          ("landing", "snap-off", "b")]

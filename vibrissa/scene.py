@@ -34,7 +34,6 @@ from __future__ import annotations
 import enum
 import functools
 import hashlib
-import itertools
 import math
 import multiprocessing
 import os
@@ -552,7 +551,7 @@ PAIR_START_LOADS = (1e-3, 1e-2, 0.1, 0.3, 1.0, 3.0)
 tried in turn (`_WhiskerSteps._start_pair`): the first from which Newton reaches an admissible
 state of both contacts. A second object entered deeply within one sample bears a load of the
 first's order there, which Newton does not find from a small guess. Where none reaches it at
-once, each is tried again from where the second contact has just touched
+once, the smallest is tried again from where the second contact has just touched
 (`vibrissa.two_contacts.TwoContactFollower`'s ``from_touch``)."""
 
 
@@ -808,7 +807,9 @@ class _WhiskerSteps:
         moment = -sweep.m0[n - 1]  # the rod's internal moment at the clamp, C
         # (the straight rod's unknowns leave out the twist about the clamp's axis: it has none)
         clamp_moment = moment[:2] if self.shape.uniform else moment
-        for from_touch, load in itertools.product((False, True), PAIR_START_LOADS):
+        # each guess at once, then the smallest from where the second contact touched
+        for from_touch, load in [*((False, load) for load in PAIR_START_LOADS),
+                                 (True, PAIR_START_LOADS[0])]:
             force_other = load * float(np.linalg.norm(force_own)) * normal
             theirs = (s_other, force_other, mode_other, touch, other)
             inner, outer = (own, theirs) if s_own <= s_other else (theirs, own)

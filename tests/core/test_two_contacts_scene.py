@@ -178,16 +178,7 @@ def test_a_pair_whose_new_contact_touches_within_a_sample_starts_there_at_every_
     finest sub-steps of that sample that reaches both pushing), as 4x finer sampling starts
     it. Both samplings give the same episodes, started within a coarse sample of each other,
     no sample unresolved, every sample of both contacts passing the independent check."""
-    results = {}
-    for n in (590, 2357):  # sample k of the first is sample 4 k of the second
-        scene = egg_scene(n, "within")
-        (results[n],) = simulate(scene, workers=1)
-        worst = two_contacts_worst(scene, scene.whiskers[0], results[n])
-        assert worst["samples"] >= 3, worst
-        assert worst["on"] < 1e-12 and worst["inner"] < 1e-10 and worst["chord"] < 1e-8, worst
-        assert worst["outer"] < 1e-9 and worst["tangent"] < 1e-8, worst
-        assert worst["inside"] <= 1e-12 and worst["cone"] < 1e-8 and worst["push"] > 0.0, worst
-    coarse, fine = results[590], results[2357]
+    coarse, fine = coarse_and_fine("within", 3)
     assert [(e.start, e.end) for e in coarse.episodes] == [
         (e.start, e.end) for e in fine.episodes] == [
         ("touch", "another-object"), ("second-contact", "detachment"), ("landing", "detachment")]
@@ -285,6 +276,23 @@ def egg_scene(samples: int, case: str) -> Scene:
     return Scene(mu, (a, b), (Whisker("w", L_M, EI_NM2, mount),), path)
 
 
+def coarse_and_fine(case: str, samples: int) -> tuple[WhiskerResult, WhiskerResult]:
+    """`egg_scene` ``case`` at 590 and 2 357 samples (sample k of the first is sample 4 k of
+    the second), each with at least ``samples`` samples of two contacts, every one passing
+    the independent check."""
+    results = []
+    for n in (590, 2357):
+        scene = egg_scene(n, case)
+        (result,) = simulate(scene, workers=1)
+        worst = two_contacts_worst(scene, scene.whiskers[0], result)
+        assert worst["samples"] >= samples, worst
+        assert worst["on"] < 1e-12 and worst["inner"] < 1e-10 and worst["chord"] < 1e-8, worst
+        assert worst["outer"] < 1e-9 and worst["tangent"] < 1e-8, worst
+        assert worst["inside"] <= 1e-12 and worst["cone"] < 1e-8 and worst["push"] > 0.0, worst
+        results.append(result)
+    return results[0], results[1]
+
+
 @pytest.mark.slow
 def test_an_object_entered_deeply_within_a_sample_starts_the_pair_that_finer_samples_follow(
         ) -> None:
@@ -294,16 +302,7 @@ def test_an_object_entered_deeply_within_a_sample_starts_the_pair_that_finer_sam
     the touch: the same episodes, started within a sample of each other, and at the samples
     both have the same wrench within 5e-3 of its size (friction's chords differ with the
     step), every one passing the independent check."""
-    results = {}
-    for n in (590, 2357):  # sample k of the first is sample 4 k of the second
-        scene = egg_scene(n, "deep")
-        (results[n],) = simulate(scene, workers=1)
-        worst = two_contacts_worst(scene, scene.whiskers[0], results[n])
-        assert worst["samples"] >= 5, worst
-        assert worst["on"] < 1e-12 and worst["inner"] < 1e-10 and worst["chord"] < 1e-8, worst
-        assert worst["outer"] < 1e-9 and worst["tangent"] < 1e-8, worst
-        assert worst["inside"] <= 1e-12 and worst["cone"] < 1e-8 and worst["push"] > 0.0, worst
-    coarse, fine = results[590], results[2357]
+    coarse, fine = coarse_and_fine("deep", 5)
     assert [(e.start, e.end) for e in coarse.episodes][:2] == [
         (e.start, e.end) for e in fine.episodes][:2] == [
         ("touch", "another-object"), ("second-contact", "detachment")]

@@ -4,9 +4,10 @@ contact, or a surface the map knows) or hidden (unknown after a look from near).
 
 The body is a vertical cylinder around ``base_link``: it may stand where every cell within its
 radius (and a margin of one cell's diagonal and edge) is free. Unknown counts as blocked, so
-the body only ever goes where the whiskers have been: safe by construction against objects it
-has not found yet, provided the objects reach the whiskers' heights (a rod sweeping above an
-object low on the floor sees nothing there).
+the body
+only ever goes where the whiskers have been: safe by construction against objects it has not
+found yet, provided the objects reach the whiskers' heights (a rod sweeping above an object
+low on the floor sees nothing there).
 """
 
 from __future__ import annotations

@@ -3,8 +3,7 @@ free (a rod swept them without touching anything, or the body stood there), occu
 contact, or a surface the map knows) or hidden (unknown after a look from near).
 
 The body is a vertical cylinder around ``base_link``: it may stand where every cell within its
-radius (and a margin of one cell's diagonal and edge) is free. Unknown counts as blocked, so
-the body
+radius (and a margin of one cell's diagonal) is free. Unknown counts as blocked, so the body
 only ever goes where the whiskers have been: safe by construction against objects it has not
 found yet, provided the objects reach the whiskers' heights (a rod sweeping above an object
 low on the floor sees nothing there).
@@ -97,15 +96,12 @@ class FreeSpace:
 
     def standable(self, radius_m: float, here: IntArray | None = None) -> npt.NDArray[np.bool_]:
         """Cells (nx, ny) where the body of ``radius_m`` may stand: free within its radius and
-        a margin of one cell's diagonal (the cells are not points) and one cell's edge (an
-        object bulges between the rods' heights, where no rod sees it: a 25 mm ball centred
-        between rods 15 and 30 mm high reaches 0.5 and 2.1 mm beyond where they find it).
-        With ``here``, the cell
+        a margin of one cell's diagonal (the cells are not points). With ``here``, the cell
         (2,) where the body stands, also that cell and its way out of a spot the margin no
         longer allows (a surface marked near the body after it arrived): the free cells within
         ``radius_m`` of it that are at least as clear as it is."""
         clearance = self.clearance_m()
-        standable = clearance > radius_m + (math.sqrt(2.0) + 1.0) * self.cell_m
+        standable = clearance > radius_m + math.sqrt(2.0) * self.cell_m
         if here is not None:
             i, j = int(here[0]), int(here[1])
             di, dj = np.indices(standable.shape)

@@ -4,11 +4,12 @@ start).
 
 What it knows is its own: the robot description (whisker mounts and lengths), its body's radius,
 the workspace box, its poses, the contacts of each tick and the map's meshes. From the ticks it
-keeps a `FreeSpace` grid: a rod without contact sweeps free cells from its clamp to its tip, a
-rod in contact from its clamp to the contact point, which is occupied, and so are the map's
-known surfaces. The body only goes where every cell within its radius is free (unknown is
-blocked), by the shortest route through such cells; where the map marked a surface beside it
-after it arrived, it first steps out of there, no closer to that surface.
+keeps a `FreeSpace` grid: a rod without contact sweeps the cells from its clamp to its tip at
+its height, a rod in contact from its clamp to the contact point, which is occupied, and so are
+the map's known surfaces; a cell the rods of every height swept is free. The body only goes
+where every cell within its radius is free (unknown is blocked), by the shortest route through
+such cells; where the map marked a surface beside it after it arrived, it first steps out of
+there, no closer to that surface.
 
 A plan is a route to a goal, then a look: a full turn in place, which sweeps the rods around the
 body. The goal is the standable cell of most *gain* per metre of route (its gain over one plus
@@ -110,6 +111,21 @@ class Plan:
     purpose: str
 
 
+LEVEL_TOL_M = 1e-3
+"""Rods whose mounts' heights lie within this of each other sweep the same level of the free
+space, m."""
+
+
+def rod_levels(heights_m: FloatArray) -> npt.NDArray[np.int64]:
+    """The level (n,) of rods whose mounts are at ``heights_m`` (n,): heights in ascending
+    order, a new level where the next one is more than `LEVEL_TOL_M` above the last."""
+    order = np.argsort(heights_m, kind="stable")
+    steps = np.diff(np.asarray(heights_m)[order]) > LEVEL_TOL_M
+    level = np.empty(len(order), dtype=np.int64)
+    level[order] = np.concatenate([[0], np.cumsum(steps)])
+    return level
+
+
 def _yaw(rotation: Rotation) -> float:
     """The heading of ``rotation``: the angle of its x axis in the floor's plane, rad."""
     x = rotation.apply([1.0, 0.0, 0.0])
@@ -139,8 +155,11 @@ class Explorer:
         self.settings = settings or ExploreSettings()
         self.whiskers = {w.name: w for w in whiskers}
         self.body_radius_m = body_radius_m
+        heights = np.array([w.X_RC.translation[2] for w in whiskers])
+        self._level = rod_levels(heights)
         self.space = FreeSpace(np.asarray(workspace_min_m, dtype=np.float64),
-                               np.asarray(workspace_max_m, dtype=np.float64), self.settings.cell_m)
+                               np.asarray(workspace_max_m, dtype=np.float64), self.settings.cell_m,
+                               levels=int(self._level.max()) + 1)
         self.tilt = Rotation.from_euler("z", -_yaw(start.rotation)) * start.rotation
         self.height_m = float(start.translation[2])
         self.reach_m = max(float(np.linalg.norm(w.X_RC.translation[:2])) + w.length_m
@@ -192,7 +211,9 @@ class Explorer:
         """Mark the pending ticks on the grid: bodies and rods free, contacts occupied."""
         if self._segments:
             segments = np.vstack(self._segments)
-            self.space.mark_segments(segments[:, :2], segments[:, 2:])
+            level = np.tile(self._level, len(self._segments))
+            for k in range(self.space.levels):
+                self.space.mark_segments(segments[level == k, :2], segments[level == k, 2:], k)
         cells, _ = self.space.cells(np.array(self._bodies).reshape(-1, 2))
         for i in np.unique(cells, axis=0, return_index=True)[1]:
             self.space.mark_disc(self._bodies[i], self.body_radius_m)

@@ -1,12 +1,17 @@
 """Where the robot body may go: a grid over the workspace's floor (x, y in W) of cells unknown,
-free (a rod swept them without touching anything, or the body stood there), occupied (a
-contact, or a surface the map knows) or hidden (unknown after a look from near).
+free (the rods of every height swept them without touching anything, or the body stood there),
+occupied (a contact, or a surface the map knows) or hidden (unknown after a look from near).
+
+A rod proves a cell free only at its own height: a ball's slice at a low rod's height is
+narrower than at its equator, and a rod above a low object passes over it. So the grid keeps,
+per rod height (``levels``), which cells that height's rods swept, and a cell is free only
+when every height swept it.
 
 The body is a vertical cylinder around ``base_link``: it may stand where every cell within its
 radius (and a margin of one cell's diagonal) is free. Unknown counts as blocked, so the body
 only ever goes where the whiskers have been: safe by construction against objects it has not
-found yet, provided the objects reach the whiskers' heights (a rod sweeping above an object
-low on the floor sees nothing there).
+found yet, provided the objects reach the whiskers' heights and bulge between two heights by
+less than that margin (a rod sweeping above an object low on the floor sees nothing there).
 """
 
 from __future__ import annotations
@@ -29,12 +34,15 @@ an object or behind one): no look reveals it."""
 @dataclass
 class FreeSpace:
     """The floor of the workspace box [lo_m, hi_m] (x, y in W, m) in square cells of
-    ``cell_m``: ``state`` (nx, ny) of `UNKNOWN`, `FREE`, `OCCUPIED`."""
+    ``cell_m``, for rods at ``levels`` heights: ``state`` (nx, ny) of `UNKNOWN`, `FREE`,
+    `OCCUPIED`, `HIDDEN`; ``swept`` (levels, nx, ny) the cells each height's rods swept."""
 
     lo_m: FloatArray
     hi_m: FloatArray
     cell_m: float
+    levels: int = 1
     state: npt.NDArray[np.int8] = field(init=False)
+    swept: npt.NDArray[np.bool_] = field(init=False)
 
     def __post_init__(self) -> None:
         self.lo_m = np.asarray(self.lo_m, dtype=np.float64)[:2]
@@ -42,8 +50,12 @@ class FreeSpace:
         if not (self.cell_m > 0 and np.all(self.hi_m > self.lo_m)):
             raise ValueError(f"a free-space grid needs lo < hi and a cell > 0, got "
                              f"{self.lo_m}, {self.hi_m}, {self.cell_m}")
-        shape = np.ceil((self.hi_m - self.lo_m) / self.cell_m).astype(int)
-        self.state = np.zeros(tuple(shape), dtype=np.int8)
+        if self.levels < 1:
+            raise ValueError(f"a free-space grid needs at least one rod height, got "
+                             f"{self.levels}")
+        shape = tuple(np.ceil((self.hi_m - self.lo_m) / self.cell_m).astype(int))
+        self.state = np.zeros(shape, dtype=np.int8)
+        self.swept = np.zeros((self.levels, *shape), dtype=np.bool_)
 
     def cells(self, xy_m: FloatArray) -> tuple[IntArray, npt.NDArray[np.bool_]]:
         """The cell (i, j) of each point (k, 2) m, and whether it lies on the grid."""
@@ -55,38 +67,43 @@ class FreeSpace:
         """The centre (k, 2) m of cells (k, 2)."""
         return self.lo_m + (np.reshape(ij, (-1, 2)) + 0.5) * self.cell_m
 
-    def mark_segments(self, start_m: FloatArray, end_m: FloatArray) -> None:
-        """Cells crossed by the segments from ``start_m`` to ``end_m`` (k, 2) m become free
-        (an occupied cell stays occupied): a rod swept there without touching anything."""
+    def mark_segments(self, start_m: FloatArray, end_m: FloatArray, level: int = 0) -> None:
+        """Cells crossed by the segments from ``start_m`` to ``end_m`` (k, 2) m are swept at
+        rod height ``level``: a rod swept there without touching anything. A cell every height
+        swept becomes free (an occupied cell stays occupied)."""
         start, end = np.reshape(start_m, (-1, 2)), np.reshape(end_m, (-1, 2))
         if not len(start):
             return
         steps = int(np.ceil(np.max(np.linalg.norm(end - start, axis=1)) / (0.5 * self.cell_m)))
         f = np.linspace(0.0, 1.0, max(steps, 1) + 1)
         points = start[:, None, :] + f[None, :, None] * (end - start)[:, None, :]
-        self._set(points.reshape(-1, 2), FREE)
+        ij, inside = self.cells(points.reshape(-1, 2))
+        ij = ij[inside]
+        self.swept[level, ij[:, 0], ij[:, 1]] = True
+        self._free(ij[self.swept[:, ij[:, 0], ij[:, 1]].all(axis=0)])
 
     def mark_disc(self, centre_m: FloatArray, radius_m: float) -> None:
-        """Cells whose centre lies within ``radius_m`` of ``centre_m`` (2,) become free: the
-        body stands there."""
+        """Cells whose centre lies within ``radius_m`` of ``centre_m`` (2,) become free at
+        every height: the body stands there."""
         reach = int(np.ceil(radius_m / self.cell_m)) + 1
         ij, _ = self.cells(np.asarray(centre_m)[:2])
         di, dj = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1))
         around = ij[0] + np.column_stack([di.ravel(), dj.ravel()])
         near = np.linalg.norm(self.centre(around) - np.asarray(centre_m)[:2], axis=1) <= radius_m
-        self._set(self.centre(around[near]), FREE)
+        ij, inside = self.cells(self.centre(around[near]))
+        ij = ij[inside]
+        self.swept[:, ij[:, 0], ij[:, 1]] = True
+        self._free(ij)
 
     def mark_occupied(self, xy_m: FloatArray) -> None:
         """Cells of the points (k, 2) m become occupied: a contact, a known surface."""
-        self._set(np.reshape(xy_m, (-1, 2)), OCCUPIED)
-
-    def _set(self, xy_m: FloatArray, state: int) -> None:
         ij, inside = self.cells(xy_m)
-        ij = ij[inside]
-        if state == FREE:
-            keep = self.state[ij[:, 0], ij[:, 1]] != OCCUPIED
-            ij = ij[keep]
-        self.state[ij[:, 0], ij[:, 1]] = state
+        self.state[ij[inside, 0], ij[inside, 1]] = OCCUPIED
+
+    def _free(self, ij: IntArray) -> None:
+        """Cells (k, 2) become free, but an occupied one stays occupied."""
+        ij = ij[self.state[ij[:, 0], ij[:, 1]] != OCCUPIED]
+        self.state[ij[:, 0], ij[:, 1]] = FREE
 
     def clearance_m(self) -> FloatArray:
         """Each cell's distance (nx, ny) m from its centre to the nearest cell that is not free

@@ -6,6 +6,7 @@ its budget, each planner ends by itself, and a look reveals what the rods sweep.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -49,11 +50,14 @@ def first_inside(a: np.ndarray, b: np.ndarray, circles: list[tuple[np.ndarray, f
 
 
 def drive(explorer: Explorer, circles: list[tuple[np.ndarray, float]], start: Transform,
-          max_plans: int = 200, contacts: list[np.ndarray] | None = None
+          max_plans: int = 200, contacts: list[np.ndarray] | None = None,
+          slices: Callable[[float], list[tuple[np.ndarray, float]]] | None = None
           ) -> tuple[int, float, list[str]]:
     """Drive at most ``max_plans`` plans at 50 Hz, 0.05 m/s, 1 rad/s, straight and slerped
     between waypoints; (plans, the body's least clearance from an object, the purposes); the
-    contact points go to ``contacts``."""
+    contact points go to ``contacts``. The objects are the vertical cylinders ``circles``, or
+    with ``slices`` objects whose footprints are ``circles`` and whose section at a height is
+    ``slices(z)``."""
     X, plans, clearance = start, 0, np.inf
     purposes: list[str] = []
     whiskers = list(explorer.whiskers.values())
@@ -79,7 +83,7 @@ def drive(explorer: Explorer, circles: list[tuple[np.ndarray, float]], start: Tr
                 for w in whiskers:
                     clamp = X.R @ w.X_RC.translation + X.translation
                     point = first_inside(clamp, clamp + w.length_m * (X.R @ w.X_RC.R[:, 2]),
-                                         circles)
+                                         circles if slices is None else slices(clamp[2]))
                     if point is not None:
                         touched[w.name] = point
                         if contacts is not None:
@@ -128,6 +132,38 @@ def test_the_body_never_enters_an_object_and_the_exploration_ends_within_its_bud
             assert np.all(np.abs(depth) <= worst), depth
         else:
             assert np.all(depth <= worst), depth.max()
+
+
+def two_heights() -> list[Whisker]:
+    """The explore scene's fan: 4 rods of 50 mm at 15 mm, 4 of 45 mm at 30 mm."""
+    return [Whisker(f"{w.name}-{k}", length, 2e-4,
+                    Transform(w.X_RC.rotation, w.X_RC.translation + [0.0, 0.0, height - 0.02]))
+            for k, (height, length) in enumerate(((0.015, 0.05), (0.03, 0.045)))
+            for w in fan(4, length)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 4])
+def test_a_cell_is_free_only_where_the_rods_of_every_height_swept_it(seed: int) -> None:
+    """Balls resting on the floor, seen by rods at two heights: a low rod passes a ball where
+    its equator bulges out and a high rod passes over a small ball. Free cells stay out of the
+    balls' footprints (to within a cell's half diagonal and the 0.5 mm a ball of 25 mm bulges
+    between 30 mm and its equator), and so does the body."""
+    balls = random_circles(np.random.default_rng(seed), 3)  # (centre, radius): at z = radius
+
+    def slices(z: float) -> list[tuple[np.ndarray, float]]:
+        return [(c, math.sqrt(r * r - (z - r) ** 2)) for c, r in balls if abs(z - r) < r]
+
+    start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    settings = ExploreSettings(budget_m=0.6, cell_m=0.004)
+    explorer = Explorer(two_heights(), BODY_M, LO, HI, start, settings)
+    _, clearance, _ = drive(explorer, balls, start, slices=slices)
+    assert clearance > 0, clearance
+    bulge = max(r - max(s for s in (math.sqrt(max(r * r - (z - r) ** 2, 0.0))
+                                    for z in (0.015, 0.03))) for _, r in balls)
+    centres = explorer.space.centre(np.argwhere(explorer.space.state == FREE))
+    depth = np.max([r - np.linalg.norm(centres - c, axis=1) for c, r in balls], axis=0)
+    assert depth.max() <= math.sqrt(0.5) * settings.cell_m + bulge, (depth.max(), bulge)
 
 
 def toy_coverage(circles: list[tuple[np.ndarray, float]], contacts: list[np.ndarray],
@@ -234,5 +270,14 @@ def test_free_space_refuses_a_bad_grid_and_keeps_occupied_cells() -> None:
     space.mark_segments(np.array([[0.0, 0.055]]), np.array([[0.1, 0.055]]))
     assert space.state[5, 5] == OCCUPIED and (space.state[:, 5] == FREE).sum() == 9
     assert space.state[0, 0] == UNKNOWN
+    two = FreeSpace(np.array([0.0, 0.0]), np.array([0.1, 0.1]), 0.01, levels=2)
+    two.mark_segments(np.array([[0.0, 0.055]]), np.array([[0.1, 0.055]]), level=1)
+    assert not (two.state == FREE).any()  # one height's rods prove nothing of the other's
+    two.mark_segments(np.array([[0.055, 0.0]]), np.array([[0.055, 0.1]]), level=0)
+    assert np.argwhere(two.state == FREE).tolist() == [[5, 5]]  # where both heights swept
+    two.mark_disc(np.array([0.02, 0.02]), 0.01)
+    assert two.state[2, 2] == FREE  # the body stood there: free at every height
+    with pytest.raises(ValueError, match="rod height"):
+        FreeSpace(np.array([0.0, 0.0]), np.array([0.1, 0.1]), 0.01, levels=0)
     with pytest.raises(ValueError, match="planner"):
         ExploreSettings(planner="random")

@@ -79,8 +79,8 @@ def test_the_robot_explores_by_itself_never_enters_an_object_and_its_bag_replays
     xy = np.array([p.position[:2] for p in poses if isinstance(p, RobotPose)])
     assert len(xy) > 1000
     for obj in scene["objects"]:
-        # the body stays out: it may touch (a run came to the ball's shadow at its equator,
-        # between the rods' heights, to 0.0 m), never overlap
+        # the body stays out: it may touch, never overlap (the ball bulges at its equator,
+        # between the rods' heights)
         assert footprint_gap(obj, xy).min() >= body_m, obj["name"]
 
     replay = tmp_path / "replay"

@@ -398,7 +398,7 @@ def _contact_row(v: dict[str, Any]) -> dict[str, Any]:
             "whisker_ids": [v["whisker_id"]], "point": _row(v["point"]),
             "s1": _one_row([v["s1"]], FLOAT64), "phase": _one_row([v["phase"]], INT32),
             "force": _row(v["force"]), "status": _one_row([v["status"]], INT32),
-            "covariance": _row(v["covariance"])}
+            "covariance": _row(v["covariance"]), "free_ids": None}
 
 
 RETIRED_TYPES: dict[str, type[Message]] = {
@@ -444,19 +444,26 @@ def _wrench_array_v1(obj: dict[str, Any]) -> dict[str, Any]:
     return obj
 
 
-def _without_covariance(obj: dict[str, Any]) -> dict[str, Any]:
-    """ContactPoint / ContactPointArray 1 -> 2: version 2 adds the optional ``covariance``;
-    version 1 has none (a field of that name in a version 1 payload is refused)."""
-    if "covariance" in obj:
-        obj["covariance"] = "not in version 1"
-    return obj
+def _without(version: int, *fields: str) -> Callable[[dict[str, Any]], dict[str, Any]]:
+    """An upgrade from ``version``, which has none of the optional ``fields`` (a field of that
+    name in such a payload is refused)."""
+
+    def upgrade(obj: dict[str, Any]) -> dict[str, Any]:
+        for name in fields:
+            if name in obj:
+                obj[name] = f"not in version {version}"
+        return obj
+
+    return upgrade
 
 
 _UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
     ("vibrissa/WhiskerWrench", 1): _wrench_v1,
     (WhiskerWrenchArray.TYPE_NAME, 1): _wrench_array_v1,
-    ("vibrissa/ContactPoint", 1): _without_covariance,
-    (ContactPointArray.TYPE_NAME, 1): _without_covariance,
+    # ContactPoint 2 adds ``covariance``; ContactPointArray 2 ``covariance``, 3 ``free_ids``
+    ("vibrissa/ContactPoint", 1): _without(1, "covariance"),
+    (ContactPointArray.TYPE_NAME, 1): _without(1, "covariance", "free_ids"),
+    (ContactPointArray.TYPE_NAME, 2): _without(2, "free_ids"),
 }
 """(type name, older version) -> its upgrade to the type's current version."""
 

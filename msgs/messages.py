@@ -393,11 +393,12 @@ _POSE_FIELDS = ("pose_frame_id", "clamp_position", "clamp_orientation")
 @dataclass(frozen=True, eq=False)
 class ContactPointArray(Message):
     """Contacts reconstructed from one WhiskerWrenchArray: only rows with a consistent contact
-    (a single whisker's contact is a batch of one row)."""
+    (a single whisker's contact is a batch of one row), and which of the tick's other
+    whiskers were free."""
 
     TYPE_NAME: ClassVar[str] = "vibrissa/ContactPointArray"
     MAX_BYTES: ClassVar[int] = 1 << 20  # some 6 000 whiskers with covariances
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
 
     stamp: float = _stamp()
     seq: int = _count("seq of the WhiskerWrenchArray these contacts were reconstructed from")
@@ -414,6 +415,11 @@ class ContactPointArray(Message):
         kind=ARRAY, shape=("N", 3, 3), unit="m^2", dtype=FLOAT64,
         doc="covariance of each point from the wrench noise, in frame_id; omitted without a "
         "noise model (version 1 has none)")
+    free_ids: list[str] | None = _optional(
+        kind=STR_LIST, doc="the tick's whiskers found free (no force, or below the contact "
+        "detector's threshold); a whisker in neither list touched something that gives no "
+        "single contact, or could not be placed; omitted by a producer that does not tell "
+        "(versions 1 and 2 have none)")
 
 
 @dataclass(frozen=True, eq=False)

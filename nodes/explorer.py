@@ -6,8 +6,10 @@ Subscribes
 ``pose_topic`` (default ``pose``) : RobotPose
     The robot's base X_WR (``world`` -> ``base_link``), as the robot's driver publishes it.
 ``contact_topic`` (default ``contact``) : ContactPointArray
-    Each tick's contacts in frame ``world`` (the reconstructor's: one message per tick, the
-    whiskers without a row were free), placed at the pose of the tick's stamp.
+    Each tick's contacts in frame ``world`` (the reconstructor's: one message per tick, with
+    the whiskers found free in ``free_ids``), placed at the pose of the tick's stamp. A
+    whisker with neither a row nor a place in ``free_ids`` sweeps nothing; a tick without
+    ``free_ids`` (a producer that does not tell) frees nothing, and the explorer warns.
 ``mesh_topic``, ``unknown_mesh_topic`` (default ``surface_mesh``, ``surface_mesh_unknown``) :
 SurfaceMesh
     The mapper's known and unknown parts of frame ``world``: the known surfaces are obstacles,
@@ -237,7 +239,13 @@ def run(node: Node, params: ExplorerParams) -> str:
                 break
             tick = pending.pop(0)
             contacts = dict(zip(tick.whisker_ids, np.reshape(tick.point, (-1, 3)), strict=True))
-            explorer.observe(at, contacts)
+            if tick.free_ids is None and not node.counters.get("ticks_without_free_ids"):
+                log.warning("the contacts on %s do not tell which whiskers were free "
+                            "(free_ids): their rods free no floor", params.contact_topic)
+            if tick.free_ids is None:
+                node.counters["ticks_without_free_ids"] = (
+                    node.counters.get("ticks_without_free_ids", 0) + 1)
+            explorer.observe(at, contacts, tick.free_ids or ())
             node.counters["ticks"] = node.counters.get("ticks", 0) + 1
             placed_stamp = tick.stamp
         if reached_stamp is None or (segments and placed_stamp < reached_stamp

@@ -31,7 +31,7 @@ lane point visited or given up).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -182,10 +182,12 @@ class Explorer:
         self._looks: list[FloatArray] = []  # where looks were done
         self.done_because = ""
 
-    def observe(self, X_WR: Transform, contacts_W: Mapping[str, FloatArray]) -> None:
-        """One tick: the base at X_WR, and the contact point in W (3,) m of each whisker in
-        contact (the others are free). Marked on the grid in batches (`plan` marks what is
-        pending first)."""
+    def observe(self, X_WR: Transform, contacts_W: Mapping[str, FloatArray],
+                free: Collection[str] | None = None) -> None:
+        """One tick: the base at X_WR, the contact point in W (3,) m of each whisker in
+        contact, and the whiskers found ``free`` (None: every other one). A whisker in neither
+        (it touched something that gives no single contact, or its tick could not be placed)
+        marks nothing. Marked on the grid in batches (`plan` marks what is pending first)."""
         xy = np.asarray(X_WR.translation[:2], dtype=np.float64)
         self.travelled_m += float(np.linalg.norm(xy - self._last_xy))
         self._last_xy = xy
@@ -195,6 +197,8 @@ class Explorer:
         for k, name in enumerate(self._names):
             point = contacts_W.get(name)
             if point is None:
+                if free is not None and name not in free:
+                    ends[k] = clamps[k]  # a segment of no length: nothing swept
                 continue
             point = np.asarray(point, dtype=np.float64)
             self._touched.append(point[:2])

@@ -5,7 +5,8 @@ wrenches f0 N, m0 N m of a sensor array, each row in its clamp frame C, with or 
 clamp poses X_PC) and robot poses (``RobotPose``), both in arrival order, and gives one
 ``ContactPointArray`` per tick (same ``stamp`` and ``seq``, in the poses' frame when the tick
 carried them, else in ``map_frame``) with the rows that have a consistent contact (status OK or
-AXIAL_LOAD), in the order the ticks came::
+AXIAL_LOAD) and, in ``free_ids``, the whiskers found free (a zero wrench, or below the noise
+threshold), in the order the ticks came::
 
     stream = Step2Stream(StreamSettings(whiskers=robot.whiskers))
     stream.add_poses(poses)

@@ -195,7 +195,7 @@ class _Rows:
     errors: list[str] = field(default_factory=list)
     free: int = 0
     wrong_frame: int = 0
-    free_rows: list[int] = field(default_factory=list)
+    free_rows: npt.NDArray[np.bool_] | None = None  # below the detector's threshold
 
 
 def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_frame: str,
@@ -241,16 +241,14 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
     if missing or wrong:
         placed[missing + wrong] = False
     free = 0
-    free_list: list[int] = []
+    free_rows = None
     if detector is not None:  # every row moves its whisker's state, placed or not
         free_rows = placed & ~detector.update(whiskers, msg.f0, msg.m0)[0]
         free = int(np.count_nonzero(free_rows))
         placed &= ~free_rows
-        if free and table is not None and table.shaped:
-            free_list = np.flatnonzero(free_rows).tolist()
     every = msg.pose_frame_id is not None and detector is None and not missing  # all placed
     return _Rows(q, p, placed, n if every else int(np.count_nonzero(placed)), units, frame_id,
-                 no_pose, len(missing), errors, free, len(wrong), free_list)
+                 no_pose, len(missing), errors, free, len(wrong), free_rows)
 
 
 def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_ROD,
@@ -267,8 +265,9 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     the cost is the calls, not the rows). Step 2 works row by row: a row's point does not
     depend on the batch it arrived in (batches follow arrival timing), so a replayed bag gives
     the live run's points bit for bit, and a tick of one row gives the same bits as the same
-    row of a larger tick. With a ``detector`` (the sensors' noise), rows of a free rod are left
-    out (``free``) and points carry their covariance; the detector's state moves on with the
+    row of a larger tick. A message's ``free_ids`` name its zero wrenches; with a ``detector``
+    (the sensors' noise), also the rows below its threshold, which are left out (``free``),
+    and points carry their covariance; the detector's state moves on with the
     rows, in order. A tapered or pre-curved whisker's point is chosen among the points that
     fit its wrench by continuity with its last contact (``memory``, moved on with the rows;
     without one, each batch starts afresh).
@@ -297,8 +296,9 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         names = [w for msg, part in zip(msgs, parts, strict=True)
                  for w in compress(msg.whisker_ids, part.placed.tolist())]
         if memory is not None:
-            memory.forget([msg.whisker_ids[i] for msg, part in zip(msgs, parts, strict=True)
-                           for i in part.free_rows])
+            memory.forget([w for msg, part in zip(msgs, parts, strict=True)
+                           if part.free_rows is not None
+                           for w in compress(msg.whisker_ids, part.free_rows.tolist())])
         shapes = table.shape_rows(names)
         previous, uncertain, chain = (memory or ContactMemory()).links(names)
     if detector is None:
@@ -338,7 +338,13 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         if kept == len(whisker_ids):  # every row of the message: views of the call's arrays
             kept_fields = [value[rows] for value in fields]
             whisker_ids = list(whisker_ids)
+            free_ids: list[str] = []
         else:
+            # free: a zero wrench, or below the detector's threshold
+            free_mask = ~(msg.f0.any(axis=1) | msg.m0.any(axis=1))
+            if part.free_rows is not None:
+                free_mask |= part.free_rows
+            free_ids = list(compress(whisker_ids, free_mask.tolist()))
             in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
             in_message[part.placed] = valid[rows]
             whisker_ids = list(compress(whisker_ids, in_message.tolist()))
@@ -354,7 +360,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
             stamp=msg.stamp, seq=msg.seq, frame_id=part.frame_id, whisker_ids=whisker_ids,
             point=kept_fields[0], s1=kept_fields[1], phase=kept_fields[2],
             force=kept_fields[3], status=kept_fields[4],
-            covariance=None if covariance is None else kept_fields[5])
+            covariance=None if covariance is None else kept_fields[5], free_ids=free_ids)
         outcomes.append(Reconstructed(
             contacts, no_contact=good - kept, bad_pose=n - good, no_pose=part.no_pose,
             unknown_whisker=part.unknown_whisker, errors=part.errors, free=part.free,

@@ -262,6 +262,23 @@ def test_the_way_out_of_a_walled_in_spot_crosses_only_free_cells() -> None:
     assert way.any() and np.all(state[way] == FREE)
 
 
+def test_a_rod_neither_in_contact_nor_free_sweeps_nothing() -> None:
+    """A rod whose wrench gives no single contact (two objects on it) or whose tick could not
+    be placed is not free: the floor along it stays unknown."""
+    start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.1, 0.1, 0.0])
+    swept = {}
+    for free in (None, (), ("w3",)):
+        explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+        explorer.observe(start, {}, free)
+        explorer.plan(start)  # marks what is pending
+        centres = explorer.space.centre(np.argwhere(explorer.space.state == FREE))
+        swept[free] = np.linalg.norm(centres - [0.1, 0.1], axis=1) > BODY_M + 0.005
+    assert swept[None].sum() > 50 and not swept[()].any()  # None: every rod is free
+    ahead = explorer.space.centre(np.argwhere(explorer.space.state == FREE))[swept[("w3",)]]
+    assert len(ahead) and np.all(np.abs(ahead[:, 1] - 0.1) < 0.005)  # w3 points along +x
+    assert swept[("w3",)].sum() < swept[None].sum()
+
+
 def test_free_space_refuses_a_bad_grid_and_keeps_occupied_cells() -> None:
     with pytest.raises(ValueError, match="lo < hi"):
         FreeSpace(np.array([0.0, 0.0]), np.array([0.0, 1.0]), 0.01)

@@ -295,9 +295,12 @@ def test_wrong_version(name: str) -> None:
         error = refuse(pack(obj), VersionMismatchError, name, f"version {version}",
                        "reads version 1, 2")
         assert error.type_name == obj["_type"]
-    for obj in (raw(samples()[1]), retired_contact()):
-        obj["_v"] = 3
-        refuse(pack(obj), VersionMismatchError, obj["_type"], "reads version 1, 2")
+    obj = retired_contact()
+    obj["_v"] = 3
+    refuse(pack(obj), VersionMismatchError, obj["_type"], "reads version 1, 2")
+    obj = raw(samples()[1])
+    obj["_v"] = 4
+    refuse(pack(obj), VersionMismatchError, obj["_type"], "reads version 1, 2, 3")
 
 
 def test_version_1_contacts_decode_without_covariance() -> None:
@@ -323,6 +326,19 @@ def test_version_1_contacts_decode_without_covariance() -> None:
     assert decode(encode(with_cov), ContactPointArray).covariance.shape == (n, 3, 3)
     with pytest.raises(ValueError, match="covariance"):  # one row short
         encode(dataclasses.replace(array, covariance=np.tile(cov, (n - 1, 1, 1))))
+
+
+def test_contacts_before_version_3_decode_without_free_whiskers() -> None:
+    array = dataclasses.replace(contact_array(), free_ids=["w9", "w10"])
+    assert decode(encode(array), ContactPointArray).free_ids == ["w9", "w10"]
+    assert decode(encode(contact_array()), ContactPointArray).free_ids is None
+    for version in (1, 2):
+        obj = raw(contact_array())
+        obj["_v"] = version
+        assert decode(pack(obj), ContactPointArray).free_ids is None
+        obj["free_ids"] = ["w9"]  # a field that version did not have is refused
+        refuse(pack(obj), FieldTypeError, "ContactPointArray", "free_ids")
+    assert decode(pack(retired_contact()), ContactPointArray).free_ids is None
 
 
 def test_version_1_wrenches_decode_with_their_pose_in_the_clamp_frame() -> None:

@@ -239,13 +239,13 @@ def run(node: Node, params: ExplorerParams) -> str:
                 break
             tick = pending.pop(0)
             contacts = dict(zip(tick.whisker_ids, np.reshape(tick.point, (-1, 3)), strict=True))
-            if tick.free_ids is None and not node.counters.get("ticks_without_free_ids"):
-                log.warning("the contacts on %s do not tell which whiskers were free "
-                            "(free_ids): their rods free no floor", params.contact_topic)
             if tick.free_ids is None:
+                if not node.counters.get("ticks_without_free_ids"):
+                    log.warning("the contacts on %s do not tell which whiskers were free "
+                                "(free_ids): their rods free no floor", params.contact_topic)
                 node.counters["ticks_without_free_ids"] = (
                     node.counters.get("ticks_without_free_ids", 0) + 1)
-            explorer.observe(at, contacts, tick.free_ids or ())
+            explorer.observe(at, contacts, set(tick.free_ids or ()))
             node.counters["ticks"] = node.counters.get("ticks", 0) + 1
             placed_stamp = tick.stamp
         if reached_stamp is None or (segments and placed_stamp < reached_stamp

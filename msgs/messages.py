@@ -416,7 +416,7 @@ class ContactPointArray(Message):
         doc="covariance of each point from the wrench noise, in frame_id; omitted without a "
         "noise model (version 1 has none)")
     free_ids: list[str] | None = _optional(
-        kind=STR_LIST, doc="the tick's whiskers found free (no force, or below the contact "
+        kind=STR_LIST, doc="the tick's whiskers found free (a zero wrench, or below the contact "
         "detector's threshold); a whisker in neither list touched something that gives no "
         "single contact, or could not be placed; omitted by a producer that does not tell "
         "(versions 1 and 2 have none)")

@@ -91,6 +91,9 @@ class ExplorerParams:
         The base's path length at most, m.
     cell_m
         Edge of the free-space grid's cells, m.
+    skirt_slope
+        How far an object's wall may lean out below the lowest rods, per metre of height (see
+        `ExploreSettings`).
     speed_mps, turn_rate_rps
         The robot's speed and turn rate along a plan.
     pose_topic, contact_topic, mesh_topic, unknown_mesh_topic, proposal_topic, path_topic
@@ -104,6 +107,7 @@ class ExplorerParams:
     planner: str = "uncertainty"
     budget_m: float = 2.0
     cell_m: float = ExploreSettings.cell_m
+    skirt_slope: float = ExploreSettings.skirt_slope
     speed_mps: float = 0.05
     turn_rate_rps: float = 1.0
     pose_topic: str = "pose"
@@ -128,7 +132,7 @@ class ExplorerParams:
             require_parsed("wait_for", name, validate_name)
         try:
             settings = ExploreSettings(planner=self.planner, budget_m=self.budget_m,
-                                       cell_m=self.cell_m)
+                                       cell_m=self.cell_m, skirt_slope=self.skirt_slope)
         except ValueError as exc:
             raise ValueError(f"parameter {exc}") from None
         object.__setattr__(self, "settings", settings)

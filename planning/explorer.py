@@ -7,9 +7,10 @@ the workspace box, its poses, the contacts of each tick and the map's meshes. Fr
 keeps a `FreeSpace` grid: a rod without contact sweeps the cells from its clamp to its tip at
 its height, a rod in contact from its clamp to the contact point, which is occupied, and so are
 the map's known surfaces; a cell the rods of every height swept is free. The body only goes
-where every cell within its radius is free (unknown is blocked), by the shortest route through
-such cells; where the map marked a surface beside it after it arrived, it first steps out of
-there, no closer to that surface.
+where every cell within its radius is free (unknown is blocked) and keeps a skirt margin from
+the lowest rods' contacts (a wall may lean out below them), by the shortest route through such
+cells; where the map marked a surface beside it after it arrived, it first steps out of there,
+no closer to that surface.
 
 A plan is a route to a goal, then a look: a full turn in place, which sweeps the rods around the
 body. The goal is the standable cell of most *gain* per metre of route (its gain over one plus
@@ -74,6 +75,10 @@ class ExploreSettings:
         Distance between the lawnmower's lanes, m; 0: the rods' reach.
     height_tol_m
         A mesh vertex is at a whisker's height within this, m.
+    skirt_slope
+        How far an object's wall may lean out below the lowest rods, per metre of height (1:
+        45 degrees): the body keeps this times the lowest mounts' height above the workspace's
+        floor (``skirt_m``) further from where the lowest rods touched something.
     """
 
     planner: str = "uncertainty"
@@ -85,6 +90,7 @@ class ExploreSettings:
     object_ring_m: float = 0.01
     lane_spacing_m: float = 0.0
     height_tol_m: float = 0.005
+    skirt_slope: float = 1.0
 
     def __post_init__(self) -> None:
         if self.planner not in PLANNERS:
@@ -95,7 +101,7 @@ class ExploreSettings:
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name!r} must be a finite number > 0, got {value!r}")
         for name in ("surface_weight", "object_weight", "object_ring_m", "lane_spacing_m",
-                     "height_tol_m"):
+                     "height_tol_m", "skirt_slope"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name!r} must be a finite number >= 0, got {value!r}")
@@ -165,6 +171,8 @@ class Explorer:
         self.reach_m = max(float(np.linalg.norm(w.X_RC.translation[:2])) + w.length_m
                            for w in whiskers)
         self.heights_m = np.array([self.height_m + w.X_RC.translation[2] for w in whiskers])
+        self.skirt_m = self.settings.skirt_slope * max(
+            float(self.heights_m.min()) - float(workspace_min_m[2]), 0.0)
         self.travelled_m = 0.0
         self.space.mark_disc(start.translation, body_radius_m)
         self._names = [w.name for w in whiskers]
@@ -173,7 +181,7 @@ class Explorer:
         self._lengths = np.array([w.length_m for w in whiskers])
         self._segments: list[FloatArray] = []  # pending ticks: rods (n, 4), bodies, contacts
         self._bodies: list[FloatArray] = []
-        self._touched: list[FloatArray] = []
+        self._touched: list[FloatArray] = []  # x, y m and 1 for the lowest rods, else 0
         self._last_xy = np.asarray(start.translation[:2], dtype=np.float64)
         self._unknown_surface = np.zeros((0, 3))
         self._lanes = self._lane_points()
@@ -201,7 +209,7 @@ class Explorer:
                     ends[k] = clamps[k]  # a segment of no length: nothing swept
                 continue
             point = np.asarray(point, dtype=np.float64)
-            self._touched.append(point[:2])
+            self._touched.append(np.array([point[0], point[1], float(self._level[k] == 0)]))
             # the rod up to a cell short of the contact: its chord may cut the object's edge
             chord = point - clamps[k]
             length = float(np.linalg.norm(chord[:2]))
@@ -222,7 +230,8 @@ class Explorer:
         for i in np.unique(cells, axis=0, return_index=True)[1]:
             self.space.mark_disc(self._bodies[i], self.body_radius_m)
         if self._touched:
-            self.space.mark_occupied(np.array(self._touched))
+            touched = np.array(self._touched)
+            self.space.mark_occupied(touched[:, :2], lowest=touched[:, 2] > 0)
         self._segments, self._bodies, self._touched = [], [], []
 
     def observe_surface(self, known_W: FloatArray, unknown_W: FloatArray) -> None:
@@ -249,7 +258,7 @@ class Explorer:
         if not inside[0]:
             self.done_because = "the robot is outside its workspace"
             return None
-        standable = self.space.standable(self.body_radius_m, here[0])
+        standable = self.space.standable(self.body_radius_m, here[0], self.skirt_m)
         costs = np.where(standable, 1.0, np.inf)
         mcp = MCP_Geometric(costs)
         route_cells, _ = mcp.find_costs([tuple(here[0])])

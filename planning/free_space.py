@@ -12,6 +12,8 @@ radius (and a margin of one cell's diagonal) is free. Unknown counts as blocked,
 only ever goes where the whiskers have been: safe by construction against objects it has not
 found yet, provided the objects reach the whiskers' heights and bulge between two heights by
 less than that margin (a rod sweeping above an object low on the floor sees nothing there).
+Below the lowest rods no rod sees: a mound's wall leans out there, so the body also keeps a
+skirt margin from where the lowest rods touched something.
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ an object or behind one): no look reveals it."""
 class FreeSpace:
     """The floor of the workspace box [lo_m, hi_m] (x, y in W, m) in square cells of
     ``cell_m``, for rods at ``levels`` heights: ``state`` (nx, ny) of `UNKNOWN`, `FREE`,
-    `OCCUPIED`, `HIDDEN`; ``swept`` (levels, nx, ny) the cells each height's rods swept."""
+    `OCCUPIED`, `HIDDEN`; ``swept`` (levels, nx, ny) the cells each height's rods swept;
+    ``lowest_touched`` (nx, ny) the cells where the lowest rods (level 0) touched something."""
 
     lo_m: FloatArray
     hi_m: FloatArray
@@ -43,6 +46,7 @@ class FreeSpace:
     levels: int = 1
     state: npt.NDArray[np.int8] = field(init=False)
     swept: npt.NDArray[np.bool_] = field(init=False)
+    lowest_touched: npt.NDArray[np.bool_] = field(init=False)
 
     def __post_init__(self) -> None:
         self.lo_m = np.asarray(self.lo_m, dtype=np.float64)[:2]
@@ -56,6 +60,7 @@ class FreeSpace:
         shape = tuple(np.ceil((self.hi_m - self.lo_m) / self.cell_m).astype(int))
         self.state = np.zeros(shape, dtype=np.int8)
         self.swept = np.zeros((self.levels, *shape), dtype=np.bool_)
+        self.lowest_touched = np.zeros(shape, dtype=np.bool_)
 
     def cells(self, xy_m: FloatArray) -> tuple[IntArray, npt.NDArray[np.bool_]]:
         """The cell (i, j) of each point (k, 2) m, and whether it lies on the grid."""
@@ -95,10 +100,15 @@ class FreeSpace:
         self.swept[:, ij[:, 0], ij[:, 1]] = True
         self._free(ij)
 
-    def mark_occupied(self, xy_m: FloatArray) -> None:
-        """Cells of the points (k, 2) m become occupied: a contact, a known surface."""
+    def mark_occupied(self, xy_m: FloatArray,
+                      lowest: npt.NDArray[np.bool_] | None = None) -> None:
+        """Cells of the points (k, 2) m become occupied: a contact, a known surface; those of
+        the points ``lowest`` (k,) are where the lowest rods touched something."""
         ij, inside = self.cells(xy_m)
         self.state[ij[inside, 0], ij[inside, 1]] = OCCUPIED
+        if lowest is not None:
+            ij = ij[inside & lowest]
+            self.lowest_touched[ij[:, 0], ij[:, 1]] = True
 
     def _free(self, ij: IntArray) -> None:
         """Cells (k, 2) become free, but an occupied one stays occupied."""
@@ -108,16 +118,21 @@ class FreeSpace:
     def clearance_m(self) -> FloatArray:
         """Each cell's distance (nx, ny) m from its centre to the nearest cell that is not free
         (unknown, occupied, or beyond the grid's edge)."""
-        free = np.pad(self.state == FREE, 1, constant_values=False)
-        return np.asarray(ndimage.distance_transform_edt(free)[1:-1, 1:-1]) * self.cell_m
+        return _distance_m(self.state == FREE, self.cell_m)
 
-    def standable(self, radius_m: float, here: IntArray | None = None) -> npt.NDArray[np.bool_]:
+    def standable(self, radius_m: float, here: IntArray | None = None,
+                  skirt_m: float = 0.0) -> npt.NDArray[np.bool_]:
         """Cells (nx, ny) where the body of ``radius_m`` may stand: free within its radius and
-        a margin of one cell's diagonal (the cells are not points). With ``here``, the cell
-        (2,) where the body stands, also that cell and its way out of a spot the margin no
-        longer allows (a surface marked near the body after it arrived): the free cells within
-        ``radius_m`` of it that are at least as clear as it is."""
+        a margin of one cell's diagonal (the cells are not points), and ``skirt_m`` further from
+        where the lowest rods touched something (the object's wall may lean out below them,
+        where no rod sees it). With ``here``, the cell (2,) where the body stands, also that
+        cell and its way out of a spot the margins no longer allow (a surface marked near the
+        body after it arrived): the free cells within ``radius_m`` of it that are at least as
+        clear as it is."""
         clearance = self.clearance_m()
+        if skirt_m > 0:
+            skirt = _distance_m(~self.lowest_touched, self.cell_m) - skirt_m
+            clearance = np.minimum(clearance, skirt)
         standable = clearance > radius_m + math.sqrt(2.0) * self.cell_m
         if here is not None:
             i, j = int(here[0]), int(here[1])
@@ -138,3 +153,10 @@ class FreeSpace:
         """Free cells (nx, ny) next to an unknown one: where a look reveals something."""
         unknown = ndimage.binary_dilation(self.state == UNKNOWN, structure=np.ones((3, 3)))
         return (self.state == FREE) & unknown
+
+
+def _distance_m(clear: npt.NDArray[np.bool_], cell_m: float) -> FloatArray:
+    """Each cell's distance (nx, ny) m from its centre to the nearest cell not ``clear`` (or
+    beyond the grid's edge)."""
+    padded = np.pad(clear, 1, constant_values=False)
+    return np.asarray(ndimage.distance_transform_edt(padded)[1:-1, 1:-1]) * cell_m

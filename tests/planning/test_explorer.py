@@ -1,7 +1,8 @@
 """The explorer's plans, driven in a toy world of its own: straight rods (no bending) past
-vertical cylinders, the contact the first point of a rod inside one (an independent geometry,
-not the package's mechanics). The body never enters an object, the base never travels beyond
-its budget, each planner ends by itself, and a look reveals what the rods sweep."""
+vertical cylinders (walls that do not lean out: ``skirt_slope`` 0), the contact the first point
+of a rod inside one (an independent geometry, not the package's mechanics). The body never
+enters an object, the base never travels beyond its budget, each planner ends by itself, and a
+look reveals what the rods sweep."""
 
 from __future__ import annotations
 
@@ -111,7 +112,7 @@ def test_the_body_never_enters_an_object_and_the_exploration_ends_within_its_bud
         planner: str, seed: int) -> None:
     circles = random_circles(np.random.default_rng(seed), 3)
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
-    settings = ExploreSettings(planner=planner, budget_m=0.8, cell_m=0.005)
+    settings = ExploreSettings(planner=planner, budget_m=0.8, cell_m=0.005, skirt_slope=0.0)
     explorer = Explorer(fan(), BODY_M, LO, HI, start, settings)
     plans, clearance, purposes = drive(explorer, circles, start)
     assert clearance > 0, clearance
@@ -166,6 +167,28 @@ def test_a_cell_is_free_only_where_the_rods_of_every_height_swept_it(seed: int) 
     assert depth.max() <= math.sqrt(0.5) * settings.cell_m + bulge, (depth.max(), bulge)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 4])
+def test_the_body_keeps_off_a_mound_s_skirt_below_the_lowest_rods(seed: int) -> None:
+    """Cones on the floor (footprint radius r, height 1.2 r: walls leaning out 0.83 m per m of
+    height), seen by rods at 15 and 30 mm: at the lowest rods a cone is 12.5 mm narrower than
+    its footprint. With the default ``skirt_slope`` (1) the body stays out of the footprints;
+    without it (0) the body enters one."""
+    cones = random_circles(np.random.default_rng(seed), 3)  # footprint (centre, radius)
+
+    def slices(z: float) -> list[tuple[np.ndarray, float]]:
+        return [(c, r * (1.0 - z / (1.2 * r))) for c, r in cones if z < 1.2 * r]
+
+    start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    least = {}
+    for slope in (1.0, 0.0):
+        explorer = Explorer(two_heights(), BODY_M, LO, HI, start,
+                            ExploreSettings(budget_m=0.6, cell_m=0.004, skirt_slope=slope))
+        assert explorer.skirt_m == pytest.approx(slope * 0.015)
+        _, least[slope], _ = drive(explorer, cones, start, slices=slices)
+    assert least[1.0] > 0 > least[0.0], least
+
+
 def toy_coverage(circles: list[tuple[np.ndarray, float]], contacts: list[np.ndarray],
                  tol_m: float = 0.002) -> float:
     """The share of the cylinders' outlines (a point per degree) within ``tol_m`` of a
@@ -187,7 +210,8 @@ def coverages(seed: int) -> dict[str, float]:
     coverage = {}
     for planner in ("uncertainty", "lawnmower"):
         explorer = Explorer(fan(), BODY_M, LO, HI, start,
-                            ExploreSettings(planner=planner, budget_m=0.5, cell_m=0.005))
+                            ExploreSettings(planner=planner, budget_m=0.5, cell_m=0.005,
+                                           skirt_slope=0.0))
         contacts: list[np.ndarray] = []
         drive(explorer, circles, start, contacts=contacts)
         coverage[planner] = toy_coverage(circles, contacts)
@@ -205,7 +229,7 @@ def test_the_uncertainty_planner_covers_more_than_the_lawnmower_on_the_same_budg
 
 def test_a_look_sweeps_the_rods_around_and_hides_only_what_it_cannot_reach() -> None:
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.1, 0.1, 0.0])
-    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
     drive(explorer, [], start, max_plans=1)
     plan = explorer.plan(Transform.from_quaternion([0, 0, 0, 1.0], [0.1, 0.1, 0.0]))
     assert plan is not None
@@ -225,7 +249,7 @@ def test_a_surface_marked_beside_the_body_after_it_arrived_does_not_wall_it_in()
     body steps out of that spot, never closer to the surface, and goes on."""
     centre = np.array([0.1, 0.1])
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [*centre, 0.0])
-    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
     drive(explorer, [], start, max_plans=1)  # a look where it stands: all around it free
     angles = np.linspace(-np.pi / 3, np.pi / 3, 60)
     arc = centre + 0.022 * np.column_stack([np.cos(angles), np.sin(angles)])  # 3 mm in the body
@@ -249,7 +273,7 @@ def test_the_way_out_of_a_walled_in_spot_crosses_only_free_cells() -> None:
     way out goes through free cells only."""
     centre = np.array([0.1, 0.1])
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [*centre, 0.0])
-    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
     drive(explorer, [], start, max_plans=1)
     angles = np.linspace(0.0, 2 * np.pi, 90, endpoint=False)
     ring = centre + 0.04 * np.column_stack([np.cos(angles), np.sin(angles)])
@@ -268,7 +292,7 @@ def test_a_rod_neither_in_contact_nor_free_sweeps_nothing() -> None:
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.1, 0.1, 0.0])
     swept = {}
     for free in (None, (), ("w3",)):
-        explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005))
+        explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
         explorer.observe(start, {}, free)
         explorer.plan(start)  # marks what is pending
         centres = explorer.space.centre(np.argwhere(explorer.space.state == FREE))
@@ -298,3 +322,23 @@ def test_free_space_refuses_a_bad_grid_and_keeps_occupied_cells() -> None:
         FreeSpace(np.array([0.0, 0.0]), np.array([0.1, 0.1]), 0.01, levels=0)
     with pytest.raises(ValueError, match="planner"):
         ExploreSettings(planner="random")
+    with pytest.raises(ValueError, match="skirt_slope"):
+        ExploreSettings(skirt_slope=-0.5)
+
+
+def test_the_body_keeps_the_skirt_margin_from_the_lowest_rods_contacts_only() -> None:
+    """An open floor of 1 mm cells with a contact in its middle: the body (10 mm) stands more
+    than its radius and a cell's diagonal from it, and ``skirt_m`` further where the lowest
+    rods touched there; a contact of higher rods keeps no skirt."""
+    cell, body, skirt = 0.001, 0.01, 0.005
+    centres = {}
+    for lowest in (False, True):
+        space = FreeSpace(np.array([0.0, 0.0]), np.array([0.1, 0.1]), cell)
+        space.mark_disc(np.array([0.05, 0.05]), 0.2)  # all free
+        space.mark_occupied(np.array([[0.0505, 0.0505]]), lowest=np.array([lowest]))
+        standable = space.standable(body, skirt_m=skirt)
+        near = np.linalg.norm(space.centre(np.argwhere(standable)) - 0.0505, axis=1)
+        centres[lowest] = near.min()
+    margin = body + math.sqrt(2.0) * cell
+    assert margin < centres[False] <= margin + cell
+    assert margin + skirt < centres[True] <= margin + skirt + cell

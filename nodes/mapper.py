@@ -943,7 +943,11 @@ def run(node: Node, params: MapperParams, warming: threading.Thread | None = Non
     publish(messages)
     for publisher in publishers:
         publisher.publish_end_of_stream(node.fqn)
-    if report.n_points == 0:
+    if report.n_points == 0 and params.explore is not None:
+        log.error("%s: the map is empty: the exploration touched nothing (sources ended: %s); "
+                  "a larger path budget reaches further", node.fqn,
+                  ", ".join(sorted(acc.ended)) or "none")
+    elif report.n_points == 0:
         log.error("%s: the map is empty: no contact point arrived (sources ended: %s); the "
                   "wrench source's log says how its sweeps ended (no-contact: the straight rod "
                   "clears the object all along; no-equilibrium: none after the first touch)",

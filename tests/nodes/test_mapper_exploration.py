@@ -206,6 +206,38 @@ def test_the_end_of_the_pose_stream_ends_nothing(tmp_path: Path, endpoints: Endp
     assert report["exploration"]["path_length_m"] == pytest.approx(0.005, rel=1e-12)
 
 
+def test_an_exploration_that_touched_nothing_ends_with_an_empty_map_and_says_so(
+        tmp_path: Path, endpoints: Endpoints) -> None:
+    mapper = start_mapper(tmp_path, endpoints, write_scene(tmp_path))
+    try:
+        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
+                Publisher(POSE_TOPIC, RobotPose, endpoints) as poses, \
+                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
+            wait_heard([pub, poses], statuses)
+            poses.publish(pose(0.0, np.zeros(3)))
+            poses.publish(pose(1.0, np.array([0.0, 0.003, 0.004])))
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                rx = statuses.receive(0.1)
+                if (rx is not None and rx.msg.node == "/mapper"
+                        and rx.msg.counters["received"] >= 2):
+                    break
+            else:
+                pytest.fail("the mapper never received the poses")
+            pub.publish_end_of_stream("/contacts")
+            out, _ = mapper.communicate(timeout=120)
+    finally:
+        if mapper.poll() is None:
+            mapper.kill()
+            mapper.communicate()
+    assert mapper.returncode == 3, out  # EXIT_EMPTY_MAP
+    assert "the map is empty: the exploration touched nothing" in out, out
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["n_points"] == 0
+    assert report["exploration"]["path_length_m"] == pytest.approx(0.005, rel=1e-12)
+    assert report["exploration"]["coverage_final"] == 0.0
+
+
 def test_without_explore_planner_the_exploration_is_null(tmp_path: Path) -> None:
     acc = Accumulator(1)
     for i in range(60):

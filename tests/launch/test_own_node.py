@@ -36,10 +36,15 @@ def run_phase_filter(launch_file: Path, out: Path, step: float) -> tuple[str, in
     """Launch ``launch_file`` (the demo with the example node) at ``step``: its output, and
     how many contacts the node kept and dropped, checked against the same sweeps in the
     library (the filter keeps exactly the tip-phase equilibria)."""
-    result = subprocess.run(
-        [sys.executable, "-m", "vibrissa.cli.main", "launch", str(launch_file), f"out:={out}",
-         f"step:={step}"], capture_output=True, text=True, timeout=600,
-        env=os.environ | {"VIBRISSA_DOMAIN_ID": str(DOMAIN)})
+    try:
+        result = subprocess.run(
+            [sys.executable, "-m", "vibrissa.cli.main", "launch", str(launch_file),
+             f"out:={out}", f"step:={step}"], capture_output=True, text=True, timeout=600,
+            env=os.environ | {"VIBRISSA_DOMAIN_ID": str(DOMAIN)})
+    except subprocess.TimeoutExpired as exc:  # what the graph said before it hung
+        said = [part.decode(errors="replace") if isinstance(part, bytes) else part or ""
+                for part in (exc.stdout, exc.stderr)]
+        pytest.fail(f"the launch did not end within 600 s:\n{''.join(said)[-20000:]}")
     text = result.stdout + result.stderr
     assert result.returncode == 0, text
     match = re.search(r"\[phase_filter\] .*kept (\d+) tip contacts, dropped (\d+)", text)

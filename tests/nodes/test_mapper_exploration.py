@@ -173,7 +173,10 @@ def test_the_report_holds_the_path_length_and_the_coverage_of_each_map(
     assert "Traceback" not in out
 
 
-def test_the_end_of_the_pose_stream_ends_nothing(tmp_path: Path, endpoints: Endpoints) -> None:
+def map_after_a_step(tmp_path: Path, endpoints: Endpoints, contacts: int, end_poses: bool
+                     ) -> tuple[int, str, dict[str, Any]]:
+    """A mapper hears the base move 5 mm (and the pose stream end, with ``end_poses``), then
+    ``contacts`` contacts and their stream's end: its exit code, output and report."""
     mapper = start_mapper(tmp_path, endpoints, write_scene(tmp_path))
     try:
         with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
@@ -182,16 +185,17 @@ def test_the_end_of_the_pose_stream_ends_nothing(tmp_path: Path, endpoints: Endp
             wait_heard([pub, poses], statuses)
             poses.publish(pose(0.0, np.zeros(3)))
             poses.publish(pose(1.0, np.array([0.0, 0.003, 0.004])))
-            poses.publish_end_of_stream("/robot")  # not a contact source: ends nothing
+            if end_poses:
+                poses.publish_end_of_stream("/robot")
             deadline = time.monotonic() + 60  # taken in before the contacts come
             while time.monotonic() < deadline:
                 rx = statuses.receive(0.1)
                 if (rx is not None and rx.msg.node == "/mapper"
-                        and rx.msg.counters["received"] >= 3):
+                        and rx.msg.counters["received"] >= 2 + end_poses):
                     break
             else:
                 pytest.fail("the mapper never received the poses")
-            for i in range(60):
+            for i in range(contacts):
                 pub.publish(contact(i))
             pub.publish_end_of_stream("/contacts")
             out, _ = mapper.communicate(timeout=120)
@@ -199,8 +203,12 @@ def test_the_end_of_the_pose_stream_ends_nothing(tmp_path: Path, endpoints: Endp
         if mapper.poll() is None:
             mapper.kill()
             mapper.communicate()
-    assert mapper.returncode == 0, out
-    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    return mapper.returncode, out, json.loads((tmp_path / "out" / "report.json").read_text())
+
+
+def test_the_end_of_the_pose_stream_ends_nothing(tmp_path: Path, endpoints: Endpoints) -> None:
+    code, out, report = map_after_a_step(tmp_path, endpoints, 60, end_poses=True)
+    assert code == 0, out  # the pose stream's end is no contact source's: it ended nothing
     assert (report["ended_by"], report["sources_ended"], report["n_points"]) == (
         "streams", ["/contacts"], 60)
     assert report["exploration"]["path_length_m"] == pytest.approx(0.005, rel=1e-12)
@@ -208,31 +216,9 @@ def test_the_end_of_the_pose_stream_ends_nothing(tmp_path: Path, endpoints: Endp
 
 def test_an_exploration_that_touched_nothing_ends_with_an_empty_map_and_says_so(
         tmp_path: Path, endpoints: Endpoints) -> None:
-    mapper = start_mapper(tmp_path, endpoints, write_scene(tmp_path))
-    try:
-        with Publisher(TOPIC, ContactPointArray, endpoints) as pub, \
-                Publisher(POSE_TOPIC, RobotPose, endpoints) as poses, \
-                Subscriber({STATUS_TOPIC: NodeStatus}, endpoints) as statuses:
-            wait_heard([pub, poses], statuses)
-            poses.publish(pose(0.0, np.zeros(3)))
-            poses.publish(pose(1.0, np.array([0.0, 0.003, 0.004])))
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                rx = statuses.receive(0.1)
-                if (rx is not None and rx.msg.node == "/mapper"
-                        and rx.msg.counters["received"] >= 2):
-                    break
-            else:
-                pytest.fail("the mapper never received the poses")
-            pub.publish_end_of_stream("/contacts")
-            out, _ = mapper.communicate(timeout=120)
-    finally:
-        if mapper.poll() is None:
-            mapper.kill()
-            mapper.communicate()
-    assert mapper.returncode == 3, out  # EXIT_EMPTY_MAP
+    code, out, report = map_after_a_step(tmp_path, endpoints, 0, end_poses=False)
+    assert code == 3, out  # EXIT_EMPTY_MAP
     assert "the map is empty: the exploration touched nothing" in out, out
-    report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["n_points"] == 0
     assert report["exploration"]["path_length_m"] == pytest.approx(0.005, rel=1e-12)
     assert report["exploration"]["coverage_final"] == 0.0

@@ -653,6 +653,8 @@ def run_scene(node: Node, params: WrenchSourceParams) -> int:
         results = read_results(params.simulated, scene)
     else:
         node.set_state("running", f"simulating {len(scene.whiskers)} whisker(s) along the path")
+        log.info("%s: simulating %d whisker(s) along the path (%d samples)", node.fqn,
+                 len(scene.whiskers), len(scene.path.t))
         try:
             results = simulate(scene, workers=params.workers or None,
                                stop=lambda: node.stop_requested)

@@ -194,7 +194,7 @@ def test_ctrl_c_while_the_robot_scene_is_simulated_stops_its_worker_processes(
                comments="", fmt="%.17g")
     launch = Launch(LAUNCH / "robot.yaml", f"out:={tmp_path / 'map'}",
                     f"scene:={tmp_path / 'scene.yaml'}", domain=DOMAIN + 100)
-    launch.wait_line(r"\['/mapper'\] ready on /robot/contact")
+    launch.wait_line(r"wrench_source\] .*simulating 8 whisker\(s\) along the path")
     launch.proc.send_signal(signal.SIGINT)
     rc = launch.wait(60)
     text = launch.text()

@@ -18,6 +18,7 @@ from vibrissa.planning import FREE, HIDDEN, OCCUPIED, UNKNOWN, Explorer, Explore
 from vibrissa.scene import Whisker
 
 BODY_M = 0.025
+UPRIGHT = ExploreSettings(cell_m=0.005, skirt_slope=0.0)  # cylinders' walls do not lean out
 LO, HI = np.array([-0.1, -0.1, 0.0]), np.array([0.3, 0.3, 0.1])
 
 
@@ -229,7 +230,7 @@ def test_the_uncertainty_planner_covers_more_than_the_lawnmower_on_the_same_budg
 
 def test_a_look_sweeps_the_rods_around_and_hides_only_what_it_cannot_reach() -> None:
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.1, 0.1, 0.0])
-    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, UPRIGHT)
     drive(explorer, [], start, max_plans=1)
     plan = explorer.plan(Transform.from_quaternion([0, 0, 0, 1.0], [0.1, 0.1, 0.0]))
     assert plan is not None
@@ -249,7 +250,7 @@ def test_a_surface_marked_beside_the_body_after_it_arrived_does_not_wall_it_in()
     body steps out of that spot, never closer to the surface, and goes on."""
     centre = np.array([0.1, 0.1])
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [*centre, 0.0])
-    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, UPRIGHT)
     drive(explorer, [], start, max_plans=1)  # a look where it stands: all around it free
     angles = np.linspace(-np.pi / 3, np.pi / 3, 60)
     arc = centre + 0.022 * np.column_stack([np.cos(angles), np.sin(angles)])  # 3 mm in the body
@@ -273,7 +274,7 @@ def test_the_way_out_of_a_walled_in_spot_crosses_only_free_cells() -> None:
     way out goes through free cells only."""
     centre = np.array([0.1, 0.1])
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [*centre, 0.0])
-    explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
+    explorer = Explorer(fan(), BODY_M, LO, HI, start, UPRIGHT)
     drive(explorer, [], start, max_plans=1)
     angles = np.linspace(0.0, 2 * np.pi, 90, endpoint=False)
     ring = centre + 0.04 * np.column_stack([np.cos(angles), np.sin(angles)])
@@ -292,7 +293,7 @@ def test_a_rod_neither_in_contact_nor_free_sweeps_nothing() -> None:
     start = Transform.from_quaternion([0.0, 0.0, 0.0, 1.0], [0.1, 0.1, 0.0])
     swept = {}
     for free in (None, (), ("w3",)):
-        explorer = Explorer(fan(), BODY_M, LO, HI, start, ExploreSettings(cell_m=0.005, skirt_slope=0.0))
+        explorer = Explorer(fan(), BODY_M, LO, HI, start, UPRIGHT)
         explorer.observe(start, {}, free)
         explorer.plan(start)  # marks what is pending
         centres = explorer.space.centre(np.argwhere(explorer.space.state == FREE))

@@ -29,16 +29,16 @@ TIP_STEP_M = 1e-4  # tip travel per coarse sample
 
 
 def yawing_scene(tilt_deg: float, elevation_deg: float, mu: float, radius_m: float,
-                 per_sample: int) -> Scene:
+                 per_sample: int, arc_rad: float = 1.0) -> Scene:
     """A rod along W's x from the robot's origin, the robot yawing about z from -0.05 to
-    1.0 rad; a sphere whose surface holds the point 0.95 L along the rod, its outward normal
-    there turned ``tilt_deg`` from -x towards -y, then ``elevation_deg`` about y."""
+    ``arc_rad``; a sphere whose surface holds the point 0.95 L along the rod, its outward
+    normal there turned ``tilt_deg`` from -x towards -y, then ``elevation_deg`` about y."""
     contact = np.array([0.95 * L_M, 0.0, 0.0])
     tilt = np.radians(tilt_deg)
     normal = Rotation.from_euler("y", np.radians(elevation_deg)).apply(
         [-np.cos(tilt), -np.sin(tilt), 0.0])
     centre = contact - radius_m * normal
-    yaw = np.arange(-0.05, 1.0, TIP_STEP_M / L_M / per_sample)
+    yaw = np.arange(-0.05, arc_rad, TIP_STEP_M / L_M / per_sample)
     path = RobotPath(np.arange(len(yaw)) * 0.01, np.zeros((len(yaw), 3)),
                      Rotation.from_euler("z", yaw[:, None]))
     ball = SceneObject("ball", "sphere", {"radius_m": radius_m},
@@ -63,10 +63,26 @@ def yawing_scene(tilt_deg: float, elevation_deg: float, mu: float, radius_m: flo
                "(docs/LIMITS.md)", strict=False))])
 def test_the_episodes_are_the_same_at_1_4_and_10_samples(
         tilt_deg: float, elevation_deg: float, mu: float, radius_m: float) -> None:
+    agree, episodes, events = sampled_alike(tilt_deg, elevation_deg, mu, radius_m)
+    assert agree, (episodes, events)
+
+
+SAMPLINGS = (1, 4, 10)
+"""Samples per 0.1 mm of tip travel that `sampled_alike` compares."""
+
+
+def sampled_alike(tilt_deg: float, elevation_deg: float, mu: float, radius_m: float,
+                  arc_rad: float = 1.0) -> tuple[bool, dict[int, list[tuple[str, str, float]]],
+                                                 dict[int, list[tuple[str, float]]]]:
+    """`yawing_scene` at each of `SAMPLINGS`: whether its episodes (how each begins and ends)
+    are the same at all three, at least one, each starting within one coarse sample of the
+    coarse path's, and its snaps (snap-offs, landings, snap-throughs) the same kinds in the same
+    order, each told less than a coarse sample from the coarse path's; with each sampling's
+    episodes (start, end, first contact) and snaps (kind, sample after), in coarse samples."""
     episodes, events = {}, {}
-    for per_sample in (1, 4, 10):
-        (result,) = simulate(yawing_scene(tilt_deg, elevation_deg, mu, radius_m, per_sample),
-                             workers=1)
+    for per_sample in SAMPLINGS:
+        (result,) = simulate(yawing_scene(tilt_deg, elevation_deg, mu, radius_m, per_sample,
+                                          arc_rad), workers=1)
         coarse_sample = result.t / 0.01 / per_sample
         episodes[per_sample] = [
             (e.start, e.end, float(np.interp(e.t_first_contact, result.t, coarse_sample)))
@@ -74,16 +90,15 @@ def test_the_episodes_are_the_same_at_1_4_and_10_samples(
         events[per_sample] = [(snap.kind, float(coarse_sample[snap.after]))
                               for snap in snaps(result, ["ball"])]
     kinds = {n: [(start, end) for start, end, _ in eps] for n, eps in episodes.items()}
-    assert kinds[1] and kinds[4] == kinds[1] and kinds[10] == kinds[1], episodes
-    for n in (4, 10):
-        starts = np.array([at for *_, at in episodes[n]])
-        assert np.all(np.abs(starts - [at for *_, at in episodes[1]]) <= 1.0), episodes
-    # every snap (snap-off, landing, snap-through) in the same order, each told less than a
-    # coarse sample's step from the coarse path's
-    assert [k for k, _ in events[4]] == [k for k, _ in events[1]] == [k for k, _ in events[10]]
-    for n in (4, 10):
-        assert all(abs(at_n - at_1) < 1.0 for (_, at_n), (_, at_1)
-                   in zip(events[n], events[1], strict=True)), events
+    coarse, *finer = SAMPLINGS
+    agree = bool(kinds[coarse]) and all(kinds[n] == kinds[coarse] for n in finer)
+    agree = agree and all(abs(a[2] - b[2]) <= 1.0 for n in finer
+                          for a, b in zip(episodes[n], episodes[coarse], strict=True))
+    agree = agree and all([k for k, _ in events[n]] == [k for k, _ in events[coarse]]
+                          for n in finer)
+    agree = agree and all(abs(a[1] - b[1]) < 1.0 for n in finer
+                          for a, b in zip(events[n], events[coarse], strict=True))
+    return agree, episodes, events
 
 
 @pytest.mark.slow

@@ -263,11 +263,17 @@ def egg_scene(samples: int, case: str) -> Scene:
     travel per sample at 590 samples: ``deep``, the rod, leaning on ball a, is 0.1 mm inside
     egg b at the first sample past the touch; ``near``, the rod leans on egg b 3.5-5 mm from the
     clamp; ``leaves``, the contact on egg b runs out of force as the clamp runs into ball a."""
+    return egg_scene_of(samples, *EGG_SCENES[case])
+
+
+def egg_scene_of(samples: int, radius: float, centre: list[float], axes: list[float],
+                 quaternion: list[float], position: list[float], mu: float) -> Scene:
+    """`egg_scene` of ball a (``radius``, ``centre``), egg b (semi-axes ``axes``, turned by
+    ``quaternion`` (x, y, z, w), at ``position``; m) and friction ``mu``."""
     x = np.linspace(-0.02, 0.045, samples)
     yaw = np.linspace(0.0, -0.04, len(x))
     path = RobotPath(0.01 * np.arange(len(x)), np.column_stack([x, 0 * x, 0 * x]),
                      Rotation.from_euler("z", yaw[:, None]))
-    radius, centre, axes, quaternion, position, mu = EGG_SCENES[case]
     a = SceneObject("a", "sphere", {"radius_m": radius}, Transform(Rotation.identity(), centre))
     b = SceneObject("b", "ellipsoid", {"semi_axes_m": axes},
                     Transform(Rotation.from_quat(quaternion), position))

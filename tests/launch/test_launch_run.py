@@ -10,7 +10,6 @@ import re
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -50,13 +49,14 @@ def write_launch(tmp_path: Path, *entries: dict[str, Any]) -> Path:
     return path
 
 
-def start(path: Path, *words: str, grace: float = 2.0, module: str = "vibrissa.cli.launch"
-          ) -> subprocess.Popen[str]:
+def start(path: Path, *words: str, grace: float = 2.0, module: str = "vibrissa.cli.launch",
+          env: dict[str, str] | None = None) -> subprocess.Popen[str]:
     cmd = [sys.executable, "-m", module]
     if module == "vibrissa.cli.main":
         cmd.append("launch")
     cmd += ["--grace", str(grace), str(path), *words]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=None if env is None else {**os.environ, **env})
 
 
 def finish(proc: subprocess.Popen[str]) -> tuple[int, str, str]:
@@ -322,17 +322,19 @@ def test_nodes_die_with_a_killed_launcher_and_the_next_launch_cleans_up(tmp_path
     pid_file = tmp_path / "pids"
     sleeper = fixture_node("sleeper", "sleeper", pid_file=str(pid_file), seconds=120)
     path = write_launch(tmp_path, sleeper)
-    proc = start(path)
+    temp_dir = tmp_path / "tmp"  # its own: launches of other tests clean up orphans in /tmp
+    temp_dir.mkdir()
+    proc = start(path, env={"TMPDIR": str(temp_dir)})
     try:
         wait_for(lambda: len(pids(pid_file)) == 1, "the node to start")
         node_pid = pids(pid_file)[0]
-        left = [p for p in Path(tempfile.gettempdir()).glob(f"{PARAMS_DIR_PREFIX}{proc.pid}-*")]
+        left = list(temp_dir.glob(f"{PARAMS_DIR_PREFIX}{proc.pid}-*"))
         assert len(left) == 1
         proc.kill()  # SIGKILL: the launcher cleans up nothing
         proc.communicate(timeout=TIMEOUT_S)
         wait_for(lambda: not alive(node_pid), "the node to die with its launcher")
         assert left[0].exists()  # nobody removed it yet
-        assert str(left[0]) in remove_orphaned_params_dirs()  # what the next launch does first
+        assert str(left[0]) in remove_orphaned_params_dirs(str(temp_dir))  # what the next launch does first
         assert not left[0].exists()
     finally:
         if proc.poll() is None:

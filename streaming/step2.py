@@ -16,7 +16,8 @@ from vibrissa.contact_detection import ContactDetector
 from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import ContactPointArray, ContactStatus, WhiskerWrenchArray
-from vibrissa.reconstruct import TALLY, TIP_SIGMAS, reconstruct_si
+from vibrissa.reconstruct import TALLY, TIP_SIGMAS, kernel_arguments
+from vibrissa.reconstruct_rods import rows_si_tallied
 from vibrissa.rods import UNIFORM, RodShape
 from vibrissa.scene import Whisker
 from vibrissa.units import RodScale, rod_units
@@ -301,33 +302,35 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
                            for w in compress(msg.whisker_ids, part.free_rows.tolist())])
         shapes = table.shape_rows(names)
         previous, uncertain, chain = (memory or ContactMemory()).links(names)
-    if detector is None:
-        result = reconstruct_si(q, p0, f0, m0, rods, shapes=shapes, previous_s1_m=previous,
-                                chain=chain, previous_ambiguous=uncertain)
-    else:
-        result = reconstruct_si(q, p0, f0, m0, rods, detector.covariance, tip_sigmas,
-                                shapes=shapes, previous_s1_m=previous, chain=chain,
-                                previous_ambiguous=uncertain)
+    # read-only, as a decoded message's arrays are: one compiled variant for every call
+    q, p0, f0, m0 = _read_only(q), _read_only(p0), _read_only(f0), _read_only(m0)
+    if not isinstance(rods, RodScale):
+        rods = _read_only(rods)
+    ends = np.fromiter(accumulate(part.n_placed for part in parts), np.int64, len(parts))
+    floats, ints, valid, tallies = rows_si_tallied(q, p0, f0, m0, *kernel_arguments(
+        len(q), rods, None if detector is None else detector.covariance, tip_sigmas, shapes,
+        previous, chain, uncertain), ends)
+    # the kernel's two blocks (`vibrissa.reconstruct_rods.rows_si`), each field a view
+    n_rows = len(valid)
     if memory is not None and names:
-        memory.update(names, result.s1_m, result.valid, result.status)
-    point, s1, phase, force, status = (result.point_m, result.s1_m, result.phase,
-                                       result.force_n, result.status)
-    # a row whose result overflows (finite inputs near the float limit) is flagged
-    # NON_FINITE_INPUT by Step 2: not valid, so it counts as no consistent contact
-    valid, tallies = result.tally(np.array(list(accumulate(part.n_placed for part in parts))))
+        memory.update(names, floats[6 * n_rows:7 * n_rows], valid, ints[n_rows:2 * n_rows])
     counts = tallies.tolist()
-    covariance = result.covariance_m2
     # with a noise model, a point that has no covariance (an axial load) gets the rod's
     # reach, L^2 I
-    if covariance is not None and tallies[:, _NO_COVARIANCE].any():
-        no_covariance = valid & ~np.isfinite(covariance).all(axis=(1, 2))
-        length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
+    if detector is not None and tallies[:, _NO_COVARIANCE].any():
+        reach = floats[7 * n_rows:].reshape(n_rows, 3, 3)
+        no_covariance = valid & ~np.isfinite(reach).all(axis=(1, 2))
+        length_m = (np.full(n_rows, rods.length_m) if isinstance(rods, RodScale)
                     else rods[:, 0])
-        covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
-    fields = (point, s1, phase, force, status) if covariance is None else (
-        point, s1, phase, force, status, covariance)
-    for value in fields:
-        value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
+        reach[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
+    # fresh blocks of this call: messages take their read-only views as they are
+    floats.flags.writeable = ints.flags.writeable = False
+    fields: list[npt.NDArray[np.generic]] = [  # point, s1, phase, force, status
+        floats[:3 * n_rows].reshape(n_rows, 3), floats[6 * n_rows:7 * n_rows], ints[:n_rows],
+        floats[3 * n_rows:6 * n_rows].reshape(n_rows, 3), ints[n_rows:2 * n_rows]]
+    covariance = None if detector is None else floats[7 * n_rows:].reshape(n_rows, 3, 3)
+    if covariance is not None:
+        fields.append(covariance)
     outcomes = []
     first = 0
     for msg, part, (good, kept, multi, ambiguous, tip_within_noise, no_covariance) in zip(
@@ -368,6 +371,15 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
             no_covariance=no_covariance, multi_contact=multi, ambiguous=ambiguous))
         first += n
     return outcomes
+
+
+def _read_only(array: FloatArray) -> FloatArray:
+    """``array``, or a read-only view of it where it is writable (the caller's stays so)."""
+    if not array.flags.writeable:
+        return array
+    view = array.view()
+    view.flags.writeable = False
+    return view
 
 
 def robot_frames(whiskers: Sequence[Whisker], robot_frame: str = ROBOT_FRAME,

@@ -17,10 +17,11 @@ kappa0 = -m0w (eq. 22) is >= 0, which is eq. 20: psi = -atan2(m0x, m0y).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -331,7 +332,7 @@ class ReconstructionSI(NamedTuple):
         noise or without a covariance. One compiled pass instead of a dozen array calls on
         a tick of a few dozen rows."""
         covariance = _NO_TALLY_COVARIANCE if self.covariance_m2 is None else self.covariance_m2
-        return _tally(self.pose_ok, self.status, covariance, ends)
+        return tally_rows(self.pose_ok, self.status, covariance, ends)
 
 
 TALLY = ("pose_ok", "valid", "multi_contact", "ambiguous", "tip_within_noise", "no_covariance")
@@ -344,10 +345,11 @@ _NO_TALLY_COVARIANCE = np.empty((0, 3, 3))
 
 
 @compiled
-def _tally(pose_ok: NDArray[np.bool_], status: NDArray[np.int32],
-           covariance: NDArray[np.float64], ends: NDArray[np.int64],
-           ) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
-    """`ReconstructionSI.tally` (``covariance``: 0 rows without one)."""
+def tally_rows(pose_ok: NDArray[np.bool_], status: NDArray[np.int32],
+               covariance: NDArray[np.float64], ends: NDArray[np.int64],
+               ) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+    """`ReconstructionSI.tally` of its fields (``covariance``: 0 rows without one), for
+    compiled callers too."""
     valid = np.empty(pose_ok.shape[0], dtype=np.bool_)
     counts = np.zeros((ends.shape[0], len(TALLY)), dtype=np.int64)
     with_covariance = covariance.shape[0] > 0
@@ -422,15 +424,41 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         of the call (the same whisker's previous sample). Without: every row is straight and
         uniform.
     """
-    # contiguous and writable (as the compiled kernel is typed; scipy hands out read-only)
-    q, p, f0, m0 = (_kernel_array(a) for a in (q_WC_xyzw, p_WC_m, f0_C_n, m0_C_nm))
+    q, p = _kernel_array(q_WC_xyzw), _kernel_array(p_WC_m)
+    f0, m0 = _kernel_array(f0_C_n), _kernel_array(m0_C_nm)
+    n = len(q)
     if not (q.shape[1:] == (4,) and p.shape[1:] == f0.shape[1:] == m0.shape[1:] == (3,)
-            and len(q) == len(p) == len(f0) == len(m0)):
+            and n == len(p) == len(f0) == len(m0)):
         raise ValueError(f"q_WC_xyzw (N, 4), p_WC_m, f0_C_n, m0_C_nm (N, 3) must have the same "
                          f"number of rows, got {q.shape}, {p.shape}, {f0.shape}, {m0.shape}")
-    n = len(q)
+    from vibrissa.reconstruct_rods import rows_si  # (it imports this module)
+
+    floats, ints = rows_si(q, p, f0, m0, *kernel_arguments(
+        n, rod, wrench_cov, tip_sigmas, shapes, previous_s1_m, chain, previous_ambiguous))
+    # the kernel's two blocks (`rows_si`), each field a contiguous view of its part
+    return ReconstructionSI(
+        ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n], ints[:n],
+        floats[3 * n:6 * n].reshape(n, 3), ints[n:2 * n],
+        None if wrench_cov is None else floats[7 * n:].reshape(n, 3, 3))
+
+
+KernelArguments: TypeAlias = tuple[NDArray[np.float64], NDArray[np.float64], float,
+                                   NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_],
+                                   NDArray[np.int64]]
+
+
+def kernel_arguments(n: int, rod: RodScale | Sequence[RodScale] | NDArray[np.float64],
+                     wrench_cov: NDArray[np.float64] | None = None,
+                     tip_sigmas: float = TIP_SIGMAS, shapes: NDArray[np.float64] | None = None,
+                     previous_s1_m: NDArray[np.float64] | None = None,
+                     chain: NDArray[np.int64] | None = None,
+                     previous_ambiguous: NDArray[np.bool_] | None = None) -> KernelArguments:
+    """The compiled Step 2's arguments after the ``n`` rows' poses and wrenches
+    (`vibrissa.reconstruct_rods.rows_si`) from those of :func:`reconstruct_si`, checked
+    (ValueError): the rods' units, the wrench covariance, ``tip_sigmas``, the rods' shapes and
+    each shaped row's previous contact."""
     if isinstance(rod, RodScale):
-        units = np.array([[rod.length_m, rod.force_n, rod.moment_nm]])  # one for every row
+        units = _units_of(rod)  # one for every row
     else:
         units = _kernel_array(rod if isinstance(rod, np.ndarray) else rod_units(rod))
         if units.shape != (n, 3):
@@ -445,31 +473,22 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
         cov = np.ascontiguousarray(cov.reshape(-1, 6, 6))
         if not (tip_sigmas >= 0.0 and math.isfinite(tip_sigmas)):
             raise ValueError(f"tip_sigmas must be a finite number >= 0, got {tip_sigmas}")
-    from vibrissa.reconstruct_rods import rows_si  # (it imports this module)
-
-    # every row straight and uniform
-    params, before, uncertain, links = _NO_SHAPES, _NO_PREVIOUS, _NO_AMBIGUOUS, _NO_CHAIN
-    if shapes is not None:
-        params = _kernel_array(np.asarray(shapes, dtype=float))
-        before = (np.full(n, np.nan) if previous_s1_m is None
-                  else _kernel_array(np.asarray(previous_s1_m, dtype=float)))
-        links = (np.full(n, -1, dtype=np.int64) if chain is None
-                 else np.ascontiguousarray(chain, dtype=np.int64))
-        uncertain = (np.zeros(n, dtype=np.bool_) if previous_ambiguous is None
-                     else np.ascontiguousarray(previous_ambiguous, dtype=np.bool_))
-        if params.shape != (n, 3):
-            raise ValueError(f"shapes must have shape ({n}, 3), got {params.shape}")
-        if (before.shape != (n,) or links.shape != (n,) or uncertain.shape != (n,)
-                or not np.all(links < np.arange(n))):
-            raise ValueError("previous_s1_m, previous_ambiguous and chain must have one entry "
-                             "per row, chain pointing to earlier rows")
-    floats, ints = rows_si(q, p, f0, m0, units, cov, float(tip_sigmas), params, before,
-                           uncertain, links)
-    # the kernel's two blocks (`rows_si`), each field a contiguous view of its part
-    return ReconstructionSI(
-        ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n], ints[:n],
-        floats[3 * n:6 * n].reshape(n, 3), ints[n:2 * n],
-        None if wrench_cov is None else floats[7 * n:].reshape(n, 3, 3))
+    if shapes is None:  # every row straight and uniform
+        return units, cov, float(tip_sigmas), _NO_SHAPES, _NO_PREVIOUS, _NO_AMBIGUOUS, _NO_CHAIN
+    params = _kernel_array(np.asarray(shapes, dtype=float))
+    before = (np.full(n, np.nan) if previous_s1_m is None
+              else _kernel_array(np.asarray(previous_s1_m, dtype=float)))
+    links = (np.full(n, -1, dtype=np.int64) if chain is None
+             else np.ascontiguousarray(chain, dtype=np.int64))
+    uncertain = (np.zeros(n, dtype=np.bool_) if previous_ambiguous is None
+                 else np.ascontiguousarray(previous_ambiguous, dtype=np.bool_))
+    if params.shape != (n, 3):
+        raise ValueError(f"shapes must have shape ({n}, 3), got {params.shape}")
+    if (before.shape != (n,) or links.shape != (n,) or uncertain.shape != (n,)
+            or not np.all(links < np.arange(n))):
+        raise ValueError("previous_s1_m, previous_ambiguous and chain must have one entry "
+                         "per row, chain pointing to earlier rows")
+    return units, cov, float(tip_sigmas), params, before, uncertain, links
 
 
 _NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
@@ -478,12 +497,21 @@ _NO_AMBIGUOUS = np.empty(0, dtype=np.bool_)
 """The kernel's "every row a straight uniform rod"."""
 
 
+@functools.lru_cache(maxsize=64)
+def _units_of(rod: RodScale) -> NDArray[np.float64]:
+    """The units of one rod for every row (1, 3), as the kernels take them: made once per
+    rod (a stream passes the same rod tick after tick), read-only."""
+    units = rod_units([rod])
+    units.flags.writeable = False
+    return units
+
+
 def _kernel_array(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``a`` as the compiled kernels take it: float64, C-contiguous and writable; a copy only
-    when it is not (a decoded message's arrays are read-only views of its bytes). Cheaper than
-    `np.require`, whose checks cost more than Step 2 of a small tick."""
-    if (type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous
-            and a.flags.writeable):
+    """``a`` as the compiled kernels take it: float64 and C-contiguous, read-only or not (the
+    kernels only read their inputs, so a decoded message's arrays, read-only views of its
+    bytes, go in as they are); a copy only where it is not. Cheaper than `np.require`, whose
+    checks cost more than Step 2 of a small tick."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous:
         return a
     return np.array(a, dtype=np.float64, order="C")
 

@@ -47,6 +47,7 @@ from vibrissa.reconstruct import (
     row_in_si,
     single_contact_bands,
     single_contact_excess,
+    tally_rows,
 )
 from vibrissa.rods import N_STEPS, RodShape, clamp_state, rk4_step
 from vibrissa.status import NO_CONTACT, ContactStatus
@@ -431,3 +432,21 @@ def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
                 params[i], before, uncertain, point[i], force[i], row_out, work)
         ints[2 * n + i] = pose_ok
     return floats, ints
+
+
+@compiled
+def rows_si_tallied(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
+                    units: FloatArray, cov: FloatArray, tip_sigmas: float, params: FloatArray,
+                    previous_s1_m: FloatArray, previous_ambiguous: NDArray[np.bool_],
+                    chain: NDArray[np.int64], ends: NDArray[np.int64],
+                    ) -> tuple[FloatArray, NDArray[np.int32], NDArray[np.bool_],
+                               NDArray[np.int64]]:
+    """`rows_si` and, in the same call, the tally of its rows in groups ``ends[k-1]:ends[k]``
+    (`vibrissa.reconstruct.ReconstructionSI.tally`): floats, ints, valid, counts. A stream's
+    tick costs one compiled call instead of two."""
+    floats, ints = rows_si(q_xyzw, p0, f0, m0, units, cov, tip_sigmas, params, previous_s1_m,
+                           previous_ambiguous, chain)
+    n = q_xyzw.shape[0]
+    covariance = floats[7 * n:].reshape((n if cov.shape[0] > 0 else 0, 3, 3))
+    valid, counts = tally_rows(ints[2 * n:] != 0, ints[n:2 * n], covariance, ends)
+    return floats, ints, valid, counts

@@ -502,7 +502,8 @@ def _decode_str(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, in
 
 
 def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, int]) -> Any:
-    assert spec.dtype is not None
+    dtype_ = spec.dtype
+    assert dtype_ is not None
     try:
         if len(value) != 3:
             raise KeyError
@@ -511,33 +512,32 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
         raise _type_error(t, f, "array map {dtype, shape, data}", value) from None
     if dtype != spec.dtype_str:
         raise ArrayDtypeError(f"{t}.{f}: dtype {dtype!r}, expected {spec.dtype_str!r}", t, f)
-    if not isinstance(data, bytes) or not isinstance(shape, list):
+    if type(data) is not bytes or type(shape) is not list:
         raise _type_error(t, f, "array shape list[int] and bytes data", value)
+    # each size a non-negative int, and the shape the field's (symbolic sizes bound at first
+    # use, as in check_shape), in one pass
+    pattern = spec.shape
+    fits = len(shape) == len(pattern)
     count = 1
-    for n in shape:
+    for i, n in enumerate(shape):
         if type(n) is not int or n < 0:
             raise _type_error(t, f, "array shape list[int] and bytes data", value)
         count *= n
-    pattern = spec.shape
-    fits = len(shape) == len(pattern)
-    if fits:  # symbolic sizes bound at first use, as in check_shape
-        for want, got in zip(pattern, shape, strict=True):
-            if want != got and (type(want) is not str or sizes.setdefault(want, got) != got):
+        if fits:
+            want = pattern[i]
+            if want != n and (type(want) is not str or sizes.setdefault(want, n) != n):
                 fits = False
-                break
     if not fits:
         try:
             check_shape(f"{t}.{f}", pattern, tuple(shape), sizes)
         except ValueError as exc:
             raise ArrayShapeError(str(exc), t, f) from exc
-    if len(data) != count * spec.dtype.itemsize:
+    if len(data) != count * dtype_.itemsize:
         raise ArrayShapeError(
             f"{t}.{f}: {len(data)} data bytes for shape {tuple(shape)} of {dtype}", t, f
         )
-    array = np.frombuffer(data, dtype=spec.dtype)  # read-only: bytes are immutable
-    if len(shape) != 1:
-        array = array.reshape(shape)
-    if not _all_finite(array):
+    array = np.ndarray(shape, dtype_, data)  # a read-only view: bytes are immutable
+    if dtype_.kind == "f" and not _all_finite(array):
         raise NonFiniteError(f"{t}.{f}: non-finite value in array", t, f)
     if spec.enum is not None and not enum_values_ok(spec.enum, array):
         raise FieldTypeError(f"{t}.{f}: values that are not {spec.enum.__name__} members", t, f)

@@ -946,8 +946,11 @@ def _advance(tracks: list[_Track]) -> None:
     reached = _attempt(tracks, targets, np.array([t.step for t in tracks]))
     for track, target, ok, undo in zip(tracks, targets, reached, before, strict=False):
         if ok:
-            retaken = (not track.jumped and _steep(track)
-                       and _through_steep_step(track, undo, float(target)))
+            if _turned_over(track):
+                track.jumped, retaken = True, False
+            else:
+                retaken = (not track.jumped and _steep(track)
+                           and _through_steep_step(track, undo, float(target)))
             _record(track, refined=retaken)
         elif not (_unresolved_slip(track) and _longer_step(track)):
             _refine(track, target)
@@ -987,6 +990,21 @@ def _steep(track: _Track) -> bool:
     x_b, f_b = track.rows[-1][0], track.rows[-1][6]
     change = _force_change(track.pending[2], f_b)
     return change > max(_STEEP_FLOOR, _STEEP_GROWTH * track.pace * (x_b - track.x0))
+
+
+def _turned_over(track: _Track) -> bool:
+    """Whether the step just taken (its state pending) goes on with the jump of the row before
+    it: that row jumped, the one before it did not, and the step changes the contact force by
+    more than ``_STEEP_GROWTH`` times the pace of the step before the jump. A slide that runs
+    far lands with the friction against it, and the next step turns the friction over at once,
+    by as much at any sampling: a jump, told with the one before it (not retaken in sub-steps,
+    whose chords too short for eq. 7 keep the far slide's friction direction)."""
+    rows = track.rows
+    if len(rows) < 3 or not rows[-1][8] or rows[-2][8]:
+        return False
+    pace = _force_change(rows[-2][6], rows[-3][6]) / max(rows[-3][0] - rows[-2][0], 1e-300)
+    change = _force_change(track.pending[2], rows[-1][6])
+    return change > max(_STEEP_FLOOR, _STEEP_GROWTH * pace * (rows[-1][0] - track.x0))
 
 
 def _through_steep_step(track: _Track, before: _Undo, target: float) -> bool:

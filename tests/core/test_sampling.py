@@ -207,3 +207,52 @@ def test_every_snap_of_the_path_is_a_jump_of_the_wrench_told_with_its_two_sample
     moved_m = np.linalg.norm(result.p_W_m[snap_off.after] - result.p_W_m[snap_off.before])
     assert moved_m > 10 * TIP_STEP_M / 4
     assert through.t in result.episodes[1].snap_throughs
+
+
+def turning_scene(per_sample: int) -> Scene:
+    """A 44 mm rod, its mount turned 5 degrees about its x, on a robot yawing about z past an
+    ellipsoid (semi-axes 16.5, 7.1 and 10.8 mm) turned askew, mu 0.2, at ``per_sample``
+    samples per 0.1 mm of tip travel: its side contact slips along the ellipsoid in runs that
+    end far (snap-throughs)."""
+    length_m = 0.04405828818438578
+    yaw = np.arange(-0.05, 1.0485, TIP_STEP_M / length_m / per_sample)
+    path = RobotPath(np.arange(len(yaw)) * 0.01, np.zeros((len(yaw), 3)),
+                     Rotation.from_euler("z", yaw[:, None]))
+    egg = SceneObject("egg", "ellipsoid", {"semi_axes_m": [0.016464621887173375,
+                                                            0.0071294453828924685,
+                                                            0.010816787675806919]},
+                      Transform(Rotation.from_quat([-0.17404648584945479, 0.5154699486635417,
+                                                    -0.8068164585250307, -0.23031664082603465]),
+                                [0.020179354568770555, 0.023059121988000086,
+                                 0.004496611772256579]))
+    rod = Whisker("w", length_m, 0.0002308186307667127,
+                  Transform(Rotation.from_euler("yx", [np.pi / 2, 0.08719834969098161]),
+                            np.zeros(3)))
+    return Scene(0.2, (egg,), (rod,), path)
+
+
+@pytest.mark.slow
+def test_a_slide_that_runs_far_and_the_friction_it_turns_over_are_told_at_any_sampling(
+) -> None:
+    """A slide that runs far lands with the friction against it; the next sample turns the
+    friction over, the clamp force changing by 0.09-0.14 EI/L^2: a jump as large at 4
+    samples per 0.1 mm as at 1 (it does not shrink with the step), told as a snap-through
+    right after the slide's own. At 1 sample no other change of the wrench inside the episode
+    is larger than 4 times those around it; at 4, 3 samples
+    change by 10 times those around (a steep stretch the finer step resolves, where the 1x path
+    slides far), none of them after a told slide."""
+    turned = {}
+    for per_sample in (1, 4):
+        (result,) = simulate(turning_scene(per_sample), workers=1)
+        untold, checked = untold_jumps(result, 0.04405828818438578, 0.0002308186307667127,
+                                       ["egg"], floor=1e-3, same_phase=True)
+        assert checked > 200 * per_sample
+        after = [snap.after for snap in snaps(result, ["egg"]) if snap.kind == "snap-through"]
+        assert not {k for k, _, _ in untold} & set(after), (per_sample, untold, after)
+        assert per_sample > 1 or not untold, untold
+        pairs = [k for k in after if k + 1 in after]  # a far slide, then its friction turned
+        assert len(pairs) >= (3 if per_sample == 1 else 1), (per_sample, after)
+        f0 = result.f0_n / (0.0002308186307667127 / 0.04405828818438578**2)
+        turned[per_sample] = [float(np.linalg.norm(f0[k + 1] - f0[k])) for k in pairs]
+    assert min(turned[1] + turned[4]) > 0.05, turned  # EI/L^2
+    assert np.median(turned[4]) > 0.5 * np.median(turned[1]), turned  # no smaller: a jump

@@ -374,7 +374,11 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
 
 
 def _read_only(array: FloatArray) -> FloatArray:
-    """``array``, or a read-only view of it where it is writable (the caller's stays so)."""
+    """``array`` as the compiled Step 2 takes a stream's: float64, C-contiguous and read-only,
+    as a decoded message's arrays are (one compiled variant for every call); a copy where it
+    is not contiguous, a read-only view where it is writable (the caller's stays so)."""
+    if not array.flags.c_contiguous:
+        array = np.ascontiguousarray(array)
     if not array.flags.writeable:
         return array
     view = array.view()

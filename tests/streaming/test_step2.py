@@ -143,6 +143,31 @@ def test_a_wrench_gives_the_same_point_bit_for_bit_in_any_batch(quaternion) -> N
     assert [c for p in parts for c in p.contacts] == whole.contacts
 
 
+def test_a_tick_of_strided_read_only_arrays_gives_the_same_points_and_no_new_compilation(
+) -> None:
+    """A message may hold read-only views that are not contiguous (f0 and m0 the halves of a
+    read-only (N, 6) block): Step 2 takes them as it takes a decoded tick's, the same points,
+    and no other compiled variant of its kernel (which would compile in a live node)."""
+    from vibrissa.reconstruct_rods import rows_si_tallied
+
+    wrenches = _wrenches(32)
+    block = np.hstack([np.stack([w.f0 for w in wrenches]), np.stack([w.m0 for w in wrenches])])
+    block.flags.writeable = False
+    pose = {"pose_frame_id": "world", "whisker_ids": [f"w{i}" for i in range(32)],
+            "frame_ids": [f"w{i}/clamp" for i in range(32)],
+            "clamp_position": np.stack([w.clamp_position for w in wrenches]),
+            "clamp_orientation": np.stack([w.clamp_orientation for w in wrenches])}
+    strided = WhiskerWrenchArray(stamp=0.0, seq=0, f0=block[:, :3], m0=block[:, 3:], **pose)
+    assert not strided.f0.flags.c_contiguous  # taken as it is
+    decoded = decode(encode(strided))
+    expected = reconstruct_array(decoded)
+    compiled = len(rows_si_tallied.signatures)
+    got = reconstruct_array(strided)
+    assert len(rows_si_tallied.signatures) == compiled
+    assert encode(got.contacts) == encode(expected.contacts)
+    assert got.no_contact == expected.no_contact >= 1
+
+
 def test_si_scaling_round_trip() -> None:
     """Scaling the wrench to a rod of length L and stiffness EI scales the point by L."""
     length, ei = 0.04, 3e-3

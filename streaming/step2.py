@@ -16,7 +16,7 @@ from vibrissa.contact_detection import ContactDetector
 from vibrissa.frame_buffer import DEFAULT_HISTORY_S, FrameBuffer
 from vibrissa.frames import ROBOT_FRAME, WORLD_FRAME, clamp_frame
 from vibrissa.msgs import ContactPointArray, ContactStatus, WhiskerWrenchArray
-from vibrissa.reconstruct import TALLY, TIP_SIGMAS, kernel_arguments
+from vibrissa.reconstruct import TALLY, TIP_SIGMAS, ReconstructionSI, kernel_arguments
 from vibrissa.reconstruct_rods import rows_si_tallied
 from vibrissa.rods import UNIFORM, RodShape
 from vibrissa.scene import Whisker
@@ -302,35 +302,32 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
                            for w in compress(msg.whisker_ids, part.free_rows.tolist())])
         shapes = table.shape_rows(names)
         previous, uncertain, chain = (memory or ContactMemory()).links(names)
-    # read-only, as a decoded message's arrays are: one compiled variant for every call
-    q, p0, f0, m0 = _read_only(q), _read_only(p0), _read_only(f0), _read_only(m0)
+    q, p0, f0, m0 = (_kernel_input(q), _kernel_input(p0), _kernel_input(f0),
+                     _kernel_input(m0))
     if not isinstance(rods, RodScale):
-        rods = _read_only(rods)
+        rods = _kernel_input(rods)
     ends = np.fromiter(accumulate(part.n_placed for part in parts), np.int64, len(parts))
     floats, ints, valid, tallies = rows_si_tallied(q, p0, f0, m0, *kernel_arguments(
         len(q), rods, None if detector is None else detector.covariance, tip_sigmas, shapes,
         previous, chain, uncertain), ends)
-    # the kernel's two blocks (`vibrissa.reconstruct_rods.rows_si`), each field a view
-    n_rows = len(valid)
+    result = ReconstructionSI.of_blocks(floats, ints, detector is not None)
     if memory is not None and names:
-        memory.update(names, floats[6 * n_rows:7 * n_rows], valid, ints[n_rows:2 * n_rows])
+        memory.update(names, result.s1_m, valid, result.status)
     counts = tallies.tolist()
+    covariance = result.covariance_m2
     # with a noise model, a point that has no covariance (an axial load) gets the rod's
     # reach, L^2 I
-    if detector is not None and tallies[:, _NO_COVARIANCE].any():
-        reach = floats[7 * n_rows:].reshape(n_rows, 3, 3)
-        no_covariance = valid & ~np.isfinite(reach).all(axis=(1, 2))
-        length_m = (np.full(n_rows, rods.length_m) if isinstance(rods, RodScale)
+    if covariance is not None and tallies[:, _NO_COVARIANCE].any():
+        no_covariance = valid & ~np.isfinite(covariance).all(axis=(1, 2))
+        length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
                     else rods[:, 0])
-        reach[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
-    # fresh blocks of this call: messages take their read-only views as they are
-    floats.flags.writeable = ints.flags.writeable = False
+        covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
     fields: list[npt.NDArray[np.generic]] = [  # point, s1, phase, force, status
-        floats[:3 * n_rows].reshape(n_rows, 3), floats[6 * n_rows:7 * n_rows], ints[:n_rows],
-        floats[3 * n_rows:6 * n_rows].reshape(n_rows, 3), ints[n_rows:2 * n_rows]]
-    covariance = None if detector is None else floats[7 * n_rows:].reshape(n_rows, 3, 3)
+        result.point_m, result.s1_m, result.phase, result.force_n, result.status]
     if covariance is not None:
         fields.append(covariance)
+    for value in fields:
+        value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
     outcomes = []
     first = 0
     for msg, part, (good, kept, multi, ambiguous, tip_within_noise, no_covariance) in zip(
@@ -373,7 +370,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     return outcomes
 
 
-def _read_only(array: FloatArray) -> FloatArray:
+def _kernel_input(array: FloatArray) -> FloatArray:
     """``array`` as the compiled Step 2 takes a stream's: float64, C-contiguous and read-only,
     as a decoded message's arrays are (one compiled variant for every call); a copy where it
     is not contiguous, a read-only view where it is writable (the caller's stays so)."""

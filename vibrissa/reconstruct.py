@@ -321,6 +321,16 @@ class ReconstructionSI(NamedTuple):
     status: NDArray[np.int32]
     covariance_m2: NDArray[np.float64] | None = None
 
+    @classmethod
+    def of_blocks(cls, floats: NDArray[np.float64], ints: NDArray[np.int32],
+                  with_covariance: bool) -> ReconstructionSI:
+        """The compiled Step 2's two blocks (`vibrissa.reconstruct_rods.rows_si`) as its
+        fields, each a view of its part."""
+        n = len(ints) // 3
+        return cls(ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n],
+                   ints[:n], floats[3 * n:6 * n].reshape(n, 3), ints[n:2 * n],
+                   floats[7 * n:].reshape(n, 3, 3) if with_covariance else None)
+
     @property
     def valid(self) -> NDArray[np.bool_]:
         """Samples with a usable pose and a consistent contact point."""
@@ -435,11 +445,7 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
 
     floats, ints = rows_si(q, p, f0, m0, *kernel_arguments(
         n, rod, wrench_cov, tip_sigmas, shapes, previous_s1_m, chain, previous_ambiguous))
-    # the kernel's two blocks (`rows_si`), each field a contiguous view of its part
-    return ReconstructionSI(
-        ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n], ints[:n],
-        floats[3 * n:6 * n].reshape(n, 3), ints[n:2 * n],
-        None if wrench_cov is None else floats[7 * n:].reshape(n, 3, 3))
+    return ReconstructionSI.of_blocks(floats, ints, wrench_cov is not None)
 
 
 KernelArguments: TypeAlias = tuple[NDArray[np.float64], NDArray[np.float64], float,

@@ -3,6 +3,7 @@ ContactPointArray per tick with its counts."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -203,7 +204,6 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
           detector: ContactDetector | None) -> _Rows:
     whiskers = msg.whisker_ids
     n = len(whiskers)
-    placed = np.ones(n, bool)
     errors: list[str] = []
     units: FloatArray | None = None
     table = None if isinstance(rod, RodScale) else rod if isinstance(rod, RodTable) else RodTable(rod)
@@ -218,7 +218,10 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
         q, p = cast(FloatArray, msg.clamp_orientation), cast(FloatArray, msg.clamp_position)
         frame_id = msg.pose_frame_id
         no_pose = 0
+        # every row placed: one shared read-only mask where nothing below changes it
+        placed = np.ones(n, bool) if missing or detector is not None else _every_row(n)
     else:
+        placed = np.ones(n, bool)
         frame_id = map_frame
         if frames is None:
             q, p = np.zeros((n, 4)), np.zeros((n, 3))
@@ -250,6 +253,14 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
     every = msg.pose_frame_id is not None and detector is None and not missing  # all placed
     return _Rows(q, p, placed, n if every else int(np.count_nonzero(placed)), units, frame_id,
                  no_pose, len(missing), errors, free, len(wrong), free_rows)
+
+
+@functools.lru_cache(maxsize=_MAX_ROW_LISTS)
+def _every_row(n: int) -> npt.NDArray[np.bool_]:
+    """A read-only mask of ``n`` rows, all set (a tick's sizes repeat)."""
+    every = np.ones(n, bool)
+    every.flags.writeable = False
+    return every
 
 
 def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_ROD,
@@ -310,6 +321,8 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
     floats, ints, valid, tallies = rows_si_tallied(q, p0, f0, m0, *kernel_arguments(
         len(q), rods, None if detector is None else detector.covariance, tip_sigmas, shapes,
         previous, chain, uncertain), ends)
+    # fresh arrays of this call, their fields views: messages take them as they are
+    floats.flags.writeable = ints.flags.writeable = False
     result = ReconstructionSI.of_blocks(floats, ints, detector is not None)
     if memory is not None and names:
         memory.update(names, result.s1_m, valid, result.status)
@@ -321,13 +334,13 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         no_covariance = valid & ~np.isfinite(covariance).all(axis=(1, 2))
         length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
                     else rods[:, 0])
+        covariance = covariance.copy()
         covariance[no_covariance] = np.eye(3) * length_m[no_covariance, None, None] ** 2
+        covariance.flags.writeable = False
     fields: list[npt.NDArray[np.generic]] = [  # point, s1, phase, force, status
         result.point_m, result.s1_m, result.phase, result.force_n, result.status]
     if covariance is not None:
         fields.append(covariance)
-    for value in fields:
-        value.flags.writeable = False  # fresh arrays of this call: messages take them as they are
     outcomes = []
     first = 0
     for msg, part, (good, kept, multi, ambiguous, tip_within_noise, no_covariance) in zip(
@@ -336,7 +349,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         rows = slice(first, first + n)
         whisker_ids = msg.whisker_ids
         if kept == len(whisker_ids):  # every row of the message: views of the call's arrays
-            kept_fields = [value[rows] for value in fields]
+            kept_fields = fields if n == len(valid) else [value[rows] for value in fields]
             whisker_ids = list(whisker_ids)
             free_ids: list[str] = []
         else:

@@ -9,8 +9,15 @@ the call). Figures in docs/PERFORMANCE.md.
 samples), instead of raising. ``cache=True``: the machine code is written next to the module
 (``__pycache__``, or numba's user cache where that is read-only), so a process compiles a
 kernel once per installation, not at every start.
+
+``inlined``: the same, and inlined into its compiled callers by numba (``inline="always"``),
+for the functions of one row that a row loop calls with views of its arrays. A call with
+array arguments is not inlined by LLVM and costs more than its arithmetic: Step 2's row went
+from 0.73 to 0.49 us (`benchmarks/bench_tick_cpu.py`), with the same bits (no fast-math: IEEE
+operations in the same order).
 """
 
 from numba import njit
 
 compiled = njit(cache=True, error_model="numpy")
+inlined = njit(cache=True, error_model="numpy", inline="always")

@@ -26,7 +26,7 @@ from typing import NamedTuple, TypeAlias
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vibrissa.compiled import compiled
+from vibrissa.compiled import compiled, inlined
 from vibrissa.elastica import S1_TOLERANCE, planar_contact_scalar
 from vibrissa.frames import quaternion_matrix, rotate_vector
 from vibrissa.status import NO_CONTACT, ContactPhase, ContactStatus
@@ -174,7 +174,7 @@ def _reconstruct_kernel(
     return point, s1, phase, psi, force, status
 
 
-@compiled
+@inlined
 def reconstruct_row(
     p0_W: NDArray[np.float64], f0_C: NDArray[np.float64], m0_C: NDArray[np.float64],
     rotate: bool, R_WC: NDArray[np.float64], point: NDArray[np.float64], force: NDArray[np.float64],
@@ -522,7 +522,7 @@ def _kernel_array(a: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array(a, dtype=np.float64, order="C")
 
 
-@compiled
+@inlined
 def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np.float64],
             m0: NDArray[np.float64], length_m: float, force_n: float, moment_nm: float,
             cov: NDArray[np.float64], tip_sigmas: float, point: NDArray[np.float64],
@@ -553,7 +553,7 @@ def _row_si(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64], f0: NDArray[np
     return row_in_si(s1, phase, status, length_m, force_n, point, force, cov, known, covariance)
 
 
-@compiled
+@inlined
 def row_in_rod_units(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64],
                      f0: NDArray[np.float64], m0: NDArray[np.float64], length_m: float,
                      force_n: float, moment_nm: float, work: NDArray[np.float64]) -> bool:
@@ -570,7 +570,7 @@ def row_in_rod_units(q_xyzw: NDArray[np.float64], p0: NDArray[np.float64],
     return True
 
 
-@compiled
+@inlined
 def row_in_si(s1: float, phase: int, status: int, length_m: float, force_n: float,
               point: NDArray[np.float64], force: NDArray[np.float64], cov: NDArray[np.float64],
               known: bool, covariance: NDArray[np.float64]) -> tuple[bool, float, int, int]:

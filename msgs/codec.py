@@ -144,30 +144,36 @@ def encode(msg: Message) -> bytes:
         raise TypeError(f"encode: {cls.__name__} is not a registered message type")
     out: dict[str, Any] = {"_type": cls.TYPE_NAME, "_v": cls.VERSION}
     values = msg.__dict__
+    floats: list[bytes] = []  # the float arrays' data, checked together
     for name, spec in field_specs(cls):
         value = values[name]
         if value is None:  # an optional field: left out
             continue
         if spec.kind == ARRAY:
-            if not _all_finite(value):
-                raise ValueError(f"encode: {cls.TYPE_NAME}.{name} holds a non-finite value")
             # dtype and shape were checked when the message was made
-            out[name] = {"dtype": spec.dtype_str, "shape": value.shape, "data": value.tobytes()}
+            data = value.tobytes()
+            if spec.dtype_str == _FLOAT_ARRAY:
+                floats.append(data)
+            out[name] = {"dtype": spec.dtype_str, "shape": value.shape, "data": data}
         elif spec.kind == FLOAT and not math.isfinite(value):
             raise ValueError(f"encode: {cls.TYPE_NAME}.{name} is {value}")
         else:
             out[name] = value
+    if floats and not _all_finite(floats):
+        name = next(name for name, spec in field_specs(cls) if spec.dtype_str == _FLOAT_ARRAY
+                    and out.get(name) and not _all_finite([out[name]["data"]]))
+        raise ValueError(f"encode: {cls.TYPE_NAME}.{name} holds a non-finite value")
     return msgpack.packb(out)  # type: ignore[no-any-return]
 
 
-def _all_finite(array: np.ndarray) -> bool:
-    if array.dtype.kind != "f":
-        return True
-    # For the small arrays of the hot path a Python sum is faster than np.isfinite().all();
-    # a finite sum proves every element finite (overflow to inf just falls to the exact test).
-    if array.size <= 16 and math.isfinite(sum(array.ravel().tolist())):
-        return True
-    return bool(np.count_nonzero(np.isfinite(array)) == array.size)  # .all(): twice the cost
+_FLOAT_ARRAY = "<f8"  # the dtype of every float array field
+
+
+def _all_finite(data: list[Any]) -> bool:
+    """Whether the float64 values of every buffer (bytes, arrays) in ``data`` are finite: one
+    check over them all (a tick's four arrays: 1.1 us, against 2.7 us one by one)."""
+    values = np.frombuffer(data[0] if len(data) == 1 else b"".join(data))
+    return bool(np.count_nonzero(np.isfinite(values)) == values.size)  # .all(): twice the cost
 
 
 # -- decode --------------------------------------------------------------------------------
@@ -286,6 +292,11 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
     if obj:
         extra = sorted(obj)[0]
         raise UnknownFieldError(f"{name}: unknown field {extra!r}", name, extra)
+    floats = [values[f] for f in schema.float_arrays if values[f] is not None]
+    if floats and not _all_finite(floats):
+        first = next(f for f in schema.float_arrays
+                     if values[f] is not None and not _all_finite([values[f]]))
+        raise NonFiniteError(f"{name}.{first}: non-finite value in array", name, first)
     if schema.to_current is not None:
         values = schema.to_current(values)
     # Every field is now checked at least as strictly as Message.__post_init__ would (dtype,
@@ -314,6 +325,7 @@ class _Schema:
     max_bytes: int
     fields: tuple[tuple[str, FieldSpec, Callable[..., Any], Any], ...]
     to_current: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+    float_arrays: tuple[str, ...] = ()  # checked finite together, after the fields
 
 
 def _schema(cls: type[Message], version: int, specs: tuple[tuple[str, FieldSpec], ...],
@@ -323,9 +335,13 @@ def _schema(cls: type[Message], version: int, specs: tuple[tuple[str, FieldSpec]
                 if f.default is not dataclasses.MISSING}
     if to_current is not None:  # a retired type: only its optional fields have a default
         defaults = {name: None for name, spec in specs if spec.optional}
+    floats = tuple(name for name, spec in specs if spec.dtype is not None and spec.dtype.kind == "f")
+    if any(dict(specs)[name].dtype_str != _FLOAT_ARRAY for name in floats):
+        raise TypeError(f"{cls.__name__}: a float array that is not {_FLOAT_ARRAY} "
+                        "(`_all_finite` reads float64)")
     return _Schema(cls, version, max_bytes, tuple(
         (name, spec, _DECODERS[spec.kind], defaults.get(name, _ABSENT)) for name, spec in specs),
-        to_current)
+        to_current, floats)
 
 
 # -- retired types --------------------------------------------------------------------------
@@ -537,8 +553,7 @@ def _decode_array(t: str, f: str, spec: FieldSpec, value: Any, sizes: dict[str, 
             f"{t}.{f}: {len(data)} data bytes for shape {tuple(shape)} of {dtype}", t, f
         )
     array = np.ndarray(shape, dtype_, data)  # a read-only view: bytes are immutable
-    if dtype_.kind == "f" and not _all_finite(array):
-        raise NonFiniteError(f"{t}.{f}: non-finite value in array", t, f)
+    # (finite: checked with the message's other float arrays, `_decode`)
     if spec.enum is not None and not enum_values_ok(spec.enum, array):
         raise FieldTypeError(f"{t}.{f}: values that are not {spec.enum.__name__} members", t, f)
     return array

@@ -156,7 +156,7 @@ def _bare_bones(decode: Callable[..., Any], step2: Callable[..., Any], encode: C
             return step2(msgs, *args, **kwargs)
         msg = msgs[0]
         n = len(msg.whisker_ids)
-        floats, ints = rows_si(msg.clamp_orientation, msg.clamp_position, msg.f0, msg.m0,
+        floats, ints, _ = rows_si(msg.clamp_orientation, msg.clamp_position, msg.f0, msg.m0,
                                *uniform)
         contacts = ContactPointArray.unchecked(
             stamp=msg.stamp, seq=msg.seq, frame_id=msg.pose_frame_id,

@@ -263,6 +263,15 @@ def _every_row(n: int) -> npt.NDArray[np.bool_]:
     return every
 
 
+@functools.lru_cache(maxsize=_MAX_ROW_LISTS)
+def _group_ends(sizes: tuple[int, ...]) -> npt.NDArray[np.int64]:
+    """The ends of groups of ``sizes`` rows (a batch's ticks), read-only as the compiled Step 2
+    takes them (a tick's sizes repeat)."""
+    ends = np.fromiter(accumulate(sizes), np.int64, len(sizes))
+    ends.flags.writeable = False
+    return ends
+
+
 def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_ROD,
                          frames: FrameBuffer | None = None, map_frame: str = WORLD_FRAME,
                          detector: ContactDetector | None = None,
@@ -317,20 +326,22 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
                      _kernel_input(m0))
     if not isinstance(rods, RodScale):
         rods = _kernel_input(rods)
-    ends = np.fromiter(accumulate(part.n_placed for part in parts), np.int64, len(parts))
-    floats, ints, valid, tallies = rows_si_tallied(q, p0, f0, m0, *kernel_arguments(
+    floats, ints, pose_ok, tallies = rows_si_tallied(q, p0, f0, m0, *kernel_arguments(
         len(q), rods, None if detector is None else detector.covariance, tip_sigmas, shapes,
-        previous, chain, uncertain), ends)
+        previous, chain, uncertain), _group_ends(tuple(part.n_placed for part in parts)))
     # fresh arrays of this call, their fields views: messages take them as they are
     floats.flags.writeable = ints.flags.writeable = False
-    result = ReconstructionSI.of_blocks(floats, ints, detector is not None)
-    if memory is not None and names:
-        memory.update(names, result.s1_m, valid, result.status)
+    result = ReconstructionSI.of_blocks(floats, ints, pose_ok, detector is not None)
     counts = tallies.tolist()
+    valid: npt.NDArray[np.bool_] | None = None  # made where needed (not for a tick all valid)
+    if memory is not None and names:
+        valid = result.valid
+        memory.update(names, result.s1_m, valid, result.status)
     covariance = result.covariance_m2
     # with a noise model, a point that has no covariance (an axial load) gets the rod's
     # reach, L^2 I
-    if covariance is not None and tallies[:, _NO_COVARIANCE].any():
+    if covariance is not None and any(tick[_NO_COVARIANCE] for tick in counts):
+        valid = result.valid
         no_covariance = valid & ~np.isfinite(covariance).all(axis=(1, 2))
         length_m = (np.full(len(valid), rods.length_m) if isinstance(rods, RodScale)
                     else rods[:, 0])
@@ -349,7 +360,7 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
         rows = slice(first, first + n)
         whisker_ids = msg.whisker_ids
         if kept == len(whisker_ids):  # every row of the message: views of the call's arrays
-            kept_fields = fields if n == len(valid) else [value[rows] for value in fields]
+            kept_fields = fields if n == len(pose_ok) else [value[rows] for value in fields]
             whisker_ids = list(whisker_ids)
             free_ids: list[str] = []
         else:
@@ -358,6 +369,8 @@ def reconstruct_messages(msgs: Sequence[WhiskerWrenchArray], rod: Rods = UNIT_RO
             if part.free_rows is not None:
                 free_mask |= part.free_rows
             free_ids = list(compress(whisker_ids, free_mask.tolist()))
+            if valid is None:
+                valid = result.valid
             in_message = np.zeros(len(whisker_ids), bool)  # the kept rows of the message
             in_message[part.placed] = valid[rows]
             whisker_ids = list(compress(whisker_ids, in_message.tolist()))

@@ -323,12 +323,12 @@ class ReconstructionSI(NamedTuple):
 
     @classmethod
     def of_blocks(cls, floats: NDArray[np.float64], ints: NDArray[np.int32],
-                  with_covariance: bool) -> ReconstructionSI:
-        """The compiled Step 2's two blocks (`vibrissa.reconstruct_rods.rows_si`) as its
-        fields, each a view of its part."""
-        n = len(ints) // 3
-        return cls(ints[2 * n:] != 0, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n],
-                   ints[:n], floats[3 * n:6 * n].reshape(n, 3), ints[n:2 * n],
+                  pose_ok: NDArray[np.bool_], with_covariance: bool) -> ReconstructionSI:
+        """The compiled Step 2's two blocks and pose_ok (`vibrissa.reconstruct_rods.rows_si`)
+        as its fields, each a view of its part."""
+        n = len(pose_ok)
+        return cls(pose_ok, floats[:3 * n].reshape(n, 3), floats[6 * n:7 * n], ints[:n],
+                   floats[3 * n:6 * n].reshape(n, 3), ints[n:],
                    floats[7 * n:].reshape(n, 3, 3) if with_covariance else None)
 
     @property
@@ -443,9 +443,9 @@ def reconstruct_si(q_WC_xyzw: NDArray[np.float64], p_WC_m: NDArray[np.float64],
                          f"number of rows, got {q.shape}, {p.shape}, {f0.shape}, {m0.shape}")
     from vibrissa.reconstruct_rods import rows_si  # (it imports this module)
 
-    floats, ints = rows_si(q, p, f0, m0, *kernel_arguments(
+    floats, ints, pose_ok = rows_si(q, p, f0, m0, *kernel_arguments(
         n, rod, wrench_cov, tip_sigmas, shapes, previous_s1_m, chain, previous_ambiguous))
-    return ReconstructionSI.of_blocks(floats, ints, wrench_cov is not None)
+    return ReconstructionSI.of_blocks(floats, ints, pose_ok, wrench_cov is not None)
 
 
 KernelArguments: TypeAlias = tuple[NDArray[np.float64], NDArray[np.float64], float,

@@ -392,7 +392,7 @@ def _row_si_rod(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArr
 def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
             units: FloatArray, cov: FloatArray, tip_sigmas: float, params: FloatArray,
             previous_s1_m: FloatArray, previous_ambiguous: NDArray[np.bool_],
-            chain: NDArray[np.int64]) -> tuple[FloatArray, NDArray[np.int32]]:
+            chain: NDArray[np.int64]) -> tuple[FloatArray, NDArray[np.int32], NDArray[np.bool_]]:
     """Step 2 in SI of every row (``vibrissa.reconstruct.reconstruct_si``), each with its rod's
     units (``units``: 1 row for every row, or N; L, EI/L^2, EI/L), the wrench covariance
     ``cov`` (0 rows: none; 1: every row's; N) and its rod's shape ``params`` (N, 3; 0 rows:
@@ -400,13 +400,14 @@ def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
     ``vibrissa.reconstruct._row_si``; any other `_row_si_rod`, its previous contact the s1 (m)
     of row ``chain[i]`` of this call (an earlier row of its whisker) or, where that is -1,
     ``previous_s1_m[i]`` (NaN: none) and ``previous_ambiguous[i]`` (whether that contact's own
-    choice was ambiguous). Returns two blocks, so that a call hands two arrays back
-    to Python instead of seven: floats (7 N, or 16 N with ``cov``) = point (N, 3), force
-    (N, 3), s1 (N), then the covariances (N, 3, 3); int32 (3 N) = phase, status, pose_ok."""
+    choice was ambiguous). Returns two blocks and pose_ok (N), so that a call hands three
+    arrays back to Python instead of seven: floats (7 N, or 16 N with ``cov``) = point (N, 3),
+    force (N, 3), s1 (N), then the covariances (N, 3, 3); int32 (2 N) = phase, status."""
     n = q_xyzw.shape[0]
     with_cov = cov.shape[0] > 0
     floats = np.empty(n * (16 if with_cov else 7))
-    ints = np.empty(3 * n, dtype=np.int32)
+    ints = np.empty(2 * n, dtype=np.int32)
+    pose_ok = np.empty(n, dtype=np.bool_)
     point, force = floats[:3 * n].reshape((n, 3)), floats[3 * n:6 * n].reshape((n, 3))
     covariance = floats[7 * n:].reshape((n if with_cov else 0, 3, 3))
     covariance[:] = math.nan
@@ -418,7 +419,7 @@ def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
             row_cov, row_out = cov[i if per_row_cov else 0], covariance[i]
         rod = units[i if per_row_rod else 0]
         if params.shape[0] == 0 or (params[i, 0] == 1.0 and params[i, 1] == 0.0):
-            pose_ok, floats[6 * n + i], ints[i], ints[n + i] = _row_si(
+            pose_ok[i], floats[6 * n + i], ints[i], ints[n + i] = _row_si(
                 q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
                 point[i], force[i], row_out, work)
         else:
@@ -427,11 +428,10 @@ def rows_si(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: FloatArray,
             else:
                 before = floats[6 * n + chain[i]]
                 uncertain = ints[n + chain[i]] & _AMBIGUOUS != 0
-            pose_ok, floats[6 * n + i], ints[i], ints[n + i] = _row_si_rod(
+            pose_ok[i], floats[6 * n + i], ints[i], ints[n + i] = _row_si_rod(
                 q_xyzw[i], p0[i], f0[i], m0[i], rod[0], rod[1], rod[2], row_cov, tip_sigmas,
                 params[i], before, uncertain, point[i], force[i], row_out, work)
-        ints[2 * n + i] = pose_ok
-    return floats, ints
+    return floats, ints, pose_ok
 
 
 @compiled
@@ -442,11 +442,10 @@ def rows_si_tallied(q_xyzw: FloatArray, p0: FloatArray, f0: FloatArray, m0: Floa
                     ) -> tuple[FloatArray, NDArray[np.int32], NDArray[np.bool_],
                                NDArray[np.int64]]:
     """`rows_si` and, in the same call, the tally of its rows in groups ``ends[k-1]:ends[k]``
-    (`vibrissa.reconstruct.ReconstructionSI.tally`): floats, ints, valid, counts. A stream's
+    (`vibrissa.reconstruct.ReconstructionSI.tally`): floats, ints, pose_ok, counts. A stream's
     tick costs one compiled call instead of two."""
-    floats, ints = rows_si(q_xyzw, p0, f0, m0, units, cov, tip_sigmas, params, previous_s1_m,
-                           previous_ambiguous, chain)
+    floats, ints, pose_ok = rows_si(q_xyzw, p0, f0, m0, units, cov, tip_sigmas, params,
+                                    previous_s1_m, previous_ambiguous, chain)
     n = q_xyzw.shape[0]
     covariance = floats[7 * n:].reshape((n if cov.shape[0] > 0 else 0, 3, 3))
-    valid, counts = tally_rows(ints[2 * n:] != 0, ints[n:2 * n], covariance, ends)
-    return floats, ints, valid, counts
+    return floats, ints, pose_ok, tally_rows(pose_ok, ints[n:], covariance, ends)[1]

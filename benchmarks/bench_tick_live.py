@@ -5,8 +5,9 @@ a tick: load -> reconstructor -> sink, real sockets), with the floor (``bare``) 
 run; the reconstructor is the real node, started through this file, which notes the time
 (wall, and the node thread's CPU time) at each step of each tick:
 
-* ``decode``: the message's frames off the socket -> the subscriber hands it over (the
-  transport's checks and counts, and the decode);
+* ``read``: the inbox's poll returns with the message ready -> its frames off the socket;
+* ``decode``: -> the subscriber hands it over (the transport's checks and counts, and the
+  decode);
 * ``batching``: -> Step 2 starts (draining what else is queued, the pose wait);
 * ``step 2``: `vibrissa.streaming.reconstruct_messages` (with its counts);
 * ``to publish``: -> the points' publish starts (the stream's counters);
@@ -42,8 +43,8 @@ import bench_pipeline as pipeline  # beside this file (as a script, its folder i
 import msgpack
 import numpy as np
 
-STEPS = ("taken", "received", "step2_start", "step2_end", "publish", "encoded", "sent")
-INTERVALS = ("decode", "batching", "step 2", "to publish", "encode", "send")
+STEPS = ("woken", "taken", "received", "step2_start", "step2_end", "publish", "encoded", "sent")
+INTERVALS = ("read", "decode", "batching", "step 2", "to publish", "encode", "send")
 STEPS_ENV = "BENCH_TICK_STEPS"  # where the node writes its notes (an .npz)
 BOUND_ENV = "BENCH_TICK_BOUND"  # set: the node runs `_bare_bones`
 
@@ -70,14 +71,23 @@ def _node(argv: list[str]) -> int:
             return result
         setattr(cls, name, noted)
 
+    woken = [(math.nan, math.nan)]  # when the inbox's poll last returned with a socket ready
+
+    def ready(sockets: Any) -> None:
+        if sockets:
+            woken[0] = (time.perf_counter(), time.thread_time())
+
     def taken(took: Any) -> None:  # (frames, cut) or None
         if took is not None and took[0][0] == prefix:
-            note("taken", msgpack.unpackb(took[0][1])["seq"])
+            seq = msgpack.unpackb(took[0][1])["seq"]
+            note("taken", seq)
+            notes["woken"][seq] = woken[0]
 
     def received(rx: Any) -> None:
         if rx is not None and rx.topic == pipeline.TOPIC:
             note("received", rx.header.seq)
 
+    after(inbox.Inbox, "_ready", ready)
     after(inbox.Inbox, "take", taken)
     after(transport.Subscriber, "receive", received)
     step2 = stream.reconstruct_messages

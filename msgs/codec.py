@@ -169,11 +169,20 @@ def encode(msg: Message) -> bytes:
 _FLOAT_ARRAY = "<f8"  # the dtype of every float array field
 
 
+# A float64 is NaN or infinite when its 11 exponent bits are all set: in its little-endian
+# bytes, the low 7 bits of the last byte and the high 4 bits of the one before.
+_EXPONENT_HIGH = bytes(b & 0x7F == 0x7F for b in range(256))
+_EXPONENT_LOW = bytes(b & 0xF0 == 0xF0 for b in range(256))
+
+
 def _all_finite(data: list[Any]) -> bool:
-    """Whether the float64 values of every buffer (bytes, arrays) in ``data`` are finite: one
-    check over them all (a tick's four arrays: 1.1 us, against 2.7 us one by one)."""
-    values = np.frombuffer(data[0] if len(data) == 1 else b"".join(data))
-    return bool(np.count_nonzero(np.isfinite(values)) == values.size)  # .all(): twice the cost
+    """Whether the little-endian float64 values of the buffers (bytes, arrays) in ``data`` are
+    all finite, in one pass over their bytes with no numpy call: a live tick runs with cold
+    caches, where a tick's four arrays cost 10 us so and 20 us through ``np.isfinite``
+    (warm: 1.6 against 1.3 us)."""
+    joined = b"".join(data)
+    high = int.from_bytes(joined[7::8].translate(_EXPONENT_HIGH), "little")
+    return not (high and high & int.from_bytes(joined[6::8].translate(_EXPONENT_LOW), "little"))
 
 
 # -- decode --------------------------------------------------------------------------------

@@ -249,6 +249,45 @@ def test_encode_refuses_non_finite() -> None:
         encode(msg)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_every_non_finite_bit_pattern_is_refused_and_only_those(seed: int) -> None:
+    """Float arrays from random 64-bit patterns (every exponent as likely, NaN payloads, the
+    largest finite, subnormals, -0): a payload decodes exactly when np.isfinite says every
+    value is finite, and the refusal names the first field that is not; encode alike."""
+    rng = np.random.default_rng(seed)
+    edges = np.array([0x7FEFFFFFFFFFFFFF, 0xFFEFFFFFFFFFFFFF, 0x7FF0000000000000,
+                      0xFFF0000000000000, 0x7FF0000000000001, 0xFFF8000000000000,
+                      0x7FFFFFFFFFFFFFFF, 0x0000000000000001, 0x8000000000000000],
+                     dtype=np.uint64)
+    for _ in range(300):
+        n = int(rng.integers(1, 6))
+        bits = rng.integers(0, 2**63, size=(4, n, 4), dtype=np.uint64)
+        bits |= rng.integers(0, 2, size=bits.shape, dtype=np.uint64) << np.uint64(63)
+        # mostly finite values (an exponent below all ones), some of the edge patterns
+        bits &= np.where(rng.random(bits.shape) < 0.97, np.uint64(0xFFDFFFFFFFFFFFFF),
+                         np.uint64(0xFFFFFFFFFFFFFFFF))
+        pick = rng.random(bits.shape) < 0.02
+        bits[pick] = rng.choice(edges, size=int(pick.sum()))
+        values = bits.view(np.float64)
+        msg = WhiskerWrenchArray.unchecked(
+            stamp=0.0, seq=0, whisker_ids=[f"w{i}" for i in range(n)],
+            frame_ids=[f"w{i}/clamp" for i in range(n)], pose_frame_id="world",
+            f0=values[0, :, :3].copy(), m0=values[1, :, :3].copy(),
+            clamp_position=values[2, :, :3].copy(), clamp_orientation=values[3].copy())
+        fields = ("f0", "m0", "clamp_position", "clamp_orientation")
+        bad = [name for name in fields if not np.isfinite(getattr(msg, name)).all()]
+        if not bad:
+            assert decode(encode(msg)) == msg
+            continue
+        with pytest.raises(ValueError, match=f"{bad[0]} holds a non-finite value"):
+            encode(msg)
+        fine = {name: np.nan_to_num(getattr(msg, name)) for name in fields}
+        obj = msgpack.unpackb(encode(dataclasses.replace(msg, **fine)))
+        for name in bad:
+            obj[name]["data"] = getattr(msg, name).tobytes()
+        refuse(pack(obj), NonFiniteError, bad[0])
+
+
 # -- refusals --------------------------------------------------------------------------------
 
 

@@ -195,9 +195,7 @@ def _unpack(payload: bytes) -> dict[str, Any]:
         raise MalformedPayloadError(f"malformed payload ({len(payload)} bytes): {exc}") from exc
     if not isinstance(obj, dict):
         raise MalformedPayloadError(f"payload is a {type(obj).__name__}, expected a msgpack map")
-    if not all(map(isinstance, obj, repeat(str))):
-        raise MalformedPayloadError("payload map has a key that is not a string")
-    return obj
+    return obj  # (its keys: str or bytes; a bytes key is refused with those left, `_decode`)
 
 
 def peek_type(payload: bytes) -> tuple[str, int]:
@@ -299,6 +297,8 @@ def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] 
         else:
             values[field_name] = decoder(name, field_name, spec, value, sizes)
     if obj:
+        if not all(map(isinstance, obj, repeat(str))):
+            raise MalformedPayloadError("payload map has a key that is not a string")
         extra = sorted(obj)[0]
         raise UnknownFieldError(f"{name}: unknown field {extra!r}", name, extra)
     floats = [values[f] for f in schema.float_arrays if values[f] is not None]

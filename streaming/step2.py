@@ -221,11 +221,10 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
         # every row placed: one shared read-only mask where nothing below changes it
         placed = np.ones(n, bool) if missing or detector is not None else _every_row(n)
     else:
-        placed = np.ones(n, bool)
         frame_id = map_frame
         if frames is None:
             q, p = np.zeros((n, 4)), np.zeros((n, 3))
-            placed[:] = False
+            placed = np.zeros(n, bool)
             errors.append("a wrench without clamp pose needs the robot description (parameter "
                           "'robot') and the robot's poses")
         else:
@@ -250,8 +249,9 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
         free_rows = placed & ~detector.update(whiskers, msg.f0, msg.m0)[0]
         free = int(np.count_nonzero(free_rows))
         placed &= ~free_rows
-    every = msg.pose_frame_id is not None and detector is None and not missing  # all placed
-    return _Rows(q, p, placed, n if every else int(np.count_nonzero(placed)), units, frame_id,
+    # placed: the rows with a pose, but those of missing and wrong (disjoint) whiskers and the
+    # free ones
+    return _Rows(q, p, placed, n - no_pose - len(missing) - len(wrong) - free, units, frame_id,
                  no_pose, len(missing), errors, free, len(wrong), free_rows)
 
 

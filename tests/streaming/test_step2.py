@@ -464,3 +464,44 @@ def test_step2_builds_its_points_unchecked_as_the_checked_constructor_would() ->
             if isinstance(value, np.ndarray):
                 assert not value.flags.writeable, name
                 assert value.dtype == getattr(checked, name).dtype, name
+
+
+def test_every_row_of_a_mixed_batch_is_counted_once() -> None:
+    """Batches of ticks that mix rows with and without a clamp pose, whiskers the robot
+    description does not have, rows in another frame than their clamp's, stamps the robot's
+    poses do not cover and free rows: every row lands in exactly one count, and every point
+    is a known whisker's, finite."""
+    from vibrissa.frames import Transform, clamp_frame
+    from vibrissa.scene import Whisker
+    from vibrissa.streaming import RodTable, robot_frames
+
+    robot = [Whisker(f"w{j}", 0.03 + 0.005 * j, 1e-4 * (1 + j), Transform.from_xyz_rpy(
+        [0.0, 0.01 * j, 0.0], [0.0, 0.3 * j, 0.0])) for j in range(4)]
+    table = RodTable({w.name: w.scale for w in robot})
+    frames = robot_frames(robot, history_s=10.0)
+    for stamp in (0.0, 1.0):
+        frames.add("world", "base_link", stamp, Transform.from_xyz_rpy([stamp, 0, 0], [0, 0, 0]))
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        ticks = []
+        for _ in range(int(rng.integers(1, 4))):
+            n = int(rng.integers(1, 8))
+            names = [str(rng.choice(["w0", "w1", "w2", "w3", "ghost"])) for _ in range(n)]
+            in_frames = [clamp_frame(w) if rng.random() < 0.8 else clamp_frame("w0")
+                         for w in names]
+            posed: dict[str, Any] = {}
+            if rng.random() < 0.4:
+                posed = {"pose_frame_id": "world", "clamp_position": rng.normal(size=(n, 3)),
+                         "clamp_orientation": Rotation.random(n, rng).as_quat()}
+            ticks.append(WhiskerWrenchArray(
+                stamp=float(rng.choice([0.5, 2.0])), seq=len(ticks), whisker_ids=names,
+                frame_ids=in_frames, f0=rng.normal(size=(n, 3)) * 1e-3 * (rng.random((n, 1)) < 0.9),
+                m0=rng.normal(size=(n, 3)) * 1e-5, **posed))
+        detector = ContactDetector(np.eye(6) * 1e-12) if trial % 2 else None
+        outcomes = reconstruct_messages(ticks, table, frames, detector=detector)
+        for tick, out in zip(ticks, outcomes, strict=True):
+            counted = (len(out.contacts.whisker_ids) + out.no_contact + out.bad_pose
+                       + out.no_pose + out.unknown_whisker + out.wrong_frame + out.free)
+            assert counted == len(tick.whisker_ids)
+            for w, point in zip(out.contacts.whisker_ids, out.contacts.point, strict=True):
+                assert w in table and np.isfinite(point).all()

@@ -21,6 +21,7 @@ import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -112,6 +113,22 @@ class _Edge:
         if i == len(self.stamps) - 1:
             return i, None
         return i, (stamp - self.stamps[i]) / (self.stamps[i + 1] - self.stamps[i])
+
+    def gap_around(self, stamp: float, max_gap_s: float) -> tuple[float, float] | None:
+        """The stamps of the kept poses around ``stamp`` (on neither) when they are more than
+        ``max_gap_s`` apart, else None."""
+        stamps = self.stamps
+        k = bisect.bisect_right(stamps, stamp) - 1
+        if (0 <= k < len(stamps) - 1 and stamp != stamps[k]
+                and stamps[k + 1] - stamps[k] > max_gap_s):
+            return stamps[k], stamps[k + 1]
+        return None
+
+    def covers(self, stamp: float, max_gap_s: float) -> bool:
+        """Whether a lookup at ``stamp`` reads a static edge or interpolates between kept
+        poses at most ``max_gap_s`` apart."""
+        return self.static is not None or (self.stamps[0] <= stamp <= self.stamps[-1]
+                                           and self.gap_around(stamp, max_gap_s) is None)
 
     def mounted_at(self, stamp: float, p_AC: FloatArray, q_AC_xyzw: FloatArray
                    ) -> tuple[FloatArray, FloatArray]:
@@ -332,30 +349,33 @@ class FrameBuffer:
         cannot be looked up has ``ok`` False and its error in ``errors``; nothing raises.
         """
         n = len(sources)
-        one_stamp = isinstance(stamps, float) or np.ndim(stamps) == 0
-        t = np.asarray(stamps, dtype=float).reshape(-1)
-        if not one_stamp and len(t) != n:
+        # one stamp (a sensor tick): no array of it unless the rows need more than one pose
+        t = (None if isinstance(stamps, float) or np.ndim(stamps) == 0
+             else np.asarray(stamps, dtype=float).reshape(-1))
+        if t is not None and len(t) != n:
             raise ValueError(f"{n} sources for {len(t)} stamps")
         plan = self._plans.get(tuple(sources))
         if plan is None:
             plan = self._plan(tuple(sources))
         by_anchor, mount_p, mount_q, unknown, all_ok = plan
-        if not unknown and len(by_anchor) == 1 and n and (one_stamp or (t == t[0]).all()):
+        if not unknown and len(by_anchor) == 1 and n and (t is None or (t == t[0]).all()):
             # a tick of frames under one moving frame: one pose, composed with every mount
+            stamp = float(cast(float, stamps) if t is None else t[0])
             (anchor,) = by_anchor
             edge = self._edges.get(anchor)
             try:
                 if edge is not None and edge.parent == target:  # a robot's pose in the map
-                    self._check_covered(edge, anchor, t[:1], target, anchor)
-                    p, q = edge.mounted_at(float(t[0]), mount_p, mount_q)
+                    if not edge.covers(stamp, self.max_gap_s):
+                        self._check_covered(edge, anchor, np.array([stamp]), target, anchor)
+                    p, q = edge.mounted_at(stamp, mount_p, mount_q)
                 else:
-                    p_TA, q_TA = self._lookup(target, anchor, t[:1])
+                    p_TA, q_TA = self._lookup(target, anchor, np.array([stamp]))
                     p, q = mounted_poses(p_TA[0], q_TA[0], mount_p, mount_q)
             except FrameError as exc:
                 return RowPoses.none_found(n, str(exc))
             return RowPoses(all_ok.copy(), p, q, [])
-        if one_stamp:
-            t = np.full(n, t[0])
+        if t is None:
+            t = np.full(n, float(cast(float, stamps)))
         out = RowPoses.none_found(n)
         for error in unknown:
             out.note(error)
@@ -505,7 +525,7 @@ class FrameBuffer:
         if edge.static is not None:
             return
         if len(t) == 1 and stamps[0] <= t[0] <= stamps[-1]:  # a tick: one stamp
-            if self.max_gap_s < math.inf and self._gap_around(edge, float(t[0])) is not None:
+            if self.max_gap_s < math.inf and edge.gap_around(float(t[0]), self.max_gap_s) is not None:
                 self._check_gaps(edge, child, t, target, source)
             return
         outside = ~((t >= stamps[0]) & (t <= stamps[-1]))
@@ -538,17 +558,9 @@ class FrameBuffer:
         """The first stamp of ``t`` within ``edge``'s poses that falls between two of them more
         than ``max_gap_s`` apart (not on either), with their stamps; None when there is none."""
         for stamp in dict.fromkeys(t.tolist()):  # each distinct stamp once, in order
-            around = self._gap_around(edge, stamp)
+            around = edge.gap_around(stamp, self.max_gap_s)
             if around is not None:
                 return stamp, *around
-        return None
-
-    def _gap_around(self, edge: _Edge, stamp: float) -> tuple[float, float] | None:
-        stamps = edge.stamps
-        k = bisect.bisect_right(stamps, stamp) - 1
-        if (0 <= k < len(stamps) - 1 and stamp != stamps[k]
-                and stamps[k + 1] - stamps[k] > self.max_gap_s):
-            return stamps[k], stamps[k + 1]
         return None
 
     def has_gap_rows(self, target: str, sources: Sequence[str], stamp: float) -> bool:
@@ -562,7 +574,7 @@ class FrameBuffer:
             plan = self._plan(tuple(sources))
         for anchor in plan[0]:
             for edge in self._stamped_between(target, anchor):
-                if self._gap_around(edge, stamp) is not None:
+                if edge.gap_around(stamp, self.max_gap_s) is not None:
                     return True
         return False
 

@@ -142,6 +142,4 @@ class PoseWait:
     def _ready(self, msg: WhiskerWrenchArray) -> bool:
         if msg.has_pose or self.frames is None:
             return True
-        newest = self.frames.newest_rows(self.map_frame, msg.frame_ids)
-        return (newest is not None and newest >= msg.stamp
-                and not self.frames.has_gap_rows(self.map_frame, msg.frame_ids, msg.stamp))
+        return self.frames.covers_rows(self.map_frame, msg.frame_ids, msg.stamp)

@@ -44,8 +44,8 @@ class RodTable(Mapping[str, RodScale]):
         self._rods = dict(rods)
         self._shapes = {name: shape for name, shape in (shapes or {}).items()
                         if not shape.uniform}
-        self._rows: dict[tuple[str, ...], tuple[FloatArray, list[int]]] = {}
-        self._frames: dict[tuple[tuple[str, ...], tuple[str, ...]], list[int]] = {}
+        self._rows: dict[tuple[tuple[str, ...], tuple[str, ...]],
+                         tuple[FloatArray, list[int], list[int]]] = {}
 
     @property
     def shaped(self) -> bool:
@@ -66,29 +66,23 @@ class RodTable(Mapping[str, RodScale]):
     def __len__(self) -> int:
         return len(self._rods)
 
-    def rows(self, whiskers: Sequence[str]) -> tuple[FloatArray, list[int]]:
+    def rows(self, whiskers: Sequence[str], frames: Sequence[str]
+             ) -> tuple[FloatArray, list[int], list[int]]:
         """The units (N, 3) of the rows' rods (`vibrissa.units.rod_units`; an unknown
-        whisker's are L = EI = 1), and the rows of whiskers not in the table."""
-        key = tuple(whiskers)
+        whisker's are L = EI = 1), the rows of whiskers not in the table, and the rows of
+        known whiskers measured in ``frames`` other than their clamp frame
+        (`vibrissa.frames.clamp_frame`)."""
+        key = (tuple(whiskers), tuple(frames))
         found = self._rows.get(key)
         if found is None:
             if len(self._rows) >= _MAX_ROW_LISTS:
                 self._rows.clear()
-            units = rod_units([self._rods.get(w, UNIT_ROD) for w in key])
+            units = rod_units([self._rods.get(w, UNIT_ROD) for w in key[0]])
             units.flags.writeable = False
-            found = self._rows[key] = (units, [i for i, w in enumerate(key) if w not in self._rods])
-        return found
-
-    def wrong_frames(self, whiskers: Sequence[str], frames: Sequence[str]) -> list[int]:
-        """The rows of known whiskers measured in another frame than their clamp frame
-        (`vibrissa.frames.clamp_frame`)."""
-        key = (tuple(whiskers), tuple(frames))
-        found = self._frames.get(key)
-        if found is None:
-            if len(self._frames) >= _MAX_ROW_LISTS:
-                self._frames.clear()
-            found = self._frames[key] = [i for i, (w, f) in enumerate(zip(*key, strict=True))
-                                         if w in self._rods and f != clamp_frame(w)]
+            found = self._rows[key] = (
+                units, [i for i, w in enumerate(key[0]) if w not in self._rods],
+                [i for i, (w, f) in enumerate(zip(*key, strict=True))
+                 if w in self._rods and f != clamp_frame(w)])
         return found
 
 
@@ -209,8 +203,9 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
     table = None if isinstance(rod, RodScale) else rod if isinstance(rod, RodTable) else RodTable(rod)
     missing: list[int] = []  # rows of whiskers the robot description does not have
     wrong: list[int] = []  # rows of its whiskers in another frame than their clamp frame
+    wrong_frame: list[int] = []  # (placed through frames only)
     if table is not None:
-        units, missing = table.rows(whiskers)
+        units, missing, wrong_frame = table.rows(whiskers, msg.frame_ids)
         if missing:
             errors.append(f"whisker {whiskers[missing[0]]!r} is not in the robot description "
                           f"({', '.join(table)})")
@@ -232,12 +227,11 @@ def _rows(msg: WhiskerWrenchArray, rod: Rods, frames: FrameBuffer | None, map_fr
             poses = frames.lookup_rows(map_frame, sources, msg.stamp)
             q, p, placed = poses.q_xyzw, poses.p, poses.ok
             errors += poses.errors
-            if table is not None:
-                wrong = table.wrong_frames(whiskers, sources)
-                if wrong:
-                    errors.append(f"whisker {whiskers[wrong[0]]!r} measured in frame "
-                                  f"{sources[wrong[0]]!r}, not in its clamp frame "
-                                  f"{clamp_frame(whiskers[wrong[0]])!r}")
+            wrong = wrong_frame
+            if wrong:
+                errors.append(f"whisker {whiskers[wrong[0]]!r} measured in frame "
+                              f"{sources[wrong[0]]!r}, not in its clamp frame "
+                              f"{clamp_frame(whiskers[wrong[0]])!r}")
         if missing or wrong:
             placed[missing + wrong] = True  # counted as such, not as rows without a pose
         no_pose = n - int(np.count_nonzero(placed))

@@ -304,9 +304,23 @@ class FrameBuffer:
         """`newest` of the known ``sources`` (the rows of a sensor array): the oldest of
         theirs (inf with none known), None when a known one is not joined to ``target``. An
         unknown frame is left out: waiting for poses does not make it known."""
-        plan = self._plans.get(tuple(sources))
-        if plan is None:
-            plan = self._plan(tuple(sources))
+        return self._newest_of(target, self._row_plan(sources))
+
+    def covers_rows(self, target: str, sources: Sequence[str], stamp: float) -> bool:
+        """Whether the known ``sources`` can be looked up in ``target`` at ``stamp`` without
+        waiting for more poses: `newest_rows` >= ``stamp`` and no `has_gap_rows` (one look
+        at the rows' plan for both: a tick asks it before its lookup)."""
+        plan = self._row_plan(sources)
+        newest = self._newest_of(target, plan)
+        return newest is not None and newest >= stamp and not self._gap_in(target, plan, stamp)
+
+    def _row_plan(self, sources: Sequence[str]) -> _RowPlan:
+        """The plan of a list of frames (`_plan`), kept while it has no unknown frame."""
+        key = tuple(sources)
+        plan = self._plans.get(key)
+        return self._plan(key) if plan is None else plan
+
+    def _newest_of(self, target: str, plan: _RowPlan) -> float | None:
         newest = math.inf
         for anchor in plan[0]:
             at_anchor = self._newest_at(target, anchor)
@@ -354,10 +368,7 @@ class FrameBuffer:
              else np.asarray(stamps, dtype=float).reshape(-1))
         if t is not None and len(t) != n:
             raise ValueError(f"{n} sources for {len(t)} stamps")
-        plan = self._plans.get(tuple(sources))
-        if plan is None:
-            plan = self._plan(tuple(sources))
-        by_anchor, mount_p, mount_q, unknown, all_ok = plan
+        by_anchor, mount_p, mount_q, unknown, all_ok = self._row_plan(sources)
         if not unknown and len(by_anchor) == 1 and n and (t is None or (t == t[0]).all()):
             # a tick of frames under one moving frame: one pose, composed with every mount
             stamp = float(cast(float, stamps) if t is None else t[0])
@@ -567,11 +578,11 @@ class FrameBuffer:
         """Whether a stamped edge between ``target`` and a known frame of ``sources`` has two
         poses more than ``max_gap_s`` apart around ``stamp`` (then more poses may yet fill
         the gap: a wrench waits for them)."""
+        return self._gap_in(target, self._row_plan(sources), stamp)
+
+    def _gap_in(self, target: str, plan: _RowPlan, stamp: float) -> bool:
         if self.max_gap_s == math.inf:
             return False
-        plan = self._plans.get(tuple(sources))
-        if plan is None:
-            plan = self._plan(tuple(sources))
         for anchor in plan[0]:
             for edge in self._stamped_between(target, anchor):
                 if edge.gap_around(stamp, self.max_gap_s) is not None:

@@ -248,8 +248,9 @@ def payload_limit(expected: type[Message] | tuple[type[Message], ...] | None) ->
     """The longest payload ``decode`` reads when it expects ``expected``, bytes."""
     if expected is None:
         return MAX_PAYLOAD_BYTES
-    allowed = expected if isinstance(expected, tuple) else (expected,)
-    return max(t.MAX_BYTES for t in allowed)
+    if isinstance(expected, tuple):
+        return max(t.MAX_BYTES for t in expected)
+    return expected.MAX_BYTES
 
 
 def _decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] | None) -> Message:

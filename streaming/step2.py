@@ -394,10 +394,11 @@ def _kernel_input(array: FloatArray) -> FloatArray:
     """``array`` as the compiled Step 2 takes a stream's: float64, C-contiguous and read-only,
     as a decoded message's arrays are (one compiled variant for every call); a copy where it
     is not contiguous, a read-only view where it is writable (the caller's stays so)."""
-    if not array.flags.c_contiguous:
-        array = np.ascontiguousarray(array)
-    if not array.flags.writeable:
+    flags = array.flags
+    if flags.c_contiguous and not flags.writeable:  # as decoded
         return array
+    if not flags.c_contiguous:
+        array = np.ascontiguousarray(array)
     view = array.view()
     view.flags.writeable = False
     return view

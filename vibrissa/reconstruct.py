@@ -17,7 +17,6 @@ kappa0 = -m0w (eq. 22) is >= 0, which is eq. 20: psi = -atan2(m0x, m0y).
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -464,7 +463,7 @@ def kernel_arguments(n: int, rod: RodScale | Sequence[RodScale] | NDArray[np.flo
     (ValueError): the rods' units, the wrench covariance, ``tip_sigmas``, the rods' shapes and
     each shaped row's previous contact."""
     if isinstance(rod, RodScale):
-        units = _units_of(rod)  # one for every row
+        units = rod.units  # one for every row
     else:
         units = _kernel_array(rod if isinstance(rod, np.ndarray) else rod_units(rod))
         if units.shape != (n, 3):
@@ -501,15 +500,6 @@ _NO_COVARIANCE = np.empty((0, 6, 6))  # the kernels' "no wrench covariance"
 _NO_SHAPES, _NO_PREVIOUS, _NO_CHAIN = np.empty((0, 3)), np.empty(0), np.empty(0, dtype=np.int64)
 _NO_AMBIGUOUS = np.empty(0, dtype=np.bool_)
 """The kernel's "every row a straight uniform rod"."""
-
-
-@functools.lru_cache(maxsize=64)
-def _units_of(rod: RodScale) -> NDArray[np.float64]:
-    """The units of one rod for every row (1, 3), as the kernels take them: made once per
-    rod (a stream passes the same rod tick after tick), read-only."""
-    units = rod_units([rod])
-    units.flags.writeable = False
-    return units
 
 
 def _kernel_array(a: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -6,6 +6,7 @@ any length and stiffness has the same dimensionless mechanics.
 
 from __future__ import annotations
 
+import functools
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -39,6 +40,14 @@ class RodScale:
     def __post_init__(self) -> None:
         if not (self.length_m > 0 and self.ei_nm2 > 0):
             raise ValueError(f"length_m and ei_nm2 must be > 0, got {self.length_m}, {self.ei_nm2}")
+
+    @functools.cached_property
+    def units(self) -> NDArray[np.float64]:
+        """`rod_units` of this rod (1, 3), read-only: made once (a stream passes the same rod
+        tick after tick)."""
+        units = rod_units([self])
+        units.flags.writeable = False
+        return units
 
     @property
     def force_n(self) -> float:

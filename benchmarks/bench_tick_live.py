@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import gc
 import math
 import os
 import sys
@@ -57,6 +58,10 @@ def _node(argv: list[str]) -> int:
     from vibrissa.wire import inbox, transport
 
     notes: dict[str, dict[int, tuple[float, float]]] = {step: {} for step in STEPS}
+    # the notes are the one thing here that grows tick by tick: without this, the collections
+    # they cause stall the node for tens of ms every few seconds (a p99 of 40-60 ms; the node
+    # itself leaves nothing to collect: 3 ms in bench_pipeline.py's 8 s runs)
+    gc.disable()
     prefix = pipeline.TOPIC.encode() + b"\0"
 
     def note(step: str, seq: int) -> None:

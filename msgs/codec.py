@@ -178,8 +178,8 @@ _EXPONENT_LOW = bytes(b & 0xF0 == 0xF0 for b in range(256))
 def _all_finite(data: list[Any]) -> bool:
     """Whether the little-endian float64 values of the buffers (bytes, arrays) in ``data`` are
     all finite, in one pass over their bytes with no numpy call: a live tick runs with cold
-    caches, where a tick's four arrays cost 10 us so and 20 us through ``np.isfinite``
-    (warm: 1.6 against 1.3 us)."""
+    caches, where a tick's four arrays cost 10 us this way and 20 us through ``np.isfinite``
+    (warm: 1.6 and 1.3 us)."""
     joined = b"".join(data)
     high = int.from_bytes(joined[7::8].translate(_EXPONENT_HIGH), "little")
     return not (high and high & int.from_bytes(joined[6::8].translate(_EXPONENT_LOW), "little"))

@@ -12,9 +12,9 @@ kernel once per installation, not at every start.
 
 ``inlined``: the same, and inlined into its compiled callers by numba (``inline="always"``),
 for the functions of one row that a row loop calls with views of its arrays. A call with
-array arguments is not inlined by LLVM and costs more than its arithmetic: Step 2's row went
-from 0.73 to 0.49 us (`benchmarks/bench_tick_cpu.py`), with the same bits (no fast-math: IEEE
-operations in the same order).
+array arguments is not inlined by LLVM and costs more than its arithmetic (Step 2's row: 0.49
+us inlined, 0.73 us called; `benchmarks/bench_tick_cpu.py`); the bits are the same (no
+fast-math: IEEE operations in the same order).
 """
 
 from numba import njit

@@ -52,8 +52,8 @@ def robot_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, An
     source = node(launch, "wrench_source")
     set_param(source, "wait_for", ["reconstructor", "/recorder"])
     set_param(node(launch, "reconstructor"), "wait_for", ["/mapper", "/probe"])
-    # every wrench waits for its pose, however late a loaded machine sends the last ones (the
-    # default 0.5 s let the last ticks go without points on a CI machine at a load of 8)
+    # every wrench waits for its pose, however late a loaded machine sends the last ones (they
+    # can come more than the default 0.5 s after their wrenches)
     set_param(node(launch, "reconstructor"), "pose_timeout_s", 30.0)
     launch.insert(len(launch) - 1, {"node": {
         "pkg": "vibrissa", "exec": "recorder", "name": "recorder",

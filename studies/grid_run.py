@@ -32,7 +32,6 @@ import json
 import math
 import multiprocessing
 import os
-import signal
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -55,7 +54,7 @@ from vibrissa.grid_study import (
     scene_columns,
     scene_summary,
 )
-from vibrissa.scene import Scene, SceneObject, Whisker, robot_path
+from vibrissa.scene import Scene, SceneObject, Whisker, robot_path, worker_pool
 from vibrissa.studies.grid_file import Grid
 from vibrissa.study import PAPER_SURFACE, StudyCase
 
@@ -126,12 +125,6 @@ WARM_UP_SCENE = Scene(
 """A 50 mm rod driven 90 mm along -x past a 10 mm ball: tip contact, then tangential, snap-off."""
 
 
-def _worker_signals() -> None:
-    """A local worker process: SIGINT ignored (the parent decides), SIGTERM ends it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
 def deal(n_cases: int, n_workers: int, per_task: int = MAX_TASK_CASES) -> list[list[int]]:
     """Case indices dealt round robin into tasks: as few as keep each at most ``per_task``
     cases, as many for each worker, and at least two (a stopped grid has stored some), fewer
@@ -187,7 +180,7 @@ def _on_local_workers(function: Callable[[T], R], tasks: Sequence[T], n_workers:
     warm_up(scenes)
     context = multiprocessing.get_context("fork")
     # Pool's exit terminates the workers: Ctrl-C or an error ends the run at once
-    with context.Pool(min(n_workers, len(tasks)), initializer=_worker_signals) as pool:
+    with worker_pool(min(n_workers, len(tasks)), context) as pool:
         yield from pool.imap_unordered(function, tasks)
 
 

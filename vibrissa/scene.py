@@ -36,6 +36,7 @@ import functools
 import hashlib
 import math
 import multiprocessing
+import multiprocessing.pool
 import os
 import signal
 import time
@@ -467,7 +468,7 @@ def simulate(scene: Scene, workers: int | None = None,
                 progress(done, total)
         return simulate_group(scene, groups[0], sample_progress, finished, stop)
     by_name: dict[str, WhiskerResult] = {}
-    with multiprocessing.Pool(len(groups), initializer=_worker_signals) as pool:  # terminates
+    with worker_pool(len(groups)) as pool:  # terminates
         pending = [pool.apply_async(simulate_group, (scene, group, sample_progress))
                    for group in groups]
         while pending:
@@ -486,11 +487,28 @@ STOP_POLL_S = 0.05
 """How often `simulate` asks its ``stop()`` while worker processes compute, s."""
 
 
+WORKER_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals a worker process of `worker_pool` starts with blocked."""
+
+
+def worker_pool(processes: int, context: Any = multiprocessing) -> multiprocessing.pool.Pool:
+    """A pool of ``processes`` workers (of ``context``, a `multiprocessing` context) that
+    ignore SIGINT (a terminal's Ctrl-C reaches the whole process group; the parent decides)
+    and end on SIGTERM (`multiprocessing.pool.Pool.terminate`, which its ``with`` exit calls).
+    They start with both signals blocked until their actions are set: one that came before
+    would run this process's handlers there, and a worker that lived on after its SIGTERM
+    would hang the pool's `terminate`."""
+    unblocked = signal.pthread_sigmask(signal.SIG_BLOCK, WORKER_SIGNALS)
+    try:
+        return context.Pool(processes, initializer=_worker_signals)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, unblocked)
+
+
 def _worker_signals() -> None:
-    """A worker process of `simulate`: SIGINT ignored (a terminal's Ctrl-C reaches the whole
-    process group; the parent decides), SIGTERM ends it (`multiprocessing.Pool.terminate`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, WORKER_SIGNALS)  # a pending SIGTERM ends it
 
 
 def simulate_whisker(scene: Scene, whisker: Whisker,

@@ -126,6 +126,11 @@ def test_no_jump_of_the_wrench_inside_an_episode_is_left_untold(
     assert checked > 1000
 
 
+def wrench_units(result: WhiskerResult, length_m: float, ei_nm2: float) -> np.ndarray:
+    """The clamp wrench of ``result`` (N, 6): f0 in units of EI/L^2, m0 in EI/L."""
+    return np.hstack([result.f0_n / (ei_nm2 / length_m**2), result.m0_nm / (ei_nm2 / length_m)])
+
+
 def untold_jumps(result: WhiskerResult, length_m: float, ei_nm2: float,
                  object_names: list[str], growth: float = 4.0, floor: float = 0.0,
                  same_phase: bool = False) -> tuple[list[tuple[int, float, float]], int]:
@@ -135,9 +140,8 @@ def untold_jumps(result: WhiskerResult, length_m: float, ei_nm2: float,
     phase) with no snap told between them (sample, change, median); and how many samples were
     checked (those with four such neighbours at least)."""
     told = {snap.before for snap in snaps(result, object_names)}
-    wrench = np.hstack([result.f0_n / (ei_nm2 / length_m**2),
-                        result.m0_nm / (ei_nm2 / length_m)])
-    change = np.linalg.norm(np.diff(wrench, axis=0), axis=1)  # sample k to k + 1
+    change = np.linalg.norm(np.diff(wrench_units(result, length_m, ei_nm2), axis=0),
+                            axis=1)  # sample k to k + 1
     contact = np.isin(result.phase, [SamplePhase.TIP, SamplePhase.TANGENTIAL])
     held = contact[:-1] & contact[1:]
     if same_phase:

@@ -114,7 +114,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="the first scene's seed")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--finer", type=int, default=4,
-                        help="resample flagged scenes this many times as finely (1: no verdicts)")
+                        help="resample flagged scenes this many times as finely (1: not at all)")
     args = parser.parse_args()
     touching = flagged = samples = 0
     shrunk = unresolved = 0

@@ -194,10 +194,11 @@ def test_a_stop_ends_the_simulation_and_its_worker_processes(workers: int) -> No
 
 
 def test_a_worker_told_to_end_before_it_has_set_its_signals_ends() -> None:
-    """A node's SIGTERM handler only records; a worker forked from it that got the pool's
-    SIGTERM before its own actions were set ran that handler, lived on and hung `terminate`
-    (a Ctrl-C right as the robot's wrench source started its workers, on a loaded machine).
-    Here every worker is slow to start (1 s after its fork), so the SIGTERM comes first."""
+    """A node's SIGTERM handler only records: a worker forked from it that ran it for the
+    pool's SIGTERM (one that comes before the worker's own actions are set, as a Ctrl-C right
+    as the robot's wrench source starts its workers can on a loaded machine) would live on
+    and hang `terminate`. Here every worker is slow to start (1 s after its fork), so the
+    SIGTERM comes first."""
     script = (
         "import os, signal, time\n"
         "from vibrissa.scene import worker_pool\n"
